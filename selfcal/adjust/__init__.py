@@ -1,0 +1,160 @@
+"""The adjustment engine: self-calibrating bundle adjustment of a block.
+
+>>> result = adjust(block, AdjustOptions(ap="none"))        # doctest: +SKIP
+>>> result.sigma0_px, result.converged                        # doctest: +SKIP
+
+:func:`adjust` sets up the problem (:mod:`.problem`), finds initial values
+(:mod:`.initial`), iterates (:mod:`.solver`) and extracts the cofactor
+matrices (:mod:`.covariance`). It never reads files and never prints; progress
+goes to an optional callback.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from ..block import Block
+from ..errors import AdjustmentError
+from .covariance import point_cofactors
+from .initial import initial_state
+from .linalg import DENSE_LIMIT, SingularSystem, factorise, null_directions
+from .normal import Linearisation, image_residuals, reduce
+from .problem import Problem, State, build_problem
+from .solver import IterationRecord, SolverOptions, solve
+
+__all__ = ["AdjustOptions", "AdjustmentResult", "IterationRecord", "adjust", "Problem", "State"]
+
+
+@dataclass(frozen=True)
+class AdjustOptions:
+    """What to estimate and how.
+
+    Attributes
+    ----------
+    ap : str
+        Additional-parameter model, e.g. ``"none"``, ``"brown"``, ``"wavelet:db4"``.
+    grid : (int, int)
+        Gx x Gy grid of the wavelet APs (Eq. 10 of seed 000).
+    solver : SolverOptions
+    """
+
+    ap: str = "none"
+    grid: tuple[int, int] = (9, 6)
+    solver: SolverOptions = field(default_factory=SolverOptions)
+
+
+@dataclass
+class AdjustmentResult:
+    """The estimate, its precision and how it was reached.
+
+    Precision is a-posteriori: covariance = variance_factor · cofactor.
+    Residuals follow l + v = f(x): v = adjusted - observed.
+    """
+
+    problem: Problem
+    state: State
+    converged: bool
+    reason: str
+    iterations: int
+    history: list[IterationRecord]
+    cost: float
+    n_observations: int
+    n_unknowns: int
+    variance_factor: float
+    image_sigma_px: float
+    theta_names: list[str]
+    Q_theta: np.ndarray
+    Q_points: np.ndarray
+    residuals_mm: np.ndarray       # (m, 2) image residuals in the block's observation order, photo axes
+    notes: list[str]
+    seconds: float
+    linearisation: Linearisation = field(repr=False, default=None)
+    v_inv: list = field(repr=False, default=None)
+
+    @property
+    def redundancy(self) -> int:
+        return self.n_observations - self.n_unknowns
+
+    @property
+    def sigma0_px(self) -> float:
+        """A-posteriori sigma of an image coordinate of unit weight, pixels."""
+        return self.image_sigma_px * float(np.sqrt(self.variance_factor))
+
+    def eop_sigma(self) -> np.ndarray:
+        """A-posteriori standard deviations of the exterior orientation, (n_images, 6) (m, rad)."""
+        n_e = self.problem.n_e
+        return np.sqrt(self.variance_factor * np.diag(self.Q_theta)[:n_e]).reshape(-1, 6)
+
+    def camera_sigma(self) -> list[np.ndarray]:
+        """A-posteriori standard deviations of each camera's parameters (NaN where fixed)."""
+        out = []
+        diag = np.diag(self.Q_theta)
+        for cam, start in zip(self.problem.cameras, self.problem.d_offset):
+            s = np.full(cam.size, np.nan)
+            k = int(cam.free.sum())
+            s[cam.free] = np.sqrt(self.variance_factor * diag[start:start + k])
+            out.append(s)
+        return out
+
+    def point_covariance(self) -> np.ndarray:
+        """A-posteriori covariance of every object point, (n_points, 3, 3) in m^2."""
+        return self.variance_factor * self.Q_points
+
+
+def adjust(block: Block, options: AdjustOptions = AdjustOptions(),
+           progress: Callable[[IterationRecord], None] | None = None) -> AdjustmentResult:
+    """Adjust a block: estimate orientation, object points and camera parameters.
+
+    Raises
+    ------
+    AdjustmentError
+        When the block has a rank defect (the message names the unknowns
+        involved) or cannot be initialised.
+    """
+    t0 = time.perf_counter()
+    problem = build_problem(block, options.ap, {"grid": options.grid} if options.ap.startswith("wavelet") else {})
+    state, notes = initial_state(problem, block)
+    names = problem.theta_names(block.images.image_id)
+    outcome = solve(problem, state, names, options.solver, progress)
+    lin = outcome.linearisation
+    dense = problem.n_theta <= DENSE_LIMIT
+    S, _, v_inv = reduce(problem, lin, 0.0, dense)
+    try:
+        factor = factorise(S)
+    except SingularSystem as exc:
+        directions = null_directions(S, names)
+        raise AdjustmentError(f"the normal equations are singular at the solution ({exc}):\n  "
+                              + "\n  ".join(directions)) from None
+    Q = factor.inverse()
+    Q_points = point_cofactors(problem, lin, v_inv, Q)
+    n_obs, n_unk = problem.n_observations(), problem.n_unknowns()
+    if n_obs <= n_unk:
+        raise AdjustmentError(f"no redundancy: {n_obs} observations for {n_unk} unknowns")
+    variance_factor = 2.0 * lin.cost / (n_obs - n_unk)
+    v_sorted = -image_residuals(problem, outcome.state)
+    residuals = np.empty_like(v_sorted)
+    residuals[problem.obs_order] = v_sorted
+    return AdjustmentResult(
+        problem=problem,
+        state=outcome.state,
+        converged=outcome.converged,
+        reason=outcome.reason,
+        iterations=outcome.iterations,
+        history=outcome.history,
+        cost=lin.cost,
+        n_observations=n_obs,
+        n_unknowns=n_unk,
+        variance_factor=variance_factor,
+        image_sigma_px=block.image_sigma_px,
+        theta_names=names,
+        Q_theta=Q,
+        Q_points=Q_points,
+        residuals_mm=residuals,
+        notes=notes,
+        seconds=time.perf_counter() - t0,
+        linearisation=lin,
+        v_inv=v_inv,
+    )

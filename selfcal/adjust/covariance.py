@@ -1,0 +1,66 @@
+"""Cofactor matrices of the estimate, without inverting the full normal matrix.
+
+Q_theta = S^-1 comes from the reduced system. The 3x3 cofactor block of each
+object point follows from the Schur structure:
+
+    Q_pp = V^-1 + Z^T Q_theta Z,     Z = W V^-1 (the point's coupling with theta),
+
+summed over the pairs of observations of the point (their images' blocks of
+Q_theta) and the camera-parameter block, so the cost grows with the number of
+observations, not with the square of the number of unknowns.
+"""
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+
+from .normal import Linearisation
+from .problem import Problem
+
+__all__ = ["observation_pairs", "point_cofactors"]
+
+
+def observation_pairs(point_local: np.ndarray, n_points: int) -> tuple[np.ndarray, np.ndarray]:
+    """All ordered pairs (a, b) of observations of the same point.
+
+    ``point_local`` must be sorted (observations grouped by point).
+    """
+    m = len(point_local)
+    counts = np.bincount(point_local, minlength=n_points)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    k = counts[point_local]
+    a = np.repeat(np.arange(m), k)
+    offset = np.arange(a.size) - np.repeat(np.cumsum(k) - k, k)
+    b = np.repeat(starts[point_local], k) + offset
+    return a, b
+
+
+def point_cofactors(problem: Problem, lin: Linearisation, v_inv: list, Q: np.ndarray) -> np.ndarray:
+    """Cofactor blocks Q_pp of all points, shape (n_points, 3, 3)."""
+    n_img, n_e, n_d = problem.n_images, problem.n_e, problem.n_d
+    Q_ee = Q[:n_e, :n_e].reshape(n_img, 6, n_img, 6)
+    Q_ed = Q[:n_e, n_e:n_e + n_d].reshape(n_img, 6, n_d)
+    Q_dd = Q[n_e:n_e + n_d, n_e:n_e + n_d]
+    out = np.zeros((problem.n_points, 3, 3))
+    for ch, Vi in zip(lin.chunks, v_inv):
+        n_pc = ch.p1 - ch.p0
+        img = problem.obs_image[ch.o0:ch.o1]
+        ptl = problem.obs_point[ch.o0:ch.o1] - ch.p0
+        m = len(img)
+        Z_e = ch.w_e @ Vi[ptl]                                              # (m, 6, 3)
+        a, b = observation_pairs(ptl, n_pc)
+        q_ab = Q_ee[img[a], :, img[b], :]                                   # (pairs, 6, 6)
+        t = (Z_e[a].transpose(0, 2, 1) @ q_ab) @ Z_e[b]
+        by_point = sp.csr_matrix((np.ones(a.size), (ptl[a], np.arange(a.size))), shape=(n_pc, a.size))
+        Qp = Vi + (by_point @ t.reshape(-1, 9)).reshape(n_pc, 3, 3)
+        if n_d:
+            Z_d = np.einsum("dpk,pkl->dpl", ch.W_d.reshape(n_d, n_pc, 3), Vi)   # (n_d, n_pc, 3)
+            QZ = (Q_dd @ Z_d.reshape(n_d, 3 * n_pc)).reshape(n_d, n_pc, 3)
+            Qp += np.einsum("dpi,dpj->pij", Z_d, QZ)
+            A = Z_e.transpose(0, 2, 1) @ Q_ed[img]                         # (m, 3, n_d)
+            cross = A @ Z_d[:, ptl, :].transpose(1, 0, 2)
+            by_obs = sp.csr_matrix((np.ones(m), (ptl, np.arange(m))), shape=(n_pc, m))
+            cross = (by_obs @ cross.reshape(m, 9)).reshape(n_pc, 3, 3)
+            Qp += cross + cross.transpose(0, 2, 1)
+        out[ch.p0:ch.p1] = 0.5 * (Qp + Qp.transpose(0, 2, 1))
+    return out

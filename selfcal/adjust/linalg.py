@@ -1,0 +1,115 @@
+"""Factorising the reduced normal matrix, and naming what makes it singular.
+
+The reduced matrix S is scaled to unit diagonal (Jacobi scaling) before its
+Cholesky factorisation, so that unknowns in metres, radians and pixels meet on
+equal terms. Small systems use dense LAPACK; large ones a sparse Cholesky
+(CHOLMOD through scikit-sparse when installed, SciPy's SuperLU otherwise).
+"""
+from __future__ import annotations
+
+import numpy as np
+import scipy.linalg as la
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+__all__ = ["SingularSystem", "Factor", "factorise", "null_directions", "DENSE_LIMIT"]
+
+#: reduced systems up to this size are factorised densely
+DENSE_LIMIT = 6000
+
+try:  # pragma: no cover - depends on the machine
+    from sksparse.cholmod import CholmodNotPositiveDefiniteError, cholesky as _cholmod
+except Exception:  # noqa: BLE001
+    _cholmod = None
+    CholmodNotPositiveDefiniteError = None
+
+
+class SingularSystem(np.linalg.LinAlgError):
+    """The normal matrix is singular or not positive definite."""
+
+
+class Factor:
+    """A factorisation of S that solves S x = b for vectors and matrices."""
+
+    def __init__(self, solve, scale: np.ndarray, n: int):
+        self._solve = solve
+        self.scale = scale
+        self.n = n
+
+    def solve(self, b: np.ndarray) -> np.ndarray:
+        s = self.scale if b.ndim == 1 else self.scale[:, None]
+        return s * self._solve(s * b)
+
+    def inverse(self) -> np.ndarray:
+        """The dense inverse S^-1 (the cofactor matrix of theta)."""
+        return self.solve(np.eye(self.n))
+
+
+def factorise(S, rcond: float = 1e-13) -> Factor:
+    """Cholesky factorisation of a symmetric positive definite S (dense or sparse).
+
+    Raises
+    ------
+    SingularSystem
+        When S is not positive definite, or its scaled diagonal pivots fall below
+        ``rcond`` (numerically singular).
+    """
+    n = S.shape[0]
+    diag = S.diagonal() if sp.issparse(S) else np.diag(S).copy()
+    if np.any(~np.isfinite(diag)):
+        raise SingularSystem("the normal matrix has non-finite entries")
+    if np.any(diag <= 0):
+        raise SingularSystem(f"{int(np.sum(diag <= 0))} unknown(s) have no observation at all")
+    scale = 1.0 / np.sqrt(diag)
+    if not sp.issparse(S):
+        Ss = S * scale[:, None] * scale[None, :]
+        try:
+            c, lower = la.cho_factor(Ss, lower=True, check_finite=False)
+        except la.LinAlgError as exc:
+            raise SingularSystem(f"not positive definite ({exc})") from None
+        pivots = np.diag(c) ** 2
+        if pivots.min() < rcond:
+            raise SingularSystem(f"numerically singular (smallest scaled pivot {pivots.min():.1e})")
+        return Factor(lambda b: la.cho_solve((c, lower), b, check_finite=False), scale, n)
+    D = sp.diags(scale)
+    Ss = (D @ S @ D).tocsc()
+    if _cholmod is not None:
+        try:
+            f = _cholmod(Ss)
+        except CholmodNotPositiveDefiniteError as exc:
+            raise SingularSystem(f"not positive definite ({exc})") from None
+        d = f.D()
+        if d.min() < rcond:
+            raise SingularSystem(f"numerically singular (smallest scaled pivot {d.min():.1e})")
+        return Factor(f, scale, n)
+    try:
+        lu = spla.splu(Ss, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                       options={"SymmetricMode": True})
+    except RuntimeError as exc:
+        raise SingularSystem(f"singular ({exc})") from None
+    u = np.abs(lu.U.diagonal())
+    if u.min() < rcond or np.any(lu.U.diagonal() <= 0):
+        raise SingularSystem(f"not positive definite or singular (smallest pivot {u.min():.1e})")
+    return Factor(lu.solve, scale, n)
+
+
+def null_directions(S, names: list[str], tol: float = 1e-10, top: int = 6) -> list[str]:
+    """Describe the (near) null space of S: for each direction, the unknowns it moves most.
+
+    Used to turn a singular system into a message a user can act on
+    ("the datum is not fixed", "c and Z0 cannot be separated").
+    """
+    S = S.toarray() if sp.issparse(S) else np.asarray(S)
+    if S.shape[0] > DENSE_LIMIT:
+        return ["(system too large for a null-space analysis)"]
+    d = np.diag(S).copy()
+    d[d <= 0] = 1.0
+    s = 1.0 / np.sqrt(d)
+    w, v = np.linalg.eigh(S * s[:, None] * s[None, :])
+    out = []
+    for k in np.flatnonzero(w < tol * max(w.max(), 1.0))[:5]:
+        vec = v[:, k]
+        order = np.argsort(-np.abs(vec))[:top]
+        parts = ", ".join(f"{names[i]} ({vec[i]:+.2f})" for i in order)
+        out.append(f"eigenvalue {w[k]:.1e}: {parts}")
+    return out

@@ -1,0 +1,351 @@
+"""Normal equations with the object points eliminated (Schur complement).
+
+With the unknowns split into theta (orientation, camera, extra) and the object
+points p, the normal equations of the whitened problem are
+
+    [ U    W ] [d_theta]   [g_theta]
+    [ W^T  V ] [d_p    ] = [g_p    ]
+
+where V is block diagonal with one 3x3 block per point. Eliminating the points
+gives the reduced system
+
+    (U - W V^-1 W^T) d_theta = g_theta - W V^-1 g_p,      d_p = V^-1 (g_p - W^T d_theta).
+
+Everything is assembled chunk by chunk over the points (observations are sorted
+by point), with NumPy and sparse products and no Python loop over
+observations. The linearisation (Jacobians, U, V, W) is computed once per
+iteration; the reduction is repeated only when the Levenberg-Marquardt damping
+changes.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+from ..geometry.rotation import matrix_from_opk, matrix_from_opk_with_derivatives
+from ..sensors.frame import project, project_with_jacobians
+from .problem import Problem, State
+
+__all__ = [
+    "ChunkLinearisation",
+    "Linearisation",
+    "linearise",
+    "reduce",
+    "back_substitute",
+    "evaluate_cost",
+    "image_residuals",
+    "parameter_observations",
+    "sum_blocks",
+]
+
+
+def _wrap(angle: np.ndarray) -> np.ndarray:
+    return (angle + np.pi) % (2 * np.pi) - np.pi
+
+
+@dataclass
+class ChunkLinearisation:
+    p0: int
+    p1: int
+    o0: int
+    o1: int
+    V: np.ndarray        # (n_pc, 3, 3) point normal blocks, control prior included
+    g_p: np.ndarray      # (n_pc, 3)
+    w_e: np.ndarray      # (m_c, 6, 3) coupling of each observation's image with its point
+    W_d: np.ndarray      # (n_d, 3 n_pc) coupling of camera parameters with the points
+
+
+@dataclass
+class Linearisation:
+    cost: float
+    U_ee: np.ndarray     # (n_images, 6, 6)
+    U_ed: np.ndarray     # (n_e, n_d)
+    U_dd: np.ndarray     # (n_d, n_d)
+    g_theta: np.ndarray  # (n_theta,) before elimination, parameter observations included
+    J_x: sp.csr_matrix   # parameter observations (whitened), (k, n_theta)
+    r_x: np.ndarray
+    chunks: list[ChunkLinearisation]
+    diag_theta: np.ndarray   # diagonal of U (parameter observations included)
+
+
+def _camera_terms(problem: Problem, state: State, o0: int, o1: int, img: np.ndarray):
+    """Additional-parameter displacement (mm) and camera-parameter columns of observations o0:o1."""
+    m = o1 - o0
+    cam_of_obs = problem.image_camera[img]
+    delta = np.zeros((m, 2))
+    cam_cols = []  # (camera index, mask, Bx, By)
+    xy = problem.obs_xy_mm[o0:o1]
+    for k, cam in enumerate(problem.cameras):
+        mask = cam_of_obs == k
+        if not mask.any():
+            continue
+        if cam.ap.n_params:
+            bx, by = cam.ap.basis(xy[mask, 0], xy[mask, 1])
+            a = state.cameras[k][3:]
+            delta[mask, 0] = cam.pixel_size_mm * (bx @ a)
+            delta[mask, 1] = cam.pixel_size_mm * (by @ a)
+        else:
+            bx = by = np.zeros((int(mask.sum()), 0))
+        cam_cols.append((k, mask, bx, by))
+    return delta, cam_cols
+
+
+def image_residuals(problem: Problem, state: State, o0: int = 0, o1: int | None = None) -> np.ndarray:
+    """Residuals l - f (mm, photo axes) of image observations o0:o1 (sorted order), shape (m, 2)."""
+    o1 = problem.n_image_observations if o1 is None else o1
+    img = problem.obs_image[o0:o1]
+    iop = np.array([c[:3] for c in state.cameras])[problem.image_camera[img]]
+    rotation = matrix_from_opk(state.eop[:, 3:])[img]
+    xy = project(state.points[problem.obs_point[o0:o1]], state.eop[img], iop, rotation)
+    delta, _ = _camera_terms(problem, state, o0, o1, img)
+    return problem.obs_xy_mm[o0:o1] - (xy + delta)
+
+
+def parameter_observations(problem: Problem, state: State) -> tuple[sp.csr_matrix, np.ndarray]:
+    """Whitened Jacobian (k, n_theta) and residuals l - f of the parameter observations."""
+    rows, cols, vals, res = [], [], [], []
+    k = 0
+    for cam, values, start in zip(problem.cameras, state.cameras, problem.d_offset):
+        free_pos = np.cumsum(cam.free) - 1
+        for i in np.flatnonzero(cam.free & np.isfinite(cam.prior_sigma)):
+            sigma = cam.prior_sigma[i]
+            rows.append(k)
+            cols.append(start + free_pos[i])
+            vals.append(1.0 / sigma)
+            res.append((cam.prior_value[i] - values[i]) / sigma)
+            k += 1
+    for index, observed, sigma, offset, wrap in (
+        (problem.gnss_index, problem.gnss_xyz, problem.gnss_sigma, 0, False),
+        (problem.imu_index, problem.imu_opk, problem.imu_sigma, 3, True),
+    ):
+        if len(index) == 0:
+            continue
+        diff = observed - state.eop[index, offset:offset + 3]
+        if wrap:
+            diff = _wrap(diff)
+        n = len(index)
+        rows.append(k + np.arange(3 * n))
+        cols.append((6 * index[:, None] + offset + np.arange(3)).ravel())
+        vals.append(np.tile(1.0 / sigma, n))
+        res.append((diff / sigma).ravel())
+        k += 3 * n
+    if k == 0:
+        return sp.csr_matrix((0, problem.n_theta)), np.zeros(0)
+    rows = np.concatenate([np.atleast_1d(r) for r in rows])
+    cols = np.concatenate([np.atleast_1d(c) for c in cols])
+    vals = np.concatenate([np.atleast_1d(v) for v in vals])
+    res = np.concatenate([np.atleast_1d(r) for r in res])
+    return sp.csr_matrix((vals, (rows, cols)), shape=(k, problem.n_theta)), res
+
+
+def _indicator(groups: np.ndarray, n_groups: int) -> sp.csr_matrix:
+    """Sparse (n_groups, len(groups)) matrix summing rows by group."""
+    m = len(groups)
+    return sp.csr_matrix((np.ones(m), (groups, np.arange(m))), shape=(n_groups, m))
+
+
+def linearise(problem: Problem, state: State) -> Linearisation:
+    """Jacobians and normal-equation blocks at ``state``."""
+    n_img, n_e, n_d = problem.n_images, problem.n_e, problem.n_d
+    rotation = matrix_from_opk_with_derivatives(state.eop[:, 3:])
+    iop_all = np.array([c[:3] for c in state.cameras])
+    U_ee = np.zeros((n_img, 6, 6))
+    U_ed = np.zeros((n_e, n_d))
+    U_dd = np.zeros((n_d, n_d))
+    g_e = np.zeros((n_img, 6))
+    g_d = np.zeros(n_d)
+    cost = 0.0
+    chunks = []
+    control_of_point = np.full(problem.n_points, -1)
+    control_of_point[problem.control_index] = np.arange(len(problem.control_index))
+
+    for p0, p1 in problem.chunks:
+        o0, o1 = int(problem.point_start[p0]), int(problem.point_start[p1])
+        m, n_pc = o1 - o0, p1 - p0
+        img = problem.obs_image[o0:o1]
+        ptl = problem.obs_point[o0:o1] - p0
+        xy, j_e, j_p, j_i = project_with_jacobians(
+            state.points[p0:p1][ptl], state.eop[img], iop_all[problem.image_camera[img]],
+            rotation=(rotation[0][img], rotation[1][img]))
+        delta, cam_cols = _camera_terms(problem, state, o0, o1, img)
+        w = 1.0 / problem.obs_sigma_mm[o0:o1]
+        r = (problem.obs_xy_mm[o0:o1] - xy - delta) * w[:, None]          # (m, 2)
+        j_e *= w[:, None, None]
+        j_p *= w[:, None, None]
+        j_d = np.zeros((m, 2, n_d))
+        for k, mask, bx, by in cam_cols:
+            cam = problem.cameras[k]
+            full = np.concatenate([j_i[mask], cam.pixel_size_mm * np.stack([bx, by], axis=1)], axis=2)
+            start = problem.d_offset[k] - n_e
+            j_d[mask, :, start:start + int(cam.free.sum())] = full[:, :, cam.free] * w[mask, None, None]
+        cost += 0.5 * float(np.sum(r * r))
+
+        # theta-theta and theta gradient
+        by_image = _indicator(img, n_img)
+        U_ee += (by_image @ np.einsum("oki,okj->oij", j_e, j_e).reshape(m, 36)).reshape(n_img, 6, 6)
+        g_e += by_image @ np.einsum("oki,ok->oi", j_e, r)
+        rows_e = (6 * img[:, None, None] + np.arange(6)[None, None, :]) * np.ones((1, 2, 1), np.int64)
+        G_e = sp.csr_matrix((j_e.ravel(), (rows_e.ravel(), np.repeat(np.arange(2 * m), 6))),
+                            shape=(n_e, 2 * m))
+        jd2 = j_d.reshape(2 * m, n_d)
+        if n_d:
+            U_ed += G_e @ jd2
+            U_dd += jd2.T @ jd2
+            g_d += jd2.T @ r.ravel()
+
+        # point blocks and coupling
+        by_point = _indicator(ptl, n_pc)
+        V = (by_point @ np.einsum("oki,okj->oij", j_p, j_p).reshape(m, 9)).reshape(n_pc, 3, 3)
+        g_p = by_point @ np.einsum("oki,ok->oi", j_p, r)
+        ctl = control_of_point[p0:p1]
+        has = np.flatnonzero(ctl >= 0)
+        if has.size:
+            sig = problem.control_sigma[ctl[has]]
+            rc = (problem.control_xyz[ctl[has]] - state.points[p0:p1][has]) / sig
+            cost += 0.5 * float(np.sum(rc * rc))
+            V[has] += np.einsum("ni,ij->nij", 1.0 / sig**2, np.eye(3))
+            g_p[has] += rc / sig
+        w_e = np.einsum("oki,okj->oij", j_e, j_p)
+        if n_d:
+            B_p = sp.csr_matrix((j_p.ravel(), (np.repeat(np.arange(2 * m), 3),
+                                               (3 * ptl[:, None, None] + np.arange(3)).repeat(2, 1).ravel())),
+                                shape=(2 * m, 3 * n_pc))
+            W_d = np.ascontiguousarray((B_p.T @ jd2).T)
+        else:
+            W_d = np.zeros((0, 3 * n_pc))
+        chunks.append(ChunkLinearisation(p0, p1, o0, o1, V, g_p, w_e, W_d))
+
+    J_x, r_x = parameter_observations(problem, state)
+    cost += 0.5 * float(np.sum(r_x * r_x))
+    g_theta = np.concatenate([g_e.ravel(), g_d, np.zeros(problem.n_extra)])
+    if J_x.shape[0]:
+        g_theta += J_x.T @ r_x
+    diag_theta = np.concatenate([np.einsum("nii->ni", U_ee).ravel(), np.diag(U_dd).copy(),
+                                 np.zeros(problem.n_extra)])
+    if J_x.shape[0]:
+        diag_theta += np.asarray(J_x.multiply(J_x).sum(axis=0)).ravel()
+    return Linearisation(cost, U_ee, U_ed, U_dd, g_theta, J_x, r_x, chunks, diag_theta)
+
+
+def _damped_inverse(V: np.ndarray, lam: float) -> np.ndarray:
+    if lam:
+        V = V + lam * np.einsum("nii,ij->nij", V, np.eye(3))
+    return np.linalg.inv(V)
+
+
+def sum_blocks(keys: np.ndarray, blocks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Sum blocks (k, r, c) that share a key; returns the unique keys and their sums."""
+    unique, inverse = np.unique(keys, return_inverse=True)
+    shape = blocks.shape[1:]
+    summed = sp.csr_matrix((np.ones(len(keys)), (inverse, np.arange(len(keys)))),
+                           shape=(len(unique), len(keys))) @ blocks.reshape(len(keys), -1)
+    return unique, summed.reshape((len(unique),) + shape)
+
+
+def reduce(problem: Problem, lin: Linearisation, lam: float = 0.0, dense: bool = True):
+    """Reduced normal matrix S and right-hand side g of theta, with damping ``lam``.
+
+    The damping adds ``lam * diag(N)`` to the full normal matrix N
+    (Levenberg-Marquardt with Marquardt's scaling).
+
+    The image-image part of W V^-1 W^T is summed over the pairs of
+    observations of each point (one 6x6 block per pair of images that share
+    the point); the camera-parameter parts are dense products.
+
+    Returns
+    -------
+    S : ndarray or scipy.sparse.csc_matrix, (n_theta, n_theta)
+    g : ndarray (n_theta,)
+    v_inv : list of (n_pc, 3, 3) damped inverse point blocks per chunk
+    """
+    from .covariance import observation_pairs
+
+    n_img, n_e, n_d, n_t = problem.n_images, problem.n_e, problem.n_d, problem.n_theta
+    S_ed = lin.U_ed.copy()
+    S_dd = lin.U_dd.copy()
+    g = lin.g_theta.copy()
+    v_inv = []
+    pair_keys, pair_blocks = [], []
+    for ch in lin.chunks:
+        n_pc = ch.p1 - ch.p0
+        Vi = _damped_inverse(ch.V, lam)
+        v_inv.append(Vi)
+        img = problem.obs_image[ch.o0:ch.o1]
+        ptl = problem.obs_point[ch.o0:ch.o1] - ch.p0
+        Y = ch.w_e @ Vi[ptl]                                               # (m, 6, 3) = W V^-1 per observation
+        a, b = observation_pairs(ptl, n_pc)
+        keys, blocks = sum_blocks(img[a] * n_img + img[b], Y[a] @ ch.w_e[b].transpose(0, 2, 1))
+        pair_keys.append(keys)
+        pair_blocks.append(blocks)
+        g_p_obs = np.einsum("oik,ok->oi", Y, ch.g_p[ptl])
+        g[:n_e] -= np.bincount(np.repeat(6 * img, 6) + np.tile(np.arange(6), len(img)),
+                               weights=g_p_obs.ravel(), minlength=n_e)
+        if n_d:
+            rows = np.broadcast_to(6 * img[:, None, None] + np.arange(6)[None, :, None], Y.shape)
+            cols = np.broadcast_to(3 * ptl[:, None, None] + np.arange(3)[None, None, :], Y.shape)
+            Y_e = sp.csr_matrix((Y.ravel(), (rows.ravel(), cols.ravel())), shape=(n_e, 3 * n_pc))
+            T_d = np.einsum("dpk,pkl->dpl", ch.W_d.reshape(n_d, n_pc, 3), Vi).reshape(n_d, 3 * n_pc)
+            S_ed -= Y_e @ ch.W_d.T
+            S_dd -= T_d @ ch.W_d.T
+            g[n_e:n_e + n_d] -= T_d @ ch.g_p.ravel()
+    keys, blocks = sum_blocks(np.concatenate(pair_keys), np.concatenate(pair_blocks))
+    blocks = -blocks
+    diagonal = keys // n_img == keys % n_img
+    blocks[diagonal] += lin.U_ee[keys[diagonal] // n_img]
+    ia, ib = keys // n_img, keys % n_img
+
+    damp = lam * lin.diag_theta
+    if dense:
+        S = np.zeros((n_t, n_t))
+        S_ee = np.zeros((n_img, n_img, 6, 6))
+        S_ee[ia, ib] = blocks
+        S[:n_e, :n_e] = S_ee.transpose(0, 2, 1, 3).reshape(n_e, n_e)
+        S[:n_e, n_e:n_e + n_d] = S_ed
+        S[n_e:n_e + n_d, :n_e] = S_ed.T
+        S[n_e:n_e + n_d, n_e:n_e + n_d] = S_dd
+        if lin.J_x.shape[0]:
+            S += (lin.J_x.T @ lin.J_x).toarray()
+        S[np.diag_indices(n_t)] += damp
+        S = 0.5 * (S + S.T)
+    else:
+        rows = (6 * ia[:, None, None] + np.arange(6)[None, :, None]) + np.zeros((1, 1, 6), np.int64)
+        cols = (6 * ib[:, None, None] + np.arange(6)[None, None, :]) + np.zeros((1, 6, 1), np.int64)
+        S_ee = sp.csr_matrix((blocks.ravel(), (rows.ravel(), cols.ravel())), shape=(n_e, n_e))
+        top = sp.hstack([S_ee, sp.csr_matrix(S_ed), sp.csr_matrix((n_e, problem.n_extra))])
+        mid = sp.hstack([sp.csr_matrix(S_ed.T), sp.csr_matrix(S_dd), sp.csr_matrix((n_d, problem.n_extra))])
+        bot = sp.csr_matrix((problem.n_extra, n_t))
+        S = sp.vstack([top, mid, bot]).tocsc()
+        if lin.J_x.shape[0]:
+            S = S + (lin.J_x.T @ lin.J_x).tocsc()
+        S = S + sp.diags(damp)
+        S = (0.5 * (S + S.T)).tocsc()
+    return S, g, v_inv
+
+
+def back_substitute(problem: Problem, lin: Linearisation, v_inv: list, d_theta: np.ndarray) -> np.ndarray:
+    """Point corrections d_p = V^-1 (g_p - W^T d_theta), shape (n_points, 3)."""
+    n_e, n_d = problem.n_e, problem.n_d
+    d_e = d_theta[:n_e].reshape(-1, 6)
+    d_d = d_theta[n_e:n_e + n_d]
+    d_p = np.zeros((problem.n_points, 3))
+    for ch, Vi in zip(lin.chunks, v_inv):
+        img = problem.obs_image[ch.o0:ch.o1]
+        starts = problem.point_start[ch.p0:ch.p1] - ch.o0
+        wt = np.add.reduceat(np.einsum("oik,oi->ok", ch.w_e, d_e[img]), starts, axis=0)
+        if n_d:
+            wt += (ch.W_d.T @ d_d).reshape(-1, 3)
+        d_p[ch.p0:ch.p1] = np.einsum("pij,pj->pi", Vi, ch.g_p - wt)
+    return d_p
+
+
+def evaluate_cost(problem: Problem, state: State) -> float:
+    """0.5 v^T P v of all observation groups at ``state``."""
+    v = image_residuals(problem, state) / problem.obs_sigma_mm[:, None]
+    cost = 0.5 * float(np.sum(v * v))
+    if len(problem.control_index):
+        rc = (problem.control_xyz - state.points[problem.control_index]) / problem.control_sigma
+        cost += 0.5 * float(np.sum(rc * rc))
+    _, r_x = parameter_observations(problem, state)
+    return cost + 0.5 * float(np.sum(r_x * r_x))

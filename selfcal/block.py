@@ -1,0 +1,256 @@
+"""A photogrammetric block as plain data: cameras, images, points, observations.
+
+Nothing here computes geometry. The arrays follow DESIGN.md §2-3: angles are
+radians, lengths metres (object space) or millimetres (image space), image
+measurements are pixels with (0, 0) at the upper-left corner of the upper-left
+pixel. Missing values are NaN.
+
+The one piece of behaviour is :func:`prune`, which removes what a real block
+always contains and an adjustment cannot use (tie points seen once, control
+points seen nowhere, images with too few points) and records what it removed.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+__all__ = [
+    "ROLES",
+    "FrameCamera",
+    "Images",
+    "Points",
+    "Observations",
+    "Dropped",
+    "Block",
+    "prune",
+    "MIN_POINTS_PER_IMAGE",
+]
+
+ROLES = ("gcp", "chk", "tie")
+
+#: An image needs this many observed points to be oriented; with fewer it is
+#: dropped. Six points (twelve coordinates for six unknowns) leave redundancy
+#: for the image's own orientation, as a minimal space resection with checks.
+MIN_POINTS_PER_IMAGE = 6
+
+
+@dataclass(frozen=True)
+class FrameCamera:
+    """Interior orientation of a frame camera (DESIGN.md §3, `[cameras.ID]`).
+
+    ``sigma_*`` are a-priori standard deviations of the interior orientation:
+    None means the parameter is estimated freely, 0 that it is held fixed.
+    """
+
+    camera_id: str
+    width_px: int
+    height_px: int
+    pixel_size_mm: float
+    focal_mm: float
+    x0_mm: float = 0.0
+    y0_mm: float = 0.0
+    sigma_focal_mm: float | None = None
+    sigma_x0_mm: float | None = None
+    sigma_y0_mm: float | None = None
+
+    model = "frame"
+
+    @property
+    def width_mm(self) -> float:
+        return self.width_px * self.pixel_size_mm
+
+    @property
+    def height_mm(self) -> float:
+        return self.height_px * self.pixel_size_mm
+
+
+@dataclass(frozen=True)
+class Images:
+    """Images and their approximate or observed exterior orientation.
+
+    Attributes
+    ----------
+    image_id, camera_id, strip_id : ndarray of str, shape (n,)
+    time_s : ndarray, shape (n,)
+        Exposure time (NaN when not given).
+    position_m : ndarray, shape (n, 3)
+        Perspective centre X0, Y0, Z0 (NaN when not given).
+    attitude_rad : ndarray, shape (n, 3)
+        omega, phi, kappa of M = R3(kappa) R2(phi) R1(omega) (NaN when not given).
+    line : ndarray of int, shape (n,)
+        Line of images.csv each image came from (for messages).
+    """
+
+    image_id: np.ndarray
+    camera_id: np.ndarray
+    strip_id: np.ndarray
+    time_s: np.ndarray
+    position_m: np.ndarray
+    attitude_rad: np.ndarray
+    line: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.image_id)
+
+    def take(self, index: np.ndarray) -> "Images":
+        return Images(*(getattr(self, f)[index] for f in self.__dataclass_fields__))
+
+
+@dataclass(frozen=True)
+class Points:
+    """Object points: ground control (gcp), check points (chk) and tie points.
+
+    ``xyz_m`` holds the reference coordinates of gcp/chk and the approximate
+    coordinates of tie points where given (NaN otherwise); ``sigma_m`` the
+    a-priori standard deviations sigma_X, sigma_Y, sigma_Z (NaN when not given).
+    """
+
+    point_id: np.ndarray
+    role: np.ndarray
+    xyz_m: np.ndarray
+    sigma_m: np.ndarray
+    line: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.point_id)
+
+    def take(self, index: np.ndarray) -> "Points":
+        return Points(*(getattr(self, f)[index] for f in self.__dataclass_fields__))
+
+
+@dataclass(frozen=True)
+class Observations:
+    """Image measurements: one row per (image, point) pair.
+
+    ``pixel`` holds (col, row) in pixels, ``sigma_px`` the a-priori standard
+    deviation of each coordinate.
+    """
+
+    image_index: np.ndarray
+    point_index: np.ndarray
+    pixel: np.ndarray
+    sigma_px: np.ndarray
+    line: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.image_index)
+
+    def take(self, index: np.ndarray) -> "Observations":
+        return Observations(*(getattr(self, f)[index] for f in self.__dataclass_fields__))
+
+
+@dataclass(frozen=True)
+class Dropped:
+    """What :func:`prune` removed, with one message per item."""
+
+    tie_points_one_image: int = 0
+    control_points_unobserved: int = 0
+    check_points_one_image: int = 0
+    images_too_few_points: int = 0
+    messages: tuple[str, ...] = ()
+
+    def as_dict(self) -> dict:
+        return {
+            "tie_points_one_image": self.tie_points_one_image,
+            "control_points_unobserved": self.control_points_unobserved,
+            "check_points_one_image": self.check_points_one_image,
+            "images_too_few_points": self.images_too_few_points,
+        }
+
+
+@dataclass(frozen=True)
+class Block:
+    """Everything an adjustment needs, as read from a block folder."""
+
+    name: str
+    crs: str
+    cameras: dict[str, FrameCamera]
+    images: Images
+    points: Points
+    observations: Observations
+    image_sigma_px: float
+    gnss_sigma_m: tuple[float, float, float] | None = None
+    imu_sigma_deg: tuple[float, float, float] | None = None
+    dropped: Dropped = field(default_factory=Dropped)
+
+    @property
+    def has_trajectory(self) -> bool:
+        return self.gnss_sigma_m is not None or self.imu_sigma_deg is not None
+
+    def camera_index(self) -> np.ndarray:
+        """Index into ``list(cameras)`` of each image's camera."""
+        names = list(self.cameras)
+        lookup = {name: i for i, name in enumerate(names)}
+        return np.array([lookup[c] for c in self.images.camera_id], dtype=np.int64)
+
+
+def prune(block: Block, min_points_per_image: int = MIN_POINTS_PER_IMAGE) -> Block:
+    """Remove what cannot take part in the adjustment, and say what went.
+
+    Repeats until stable, because dropping an image can leave tie points with a
+    single ray, and dropping those can leave an image with too few points:
+
+    * a tie point seen in one image (no intersection, no redundancy);
+    * a check point seen in fewer than two images (it cannot be determined);
+    * a control point (gcp) seen in no image;
+    * an image with fewer than ``min_points_per_image`` observed points.
+    """
+    images, points, obs = block.images, block.points, block.observations
+    counts = dict(tie=0, chk=0, gcp=0, img=0)
+    messages: list[str] = list(block.dropped.messages)
+    keep_img = np.ones(len(images), bool)
+    keep_pt = np.ones(len(points), bool)
+    keep_obs = np.ones(len(obs), bool)
+    while True:
+        changed = False
+        rays = np.bincount(obs.point_index[keep_obs], minlength=len(points))
+        for role, minimum, key in (("tie", 2, "tie"), ("chk", 2, "chk"), ("gcp", 1, "gcp")):
+            bad = keep_pt & (points.role == role) & (rays < minimum)
+            for i in np.flatnonzero(bad):
+                messages.append(
+                    f"dropped {role} point '{points.point_id[i]}': seen in {rays[i]} image(s), "
+                    f"needs {minimum}"
+                )
+            counts[key] += int(bad.sum())
+            if bad.any():
+                keep_pt &= ~bad
+                changed = True
+        keep_obs &= keep_pt[obs.point_index]
+        n_pts = np.bincount(obs.image_index[keep_obs], minlength=len(images))
+        bad = keep_img & (n_pts < min_points_per_image)
+        for i in np.flatnonzero(bad):
+            messages.append(
+                f"dropped image '{images.image_id[i]}': {n_pts[i]} observed point(s), "
+                f"needs {min_points_per_image} to be oriented"
+            )
+        counts["img"] += int(bad.sum())
+        if bad.any():
+            keep_img &= ~bad
+            keep_obs &= keep_img[obs.image_index]
+            changed = True
+        if not changed:
+            break
+
+    img_new = np.cumsum(keep_img) - 1
+    pt_new = np.cumsum(keep_pt) - 1
+    kept_obs = obs.take(np.flatnonzero(keep_obs))
+    kept_obs = replace(
+        kept_obs,
+        image_index=img_new[kept_obs.image_index],
+        point_index=pt_new[kept_obs.point_index],
+    )
+    dropped = Dropped(
+        tie_points_one_image=block.dropped.tie_points_one_image + counts["tie"],
+        control_points_unobserved=block.dropped.control_points_unobserved + counts["gcp"],
+        check_points_one_image=block.dropped.check_points_one_image + counts["chk"],
+        images_too_few_points=block.dropped.images_too_few_points + counts["img"],
+        messages=tuple(messages),
+    )
+    return replace(
+        block,
+        images=images.take(np.flatnonzero(keep_img)),
+        points=points.take(np.flatnonzero(keep_pt)),
+        observations=kept_obs,
+        dropped=dropped,
+    )

@@ -1,0 +1,47 @@
+"""The ``selfcal`` command: one sub-command per verb, each in its own module.
+
+Exit codes (DESIGN.md §5): 0 success, 1 the adjustment failed (singular,
+diverged or not converged; the reason is printed), 2 bad input (file, line,
+column and reason are printed).
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+
+from ..errors import SelfcalError
+from . import adjust, simulate
+
+#: verb -> module with ``add_arguments(parser)`` and ``run(args) -> int``
+COMMANDS = {
+    "adjust": adjust,
+    "simulate": simulate,
+}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="selfcal",
+        description="Self-calibrating bundle adjustment of frame and pushbroom sensors.")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for name, module in COMMANDS.items():
+        doc = (module.__doc__ or "").strip().splitlines()[0]
+        p = sub.add_parser(name, help=doc, description=doc)
+        module.add_arguments(p)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return int(COMMANDS[args.command].run(args) or 0)
+    except SelfcalError as exc:
+        print(f"selfcal {args.command}: error: {exc}", file=sys.stderr)
+        return exc.exit_code
+    except KeyboardInterrupt:
+        print(f"selfcal {args.command}: interrupted; nothing was written", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

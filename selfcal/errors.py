@@ -1,0 +1,57 @@
+"""Exceptions of selfcal.
+
+Two kinds of failure reach the user, each with its own exit code (DESIGN.md §5):
+
+* :class:`BlockError` — bad input. It names the file, the line and the column
+  where the defect is, and why it is one. Exit code 2.
+* :class:`AdjustmentError` — the input is well formed but the adjustment cannot
+  produce an estimate (singular normal equations, divergence). Exit code 1.
+"""
+from __future__ import annotations
+
+__all__ = ["SelfcalError", "BlockError", "AdjustmentError"]
+
+
+class SelfcalError(Exception):
+    """Root of every error selfcal raises on purpose."""
+
+    exit_code = 1
+
+
+class BlockError(SelfcalError, ValueError):
+    """A defect in the input, located in its file.
+
+    Parameters
+    ----------
+    path : str
+        File the defect is in.
+    reason : str
+        What is wrong, in words a user can act on.
+    line : int, optional
+        1-based line number; None when the defect has no single line (a count).
+    column : str, optional
+        Column (CSV header name) or key (TOML) the defect is in.
+    """
+
+    exit_code = 2
+
+    def __init__(self, path: str, reason: str, line: int | None = None, column: str | None = None):
+        self.path = str(path)
+        self.reason = reason
+        self.line = line
+        self.column = column
+        super().__init__(self._format())
+
+    def _format(self) -> str:
+        where = self.path
+        if self.line is not None:
+            where += f", line {self.line}"
+        if self.column is not None:
+            where += f", column '{self.column}'"
+        return f"{where}: {self.reason}"
+
+
+class AdjustmentError(SelfcalError, RuntimeError):
+    """The adjustment could not produce an estimate; the message says why."""
+
+    exit_code = 1

@@ -1,0 +1,68 @@
+"""Rotations of photogrammetry: omega-phi-kappa and their derivatives.
+
+Convention (DESIGN.md §2, Wolf et al. 2014): the matrix
+
+    M = R3(kappa) · R2(phi) · R1(omega)
+
+maps object-space axes to image axes, with the passive elementary rotations
+
+    R1(w) = [[1, 0, 0], [0, cos w, sin w], [0, -sin w, cos w]]
+    R2(p) = [[cos p, 0, -sin p], [0, 1, 0], [sin p, 0, cos p]]
+    R3(k) = [[cos k, sin k, 0], [-sin k, cos k, 0], [0, 0, 1]]
+
+so that m31 = sin(phi), m32 = -sin(omega) cos(phi), m33 = cos(omega) cos(phi).
+All functions are vectorised over a leading axis; angles are radians.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["matrix_from_opk", "matrix_from_opk_with_derivatives", "opk_from_matrix"]
+
+
+def _elementary(omega, phi, kappa):
+    co, so = np.cos(omega), np.sin(omega)
+    cp, sp = np.cos(phi), np.sin(phi)
+    ck, sk = np.cos(kappa), np.sin(kappa)
+    n = np.shape(omega)
+    zero, one = np.zeros(n), np.ones(n)
+    r1 = np.stack([one, zero, zero, zero, co, so, zero, -so, co], -1).reshape(n + (3, 3))
+    r2 = np.stack([cp, zero, -sp, zero, one, zero, sp, zero, cp], -1).reshape(n + (3, 3))
+    r3 = np.stack([ck, sk, zero, -sk, ck, zero, zero, zero, one], -1).reshape(n + (3, 3))
+    d1 = np.stack([zero, zero, zero, zero, -so, co, zero, -co, -so], -1).reshape(n + (3, 3))
+    d2 = np.stack([-sp, zero, -cp, zero, zero, zero, cp, zero, -sp], -1).reshape(n + (3, 3))
+    d3 = np.stack([-sk, ck, zero, -ck, -sk, zero, zero, zero, zero], -1).reshape(n + (3, 3))
+    return r1, r2, r3, d1, d2, d3
+
+
+def matrix_from_opk(opk: np.ndarray) -> np.ndarray:
+    """Rotation matrices M, shape (..., 3, 3), from angles (..., 3) = (omega, phi, kappa)."""
+    opk = np.asarray(opk, float)
+    r1, r2, r3, *_ = _elementary(opk[..., 0], opk[..., 1], opk[..., 2])
+    return r3 @ r2 @ r1
+
+
+def matrix_from_opk_with_derivatives(opk: np.ndarray):
+    """M and its partial derivatives dM/d(omega), dM/d(phi), dM/d(kappa).
+
+    Returns
+    -------
+    M : ndarray (..., 3, 3)
+    dM : ndarray (..., 3, 3, 3)
+        ``dM[..., k, :, :]`` is the derivative with respect to angle k.
+    """
+    opk = np.asarray(opk, float)
+    r1, r2, r3, d1, d2, d3 = _elementary(opk[..., 0], opk[..., 1], opk[..., 2])
+    r21 = r2 @ r1
+    m = r3 @ r21
+    dm = np.stack([r3 @ r2 @ d1, r3 @ d2 @ r1, d3 @ r21], axis=-3)
+    return m, dm
+
+
+def opk_from_matrix(m: np.ndarray) -> np.ndarray:
+    """Angles (omega, phi, kappa) of rotation matrices M (..., 3, 3); phi in [-pi/2, pi/2]."""
+    m = np.asarray(m, float)
+    phi = np.arcsin(np.clip(m[..., 2, 0], -1.0, 1.0))
+    omega = np.arctan2(-m[..., 2, 1], m[..., 2, 2])
+    kappa = np.arctan2(-m[..., 1, 0], m[..., 0, 0])
+    return np.stack([omega, phi, kappa], axis=-1)

@@ -1,0 +1,394 @@
+"""Read and write the block folder of DESIGN.md §3.
+
+``read_block(folder)`` returns a validated :class:`~selfcal.block.Block`; every
+defect raises :class:`~selfcal.errors.BlockError` with file, line and column.
+Structural conditions that real blocks have (a tie point seen once, ...) are not
+errors: :func:`selfcal.block.prune` removes them and records them.
+"""
+from __future__ import annotations
+
+import math
+import os
+import re
+import tomllib
+
+import numpy as np
+
+from ..block import ROLES, Block, FrameCamera, Images, Observations, Points, prune
+from ..errors import BlockError
+from .atomic import atomic_folder, atomic_write
+from .table import NUM, OPT_NUM, STR, Column, read_table, write_table
+
+__all__ = ["read_block", "write_block", "IMAGE_COLUMNS", "POINT_COLUMNS", "OBSERVATION_COLUMNS"]
+
+IMAGE_COLUMNS = [
+    Column("image_id"), Column("camera_id"), Column("strip_id"),
+    Column("time_s", OPT_NUM),
+    Column("X0", OPT_NUM), Column("Y0", OPT_NUM), Column("Z0", OPT_NUM),
+    Column("omega_deg", OPT_NUM), Column("phi_deg", OPT_NUM), Column("kappa_deg", OPT_NUM),
+]
+POINT_COLUMNS = [
+    Column("point_id"), Column("role"),
+    Column("X", OPT_NUM), Column("Y", OPT_NUM), Column("Z", OPT_NUM),
+    Column("sigma_xy_m", OPT_NUM), Column("sigma_z_m", OPT_NUM),
+]
+OBSERVATION_COLUMNS = [
+    Column("image_id"), Column("point_id"),
+    Column("col_px", NUM), Column("row_px", NUM),
+    Column("sigma_px", OPT_NUM, required=False),
+]
+
+# block.toml schema: key -> (type, required). Types: "str", "int", "pos" (> 0),
+# "num", "nonneg" (>= 0), "vec3pos" (three numbers > 0).
+_TOP_KEYS = {"name": ("str", False), "crs": ("str", False)}
+_FRAME_CAMERA_KEYS = {
+    "model": ("str", True),
+    "width_px": ("int", True),
+    "height_px": ("int", True),
+    "pixel_size_mm": ("pos", True),
+    "focal_mm": ("pos", True),
+    "x0_mm": ("num", False),
+    "y0_mm": ("num", False),
+    "sigma_focal_mm": ("nonneg", False),
+    "sigma_x0_mm": ("nonneg", False),
+    "sigma_y0_mm": ("nonneg", False),
+}
+_SECTIONS = {
+    "observations": {"image_sigma_px": ("pos", True)},
+    "gnss": {"sigma_m": ("vec3pos", True)},
+    "imu": {"sigma_deg": ("vec3pos", True)},
+}
+
+
+def _key_line(text: str, section: str | None, key: str) -> int | None:
+    """Line of ``key = ...`` inside ``[section]`` of a TOML text (best effort)."""
+    current = None
+    for number, raw in enumerate(text.splitlines(), start=1):
+        stripped = raw.split("#", 1)[0].strip()
+        match = re.fullmatch(r"\[\s*([^\]]+?)\s*\]", stripped)
+        if match:
+            current = match.group(1).replace('"', "").replace(" ", "")
+            if key is None and current == section:
+                return number
+            continue
+        if key is not None and current == section and re.match(rf"{re.escape(key)}\s*=", stripped):
+            return number
+    return None
+
+
+def _check_value(path, text, section, key, value, kind):
+    line = _key_line(text, section, key)
+    where = f"{section}.{key}" if section else key
+    def fail(reason):
+        raise BlockError(path, reason, line, where)
+    if kind == "str":
+        if not isinstance(value, str):
+            fail(f"must be a string, found {value!r}")
+        return value
+    if kind == "int":
+        if not isinstance(value, int) or isinstance(value, bool) or value <= 0:
+            fail(f"must be a positive integer, found {value!r}")
+        return value
+    if kind == "vec3pos":
+        if (not isinstance(value, list) or len(value) != 3
+                or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)):
+            fail(f"must be a list of three numbers, found {value!r}")
+        if not all(math.isfinite(v) and v > 0 for v in value):
+            fail(f"all three values must be positive and finite, found {value!r}")
+        return tuple(float(v) for v in value)
+    if not isinstance(value, (int, float)) or isinstance(value, bool):
+        fail(f"must be a number, found {value!r}")
+    value = float(value)
+    if not math.isfinite(value):
+        fail("must be finite")
+    if kind == "pos" and value <= 0:
+        fail(f"must be positive, found {value}")
+    if kind == "nonneg" and value < 0:
+        fail(f"must not be negative, found {value}")
+    return value
+
+
+def _check_table(path, text, section, table, schema):
+    values = {}
+    for key, value in table.items():
+        if key not in schema:
+            known = ", ".join(schema)
+            raise BlockError(path, f"unknown key (known: {known})", _key_line(text, section, key),
+                             f"{section}.{key}" if section else key)
+        values[key] = _check_value(path, text, section, key, value, schema[key][0])
+    for key, (_, required) in schema.items():
+        if required and key not in table:
+            raise BlockError(path, "missing key", _key_line(text, section, None),
+                             f"{section}.{key}" if section else key)
+    return values
+
+
+def _read_settings(folder: str) -> dict:
+    path = os.path.join(folder, "block.toml")
+    if not os.path.isfile(path):
+        raise BlockError(path, "file not found")
+    with open(path, encoding="utf-8") as handle:
+        text = handle.read()
+    try:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        match = re.search(r"line (\d+)", str(exc))
+        raise BlockError(path, f"not valid TOML: {exc}", int(match.group(1)) if match else None) from None
+
+    known = set(_TOP_KEYS) | {"cameras"} | set(_SECTIONS)
+    for key in doc:
+        if key not in known:
+            line = _key_line(text, None, key) or _key_line(text, key, None)
+            raise BlockError(path, f"unknown key (known: {', '.join(sorted(known))})", line, key)
+    settings = _check_table(path, text, None, {k: v for k, v in doc.items() if k in _TOP_KEYS}, _TOP_KEYS)
+    cameras = doc.get("cameras")
+    if not isinstance(cameras, dict) or not cameras:
+        raise BlockError(path, "at least one [cameras.ID] table is required", None, "cameras")
+    settings["cameras"] = {}
+    for camera_id, table in cameras.items():
+        section = f"cameras.{camera_id}"
+        if not isinstance(table, dict):
+            raise BlockError(path, "must be a table", _key_line(text, "cameras", camera_id), section)
+        model = table.get("model")
+        if model != "frame":
+            raise BlockError(path, f"camera model {model!r} is not supported (known: 'frame')",
+                             _key_line(text, section, "model"), f"{section}.model")
+        values = _check_table(path, text, section, table, _FRAME_CAMERA_KEYS)
+        values.pop("model")
+        settings["cameras"][camera_id] = FrameCamera(camera_id=camera_id, **values)
+    if "observations" not in doc:
+        raise BlockError(path, "missing table [observations] (image_sigma_px)", None, "observations")
+    for section, schema in _SECTIONS.items():
+        if section in doc:
+            if not isinstance(doc[section], dict):
+                raise BlockError(path, "must be a table", _key_line(text, None, section), section)
+            settings[section] = _check_table(path, text, section, doc[section], schema)
+    return settings
+
+
+def _unique_ids(table, column: str) -> dict[str, int]:
+    index: dict[str, int] = {}
+    for i, (value, line) in enumerate(zip(table[column], table.line)):
+        if value == "":
+            raise BlockError(table.path, "empty id", int(line), column)
+        if value in index:
+            first = int(table.line[index[value]])
+            raise BlockError(table.path, f"duplicated id '{value}' (first on line {first})", int(line), column)
+        index[value] = i
+    return index
+
+
+def _read_images(folder: str, cameras: dict) -> tuple[Images, dict[str, int]]:
+    table = read_table(os.path.join(folder, "images.csv"), IMAGE_COLUMNS)
+    index = _unique_ids(table, "image_id")
+    for value, line in zip(table["camera_id"], table.line):
+        if value not in cameras:
+            raise BlockError(table.path, f"unknown camera '{value}' (block.toml has: {', '.join(cameras)})",
+                             int(line), "camera_id")
+    angles = np.column_stack([table["omega_deg"], table["phi_deg"], table["kappa_deg"]])
+    images = Images(
+        image_id=table["image_id"],
+        camera_id=table["camera_id"],
+        strip_id=table["strip_id"],
+        time_s=table["time_s"],
+        position_m=np.column_stack([table["X0"], table["Y0"], table["Z0"]]),
+        attitude_rad=np.radians(angles),
+        line=table.line,
+    )
+    return images, index
+
+
+def _read_points(folder: str) -> tuple[Points, dict[str, int]]:
+    table = read_table(os.path.join(folder, "points.csv"), POINT_COLUMNS)
+    index = _unique_ids(table, "point_id")
+    xyz = np.column_stack([table["X"], table["Y"], table["Z"]])
+    sxy, sz = table["sigma_xy_m"], table["sigma_z_m"]
+    for i, (role, line) in enumerate(zip(table["role"], table.line)):
+        line = int(line)
+        if role not in ROLES:
+            raise BlockError(table.path, f"role must be one of {', '.join(ROLES)}, found '{role}'", line, "role")
+        if role in ("gcp", "chk"):
+            for k, name in enumerate("XYZ"):
+                if math.isnan(xyz[i, k]):
+                    raise BlockError(table.path, f"a {role} needs reference coordinates", line, name)
+        if role == "tie" and np.isnan(xyz[i]).any() and not np.isnan(xyz[i]).all():
+            raise BlockError(table.path, "give all of X, Y, Z for a tie point, or none", line, "X")
+        if role == "gcp":
+            for value, name in ((sxy[i], "sigma_xy_m"), (sz[i], "sigma_z_m")):
+                if math.isnan(value) or value <= 0:
+                    raise BlockError(table.path, "a gcp needs a positive a-priori sigma", line, name)
+        for value, name in ((sxy[i], "sigma_xy_m"), (sz[i], "sigma_z_m")):
+            if not math.isnan(value) and value <= 0:
+                raise BlockError(table.path, f"sigma must be positive, found {value}", line, name)
+    points = Points(
+        point_id=table["point_id"],
+        role=table["role"].astype(str).astype(object),
+        xyz_m=xyz,
+        sigma_m=np.column_stack([sxy, sxy, sz]),
+        line=table.line,
+    )
+    return points, index
+
+
+def _read_observations(folder, images, image_index, point_index, cameras, default_sigma):
+    table = read_table(os.path.join(folder, "observations.csv"), OBSERVATION_COLUMNS)
+    n = len(table)
+    img = np.empty(n, np.int64)
+    pt = np.empty(n, np.int64)
+    for i, (image_id, point_id, line) in enumerate(zip(table["image_id"], table["point_id"], table.line)):
+        try:
+            img[i] = image_index[image_id]
+        except KeyError:
+            raise BlockError(table.path, f"unknown image '{image_id}' (not in images.csv)", int(line),
+                             "image_id") from None
+        try:
+            pt[i] = point_index[point_id]
+        except KeyError:
+            raise BlockError(table.path, f"unknown point '{point_id}' (not in points.csv)", int(line),
+                             "point_id") from None
+    pair = img * (len(point_index) + 1) + pt
+    order = np.argsort(pair, kind="stable")
+    dup = np.flatnonzero(pair[order][1:] == pair[order][:-1])
+    if dup.size:
+        first, second = order[dup[0]], order[dup[0] + 1]
+        raise BlockError(table.path,
+                         f"duplicated observation of point '{table['point_id'][second]}' in image "
+                         f"'{table['image_id'][second]}' (first on line {table.line[first]})",
+                         int(table.line[second]), "point_id")
+    col, row = table["col_px"], table["row_px"]
+    width = np.array([cameras[c].width_px for c in images.camera_id], float)[img]
+    height = np.array([cameras[c].height_px for c in images.camera_id], float)[img]
+    for values, limit, name in ((col, width, "col_px"), (row, height, "row_px")):
+        outside = np.flatnonzero((values < -0.5) | (values > limit + 0.5))
+        if outside.size:
+            i = outside[0]
+            raise BlockError(table.path,
+                             f"{values[i]:g} px is outside the image (0 .. {limit[i]:g} px): "
+                             f"are the units pixels?", int(table.line[i]), name)
+    sigma = np.full(n, default_sigma)
+    if "sigma_px" in table:
+        given = table["sigma_px"]
+        bad = np.flatnonzero(~np.isnan(given) & (given <= 0))
+        if bad.size:
+            raise BlockError(table.path, f"sigma must be positive, found {given[bad[0]]}",
+                             int(table.line[bad[0]]), "sigma_px")
+        sigma = np.where(np.isnan(given), default_sigma, given)
+    return Observations(image_index=img, point_index=pt, pixel=np.column_stack([col, row]),
+                        sigma_px=sigma, line=table.line)
+
+
+def read_block(folder: str | os.PathLike, min_gcp: int = 3) -> Block:
+    """Read, validate and prune a block folder.
+
+    Raises
+    ------
+    BlockError
+        For every defect of the input (file, line, column and reason).
+    """
+    folder = str(folder)
+    if not os.path.isdir(folder):
+        raise BlockError(folder, "block folder not found")
+    settings = _read_settings(folder)
+    cameras = settings["cameras"]
+    images, image_index = _read_images(folder, cameras)
+    points, point_index = _read_points(folder)
+    image_sigma = settings["observations"]["image_sigma_px"]
+    observations = _read_observations(folder, images, image_index, point_index, cameras, image_sigma)
+    gnss = settings.get("gnss", {}).get("sigma_m")
+    imu = settings.get("imu", {}).get("sigma_deg")
+    if gnss is not None:
+        _require_trajectory(folder, images, ("X0", "Y0", "Z0"), images.position_m, "gnss")
+    if imu is not None:
+        _require_trajectory(folder, images, ("omega_deg", "phi_deg", "kappa_deg"), images.attitude_rad, "imu")
+    block = Block(
+        name=settings.get("name", os.path.basename(os.path.abspath(folder))),
+        crs=settings.get("crs", "local"),
+        cameras=cameras,
+        images=images,
+        points=points,
+        observations=observations,
+        image_sigma_px=image_sigma,
+        gnss_sigma_m=gnss,
+        imu_sigma_deg=imu,
+    )
+    block = prune(block)
+    n_gcp = int(np.sum(block.points.role == "gcp"))
+    if not block.has_trajectory and n_gcp < min_gcp:
+        raise BlockError(os.path.join(folder, "points.csv"),
+                         f"only {n_gcp} usable gcp (observed in at least one image); at least {min_gcp} "
+                         f"are needed to fix the datum when block.toml has no [gnss] or [imu]",
+                         None, "role")
+    if len(block.images) == 0:
+        raise BlockError(os.path.join(folder, "observations.csv"),
+                         "no image has enough observed points to be oriented")
+    return block
+
+
+def _require_trajectory(folder, images, names, values, section):
+    missing = np.isnan(values).any(axis=1)
+    if missing.all():
+        raise BlockError(os.path.join(folder, "images.csv"),
+                         f"block.toml has [{section}] but no image has {', '.join(names)}", None, names[0])
+
+
+# ---------------------------------------------------------------------------- writing
+
+def _fmt_toml_value(value) -> str:
+    if isinstance(value, str):
+        return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(value, (tuple, list)):
+        return "[" + ", ".join(_fmt_toml_value(v) for v in value) + "]"
+    if isinstance(value, int):
+        return str(value)
+    return repr(float(value))
+
+
+def block_toml_text(block: Block) -> str:
+    lines = [f"name = {_fmt_toml_value(block.name)}", f"crs = {_fmt_toml_value(block.crs)}", ""]
+    for camera in block.cameras.values():
+        lines.append(f"[cameras.{camera.camera_id}]")
+        lines.append('model = "frame"')
+        for key in _FRAME_CAMERA_KEYS:
+            if key == "model":
+                continue
+            value = getattr(camera, key)
+            if value is not None:
+                lines.append(f"{key} = {_fmt_toml_value(value)}")
+        lines.append("")
+    lines += ["[observations]", f"image_sigma_px = {_fmt_toml_value(block.image_sigma_px)}", ""]
+    if block.gnss_sigma_m is not None:
+        lines += ["[gnss]", f"sigma_m = {_fmt_toml_value(block.gnss_sigma_m)}", ""]
+    if block.imu_sigma_deg is not None:
+        lines += ["[imu]", f"sigma_deg = {_fmt_toml_value(block.imu_sigma_deg)}", ""]
+    return "\n".join(lines)
+
+
+def write_block(block: Block, folder: str | os.PathLike) -> None:
+    """Write a block folder (atomically: the folder appears complete or not at all)."""
+    with atomic_folder(folder) as tmp:
+        with atomic_write(os.path.join(tmp, "block.toml")) as handle:
+            handle.write(block_toml_text(block))
+        im = block.images
+        deg = np.degrees(im.attitude_rad)
+        with atomic_write(os.path.join(tmp, "images.csv")) as handle:
+            write_table(handle, [c.name for c in IMAGE_COLUMNS],
+                        [im.image_id, im.camera_id, im.strip_id, im.time_s,
+                         im.position_m[:, 0], im.position_m[:, 1], im.position_m[:, 2],
+                         deg[:, 0], deg[:, 1], deg[:, 2]],
+                        ["", "", "", ".3f", ".4f", ".4f", ".4f", ".6f", ".6f", ".6f"])
+        pt = block.points
+        with atomic_write(os.path.join(tmp, "points.csv")) as handle:
+            write_table(handle, [c.name for c in POINT_COLUMNS],
+                        [pt.point_id, pt.role, pt.xyz_m[:, 0], pt.xyz_m[:, 1], pt.xyz_m[:, 2],
+                         pt.sigma_m[:, 0], pt.sigma_m[:, 2]],
+                        ["", "", ".4f", ".4f", ".4f", ".4f", ".4f"])
+        ob = block.observations
+        with atomic_write(os.path.join(tmp, "observations.csv")) as handle:
+            columns = [im.image_id[ob.image_index], pt.point_id[ob.point_index], ob.pixel[:, 0], ob.pixel[:, 1]]
+            header = ["image_id", "point_id", "col_px", "row_px"]
+            formats = ["", "", ".4f", ".4f"]
+            if np.any(ob.sigma_px != block.image_sigma_px):
+                columns.append(ob.sigma_px)
+                header.append("sigma_px")
+                formats.append(".4f")
+            write_table(handle, header, columns, formats)

@@ -1,0 +1,134 @@
+"""Strict CSV tables: every defect is a :class:`~selfcal.errors.BlockError`
+naming the file, the line and the column.
+
+A table is described by its columns; each column is a string, a number that
+must be given, or a number that may be left empty (read as NaN). Extra columns
+are an error (a misspelt header must not be silently ignored), and so are NaN
+or infinite numbers written out, wrong field counts and duplicate headers.
+"""
+from __future__ import annotations
+
+import csv
+import math
+import os
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import BlockError
+
+__all__ = ["Column", "Table", "read_table", "write_table"]
+
+STR, NUM, OPT_NUM = "str", "num", "opt_num"
+
+
+@dataclass(frozen=True)
+class Column:
+    """One column: its header name, kind and whether the header must appear."""
+
+    name: str
+    kind: str = STR
+    required: bool = True
+
+
+@dataclass(frozen=True)
+class Table:
+    """Columns by name (str columns as object arrays, numbers as float) and the
+    1-based file line of every row."""
+
+    path: str
+    columns: dict[str, np.ndarray]
+    line: np.ndarray
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return self.columns[name]
+
+    def __contains__(self, name: str) -> bool:
+        return name in self.columns
+
+    def __len__(self) -> int:
+        return len(self.line)
+
+
+def _parse_number(text: str, path: str, line: int, column: str, allow_empty: bool) -> float:
+    text = text.strip()
+    if text == "":
+        if allow_empty:
+            return math.nan
+        raise BlockError(path, "empty value where a number is required", line, column)
+    try:
+        value = float(text)
+    except ValueError:
+        raise BlockError(path, f"'{text}' is not a number", line, column) from None
+    if not math.isfinite(value):
+        raise BlockError(path, f"'{text}' is not a finite number (NaN and infinity are not allowed)",
+                         line, column)
+    return value
+
+
+def read_table(path: str | os.PathLike, columns: list[Column]) -> Table:
+    """Read a comma-separated table with a header line.
+
+    Blank lines and lines starting with ``#`` are skipped.
+    """
+    path = str(path)
+    if not os.path.isfile(path):
+        raise BlockError(path, "file not found")
+    spec = {c.name: c for c in columns}
+    with open(path, newline="", encoding="utf-8") as handle:
+        rows = list(enumerate(csv.reader(handle), start=1))
+    rows = [(n, r) for n, r in rows if r and any(f.strip() for f in r) and not r[0].lstrip().startswith("#")]
+    if not rows:
+        raise BlockError(path, "empty file: a header line is required", 1)
+    header_line, header = rows[0]
+    header = [h.strip() for h in header]
+    seen: set[str] = set()
+    for name in header:
+        if name in seen:
+            raise BlockError(path, "duplicated column", header_line, name)
+        seen.add(name)
+        if name not in spec:
+            known = ", ".join(spec)
+            raise BlockError(path, f"unknown column (known: {known})", header_line, name)
+    for column in columns:
+        if column.required and column.name not in seen:
+            raise BlockError(path, "missing column", header_line, column.name)
+    data: dict[str, list] = {name: [] for name in header}
+    lines: list[int] = []
+    for line, fields in rows[1:]:
+        if len(fields) != len(header):
+            raise BlockError(path, f"expected {len(header)} fields, found {len(fields)}", line)
+        lines.append(line)
+        for name, text in zip(header, fields):
+            kind = spec[name].kind
+            if kind == STR:
+                data[name].append(text.strip())
+            else:
+                data[name].append(_parse_number(text, path, line, name, kind == OPT_NUM))
+    out: dict[str, np.ndarray] = {}
+    for name in header:
+        if spec[name].kind == STR:
+            out[name] = np.array(data[name], dtype=object)
+        else:
+            out[name] = np.array(data[name], dtype=float)
+    return Table(path, out, np.array(lines, dtype=np.int64))
+
+
+def _column_text(column, fmt: str) -> list[str]:
+    values = np.asarray(column).tolist()
+    if fmt == "":
+        return [str(v) for v in values]
+    return ["" if isinstance(v, float) and not math.isfinite(v) else format(v, fmt) for v in values]
+
+
+def write_table(handle, header: list[str], columns: list, formats: list[str]) -> None:
+    """Write columns (equal-length sequences) as CSV to an open text handle.
+
+    ``formats`` are ``format()`` specifications per column (``""`` for
+    strings); NaN numbers are written as empty fields.
+    """
+    handle.write(",".join(header) + "\n")
+    texts = [_column_text(c, f) for c, f in zip(columns, formats)]
+    if texts and texts[0]:
+        handle.write("\n".join(",".join(row) for row in zip(*texts)))
+        handle.write("\n")

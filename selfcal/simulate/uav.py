@@ -1,0 +1,343 @@
+"""The UAV block of seed 000, simulated with known truth.
+
+28 vertical images in 4 east-west strips of 7 (75 % forward, 60 % side
+overlap), a Sony ILCE-7M3 with a 21 mm lens (6000 x 4000 px, 5.9 um pixels)
+215 m above the ground (GSD about 6.1 cm), rolling terrain, about 3.5 image
+points per mm^2, and 39 ground marks split into the four control scenarios of
+the paper:
+
+=======  =============  ===========
+type     GCP / CHK      trajectory
+=======  =============  ===========
+type1    15 / 24        none
+type2    15 / 24        GNSS + IMU
+type3    27 / 12        none
+type4    27 / 12        GNSS + IMU
+=======  =============  ===========
+
+All four blocks share the same images and measurements, as in the paper; they
+differ in which marks are control and whether the trajectory is observed.
+
+The camera's true interior orientation differs from its nominal one, and the
+image measurements carry a systematic distortion field (``none``, ``brown``,
+``local``, ``local+brown``), Gaussian noise and optionally blunders. The
+trajectory observations carry a per-strip shift and a linear drift (Eq. 12 of
+seed 000) plus noise.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..block import Block, Dropped, FrameCamera, Images, Observations, Points
+from ..sensors.frame import pixel_from_photo, project
+
+__all__ = ["TrueDistortion", "UAVTruth", "UAVSimulation", "simulate_uav", "truth_files", "SCENARIOS", "DISTORTIONS"]
+
+SCENARIOS = ("type1", "type2", "type3", "type4")
+DISTORTIONS = ("none", "brown", "local", "local+brown")
+
+# Nangang calibration field mark accuracy (NLSC 2015, quoted in seed 000)
+MARK_SIGMA_XY_M = 0.0167
+MARK_SIGMA_Z_M = 0.0289
+
+
+@dataclass(frozen=True)
+class TrueDistortion:
+    """A known distortion field Delta (pixels, photo axes), observed = ideal + Delta.
+
+    ``brown`` holds k1, k2 (mm^-2, mm^-4), p1, p2 (mm^-1) about the principal
+    point; ``bumps`` are Gaussian displacements (x_mm, y_mm, sigma_mm, dx_px, dy_px).
+    """
+
+    pixel_size_mm: float
+    principal_point_mm: tuple[float, float] = (0.0, 0.0)
+    brown: dict | None = None
+    bumps: tuple[tuple[float, float, float, float, float], ...] = ()
+
+    def displacement_px(self, x_mm, y_mm) -> tuple[np.ndarray, np.ndarray]:
+        x_mm, y_mm = np.asarray(x_mm, float), np.asarray(y_mm, float)
+        dx = np.zeros_like(x_mm)
+        dy = np.zeros_like(y_mm)
+        if self.brown:
+            b = self.brown
+            xb, yb = x_mm - self.principal_point_mm[0], y_mm - self.principal_point_mm[1]
+            r2 = xb * xb + yb * yb
+            radial = b["k1"] * r2 + b["k2"] * r2 * r2
+            dx += (xb * radial + b["p1"] * (r2 + 2 * xb * xb) + 2 * b["p2"] * xb * yb) / self.pixel_size_mm
+            dy += (yb * radial + b["p2"] * (r2 + 2 * yb * yb) + 2 * b["p1"] * xb * yb) / self.pixel_size_mm
+        for cx, cy, s, ax, ay in self.bumps:
+            g = np.exp(-((x_mm - cx) ** 2 + (y_mm - cy) ** 2) / (2 * s * s))
+            dx += ax * g
+            dy += ay * g
+        return dx, dy
+
+    def as_dict(self) -> dict:
+        return {"pixel_size_mm": self.pixel_size_mm, "principal_point_mm": list(self.principal_point_mm),
+                "brown": self.brown, "bumps": [list(b) for b in self.bumps]}
+
+
+@dataclass
+class UAVTruth:
+    camera: FrameCamera                 # true interior orientation
+    distortion: TrueDistortion
+    image_id: np.ndarray
+    eop: np.ndarray                     # (n_images, 6) true X0, Y0, Z0, omega, phi, kappa (rad)
+    point_id: np.ndarray
+    xyz: np.ndarray                     # (n_points, 3) true coordinates
+    blunder_obs: np.ndarray             # observation rows carrying a blunder
+    blunder_px: np.ndarray              # (n_blunders, 2) blunder vector (col, row) px
+    strip_id: np.ndarray                # strips in order
+    gnss_shift_m: np.ndarray            # (n_strips, 3) D0
+    gnss_drift_m_s: np.ndarray          # (n_strips, 3) D1
+    imu_shift_rad: np.ndarray           # (n_strips, 3)
+    image_sigma_px: float
+    gsd_m: float
+
+
+@dataclass
+class UAVSimulation:
+    blocks: dict[str, Block]
+    truth: UAVTruth
+    info: dict = field(default_factory=dict)
+
+
+def _terrain(x, y):
+    """Rolling terrain, about +-20 m of relief around 30 m."""
+    return (30.0 + 12.0 * np.sin(2 * np.pi * x / 700.0) * np.cos(2 * np.pi * y / 520.0)
+            + 6.0 * np.sin(2 * np.pi * (x + 0.6 * y) / 260.0))
+
+
+def _distortion(name: str, pixel_size_mm: float, pp: tuple[float, float]) -> TrueDistortion:
+    if name not in DISTORTIONS:
+        raise ValueError(f"unknown distortion field '{name}' (known: {', '.join(DISTORTIONS)})")
+    brown = None
+    bumps: tuple = ()
+    if "brown" in name:
+        # about -11 px of radial distortion in the corners, 1 px decentering
+        brown = {"k1": -9.1e-6, "k2": 5.0e-9, "p1": 4.0e-6, "p2": -3.0e-6}
+    if "local" in name:
+        # a non-stationary defect near the upper-right corner and a weaker one at the left edge
+        bumps = ((12.5, 7.0, 3.5, 2.4, -1.6), (-14.0, -2.0, 2.5, -1.2, 0.9))
+    return TrueDistortion(pixel_size_mm, pp, brown, bumps)
+
+
+def simulate_uav(seed: int = 0, distortion: str = "local+brown", image_sigma_px: float = 0.5,
+                 blunder_rate: float = 0.0, points_per_mm2: float = 3.5,
+                 gnss_sigma_m=(0.05, 0.05, 0.10), imu_sigma_deg=(0.02, 0.02, 0.05),
+                 gnss_shift_m: float = 0.2, gnss_drift_mm_s: float = 5.0, imu_shift_deg: float = 0.05,
+                 ) -> UAVSimulation:
+    """Simulate the seed-000 block; returns the four scenario blocks and the truth.
+
+    Parameters
+    ----------
+    seed : int
+        Random seed: the same seed gives the same block.
+    distortion : {"none", "brown", "local", "local+brown"}
+    image_sigma_px : float
+        Standard deviation of the image measurement noise (and the blocks' a-priori sigma).
+    blunder_rate : float
+        Share of image observations given a blunder of 4-15 px in a random direction.
+    points_per_mm2 : float
+        Image point density.
+    gnss_shift_m, gnss_drift_mm_s, imu_shift_deg : float
+        Typical size of the per-strip trajectory errors of Eq. (12).
+    """
+    rng = np.random.default_rng(seed)
+    width_px, height_px, pixel = 6000, 4000, 0.0059
+    nominal = FrameCamera("ilce7m3", width_px, height_px, pixel, focal_mm=21.0, x0_mm=0.0, y0_mm=0.0)
+    true_cam = FrameCamera("ilce7m3", width_px, height_px, pixel, focal_mm=20.962, x0_mm=0.034, y0_mm=-0.021)
+    field_ = _distortion(distortion, pixel, (true_cam.x0_mm, true_cam.y0_mm))
+    agl = 215.0
+    scale = agl / true_cam.focal_mm                                     # m per mm
+    foot_x, foot_y = nominal.width_mm * scale, nominal.height_mm * scale
+    base, spacing = 0.25 * foot_x, 0.40 * foot_y
+    n_strips, per_strip = 4, 7
+    speed = 8.0
+
+    # --- exterior orientation (true)
+    image_id, strip_of, times, eop = [], [], [], []
+    for s in range(n_strips):
+        eastbound = s % 2 == 0
+        for k in range(per_strip):
+            j = k if eastbound else per_strip - 1 - k
+            x = j * base + rng.normal(0, 1.5)
+            y = s * spacing + rng.normal(0, 1.5)
+            z = 30.0 + agl + rng.normal(0, 1.0)            # constant flying height
+            kappa = (0.0 if eastbound else np.pi) + np.radians(rng.normal(0, 1.5))
+            eop.append([x, y, z, np.radians(rng.normal(0, 1.2)), np.radians(rng.normal(0, 1.2)), kappa])
+            image_id.append(f"S{s + 1}_{k + 1:02d}")
+            strip_of.append(s)
+            times.append(s * 150.0 + k * base / speed)
+    eop = np.array(eop)
+    eop[:, 5] = (eop[:, 5] + np.pi) % (2 * np.pi) - np.pi
+    times = np.array(times)
+    strip_of = np.array(strip_of)
+    n_img = len(image_id)
+
+    # --- object points: tie points over the covered area, and 39 marks
+    x_lo, x_hi = -foot_x / 2, (per_strip - 1) * base + foot_x / 2
+    y_lo, y_hi = -foot_y / 2, (n_strips - 1) * spacing + foot_y / 2
+    density = points_per_mm2 * nominal.width_mm * nominal.height_mm / (foot_x * foot_y)   # per m^2
+    n_tie = int(density * (x_hi - x_lo) * (y_hi - y_lo))
+    tx = rng.uniform(x_lo, x_hi, n_tie)
+    ty = rng.uniform(y_lo, y_hi, n_tie)
+    tz = _terrain(tx, ty) + rng.normal(0, 1.0, n_tie)
+    tie = np.column_stack([tx, ty, tz])
+
+    gx = np.linspace(x_lo + 0.32 * foot_x, x_hi - 0.32 * foot_x, 8)
+    gy = np.linspace(y_lo + 0.25 * foot_y, y_hi - 0.25 * foot_y, 5)
+    grid = [(i, j) for j in range(5) for i in range(8) if (i, j) != (4, 2)]           # 39 marks
+    mx = np.array([gx[i] for i, _ in grid]) + rng.normal(0, 8.0, 39)
+    my = np.array([gy[j] for _, j in grid]) + rng.normal(0, 8.0, 39)
+    marks = np.column_stack([mx, my, _terrain(mx, my)])
+    periphery = [n for n, (i, j) in enumerate(grid) if i in (0, 7) or j in (0, 4)]     # 22 marks
+    interior = [n for n in range(39) if n not in periphery]                            # 17 marks
+    # sparse control: corners, four edge marks on the long sides, two on the short sides, five inner marks
+    sparse = [n for n, (i, j) in enumerate(grid)
+              if (i in (0, 7) and j in (0, 2, 4)) or (j in (0, 4) and i in (2, 5))
+              or (i, j) in ((2, 2), (5, 2), (3, 1), (4, 3), (6, 3))]
+    # dense control: the whole periphery plus the same inner marks
+    dense = sorted(set(periphery) | set(sparse))
+    assert len(sparse) == 15 and len(dense) == 27, (len(sparse), len(dense))
+    del interior
+
+    xyz_true = np.vstack([marks, tie])
+    point_id = np.array([f"M{k + 1:02d}" for k in range(39)] + [f"T{k + 1:06d}" for k in range(n_tie)], dtype=object)
+
+    # --- project every point into every image
+    iop = np.array([true_cam.focal_mm, true_cam.x0_mm, true_cam.y0_mm])
+    n_pts = len(xyz_true)
+    obs_img, obs_pt, obs_pix = [], [], []
+    for i in range(n_img):
+        xy = project(xyz_true, np.broadcast_to(eop[i], (n_pts, 6)), iop)
+        dx, dy = field_.displacement_px(xy[:, 0], xy[:, 1])
+        xy_obs = xy + np.column_stack([dx, dy]) * pixel
+        pix = pixel_from_photo(xy_obs, width_px, height_px, pixel)
+        inside = ((pix[:, 0] > 1) & (pix[:, 0] < width_px - 1) & (pix[:, 1] > 1) & (pix[:, 1] < height_px - 1))
+        idx = np.flatnonzero(inside)
+        obs_img.append(np.full(idx.size, i))
+        obs_pt.append(idx)
+        obs_pix.append(pix[idx])
+    obs_img = np.concatenate(obs_img)
+    obs_pt = np.concatenate(obs_pt)
+    obs_pix = np.concatenate(obs_pix)
+    # keep tie points seen at least twice, marks seen at least twice
+    rays = np.bincount(obs_pt, minlength=n_pts)
+    keep_pt = rays >= 2
+    new_index = np.cumsum(keep_pt) - 1
+    keep_obs = keep_pt[obs_pt]
+    obs_img, obs_pt, obs_pix = obs_img[keep_obs], new_index[obs_pt[keep_obs]], obs_pix[keep_obs]
+    xyz_true, point_id = xyz_true[keep_pt], point_id[keep_pt]
+    n_marks = int(keep_pt[:39].sum())
+    mark_map = np.cumsum(keep_pt[:39]) - 1
+    sparse = [int(mark_map[n]) for n in sparse if keep_pt[n]]
+    dense = [int(mark_map[n]) for n in dense if keep_pt[n]]
+
+    noise = rng.normal(0.0, image_sigma_px, obs_pix.shape)
+    measured = obs_pix + noise
+    n_obs = len(measured)
+    n_blunder = int(round(blunder_rate * n_obs))
+    blunder_obs = np.sort(rng.choice(n_obs, n_blunder, replace=False)) if n_blunder else np.zeros(0, np.int64)
+    size = rng.uniform(4.0, 15.0, n_blunder)
+    angle = rng.uniform(0, 2 * np.pi, n_blunder)
+    blunder_px = np.column_stack([size * np.cos(angle), size * np.sin(angle)])
+    measured[blunder_obs] += blunder_px
+    measured[:, 0] = np.clip(measured[:, 0], 0.0, width_px)
+    measured[:, 1] = np.clip(measured[:, 1], 0.0, height_px)
+
+    # --- reference coordinates of the marks (with their survey noise)
+    ref = xyz_true[:n_marks] + rng.normal(0, 1, (n_marks, 3)) * [MARK_SIGMA_XY_M, MARK_SIGMA_XY_M, MARK_SIGMA_Z_M]
+
+    # --- trajectory observations: per-strip shift + drift (Eq. 12) + noise
+    gnss_sigma = np.array(gnss_sigma_m, float)
+    imu_sigma = np.radians(np.array(imu_sigma_deg, float))
+    shift = rng.normal(0, gnss_shift_m, (n_strips, 3))
+    drift = rng.normal(0, gnss_drift_mm_s / 1000.0, (n_strips, 3))
+    imu_shift = np.radians(rng.normal(0, imu_shift_deg, (n_strips, 3)))
+    t_strip0 = np.array([times[strip_of == s].min() for s in range(n_strips)])
+    dt = times - t_strip0[strip_of]
+    gnss = eop[:, :3] + shift[strip_of] + drift[strip_of] * dt[:, None] + rng.normal(0, 1, (n_img, 3)) * gnss_sigma
+    imu = eop[:, 3:] + imu_shift[strip_of] + rng.normal(0, 1, (n_img, 3)) * imu_sigma
+    imu = (imu + np.pi) % (2 * np.pi) - np.pi
+
+    strip_names = np.array([f"S{s + 1}" for s in range(n_strips)], dtype=object)
+    images = Images(
+        image_id=np.array(image_id, dtype=object),
+        camera_id=np.array(["ilce7m3"] * n_img, dtype=object),
+        strip_id=strip_names[strip_of],
+        time_s=times,
+        position_m=gnss,
+        attitude_rad=imu,
+        line=np.arange(2, n_img + 2),
+    )
+    observations = Observations(
+        image_index=obs_img, point_index=obs_pt, pixel=measured,
+        sigma_px=np.full(n_obs, image_sigma_px), line=np.arange(2, n_obs + 2))
+
+    blocks = {}
+    for scenario in SCENARIOS:
+        gcp = set(sparse if scenario in ("type1", "type2") else dense)
+        role = np.array(["gcp" if k in gcp else "chk" for k in range(n_marks)] + ["tie"] * (len(xyz_true) - n_marks),
+                        dtype=object)
+        xyz = np.full_like(xyz_true, np.nan)
+        xyz[:n_marks] = ref
+        sigma = np.full_like(xyz_true, np.nan)
+        sigma[:n_marks] = [MARK_SIGMA_XY_M, MARK_SIGMA_XY_M, MARK_SIGMA_Z_M]
+        points = Points(point_id=point_id, role=role, xyz_m=xyz, sigma_m=sigma,
+                        line=np.arange(2, len(xyz_true) + 2))
+        with_traj = scenario in ("type2", "type4")
+        blocks[scenario] = Block(
+            name=f"seed000-uav-{scenario}",
+            crs="local",
+            cameras={"ilce7m3": nominal},
+            images=images,
+            points=points,
+            observations=observations,
+            image_sigma_px=image_sigma_px,
+            gnss_sigma_m=tuple(gnss_sigma) if with_traj else None,
+            imu_sigma_deg=tuple(np.degrees(imu_sigma)) if with_traj else None,
+            dropped=Dropped(),
+        )
+    truth = UAVTruth(
+        camera=true_cam, distortion=field_, image_id=images.image_id, eop=eop,
+        point_id=point_id, xyz=xyz_true, blunder_obs=blunder_obs, blunder_px=blunder_px,
+        strip_id=strip_names, gnss_shift_m=shift, gnss_drift_m_s=drift, imu_shift_rad=imu_shift,
+        image_sigma_px=image_sigma_px, gsd_m=pixel * agl / true_cam.focal_mm,
+    )
+    info = {"n_images": n_img, "n_points": len(xyz_true), "n_observations": n_obs,
+            "points_per_image": n_obs / n_img, "n_marks": n_marks, "seed": seed, "distortion": distortion}
+    return UAVSimulation(blocks, truth, info)
+
+
+def truth_files(truth: UAVTruth, nodes_x: int = 61) -> dict:
+    """The truth of a simulation as data files (dicts become JSON, tuples CSV)."""
+    cam = truth.camera
+    nodes_y = int(round((nodes_x - 1) * cam.height_px / cam.width_px)) + 1
+    col, row = np.meshgrid(np.linspace(0, cam.width_px, nodes_x), np.linspace(0, cam.height_px, nodes_y))
+    col, row = col.ravel(), row.ravel()
+    x = (col - cam.width_px / 2) * cam.pixel_size_mm
+    y = (cam.height_px / 2 - row) * cam.pixel_size_mm
+    dx, dy = truth.distortion.displacement_px(x, y)
+    deg = np.degrees(truth.eop[:, 3:])
+    camera = {
+        "camera_id": cam.camera_id, "width_px": cam.width_px, "height_px": cam.height_px,
+        "pixel_size_mm": cam.pixel_size_mm, "focal_mm": cam.focal_mm, "x0_mm": cam.x0_mm, "y0_mm": cam.y0_mm,
+        "distortion": truth.distortion.as_dict(), "image_sigma_px": truth.image_sigma_px, "gsd_m": truth.gsd_m,
+    }
+    trajectory = {
+        "strip_id": list(truth.strip_id),
+        "gnss_shift_m": truth.gnss_shift_m, "gnss_drift_m_s": truth.gnss_drift_m_s,
+        "imu_shift_deg": np.degrees(truth.imu_shift_rad),
+    }
+    return {
+        "camera.json": camera,
+        "trajectory.json": trajectory,
+        "images.csv": (["image_id", "X0", "Y0", "Z0", "omega_deg", "phi_deg", "kappa_deg"],
+                       [truth.image_id, *truth.eop[:, :3].T, *deg.T], ["", ".5f", ".5f", ".5f", ".8f", ".8f", ".8f"]),
+        "points.csv": (["point_id", "X", "Y", "Z"], [truth.point_id, *truth.xyz.T], ["", ".5f", ".5f", ".5f"]),
+        "distortion_grid.csv": (["col", "row", "dcol", "drow"], [col, row, dx, -dy], [".2f", ".2f", ".5f", ".5f"]),
+        "blunders.csv": (["observation_row", "dcol_px", "drow_px"],
+                         [truth.blunder_obs, truth.blunder_px[:, 0], truth.blunder_px[:, 1]], ["d", ".3f", ".3f"]),
+    }
