@@ -51,6 +51,8 @@ class APModel(ABC):
 
     #: registry name of the family
     family: str = ""
+    #: specs the contract tests build (e.g. ``("legendre", "legendre:3")``)
+    examples: tuple[str, ...] = ()
 
     def __init__(self, frame: ImageFrame):
         self.frame = frame
@@ -72,6 +74,18 @@ class APModel(ABC):
     @abstractmethod
     def basis(self, x_mm: np.ndarray, y_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Basis matrices (Bx, By), each of shape (n, n_params), at photo coordinates."""
+
+    def basis_derivatives(self, x_mm: np.ndarray, y_mm: np.ndarray):
+        """Derivatives of the basis per millimetre of photo coordinate.
+
+        Returns
+        -------
+        dBx_dx, dBx_dy, dBy_dx, dBy_dy : ndarray, each (n, n_params)
+
+        Used to invert Delta (undistortion maps, exports); the contract tests
+        compare them with finite differences.
+        """
+        raise NotImplementedError(f"{type(self).__name__} has no basis derivatives")
 
     def displacement_px(self, x_mm, y_mm, coefficients_px) -> tuple[np.ndarray, np.ndarray]:
         """Delta in pixels along the photo axes (x right, y up) at photo coordinates."""

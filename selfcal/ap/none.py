@@ -8,6 +8,7 @@ from .base import APModel, ImageFrame
 
 class NoAP(APModel):
     family = "none"
+    examples = ("none",)
 
     @property
     def spec(self) -> str:
@@ -20,6 +21,11 @@ class NoAP(APModel):
     def basis(self, x_mm, y_mm):
         n = np.shape(x_mm)[0]
         return np.zeros((n, 0)), np.zeros((n, 0))
+
+    def basis_derivatives(self, x_mm, y_mm):
+        n = np.shape(x_mm)[0]
+        zero = np.zeros((n, 0))
+        return zero, zero, zero, zero
 
     @classmethod
     def from_spec(cls, option, frame: ImageFrame, observed_xy_mm=None, **settings):
