@@ -1,0 +1,49 @@
+"""Shared fixtures: simulated blocks with known truth (cached per test session)."""
+from __future__ import annotations
+
+import functools
+import os
+import sys
+
+import numpy as np
+import pytest
+
+from selfcal.block import prune
+from selfcal.simulate import simulate_uav
+
+SHARED_DATA = os.path.join(os.path.dirname(__file__), "..", "..", "shared", "data")
+
+
+@functools.lru_cache(maxsize=None)
+def simulation(seed: int = 1, distortion: str = "none", points_per_mm2: float = 3.5, blunder_rate: float = 0.0,
+               image_sigma_px: float = 0.5):
+    """A cached seed-000 simulation (the same arguments give the same object)."""
+    return simulate_uav(seed=seed, distortion=distortion, points_per_mm2=points_per_mm2,
+                        blunder_rate=blunder_rate, image_sigma_px=image_sigma_px)
+
+
+def pruned(sim, scenario: str):
+    return prune(sim.blocks[scenario])
+
+
+def truth_index(sim, block) -> np.ndarray:
+    """Index into the truth arrays of each point of ``block``."""
+    lookup = {p: i for i, p in enumerate(sim.truth.point_id)}
+    return np.array([lookup[p] for p in block.points.point_id])
+
+
+def run_cli(*argv: str) -> int:
+    from selfcal.cli.main import main
+    return main(list(argv))
+
+
+@pytest.fixture
+def cli():
+    return run_cli
+
+
+@pytest.fixture(scope="session")
+def selfcal_exe():
+    exe = os.path.join(os.path.dirname(sys.executable), "selfcal")
+    assert os.path.exists(exe), "the selfcal console script is not installed in the test environment"
+    return exe

@@ -1,0 +1,194 @@
+"""Block folder input: every defect is an error naming file, line and column (exit code 2);
+conditions a real block has are warnings, counted in summary.json."""
+import json
+import os
+import shutil
+
+import numpy as np
+import pytest
+
+from selfcal.errors import BlockError
+from selfcal.io import read_block, write_block
+
+from conftest import run_cli, simulation
+
+
+@pytest.fixture(scope="module")
+def template(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("template") / "block"
+    write_block(simulation(seed=2, distortion="none", points_per_mm2=0.05).blocks["type3"], folder)
+    return folder
+
+
+@pytest.fixture
+def block(template, tmp_path):
+    folder = tmp_path / "block"
+    shutil.copytree(template, folder)
+    return folder
+
+
+def _read(path) -> str:
+    with open(path) as handle:
+        return handle.read()
+
+
+def _write(path, text: str) -> None:
+    with open(path, "w") as handle:
+        handle.write(text)
+
+
+def edit(path, line: int, old: str, new: str):
+    """Replace ``old`` by ``new`` on 1-based ``line`` of a file."""
+    lines = _read(path).split("\n")
+    assert old in lines[line - 1], (old, lines[line - 1])
+    lines[line - 1] = lines[line - 1].replace(old, new, 1)
+    _write(path, "\n".join(lines))
+
+
+def expect_error(folder, file: str, line, column, reason: str, tmp_path):
+    with pytest.raises(BlockError) as info:
+        read_block(folder)
+    err = info.value
+    assert os.path.basename(err.path) == file
+    assert err.line == line
+    assert err.column == column
+    assert reason in err.reason
+    text = str(err)
+    assert file in text and (line is None or f"line {line}" in text)
+    # the command line reports the same and exits 2, writing nothing
+    out = tmp_path / "results"
+    assert run_cli("adjust", str(folder), "--out", str(out), "--quiet") == 2
+    assert not out.exists()
+    return err
+
+
+def test_template_reads(template):
+    block = read_block(template)
+    assert len(block.images) == 28
+    assert np.sum(block.points.role == "gcp") == 27
+
+
+def test_missing_file(block, tmp_path):
+    os.remove(block / "points.csv")
+    expect_error(block, "points.csv", None, None, "file not found", tmp_path)
+
+
+def test_missing_column(block, tmp_path):
+    edit(block / "observations.csv", 1, "row_px", "row")
+    # 'row' is unknown, reported before the missing 'row_px'
+    expect_error(block, "observations.csv", 1, "row", "unknown column", tmp_path)
+
+
+def test_missing_required_column(block, tmp_path):
+    edit(block / "images.csv", 1, ",strip_id", "")
+    lines = _read(block / "images.csv").split("\n")
+    lines = [lines[0]] + [",".join(l.split(",")[:2] + l.split(",")[3:]) for l in lines[1:] if l]
+    _write(block / "images.csv", "\n".join(lines) + "\n")
+    expect_error(block, "images.csv", 1, "strip_id", "missing column", tmp_path)
+
+
+def test_unknown_toml_key(block, tmp_path):
+    text = _read(block / "block.toml").replace("focal_mm = 21.0", "focal_mm = 21.0\nfocal_lenght = 21.0")
+    _write(block / "block.toml", text)
+    line = text.split("\n").index("focal_lenght = 21.0") + 1
+    expect_error(block, "block.toml", line, "cameras.ilce7m3.focal_lenght", "unknown key", tmp_path)
+
+
+def test_bad_toml_value(block, tmp_path):
+    text = _read(block / "block.toml").replace("image_sigma_px = 0.5", "image_sigma_px = -0.5")
+    _write(block / "block.toml", text)
+    line = text.split("\n").index("image_sigma_px = -0.5") + 1
+    expect_error(block, "block.toml", line, "observations.image_sigma_px", "must be positive", tmp_path)
+
+
+def test_non_numeric_value(block, tmp_path):
+    line = _read(block / "observations.csv").split("\n")[6]
+    fields = line.split(",")
+    fields[2] = "12.5x"
+    edit(block / "observations.csv", 7, line, ",".join(fields))
+    expect_error(block, "observations.csv", 7, "col_px", "'12.5x' is not a number", tmp_path)
+
+
+def test_nan_value(block, tmp_path):
+    line = _read(block / "points.csv").split("\n")[3]
+    fields = line.split(",")
+    fields[4] = "nan"
+    edit(block / "points.csv", 4, line, ",".join(fields))
+    expect_error(block, "points.csv", 4, "Z", "not a finite number", tmp_path)
+
+
+def test_duplicated_id(block, tmp_path):
+    lines = _read(block / "images.csv").split("\n")
+    first = lines[3].split(",")[0]
+    lines[5] = first + "," + lines[5].split(",", 1)[1]
+    _write(block / "images.csv", "\n".join(lines))
+    err = expect_error(block, "images.csv", 6, "image_id", f"duplicated id '{first}'", tmp_path)
+    assert "first on line 4" in err.reason
+
+
+def test_observation_of_unknown_image(block, tmp_path):
+    line = _read(block / "observations.csv").split("\n")[9]
+    edit(block / "observations.csv", 10, line.split(",")[0] + ",", "S9_99,")
+    expect_error(block, "observations.csv", 10, "image_id", "unknown image 'S9_99'", tmp_path)
+
+
+def test_observation_of_unknown_point(block, tmp_path):
+    line = _read(block / "observations.csv").split("\n")[11]
+    point = line.split(",")[1]
+    edit(block / "observations.csv", 12, "," + point + ",", ",NOPE,")
+    expect_error(block, "observations.csv", 12, "point_id", "unknown point 'NOPE'", tmp_path)
+
+
+def test_observation_outside_image_names_units(block, tmp_path):
+    line = _read(block / "observations.csv").split("\n")[4]
+    fields = line.split(",")
+    fields[3] = "40123.0"
+    edit(block / "observations.csv", 5, line, ",".join(fields))
+    expect_error(block, "observations.csv", 5, "row_px", "outside the image", tmp_path)
+
+
+def test_wrong_field_count(block, tmp_path):
+    line = _read(block / "points.csv").split("\n")[2]
+    edit(block / "points.csv", 3, line, line + ",7")
+    expect_error(block, "points.csv", 3, None, "expected 7 fields, found 8", tmp_path)
+
+
+def test_fewer_than_three_gcps(block, tmp_path):
+    lines = _read(block / "points.csv").split("\n")
+    gcp_lines = [i for i, l in enumerate(lines) if ",gcp," in l]
+    for i in gcp_lines[2:]:
+        lines[i] = lines[i].replace(",gcp,", ",chk,")
+    _write(block / "points.csv", "\n".join(lines))
+    err = expect_error(block, "points.csv", None, "role", "only 2 usable gcp", tmp_path)
+    assert "[gnss]" in err.reason
+
+
+def test_real_block_conditions_are_warnings_counted_in_summary(block, tmp_path):
+    # a tie point seen in one image, a GCP and a CHK seen in none, an image with too few points
+    obs = _read(block / "observations.csv").split("\n")
+    header, rows = obs[0], [r for r in obs[1:] if r]
+    ties = {}
+    for r in rows:
+        ties.setdefault(r.split(",")[1], []).append(r)
+    single = next(p for p, rs in ties.items() if p.startswith("T") and len(rs) >= 2)
+    drop = set(ties[single][1:])
+    gcp = next(p for p in ties if p.startswith("M"))
+    pts = _read(block / "points.csv")
+    role = next(l.split(",")[1] for l in pts.split("\n") if l.startswith(gcp + ","))
+    drop |= set(ties[gcp])
+    lonely_image = "S4_07"
+    image_rows = [r for r in rows if r.startswith(lonely_image + ",")]
+    drop |= set(image_rows[4:])
+    kept = [r for r in rows if r not in drop]
+    _write(block / "observations.csv", "\n".join([header] + kept) + "\n")
+    out = tmp_path / "res"
+    assert run_cli("adjust", str(block), "--out", str(out), "--quiet") == 0
+    summary = json.loads(_read(out / "summary.json"))
+    dropped = summary["dropped"]
+    assert dropped["images_too_few_points"] == 1
+    assert dropped["tie_points_one_image"] >= 1
+    assert dropped["control_points_unobserved"] + dropped["check_points_one_image"] >= 1
+    assert any(lonely_image in w for w in summary["warnings"])
+    assert any(single in w for w in summary["warnings"])
+    assert any(gcp in w for w in summary["warnings"]), role
+    assert summary["n_images"] == 27

@@ -1,0 +1,90 @@
+"""The engine against a brute-force reference: dense finite-difference Jacobian of the whole problem.
+
+On a small block, the Schur-complement step, the reduced normal matrix and the
+cofactor blocks of points must equal those of the full, dense normal equations.
+"""
+import numpy as np
+import pytest
+
+from selfcal.adjust.covariance import point_cofactors
+from selfcal.adjust.initial import initial_state
+from selfcal.adjust.linalg import factorise
+from selfcal.adjust.normal import back_substitute, image_residuals, linearise, parameter_observations, reduce
+from selfcal.adjust.problem import build_problem
+
+from conftest import pruned, simulation
+
+
+def _residual_vector(problem, state):
+    r = (image_residuals(problem, state) / problem.obs_sigma_mm[:, None]).ravel()
+    rc = ((problem.control_xyz - state.points[problem.control_index]) / problem.control_sigma).ravel()
+    _, rx = parameter_observations(problem, state)
+    return np.concatenate([r, rc, rx])
+
+
+def _unpack(problem, state, x):
+    n_t = problem.n_theta
+    return problem.apply(state, x[:n_t], x[n_t:].reshape(-1, 3))
+
+
+@pytest.fixture(scope="module")
+def small():
+    sim = simulation(seed=5, distortion="none", points_per_mm2=0.04)
+    block = pruned(sim, "type2")          # control points and GNSS/IMU observations
+    problem = build_problem(block, "none", chunk_observations=500)   # several chunks
+    state, _ = initial_state(problem, block)
+    return block, problem, state
+
+
+def test_small_block_has_several_chunks(small):
+    _, problem, _ = small
+    assert len(problem.chunks) >= 3
+    assert problem.n_points > 100
+
+
+def test_schur_step_and_covariance_equal_dense_solution(small):
+    block, problem, state = small
+    n = problem.n_theta + 3 * problem.n_points
+    r0 = _residual_vector(problem, state)
+    J = np.empty((r0.size, n))
+    h = np.where(np.arange(n) < problem.n_theta, 1e-6, 1e-5)
+    for k in range(n):
+        e = np.zeros(n)
+        e[k] = h[k]
+        J[:, k] = -(_residual_vector(problem, _unpack(problem, state, e))
+                    - _residual_vector(problem, _unpack(problem, state, -e))) / (2 * h[k])
+    N = J.T @ J
+    g = J.T @ r0
+    dense_step = np.linalg.solve(N, g)
+
+    lin = linearise(problem, state)
+    np.testing.assert_allclose(lin.cost, 0.5 * r0 @ r0, rtol=1e-12)
+    g_theta = lin.g_theta
+    np.testing.assert_allclose(g_theta, g[:problem.n_theta], rtol=1e-5, atol=1e-6 * np.abs(g).max())
+    S, g_red, v_inv = reduce(problem, lin, 0.0)
+    d_theta = factorise(S).solve(g_red)
+    d_p = back_substitute(problem, lin, v_inv, d_theta)
+    step = np.concatenate([d_theta, d_p.ravel()])
+    scale = np.sqrt(np.diag(N))
+    assert np.max(np.abs((step - dense_step) * scale)) < 1e-4   # in units of conditional sigma
+
+    Q_full = np.linalg.inv(N)
+    Q = factorise(S).inverse()
+    n_t = problem.n_theta
+    np.testing.assert_allclose(Q, Q_full[:n_t, :n_t], rtol=1e-5, atol=1e-7 * np.abs(Q).max())
+    Qp = point_cofactors(problem, lin, v_inv, Q)
+    Qp_full = np.stack([Q_full[n_t + 3 * i:n_t + 3 * i + 3, n_t + 3 * i:n_t + 3 * i + 3]
+                        for i in range(problem.n_points)])
+    np.testing.assert_allclose(Qp, Qp_full, rtol=1e-5, atol=1e-7 * np.abs(Qp_full).max())
+
+
+def test_sparse_and_dense_reductions_agree(small):
+    _, problem, state = small
+    lin = linearise(problem, state)
+    S_dense, g1, _ = reduce(problem, lin, 1e-3, dense=True)
+    S_sparse, g2, _ = reduce(problem, lin, 1e-3, dense=False)
+    np.testing.assert_allclose(S_sparse.toarray(), S_dense, rtol=1e-12, atol=1e-9 * np.abs(S_dense).max())
+    np.testing.assert_allclose(g1, g2)
+    x1 = factorise(S_dense).solve(g1)
+    x2 = factorise(S_sparse).solve(g2)
+    np.testing.assert_allclose(x1, x2, rtol=1e-8, atol=1e-10 * np.abs(x1).max())
