@@ -16,23 +16,9 @@ import scipy.sparse as sp
 
 from .normal import Linearisation
 from .problem import Problem
+from .structure import observation_pairs
 
-__all__ = ["observation_pairs", "point_cofactors"]
-
-
-def observation_pairs(point_local: np.ndarray, n_points: int) -> tuple[np.ndarray, np.ndarray]:
-    """All ordered pairs (a, b) of observations of the same point.
-
-    ``point_local`` must be sorted (observations grouped by point).
-    """
-    m = len(point_local)
-    counts = np.bincount(point_local, minlength=n_points)
-    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
-    k = counts[point_local]
-    a = np.repeat(np.arange(m), k)
-    offset = np.arange(a.size) - np.repeat(np.cumsum(k) - k, k)
-    b = np.repeat(starts[point_local], k) + offset
-    return a, b
+__all__ = ["point_cofactors"]
 
 
 def point_cofactors(problem: Problem, lin: Linearisation, v_inv: list, Q: np.ndarray) -> np.ndarray:

@@ -37,7 +37,6 @@ __all__ = [
     "evaluate_cost",
     "image_residuals",
     "parameter_observations",
-    "sum_blocks",
 ]
 
 
@@ -140,15 +139,10 @@ def parameter_observations(problem: Problem, state: State) -> tuple[sp.csr_matri
     return sp.csr_matrix((vals, (rows, cols)), shape=(k, problem.n_theta)), res
 
 
-def _indicator(groups: np.ndarray, n_groups: int) -> sp.csr_matrix:
-    """Sparse (n_groups, len(groups)) matrix summing rows by group."""
-    m = len(groups)
-    return sp.csr_matrix((np.ones(m), (groups, np.arange(m))), shape=(n_groups, m))
-
-
 def linearise(problem: Problem, state: State) -> Linearisation:
     """Jacobians and normal-equation blocks at ``state``."""
     n_img, n_e, n_d = problem.n_images, problem.n_e, problem.n_d
+    structure = problem.structure()
     rotation = matrix_from_opk_with_derivatives(state.eop[:, 3:])
     iop_all = np.array([c[:3] for c in state.cameras])
     U_ee = np.zeros((n_img, 6, 6))
@@ -161,11 +155,9 @@ def linearise(problem: Problem, state: State) -> Linearisation:
     control_of_point = np.full(problem.n_points, -1)
     control_of_point[problem.control_index] = np.arange(len(problem.control_index))
 
-    for p0, p1 in problem.chunks:
-        o0, o1 = int(problem.point_start[p0]), int(problem.point_start[p1])
+    for cs in structure.chunks:
+        p0, p1, o0, o1, img, ptl = cs.p0, cs.p1, cs.o0, cs.o1, cs.img, cs.ptl
         m, n_pc = o1 - o0, p1 - p0
-        img = problem.obs_image[o0:o1]
-        ptl = problem.obs_point[o0:o1] - p0
         xy, j_e, j_p, j_i = project_with_jacobians(
             state.points[p0:p1][ptl], state.eop[img], iop_all[problem.image_camera[img]],
             rotation=(rotation[0][img], rotation[1][img]))
@@ -174,31 +166,26 @@ def linearise(problem: Problem, state: State) -> Linearisation:
         r = (problem.obs_xy_mm[o0:o1] - xy - delta) * w[:, None]          # (m, 2)
         j_e *= w[:, None, None]
         j_p *= w[:, None, None]
-        j_d = np.zeros((m, 2, n_d))
-        for k, mask, bx, by in cam_cols:
-            cam = problem.cameras[k]
-            full = np.concatenate([j_i[mask], cam.pixel_size_mm * np.stack([bx, by], axis=1)], axis=2)
-            start = problem.d_offset[k] - n_e
-            j_d[mask, :, start:start + int(cam.free.sum())] = full[:, :, cam.free] * w[mask, None, None]
         cost += 0.5 * float(np.sum(r * r))
 
-        # theta-theta and theta gradient
-        by_image = _indicator(img, n_img)
-        U_ee += (by_image @ np.einsum("oki,okj->oij", j_e, j_e).reshape(m, 36)).reshape(n_img, 6, 6)
-        g_e += by_image @ np.einsum("oki,ok->oi", j_e, r)
-        rows_e = (6 * img[:, None, None] + np.arange(6)[None, None, :]) * np.ones((1, 2, 1), np.int64)
-        G_e = sp.csr_matrix((j_e.ravel(), (rows_e.ravel(), np.repeat(np.arange(2 * m), 6))),
-                            shape=(n_e, 2 * m))
-        jd2 = j_d.reshape(2 * m, n_d)
+        # theta-theta blocks and the theta gradient
+        U_ee += (cs.sum_by_image @ np.einsum("oki,okj->oij", j_e, j_e).reshape(m, 36)).reshape(n_img, 6, 6)
+        g_e += cs.sum_by_image @ np.einsum("oki,ok->oi", j_e, r)
         if n_d:
-            U_ed += G_e @ jd2
+            j_d = np.zeros((m, 2, n_d))
+            for k, mask, bx, by in cam_cols:
+                cam = problem.cameras[k]
+                full = np.concatenate([j_i[mask], cam.pixel_size_mm * np.stack([bx, by], axis=1)], axis=2)
+                start = problem.d_offset[k] - n_e
+                j_d[mask, :, start:start + int(cam.free.sum())] = full[:, :, cam.free] * w[mask, None, None]
+            jd2 = j_d.reshape(2 * m, n_d)
+            U_ed += cs.image_rows.matrix(j_e) @ jd2
             U_dd += jd2.T @ jd2
             g_d += jd2.T @ r.ravel()
 
-        # point blocks and coupling
-        by_point = _indicator(ptl, n_pc)
-        V = (by_point @ np.einsum("oki,okj->oij", j_p, j_p).reshape(m, 9)).reshape(n_pc, 3, 3)
-        g_p = by_point @ np.einsum("oki,ok->oi", j_p, r)
+        # point blocks and their coupling with theta
+        V = (cs.sum_by_point @ np.einsum("oki,okj->oij", j_p, j_p).reshape(m, 9)).reshape(n_pc, 3, 3)
+        g_p = cs.sum_by_point @ np.einsum("oki,ok->oi", j_p, r)
         ctl = control_of_point[p0:p1]
         has = np.flatnonzero(ctl >= 0)
         if has.size:
@@ -209,10 +196,7 @@ def linearise(problem: Problem, state: State) -> Linearisation:
             g_p[has] += rc / sig
         w_e = np.einsum("oki,okj->oij", j_e, j_p)
         if n_d:
-            B_p = sp.csr_matrix((j_p.ravel(), (np.repeat(np.arange(2 * m), 3),
-                                               (3 * ptl[:, None, None] + np.arange(3)).repeat(2, 1).ravel())),
-                                shape=(2 * m, 3 * n_pc))
-            W_d = np.ascontiguousarray((B_p.T @ jd2).T)
+            W_d = np.ascontiguousarray((cs.point_cols.matrix(j_p).T @ jd2).T)
         else:
             W_d = np.zeros((0, 3 * n_pc))
         chunks.append(ChunkLinearisation(p0, p1, o0, o1, V, g_p, w_e, W_d))
@@ -235,15 +219,6 @@ def _damped_inverse(V: np.ndarray, lam: float) -> np.ndarray:
     return np.linalg.inv(V)
 
 
-def sum_blocks(keys: np.ndarray, blocks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Sum blocks (k, r, c) that share a key; returns the unique keys and their sums."""
-    unique, inverse = np.unique(keys, return_inverse=True)
-    shape = blocks.shape[1:]
-    summed = sp.csr_matrix((np.ones(len(keys)), (inverse, np.arange(len(keys)))),
-                           shape=(len(unique), len(keys))) @ blocks.reshape(len(keys), -1)
-    return unique, summed.reshape((len(unique),) + shape)
-
-
 def reduce(problem: Problem, lin: Linearisation, lam: float = 0.0, dense: bool = True):
     """Reduced normal matrix S and right-hand side g of theta, with damping ``lam``.
 
@@ -260,47 +235,40 @@ def reduce(problem: Problem, lin: Linearisation, lam: float = 0.0, dense: bool =
     g : ndarray (n_theta,)
     v_inv : list of (n_pc, 3, 3) damped inverse point blocks per chunk
     """
-    from .covariance import observation_pairs
-
     n_img, n_e, n_d, n_t = problem.n_images, problem.n_e, problem.n_d, problem.n_theta
+    structure = problem.structure()
     S_ed = lin.U_ed.copy()
     S_dd = lin.U_dd.copy()
     g = lin.g_theta.copy()
+    diag_blocks = lin.U_ee.copy()
+    off_blocks = np.zeros((len(structure.pair_keys), 36))
     v_inv = []
-    pair_keys, pair_blocks = [], []
-    for ch in lin.chunks:
+    for ch, cs in zip(lin.chunks, structure.chunks):
         n_pc = ch.p1 - ch.p0
+        m = ch.o1 - ch.o0
         Vi = _damped_inverse(ch.V, lam)
         v_inv.append(Vi)
-        img = problem.obs_image[ch.o0:ch.o1]
-        ptl = problem.obs_point[ch.o0:ch.o1] - ch.p0
-        Y = ch.w_e @ Vi[ptl]                                               # (m, 6, 3) = W V^-1 per observation
-        a, b = observation_pairs(ptl, n_pc)
-        keys, blocks = sum_blocks(img[a] * n_img + img[b], Y[a] @ ch.w_e[b].transpose(0, 2, 1))
-        pair_keys.append(keys)
-        pair_blocks.append(blocks)
-        g_p_obs = np.einsum("oik,ok->oi", Y, ch.g_p[ptl])
-        g[:n_e] -= np.bincount(np.repeat(6 * img, 6) + np.tile(np.arange(6), len(img)),
-                               weights=g_p_obs.ravel(), minlength=n_e)
+        Y = ch.w_e @ Vi[cs.ptl]                                  # (m, 6, 3) = W V^-1 per observation
+        w_t = ch.w_e.transpose(0, 2, 1)
+        diag_blocks -= (cs.sum_by_image @ (Y @ w_t).reshape(m, 36)).reshape(n_img, 6, 6)
+        off_blocks -= cs.pair_sum @ (Y[cs.pair_a] @ w_t[cs.pair_b]).reshape(-1, 36)
+        g[:n_e] -= (cs.sum_by_image @ np.einsum("oik,ok->oi", Y, ch.g_p[cs.ptl])).ravel()
         if n_d:
-            rows = np.broadcast_to(6 * img[:, None, None] + np.arange(6)[None, :, None], Y.shape)
-            cols = np.broadcast_to(3 * ptl[:, None, None] + np.arange(3)[None, None, :], Y.shape)
-            Y_e = sp.csr_matrix((Y.ravel(), (rows.ravel(), cols.ravel())), shape=(n_e, 3 * n_pc))
+            Y_e = cs.image_point.matrix(Y)
             T_d = np.einsum("dpk,pkl->dpl", ch.W_d.reshape(n_d, n_pc, 3), Vi).reshape(n_d, 3 * n_pc)
             S_ed -= Y_e @ ch.W_d.T
             S_dd -= T_d @ ch.W_d.T
             g[n_e:n_e + n_d] -= T_d @ ch.g_p.ravel()
-    keys, blocks = sum_blocks(np.concatenate(pair_keys), np.concatenate(pair_blocks))
-    blocks = -blocks
-    diagonal = keys // n_img == keys % n_img
-    blocks[diagonal] += lin.U_ee[keys[diagonal] // n_img]
-    ia, ib = keys // n_img, keys % n_img
+    off_blocks = off_blocks.reshape(-1, 6, 6)
+    ia, ib = structure.image_pair_a, structure.image_pair_b
 
     damp = lam * lin.diag_theta
     if dense:
         S = np.zeros((n_t, n_t))
         S_ee = np.zeros((n_img, n_img, 6, 6))
-        S_ee[ia, ib] = blocks
+        S_ee[np.arange(n_img), np.arange(n_img)] = diag_blocks
+        S_ee[ia, ib] = off_blocks
+        S_ee[ib, ia] = off_blocks.transpose(0, 2, 1)
         S[:n_e, :n_e] = S_ee.transpose(0, 2, 1, 3).reshape(n_e, n_e)
         S[:n_e, n_e:n_e + n_d] = S_ed
         S[n_e:n_e + n_d, :n_e] = S_ed.T
@@ -310,8 +278,11 @@ def reduce(problem: Problem, lin: Linearisation, lam: float = 0.0, dense: bool =
         S[np.diag_indices(n_t)] += damp
         S = 0.5 * (S + S.T)
     else:
-        rows = (6 * ia[:, None, None] + np.arange(6)[None, :, None]) + np.zeros((1, 1, 6), np.int64)
-        cols = (6 * ib[:, None, None] + np.arange(6)[None, None, :]) + np.zeros((1, 6, 1), np.int64)
+        bi = np.concatenate([np.arange(n_img), ia, ib])
+        bj = np.concatenate([np.arange(n_img), ib, ia])
+        blocks = np.concatenate([diag_blocks, off_blocks, off_blocks.transpose(0, 2, 1)])
+        rows = np.broadcast_to(6 * bi[:, None, None] + np.arange(6)[None, :, None], blocks.shape)
+        cols = np.broadcast_to(6 * bj[:, None, None] + np.arange(6)[None, None, :], blocks.shape)
         S_ee = sp.csr_matrix((blocks.ravel(), (rows.ravel(), cols.ravel())), shape=(n_e, n_e))
         top = sp.hstack([S_ee, sp.csr_matrix(S_ed), sp.csr_matrix((n_e, problem.n_extra))])
         mid = sp.hstack([sp.csr_matrix(S_ed.T), sp.csr_matrix(S_dd), sp.csr_matrix((n_d, problem.n_extra))])

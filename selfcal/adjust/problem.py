@@ -99,6 +99,14 @@ class Problem:
     d_offset: list[int]             # start of each camera's free parameters in theta
     n_extra: int = 0
     extra_names: list[str] = field(default_factory=list)
+    _structure: object = field(default=None, repr=False)
+
+    def structure(self):
+        """Sparsity structure of the normal equations (built on first use, then cached)."""
+        if self._structure is None:
+            from .structure import build_structure
+            self._structure = build_structure(self)
+        return self._structure
 
     @property
     def n_e(self) -> int:

@@ -85,13 +85,6 @@ def solve(problem: Problem, state: State, names: list[str], options: SolverOptio
     lin = linearise(problem, state)
     if not np.isfinite(lin.cost):
         raise AdjustmentError("the initial residuals are not finite (points behind a camera?)")
-    S0, _, _ = reduce(problem, lin, 0.0, dense)
-    try:
-        factorise(S0)
-    except SingularSystem as exc:
-        raise AdjustmentError(_singular_message(problem, S0, names, str(exc))) from None
-    del S0
-
     redundancy = max(problem.n_observations() - problem.n_unknowns(), 1)
     lam, nu = options.initial_damping, 2.0
     history: list[IterationRecord] = []
@@ -103,7 +96,10 @@ def solve(problem: Problem, state: State, names: list[str], options: SolverOptio
             try:
                 factor = factorise(S)
                 break
-            except SingularSystem:
+            except SingularSystem as exc:
+                if lam == 0.0 and iteration == 1:
+                    # undamped normal equations singular at the start: a rank defect, not bad luck
+                    raise AdjustmentError(_singular_message(problem, S, names, str(exc))) from None
                 lam = max(lam * 10, 1e-8)
                 if lam > 1e12:
                     raise AdjustmentError("the damped normal equations cannot be factorised") from None
