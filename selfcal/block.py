@@ -124,7 +124,9 @@ class Observations:
     """Image measurements: one row per (image, point) pair.
 
     ``pixel`` holds (col, row) in pixels, ``sigma_px`` the a-priori standard
-    deviation of each coordinate.
+    deviation of each coordinate. ``row`` identifies each observation by its
+    position in the block as read (0-based), so that subsets (after pruning or
+    data snooping) map back to it.
     """
 
     image_index: np.ndarray
@@ -132,6 +134,11 @@ class Observations:
     pixel: np.ndarray
     sigma_px: np.ndarray
     line: np.ndarray
+    row: np.ndarray | None = None
+
+    def __post_init__(self):
+        if self.row is None:
+            object.__setattr__(self, "row", np.arange(len(self.image_index)))
 
     def __len__(self) -> int:
         return len(self.image_index)

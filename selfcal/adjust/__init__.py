@@ -56,6 +56,7 @@ class AdjustmentResult:
 
     problem: Problem
     state: State
+    block: Block                   # the block actually adjusted (after pruning)
     converged: bool
     reason: str
     iterations: int
@@ -68,7 +69,7 @@ class AdjustmentResult:
     theta_names: list[str]
     Q_theta: np.ndarray
     Q_points: np.ndarray
-    residuals_mm: np.ndarray       # (m, 2) image residuals in the block's observation order, photo axes
+    residuals_mm: np.ndarray       # (m, 2) image residuals in ``block``'s observation order, photo axes
     notes: list[str]
     seconds: float
     linearisation: Linearisation = field(repr=False, default=None)
@@ -104,9 +105,36 @@ class AdjustmentResult:
         return self.variance_factor * self.Q_points
 
 
+def _offsets(problem: Problem) -> list[int]:
+    offsets, start = [], problem.n_e
+    for cam in problem.cameras:
+        offsets.append(start)
+        start += int(cam.free.sum())
+    return offsets
+
+
 def adjust(block: Block, options: AdjustOptions = AdjustOptions(),
-           progress: Callable[[IterationRecord], None] | None = None) -> AdjustmentResult:
+           progress: Callable[[IterationRecord], None] | None = None,
+           start: "AdjustmentResult | None" = None, ap_free: dict | None = None,
+           ap_models: dict | None = None) -> AdjustmentResult:
     """Adjust a block: estimate orientation, object points and camera parameters.
+
+    Parameters
+    ----------
+    block : Block
+        A pruned block (as :func:`selfcal.io.read_block` returns it).
+    options : AdjustOptions
+    progress : callable, optional
+        Called with an :class:`IterationRecord` after every iteration.
+    start : AdjustmentResult, optional
+        A previous adjustment of (a superset or subset of) this block: its
+        estimates are the initial values wherever the ids match (warm start,
+        used by data snooping and AP screening).
+    ap_free : dict camera_id -> bool array, optional
+        Which AP coefficients are estimated; the others are held at zero.
+    ap_models : dict camera_id -> APModel, optional
+        Use these AP models instead of building them from ``options.ap``
+        (keeps a basis fixed across re-adjustments).
 
     Raises
     ------
@@ -115,8 +143,14 @@ def adjust(block: Block, options: AdjustOptions = AdjustOptions(),
         involved) or cannot be initialised.
     """
     t0 = time.perf_counter()
-    problem = build_problem(block, options.ap, {"grid": options.grid} if options.ap.startswith("wavelet") else {})
-    state, notes = initial_state(problem, block)
+    settings = {"grid": options.grid} if options.ap.startswith("wavelet") else {}
+    problem = build_problem(block, options.ap, settings, ap_models=ap_models)
+    if ap_free:
+        for cam in problem.cameras:
+            if cam.camera_id in ap_free:
+                cam.free[3:] = np.asarray(ap_free[cam.camera_id], bool)
+        problem.d_offset = _offsets(problem)
+    state, notes = initial_state(problem, block, start)
     names = problem.theta_names(block.images.image_id)
     outcome = solve(problem, state, names, options.solver, progress)
     lin = outcome.linearisation
@@ -140,6 +174,7 @@ def adjust(block: Block, options: AdjustOptions = AdjustOptions(),
     return AdjustmentResult(
         problem=problem,
         state=outcome.state,
+        block=block,
         converged=outcome.converged,
         reason=outcome.reason,
         iterations=outcome.iterations,

@@ -107,8 +107,31 @@ def _control_rms(problem: Problem, state: State, image: int, known: np.ndarray) 
     return float(np.sqrt(np.mean(np.sum((pred - problem.obs_xy_mm[sel]) ** 2, axis=1))))
 
 
-def initial_state(problem: Problem, block) -> tuple[State, list[str]]:
+def _from_previous(problem: Problem, block, state: State, start) -> tuple[np.ndarray, np.ndarray]:
+    """Copy a previous adjustment's estimates where ids match; returns which images and points got one."""
+    prev = start.block
+    img_lookup = {i: k for k, i in enumerate(prev.images.image_id)}
+    pt_lookup = {p: k for k, p in enumerate(prev.points.point_id)}
+    img_src = np.array([img_lookup.get(i, -1) for i in block.images.image_id])
+    pt_src = np.array([pt_lookup.get(p, -1) for p in block.points.point_id])
+    has_img, has_pt = img_src >= 0, pt_src >= 0
+    state.eop[has_img] = start.state.eop[img_src[has_img]]
+    state.points[has_pt] = start.state.points[pt_src[has_pt]]
+    prev_cams = {c.camera_id: (c, v) for c, v in zip(start.problem.cameras, start.state.cameras)}
+    for k, cam in enumerate(problem.cameras):
+        if cam.camera_id in prev_cams:
+            pc, values = prev_cams[cam.camera_id]
+            state.cameras[k][:3] = values[:3]
+            if pc.names == cam.names:
+                state.cameras[k][3:] = np.where(cam.free[3:], values[3:], 0.0)
+    return has_img, has_pt
+
+
+def initial_state(problem: Problem, block, start=None) -> tuple[State, list[str]]:
     """Initial values of all unknowns, and notes on what was resected.
+
+    With ``start`` (a previous :class:`~selfcal.adjust.AdjustmentResult`), its
+    estimates are used wherever image and point ids match (warm start).
 
     Raises
     ------
@@ -121,6 +144,11 @@ def initial_state(problem: Problem, block) -> tuple[State, list[str]]:
     xyz = points.xyz_m.copy()
     state = State(eop=eop, cameras=cameras, points=xyz)
     notes: list[str] = []
+    if start is not None:
+        has_img, has_pt = _from_previous(problem, block, state, start)
+        if has_img.all() and has_pt.all():
+            return state, notes
+        state.eop[~has_img] = np.column_stack([images.position_m, images.attitude_rad])[~has_img]
     known = np.isfinite(xyz).all(axis=1) & (points.role != "tie")  # reference coordinates
     need = ~np.isfinite(eop).all(axis=1)
     # given orientations that miss their control points badly are treated as missing

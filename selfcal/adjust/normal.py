@@ -36,6 +36,7 @@ __all__ = [
     "back_substitute",
     "evaluate_cost",
     "image_residuals",
+    "chunk_rows",
     "parameter_observations",
 ]
 
@@ -139,6 +140,43 @@ def parameter_observations(problem: Problem, state: State) -> tuple[sp.csr_matri
     return sp.csr_matrix((vals, (rows, cols)), shape=(k, problem.n_theta)), res
 
 
+def chunk_rows(problem: Problem, state: State, cs, rotation=None, iop_all=None):
+    """Whitened residuals and Jacobian rows of the image observations of one chunk.
+
+    Returns
+    -------
+    r : (m, 2) whitened residuals l - f
+    j_e : (m, 2, 6) derivatives with respect to the observation's image orientation
+    j_p : (m, 2, 3) derivatives with respect to its point
+    j_d : (m, 2, n_d) derivatives with respect to the free camera parameters (theta order)
+    """
+    n_e, n_d = problem.n_e, problem.n_d
+    if rotation is None:
+        rotation = matrix_from_opk_with_derivatives(state.eop[:, 3:])
+    if iop_all is None:
+        iop_all = np.array([c[:3] for c in state.cameras])
+    p0, p1, o0, o1, img, ptl = cs.p0, cs.p1, cs.o0, cs.o1, cs.img, cs.ptl
+    m = o1 - o0
+    xy, j_e, j_p, j_i = project_with_jacobians(
+        state.points[p0:p1][ptl], state.eop[img], iop_all[problem.image_camera[img]],
+        rotation=(rotation[0][img], rotation[1][img]))
+    delta, cam_cols = _camera_terms(problem, state, o0, o1, img)
+    w = 1.0 / problem.obs_sigma_mm[o0:o1]
+    r = (problem.obs_xy_mm[o0:o1] - xy - delta) * w[:, None]
+    j_e *= w[:, None, None]
+    j_p *= w[:, None, None]
+    j_d = np.zeros((m, 2, n_d))
+    for k, mask, bx, by in cam_cols:
+        cam = problem.cameras[k]
+        n_free = int(cam.free.sum())
+        if n_free == 0:
+            continue
+        full = np.concatenate([j_i[mask], cam.pixel_size_mm * np.stack([bx, by], axis=1)], axis=2)
+        start = problem.d_offset[k] - n_e
+        j_d[mask, :, start:start + n_free] = full[:, :, cam.free] * w[mask, None, None]
+    return r, j_e, j_p, j_d
+
+
 def linearise(problem: Problem, state: State) -> Linearisation:
     """Jacobians and normal-equation blocks at ``state``."""
     n_img, n_e, n_d = problem.n_images, problem.n_e, problem.n_d
@@ -156,28 +194,15 @@ def linearise(problem: Problem, state: State) -> Linearisation:
     control_of_point[problem.control_index] = np.arange(len(problem.control_index))
 
     for cs in structure.chunks:
-        p0, p1, o0, o1, img, ptl = cs.p0, cs.p1, cs.o0, cs.o1, cs.img, cs.ptl
+        p0, p1, o0, o1 = cs.p0, cs.p1, cs.o0, cs.o1
         m, n_pc = o1 - o0, p1 - p0
-        xy, j_e, j_p, j_i = project_with_jacobians(
-            state.points[p0:p1][ptl], state.eop[img], iop_all[problem.image_camera[img]],
-            rotation=(rotation[0][img], rotation[1][img]))
-        delta, cam_cols = _camera_terms(problem, state, o0, o1, img)
-        w = 1.0 / problem.obs_sigma_mm[o0:o1]
-        r = (problem.obs_xy_mm[o0:o1] - xy - delta) * w[:, None]          # (m, 2)
-        j_e *= w[:, None, None]
-        j_p *= w[:, None, None]
+        r, j_e, j_p, j_d = chunk_rows(problem, state, cs, rotation, iop_all)
         cost += 0.5 * float(np.sum(r * r))
 
         # theta-theta blocks and the theta gradient
         U_ee += (cs.sum_by_image @ np.einsum("oki,okj->oij", j_e, j_e).reshape(m, 36)).reshape(n_img, 6, 6)
         g_e += cs.sum_by_image @ np.einsum("oki,ok->oi", j_e, r)
         if n_d:
-            j_d = np.zeros((m, 2, n_d))
-            for k, mask, bx, by in cam_cols:
-                cam = problem.cameras[k]
-                full = np.concatenate([j_i[mask], cam.pixel_size_mm * np.stack([bx, by], axis=1)], axis=2)
-                start = problem.d_offset[k] - n_e
-                j_d[mask, :, start:start + int(cam.free.sum())] = full[:, :, cam.free] * w[mask, None, None]
             jd2 = j_d.reshape(2 * m, n_d)
             U_ed += cs.image_rows.matrix(j_e) @ jd2
             U_dd += jd2.T @ jd2

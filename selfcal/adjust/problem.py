@@ -174,7 +174,7 @@ def _chunks(point_start: np.ndarray, target: int) -> list[tuple[int, int]]:
 
 
 def build_problem(block: Block, ap_spec: str = "none", ap_settings: dict | None = None,
-                  chunk_observations: int = CHUNK_OBSERVATIONS) -> Problem:
+                  chunk_observations: int = CHUNK_OBSERVATIONS, ap_models: dict | None = None) -> Problem:
     """Arrange a (pruned) block for the engine.
 
     Parameters
@@ -184,6 +184,8 @@ def build_problem(block: Block, ap_spec: str = "none", ap_settings: dict | None 
         AP model name (``none``, ``brown``, ``wavelet:db4``, ...), one model per camera.
     ap_settings : dict, optional
         Passed to the AP factory (e.g. ``grid=(9, 6)``).
+    ap_models : dict camera_id -> APModel, optional
+        Prebuilt AP models (instead of building them from ``ap_spec``).
     """
     ap_settings = ap_settings or {}
     obs = block.observations
@@ -202,7 +204,10 @@ def build_problem(block: Block, ap_spec: str = "none", ap_settings: dict | None 
     for k, cid in enumerate(camera_ids):
         cam = block.cameras[cid]
         frame = ImageFrame(cam.width_mm, cam.height_mm, cam.pixel_size_mm)
-        ap = create_ap(ap_spec, frame, xy[cam_of_obs == k], **ap_settings)
+        if ap_models and cid in ap_models:
+            ap = ap_models[cid]
+        else:
+            ap = create_ap(ap_spec, frame, xy[cam_of_obs == k], **ap_settings)
         n = 3 + ap.n_params
         free = np.ones(n, bool)
         prior_value = np.zeros(n)

@@ -1,0 +1,149 @@
+"""Redundancy numbers, Baarda's w-test and reliability of every observation.
+
+For whitened observations (P = I) the cofactor matrix of the residuals is
+Q_vv = I - J Q Jᵀ, so the redundancy number of observation i is
+
+    r_i = 1 - h_i,    h_i = j_i Q j_iᵀ,
+
+and sum_i r_i = n - u. For an image coordinate of point p seen in image i,
+h_i is computed from the Schur structure without any inverse of the full
+system (Q_θp = -Q_θθ Z_p with Z_p = W_p V_p⁻¹):
+
+    h = j_θ Q_θθ j_θᵀ - 2 j_θ (Q_θθ Z_p) j_pᵀ + j_p Q_pp j_pᵀ,
+
+where j_θ touches only the observation's own image and the camera
+parameters; (Q_θθ Z_p) restricted to those rows is summed over the
+observations of the point.
+
+Baarda's w-test uses the a-priori sigma (unit weight 1 after whitening):
+w_i = v_i / sqrt(r_i), standard normal for a blunder-free observation.
+Internal reliability: the minimal detectable blunder
+MDB_i = delta0 · sigma_i / sqrt(r_i); external reliability: Baarda's factor
+delta_bar_i = delta0 · sqrt((1 - r_i) / r_i), the largest effect of an
+undetected blunder of size MDB_i on any function of the unknowns, in units of
+that function's standard deviation. delta0 = k + z(beta0) with the critical
+value k of the test and the power beta0 = 80 %.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.stats import norm
+
+from ..adjust.normal import chunk_rows, parameter_observations
+from ..adjust.structure import observation_pairs
+from ..geometry.rotation import matrix_from_opk_with_derivatives
+
+__all__ = ["ObservationTests", "observation_tests", "noncentrality"]
+
+POWER = 0.80
+
+
+def noncentrality(critical: float, power: float = POWER) -> float:
+    """delta0 of Baarda's test: the blunder (in sigma) detected with probability ``power``."""
+    return float(critical + norm.ppf(power))
+
+
+@dataclass
+class ObservationTests:
+    """Per-observation statistics; image arrays follow ``result.block.observations`` order."""
+
+    image_redundancy: np.ndarray   # (m, 2) for x and y
+    image_w: np.ndarray            # (m, 2)
+    image_mdb_px: np.ndarray       # (m, 2) minimal detectable blunder, pixels
+    image_external: np.ndarray     # (m, 2) Baarda's external reliability factor
+    control_redundancy: np.ndarray  # (n_gcp, 3)
+    control_w: np.ndarray           # (n_gcp, 3)
+    parameter_redundancy: np.ndarray  # (k,)
+    parameter_w: np.ndarray           # (k,)
+    critical: float
+    delta0: float
+
+    @property
+    def total_redundancy(self) -> float:
+        return float(self.image_redundancy.sum() + self.control_redundancy.sum() + self.parameter_redundancy.sum())
+
+    def image_w_max(self) -> np.ndarray:
+        """Per image observation, the w of the coordinate with the larger |w| (sign kept)."""
+        w = self.image_w
+        pick = np.argmax(np.abs(w), axis=1)
+        return w[np.arange(len(w)), pick]
+
+
+def _image_leverage(problem, state, lin, v_inv, Q, Q_points):
+    """h (m, 2) of every image coordinate (sorted order) and whitened residuals l - f."""
+    n_img, n_e, n_d = problem.n_images, problem.n_e, problem.n_d
+    Q_ee = Q[:n_e, :n_e].reshape(n_img, 6, n_img, 6)
+    Q_ed = Q[:n_e, n_e:n_e + n_d].reshape(n_img, 6, n_d)
+    Q_dd = Q[n_e:n_e + n_d, n_e:n_e + n_d]
+    rotation = matrix_from_opk_with_derivatives(state.eop[:, 3:])
+    iop_all = np.array([c[:3] for c in state.cameras])
+    h_all = np.zeros((problem.n_image_observations, 2))
+    r_all = np.zeros((problem.n_image_observations, 2))
+    structure = problem.structure()
+    for ch, cs, Vi in zip(lin.chunks, structure.chunks, v_inv):
+        n_pc = ch.p1 - ch.p0
+        img, ptl = cs.img, cs.ptl
+        m = len(img)
+        r, j_e, j_p, j_d = chunk_rows(problem, state, cs, rotation, iop_all)
+        Z_e = ch.w_e @ Vi[ptl]                                              # (m, 6, 3)
+        a, b = observation_pairs(ptl, n_pc)
+        G = np.zeros((m, 6, 3))
+        np.add.at(G, a, Q_ee[img[a], :, img[b], :] @ Z_e[b])               # sum_b Q_{i_a, i_b} Z_b
+        h = np.einsum("oki,oij,okj->ok", j_e, Q_ee[img, :, img, :], j_e)
+        jp_term = j_e @ G                                                   # (m, 2, 3), completed below
+        if n_d:
+            Z_d = np.einsum("dpk,pkl->dpl", ch.W_d.reshape(n_d, n_pc, 3), Vi)   # (n_d, n_pc, 3)
+            G += Q_ed[img] @ Z_d[:, ptl, :].transpose(1, 0, 2)
+            jp_term = j_e @ G
+            H = (Q_dd @ Z_d.reshape(n_d, 3 * n_pc)).reshape(n_d, n_pc, 3).transpose(1, 0, 2)  # (n_pc, n_d, 3)
+            HB = Q_ed[img].transpose(0, 2, 1) @ Z_e                          # (m, n_d, 3)
+            H = H + (cs.sum_by_point @ HB.reshape(m, -1)).reshape(n_pc, n_d, 3)
+            jp_term = jp_term + j_d @ H[ptl]
+            je_Qed = j_e @ Q_ed[img]                                         # (m, 2, n_d)
+            h += 2.0 * np.einsum("okd,okd->ok", je_Qed, j_d)
+            jd2 = j_d.reshape(2 * m, n_d)
+            h += np.einsum("rd,rd->r", jd2 @ Q_dd, jd2).reshape(m, 2)
+        h -= 2.0 * np.einsum("okj,okj->ok", jp_term, j_p)
+        h += np.einsum("oki,oij,okj->ok", j_p, Q_points[ch.p0:ch.p1][ptl], j_p)
+        h_all[cs.o0:cs.o1] = h
+        r_all[cs.o0:cs.o1] = r
+    return h_all, r_all
+
+
+def observation_tests(result, critical: float = 3.0) -> ObservationTests:
+    """Redundancy numbers, w-tests and reliability of all observations of an adjustment."""
+    problem, state = result.problem, result.state
+    Q, Qp = result.Q_theta, result.Q_points
+    delta0 = noncentrality(critical)
+    h, res = _image_leverage(problem, state, result.linearisation, result.v_inv, Q, Qp)
+    red = np.clip(1.0 - h, 1e-12, None)
+    v = -res                                             # whitened residuals v = f - l
+    # back to the block's observation order
+    image_r = np.empty_like(red)
+    image_r[problem.obs_order] = red
+    image_v = np.empty_like(v)
+    image_v[problem.obs_order] = v
+    sigma_px = result.block.observations.sigma_px[:, None]
+    image_w = image_v / np.sqrt(image_r)
+    mdb = delta0 * sigma_px / np.sqrt(image_r)
+    external = delta0 * np.sqrt((1.0 - image_r) / image_r)
+
+    ctl = problem.control_index
+    ctl_h = np.einsum("nii->ni", Qp[ctl]) / problem.control_sigma**2
+    ctl_r = np.clip(1.0 - ctl_h, 1e-12, None)
+    ctl_v = (state.points[ctl] - problem.control_xyz) / problem.control_sigma
+    J_x, r_x = parameter_observations(problem, state)
+    if J_x.shape[0]:
+        JQ = J_x @ Q
+        par_h = np.asarray(J_x.multiply(JQ).sum(axis=1)).ravel()
+    else:
+        par_h = np.zeros(0)
+    par_r = np.clip(1.0 - par_h, 1e-12, None)
+    return ObservationTests(
+        image_redundancy=image_r, image_w=image_w, image_mdb_px=mdb, image_external=external,
+        control_redundancy=ctl_r, control_w=ctl_v / np.sqrt(ctl_r),
+        parameter_redundancy=par_r, parameter_w=-r_x / np.sqrt(par_r),
+        critical=critical, delta0=delta0,
+    )
