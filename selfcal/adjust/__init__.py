@@ -100,6 +100,39 @@ class AdjustmentResult:
             out.append(s)
         return out
 
+    def predict_pixels(self, image_ids, point_ids) -> np.ndarray:
+        """Adjusted image positions (col, row) of arbitrary (image, point) pairs, by id.
+
+        NaN where the image or the point is not part of the adjustment (e.g. an
+        observation rejected together with its point).
+        """
+        from ..sensors.frame import pixel_from_photo, project
+        img_lookup = {i: k for k, i in enumerate(self.block.images.image_id)}
+        pt_lookup = {p: k for k, p in enumerate(self.block.points.point_id)}
+        img = np.array([img_lookup.get(i, -1) for i in image_ids], dtype=np.int64)
+        pt = np.array([pt_lookup.get(p, -1) for p in point_ids], dtype=np.int64)
+        out = np.full((len(img), 2), np.nan)
+        ok = (img >= 0) & (pt >= 0)
+        if not ok.any():
+            return out
+        cam_idx = self.problem.image_camera[img[ok]]
+        iop = np.array([c[:3] for c in self.state.cameras])[cam_idx]
+        xy = project(self.state.points[pt[ok]], self.state.eop[img[ok]], iop)
+        for k, cam in enumerate(self.problem.cameras):
+            sel = np.flatnonzero(cam_idx == k)
+            if sel.size and cam.ap.n_params:
+                # Delta is evaluated at the observed position; at the adjusted one it differs by a second-order term
+                dx, dy = cam.ap.displacement_px(xy[sel, 0], xy[sel, 1], self.state.cameras[k][3:] * cam.free[3:])
+                xy[sel, 0] += cam.pixel_size_mm * dx
+                xy[sel, 1] += cam.pixel_size_mm * dy
+        cfg = self.block.cameras
+        ids = [self.problem.cameras[k].camera_id for k in cam_idx]
+        w = np.array([cfg[c].width_px for c in ids], float)
+        h = np.array([cfg[c].height_px for c in ids], float)
+        p = np.array([cfg[c].pixel_size_mm for c in ids], float)
+        out[ok] = pixel_from_photo(xy, w, h, p)
+        return out
+
     def point_covariance(self) -> np.ndarray:
         """A-posteriori covariance of every object point, (n_points, 3, 3) in m^2."""
         return self.variance_factor * self.Q_points

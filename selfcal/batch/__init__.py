@@ -8,10 +8,11 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 
-from ..adjust import AdjustOptions, adjust
+from ..adjust import AdjustOptions
 from ..ap import AP_FAMILIES, parse_ap_spec
 from ..errors import AdjustmentError
 from ..report import result_files
+from ..stats import ScreeningOptions, SnoopingOptions, adjust_with_tests
 
 __all__ = ["Cell", "run_cell", "available_models", "PAPER_MODELS"]
 
@@ -34,12 +35,14 @@ class Cell:
     seconds: float
 
 
-def run_cell(scenario: str, block, model: str, grid=(9, 6)) -> Cell:
-    """Adjust one block with one AP model; failures are recorded, not raised."""
+def run_cell(scenario: str, block, model: str, grid=(9, 6), snooping: SnoopingOptions | None = SnoopingOptions(),
+             screening: ScreeningOptions | None = ScreeningOptions()) -> Cell:
+    """Adjust one block with one AP model (with snooping and screening); failures are recorded, not raised."""
     t0 = time.perf_counter()
     try:
-        result = adjust(block, AdjustOptions(ap=model, grid=grid))
+        tested = adjust_with_tests(block, AdjustOptions(ap=model, grid=grid), snooping,
+                                   screening if model != "none" else None)
     except AdjustmentError as exc:
         return Cell(scenario, model, None, str(exc), time.perf_counter() - t0)
-    files = result_files(block, result, {"scenario": scenario})
+    files = result_files(block, tested, {"scenario": scenario}, screening)
     return Cell(scenario, model, files, None, time.perf_counter() - t0)

@@ -5,11 +5,12 @@ import argparse
 import sys
 import time
 
-from ..adjust import AdjustOptions, adjust
+from ..adjust import AdjustOptions
 from ..io import read_block
 from ..io.results import write_results
 from ..report import result_files
-from .options import ap_option, grid_option, progress_printer
+from ..stats import ScreeningOptions, SnoopingOptions, adjust_with_tests
+from .options import ap_option, grid_option, progress_printer, round_printer, test_options
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -17,6 +18,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, metavar="RESULTS", help="results folder to write (replaced)")
     ap_option(parser)
     grid_option(parser)
+    test_options(parser)
     parser.add_argument("--quiet", action="store_true", help="no progress output")
 
 
@@ -30,15 +32,19 @@ def run(args: argparse.Namespace) -> int:
     if not args.quiet:
         print(f"{block.name}: {len(block.images)} images, {len(block.points)} points, "
               f"{len(block.observations)} image observations; AP model {args.ap}", file=sys.stderr)
-    result = adjust(block, AdjustOptions(ap=args.ap, grid=args.grid),
-                    progress=None if args.quiet else progress_printer())
-    files = result_files(block, result, {"seconds": time.perf_counter() - t0})
+    snooping = SnoopingOptions(critical=args.snoop, mode=args.snoop_mode)
+    screening = ScreeningOptions(args.significance, args.max_correlation) if args.screen else None
+    tested = adjust_with_tests(block, AdjustOptions(ap=args.ap, grid=args.grid), snooping, screening,
+                               progress=None if args.quiet else progress_printer(block.image_sigma_px),
+                               report=None if args.quiet else round_printer())
+    files = result_files(block, tested, {"seconds": time.perf_counter() - t0}, screening)
     write_results(args.out, files)
     s = files["summary.json"]
     print(f"sigma0 {s['sigma0_px']:.3f} px, check points RMSD XY {_m(s['rmsd_chk_xy_m'])} Z {_m(s['rmsd_chk_z_m'])}"
-          f" ({s['n_chk_used']} CHK, {s['n_gcp_used']} GCP); results in {args.out}", file=sys.stderr)
-    if not result.converged:
-        print(f"selfcal adjust: error: the adjustment did not converge: {result.reason}", file=sys.stderr)
+          f" ({s['n_chk_used']} CHK, {s['n_gcp_used']} GCP), {s['n_obs_rejected']} observations rejected, "
+          f"{s['n_ap_significant']}/{s['n_ap_initial']} APs; results in {args.out}", file=sys.stderr)
+    if not tested.result.converged:
+        print(f"selfcal adjust: error: the adjustment did not converge: {tested.result.reason}", file=sys.stderr)
         return 1
     return 0
 

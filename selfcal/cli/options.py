@@ -4,7 +4,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-__all__ = ["grid", "ap_option", "grid_option", "progress_printer"]
+__all__ = ["grid", "ap_option", "grid_option", "progress_printer", "test_options", "round_printer"]
 
 
 def grid(text: str) -> tuple[int, int]:
@@ -29,10 +29,34 @@ def grid_option(parser: argparse.ArgumentParser) -> None:
                         help="grid of the wavelet APs over the frame (default: 9x6)")
 
 
-def progress_printer(prefix: str = ""):
+def progress_printer(image_sigma_px: float, prefix: str = ""):
     """A callback printing one line per iteration to stderr."""
     def show(record) -> None:
         status = "" if record.accepted else "  (step rejected, more damping)"
-        print(f"{prefix}iteration {record.iteration:2d}: sigma0 {record.sigma0:.4f}, "
+        print(f"{prefix}iteration {record.iteration:2d}: sigma0 {record.sigma0 * image_sigma_px:.4f} px, "
               f"largest correction {record.max_step_sigma:.3g} sigma{status}", file=sys.stderr, flush=True)
+    return show
+
+
+def test_options(parser: argparse.ArgumentParser) -> None:
+    """Data snooping and AP screening (selfcal.stats)."""
+    parser.add_argument("--snoop", type=float, default=3.0, metavar="K",
+                        help="Baarda data snooping: reject image observations with |w| > K (default 3.0, "
+                             "as in seed 000; 0 disables)")
+    parser.add_argument("--snoop-mode", choices=["batch", "single"], default="batch",
+                        help="batch: per round the worst observation of every point above K (default); "
+                             "single: one observation per round")
+    parser.add_argument("--screen", action="store_true",
+                        help="screen the APs: drop insignificant and highly correlated coefficients")
+    parser.add_argument("--significance", type=float, default=1.96, metavar="T",
+                        help="screening: drop an AP with |a|/sigma < T (default 1.96)")
+    parser.add_argument("--max-correlation", type=float, default=0.9, metavar="R",
+                        help="screening: drop the less significant AP of a pair with |rho| > R (default 0.9)")
+
+
+def round_printer():
+    """A callback printing one line per snooping/screening round to stderr."""
+    def show(record) -> None:
+        print(f"tests round {record.round}: rejected {record.rejected} observations (largest |w| "
+              f"{record.largest_w:.1f}), dropped {record.dropped_aps} APs; re-adjusting", file=sys.stderr, flush=True)
     return show

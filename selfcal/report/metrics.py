@@ -17,7 +17,7 @@ from ..sensors.frame import photo_from_pixel
 from ..stats.correlation import max_abs_correlation_by_group
 
 __all__ = ["ground_sample_distance", "summary", "camera_json", "image_table", "point_table",
-           "residual_table", "distortion_grid_table", "result_files"]
+           "residual_table", "screening_json", "correlation_table", "distortion_grid_table", "result_files"]
 
 
 def ground_sample_distance(block, result) -> float:
@@ -37,8 +37,10 @@ def _rms(values: np.ndarray) -> float | None:
     return float(np.sqrt(np.mean(values))) if values.size else None
 
 
-def summary(block, result, extra: dict | None = None) -> dict:
-    """summary.json of DESIGN.md §4."""
+def summary(tested, extra: dict | None = None) -> dict:
+    """summary.json of DESIGN.md §4 for a (tested) adjustment."""
+    result = tested.result
+    block = result.block
     pts = block.points
     st = result.state
     diff = st.points - pts.xyz_m
@@ -52,8 +54,6 @@ def summary(block, result, extra: dict | None = None) -> dict:
     rmsd_z = _rms(diff[chk, 2] ** 2)
     sig_xy = _rms(var[tie, 0] + var[tie, 1])
     sig_z = _rms(var[tie, 2])
-    n_ap_initial = int(sum(c.ap.n_params for c in result.problem.cameras))
-    n_ap_active = int(sum(int(c.free[3:].sum()) for c in result.problem.cameras))
     v = result.residuals_mm / np.array([c.pixel_size_mm for c in result.problem.cameras])[
         result.problem.image_camera[block.observations.image_index]][:, None]
 
@@ -88,9 +88,12 @@ def summary(block, result, extra: dict | None = None) -> dict:
         "n_image_observations": int(len(block.observations)),
         "n_gcp_used": int(gcp.sum()),
         "n_chk_used": int(chk.sum()),
-        "n_obs_rejected": 0,
-        "n_ap_initial": n_ap_initial,
-        "n_ap_significant": n_ap_active,
+        "n_obs_rejected": int(len(tested.rejected_rows)),
+        "n_ap_initial": int(tested.n_ap_initial),
+        "n_ap_significant": int(tested.n_ap_significant),
+        "mean_redundancy_image": float(np.mean(tested.tests.image_redundancy)),
+        "snooping": {"critical": tested.tests.critical, "delta0": tested.tests.delta0,
+                     "rounds": [vars(r) for r in tested.rounds]},
         "max_abs_corr": max_abs_correlation_by_group(result.problem, result.Q_theta),
         "dropped": block.dropped.as_dict(),
         "warnings": list(block.dropped.messages),
@@ -158,15 +161,81 @@ def point_table(block, result):
     return header, cols, fmts
 
 
-def residual_table(block, result, w_test=None, rejected=None):
-    ob = block.observations
-    pix = np.array([c.pixel_size_mm for c in result.problem.cameras])[result.problem.image_camera[ob.image_index]]
-    v = result.residuals_mm / pix[:, None]
-    w = np.full(len(ob), np.nan) if w_test is None else w_test
-    rej = np.zeros(len(ob), int) if rejected is None else rejected.astype(int)
-    header = ["image_id", "point_id", "vx_px", "vy_px", "w_test", "rejected"]
-    cols = [block.images.image_id[ob.image_index], block.points.point_id[ob.point_index], v[:, 0], v[:, 1], w, rej]
-    return header, cols, ["", "", ".4f", ".4f", ".3f", "d"]
+def residual_table(block_read, tested):
+    """residuals.csv: every observation of the block as read, rejected ones included.
+
+    v = adjusted - observed in pixels along the photo axes; w, redundancy numbers,
+    minimal detectable blunder (px) and Baarda's external reliability factor per
+    coordinate. For a rejected observation, v is computed at the final estimate
+    (NaN if its image or point left the adjustment) and w_test is the w with
+    which it was rejected.
+    """
+    result, tests = tested.result, tested.tests
+    ob = block_read.observations
+    n = len(ob)
+    used = result.block.observations
+    pos = np.full(ob.row.max() + 1 if n else 0, -1)
+    pos[used.row] = np.arange(len(used))
+    where = pos[ob.row]
+    kept = where >= 0
+    pix = np.array([block_read.cameras[c].pixel_size_mm for c in block_read.images.camera_id])[ob.image_index]
+    v = np.full((n, 2), np.nan)
+    v[kept] = result.residuals_mm[where[kept]] / pix[kept, None]
+    lost = ~kept
+    if lost.any():
+        pred = result.predict_pixels(block_read.images.image_id[ob.image_index[lost]],
+                                     block_read.points.point_id[ob.point_index[lost]])
+        d = pred - ob.pixel[lost]
+        v[lost] = np.column_stack([d[:, 0], -d[:, 1]])
+    def per_obs(values):
+        out = np.full((n, 2), np.nan)
+        out[kept] = values[where[kept]]
+        return out
+    w = per_obs(tests.image_w)
+    red = per_obs(tests.image_redundancy)
+    mdb = per_obs(tests.image_mdb_px)
+    ext = per_obs(tests.image_external)
+    w_test = np.full(n, np.nan)
+    pick = np.argmax(np.nan_to_num(np.abs(w[kept])), axis=1)
+    w_test[kept] = w[kept][np.arange(int(kept.sum())), pick]
+    rejected = np.isin(ob.row, tested.rejected_rows)
+    rej_pos = np.searchsorted(tested.rejected_rows, ob.row[rejected])
+    w_test[rejected] = tested.rejected_w[rej_pos]
+    header = ["image_id", "point_id", "vx_px", "vy_px", "w_test", "rejected", "w_x", "w_y",
+              "redundancy_x", "redundancy_y", "mdb_x_px", "mdb_y_px", "external_x", "external_y"]
+    cols = [block_read.images.image_id[ob.image_index], block_read.points.point_id[ob.point_index],
+            v[:, 0], v[:, 1], w_test, rejected.astype(int), w[:, 0], w[:, 1], red[:, 0], red[:, 1],
+            mdb[:, 0], mdb[:, 1], ext[:, 0], ext[:, 1]]
+    fmts = ["", "", ".4f", ".4f", ".3f", "d", ".3f", ".3f", ".4f", ".4f", ".3f", ".3f", ".3f", ".3f"]
+    return header, cols, fmts
+
+
+def screening_json(tested, options=None) -> dict:
+    """screening.json: which AP coefficient was dropped, in which round, and why."""
+    return {
+        "options": None if options is None else vars(options),
+        "n_ap_initial": int(tested.n_ap_initial),
+        "n_ap_significant": int(tested.n_ap_significant),
+        "dropped": [{"round": k, "camera_id": d.camera_id, "name": d.name, "t": d.t, "reason": d.reason}
+                    for k, d in tested.screening_log],
+    }
+
+
+def correlation_table(result):
+    """correlation.csv: correlation matrix of the interior orientation and the active APs of each camera."""
+    from ..stats.correlation import correlation_matrix
+    names, index = [], []
+    for cam, start in zip(result.problem.cameras, result.problem.d_offset):
+        pos = start + np.cumsum(cam.free) - 1
+        for i in range(cam.size):
+            if cam.free[i]:
+                names.append(f"{cam.camera_id}:{cam.names[i]}")
+                index.append(int(pos[i]))
+    if not index:
+        return ["parameter"], [np.array([], dtype=object)], [""]
+    rho = correlation_matrix(result.Q_theta, np.array(index))
+    return (["parameter"] + names, [np.array(names, dtype=object)] + [rho[:, j] for j in range(len(names))],
+            [""] + [".4f"] * len(names))
 
 
 def distortion_grid_table(block, result, nodes_x: int = 61):
@@ -195,13 +264,16 @@ def distortion_grid_table(block, result, nodes_x: int = 61):
     return header, cols, fmts
 
 
-def result_files(block, result, summary_extra: dict | None = None, w_test=None, rejected=None) -> dict:
+def result_files(block_read, tested, summary_extra: dict | None = None, screening_options=None) -> dict:
     """Every file of the results folder as data: dicts become JSON, tuples CSV."""
+    result = tested.result
     return {
-        "summary.json": summary(block, result, summary_extra),
-        "camera.json": camera_json(block, result),
-        "images.csv": image_table(block, result),
-        "points.csv": point_table(block, result),
-        "residuals.csv": residual_table(block, result, w_test, rejected),
-        "distortion_grid.csv": distortion_grid_table(block, result),
+        "summary.json": summary(tested, summary_extra),
+        "camera.json": camera_json(result.block, result),
+        "images.csv": image_table(result.block, result),
+        "points.csv": point_table(result.block, result),
+        "residuals.csv": residual_table(block_read, tested),
+        "distortion_grid.csv": distortion_grid_table(result.block, result),
+        "screening.json": screening_json(tested, screening_options),
+        "correlation.csv": correlation_table(result),
     }

@@ -1,4 +1,10 @@
-"""Statistics of the adjustment: correlation analysis, (and data snooping, AP screening)."""
+"""Statistics of the adjustment: redundancy numbers and w-tests, data snooping,
+AP screening and correlation analysis by parameter group."""
 from .correlation import max_abs_correlation_by_group
+from .reliability import ObservationTests, observation_tests
+from .screening import ScreeningOptions
+from .snooping import SnoopingOptions
+from .workflow import TestedAdjustment, adjust_with_tests
 
-__all__ = ["max_abs_correlation_by_group"]
+__all__ = ["max_abs_correlation_by_group", "observation_tests", "ObservationTests", "ScreeningOptions",
+           "SnoopingOptions", "TestedAdjustment", "adjust_with_tests"]

@@ -17,16 +17,14 @@ others (a blunder there cannot be seen) and are not tested.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
-from typing import Callable
+from dataclasses import dataclass
 
 import numpy as np
 
-from ..adjust import AdjustmentResult, AdjustOptions, adjust
-from ..block import Block, prune
-from .reliability import ObservationTests, observation_tests
+from ..block import Block
+from .reliability import ObservationTests
 
-__all__ = ["SnoopingOptions", "SnoopingRound", "snoop", "image_w", "reject_candidates"]
+__all__ = ["SnoopingOptions", "SnoopingRound", "image_w", "reject_candidates"]
 
 
 @dataclass(frozen=True)
@@ -47,8 +45,11 @@ class SnoopingOptions:
 
 @dataclass
 class SnoopingRound:
+    """One round of the tests: observations rejected, APs dropped, and the state before it."""
+
     round: int
     rejected: int
+    dropped_aps: int
     largest_w: float
     sigma0_px: float
 
@@ -72,39 +73,3 @@ def reject_candidates(block: Block, w: np.ndarray, critical: float, mode: str) -
     first = np.ones(order.size, bool)
     first[1:] = pts[order][1:] != pts[order][:-1]
     return above[order[first]]
-
-
-@dataclass
-class SnoopingOutcome:
-    result: AdjustmentResult
-    tests: ObservationTests
-    rejected_rows: np.ndarray                # observation rows (of the block as read) rejected
-    rounds: list[SnoopingRound] = field(default_factory=list)
-
-
-def snoop(block: Block, options: AdjustOptions, snooping: SnoopingOptions = SnoopingOptions(),
-          start: AdjustmentResult | None = None, progress: Callable | None = None,
-          report: Callable[[SnoopingRound], None] | None = None, **adjust_kwargs) -> SnoopingOutcome:
-    """Adjust with data snooping; ``block`` is the pruned block as read."""
-    result = adjust(block, options, progress=progress, start=start, **adjust_kwargs)
-    critical = snooping.critical if snooping.critical > 0 else np.inf
-    tests = observation_tests(result, critical if np.isfinite(critical) else 3.0)
-    rejected = np.zeros(0, np.int64)
-    rounds: list[SnoopingRound] = []
-    for k in range(1, snooping.max_rounds + 1):
-        if not np.isfinite(critical):
-            break
-        w = image_w(tests, snooping.min_redundancy)
-        picks = reject_candidates(result.block, w, critical, snooping.mode)
-        if picks.size == 0:
-            break
-        rejected = np.concatenate([rejected, result.block.observations.row[picks]])
-        record = SnoopingRound(k, int(picks.size), float(w.max()), result.sigma0_px)
-        rounds.append(record)
-        if report is not None:
-            report(record)
-        keep = ~np.isin(block.observations.row, rejected)
-        sub = prune(replace(block, observations=block.observations.take(np.flatnonzero(keep))))
-        result = adjust(sub, options, progress=progress, start=result, **adjust_kwargs)
-        tests = observation_tests(result, critical)
-    return SnoopingOutcome(result, tests, np.sort(rejected), rounds)

@@ -1,0 +1,90 @@
+"""Adjustment with data snooping and AP screening, repeated until stable.
+
+Each round tests the current adjustment: AP screening (significance and
+correlation, :mod:`.screening`) and Baarda's data snooping (:mod:`.snooping`).
+What fails is removed (coefficients held at zero, observations rejected) and
+the block is re-adjusted from the previous estimate, until a round removes
+nothing. The AP basis is built once, from all observations, and kept.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Callable
+
+import numpy as np
+
+from ..adjust import AdjustmentResult, AdjustOptions, adjust
+from ..block import Block, prune
+from .reliability import ObservationTests, observation_tests
+from .screening import ScreeningDecision, ScreeningOptions, screen_once
+from .snooping import SnoopingOptions, SnoopingRound, image_w, reject_candidates
+
+__all__ = ["TestedAdjustment", "adjust_with_tests"]
+
+
+@dataclass
+class TestedAdjustment:
+    result: AdjustmentResult
+    tests: ObservationTests
+    rejected_rows: np.ndarray                       # rows of the block as read
+    rejected_w: np.ndarray                          # |w| of each rejected observation when it was rejected
+    ap_free: dict[str, np.ndarray]
+    n_ap_initial: int
+    rounds: list[SnoopingRound] = field(default_factory=list)
+    screening_log: list[tuple[int, ScreeningDecision]] = field(default_factory=list)
+
+    @property
+    def n_ap_significant(self) -> int:
+        return int(sum(int(v.sum()) for v in self.ap_free.values()))
+
+
+def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
+                      snooping: SnoopingOptions | None = SnoopingOptions(),
+                      screening: ScreeningOptions | None = None,
+                      progress: Callable | None = None,
+                      report: Callable[[SnoopingRound], None] | None = None) -> TestedAdjustment:
+    """Adjust ``block`` (pruned, as read) with data snooping and AP screening.
+
+    ``snooping=None`` (or a critical value of 0) disables snooping;
+    ``screening=None`` disables screening.
+    """
+    snoop_on = snooping is not None and snooping.critical > 0
+    critical = snooping.critical if snoop_on else 3.0
+    result = adjust(block, options, progress=progress)
+    models = {cam.camera_id: cam.ap for cam in result.problem.cameras}
+    free = {cam.camera_id: cam.free[3:].copy() for cam in result.problem.cameras}
+    n_ap_initial = int(sum(cam.ap.n_params for cam in result.problem.cameras))
+    tests = observation_tests(result, critical)
+    rejected = np.zeros(0, np.int64)
+    rejected_w = np.zeros(0)
+    rounds: list[SnoopingRound] = []
+    log: list[tuple[int, ScreeningDecision]] = []
+    max_rounds = max(snooping.max_rounds if snoop_on else 0, screening.max_rounds if screening else 0)
+    for k in range(1, max_rounds + 1):
+        dropped = 0
+        if screening is not None and n_ap_initial:
+            new_free, decisions = screen_once(result, screening)
+            if decisions:
+                free = new_free
+                dropped = len(decisions)
+                log += [(k, d) for d in decisions]
+        picks = np.zeros(0, np.int64)
+        largest = 0.0
+        if snoop_on:
+            w = image_w(tests, snooping.min_redundancy)
+            largest = float(w.max()) if w.size else 0.0
+            picks = reject_candidates(result.block, w, critical, snooping.mode)
+            rejected = np.concatenate([rejected, result.block.observations.row[picks]])
+            rejected_w = np.concatenate([rejected_w, w[picks]])
+        if dropped == 0 and picks.size == 0:
+            break
+        record = SnoopingRound(k, int(picks.size), dropped, largest, result.sigma0_px)
+        rounds.append(record)
+        if report is not None:
+            report(record)
+        keep = ~np.isin(block.observations.row, rejected)
+        sub = prune(replace(block, observations=block.observations.take(np.flatnonzero(keep))))
+        result = adjust(sub, options, progress=progress, start=result, ap_free=free, ap_models=models)
+        tests = observation_tests(result, critical)
+    order = np.argsort(rejected)
+    return TestedAdjustment(result, tests, rejected[order], rejected_w[order], free, n_ap_initial, rounds, log)
