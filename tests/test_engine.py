@@ -66,7 +66,8 @@ def test_schur_step_and_covariance_equal_dense_solution(small):
     d_p = back_substitute(problem, lin, v_inv, d_theta)
     step = np.concatenate([d_theta, d_p.ravel()])
     scale = np.sqrt(np.diag(N))
-    assert np.max(np.abs((step - dense_step) * scale)) < 1e-4   # in units of conditional sigma
+    # in units of conditional sigma; the finite-difference reference limits the agreement
+    assert np.max(np.abs((step - dense_step) * scale)) < 1e-3
 
     Q_full = np.linalg.inv(N)
     Q = factorise(S).inverse()

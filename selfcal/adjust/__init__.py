@@ -38,11 +38,16 @@ class AdjustOptions:
         Additional-parameter model, e.g. ``"none"``, ``"brown"``, ``"wavelet:db4"``.
     grid : (int, int)
         Gx x Gy grid of the wavelet APs (Eq. 10 of seed 000).
+    gnss_drift, imu_drift : int
+        Order of the strip-wise shift/drift of GNSS positions and IMU attitudes
+        (Eq. 12 of seed 000): -1 none, 0 shift, 1 shift + linear drift (default), 2 quadratic.
     solver : SolverOptions
     """
 
     ap: str = "none"
     grid: tuple[int, int] = (9, 6)
+    gnss_drift: int = 1
+    imu_drift: int = 1
     solver: SolverOptions = field(default_factory=SolverOptions)
 
 
@@ -148,7 +153,7 @@ def _offsets(problem: Problem) -> list[int]:
 
 def adjust(block: Block, options: AdjustOptions = AdjustOptions(),
            progress: Callable[[IterationRecord], None] | None = None,
-           start: "AdjustmentResult | None" = None, ap_free: dict | None = None,
+           start: "AdjustmentResult | None" = None, free: dict | None = None,
            ap_models: dict | None = None) -> AdjustmentResult:
     """Adjust a block: estimate orientation, object points and camera parameters.
 
@@ -163,8 +168,10 @@ def adjust(block: Block, options: AdjustOptions = AdjustOptions(),
         A previous adjustment of (a superset or subset of) this block: its
         estimates are the initial values wherever the ids match (warm start,
         used by data snooping and AP screening).
-    ap_free : dict camera_id -> bool array, optional
-        Which AP coefficients are estimated; the others are held at zero.
+    free : dict, optional
+        Which screenable parameters are estimated, by owner: a camera id maps to
+        a bool array over its AP coefficients, "GNSS" or "IMU" to one over that
+        sensor's shift/drift parameters. The others are held at zero.
     ap_models : dict camera_id -> APModel, optional
         Use these AP models instead of building them from ``options.ap``
         (keeps a basis fixed across re-adjustments).
@@ -177,11 +184,15 @@ def adjust(block: Block, options: AdjustOptions = AdjustOptions(),
     """
     t0 = time.perf_counter()
     settings = {"grid": options.grid} if options.ap.startswith("wavelet") else {}
-    problem = build_problem(block, options.ap, settings, ap_models=ap_models)
-    if ap_free:
+    problem = build_problem(block, options.ap, settings, ap_models=ap_models,
+                            gnss_drift=options.gnss_drift, imu_drift=options.imu_drift)
+    if free:
         for cam in problem.cameras:
-            if cam.camera_id in ap_free:
-                cam.free[3:] = np.asarray(ap_free[cam.camera_id], bool)
+            if cam.camera_id in free:
+                cam.free[3:] = np.asarray(free[cam.camera_id], bool)
+        for t in problem.trajectory:
+            if t.sensor in free:
+                t.free[:] = np.asarray(free[t.sensor], bool)
         problem.d_offset = _offsets(problem)
     state, notes = initial_state(problem, block, start)
     names = problem.theta_names(block.images.image_id)

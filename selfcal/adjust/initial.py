@@ -117,6 +117,10 @@ def _from_previous(problem: Problem, block, state: State, start) -> tuple[np.nda
     has_img, has_pt = img_src >= 0, pt_src >= 0
     state.eop[has_img] = start.state.eop[img_src[has_img]]
     state.points[has_pt] = start.state.points[pt_src[has_pt]]
+    prev_names = [n for t in start.problem.trajectory for n in t.names]
+    names = [n for t in problem.trajectory for n in t.names]
+    if prev_names == names:
+        state.extra[:] = np.where(problem.extra_free, start.state.extra, 0.0)
     prev_cams = {c.camera_id: (c, v) for c, v in zip(start.problem.cameras, start.state.cameras)}
     for k, cam in enumerate(problem.cameras):
         if cam.camera_id in prev_cams:
@@ -142,7 +146,8 @@ def initial_state(problem: Problem, block, start=None) -> tuple[State, list[str]
     eop = np.column_stack([images.position_m, images.attitude_rad])
     cameras = [cam.prior_value.copy() for cam in problem.cameras]
     xyz = points.xyz_m.copy()
-    state = State(eop=eop, cameras=cameras, points=xyz)
+    state = State(eop=eop, cameras=cameras, points=xyz,
+                  extra=np.zeros(sum(t.n_params for t in problem.trajectory)))
     notes: list[str] = []
     if start is not None:
         has_img, has_pt = _from_previous(problem, block, state, start)

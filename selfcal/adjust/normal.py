@@ -116,21 +116,41 @@ def parameter_observations(problem: Problem, state: State) -> tuple[sp.csr_matri
             vals.append(1.0 / sigma)
             res.append((cam.prior_value[i] - values[i]) / sigma)
             k += 1
-    for index, observed, sigma, offset, wrap in (
-        (problem.gnss_index, problem.gnss_xyz, problem.gnss_sigma, 0, False),
-        (problem.imu_index, problem.imu_opk, problem.imu_sigma, 3, True),
-    ):
-        if len(index) == 0:
+    x_col = problem.n_e + problem.n_d
+    x_full = 0
+    for t in problem.trajectory:
+        n = len(t.index)
+        if n == 0:
+            x_col += int(t.free.sum())
+            x_full += t.n_params
             continue
-        diff = observed - state.eop[index, offset:offset + 3]
-        if wrap:
+        model = state.eop[t.index, t.offset:t.offset + 3].copy()
+        powers = t.design()                                            # (n, order + 1)
+        values = state.extra[x_full:x_full + t.n_params]
+        if t.order >= 0:
+            coeff = values.reshape(len(t.strips), t.order + 1, 3)
+            model += np.einsum("nk,nka->na", powers, coeff[t.strip_of])
+        diff = t.observed - model
+        if t.wrap:
             diff = _wrap(diff)
-        n = len(index)
-        rows.append(k + np.arange(3 * n))
-        cols.append((6 * index[:, None] + offset + np.arange(3)).ravel())
-        vals.append(np.tile(1.0 / sigma, n))
-        res.append((diff / sigma).ravel())
+        rows_here = k + np.arange(3 * n).reshape(n, 3)
+        rows.append(rows_here.ravel())
+        cols.append((6 * t.index[:, None] + t.offset + np.arange(3)).ravel())
+        vals.append(np.tile(1.0 / t.sigma, n))
+        if t.order >= 0:
+            # column of (strip s, power j, axis a) among this sensor's free parameters
+            full_index = (t.strip_of[:, None, None] * (t.order + 1) + np.arange(t.order + 1)[None, :, None]) * 3 \
+                + np.arange(3)[None, None, :]                           # (n, order + 1, 3)
+            free_pos = np.cumsum(t.free) - 1
+            ok = t.free[full_index]
+            r_idx = np.broadcast_to(rows_here[:, None, :], full_index.shape)
+            rows.append(r_idx[ok])
+            cols.append(x_col + free_pos[full_index[ok]])
+            vals.append((np.broadcast_to(powers[:, :, None], full_index.shape) / t.sigma)[ok])
+        res.append((diff / t.sigma).ravel())
         k += 3 * n
+        x_col += int(t.free.sum())
+        x_full += t.n_params
     if k == 0:
         return sp.csr_matrix((0, problem.n_theta)), np.zeros(0)
     rows = np.concatenate([np.atleast_1d(r) for r in rows])

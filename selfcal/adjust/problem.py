@@ -32,7 +32,8 @@ from ..ap import APModel, ImageFrame, create_ap
 from ..block import Block
 from ..sensors.frame import EOP_NAMES, IOP_NAMES, photo_from_pixel
 
-__all__ = ["CameraParameters", "Problem", "State", "build_problem", "CHUNK_OBSERVATIONS"]
+__all__ = ["CameraParameters", "Problem", "State", "TrajectoryTerms", "build_problem", "trajectory_terms",
+           "CHUNK_OBSERVATIONS"]
 
 #: observations per chunk of the normal-equation assembly (bounds memory)
 CHUNK_OBSERVATIONS = 16384
@@ -88,18 +89,37 @@ class Problem:
     control_index: np.ndarray
     control_xyz: np.ndarray
     control_sigma: np.ndarray
-    # trajectory observations of the images
-    gnss_index: np.ndarray
-    gnss_xyz: np.ndarray
-    gnss_sigma: np.ndarray          # (3,) metres
-    imu_index: np.ndarray
-    imu_opk: np.ndarray
-    imu_sigma: np.ndarray           # (3,) radians
+    # trajectory observations of the images (GNSS positions, IMU attitudes) with their shift/drift
+    trajectory: list["TrajectoryTerms"]
     # layout of theta
     d_offset: list[int]             # start of each camera's free parameters in theta
-    n_extra: int = 0
-    extra_names: list[str] = field(default_factory=list)
     _structure: object = field(default=None, repr=False)
+
+    @property
+    def extra_free(self) -> np.ndarray:
+        """Which shift/drift parameters (all sensors, in order) are estimated."""
+        if not self.trajectory:
+            return np.zeros(0, bool)
+        return np.concatenate([t.free for t in self.trajectory])
+
+    @property
+    def n_extra(self) -> int:
+        return int(self.extra_free.sum())
+
+    @property
+    def extra_names(self) -> list[str]:
+        return [n for t in self.trajectory for n, f in zip(t.names, t.free) if f]
+
+    @property
+    def extra_groups(self) -> dict[str, list[int]]:
+        """theta indices of the free shift/drift parameters of each sensor (GNSS, IMU)."""
+        groups: dict[str, list[int]] = {}
+        start = self.n_e + self.n_d
+        for t in self.trajectory:
+            k = int(t.free.sum())
+            groups.setdefault(t.sensor, []).extend(range(start, start + k))
+            start += k
+        return groups
 
     def structure(self):
         """Sparsity structure of the normal equations (built on first use, then cached)."""
@@ -127,7 +147,7 @@ class Problem:
     def n_observations(self) -> int:
         """Number of scalar observations (image coordinates, control coordinates, parameter observations)."""
         n = 2 * len(self.obs_image) + 3 * len(self.control_index)
-        n += 3 * len(self.gnss_index) + 3 * len(self.imu_index)
+        n += sum(3 * len(t.index) for t in self.trajectory)
         n += int(sum(np.sum(c.free & np.isfinite(c.prior_sigma)) for c in self.cameras))
         return n
 
@@ -144,7 +164,7 @@ class Problem:
         """theta of a state (the free entries only)."""
         parts = [state.eop.ravel()]
         parts += [c_values[c.free] for c, c_values in zip(self.cameras, state.cameras)]
-        parts.append(state.extra)
+        parts.append(state.extra[self.extra_free])
         return np.concatenate(parts)
 
     def apply(self, state: State, d_theta: np.ndarray, d_points: np.ndarray) -> State:
@@ -155,9 +175,65 @@ class Problem:
             k = int(cam.free.sum())
             values[cam.free] += d_theta[start:start + k]
         if self.n_extra:
-            new.extra += d_theta[self.n_theta - self.n_extra:]
+            new.extra[self.extra_free] += d_theta[self.n_theta - self.n_extra:]
         new.points += d_points
         return new
+
+
+@dataclass
+class TrajectoryTerms:
+    """Trajectory observations of one sensor with strip-wise shift and drift, Eq. (12) of seed 000:
+
+        P_observed = P0 + D0 + D1 dt + D2 dt^2
+
+    with P0 the image's exterior orientation (position for GNSS, attitude for
+    IMU) and dt the time since the strip's first exposure. ``order`` -1 means
+    plain observations (no shift/drift); 0 a shift D0; 1 shift and drift; 2 adds D2.
+    Parameters are laid out per strip as [D0 (3), D1 (3), D2 (3)].
+    """
+
+    sensor: str                 # "GNSS" or "IMU"
+    index: np.ndarray           # images with an observation
+    observed: np.ndarray        # (k, 3)
+    sigma: np.ndarray           # (3,) metres or radians
+    offset: int                 # 0: X0 Y0 Z0, 3: omega phi kappa
+    order: int
+    strip_of: np.ndarray        # (k,) strip number of each observation
+    dt: np.ndarray              # (k,) seconds since the strip's first exposure
+    strips: list[str]
+    free: np.ndarray            # bool over the parameters (screening holds some at zero)
+    names: list[str]
+
+    @property
+    def n_params(self) -> int:
+        return len(self.free)
+
+    @property
+    def wrap(self) -> bool:
+        return self.offset == 3
+
+    def design(self) -> np.ndarray:
+        """(k, order + 1) powers of dt."""
+        return self.dt[:, None] ** np.arange(self.order + 1)[None, :] if self.order >= 0 else np.zeros((len(self.dt), 0))
+
+
+def trajectory_terms(sensor: str, images, index: np.ndarray, observed: np.ndarray, sigma: np.ndarray,
+                     offset: int, order: int) -> TrajectoryTerms:
+    """Set up one sensor's trajectory observations with strip-wise shift/drift of ``order``."""
+    from ..errors import AdjustmentError
+    strip_ids = images.strip_id[index]
+    strips = list(dict.fromkeys(strip_ids.tolist()))
+    strip_of = np.array([strips.index(s) for s in strip_ids], dtype=np.int64)
+    times = images.time_s[index]
+    if order >= 1 and np.isnan(times).any():
+        bad = ", ".join(images.image_id[index[np.isnan(times)]][:5])
+        raise AdjustmentError(f"{sensor} drift of order {order} needs time_s of every image; missing for {bad}")
+    t0 = np.array([np.nanmin(times[strip_of == s]) if order >= 1 else 0.0 for s in range(len(strips))])
+    dt = np.nan_to_num(times - t0[strip_of]) if order >= 1 else np.zeros(len(index))
+    axes = ("X", "Y", "Z") if offset == 0 else ("omega", "phi", "kappa")
+    names = [f"{sensor} {strip} D{k} {a}" for strip in strips for k in range(order + 1) for a in axes]
+    return TrajectoryTerms(sensor, index, observed, sigma, offset, order, strip_of, dt, strips,
+                           np.ones(len(names), bool), names)
 
 
 def _chunks(point_start: np.ndarray, target: int) -> list[tuple[int, int]]:
@@ -174,7 +250,8 @@ def _chunks(point_start: np.ndarray, target: int) -> list[tuple[int, int]]:
 
 
 def build_problem(block: Block, ap_spec: str = "none", ap_settings: dict | None = None,
-                  chunk_observations: int = CHUNK_OBSERVATIONS, ap_models: dict | None = None) -> Problem:
+                  chunk_observations: int = CHUNK_OBSERVATIONS, ap_models: dict | None = None,
+                  gnss_drift: int = 1, imu_drift: int = 1) -> Problem:
     """Arrange a (pruned) block for the engine.
 
     Parameters
@@ -186,6 +263,9 @@ def build_problem(block: Block, ap_spec: str = "none", ap_settings: dict | None 
         Passed to the AP factory (e.g. ``grid=(9, 6)``).
     ap_models : dict camera_id -> APModel, optional
         Prebuilt AP models (instead of building them from ``ap_spec``).
+    gnss_drift, imu_drift : int
+        Order of the strip-wise shift/drift of the trajectory observations
+        (-1 none, 0 shift, 1 shift + linear drift, 2 adds a quadratic term).
     """
     ap_settings = ap_settings or {}
     obs = block.observations
@@ -232,16 +312,15 @@ def build_problem(block: Block, ap_spec: str = "none", ap_settings: dict | None 
     pts = block.points
     control = np.flatnonzero(pts.role == "gcp")
     images = block.images
+    trajectory = []
     if block.gnss_sigma_m is not None:
-        gnss_index = np.flatnonzero(np.isfinite(images.position_m).all(axis=1))
-        gnss_sigma = np.array(block.gnss_sigma_m, float)
-    else:
-        gnss_index, gnss_sigma = np.zeros(0, np.int64), np.ones(3)
+        index = np.flatnonzero(np.isfinite(images.position_m).all(axis=1))
+        trajectory.append(trajectory_terms("GNSS", images, index, images.position_m[index],
+                                           np.array(block.gnss_sigma_m, float), 0, gnss_drift))
     if block.imu_sigma_deg is not None:
-        imu_index = np.flatnonzero(np.isfinite(images.attitude_rad).all(axis=1))
-        imu_sigma = np.radians(np.array(block.imu_sigma_deg, float))
-    else:
-        imu_index, imu_sigma = np.zeros(0, np.int64), np.ones(3)
+        index = np.flatnonzero(np.isfinite(images.attitude_rad).all(axis=1))
+        trajectory.append(trajectory_terms("IMU", images, index, images.attitude_rad[index],
+                                           np.radians(np.array(block.imu_sigma_deg, float)), 3, imu_drift))
 
     return Problem(
         n_images=len(images),
@@ -258,11 +337,6 @@ def build_problem(block: Block, ap_spec: str = "none", ap_settings: dict | None 
         control_index=control,
         control_xyz=pts.xyz_m[control],
         control_sigma=pts.sigma_m[control],
-        gnss_index=gnss_index,
-        gnss_xyz=images.position_m[gnss_index],
-        gnss_sigma=gnss_sigma,
-        imu_index=imu_index,
-        imu_opk=images.attitude_rad[imu_index],
-        imu_sigma=imu_sigma,
+        trajectory=trajectory,
         d_offset=d_offset,
     )

@@ -10,7 +10,7 @@ from ..io import read_block
 from ..io.results import write_results
 from ..report import result_files
 from ..stats import ScreeningOptions, SnoopingOptions, adjust_with_tests
-from .options import ap_option, grid_option, progress_printer, round_printer, test_options
+from .options import ap_option, grid_option, progress_printer, round_printer, test_options, trajectory_options
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -19,6 +19,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     ap_option(parser)
     grid_option(parser)
     test_options(parser)
+    trajectory_options(parser)
     parser.add_argument("--quiet", action="store_true", help="no progress output")
 
 
@@ -34,7 +35,8 @@ def run(args: argparse.Namespace) -> int:
               f"{len(block.observations)} image observations; AP model {args.ap}", file=sys.stderr)
     snooping = SnoopingOptions(critical=args.snoop, mode=args.snoop_mode)
     screening = ScreeningOptions(args.significance, args.max_correlation) if args.screen else None
-    tested = adjust_with_tests(block, AdjustOptions(ap=args.ap, grid=args.grid), snooping, screening,
+    tested = adjust_with_tests(block, AdjustOptions(ap=args.ap, grid=args.grid, gnss_drift=args.gnss_drift,
+                                             imu_drift=args.imu_drift), snooping, screening,
                                progress=None if args.quiet else progress_printer(block.image_sigma_px),
                                report=None if args.quiet else round_printer())
     files = result_files(block, tested, {"seconds": time.perf_counter() - t0}, screening)

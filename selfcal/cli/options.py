@@ -4,7 +4,8 @@ from __future__ import annotations
 import argparse
 import sys
 
-__all__ = ["grid", "ap_option", "grid_option", "progress_printer", "test_options", "round_printer"]
+__all__ = ["grid", "ap_option", "grid_option", "progress_printer", "test_options", "round_printer",
+           "trajectory_options", "drift_order"]
 
 
 def grid(text: str) -> tuple[int, int]:
@@ -60,3 +61,18 @@ def round_printer():
         print(f"tests round {record.round}: rejected {record.rejected} observations (largest |w| "
               f"{record.largest_w:.1f}), dropped {record.dropped_aps} APs; re-adjusting", file=sys.stderr, flush=True)
     return show
+
+
+def drift_order(text: str) -> int:
+    value = -1 if text.lower() == "none" else int(text)
+    if value not in (-1, 0, 1, 2):
+        raise argparse.ArgumentTypeError(f"drift order must be none, 0, 1 or 2, found '{text}'")
+    return value
+
+
+def trajectory_options(parser: argparse.ArgumentParser) -> None:
+    """Strip-wise shift/drift of the trajectory observations (Eq. 12 of seed 000)."""
+    parser.add_argument("--gnss-drift", type=drift_order, default=1, metavar="N",
+                        help="GNSS positions: none, 0 (shift), 1 (shift + drift, default), 2 (+ quadratic)")
+    parser.add_argument("--imu-drift", type=drift_order, default=1, metavar="N",
+                        help="IMU attitudes: none, 0 (shift), 1 (shift + drift, default), 2 (+ quadratic)")

@@ -1,6 +1,8 @@
 """Statistical screening of additional parameters: significance and correlation tests.
 
-After an adjustment, each active AP coefficient a_i is tested
+Screened are the AP coefficients of every camera and the strip-wise
+shift/drift parameters of the trajectory observations. After an adjustment,
+each active one a_i is tested
 
 * for significance: t_i = |a_i| / sigma(a_i); the coefficient is dropped when
   t_i < ``significance`` (default 1.96: two-sided test at alpha = 5 %, the
@@ -41,7 +43,7 @@ class ScreeningOptions:
 
 @dataclass(frozen=True)
 class ScreeningDecision:
-    camera_id: str
+    camera_id: str          # owner: a camera id, or "GNSS" / "IMU"
     name: str
     t: float
     reason: str
@@ -58,17 +60,24 @@ def screen_once(result, options: ScreeningOptions) -> tuple[dict[str, np.ndarray
     problem, Q = result.problem, result.Q_theta
     vf = result.variance_factor
     groups = parameter_groups(problem)
-    ap_idx = groups["AP"]
     free = {cam.camera_id: cam.free[3:].copy() for cam in problem.cameras}
-    if ap_idx.size == 0:
-        return free, []
-    # theta index -> (camera, coefficient)
+    free.update({t.sensor: t.free.copy() for t in problem.trajectory})
+    # theta index -> (owner key, position in the owner's mask, name)
     owner = {}
-    for k, (cam, start) in enumerate(zip(problem.cameras, problem.d_offset)):
+    for cam, start in zip(problem.cameras, problem.d_offset):
         pos = start + np.cumsum(cam.free) - 1
         for i in range(3, cam.size):
             if cam.free[i]:
-                owner[int(pos[i])] = (k, i - 3)
+                owner[int(pos[i])] = (cam.camera_id, i - 3, cam.ap.parameter_names[i - 3])
+    start = problem.n_e + problem.n_d
+    for t in problem.trajectory:
+        pos = start + np.cumsum(t.free) - 1
+        for i in np.flatnonzero(t.free):
+            owner[int(pos[i])] = (t.sensor, int(i), t.names[i])
+        start += int(t.free.sum())
+    ap_idx = np.array(sorted(owner), dtype=np.int64)
+    if ap_idx.size == 0:
+        return free, []
     theta = problem.pack(result.state)
     sigma = np.sqrt(vf * np.diag(Q))
     t = np.abs(theta) / sigma
@@ -79,15 +88,14 @@ def screen_once(result, options: ScreeningOptions) -> tuple[dict[str, np.ndarray
         if index in drop:
             return
         drop.add(index)
-        k, i = owner[index]
-        cam = problem.cameras[k]
-        decisions.append(ScreeningDecision(cam.camera_id, cam.ap.parameter_names[i], float(t[index]), reason))
+        key, _, name = owner[index]
+        decisions.append(ScreeningDecision(key, name, float(t[index]), reason))
 
     for index in ap_idx[t[ap_idx] < options.significance]:
         decide(int(index), f"insignificant (t = {t[index]:.2f} < {options.significance:g})")
 
     d = np.sqrt(np.diag(Q))
-    orientation = np.concatenate([groups["IOP"], groups["EOP"]])
+    orientation = np.concatenate([groups["IOP"], groups["EOP"]]).astype(np.int64)
     if orientation.size:
         rho = np.abs(Q[np.ix_(ap_idx, orientation)]) / d[ap_idx][:, None] / d[orientation][None, :]
         worst = rho.max(axis=1)
@@ -105,6 +113,6 @@ def screen_once(result, options: ScreeningOptions) -> tuple[dict[str, np.ndarray
         decide(weaker, f"correlated with {result.theta_names[stronger]} (|rho| = {rho[a, b]:.2f}), less significant")
 
     for index in drop:
-        k, i = owner[index]
-        free[problem.cameras[k].camera_id][i] = False
+        key, i, _ = owner[index]
+        free[key][i] = False
     return free, decisions

@@ -35,7 +35,8 @@ class TestedAdjustment:
 
     @property
     def n_ap_significant(self) -> int:
-        return int(sum(int(v.sum()) for v in self.ap_free.values()))
+        cams = {c.camera_id for c in self.result.problem.cameras}
+        return int(sum(int(v.sum()) for k, v in self.ap_free.items() if k in cams))
 
 
 def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
@@ -53,7 +54,9 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
     result = adjust(block, options, progress=progress)
     models = {cam.camera_id: cam.ap for cam in result.problem.cameras}
     free = {cam.camera_id: cam.free[3:].copy() for cam in result.problem.cameras}
+    free.update({t.sensor: t.free.copy() for t in result.problem.trajectory})
     n_ap_initial = int(sum(cam.ap.n_params for cam in result.problem.cameras))
+    screenable = n_ap_initial + sum(t.n_params for t in result.problem.trajectory)
     tests = observation_tests(result, critical)
     rejected = np.zeros(0, np.int64)
     rejected_w = np.zeros(0)
@@ -62,7 +65,7 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
     max_rounds = max(snooping.max_rounds if snoop_on else 0, screening.max_rounds if screening else 0)
     for k in range(1, max_rounds + 1):
         dropped = 0
-        if screening is not None and n_ap_initial:
+        if screening is not None and screenable:
             new_free, decisions = screen_once(result, screening)
             if decisions:
                 free = new_free
@@ -84,7 +87,7 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
             report(record)
         keep = ~np.isin(block.observations.row, rejected)
         sub = prune(replace(block, observations=block.observations.take(np.flatnonzero(keep))))
-        result = adjust(sub, options, progress=progress, start=result, ap_free=free, ap_models=models)
+        result = adjust(sub, options, progress=progress, start=result, free=free, ap_models=models)
         tests = observation_tests(result, critical)
     order = np.argsort(rejected)
     return TestedAdjustment(result, tests, rejected[order], rejected_w[order], free, n_ap_initial, rounds, log)
