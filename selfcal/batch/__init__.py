@@ -1,12 +1,19 @@
-"""Experiment matrices: many adjustments (scenario x AP model) and their comparison table.
+"""Experiment matrices: many adjustments (scenario x AP model), serially or on Dask.
 
-Runs serially for now; the matrix is independent cell by cell, which is what
-the Dask back end (issue 5) will exploit.
+Each cell of the matrix (one block, one AP model) is independent: the matrix
+is a Dask task graph with one task per cell. By default a local cluster of
+worker processes on this machine runs it (one BLAS thread each, so that the
+workers do not compete for cores); ``scheduler=ADDRESS`` runs the same tasks
+on an existing Dask cluster. Results come back to the caller as data (the
+results-folder files), so workers need no shared file system. The numbers are
+the same as those of the serial run.
 """
 from __future__ import annotations
 
+import os
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Callable
 
 from ..adjust import AdjustOptions
 from ..ap import AP_FAMILIES, parse_ap_spec
@@ -14,16 +21,30 @@ from ..errors import AdjustmentError
 from ..report import result_files
 from ..stats import ScreeningOptions, SnoopingOptions, adjust_with_tests
 
-__all__ = ["Cell", "run_cell", "available_models", "PAPER_MODELS"]
+__all__ = ["Cell", "CellSettings", "run_cell", "run_matrix", "available_models", "PAPER_MODELS", "ALL_MODELS"]
 
-#: the models of the seed-000 comparison, in the paper's order; "gruen" stands
-#: for BINGO's polynomial AP set (BINGO is commercial; Grün's 44 is its classic core)
+#: the models of the seed-000 comparison, in the paper's order; "gruen" (Grün's 44
+#: orthogonal polynomials) stands for BINGO's polynomial AP set (BINGO is commercial)
 PAPER_MODELS = ("none", "gruen", "wavelet:db4", "wavelet:bl4", "wavelet:sym4", "wavelet:meyer")
+#: every family, with its default settings
+ALL_MODELS = ("none", "brown", "ebner", "gruen", "legendre", "fourier",
+              "wavelet:db4", "wavelet:sym4", "wavelet:meyer", "wavelet:bl4")
 
 
 def available_models(models) -> list[str]:
     """The models whose family is registered (others are skipped)."""
     return [m for m in models if parse_ap_spec(m)[0] in AP_FAMILIES]
+
+
+@dataclass(frozen=True)
+class CellSettings:
+    """How every cell is adjusted."""
+
+    grid: tuple[int, int] = (9, 6)
+    gnss_drift: int = 1
+    imu_drift: int = 1
+    snooping: SnoopingOptions | None = field(default_factory=SnoopingOptions)
+    screening: ScreeningOptions | None = field(default_factory=ScreeningOptions)
 
 
 @dataclass
@@ -35,14 +56,59 @@ class Cell:
     seconds: float
 
 
-def run_cell(scenario: str, block, model: str, grid=(9, 6), snooping: SnoopingOptions | None = SnoopingOptions(),
-             screening: ScreeningOptions | None = ScreeningOptions()) -> Cell:
+def run_cell(scenario: str, block, model: str, settings: CellSettings = CellSettings()) -> Cell:
     """Adjust one block with one AP model (with snooping and screening); failures are recorded, not raised."""
     t0 = time.perf_counter()
+    options = AdjustOptions(ap=model, grid=settings.grid, gnss_drift=settings.gnss_drift,
+                            imu_drift=settings.imu_drift)
     try:
-        tested = adjust_with_tests(block, AdjustOptions(ap=model, grid=grid), snooping,
-                                   screening if model != "none" else None)
+        tested = adjust_with_tests(block, options, settings.snooping, settings.screening)
     except AdjustmentError as exc:
         return Cell(scenario, model, None, str(exc), time.perf_counter() - t0)
-    files = result_files(block, tested, {"scenario": scenario}, screening)
-    return Cell(scenario, model, files, None, time.perf_counter() - t0)
+    seconds = time.perf_counter() - t0
+    files = result_files(block, tested, {"scenario": scenario, "seconds": seconds}, settings.screening)
+    return Cell(scenario, model, files, None, seconds)
+
+
+def run_matrix(blocks: dict, models: list[str], settings: CellSettings = CellSettings(),
+               scheduler: str | None = "local", n_workers: int | None = None,
+               done: Callable[[Cell], None] | None = None) -> list[Cell]:
+    """Adjust every block with every model; cells in (block, model) order.
+
+    Parameters
+    ----------
+    blocks : dict scenario name -> Block (pruned, as read)
+    scheduler : None for a serial run in this process, "local" for a local Dask
+        cluster, or the address of an existing Dask scheduler.
+    n_workers : worker processes of the local cluster (default: the number of cores).
+    done : called with each cell as it finishes.
+    """
+    cases = [(name, model) for name in blocks for model in models]
+    if scheduler is None:
+        cells = []
+        for name, model in cases:
+            cell = run_cell(name, blocks[name], model, settings)
+            if done is not None:
+                done(cell)
+            cells.append(cell)
+        return cells
+    from dask.distributed import Client, LocalCluster, as_completed
+
+    cluster = None
+    if scheduler == "local":
+        single_thread = {k: "1" for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
+        cluster = LocalCluster(n_workers=n_workers or os.cpu_count() or 1, threads_per_worker=1,
+                               processes=True, dashboard_address=None, env=single_thread)
+    client = Client(cluster if cluster is not None else scheduler)
+    try:
+        shared = {name: client.scatter(block, broadcast=True) for name, block in blocks.items()}
+        futures = [client.submit(run_cell, name, shared[name], model, settings, pure=False,
+                                 key=f"selfcal-{name}-{model}-{time.time_ns()}") for name, model in cases]
+        if done is not None:
+            for future in as_completed(futures):
+                done(future.result())
+        return client.gather(futures)
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()

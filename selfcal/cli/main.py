@@ -10,12 +10,13 @@ import argparse
 import sys
 
 from ..errors import SelfcalError
-from . import adjust, demo, simulate
+from . import adjust, compare, demo, simulate
 
 #: verb -> module with ``add_arguments(parser)`` and ``run(args) -> int``
 COMMANDS = {
     "adjust": adjust,
     "simulate": simulate,
+    "compare": compare,
     "demo": demo,
 }
 

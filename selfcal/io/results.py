@@ -1,7 +1,7 @@
 """Write a results folder (DESIGN.md §4) atomically.
 
 The caller passes every file as data: a dict is written as JSON, a
-``(header, columns, formats)`` tuple as CSV. The folder appears complete or
+``(header, columns, formats)`` tuple as CSV, a str as text. The folder appears complete or
 not at all (:func:`selfcal.io.atomic.atomic_folder`).
 """
 from __future__ import annotations
@@ -39,7 +39,10 @@ def write_files(folder: str, files: dict) -> None:
     """Write files into an existing folder, each atomically."""
     for name, content in files.items():
         path = os.path.join(folder, name)
-        if isinstance(content, dict):
+        if isinstance(content, str):
+            with atomic_write(path) as handle:
+                handle.write(content)
+        elif isinstance(content, dict):
             with atomic_write(path) as handle:
                 json.dump(to_jsonable(content), handle, indent=2)
                 handle.write("\n")

@@ -1,0 +1,73 @@
+"""Adjust blocks with several AP models and tabulate the comparison (seed 000's tables)."""
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+
+from ..ap import parse_ap_spec, AP_FAMILIES
+from ..batch import ALL_MODELS, CellSettings, run_matrix
+from ..errors import BlockError
+from ..io import read_block
+from ..io.atomic import atomic_folder
+from ..io.results import write_files
+from ..report.compare import comparison_csv, comparison_markdown, comparison_rows
+from ..stats import ScreeningOptions, SnoopingOptions
+from .options import grid_option, test_options, trajectory_options
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("blocks", nargs="+", metavar="BLOCK", help="block folders (one scenario each)")
+    parser.add_argument("--ap", default=",".join(ALL_MODELS), metavar="MODELS",
+                        help="comma-separated AP models (default: all ten)")
+    parser.add_argument("--out", required=True, metavar="DIR", help="folder for the results and the table")
+    grid_option(parser)
+    test_options(parser)
+    trajectory_options(parser)
+    parser.add_argument("--no-screen", action="store_true", help="do not screen the APs (screening is on here)")
+    parser.add_argument("--scheduler", default="local", metavar="ADDRESS",
+                        help="Dask scheduler: 'local' (a cluster on this machine, default), 'serial' "
+                             "(no Dask), or the address of a running scheduler (tcp://host:8786)")
+    parser.add_argument("--workers", type=int, default=None, help="worker processes of the local cluster")
+
+
+def run(args: argparse.Namespace) -> int:
+    models = [m.strip() for m in args.ap.split(",") if m.strip()]
+    for m in models:
+        if parse_ap_spec(m)[0] not in AP_FAMILIES:
+            raise SystemExit(f"selfcal compare: error: unknown AP model '{m}' (known: {', '.join(AP_FAMILIES)})")
+    blocks = {}
+    for folder in args.blocks:
+        name = os.path.basename(os.path.normpath(folder))
+        if name in blocks:
+            raise BlockError(folder, f"two blocks are named '{name}'; give each scenario its own folder name")
+        blocks[name] = read_block(folder)
+    settings = CellSettings(
+        grid=args.grid, gnss_drift=args.gnss_drift, imu_drift=args.imu_drift,
+        snooping=SnoopingOptions(critical=args.snoop, mode=args.snoop_mode),
+        screening=None if args.no_screen else ScreeningOptions(args.significance, args.max_correlation))
+    total = len(blocks) * len(models)
+    finished = []
+
+    def done(cell):
+        finished.append(cell)
+        status = "failed: " + cell.error.splitlines()[0] if cell.error else f"{cell.seconds:.1f} s"
+        print(f"[{len(finished)}/{total}] {cell.scenario} {cell.model}: {status}", file=sys.stderr, flush=True)
+
+    t0 = time.perf_counter()
+    scheduler = None if args.scheduler == "serial" else args.scheduler
+    cells = run_matrix(blocks, models, settings, scheduler, args.workers, done)
+    seconds = time.perf_counter() - t0
+    rows = comparison_rows(cells)
+    with atomic_folder(args.out) as tmp:
+        for cell in cells:
+            if cell.files:
+                folder = os.path.join(tmp, cell.scenario, cell.model.replace(":", "-"))
+                os.makedirs(folder)
+                write_files(folder, cell.files)
+        write_files(tmp, {"comparison.csv": comparison_csv(rows),
+                          "comparison.md": comparison_markdown(rows, "selfcal compare")})
+    print(comparison_markdown(rows))
+    print(f"{total} adjustments in {seconds:.1f} s ({args.scheduler}); results in {args.out}", file=sys.stderr)
+    return 1 if any(c.error for c in cells) else 0
