@@ -54,3 +54,17 @@ def test_rays_point_at_the_object_point():
     to_point = pts - eop[:, :3]
     to_point /= np.linalg.norm(to_point, axis=1, keepdims=True)
     np.testing.assert_allclose(d, to_point, atol=1e-12)
+
+
+def test_compiled_projection_equals_vectorised():
+    from selfcal.geometry import matrix_from_opk_with_derivatives
+    from selfcal.sensors.frame import project_with_jacobians_indexed
+    pts, eop, iop = _setup(40, seed=4)
+    images = eop[:7]
+    cams = iop[:3]
+    img = np.arange(40) % 7
+    cam = np.arange(40) % 3
+    ref = project_with_jacobians(pts, images[img], cams[cam])
+    got = project_with_jacobians_indexed(pts, images, cams, matrix_from_opk_with_derivatives(images[:, 3:]), img, cam)
+    for a, b in zip(got, ref):
+        np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-12)

@@ -16,7 +16,7 @@ import scipy.sparse as sp
 
 from .normal import Linearisation
 from .problem import Problem
-from .structure import observation_pairs
+from .kernels import point_cofactor_pairs
 
 __all__ = ["point_cofactors"]
 
@@ -24,21 +24,17 @@ __all__ = ["point_cofactors"]
 def point_cofactors(problem: Problem, lin: Linearisation, v_inv: list, Q: np.ndarray) -> np.ndarray:
     """Cofactor blocks Q_pp of all points, shape (n_points, 3, 3)."""
     n_img, n_e, n_d = problem.n_images, problem.n_e, problem.n_d
-    Q_ee = Q[:n_e, :n_e].reshape(n_img, 6, n_img, 6)
+    Q_e = np.ascontiguousarray(Q[:n_e, :n_e])
     Q_ed = Q[:n_e, n_e:n_e + n_d].reshape(n_img, 6, n_d)
     Q_dd = Q[n_e:n_e + n_d, n_e:n_e + n_d]
     out = np.zeros((problem.n_points, 3, 3))
-    for ch, Vi in zip(lin.chunks, v_inv):
+    for ch, cs, Vi in zip(lin.chunks, problem.structure().chunks, v_inv):
         n_pc = ch.p1 - ch.p0
-        img = problem.obs_image[ch.o0:ch.o1]
-        ptl = problem.obs_point[ch.o0:ch.o1] - ch.p0
+        img, ptl = cs.img, cs.ptl
         m = len(img)
         Z_e = ch.w_e @ Vi[ptl]                                              # (m, 6, 3)
-        a, b = observation_pairs(ptl, n_pc)
-        q_ab = Q_ee[img[a], :, img[b], :]                                   # (pairs, 6, 6)
-        t = (Z_e[a].transpose(0, 2, 1) @ q_ab) @ Z_e[b]
-        by_point = sp.csr_matrix((np.ones(a.size), (ptl[a], np.arange(a.size))), shape=(n_pc, a.size))
-        Qp = Vi + (by_point @ t.reshape(-1, 9)).reshape(n_pc, 3, 3)
+        Qp = Vi.copy()
+        point_cofactor_pairs(Z_e, img, ptl, cs.pair_a, cs.pair_b, Q_e, Qp)
         if n_d:
             Z_d = np.einsum("dpk,pkl->dpl", ch.W_d.reshape(n_d, n_pc, 3), Vi)   # (n_d, n_pc, 3)
             QZ = (Q_dd @ Z_d.reshape(n_d, 3 * n_pc)).reshape(n_d, n_pc, 3)

@@ -25,7 +25,8 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..geometry.rotation import matrix_from_opk, matrix_from_opk_with_derivatives
-from ..sensors.frame import project, project_with_jacobians
+from ..sensors.frame import project, project_with_jacobians_indexed
+from .kernels import accumulate_observations, schur_image_blocks
 from .problem import Problem, State
 
 __all__ = [
@@ -177,9 +178,8 @@ def chunk_rows(problem: Problem, state: State, cs, rotation=None, iop_all=None):
         iop_all = np.array([c[:3] for c in state.cameras])
     p0, p1, o0, o1, img, ptl = cs.p0, cs.p1, cs.o0, cs.o1, cs.img, cs.ptl
     m = o1 - o0
-    xy, j_e, j_p, j_i = project_with_jacobians(
-        state.points[p0:p1][ptl], state.eop[img], iop_all[problem.image_camera[img]],
-        rotation=(rotation[0][img], rotation[1][img]))
+    xy, j_e, j_p, j_i = project_with_jacobians_indexed(
+        state.points[p0:p1][ptl], state.eop, iop_all, rotation, img, problem.image_camera[img])
     delta, cam_cols = _camera_terms(problem, state, o0, o1, img)
     w = 1.0 / problem.obs_sigma_mm[o0:o1]
     r = (problem.obs_xy_mm[o0:o1] - xy - delta) * w[:, None]
@@ -219,18 +219,16 @@ def linearise(problem: Problem, state: State) -> Linearisation:
         r, j_e, j_p, j_d = chunk_rows(problem, state, cs, rotation, iop_all)
         cost += 0.5 * float(np.sum(r * r))
 
-        # theta-theta blocks and the theta gradient
-        U_ee += (cs.sum_by_image @ np.einsum("oki,okj->oij", j_e, j_e).reshape(m, 36)).reshape(n_img, 6, 6)
-        g_e += cs.sum_by_image @ np.einsum("oki,ok->oi", j_e, r)
+        # image and point blocks, and the coupling of each observation's image and point
+        U_c, g_c, V, g_p, w_e = accumulate_observations(j_e, j_p, r, cs.img, cs.ptl, n_img, n_pc)
+        U_ee += U_c
+        g_e += g_c
         if n_d:
             jd2 = j_d.reshape(2 * m, n_d)
             U_ed += cs.image_rows.matrix(j_e) @ jd2
             U_dd += jd2.T @ jd2
             g_d += jd2.T @ r.ravel()
 
-        # point blocks and their coupling with theta
-        V = (cs.sum_by_point @ np.einsum("oki,okj->oij", j_p, j_p).reshape(m, 9)).reshape(n_pc, 3, 3)
-        g_p = cs.sum_by_point @ np.einsum("oki,ok->oi", j_p, r)
         ctl = control_of_point[p0:p1]
         has = np.flatnonzero(ctl >= 0)
         if has.size:
@@ -239,7 +237,6 @@ def linearise(problem: Problem, state: State) -> Linearisation:
             cost += 0.5 * float(np.sum(rc * rc))
             V[has] += np.einsum("ni,ij->nij", 1.0 / sig**2, np.eye(3))
             g_p[has] += rc / sig
-        w_e = np.einsum("oki,okj->oij", j_e, j_p)
         if n_d:
             W_d = np.ascontiguousarray((cs.point_cols.matrix(j_p).T @ jd2).T)
         else:
@@ -286,7 +283,7 @@ def reduce(problem: Problem, lin: Linearisation, lam: float = 0.0, dense: bool =
     S_dd = lin.U_dd.copy()
     g = lin.g_theta.copy()
     diag_blocks = lin.U_ee.copy()
-    off_blocks = np.zeros((len(structure.pair_keys), 36))
+    off_blocks = np.zeros((len(structure.pair_keys), 6, 6))
     v_inv = []
     for ch, cs in zip(lin.chunks, structure.chunks):
         n_pc = ch.p1 - ch.p0
@@ -294,9 +291,7 @@ def reduce(problem: Problem, lin: Linearisation, lam: float = 0.0, dense: bool =
         Vi = _damped_inverse(ch.V, lam)
         v_inv.append(Vi)
         Y = ch.w_e @ Vi[cs.ptl]                                  # (m, 6, 3) = W V^-1 per observation
-        w_t = ch.w_e.transpose(0, 2, 1)
-        diag_blocks -= (cs.sum_by_image @ (Y @ w_t).reshape(m, 36)).reshape(n_img, 6, 6)
-        off_blocks -= cs.pair_sum @ (Y[cs.pair_a] @ w_t[cs.pair_b]).reshape(-1, 36)
+        schur_image_blocks(Y, ch.w_e, cs.img, cs.pair_a, cs.pair_b, cs.pair_key, diag_blocks, off_blocks)
         g[:n_e] -= (cs.sum_by_image @ np.einsum("oik,ok->oi", Y, ch.g_p[cs.ptl])).ravel()
         if n_d:
             Y_e = cs.image_point.matrix(Y)
@@ -304,7 +299,6 @@ def reduce(problem: Problem, lin: Linearisation, lam: float = 0.0, dense: bool =
             S_ed -= Y_e @ ch.W_d.T
             S_dd -= T_d @ ch.W_d.T
             g[n_e:n_e + n_d] -= T_d @ ch.g_p.ravel()
-    off_blocks = off_blocks.reshape(-1, 6, 6)
     ia, ib = structure.image_pair_a, structure.image_pair_b
 
     damp = lam * lin.diag_theta

@@ -78,7 +78,7 @@ class ChunkStructure:
     image_point: SparsePattern      # (n_e, 3 n_pc) from (m, 6, 3): W_e (and W_e V^-1)
     pair_a: np.ndarray              # upper pairs a < b of observations of the same point
     pair_b: np.ndarray
-    pair_sum: sp.csr_matrix         # (n_image_pairs, n_pairs): sums pair blocks by image pair
+    pair_key: np.ndarray            # index into BlockStructure.pair_keys of each pair
 
 
 @dataclass
@@ -123,8 +123,7 @@ def build_structure(problem) -> BlockStructure:
             image_rows=SparsePattern(rows_e, cols_e, (n_e, 2 * m)),
             point_cols=SparsePattern(rows_p, cols_p, (2 * m, 3 * n_pc)),
             image_point=SparsePattern(rows_w, cols_w, (n_e, 3 * n_pc)),
-            pair_a=a, pair_b=b,
-            pair_sum=SparsePattern(key_index, np.arange(len(a)), (len(pair_keys), len(a))).matrix(np.ones(len(a))),
+            pair_a=a, pair_b=b, pair_key=key_index,
         ))
     return BlockStructure(chunks, pair_keys, pair_keys // n_img if n_img else pair_keys,
                           pair_keys % n_img if n_img else pair_keys)

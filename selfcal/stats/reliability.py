@@ -32,7 +32,7 @@ import numpy as np
 from scipy.stats import norm
 
 from ..adjust.normal import chunk_rows, parameter_observations
-from ..adjust.structure import observation_pairs
+from ..adjust.kernels import leverage_pairs
 from ..geometry.rotation import matrix_from_opk_with_derivatives
 
 __all__ = ["ObservationTests", "observation_tests", "noncentrality"]
@@ -75,6 +75,7 @@ def _image_leverage(problem, state, lin, v_inv, Q, Q_points):
     """h (m, 2) of every image coordinate (sorted order) and whitened residuals l - f."""
     n_img, n_e, n_d = problem.n_images, problem.n_e, problem.n_d
     Q_ee = Q[:n_e, :n_e].reshape(n_img, 6, n_img, 6)
+    Q_e = np.ascontiguousarray(Q[:n_e, :n_e])
     Q_ed = Q[:n_e, n_e:n_e + n_d].reshape(n_img, 6, n_d)
     Q_dd = Q[n_e:n_e + n_d, n_e:n_e + n_d]
     rotation = matrix_from_opk_with_derivatives(state.eop[:, 3:])
@@ -88,9 +89,8 @@ def _image_leverage(problem, state, lin, v_inv, Q, Q_points):
         m = len(img)
         r, j_e, j_p, j_d = chunk_rows(problem, state, cs, rotation, iop_all)
         Z_e = ch.w_e @ Vi[ptl]                                              # (m, 6, 3)
-        a, b = observation_pairs(ptl, n_pc)
         G = np.zeros((m, 6, 3))
-        np.add.at(G, a, Q_ee[img[a], :, img[b], :] @ Z_e[b])               # sum_b Q_{i_a, i_b} Z_b
+        leverage_pairs(Z_e, img, cs.pair_a, cs.pair_b, Q_e, G)             # sum_b Q_{i_a, i_b} Z_b
         h = np.einsum("oki,oij,okj->ok", j_e, Q_ee[img, :, img, :], j_e)
         jp_term = j_e @ G                                                   # (m, 2, 3), completed below
         if n_d:

@@ -1,0 +1,153 @@
+"""Compiled inner loops of the normal equations (Numba).
+
+The assembly of the reduced normal equations, the point cofactors and the
+observation leverages are sums over observations and over pairs of
+observations of the same point, each term a product of 6x3 and 3x3 blocks.
+NumPy can vectorise them only by materialising every term; these loops
+accumulate directly. Each kernel is a plain loop over flat arrays with the
+same meaning as the NumPy expression quoted in its docstring, and the tests
+compare them against a dense reference.
+
+Numba earns its place by the benchmark: it removes the largest share of an
+iteration's time (see benchmarks/bench_spine.py).
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+__all__ = ["accumulate_observations", "schur_image_blocks", "point_cofactor_pairs", "leverage_pairs"]
+
+
+@njit(cache=True, nogil=True)
+def accumulate_observations(j_e, j_p, r, img, ptl, n_img, n_pc):
+    """Per-image and per-point normal blocks of whitened rows.
+
+    U_ee[i] += sum_o j_e[o]^T j_e[o] over observations of image i, g_e[i] += j_e^T r;
+    V[p] += j_p^T j_p, g_p[p] += j_p^T r over observations of point p;
+    w_e[o] = j_e[o]^T j_p[o] (the 6x3 coupling of the observation's image and point).
+    """
+    m = j_e.shape[0]
+    U_ee = np.zeros((n_img, 6, 6))
+    g_e = np.zeros((n_img, 6))
+    V = np.zeros((n_pc, 3, 3))
+    g_p = np.zeros((n_pc, 3))
+    w_e = np.zeros((m, 6, 3))
+    for o in range(m):
+        i = img[o]
+        p = ptl[o]
+        for k in range(2):
+            rk = r[o, k]
+            for a in range(6):
+                ea = j_e[o, k, a]
+                g_e[i, a] += ea * rk
+                for b in range(6):
+                    U_ee[i, a, b] += ea * j_e[o, k, b]
+                for b in range(3):
+                    w_e[o, a, b] += ea * j_p[o, k, b]
+            for a in range(3):
+                pa = j_p[o, k, a]
+                g_p[p, a] += pa * rk
+                for b in range(3):
+                    V[p, a, b] += pa * j_p[o, k, b]
+    return U_ee, g_e, V, g_p, w_e
+
+
+@njit(cache=True, nogil=True)
+def schur_image_blocks(Y, w_e, img, pair_a, pair_b, pair_key, diag, off):
+    """Subtract W V^-1 W^T from the image blocks.
+
+    diag[img[o]] -= Y[o] w_e[o]^T for every observation; off[pair_key[q]] -= Y[a] w_e[b]^T
+    for every pair q = (a, b), a < b, of observations of the same point.
+    """
+    for o in range(Y.shape[0]):
+        i = img[o]
+        for a in range(6):
+            for b in range(6):
+                s = 0.0
+                for k in range(3):
+                    s += Y[o, a, k] * w_e[o, b, k]
+                diag[i, a, b] -= s
+    for q in range(pair_a.shape[0]):
+        oa = pair_a[q]
+        ob = pair_b[q]
+        key = pair_key[q]
+        for a in range(6):
+            for b in range(6):
+                s = 0.0
+                for k in range(3):
+                    s += Y[oa, a, k] * w_e[ob, b, k]
+                off[key, a, b] -= s
+
+
+@njit(cache=True, nogil=True)
+def point_cofactor_pairs(Z_e, img, ptl, pair_a, pair_b, Q_e, out):
+    """out[p] += sum over ordered pairs (a, b) of point p of Z_e[a]^T Q(img a, img b) Z_e[b].
+
+    ``pair_a``, ``pair_b`` hold the unordered pairs a < b; the diagonal (a = b)
+    and both orders are added here. Q_e is the dense image part of Q_theta.
+    """
+    m = Z_e.shape[0]
+    tmp = np.zeros((6, 3))
+    for o in range(m):
+        base = 6 * img[o]
+        p = ptl[o]
+        for a in range(6):
+            for j in range(3):
+                s = 0.0
+                for b in range(6):
+                    s += Q_e[base + a, base + b] * Z_e[o, b, j]
+                tmp[a, j] = s
+        for i in range(3):
+            for j in range(3):
+                s = 0.0
+                for a in range(6):
+                    s += Z_e[o, a, i] * tmp[a, j]
+                out[p, i, j] += s
+    for q in range(pair_a.shape[0]):
+        oa = pair_a[q]
+        ob = pair_b[q]
+        ba = 6 * img[oa]
+        bb = 6 * img[ob]
+        p = ptl[oa]
+        for a in range(6):
+            for j in range(3):
+                s = 0.0
+                for b in range(6):
+                    s += Q_e[ba + a, bb + b] * Z_e[ob, b, j]
+                tmp[a, j] = s
+        for i in range(3):
+            for j in range(3):
+                s = 0.0
+                for a in range(6):
+                    s += Z_e[oa, a, i] * tmp[a, j]
+                out[p, i, j] += s          # (a, b)
+                out[p, j, i] += s          # (b, a): its transpose
+
+
+@njit(cache=True, nogil=True)
+def leverage_pairs(Z_e, img, pair_a, pair_b, Q_e, G):
+    """G[a] += Q(img a, img b) Z_e[b] for every ordered pair of the same point, diagonal included."""
+    m = Z_e.shape[0]
+    for o in range(m):
+        base = 6 * img[o]
+        for a in range(6):
+            for j in range(3):
+                s = 0.0
+                for b in range(6):
+                    s += Q_e[base + a, base + b] * Z_e[o, b, j]
+                G[o, a, j] += s
+    for q in range(pair_a.shape[0]):
+        oa = pair_a[q]
+        ob = pair_b[q]
+        ba = 6 * img[oa]
+        bb = 6 * img[ob]
+        for a in range(6):
+            for j in range(3):
+                s1 = 0.0
+                s2 = 0.0
+                for b in range(6):
+                    s1 += Q_e[ba + a, bb + b] * Z_e[ob, b, j]
+                    s2 += Q_e[bb + a, ba + b] * Z_e[oa, b, j]
+                G[oa, a, j] += s1
+                G[ob, a, j] += s2
