@@ -201,12 +201,12 @@ def residual_table(block_read, tested):
     rejected = np.isin(ob.row, tested.rejected_rows)
     rej_pos = np.searchsorted(tested.rejected_rows, ob.row[rejected])
     w_test[rejected] = tested.rejected_w[rej_pos]
-    header = ["image_id", "point_id", "vx_px", "vy_px", "w_test", "rejected", "w_x", "w_y",
+    header = ["image_id", "point_id", "vx_px", "vy_px", "w_test", "rejected", "col_px", "row_px", "w_x", "w_y",
               "redundancy_x", "redundancy_y", "mdb_x_px", "mdb_y_px", "external_x", "external_y"]
     cols = [block_read.images.image_id[ob.image_index], block_read.points.point_id[ob.point_index],
-            v[:, 0], v[:, 1], w_test, rejected.astype(int), w[:, 0], w[:, 1], red[:, 0], red[:, 1],
-            mdb[:, 0], mdb[:, 1], ext[:, 0], ext[:, 1]]
-    fmts = ["", "", ".4f", ".4f", ".3f", "d", ".3f", ".3f", ".4f", ".4f", ".3f", ".3f", ".3f", ".3f"]
+            v[:, 0], v[:, 1], w_test, rejected.astype(int), ob.pixel[:, 0], ob.pixel[:, 1], w[:, 0], w[:, 1],
+            red[:, 0], red[:, 1], mdb[:, 0], mdb[:, 1], ext[:, 0], ext[:, 1]]
+    fmts = ["", "", ".4f", ".4f", ".3f", "d", ".3f", ".3f", ".3f", ".3f", ".4f", ".4f", ".3f", ".3f", ".3f", ".3f"]
     return header, cols, fmts
 
 
