@@ -32,6 +32,21 @@ def truth_index(sim, block) -> np.ndarray:
     return np.array([lookup[p] for p in block.points.point_id])
 
 
+def residual_vector(problem, state):
+    """All whitened residuals l - f of a problem: image, control and parameter observations."""
+    from selfcal.adjust.normal import image_residuals, parameter_observations
+    r = (image_residuals(problem, state) / problem.obs_sigma_mm[:, None]).ravel()
+    rc = ((problem.control_xyz - state.points[problem.control_index]) / problem.control_sigma).ravel()
+    _, rx = parameter_observations(problem, state)
+    return np.concatenate([r, rc, rx])
+
+
+def unpack(problem, state, x):
+    """``state`` moved by a vector over [theta | points]."""
+    n_t = problem.n_theta
+    return problem.apply(state, x[:n_t], x[n_t:].reshape(-1, 3))
+
+
 def run_cli(*argv: str) -> int:
     from selfcal.cli.main import main
     return main(list(argv))

@@ -9,22 +9,10 @@ import pytest
 from selfcal.adjust.covariance import point_cofactors
 from selfcal.adjust.initial import initial_state
 from selfcal.adjust.linalg import factorise
-from selfcal.adjust.normal import back_substitute, image_residuals, linearise, parameter_observations, reduce
+from selfcal.adjust.normal import back_substitute, linearise, reduce
 from selfcal.adjust.problem import build_problem
 
-from conftest import pruned, simulation
-
-
-def _residual_vector(problem, state):
-    r = (image_residuals(problem, state) / problem.obs_sigma_mm[:, None]).ravel()
-    rc = ((problem.control_xyz - state.points[problem.control_index]) / problem.control_sigma).ravel()
-    _, rx = parameter_observations(problem, state)
-    return np.concatenate([r, rc, rx])
-
-
-def _unpack(problem, state, x):
-    n_t = problem.n_theta
-    return problem.apply(state, x[:n_t], x[n_t:].reshape(-1, 3))
+from conftest import pruned, residual_vector, simulation, unpack
 
 
 @pytest.fixture(scope="module")
@@ -45,14 +33,14 @@ def test_small_block_has_several_chunks(small):
 def test_schur_step_and_covariance_equal_dense_solution(small):
     block, problem, state = small
     n = problem.n_theta + 3 * problem.n_points
-    r0 = _residual_vector(problem, state)
+    r0 = residual_vector(problem, state)
     J = np.empty((r0.size, n))
     h = np.where(np.arange(n) < problem.n_theta, 1e-6, 1e-5)
     for k in range(n):
         e = np.zeros(n)
         e[k] = h[k]
-        J[:, k] = -(_residual_vector(problem, _unpack(problem, state, e))
-                    - _residual_vector(problem, _unpack(problem, state, -e))) / (2 * h[k])
+        J[:, k] = -(residual_vector(problem, unpack(problem, state, e))
+                    - residual_vector(problem, unpack(problem, state, -e))) / (2 * h[k])
     N = J.T @ J
     g = J.T @ r0
     dense_step = np.linalg.solve(N, g)
