@@ -17,7 +17,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["matrix_from_opk", "matrix_from_opk_with_derivatives", "opk_from_matrix"]
+__all__ = ["matrix_from_opk", "matrix_from_opk_with_derivatives", "opk_from_matrix", "matrix_from_quaternion",
+           "matrix_from_rotation_vector"]
 
 
 def _elementary(omega, phi, kappa):
@@ -66,3 +67,41 @@ def opk_from_matrix(m: np.ndarray) -> np.ndarray:
     omega = np.arctan2(-m[..., 2, 1], m[..., 2, 2])
     kappa = np.arctan2(-m[..., 1, 0], m[..., 0, 0])
     return np.stack([omega, phi, kappa], axis=-1)
+
+
+def matrix_from_quaternion(q: np.ndarray, scalar_first: bool = True) -> np.ndarray:
+    """Rotation matrices (..., 3, 3) of unit quaternions (..., 4).
+
+    ``scalar_first``: (w, x, y, z) as COLMAP writes them; otherwise (x, y, z, w)
+    as DESIGN.md §3 stores attitudes (q1, q2, q3 vector, q4 scalar). The
+    matrix rotates vectors: v' = R v (active), Hamilton convention.
+    """
+    q = np.asarray(q, float)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    if scalar_first:
+        w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    else:
+        x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    return np.stack([
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
+        np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
+        np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1),
+    ], -2)
+
+
+def matrix_from_rotation_vector(v: np.ndarray) -> np.ndarray:
+    """Rotation matrices (..., 3, 3) of rotation vectors (axis times angle, radians; Rodrigues)."""
+    v = np.asarray(v, float)
+    theta = np.linalg.norm(v, axis=-1)
+    small = theta < 1e-12
+    safe = np.where(small, 1.0, theta)
+    k = v / safe[..., None]
+    kx, ky, kz = k[..., 0], k[..., 1], k[..., 2]
+    zero = np.zeros_like(kx)
+    K = np.stack([np.stack([zero, -kz, ky], -1), np.stack([kz, zero, -kx], -1), np.stack([-ky, kx, zero], -1)], -2)
+    s, c = np.sin(theta)[..., None, None], np.cos(theta)[..., None, None]
+    R = np.eye(3) + s * K + (1 - c) * (K @ K)
+    # first-order for tiny angles: I + [v]x
+    vx, vy, vz = v[..., 0], v[..., 1], v[..., 2]
+    V = np.stack([np.stack([zero, -vz, vy], -1), np.stack([vz, zero, -vx], -1), np.stack([-vy, vx, zero], -1)], -2)
+    return np.where(small[..., None, None], np.eye(3) + V, R)

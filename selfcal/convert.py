@@ -1,0 +1,219 @@
+"""Foreign models (read by :mod:`selfcal.io`) turned into selfcal blocks.
+
+The conventions of each source are translated here, once:
+
+* COLMAP: world-to-camera poses with the camera looking along +z (y down)
+  become perspective centres and M = R3(kappa) R2(phi) R1(omega) of a camera
+  looking along -z (y up); camera models become principal distance and
+  principal point (the distortion is left to the AP model of the adjustment).
+  With ground control, the arbitrary frame of the reconstruction is moved
+  into the control's CRS by a 3-D similarity estimated from the control
+  points intersected in that frame.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .block import Block, FrameCamera, Images, Observations, Points
+from .errors import BlockError
+from .geometry.rotation import matrix_from_quaternion, opk_from_matrix
+from .geometry.similarity import fit_similarity, intersect_rays
+
+__all__ = ["block_from_colmap", "colmap_undistort"]
+
+#: camera-axis flip between COLMAP (y down, looking along +z) and photogrammetry (y up, looking along -z)
+_FLIP = np.diag([1.0, -1.0, -1.0])
+
+
+def _intrinsics(cam) -> tuple[float, float, float, float, dict]:
+    p = cam.params
+    if "f" in p:
+        fx = fy = p["f"]
+    else:
+        fx, fy = p["fx"], p["fy"]
+    dist = {k: v for k, v in p.items() if k not in ("f", "fx", "fy", "cx", "cy")}
+    return fx, fy, p["cx"], p["cy"], dist
+
+
+def colmap_undistort(cam, pixel: np.ndarray, iterations: int = 20) -> np.ndarray:
+    """Normalised ideal image coordinates (x/z, y/z in COLMAP's camera frame) of measured pixels.
+
+    Inverts COLMAP's perspective distortion models (SIMPLE_RADIAL, RADIAL, OPENCV,
+    FULL_OPENCV; pinhole models have none) by fixed-point iteration.
+    """
+    fx, fy, cx, cy, d = _intrinsics(cam)
+    xd = (pixel[:, 0] - cx) / fx
+    yd = (pixel[:, 1] - cy) / fy
+    k1 = d.get("k1", d.get("k", 0.0))
+    k2, k3, k4, k5, k6 = (d.get(k, 0.0) for k in ("k2", "k3", "k4", "k5", "k6"))
+    p1, p2 = d.get("p1", 0.0), d.get("p2", 0.0)
+    x, y = xd.copy(), yd.copy()
+    for _ in range(iterations):
+        r2 = x * x + y * y
+        radial = (1 + k1 * r2 + k2 * r2**2 + k3 * r2**3) / (1 + k4 * r2 + k5 * r2**2 + k6 * r2**3)
+        dx = 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+        dy = p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+        x = (xd - dx) / radial
+        y = (yd - dy) / radial
+    return np.column_stack([x, y])
+
+
+#: rays of one control point that miss their intersection by more than this hold a blunder
+MAX_RAY_MISS_DEG = 1.0
+
+
+def _robust_similarity(local, target, ok, names, notes, factor: float = 3.0):
+    """Similarity from the usable control points, dropping the worst while it stands out.
+
+    A point is dropped when its residual exceeds ``factor`` times the median
+    residual of the others (and at least 3 points remain).
+    """
+    ok = ok.copy()
+    if ok.sum() < 3:
+        raise BlockError("gcp_list.txt", f"only {int(ok.sum())} ground control points are seen consistently in two "
+                                         f"or more images of the model; 3 are needed to georeference it")
+    while True:
+        sim, residual = fit_similarity(local[ok], target[ok])
+        size = np.linalg.norm(residual, axis=1)
+        worst = int(np.argmax(size))
+        others = np.delete(size, worst)
+        if ok.sum() <= 3 or size[worst] <= factor * max(np.median(others), 1e-9):
+            break
+        k = np.flatnonzero(ok)[worst]
+        ok[k] = False
+        notes.append(f"gcp '{names[k]}' disagrees with the others by {size[worst]:.2f} m after the similarity; "
+                     f"not used for the georeference")
+    rms = np.sqrt(np.mean(size**2))
+    notes.append(f"georeferenced by a 3-D similarity from {int(ok.sum())} control points: scale {sim.scale:.6g}, "
+                 f"residual rms {rms:.3f} m")
+    return sim, ok
+
+
+def block_from_colmap(model, control=None, pixel_size_mm: float = 0.005, image_sigma_px: float = 1.0,
+                      control_sigma_m: tuple[float, float] = (3.0, 5.0), check_points=(),
+                      name: str = "colmap") -> tuple[Block, list[str]]:
+    """A block from a COLMAP model, georeferenced by ground control when given.
+
+    Parameters
+    ----------
+    model : selfcal.io.colmap.ColmapModel
+    control : selfcal.io.odm.GroundControl, optional
+    pixel_size_mm : float
+        Physical pixel size (COLMAP works in pixels only).
+    control_sigma_m : (sigma_xy, sigma_z) of the control coordinates.
+    check_points : names of control points to use as check points.
+
+    Returns
+    -------
+    block, notes (what was done: similarity residuals, dropped measurements)
+    """
+    from .io.colmap import PERSPECTIVE_MODELS
+
+    notes: list[str] = []
+    cameras = {}
+    for cid, cam in model.cameras.items():
+        if cam.model not in PERSPECTIVE_MODELS:
+            raise BlockError("cameras", f"camera {cid}: model {cam.model} is not a perspective model "
+                                        f"(supported: {', '.join(PERSPECTIVE_MODELS)})")
+        fx, fy, cx, cy, _ = _intrinsics(cam)
+        p = pixel_size_mm
+        cameras[f"cam{cid}"] = FrameCamera(f"cam{cid}", cam.width, cam.height, p, focal_mm=0.5 * (fx + fy) * p,
+                                           x0_mm=(cx - cam.width / 2) * p, y0_mm=(cam.height / 2 - cy) * p)
+    R = matrix_from_quaternion(model.qvec)                       # world -> COLMAP camera
+    centres = -np.einsum("nji,nj->ni", R, model.tvec)
+    M = _FLIP @ R                                                # object -> image axes (photogrammetric)
+    xyz = model.point_xyz.copy()
+
+    gcp_xyz = gcp_obs = None
+    if control is not None:
+        index_of = {n: k for k, n in enumerate(model.image_names)}
+        known = np.array([img in index_of for img in control.obs_image])
+        for img in sorted(set(control.obs_image[~known])):
+            notes.append(f"ground control measurements in image '{img}' dropped: the image is not in the model")
+        img = np.array([index_of[i] for i in control.obs_image[known]], dtype=np.int64)
+        pt = control.obs_point[known]
+        pix = control.obs_pixel[known]
+        rays_cam = np.column_stack([np.zeros(len(img)), np.zeros(len(img)), np.ones(len(img))])
+        for k, im in enumerate(img):
+            cam = model.cameras[int(model.image_camera[im])]
+            rays_cam[k, :2] = colmap_undistort(cam, pix[k:k + 1])[0]
+        directions = np.einsum("nji,nj->ni", R[img], rays_cam)   # R^T ray
+        local = intersect_rays(centres[img], directions, pt, len(control.point_names))
+        ok = np.isfinite(local).all(axis=1)
+        for k in np.flatnonzero(~ok):
+            notes.append(f"gcp '{control.point_names[k]}' seen in fewer than two images: not used for the "
+                         f"georeference")
+        # rays of a point that miss each other by more than MAX_RAY_MISS_DEG hold a blunder
+        to_point = local[pt] - centres[img]
+        unit = directions / np.linalg.norm(directions, axis=1, keepdims=True)
+        along = np.einsum("ni,ni->n", to_point, unit)
+        miss = np.degrees(np.arctan2(np.linalg.norm(to_point - along[:, None] * unit, axis=1), np.abs(along)))
+        for k in np.flatnonzero(ok):
+            worst = np.nanmax(miss[pt == k])
+            in_front = np.all(along[pt == k] > 0)
+            if worst > MAX_RAY_MISS_DEG or not in_front:
+                ok[k] = False
+                notes.append(f"gcp '{control.point_names[k]}': its image measurements do not intersect (rays miss "
+                             f"by up to {worst:.1f} deg); not used for the georeference")
+        sim, used = _robust_similarity(local, control.xyz, ok, control.point_names, notes)
+        centres = sim.apply(centres)
+        xyz = sim.apply(xyz)
+        M = M @ sim.rotation.T
+        gcp_xyz = control.xyz
+        gcp_obs = (img, pt, pix)
+
+    # images
+    n = len(model.image_ids)
+    images = Images(
+        image_id=np.array([str(s) for s in model.image_names], dtype=object),
+        camera_id=np.array([f"cam{c}" for c in model.image_camera], dtype=object),
+        strip_id=np.full(n, "", dtype=object),
+        time_s=np.full(n, np.nan),
+        position_m=centres,
+        attitude_rad=opk_from_matrix(M),
+        line=np.arange(1, n + 1),
+    )
+    # points: control (with their names) then tie points
+    names, roles, coords, sigmas = [], [], [], []
+    if gcp_xyz is not None:
+        checks = set(check_points)
+        unknown = checks - set(control.point_names)
+        if unknown:
+            raise BlockError("gcp_list.txt", f"check point(s) {', '.join(sorted(unknown))} not in the file")
+        for k, pname in enumerate(control.point_names):
+            names.append(str(pname))
+            roles.append("chk" if pname in checks else "gcp")
+            coords.append(gcp_xyz[k])
+            sigmas.append([control_sigma_m[0], control_sigma_m[0], control_sigma_m[1]])
+    n_ctl = len(names)
+    tie_names = [f"colmap{pid}" for pid in model.point_ids]
+    points = Points(
+        point_id=np.array(names + tie_names, dtype=object),
+        role=np.array(roles + ["tie"] * len(tie_names), dtype=object),
+        xyz_m=np.vstack([np.array(coords).reshape(-1, 3), xyz]),
+        sigma_m=np.vstack([np.array(sigmas).reshape(-1, 3), np.full((len(tie_names), 3), np.nan)]),
+        line=np.arange(1, n_ctl + len(tie_names) + 1),
+    )
+    # observations
+    image_of = {int(i): k for k, i in enumerate(model.image_ids)}
+    point_of = {int(p): n_ctl + k for k, p in enumerate(model.point_ids)}
+    o_img = np.array([image_of[int(i)] for i in model.obs_image], dtype=np.int64)
+    o_pt = np.array([point_of[int(p)] for p in model.obs_point], dtype=np.int64)
+    o_pix = model.obs_xy
+    if gcp_obs is not None:
+        o_img = np.concatenate([gcp_obs[0], o_img])
+        o_pt = np.concatenate([gcp_obs[1], o_pt])
+        o_pix = np.vstack([gcp_obs[2], o_pix])
+    # a COLMAP 2-D point may see the same 3-D point twice in one image: keep the first
+    pair = o_img * (len(points.point_id) + 1) + o_pt
+    _, first = np.unique(pair, return_index=True)
+    if len(first) < len(pair):
+        notes.append(f"{len(pair) - len(first)} repeated observations of a point in the same image dropped")
+    first = np.sort(first)
+    m = len(first)
+    observations = Observations(o_img[first], o_pt[first], o_pix[first], np.full(m, image_sigma_px),
+                                np.arange(1, m + 1))
+    crs = control.crs if control is not None else "local"
+    block = Block(name=name, crs=crs, cameras=cameras, images=images, points=points,
+                  observations=observations, image_sigma_px=image_sigma_px)
+    return block, notes

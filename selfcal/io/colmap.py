@@ -1,0 +1,284 @@
+"""COLMAP sparse models (text and binary) as plain data.
+
+Reads ``cameras``, ``images`` and ``points3D`` of a COLMAP sparse model,
+``.txt`` or ``.bin`` (format of COLMAP's ``src/colmap/scene/reconstruction_io``).
+Pixel convention: COLMAP puts the upper-left corner of the first pixel at
+(0, 0) (the centre of the first pixel is (0.5, 0.5)), the same as selfcal's,
+so image coordinates are taken as they are.
+
+COLMAP poses map world to camera, x_cam = R(q) x_world + t, with the camera
+looking along +z, x right and y down; :func:`frame_orientation` turns them
+into selfcal's exterior orientation (perspective centre and
+M = R3(kappa) R2(phi) R1(omega) with the camera looking along -z, y up).
+"""
+from __future__ import annotations
+
+import os
+import struct
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import BlockError
+
+__all__ = ["ColmapCamera", "ColmapModel", "read_colmap", "CAMERA_MODELS", "PERSPECTIVE_MODELS"]
+
+#: model id -> (name, parameter names)
+CAMERA_MODELS = {
+    0: ("SIMPLE_PINHOLE", ("f", "cx", "cy")),
+    1: ("PINHOLE", ("fx", "fy", "cx", "cy")),
+    2: ("SIMPLE_RADIAL", ("f", "cx", "cy", "k")),
+    3: ("RADIAL", ("f", "cx", "cy", "k1", "k2")),
+    4: ("OPENCV", ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2")),
+    5: ("OPENCV_FISHEYE", ("fx", "fy", "cx", "cy", "k1", "k2", "k3", "k4")),
+    6: ("FULL_OPENCV", ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6")),
+    7: ("FOV", ("fx", "fy", "cx", "cy", "omega")),
+    8: ("SIMPLE_RADIAL_FISHEYE", ("f", "cx", "cy", "k")),
+    9: ("RADIAL_FISHEYE", ("f", "cx", "cy", "k1", "k2")),
+    10: ("THIN_PRISM_FISHEYE", ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3", "k4", "sx1", "sy1")),
+}
+MODEL_IDS = {name: (i, params) for i, (name, params) in CAMERA_MODELS.items()}
+#: models whose projection is a perspective (pinhole) one with polynomial distortion
+PERSPECTIVE_MODELS = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV", "FULL_OPENCV")
+
+
+@dataclass(frozen=True)
+class ColmapCamera:
+    camera_id: int
+    model: str
+    width: int
+    height: int
+    params: dict[str, float]
+
+
+@dataclass
+class ColmapModel:
+    """A sparse model; observations are the 2-D points that see a 3-D point."""
+
+    cameras: dict[int, ColmapCamera]
+    image_ids: np.ndarray           # (n,)
+    image_names: np.ndarray         # (n,) str
+    image_camera: np.ndarray        # (n,) camera id
+    qvec: np.ndarray                # (n, 4) w, x, y, z
+    tvec: np.ndarray                # (n, 3)
+    obs_image: np.ndarray           # (m,) image id
+    obs_xy: np.ndarray              # (m, 2) pixel coordinates
+    obs_point: np.ndarray           # (m,) point3D id
+    point_ids: np.ndarray           # (k,)
+    point_xyz: np.ndarray           # (k, 3)
+    point_error: np.ndarray         # (k,) mean reprojection error (px)
+
+
+def _find(folder: str, stem: str) -> tuple[str, str]:
+    for ext in (".bin", ".txt"):
+        path = os.path.join(folder, stem + ext)
+        if os.path.isfile(path):
+            return path, ext
+    raise BlockError(os.path.join(folder, stem + ".bin"), f"file not found (neither {stem}.bin nor {stem}.txt)")
+
+
+def _data_lines(path: str):
+    with open(path, encoding="utf-8") as handle:
+        for number, line in enumerate(handle, start=1):
+            text = line.strip()
+            if text and not text.startswith("#"):
+                yield number, text
+
+
+def _numbers(path, number, fields, kinds):
+    try:
+        return [kind(f) for kind, f in zip(kinds, fields)]
+    except ValueError:
+        raise BlockError(path, f"malformed line: expected numbers, found '{' '.join(fields)[:80]}'", number) from None
+
+
+def _cameras_txt(path):
+    cams = {}
+    for number, text in _data_lines(path):
+        fields = text.split()
+        if len(fields) < 4:
+            raise BlockError(path, "expected CAMERA_ID MODEL WIDTH HEIGHT PARAMS[]", number)
+        model = fields[1]
+        if model not in MODEL_IDS:
+            raise BlockError(path, f"unknown camera model '{model}'", number, "MODEL")
+        names = MODEL_IDS[model][1]
+        if len(fields) != 4 + len(names):
+            raise BlockError(path, f"{model} has {len(names)} parameters, found {len(fields) - 4}", number)
+        cid, width, height = _numbers(path, number, [fields[0], fields[2], fields[3]], [int, int, int])
+        params = _numbers(path, number, fields[4:], [float] * len(names))
+        cams[cid] = ColmapCamera(cid, model, width, height, dict(zip(names, params)))
+    return cams
+
+
+def _images_txt(path):
+    """Two lines per image (the second, the 2-D points, may be empty); comments start with #."""
+    ids, names, cams, q, t = [], [], [], [], []
+    oi, oxy, op = [], [], []
+    with open(path, encoding="utf-8") as handle:
+        raw = [(n, line.rstrip("\n")) for n, line in enumerate(handle, start=1)]
+    raw = [(n, line) for n, line in raw if not line.lstrip().startswith("#")]
+    k = 0
+    while k < len(raw):
+        number, text = raw[k]
+        if not text.strip():
+            k += 1
+            continue
+        fields = text.split()
+        if len(fields) < 10:
+            raise BlockError(path, "expected IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME", number)
+        values = _numbers(path, number, fields[:9], [int] + [float] * 7 + [int])
+        ids.append(values[0])
+        q.append(values[1:5])
+        t.append(values[5:8])
+        cams.append(values[8])
+        names.append(" ".join(fields[9:]))
+        points_line = raw[k + 1] if k + 1 < len(raw) else (number + 1, "")
+        k += 2
+        fields = points_line[1].split()
+        if len(fields) % 3:
+            raise BlockError(path, "malformed POINTS2D line (expected X Y POINT3D_ID triples)", points_line[0])
+        if not fields:
+            continue
+        arr = np.array(fields, dtype=object).reshape(-1, 3)
+        try:
+            xy = arr[:, :2].astype(float)
+            pid = arr[:, 2].astype(np.int64)
+        except ValueError:
+            raise BlockError(path, "malformed POINTS2D line (expected X Y POINT3D_ID triples)",
+                             points_line[0]) from None
+        keep = pid != -1
+        oi.append(np.full(int(keep.sum()), values[0]))
+        oxy.append(xy[keep])
+        op.append(pid[keep])
+    return (np.array(ids), np.array(names, dtype=object), np.array(cams), np.array(q, float).reshape(-1, 4),
+            np.array(t, float).reshape(-1, 3),
+            np.concatenate(oi) if oi else np.zeros(0, np.int64),
+            np.concatenate(oxy) if oxy else np.zeros((0, 2)),
+            np.concatenate(op) if op else np.zeros(0, np.int64))
+
+
+def _points_txt(path):
+    ids, xyz, err = [], [], []
+    for number, text in _data_lines(path):
+        fields = text.split()
+        if len(fields) < 8:
+            raise BlockError(path, "expected POINT3D_ID X Y Z R G B ERROR TRACK[]", number)
+        values = _numbers(path, number, fields[:8], [int, float, float, float, int, int, int, float])
+        ids.append(values[0])
+        xyz.append(values[1:4])
+        err.append(values[7])
+    return np.array(ids, np.int64), np.array(xyz, float).reshape(-1, 3), np.array(err, float)
+
+
+class _Reader:
+    def __init__(self, path):
+        self.path = path
+        with open(path, "rb") as handle:
+            self.data = handle.read()
+        self.pos = 0
+
+    def read(self, fmt):
+        size = struct.calcsize("<" + fmt)
+        if self.pos + size > len(self.data):
+            raise BlockError(self.path, f"truncated binary file at byte {self.pos}")
+        values = struct.unpack_from("<" + fmt, self.data, self.pos)
+        self.pos += size
+        return values
+
+    def array(self, dtype, count):
+        dtype = np.dtype(dtype).newbyteorder("<")
+        size = dtype.itemsize * count
+        if self.pos + size > len(self.data):
+            raise BlockError(self.path, f"truncated binary file at byte {self.pos}")
+        out = np.frombuffer(self.data, dtype=dtype, count=count, offset=self.pos)
+        self.pos += size
+        return out
+
+    def string(self):
+        end = self.data.find(b"\0", self.pos)
+        if end < 0:
+            raise BlockError(self.path, f"truncated binary file at byte {self.pos}")
+        text = self.data[self.pos:end].decode("utf-8")
+        self.pos = end + 1
+        return text
+
+
+def _cameras_bin(path):
+    r = _Reader(path)
+    (n,) = r.read("Q")
+    cams = {}
+    for _ in range(n):
+        cid, model_id, width, height = r.read("iiQQ")
+        if model_id not in CAMERA_MODELS:
+            raise BlockError(path, f"unknown camera model id {model_id} (camera {cid})")
+        name, names = CAMERA_MODELS[model_id]
+        params = r.read("d" * len(names))
+        cams[cid] = ColmapCamera(cid, name, int(width), int(height), dict(zip(names, params)))
+    return cams
+
+
+def _images_bin(path):
+    r = _Reader(path)
+    (n,) = r.read("Q")
+    ids, names, cams, q, t = [], [], [], [], []
+    oi, oxy, op = [], [], []
+    record = np.dtype([("x", "<f8"), ("y", "<f8"), ("id", "<i8")])
+    for _ in range(n):
+        values = r.read("I7dI")
+        ids.append(values[0])
+        q.append(values[1:5])
+        t.append(values[5:8])
+        cams.append(values[8])
+        names.append(r.string())
+        (count,) = r.read("Q")
+        pts = r.array(record, count)
+        keep = pts["id"] != -1
+        oi.append(np.full(int(keep.sum()), values[0]))
+        oxy.append(np.column_stack([pts["x"][keep], pts["y"][keep]]))
+        op.append(pts["id"][keep].astype(np.int64))
+    return (np.array(ids), np.array(names, dtype=object), np.array(cams), np.array(q, float).reshape(-1, 4),
+            np.array(t, float).reshape(-1, 3),
+            np.concatenate(oi) if oi else np.zeros(0, np.int64),
+            np.concatenate(oxy) if oxy else np.zeros((0, 2)),
+            np.concatenate(op) if op else np.zeros(0, np.int64))
+
+
+def _points_bin(path):
+    r = _Reader(path)
+    (n,) = r.read("Q")
+    ids, xyz, err = np.empty(n, np.int64), np.empty((n, 3)), np.empty(n)
+    for k in range(n):
+        pid, x, y, z, _, _, _, e, length = r.read("Q3d3BdQ")
+        ids[k], xyz[k], err[k] = pid, (x, y, z), e
+        r.pos += 8 * length
+    return ids, xyz, err
+
+
+def read_colmap(folder: str | os.PathLike) -> ColmapModel:
+    """Read a COLMAP sparse model folder (binary preferred when both exist).
+
+    Observations of points missing from points3D are an error (a corrupt model).
+    """
+    folder = str(folder)
+    if not os.path.isdir(folder):
+        raise BlockError(folder, "COLMAP model folder not found")
+    cam_path, _ = _find(folder, "cameras")
+    img_path, _ = _find(folder, "images")
+    pts_path, _ = _find(folder, "points3D")
+    cameras = _cameras_txt(cam_path) if cam_path.endswith(".txt") else _cameras_bin(cam_path)
+    images = _images_txt(img_path) if img_path.endswith(".txt") else _images_bin(img_path)
+    points = _points_txt(pts_path) if pts_path.endswith(".txt") else _points_bin(pts_path)
+    ids, names, cams, q, t, oi, oxy, op = images
+    for cid in set(cams.tolist()) - set(cameras):
+        raise BlockError(img_path, f"image refers to camera {cid}, which {os.path.basename(cam_path)} lacks")
+    missing = np.setdiff1d(np.unique(op), points[0])
+    if missing.size:
+        raise BlockError(img_path, f"{missing.size} observed 3-D point id(s) are not in "
+                                   f"{os.path.basename(pts_path)}, e.g. {missing[0]}")
+    # canonical order (text and binary files list images in different orders)
+    order = np.argsort(ids, kind="stable")
+    obs_order = np.argsort(oi, kind="stable")
+    pids, xyz, err = points
+    porder = np.argsort(pids, kind="stable")
+    return ColmapModel(cameras, ids[order], names[order], cams[order], q[order], t[order],
+                       oi[obs_order], oxy[obs_order], op[obs_order], pids[porder], xyz[porder], err[porder])
