@@ -10,13 +10,14 @@ import argparse
 import sys
 
 from ..errors import SelfcalError
-from . import adjust, compare, demo, simulate
+from . import adjust, compare, demo, import_, simulate
 
 #: verb -> module with ``add_arguments(parser)`` and ``run(args) -> int``
 COMMANDS = {
     "adjust": adjust,
     "simulate": simulate,
     "compare": compare,
+    "import": import_,
     "demo": demo,
 }
 

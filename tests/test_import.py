@@ -1,0 +1,105 @@
+"""Importers: COLMAP (text and binary), ODM gcp_list.txt, conversion and georeference."""
+import os
+
+import numpy as np
+import pytest
+
+from selfcal.block import prune
+from selfcal.convert import block_from_colmap
+from selfcal.errors import BlockError
+from selfcal.geometry.rotation import matrix_from_opk
+from selfcal.io.colmap import read_colmap
+from selfcal.io.odm import read_gcp_list
+
+from conftest import SHARED_DATA, run_cli
+
+COPR = os.path.join(SHARED_DATA, "copr")
+
+
+def _require(path):
+    assert os.path.exists(path), f"shared test data missing: {path} (see ../shared/data/README.md)"
+    return path
+
+
+@pytest.fixture(scope="module")
+def models():
+    return read_colmap(_require(os.path.join(COPR, "sparse"))), read_colmap(_require(os.path.join(COPR, "sparse_txt")))
+
+
+def test_text_and_binary_models_are_identical(models):
+    a, b = models
+    assert a.cameras == b.cameras
+    for field in ("image_ids", "image_names", "image_camera", "obs_image", "obs_point", "point_ids"):
+        np.testing.assert_array_equal(getattr(a, field), getattr(b, field))
+    for field in ("qvec", "tvec", "obs_xy", "point_xyz"):
+        np.testing.assert_allclose(getattr(a, field), getattr(b, field), rtol=0, atol=1e-9)
+    # the numbers COLMAP reported for this model (SOURCE.txt)
+    assert len(a.image_ids) == 38 and len(a.point_ids) == 65371 and len(a.obs_image) == 313672
+
+
+def test_imported_blocks_are_identical(models):
+    control = read_gcp_list(os.path.join(COPR, "gcp_list.txt"))
+    blocks = [block_from_colmap(m, control, pixel_size_mm=0.0052)[0] for m in models]
+    a, b = blocks
+    np.testing.assert_array_equal(a.images.image_id, b.images.image_id)
+    np.testing.assert_allclose(a.images.position_m, b.images.position_m, atol=1e-9)
+    np.testing.assert_allclose(a.images.attitude_rad, b.images.attitude_rad, atol=1e-12)
+    np.testing.assert_allclose(a.points.xyz_m, b.points.xyz_m, atol=1e-9)
+    np.testing.assert_array_equal(a.observations.point_index, b.observations.point_index)
+
+
+def test_conversion_reproduces_colmap_projection(models):
+    """selfcal's collinearity with the converted orientation projects COLMAP's points where COLMAP does."""
+    model = models[0]
+    block, _ = block_from_colmap(model, None, pixel_size_mm=0.0052)
+    cam = model.cameras[1]
+    k = 7
+    X = model.point_xyz[model.obs_point[model.obs_image == model.image_ids[k]]]
+    M = matrix_from_opk(block.images.attitude_rad[k])
+    u = (X - block.images.position_m[k]) @ M.T
+    c = block.cameras["cam1"].focal_mm / 0.0052
+    col = cam.params["cx"] - c * u[:, 0] / u[:, 2]
+    row = cam.params["cy"] + c * u[:, 1] / u[:, 2]
+    # COLMAP pinhole part (no distortion): x = fx X/Z + cx with the same camera
+    from selfcal.geometry.rotation import matrix_from_quaternion
+    R = matrix_from_quaternion(model.qvec[k])
+    P = X @ R.T + model.tvec[k]
+    f = 0.5 * (cam.params["fx"] + cam.params["fy"])
+    np.testing.assert_allclose(col, f * P[:, 0] / P[:, 2] + cam.params["cx"], atol=1e-6)
+    np.testing.assert_allclose(row, f * P[:, 1] / P[:, 2] + cam.params["cy"], atol=1e-6)
+
+
+def test_georeference_rejects_the_inconsistent_target(models):
+    control = read_gcp_list(os.path.join(COPR, "gcp_list.txt"))
+    assert control.crs == "EPSG:32611" and len(control.point_names) == 10 and len(control.obs_image) == 27
+    block, notes = block_from_colmap(models[0], control, pixel_size_mm=0.0052)
+    assert any("gcp04" in n and "do not intersect" in n for n in notes)
+    rms = float(next(n for n in notes if "residual rms" in n).split("rms ")[1].split(" m")[0])
+    assert rms < 3.0                                  # hand-held GPS: metre level
+    # the cameras fly about 16 m above the beach (heights 0), looking down
+    assert 10 < np.median(block.images.position_m[:, 2]) < 25
+    assert np.all(np.abs(block.images.attitude_rad[:, :2]) < np.radians(30))
+    pruned = prune(block)
+    assert np.sum(pruned.points.role == "gcp") >= 9
+
+
+def test_malformed_inputs_name_the_line(tmp_path):
+    bad = tmp_path / "gcp_list.txt"
+    bad.write_text("EPSG:32611\n235269.88 3811198.11 0.0 3609.4 2293.8 IMG_0037.jpg gcp02\n"
+                   "235269.88 abc 0.0 3609.4 2293.8 IMG_0043.jpg gcp02\n")
+    with pytest.raises(BlockError) as info:
+        read_gcp_list(bad)
+    assert info.value.line == 3 and info.value.column == "geo_y"
+    bad.write_text("not a crs at all\n1 2 3 4 5 a.jpg\n")
+    with pytest.raises(BlockError) as info:
+        read_gcp_list(bad)
+    assert info.value.line == 1
+    folder = tmp_path / "sparse"
+    folder.mkdir()
+    (folder / "cameras.txt").write_text("1 OPENCV 100 80 50 50 40 40\n")
+    (folder / "images.txt").write_text("")
+    (folder / "points3D.txt").write_text("")
+    with pytest.raises(BlockError) as info:
+        read_colmap(folder)
+    assert info.value.line == 1 and "OPENCV has 8 parameters" in info.value.reason
+    assert run_cli("import", "colmap", str(folder), "--out", str(tmp_path / "b")) == 2
