@@ -1,0 +1,91 @@
+"""Bundle Adjustment in the Large (BAL) problem files (Agarwal et al. 2010).
+
+Format (grail.cs.washington.edu/projects/bal): a header ``n_cameras n_points
+n_observations``; one line per observation ``camera point x y`` (image
+coordinates centred on the image, x right, y up, in pixels); then 9 numbers
+per camera (rotation vector, translation, f, k1, k2) and 3 per point, one
+number per line (whitespace of any kind is accepted).
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import BlockError
+
+__all__ = ["BalProblem", "read_bal"]
+
+
+@dataclass(frozen=True)
+class BalProblem:
+    cameras: np.ndarray         # (n_cameras, 9): r (3), t (3), f, k1, k2
+    points: np.ndarray          # (n_points, 3)
+    obs_camera: np.ndarray      # (m,)
+    obs_point: np.ndarray       # (m,)
+    obs_xy: np.ndarray          # (m, 2)
+
+
+def read_bal(path: str | os.PathLike) -> BalProblem:
+    """Read a BAL problem; a defect is a BlockError naming the line."""
+    path = str(path)
+    if not os.path.isfile(path):
+        raise BlockError(path, "file not found")
+    with open(path, encoding="ascii", errors="replace") as handle:
+        header = handle.readline()
+        try:
+            n_cam, n_pt, n_obs = (int(v) for v in header.split())
+        except ValueError:
+            raise BlockError(path, "the first line must hold n_cameras n_points n_observations", 1) from None
+        if min(n_cam, n_pt, n_obs) <= 0:
+            raise BlockError(path, "the counts of the first line must be positive", 1)
+        obs = np.zeros((n_obs, 4))
+        obs_line = np.zeros(n_obs, np.int64)
+        number, k = 1, 0
+        while k < n_obs:
+            line = handle.readline()
+            number += 1
+            if not line:
+                raise BlockError(path, f"the file ends after {k} of {n_obs} observations", number)
+            fields = line.split()
+            if not fields:
+                continue
+            if len(fields) != 4:
+                raise BlockError(path, f"expected 'camera point x y', found '{line.strip()[:60]}'", number)
+            try:
+                obs[k] = [float(f) for f in fields]
+            except ValueError:
+                raise BlockError(path, f"not a number in '{line.strip()[:60]}'", number) from None
+            obs_line[k] = number
+            k += 1
+        rest = handle.read().split()
+    need = 9 * n_cam + 3 * n_pt
+    if len(rest) != need:
+        raise BlockError(path, f"expected {need} camera and point parameters after the observations, found "
+                               f"{len(rest)}", number + 1)
+    try:
+        values = np.array(rest, dtype=float)
+    except ValueError:
+        bad = next(v for v in rest if not _is_number(v))
+        raise BlockError(path, f"'{bad}' is not a number (in the parameter block)") from None
+    if not np.all(np.isfinite(values)) or not np.all(np.isfinite(obs)):
+        raise BlockError(path, "NaN or infinite value")
+    cam, pt = obs[:, 0].astype(np.int64), obs[:, 1].astype(np.int64)
+    if np.any(obs[:, 0] != cam) or np.any(obs[:, 1] != pt):
+        raise BlockError(path, "camera and point indices must be integers",
+                         int(obs_line[np.argmax((obs[:, 0] != cam) | (obs[:, 1] != pt))]))
+    bad = np.flatnonzero((cam < 0) | (cam >= n_cam) | (pt < 0) | (pt >= n_pt))
+    if bad.size:
+        raise BlockError(path, f"observation refers to camera {cam[bad[0]]} / point {pt[bad[0]]} outside the "
+                               f"header's counts", int(obs_line[bad[0]]))
+    return BalProblem(values[:9 * n_cam].reshape(n_cam, 9), values[9 * n_cam:].reshape(n_pt, 3), cam, pt,
+                      obs[:, 2:4].copy())
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+        return True
+    except ValueError:
+        return False
