@@ -18,6 +18,7 @@ import numpy as np
 __all__ = [
     "ROLES",
     "FrameCamera",
+    "BalCamera",
     "Images",
     "Points",
     "Observations",
@@ -63,6 +64,38 @@ class FrameCamera:
     @property
     def height_mm(self) -> float:
         return self.height_px * self.pixel_size_mm
+
+
+@dataclass(frozen=True)
+class BalCamera:
+    """A camera of Bundle Adjustment in the Large (``model = "bal"``): f, k1, k2 of
+    pixel = f (1 + k1 |p|^2 + k2 |p|^4) p (see :mod:`selfcal.sensors.bal`).
+
+    BAL has no physical units: the pixel size is 1 "mm", so photo coordinates
+    are BAL's centred pixel coordinates (y up).
+    """
+
+    camera_id: str
+    width_px: int
+    height_px: int
+    focal_px: float
+    k1: float = 0.0
+    k2: float = 0.0
+
+    model = "bal"
+    pixel_size_mm = 1.0
+
+    @property
+    def focal_mm(self) -> float:
+        return self.focal_px
+
+    @property
+    def width_mm(self) -> float:
+        return float(self.width_px)
+
+    @property
+    def height_mm(self) -> float:
+        return float(self.height_px)
 
 
 @dataclass(frozen=True)
@@ -172,7 +205,7 @@ class Block:
 
     name: str
     crs: str
-    cameras: dict[str, FrameCamera]
+    cameras: dict[str, "FrameCamera | BalCamera"]
     images: Images
     points: Points
     observations: Observations
@@ -180,6 +213,7 @@ class Block:
     gnss_sigma_m: tuple[float, float, float] | None = None
     imu_sigma_deg: tuple[float, float, float] | None = None
     dropped: Dropped = field(default_factory=Dropped)
+    datum: str = "control"          # "control": fixed by control/trajectory; "free": a relative (free) network
 
     @property
     def has_trajectory(self) -> bool:

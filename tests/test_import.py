@@ -103,3 +103,26 @@ def test_malformed_inputs_name_the_line(tmp_path):
         read_colmap(folder)
     assert info.value.line == 1 and "OPENCV has 8 parameters" in info.value.reason
     assert run_cli("import", "colmap", str(folder), "--out", str(tmp_path / "b")) == 2
+
+
+def test_bal_import_reproduces_the_initial_cost(tmp_path):
+    """BAL import through a block folder: the cost at the file's values is the reference cost exactly."""
+    import json
+
+    from selfcal.adjust.initial import initial_state
+    from selfcal.adjust.normal import evaluate_cost
+    from selfcal.adjust.problem import build_problem
+    from selfcal.io import read_block
+
+    bal_dir = os.path.join(SHARED_DATA, "bal")
+    with open(_require(os.path.join(bal_dir, "reference_costs_scipy.json"))) as handle:
+        reference = json.load(handle)
+    out = tmp_path / "ladybug"
+    assert run_cli("import", "bal", os.path.join(bal_dir, "problem-49-7776-pre.txt"), "--out", str(out)) == 0
+    block = read_block(out)
+    assert len(block.images) == 49 and len(block.points) == 7776 and len(block.observations) == 31843
+    problem = build_problem(block)
+    state, _ = initial_state(problem, block)
+    cost = evaluate_cost(problem, state)
+    # exact up to the 10 significant digits the block folder stores
+    assert cost == pytest.approx(reference["problem-49-7776-pre.txt"]["initial_cost_half_sum_sq"], rel=1e-7)

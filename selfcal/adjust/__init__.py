@@ -11,7 +11,7 @@ goes to an optional callback.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable
 
 import numpy as np
@@ -143,6 +143,24 @@ class AdjustmentResult:
         return self.variance_factor * self.Q_points
 
 
+def _free_network_cofactor(S, notes: list[str], defect_tol: float = 1e-10) -> np.ndarray:
+    """Cofactor of theta in a free network: the pseudo-inverse of S (minimum-trace datum).
+
+    The eigenvalues of the scaled S below ``defect_tol`` times the largest are
+    the datum defect and are left out.
+    """
+    S = S.toarray() if hasattr(S, "toarray") else np.asarray(S)
+    if S.shape[0] > DENSE_LIMIT:
+        raise AdjustmentError("free-network covariance is implemented for up to "
+                              f"{DENSE_LIMIT} orientation and camera unknowns")
+    d = np.sqrt(np.clip(np.diag(S), 1e-300, None))
+    w, V = np.linalg.eigh(S / d[:, None] / d[None, :])
+    keep = w > defect_tol * w.max()
+    notes.append(f"free network: datum defect {int((~keep).sum())}; precision in the minimum-trace datum")
+    Q = (V[:, keep] / w[keep]) @ V[:, keep].T
+    return Q / d[:, None] / d[None, :]
+
+
 def _offsets(problem: Problem) -> list[int]:
     offsets, start = [], problem.n_e
     for cam in problem.cameras:
@@ -196,17 +214,23 @@ def adjust(block: Block, options: AdjustOptions = AdjustOptions(),
         problem.d_offset = _offsets(problem)
     state, notes = initial_state(problem, block, start)
     names = problem.theta_names(block.images.image_id)
-    outcome = solve(problem, state, names, options.solver, progress)
+    solver_options = options.solver
+    if block.datum == "free" and not solver_options.free_network:
+        solver_options = replace(solver_options, free_network=True)
+    outcome = solve(problem, state, names, solver_options, progress)
     lin = outcome.linearisation
     dense = problem.n_theta <= DENSE_LIMIT
     S, _, v_inv = reduce(problem, lin, 0.0, dense)
-    try:
-        factor = factorise(S)
-    except SingularSystem as exc:
-        directions = null_directions(S, names)
-        raise AdjustmentError(f"the normal equations are singular at the solution ({exc}):\n  "
-                              + "\n  ".join(directions)) from None
-    Q = factor.inverse()
+    if solver_options.free_network:
+        Q = _free_network_cofactor(S, notes)
+    else:
+        try:
+            factor = factorise(S)
+        except SingularSystem as exc:
+            directions = null_directions(S, names)
+            raise AdjustmentError(f"the normal equations are singular at the solution ({exc}):\n  "
+                                  + "\n  ".join(directions)) from None
+        Q = factor.inverse()
     Q_points = point_cofactors(problem, lin, v_inv, Q)
     n_obs, n_unk = problem.n_observations(), problem.n_unknowns()
     if n_obs <= n_unk:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import AdjustmentError
+from ..sensors import bal
 from ..sensors.frame import project, project_with_jacobians, rays
 from .problem import Problem, State
 
@@ -144,6 +145,12 @@ def initial_state(problem: Problem, block, start=None) -> tuple[State, list[str]
     """
     images, points = block.images, block.points
     eop = np.column_stack([images.position_m, images.attitude_rad])
+    is_bal = problem.image_sensor == "bal"
+    if is_bal.any():
+        if not np.isfinite(eop[is_bal]).all():
+            raise AdjustmentError("BAL images need their orientation in images.csv (no resection for this model)")
+        eop[is_bal] = bal.params_from_eop(eop[is_bal, :3], eop[is_bal, 3:])
+    eop_given = eop.copy()
     cameras = [cam.prior_value.copy() for cam in problem.cameras]
     xyz = points.xyz_m.copy()
     state = State(eop=eop, cameras=cameras, points=xyz,
@@ -153,11 +160,11 @@ def initial_state(problem: Problem, block, start=None) -> tuple[State, list[str]
         has_img, has_pt = _from_previous(problem, block, state, start)
         if has_img.all() and has_pt.all():
             return state, notes
-        state.eop[~has_img] = np.column_stack([images.position_m, images.attitude_rad])[~has_img]
+        state.eop[~has_img] = eop_given[~has_img]
     known = np.isfinite(xyz).all(axis=1) & (points.role != "tie")  # reference coordinates
     need = ~np.isfinite(eop).all(axis=1)
     # given orientations that miss their control points badly are treated as missing
-    for i in np.flatnonzero(~need):
+    for i in np.flatnonzero(~need & ~is_bal):
         cam = block.cameras[images.camera_id[i]]
         diagonal = np.hypot(cam.width_mm, cam.height_mm)
         rms = _control_rms(problem, state, i, known)
@@ -167,12 +174,14 @@ def initial_state(problem: Problem, block, start=None) -> tuple[State, list[str]
             need[i] = True
     state.eop[need] = np.nan
 
+    given = np.isfinite(points.xyz_m).all(axis=1) & (points.role == "tie")   # approximate tie coordinates
+    unknown = (points.role == "chk") | ((points.role == "tie") & ~given)
+
     def intersect_ties():
-        use = ~need[problem.obs_image]
+        use = ~need[problem.obs_image] & ~is_bal[problem.obs_image]
         pts, ok = intersect(problem, state, use)
-        tie = points.role != "gcp"
-        state.points[tie & ok] = pts[tie & ok]
-        return ok | (points.role == "gcp")
+        state.points[unknown & ok] = pts[unknown & ok]
+        return ok | (points.role == "gcp") | given
 
     have = intersect_ties() if (~need).any() else known.copy()
     for _ in range(len(need)):
@@ -195,11 +204,12 @@ def initial_state(problem: Problem, block, start=None) -> tuple[State, list[str]
         names = ", ".join(f"'{images.image_id[i]}'" for i in np.flatnonzero(need)[:5])
         raise AdjustmentError(f"cannot orient image(s) {names}: no exterior orientation in images.csv and "
                               f"fewer than 4 points with coordinates for a space resection")
-    ok = intersect_ties()
+    ok = intersect_ties() if unknown.any() else np.ones(len(points), bool)
     bad = ~ok & ~np.isfinite(state.points).all(axis=1)
     if bad.any():
         raise AdjustmentError(f"{int(bad.sum())} point(s) cannot be intersected (rays do not meet at a useful "
                               f"angle), e.g. '{points.point_id[np.flatnonzero(bad)[0]]}'")
-    # angles into (-pi, pi]
-    state.eop[:, 3:] = (state.eop[:, 3:] + np.pi) % (2 * np.pi) - np.pi
+    # angles into (-pi, pi] (frame images; BAL images hold rotation vectors)
+    frame = ~is_bal
+    state.eop[frame, 3:] = (state.eop[frame, 3:] + np.pi) % (2 * np.pi) - np.pi
     return state, notes

@@ -25,6 +25,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..geometry.rotation import matrix_from_opk, matrix_from_opk_with_derivatives
+from ..sensors import bal
 from ..sensors.frame import project, project_with_jacobians_indexed
 from .kernels import accumulate_observations, schur_image_blocks
 from .problem import Problem, State
@@ -93,13 +94,40 @@ def _camera_terms(problem: Problem, state: State, o0: int, o1: int, img: np.ndar
     return delta, cam_cols
 
 
+def _sensor_masks(problem: Problem, img: np.ndarray):
+    sensors = {c.sensor for c in problem.cameras}
+    if sensors == {"frame"}:
+        return None
+    is_bal = np.array([c.sensor == "bal" for c in problem.cameras])[problem.image_camera[img]]
+    return is_bal
+
+
+def _project_rows(problem: Problem, state: State, points: np.ndarray, img: np.ndarray, rotation, iop_all):
+    """Predicted photo coordinates and Jacobians of observations (frame or BAL images)."""
+    cam = problem.image_camera[img]
+    is_bal = _sensor_masks(problem, img)
+    if is_bal is None or not is_bal.any():
+        return project_with_jacobians_indexed(points, state.eop, iop_all, rotation, img, cam)
+    if is_bal.all():
+        return bal.project_with_jacobians_indexed(points, state.eop, iop_all, img, cam)
+    out = project_with_jacobians_indexed(points, state.eop, iop_all, rotation, img, cam)
+    part = bal.project_with_jacobians_indexed(points[is_bal], state.eop, iop_all, img[is_bal], cam[is_bal])
+    for full, sub in zip(out, part):
+        full[is_bal] = sub
+    return out
+
+
 def image_residuals(problem: Problem, state: State, o0: int = 0, o1: int | None = None) -> np.ndarray:
     """Residuals l - f (mm, photo axes) of image observations o0:o1 (sorted order), shape (m, 2)."""
     o1 = problem.n_image_observations if o1 is None else o1
     img = problem.obs_image[o0:o1]
     iop = np.array([c[:3] for c in state.cameras])[problem.image_camera[img]]
+    points = state.points[problem.obs_point[o0:o1]]
     rotation = matrix_from_opk(state.eop[:, 3:])[img]
-    xy = project(state.points[problem.obs_point[o0:o1]], state.eop[img], iop, rotation)
+    xy = project(points, state.eop[img], iop, rotation)
+    is_bal = _sensor_masks(problem, img)
+    if is_bal is not None and is_bal.any():
+        xy[is_bal] = bal.project(points[is_bal], state.eop[img[is_bal]], iop[is_bal])
     delta, _ = _camera_terms(problem, state, o0, o1, img)
     return problem.obs_xy_mm[o0:o1] - (xy + delta)
 
@@ -178,8 +206,7 @@ def chunk_rows(problem: Problem, state: State, cs, rotation=None, iop_all=None):
         iop_all = np.array([c[:3] for c in state.cameras])
     p0, p1, o0, o1, img, ptl = cs.p0, cs.p1, cs.o0, cs.o1, cs.img, cs.ptl
     m = o1 - o0
-    xy, j_e, j_p, j_i = project_with_jacobians_indexed(
-        state.points[p0:p1][ptl], state.eop, iop_all, rotation, img, problem.image_camera[img])
+    xy, j_e, j_p, j_i = _project_rows(problem, state, state.points[p0:p1][ptl], img, rotation, iop_all)
     delta, cam_cols = _camera_terms(problem, state, o0, o1, img)
     w = 1.0 / problem.obs_sigma_mm[o0:o1]
     r = (problem.obs_xy_mm[o0:o1] - xy - delta) * w[:, None]

@@ -29,6 +29,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..ap import APModel, ImageFrame, create_ap
+from ..ap.none import NoAP
+from ..sensors.bal import CAMERA_NAMES as BAL_CAMERA_NAMES
 from ..block import Block
 from ..sensors.frame import EOP_NAMES, IOP_NAMES, photo_from_pixel
 
@@ -50,6 +52,7 @@ class CameraParameters:
     prior_value: np.ndarray   # a-priori values (used where prior_sigma is finite)
     prior_sigma: np.ndarray   # NaN: no prior observation
     names: list[str]
+    sensor: str = "frame"     # projection model of the camera's images: "frame" or "bal"
 
     @property
     def size(self) -> int:
@@ -127,6 +130,11 @@ class Problem:
             from .structure import build_structure
             self._structure = build_structure(self)
         return self._structure
+
+    @property
+    def image_sensor(self) -> np.ndarray:
+        """Projection model of each image ("frame", "bal")."""
+        return np.array([self.cameras[k].sensor for k in self.image_camera], dtype=object)
 
     @property
     def n_e(self) -> int:
@@ -284,6 +292,12 @@ def build_problem(block: Block, ap_spec: str = "none", ap_settings: dict | None 
     for k, cid in enumerate(camera_ids):
         cam = block.cameras[cid]
         frame = ImageFrame(cam.width_mm, cam.height_mm, cam.pixel_size_mm)
+        if cam.model == "bal":
+            # BAL's own radial model; additional parameters do not apply
+            cameras.append(CameraParameters(cid, NoAP(frame), 1.0, np.ones(3, bool),
+                                            np.array([cam.focal_px, cam.k1, cam.k2]), np.full(3, np.nan),
+                                            list(BAL_CAMERA_NAMES), sensor="bal"))
+            continue
         if ap_models and cid in ap_models:
             ap = ap_models[cid]
         else:

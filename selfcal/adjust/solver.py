@@ -32,12 +32,19 @@ class SolverOptions:
         weakly determined directions a photogrammetric block always has (c
         against Z0, x0 against X0 and phi); it is switched on only when a step
         fails to lower the cost, and off again once steps succeed.
+    free_network : bool
+        The block has no datum (no control, no trajectory observations): the
+        normal equations are singular by the datum defect (7 for a similarity).
+        Levenberg-Marquardt damping then stays on (never below 1e-12), as in
+        Ceres, and the estimate is one of the equivalent solutions. Meant for
+        relative problems such as BAL benchmarks; no covariance follows.
     """
 
     max_iterations: int = 50
     step_tolerance: float = 1e-3
     cost_tolerance: float = 1e-12
     initial_damping: float = 0.0
+    free_network: bool = False
 
 
 @dataclass(frozen=True)
@@ -87,6 +94,9 @@ def solve(problem: Problem, state: State, names: list[str], options: SolverOptio
         raise AdjustmentError("the initial residuals are not finite (points behind a camera?)")
     redundancy = max(problem.n_observations() - problem.n_unknowns(), 1)
     lam, nu = options.initial_damping, 2.0
+    min_damping = 1e-12 if options.free_network else 0.0
+    if options.free_network:
+        lam = max(lam, 1e-4)
     history: list[IterationRecord] = []
     converged, reason = False, f"no convergence within {options.max_iterations} iterations"
     iteration = 0
@@ -97,7 +107,7 @@ def solve(problem: Problem, state: State, names: list[str], options: SolverOptio
                 factor = factorise(S)
                 break
             except SingularSystem as exc:
-                if lam == 0.0 and iteration == 1:
+                if lam == 0.0 and iteration == 1 and not options.free_network:
                     # undamped normal equations singular at the start: a rank defect, not bad luck
                     raise AdjustmentError(_singular_message(problem, S, names, str(exc))) from None
                 lam = max(lam * 10, 1e-8)
@@ -128,7 +138,7 @@ def solve(problem: Problem, state: State, names: list[str], options: SolverOptio
             state = candidate
             lin = linearise(problem, state)
             lam *= max(1.0 / 3.0, 1.0 - (2.0 * min(max(rho, 0.0), 1.0) - 1.0) ** 3)
-            lam = 0.0 if lam < 1e-9 else lam
+            lam = min_damping if lam < 1e-9 else lam
             nu = 2.0
             if step_sigma < options.step_tolerance:
                 converged, reason = True, f"corrections below {options.step_tolerance:g} sigma"

@@ -5,14 +5,17 @@ import argparse
 import os
 import sys
 
-from ..convert import block_from_colmap
+from ..convert import block_from_bal, block_from_colmap
+from ..io.bal import read_bal
 from ..io.block_folder import write_block
 from ..io.colmap import read_colmap
 from ..io.odm import read_gcp_list
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("format", choices=["colmap"], help="colmap: a COLMAP sparse model folder (text or binary)")
+    parser.add_argument("format", choices=["colmap", "bal"],
+                        help="colmap: a COLMAP sparse model folder (text or binary); bal: a Bundle Adjustment in "
+                             "the Large problem file")
     parser.add_argument("source", metavar="SRC", help="the model to import")
     parser.add_argument("--out", required=True, metavar="BLOCK", help="block folder to write (replaced)")
     parser.add_argument("--gcp", metavar="FILE", help="OpenDroneMap gcp_list.txt with the ground control")
@@ -32,6 +35,14 @@ def run(args: argparse.Namespace) -> int:
                         ("--gcp-sigma-xy", args.gcp_sigma_xy), ("--gcp-sigma-z", args.gcp_sigma_z)):
         if not value > 0:
             raise SystemExit(f"selfcal import: error: {name} must be positive, found {value}")
+    if args.format == "bal":
+        block = block_from_bal(read_bal(args.source), args.image_sigma_px,
+                               name=os.path.basename(os.path.normpath(args.out)))
+        write_block(block, args.out)
+        print(f"imported {len(block.images)} images (one BAL camera each), {len(block.points)} points, "
+              f"{len(block.observations)} observations into {args.out}; BAL has no datum: adjust it with "
+              f"ground control, or use it as a relative problem", file=sys.stderr)
+        return 0
     model = read_colmap(args.source)
     control = read_gcp_list(args.gcp) if args.gcp else None
     checks = [c.strip() for c in args.check.split(",") if c.strip()]

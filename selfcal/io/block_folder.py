@@ -14,7 +14,7 @@ import tomllib
 
 import numpy as np
 
-from ..block import ROLES, Block, FrameCamera, Images, Observations, Points, prune
+from ..block import ROLES, BalCamera, Block, FrameCamera, Images, Observations, Points, prune
 from ..errors import BlockError
 from .atomic import atomic_folder, atomic_write
 from .table import NUM, OPT_NUM, STR, Column, read_table, write_table
@@ -40,7 +40,7 @@ OBSERVATION_COLUMNS = [
 
 # block.toml schema: key -> (type, required). Types: "str", "int", "pos" (> 0),
 # "num", "nonneg" (>= 0), "vec3pos" (three numbers > 0).
-_TOP_KEYS = {"name": ("str", False), "crs": ("str", False)}
+_TOP_KEYS = {"name": ("str", False), "crs": ("str", False), "datum": ("str", False)}
 _FRAME_CAMERA_KEYS = {
     "model": ("str", True),
     "width_px": ("int", True),
@@ -53,6 +53,15 @@ _FRAME_CAMERA_KEYS = {
     "sigma_x0_mm": ("nonneg", False),
     "sigma_y0_mm": ("nonneg", False),
 }
+_BAL_CAMERA_KEYS = {
+    "model": ("str", True),
+    "width_px": ("int", True),
+    "height_px": ("int", True),
+    "focal_px": ("pos", True),
+    "k1": ("num", False),
+    "k2": ("num", False),
+}
+_CAMERA_MODELS = {"frame": (FrameCamera, _FRAME_CAMERA_KEYS), "bal": (BalCamera, _BAL_CAMERA_KEYS)}
 _SECTIONS = {
     "observations": {"image_sigma_px": ("pos", True)},
     "gnss": {"sigma_m": ("vec3pos", True)},
@@ -141,6 +150,9 @@ def _read_settings(folder: str) -> dict:
             line = _key_line(text, None, key) or _key_line(text, key, None)
             raise BlockError(path, f"unknown key (known: {', '.join(sorted(known))})", line, key)
     settings = _check_table(path, text, None, {k: v for k, v in doc.items() if k in _TOP_KEYS}, _TOP_KEYS)
+    if settings.get("datum", "control") not in ("control", "free"):
+        raise BlockError(path, f"datum must be \"control\" or \"free\", found {settings['datum']!r}",
+                         _key_line(text, None, "datum"), "datum")
     cameras = doc.get("cameras")
     if not isinstance(cameras, dict) or not cameras:
         raise BlockError(path, "at least one [cameras.ID] table is required", None, "cameras")
@@ -150,12 +162,14 @@ def _read_settings(folder: str) -> dict:
         if not isinstance(table, dict):
             raise BlockError(path, "must be a table", _key_line(text, "cameras", camera_id), section)
         model = table.get("model")
-        if model != "frame":
-            raise BlockError(path, f"camera model {model!r} is not supported (known: 'frame')",
+        if model not in _CAMERA_MODELS:
+            raise BlockError(path, f"camera model {model!r} is not supported (known: "
+                                   f"{', '.join(repr(m) for m in _CAMERA_MODELS)})",
                              _key_line(text, section, "model"), f"{section}.model")
-        values = _check_table(path, text, section, table, _FRAME_CAMERA_KEYS)
+        cls, keys = _CAMERA_MODELS[model]
+        values = _check_table(path, text, section, table, keys)
         values.pop("model")
-        settings["cameras"][camera_id] = FrameCamera(camera_id=camera_id, **values)
+        settings["cameras"][camera_id] = cls(camera_id=camera_id, **values)
     if "observations" not in doc:
         raise BlockError(path, "missing table [observations] (image_sigma_px)", None, "observations")
     for section, schema in _SECTIONS.items():
@@ -310,13 +324,15 @@ def read_block(folder: str | os.PathLike, min_gcp: int = 3) -> Block:
         image_sigma_px=image_sigma,
         gnss_sigma_m=gnss,
         imu_sigma_deg=imu,
+        datum=settings.get("datum", "control"),
     )
     block = prune(block)
     n_gcp = int(np.sum(block.points.role == "gcp"))
-    if not block.has_trajectory and n_gcp < min_gcp:
+    if block.datum == "control" and not block.has_trajectory and n_gcp < min_gcp:
         raise BlockError(os.path.join(folder, "points.csv"),
                          f"only {n_gcp} usable gcp (observed in at least one image); at least {min_gcp} "
-                         f"are needed to fix the datum when block.toml has no [gnss] or [imu]",
+                         f"are needed to fix the datum when block.toml has no [gnss] or [imu] (or set "
+                         f"datum = \"free\" for a relative network)",
                          None, "role")
     if len(block.images) == 0:
         raise BlockError(os.path.join(folder, "observations.csv"),
@@ -344,11 +360,14 @@ def _fmt_toml_value(value) -> str:
 
 
 def block_toml_text(block: Block) -> str:
-    lines = [f"name = {_fmt_toml_value(block.name)}", f"crs = {_fmt_toml_value(block.crs)}", ""]
+    lines = [f"name = {_fmt_toml_value(block.name)}", f"crs = {_fmt_toml_value(block.crs)}"]
+    if block.datum != "control":
+        lines.append(f"datum = {_fmt_toml_value(block.datum)}")
+    lines.append("")
     for camera in block.cameras.values():
         lines.append(f"[cameras.{camera.camera_id}]")
-        lines.append('model = "frame"')
-        for key in _FRAME_CAMERA_KEYS:
+        lines.append(f'model = "{camera.model}"')
+        for key in _CAMERA_MODELS[camera.model][1]:
             if key == "model":
                 continue
             value = getattr(camera, key)
@@ -375,18 +394,18 @@ def write_block(block: Block, folder: str | os.PathLike) -> None:
                         [im.image_id, im.camera_id, im.strip_id, im.time_s,
                          im.position_m[:, 0], im.position_m[:, 1], im.position_m[:, 2],
                          deg[:, 0], deg[:, 1], deg[:, 2]],
-                        ["", "", "", ".3f", ".4f", ".4f", ".4f", ".6f", ".6f", ".6f"])
+                        ["", "", "", ".4f", ".6f", ".6f", ".6f", ".10f", ".10f", ".10f"])
         pt = block.points
         with atomic_write(os.path.join(tmp, "points.csv")) as handle:
             write_table(handle, [c.name for c in POINT_COLUMNS],
                         [pt.point_id, pt.role, pt.xyz_m[:, 0], pt.xyz_m[:, 1], pt.xyz_m[:, 2],
                          pt.sigma_m[:, 0], pt.sigma_m[:, 2]],
-                        ["", "", ".4f", ".4f", ".4f", ".4f", ".4f"])
+                        ["", "", ".6f", ".6f", ".6f", ".4f", ".4f"])
         ob = block.observations
         with atomic_write(os.path.join(tmp, "observations.csv")) as handle:
             columns = [im.image_id[ob.image_index], pt.point_id[ob.point_index], ob.pixel[:, 0], ob.pixel[:, 1]]
             header = ["image_id", "point_id", "col_px", "row_px"]
-            formats = ["", "", ".4f", ".4f"]
+            formats = ["", "", ".5f", ".5f"]
             if np.any(ob.sigma_px != block.image_sigma_px):
                 columns.append(ob.sigma_px)
                 header.append("sigma_px")
