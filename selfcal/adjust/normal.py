@@ -239,6 +239,12 @@ def linearise(problem: Problem, state: State) -> Linearisation:
     chunks = []
     control_of_point = np.full(problem.n_points, -1)
     control_of_point[problem.control_index] = np.arange(len(problem.control_index))
+    varying = problem.d_varying()
+    constant = np.setdiff1d(np.arange(n_d), varying)
+    gram = problem._ap_gram
+    build_gram = gram is None and constant.size > 0
+    if build_gram:
+        gram = np.zeros((constant.size, constant.size))
 
     for cs in structure.chunks:
         p0, p1, o0, o1 = cs.p0, cs.p1, cs.o0, cs.o1
@@ -253,7 +259,17 @@ def linearise(problem: Problem, state: State) -> Linearisation:
         if n_d:
             jd2 = j_d.reshape(2 * m, n_d)
             U_ed += cs.image_rows.matrix(j_e) @ jd2
-            U_dd += jd2.T @ jd2
+            if constant.size:
+                # the AP columns are constant: their Gram block is summed once per problem
+                jv = jd2[:, varying]
+                block = jv.T @ jd2
+                U_dd[varying, :] += block
+                U_dd[np.ix_(constant, varying)] += block[:, constant].T
+                if build_gram:
+                    jc = jd2[:, constant]
+                    gram += jc.T @ jc
+            else:
+                U_dd += jd2.T @ jd2
             g_d += jd2.T @ r.ravel()
 
         ctl = control_of_point[p0:p1]
@@ -270,6 +286,10 @@ def linearise(problem: Problem, state: State) -> Linearisation:
             W_d = np.zeros((0, 3 * n_pc))
         chunks.append(ChunkLinearisation(p0, p1, o0, o1, V, g_p, w_e, W_d))
 
+    if constant.size:
+        if build_gram:
+            problem._ap_gram = gram
+        U_dd[np.ix_(constant, constant)] += gram
     J_x, r_x = parameter_observations(problem, state)
     cost += 0.5 * float(np.sum(r_x * r_x))
     g_theta = np.concatenate([g_e.ravel(), g_d, np.zeros(problem.n_extra)])

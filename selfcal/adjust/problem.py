@@ -97,6 +97,20 @@ class Problem:
     # layout of theta
     d_offset: list[int]             # start of each camera's free parameters in theta
     _structure: object = field(default=None, repr=False)
+    _ap_gram: object = field(default=None, repr=False)
+
+    def d_varying(self) -> np.ndarray:
+        """Columns of the camera part whose Jacobian changes between iterations.
+
+        The whitened AP columns are the basis at the measured coordinates: their
+        Gram matrix is the same in every iteration and is computed once.
+        """
+        cols = []
+        for cam, start in zip(self.cameras, self.d_offset):
+            pos = start - self.n_e + np.cumsum(cam.free) - 1
+            limit = 3 if cam.sensor == "frame" else cam.size
+            cols += [int(pos[i]) for i in range(min(limit, cam.size)) if cam.free[i]]
+        return np.array(cols, dtype=np.int64)
 
     @property
     def extra_free(self) -> np.ndarray:
