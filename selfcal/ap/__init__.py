@@ -8,13 +8,25 @@ from __future__ import annotations
 import numpy as np
 
 from .base import APModel, ImageFrame, parse_ap_spec
+from .brown import BrownAP
+from .ebner import EbnerAP
+from .fourier import FourierAP
+from .gruen import GruenAP
+from .legendre import LegendreAP
 from .none import NoAP
+from .wavelet import WaveletAP
 
 __all__ = ["AP_FAMILIES", "APModel", "ImageFrame", "create_ap", "ap_from_dict", "parse_ap_spec"]
 
 #: family name -> model class
 AP_FAMILIES: dict[str, type[APModel]] = {
     "none": NoAP,
+    "brown": BrownAP,
+    "ebner": EbnerAP,
+    "gruen": GruenAP,
+    "legendre": LegendreAP,
+    "fourier": FourierAP,
+    "wavelet": WaveletAP,
 }
 
 

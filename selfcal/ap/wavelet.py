@@ -1,0 +1,208 @@
+"""``wavelet:NAME``: wavelet additional parameters (WAPs) of seed 000, Eqs. (6)-(11).
+
+Photo coordinates are mapped to the wavelet domain by Eq. (10),
+
+    x_w = x · Gx / W,   y_w = y · Gy / H,
+
+with (x, y) centred on the image, so x_w lies in [-Gx/2, Gx/2] and one grid
+cell is one unit (scale j = 0). The basis is the tensor product of scaling
+functions of Eq. (6),
+
+    Phi_{kx,ky}(x_w, y_w) = phi(x_w + kx) · phi(y_w + ky),
+
+and Delta_x and Delta_y have coefficient sets of their own (Eq. 11), so the
+initial number of WAPs is 2 · n_kx · n_ky. The translation sign (phi(t + k)
+rather than phi(t - k)) is the labelling that reproduces the translation
+ranges of Table 3 of seed 000 with a centred domain (e.g. ADB4: k_x from -4);
+it does not change the space spanned.
+
+The second formulation (``wavelet:NAME+details``) spans V_{j+1} with the
+detail functions of Eqs. (7)-(9) at the same translations:
+phi(x_w+kx) psi(y_w+ky) (h), psi(x_w+kx) phi(y_w+ky) (v) and psi psi (d).
+
+Translations: k is a candidate when the effective support of phi(t + k)
+(:data:`selfcal.wavelets.TRUNCATION`) meets the frame; it is kept when at
+least ``MIN_OBSERVATIONS`` observations fall where |phi(t + k)| is above that
+threshold (the "adaptive" ranges of Table 3). The ranges form a rectangle.
+Coefficients are in pixels, the basis is dimensionless (selfcal.ap.base).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..wavelets import get_wavelet
+from .base import APModel, ImageFrame
+
+__all__ = ["WaveletAP", "MIN_OBSERVATIONS"]
+
+#: a translation needs this many observations under its (effective) support,
+#: or 0.2 % of the camera's observations if that is more
+MIN_OBSERVATIONS = 20
+
+
+def _independent_details(w, half: float, k_phi: np.ndarray, samples: int = 4000, tol: float = 0.05) -> np.ndarray:
+    """Translations k whose psi(t + k) adds to the span of the phi(t + k') over the frame.
+
+    On a bounded frame, phi and psi translations that together span V_{j+1} are
+    linearly dependent near the edges; the dependent psi are left out (greedy,
+    in order of k) so that the details basis has full rank: a psi is kept when
+    at least ``tol`` of its norm on the frame lies outside the span so far.
+    """
+    t = np.linspace(-half, half, samples)
+    Q, _ = np.linalg.qr(w.phi(t[:, None] + k_phi[None, :]))
+    kept = []
+    for k in k_phi:
+        col = w.psi(t + k)
+        norm = np.linalg.norm(col)
+        if norm == 0:
+            continue
+        resid = col - Q @ (Q.T @ col)
+        if np.linalg.norm(resid) / norm > tol:
+            kept.append(k)
+            Q = np.column_stack([Q, resid / np.linalg.norm(resid)])
+    return np.array(kept, dtype=np.int64)
+
+
+def _translations(w, half: float, coords: np.ndarray | None, n_min: int) -> tuple[int, int]:
+    a, b = w.support
+    k_min = int(np.floor(a - half)) + 1
+    k_max = int(np.ceil(b + half)) - 1
+    if coords is None or coords.size == 0:
+        return k_min, k_max
+    peak = np.abs(w.phi_table).max()
+    kept = [k for k in range(k_min, k_max + 1)
+            if np.count_nonzero(np.abs(w.phi(coords + k)) >= w.threshold * peak) >= n_min]
+    if not kept:
+        return k_min, k_max
+    return min(kept), max(kept)
+
+
+class WaveletAP(APModel):
+    family = "wavelet"
+    examples = ("wavelet:db4", "wavelet:sym4", "wavelet:meyer", "wavelet:bl4", "wavelet:sym4+details")
+
+    def __init__(self, frame: ImageFrame, wavelet: str, grid: tuple[int, int], ranges: tuple[int, int, int, int],
+                 formulation: str = "scaling"):
+        super().__init__(frame)
+        if formulation not in ("scaling", "details"):
+            raise ValueError(f"WAP formulation must be 'scaling' or 'details', found '{formulation}'")
+        self.wavelet = get_wavelet(wavelet)
+        self.grid = (int(grid[0]), int(grid[1]))
+        self.ranges = tuple(int(v) for v in ranges)
+        self.formulation = formulation
+        kx0, kx1, ky0, ky1 = self.ranges
+        self.kx = np.arange(kx0, kx1 + 1)
+        self.ky = np.arange(ky0, ky1 + 1)
+        parts = ["phi"] if formulation == "scaling" else ["phi", "h", "v", "d"]
+        self._parts = parts
+        if formulation == "details":
+            self.kx_psi = _independent_details(self.wavelet, self.grid[0] / 2.0, self.kx)
+            self.ky_psi = _independent_details(self.wavelet, self.grid[1] / 2.0, self.ky)
+        else:
+            self.kx_psi = self.ky_psi = np.zeros(0, np.int64)
+        uses = {"phi": (self.kx, self.ky), "h": (self.kx, self.ky_psi), "v": (self.kx_psi, self.ky),
+                "d": (self.kx_psi, self.ky_psi)}
+        self._uses = uses
+        names = []
+        for axis in ("x", "y"):
+            for part in parts:
+                prefix = f"a{axis}" if part == "phi" else f"a{axis}{part}"
+                kxs, kys = uses[part]
+                names += [f"{prefix}[{kx:+d},{ky:+d}]" for ky in kys for kx in kxs]
+        self._names = names
+
+    @property
+    def spec(self) -> str:
+        return f"wavelet:{self.wavelet.name}" + ("+details" if self.formulation == "details" else "")
+
+    @property
+    def parameter_names(self) -> list[str]:
+        return self._names
+
+    def _domain(self, x_mm, y_mm):
+        gx, gy = self.grid
+        return (np.asarray(x_mm, float) * gx / self.frame.width_mm,
+                np.asarray(y_mm, float) * gy / self.frame.height_mm)
+
+    def _factors(self, t, k, function):
+        return function(t[:, None] + k[None, :])
+
+    def _blocks(self, xw, yw, dx=False, dy=False):
+        """The 2-D functions of each part, (n, n_ky * n_kx), optionally differentiated in x_w or y_w."""
+        w = self.wavelet
+        fx = {"phi": w.dphi if dx else w.phi, "psi": w.dpsi if dx else w.psi}
+        fy = {"phi": w.dphi if dy else w.phi, "psi": w.dpsi if dy else w.psi}
+        pick = {"phi": ("phi", "phi"), "h": ("phi", "psi"), "v": ("psi", "phi"), "d": ("psi", "psi")}
+        n = len(xw)
+        out = []
+        cache = {}
+        for part in self._parts:
+            sx, sy = pick[part]
+            kxs, kys = self._uses[part]
+            if ("x", sx) not in cache:
+                cache[("x", sx)] = self._factors(xw, kxs, fx[sx])
+            if ("y", sy) not in cache:
+                cache[("y", sy)] = self._factors(yw, kys, fy[sy])
+            out.append((cache[("y", sy)][:, :, None] * cache[("x", sx)][:, None, :]).reshape(n, -1))
+        return np.concatenate(out, axis=1)
+
+    def basis(self, x_mm, y_mm):
+        xw, yw = self._domain(x_mm, y_mm)
+        B = self._blocks(xw, yw)
+        zero = np.zeros_like(B)
+        return np.concatenate([B, zero], axis=1), np.concatenate([zero, B], axis=1)
+
+    def basis_derivatives(self, x_mm, y_mm):
+        xw, yw = self._domain(x_mm, y_mm)
+        sx = self.grid[0] / self.frame.width_mm
+        sy = self.grid[1] / self.frame.height_mm
+        Bdx = sx * self._blocks(xw, yw, dx=True)
+        Bdy = sy * self._blocks(xw, yw, dy=True)
+        zero = np.zeros_like(Bdx)
+        return (np.concatenate([Bdx, zero], axis=1), np.concatenate([Bdy, zero], axis=1),
+                np.concatenate([zero, Bdx], axis=1), np.concatenate([zero, Bdy], axis=1))
+
+    def active_ranges(self, active: np.ndarray) -> tuple[int, int, int, int] | None:
+        """k ranges of the active coefficients (after screening); None if none is active."""
+        active = np.asarray(active, bool)
+        n = len(self.kx) * len(self.ky)
+        half = active[: len(active) // 2], active[len(active) // 2:]
+        per_set = (half[0][:n] | half[1][:n]).reshape(len(self.ky), len(self.kx))
+        if not per_set.any():
+            return None
+        ky_idx, kx_idx = np.nonzero(per_set)
+        return (int(self.kx[kx_idx.min()]), int(self.kx[kx_idx.max()]),
+                int(self.ky[ky_idx.min()]), int(self.ky[ky_idx.max()]))
+
+    def to_dict(self) -> dict:
+        return {"spec": self.spec, "wavelet": self.wavelet.name, "grid": list(self.grid),
+                "ranges": list(self.ranges), "formulation": self.formulation,
+                "truncation": self.wavelet.threshold}
+
+    @classmethod
+    def from_dict(cls, data: dict, frame: ImageFrame) -> "WaveletAP":
+        return cls(frame, data["wavelet"], tuple(data["grid"]), tuple(data["ranges"]),
+                   data.get("formulation", "scaling"))
+
+    @classmethod
+    def from_spec(cls, option, frame: ImageFrame, observed_xy_mm=None, grid=(9, 6), **settings):
+        if not option:
+            raise ValueError("a wavelet AP model needs a wavelet: wavelet:db4, wavelet:sym4, wavelet:meyer, "
+                             "wavelet:bl4 (any order of db, sym, bl)")
+        name, _, form = option.partition("+")
+        if form not in ("", "details"):
+            raise ValueError(f"unknown WAP formulation '+{form}' (known: +details)")
+        w = get_wavelet(name)
+        gx, gy = int(grid[0]), int(grid[1])
+        if gx < 1 or gy < 1:
+            raise ValueError(f"the wavelet grid must be positive, found {gx}x{gy}")
+        if observed_xy_mm is not None and len(observed_xy_mm):
+            xy = np.asarray(observed_xy_mm, float)
+            n_min = max(MIN_OBSERVATIONS, int(0.002 * len(xy)))
+            xw = xy[:, 0] * gx / frame.width_mm
+            yw = xy[:, 1] * gy / frame.height_mm
+        else:
+            n_min, xw, yw = MIN_OBSERVATIONS, None, None
+        kx = _translations(w, gx / 2.0, xw, n_min)
+        ky = _translations(w, gy / 2.0, yw, n_min)
+        return cls(frame, name, (gx, gy), (*kx, *ky), "details" if form else "scaling")

@@ -1,0 +1,82 @@
+"""Contract tests over the AP registry: every family, every example spec."""
+import numpy as np
+import pytest
+
+from selfcal.ap import AP_FAMILIES, ImageFrame, ap_from_dict, create_ap
+
+FRAME = ImageFrame(6000 * 0.0059, 4000 * 0.0059, 0.0059)
+SPECS = [spec for cls in AP_FAMILIES.values() for spec in cls.examples]
+RNG = np.random.default_rng(11)
+SAMPLE = np.column_stack([RNG.uniform(-FRAME.width_mm / 2, FRAME.width_mm / 2, 6000),
+                          RNG.uniform(-FRAME.height_mm / 2, FRAME.height_mm / 2, 6000)])
+
+
+def _model(spec):
+    return create_ap(spec, FRAME, SAMPLE)
+
+
+@pytest.mark.parametrize("spec", SPECS)
+def test_basis_shapes_and_names(spec):
+    ap = _model(spec)
+    bx, by = ap.basis(SAMPLE[:50, 0], SAMPLE[:50, 1])
+    assert bx.shape == by.shape == (50, ap.n_params)
+    assert len(set(ap.parameter_names)) == ap.n_params
+    assert np.all(np.isfinite(bx)) and np.all(np.isfinite(by))
+
+
+@pytest.mark.parametrize("spec", SPECS)
+def test_derivatives_match_finite_differences(spec):
+    ap = _model(spec)
+    x, y = SAMPLE[:200, 0], SAMPLE[:200, 1]
+    derivs = ap.basis_derivatives(x, y)
+    if ap.n_params == 0:
+        assert all(d.shape == (200, 0) for d in derivs)
+        return
+    # wavelets are tabulated at 2^-12 of a grid cell (~1e-3 mm): difference over about one table step
+    h = 1e-3 if spec.startswith("wavelet") else 1e-4
+    fd = []
+    for dx, dy in ((h, 0), (0, h)):
+        bxp, byp = ap.basis(x + dx, y + dy)
+        bxm, bym = ap.basis(x - dx, y - dy)
+        fd.append(((bxp - bxm) / (2 * h), (byp - bym) / (2 * h)))
+    expected = (fd[0][0], fd[1][0], fd[0][1], fd[1][1])          # dBx/dx, dBx/dy, dBy/dx, dBy/dy
+    # wavelet tables are linear between 2^-12 steps: their derivative is a table too (tolerance 1e-3)
+    rtol = 1e-3 if spec.startswith("wavelet") else 1e-6
+    for got, want in zip(derivs, expected):
+        scale = max(np.max(np.abs(want)), 1e-12)
+        assert np.max(np.abs(got - want)) / scale < rtol
+
+
+@pytest.mark.parametrize("spec", SPECS)
+def test_serialises_and_reloads(spec):
+    ap = _model(spec)
+    again = ap_from_dict(ap.to_dict(), FRAME)
+    assert again.spec == ap.spec and again.parameter_names == ap.parameter_names
+    for a, b in zip(ap.basis(SAMPLE[:100, 0], SAMPLE[:100, 1]), again.basis(SAMPLE[:100, 0], SAMPLE[:100, 1])):
+        np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize("spec", [s for s in SPECS if s != "none"])
+def test_reproduces_a_field_it_can_represent(spec):
+    ap = _model(spec)
+    truth = RNG.normal(0, 1.0, ap.n_params)
+    dx, dy = ap.displacement_px(SAMPLE[:, 0], SAMPLE[:, 1], truth)
+    bx, by = ap.basis(SAMPLE[:, 0], SAMPLE[:, 1])
+    A = np.vstack([bx, by])
+    est = np.linalg.lstsq(A, np.concatenate([dx, dy]), rcond=None)[0]
+    fitted = A @ est
+    assert np.max(np.abs(fitted - np.concatenate([dx, dy]))) < 1e-8
+    # and the basis has full column rank over the frame (a stated conditioning bound)
+    s = np.linalg.svd(A / np.linalg.norm(A, axis=0), compute_uv=False)
+    assert s[-1] / s[0] > 1e-4, s[-1] / s[0]
+
+
+@pytest.mark.parametrize("family", [f for f in AP_FAMILIES if f not in ("none",)])
+def test_unknown_options_are_rejected(family):
+    with pytest.raises(ValueError):
+        create_ap(f"{family}:nonsense", FRAME, SAMPLE)
+
+
+def test_unknown_family_lists_the_known_ones():
+    with pytest.raises(ValueError, match="known families: none, brown"):
+        create_ap("zernike", FRAME)
