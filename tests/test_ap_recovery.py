@@ -2,7 +2,9 @@
 
 Fields are the simulator's: a Brown field (about -11 px radial at the corners)
 and the non-stationary "local" field (Gaussian bumps of 2-3 px). Fit on a dense
-noise-free sample, evaluate on a separate 121 x 81 grid.
+noise-free sample, evaluate on a separate 121 x 81 grid. As in the adjustment,
+where c, x0 and y0 are estimated with the APs, the fit includes the image-space
+fields of the interior orientation (shift in x, shift in y, scale).
 """
 import numpy as np
 import pytest
@@ -21,13 +23,26 @@ WAPS = ["wavelet:db4", "wavelet:sym4", "wavelet:meyer", "wavelet:bl4"]
 CLASSIC = ["brown", "ebner", "gruen", "legendre", "fourier"]
 
 
+def interior_orientation_fields(xy_mm):
+    """Image-space effect of x0, y0 and c (in pixels per unit): shift x, shift y, scale."""
+    n = len(xy_mm)
+    fx = np.column_stack([np.ones(n), np.zeros(n), xy_mm[:, 0] / FRAME.width_mm])
+    fy = np.column_stack([np.zeros(n), np.ones(n), xy_mm[:, 1] / FRAME.width_mm])
+    return fx, fy
+
+
 def fit_rms(spec: str, field_name: str) -> float:
     field = _distortion(field_name, FRAME.pixel_size_mm, (0.0, 0.0))
     ap = create_ap(spec, FRAME, FIT)
     bx, by = ap.basis(FIT[:, 0], FIT[:, 1])
+    fx, fy = interior_orientation_fields(FIT)
     dx, dy = field.displacement_px(FIT[:, 0], FIT[:, 1])
-    coef = np.linalg.lstsq(np.vstack([bx, by]), np.concatenate([dx, dy]), rcond=None)[0]
-    px, py = ap.displacement_px(EVAL[:, 0], EVAL[:, 1], coef)
+    coef = np.linalg.lstsq(np.vstack([np.hstack([bx, fx]), np.hstack([by, fy])]), np.concatenate([dx, dy]),
+                           rcond=None)[0]
+    px, py = ap.displacement_px(EVAL[:, 0], EVAL[:, 1], coef[:ap.n_params])
+    fx, fy = interior_orientation_fields(EVAL)
+    px += fx @ coef[ap.n_params:]
+    py += fy @ coef[ap.n_params:]
     ex, ey = field.displacement_px(EVAL[:, 0], EVAL[:, 1])
     return float(np.sqrt(np.mean((px - ex) ** 2 + (py - ey) ** 2)))
 

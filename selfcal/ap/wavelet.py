@@ -25,10 +25,33 @@ Translations: k is a candidate when the effective support of phi(t + k)
 least ``MIN_OBSERVATIONS`` observations fall where |phi(t + k)| is above that
 threshold (the "adaptive" ranges of Table 3). The ranges form a rectangle.
 Coefficients are in pixels, the basis is dimensionless (selfcal.ap.base).
+
+Interior orientation (ours; the paper does not say how it separates them):
+the integer translates of a scaling function are a partition of unity and
+reproduce linear functions (Strang-Fix), so the raw WAP field contains the
+image-space effect of the principal point (a constant shift) and of the
+principal distance (the field (x, y) · dc / c); estimating c, x0, y0 together
+with the raw basis is singular. Each basis function (Bx_i, By_i) is therefore
+made orthogonal, in the L2 inner product over the frame, to the three
+interior-orientation fields (1, 0), (0, 1) and (x, y):
+
+    B'_i = B_i - F (F^T F)^-1 F^T B_i,
+
+computed once from a dense sample of the frame (``ORTHO_SAMPLES``). When the
+translations cover the frame, the raw span contains those fields (exactly or
+to a fraction of a percent at the edges) and as many orthogonalised functions
+become (near) combinations of the others; the last pivots of a pivoted QR of
+the sampled basis are left out (``n_dependent`` in :meth:`WaveletAP.to_dict`,
+usually 3). The construction depends only on
+the frame, the wavelet, the grid and the ranges, so it is recreated exactly
+when a model is reloaded. The correction field
+keeps every local shape of the wavelets; c, x0 and y0 stay estimable and their
+correlation with the WAPs is small (Table 4 of seed 000 reports < 0.01).
 """
 from __future__ import annotations
 
 import numpy as np
+import scipy.linalg
 
 from ..wavelets import get_wavelet
 from .base import APModel, ImageFrame
@@ -38,6 +61,21 @@ __all__ = ["WaveletAP", "MIN_OBSERVATIONS"]
 #: a translation needs this many observations under its (effective) support,
 #: or 0.2 % of the camera's observations if that is more
 MIN_OBSERVATIONS = 20
+#: sample points per grid cell and axis of the frame integral that removes the
+#: interior-orientation fields from the basis
+ORTHO_SAMPLES = 16
+#: an interior-orientation field that the raw basis reproduces to this relative
+#: RMS over the frame makes one orthogonalised function (nearly) dependent
+REPRODUCTION_TOLERANCE = 0.01
+
+
+def _iop_fields(frame: ImageFrame, x_mm: np.ndarray, y_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The image-space fields of x0, y0 and c (up to scale) at photo coordinates: (n, 3) each for x and y."""
+    n = len(x_mm)
+    half_diagonal = 0.5 * np.hypot(frame.width_mm, frame.height_mm)
+    Fx = np.column_stack([np.ones(n), np.zeros(n), x_mm / half_diagonal])
+    Fy = np.column_stack([np.zeros(n), np.ones(n), y_mm / half_diagonal])
+    return Fx, Fy
 
 
 def _independent_details(w, half: float, k_phi: np.ndarray, samples: int = 4000, tol: float = 0.05) -> np.ndarray:
@@ -109,7 +147,34 @@ class WaveletAP(APModel):
                 prefix = f"a{axis}" if part == "phi" else f"a{axis}{part}"
                 kxs, kys = uses[part]
                 names += [f"{prefix}[{kx:+d},{ky:+d}]" for ky in kys for kx in kxs]
-        self._names = names
+        self._kept = np.ones(len(names), bool)
+        self._iop_projection = np.zeros((3, len(names)))
+        self._orthogonalise()
+        self._names = [n for n, k in zip(names, self._kept) if k]
+
+    def _orthogonalise(self) -> None:
+        """Coefficients M (3, n) of the least-squares projection of each raw basis function on the
+        interior-orientation fields over a dense midpoint sample of the frame, and the columns
+        left out because the orthogonalised basis is (nearly) dependent without them."""
+        gx, gy = self.grid
+        nx, ny = ORTHO_SAMPLES * gx, ORTHO_SAMPLES * gy
+        x = (np.arange(nx) + 0.5) / nx * self.frame.width_mm - 0.5 * self.frame.width_mm
+        y = (np.arange(ny) + 0.5) / ny * self.frame.height_mm - 0.5 * self.frame.height_mm
+        xs, ys = (a.ravel() for a in np.meshgrid(x, y))
+        Bx, By = self._raw_basis(xs, ys)
+        Fx, Fy = _iop_fields(self.frame, xs, ys)
+        B, F = np.vstack([Bx, By]), np.vstack([Fx, Fy])
+        M = np.linalg.solve(F.T @ F, F.T @ B)
+        # each interior-orientation field the raw span reproduces costs one dimension
+        fit = np.linalg.lstsq(B, F, rcond=None)[0]
+        misfit = np.linalg.norm(F - B @ fit, axis=0) / np.linalg.norm(F, axis=0)
+        n_dependent = int(np.sum(misfit < REPRODUCTION_TOLERANCE))
+        if n_dependent:
+            A = B - F @ M
+            A /= np.maximum(np.linalg.norm(A, axis=0), np.finfo(float).tiny)
+            pivots = scipy.linalg.qr(A, mode="r", pivoting=True)[1]
+            self._kept[pivots[len(pivots) - n_dependent:]] = False
+        self._iop_projection = M[:, self._kept]
 
     @property
     def spec(self) -> str:
@@ -146,11 +211,20 @@ class WaveletAP(APModel):
             out.append((cache[("y", sy)][:, :, None] * cache[("x", sx)][:, None, :]).reshape(n, -1))
         return np.concatenate(out, axis=1)
 
-    def basis(self, x_mm, y_mm):
+    def _raw_basis(self, x_mm, y_mm, kept_only: bool = False):
         xw, yw = self._domain(x_mm, y_mm)
         B = self._blocks(xw, yw)
         zero = np.zeros_like(B)
-        return np.concatenate([B, zero], axis=1), np.concatenate([zero, B], axis=1)
+        Bx, By = np.concatenate([B, zero], axis=1), np.concatenate([zero, B], axis=1)
+        if kept_only:
+            return Bx[:, self._kept], By[:, self._kept]
+        return Bx, By
+
+    def basis(self, x_mm, y_mm):
+        x_mm, y_mm = np.asarray(x_mm, float), np.asarray(y_mm, float)
+        Bx, By = self._raw_basis(x_mm, y_mm, kept_only=True)
+        Fx, Fy = _iop_fields(self.frame, x_mm, y_mm)
+        return Bx - Fx @ self._iop_projection, By - Fy @ self._iop_projection
 
     def basis_derivatives(self, x_mm, y_mm):
         xw, yw = self._domain(x_mm, y_mm)
@@ -159,12 +233,17 @@ class WaveletAP(APModel):
         Bdx = sx * self._blocks(xw, yw, dx=True)
         Bdy = sy * self._blocks(xw, yw, dy=True)
         zero = np.zeros_like(Bdx)
-        return (np.concatenate([Bdx, zero], axis=1), np.concatenate([Bdy, zero], axis=1),
-                np.concatenate([zero, Bdx], axis=1), np.concatenate([zero, Bdy], axis=1))
+        # the scale field (x, y) / half-diagonal is the only interior-orientation field with a gradient
+        scale = self._iop_projection[2] / (0.5 * np.hypot(self.frame.width_mm, self.frame.height_mm))
+        kept = self._kept
+        return (np.concatenate([Bdx, zero], axis=1)[:, kept] - scale, np.concatenate([Bdy, zero], axis=1)[:, kept],
+                np.concatenate([zero, Bdx], axis=1)[:, kept], np.concatenate([zero, Bdy], axis=1)[:, kept] - scale)
 
     def active_ranges(self, active: np.ndarray) -> tuple[int, int, int, int] | None:
         """k ranges of the active coefficients (after screening); None if none is active."""
-        active = np.asarray(active, bool)
+        full = np.zeros(len(self._kept), bool)
+        full[self._kept] = np.asarray(active, bool)
+        active = full
         n = len(self.kx) * len(self.ky)
         half = active[: len(active) // 2], active[len(active) // 2:]
         per_set = (half[0][:n] | half[1][:n]).reshape(len(self.ky), len(self.kx))
@@ -177,7 +256,7 @@ class WaveletAP(APModel):
     def to_dict(self) -> dict:
         return {"spec": self.spec, "wavelet": self.wavelet.name, "grid": list(self.grid),
                 "ranges": list(self.ranges), "formulation": self.formulation,
-                "truncation": self.wavelet.threshold}
+                "truncation": self.wavelet.threshold, "n_dependent": int((~self._kept).sum())}
 
     @classmethod
     def from_dict(cls, data: dict, frame: ImageFrame) -> "WaveletAP":
