@@ -120,6 +120,10 @@ def camera_json(block, result) -> dict:
              "active": bool(cam.free[3 + k])}
             for k, name in enumerate(cam.ap.parameter_names)
         ]
+        ap = {**cam.ap.to_dict(), "coefficient_unit": "px", "n_active": int(cam.free[3:].sum())}
+        if hasattr(cam.ap, "active_ranges"):
+            # the translation ranges that remain after screening (Table 3 of seed 000)
+            ap["active_ranges"] = cam.ap.active_ranges(cam.free[3:])
         cameras[cam.camera_id] = {
             "model": "frame",
             "width_px": cfg.width_px,
@@ -128,7 +132,7 @@ def camera_json(block, result) -> dict:
             "focal_mm": entry(0),
             "x0_mm": entry(1),
             "y0_mm": entry(2),
-            "ap": {**cam.ap.to_dict(), "coefficient_unit": "px", "coefficients": coefficients},
+            "ap": {**ap, "coefficients": coefficients},
         }
     return {"cameras": cameras}
 
