@@ -11,7 +11,7 @@ from conftest import run_cli
 SUMMARY_KEYS = ["ap_model", "converged", "iterations", "sigma0_px", "variance_factor", "rmsd_chk_xy_m",
                 "rmsd_chk_z_m", "rmsd_chk_xy_gsd", "rmsd_chk_z_gsd", "rms_sigma_tie_xy_m", "rms_sigma_tie_z_m",
                 "n_gcp_used", "n_chk_used", "n_obs_rejected", "n_ap_initial", "n_ap_significant",
-                "max_abs_corr", "seconds"]
+                "max_abs_corr", "seconds", "ce90_chk_m", "le90_chk_m"]
 RESULT_FILES = ["summary.json", "camera.json", "images.csv", "points.csv", "residuals.csv", "distortion_grid.csv",
                 "screening.json", "correlation.csv"]
 

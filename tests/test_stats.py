@@ -103,3 +103,14 @@ def test_snooping_disabled_rejects_nothing():
     sim = simulation(seed=1, distortion="none", blunder_rate=0.003, points_per_mm2=0.3)
     tested = adjust_with_tests(pruned(sim, "type3"), AdjustOptions(), SnoopingOptions(critical=0))
     assert tested.rejected_rows.size == 0 and not tested.rounds
+
+
+def test_ce90_and_le90_match_the_normal_distribution():
+    """For circular normal errors CE90 -> 2.146 sigma and LE90 -> 1.645 sigma (large sample, 1 % tolerance)."""
+    from selfcal.stats import ce90, le90
+    rng = np.random.default_rng(11)
+    sigma = 0.04
+    d = rng.normal(0.0, sigma, (200_000, 3))
+    assert abs(ce90(d[:, :2]) / (sigma * np.sqrt(-2 * np.log(0.1))) - 1) < 0.01
+    assert abs(le90(d[:, 2]) / (sigma * 1.6448536) - 1) < 0.01
+    assert ce90(np.zeros((0, 2))) is None and le90(np.zeros(0)) is None

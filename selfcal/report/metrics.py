@@ -14,6 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..sensors.frame import photo_from_pixel
+from ..stats.accuracy import ce90, le90
 from ..stats.correlation import max_abs_correlation_by_group
 
 __all__ = ["ground_sample_distance", "summary", "camera_json", "image_table", "point_table",
@@ -76,6 +77,8 @@ def summary(tested, extra: dict | None = None) -> dict:
         "rmsd_chk_z_m": rmsd_z,
         "rmsd_chk_xy_gsd": gsd_of(rmsd_xy),
         "rmsd_chk_z_gsd": gsd_of(rmsd_z),
+        "ce90_chk_m": ce90(diff[chk, :2]),
+        "le90_chk_m": le90(diff[chk, 2]),
         "rms_gcp_residual_xy_m": _rms(np.sum(diff[gcp, :2] ** 2, axis=1)),
         "rms_gcp_residual_z_m": _rms(diff[gcp, 2] ** 2),
         "rms_sigma_tie_xy_m": sig_xy,

@@ -1,10 +1,11 @@
 """Statistics of the adjustment: redundancy numbers and w-tests, data snooping,
 AP screening and correlation analysis by parameter group."""
+from .accuracy import ce90, le90
 from .correlation import max_abs_correlation_by_group
 from .reliability import ObservationTests, observation_tests
 from .screening import ScreeningOptions
 from .snooping import SnoopingOptions
 from .workflow import TestedAdjustment, adjust_with_tests
 
-__all__ = ["max_abs_correlation_by_group", "observation_tests", "ObservationTests", "ScreeningOptions",
+__all__ = ["ce90", "le90", "max_abs_correlation_by_group", "observation_tests", "ObservationTests", "ScreeningOptions",
            "SnoopingOptions", "TestedAdjustment", "adjust_with_tests"]
