@@ -81,7 +81,10 @@ def test_schur_step_and_covariance_equal_dense_solution(small):
     Q = factorise(S).inverse()
     np.testing.assert_allclose((S / np.outer(st, st)) @ (Q * np.outer(st, st)), np.eye(n_t), atol=1e-6)
     if np.linalg.cond(N / np.outer(scale, scale)) > 1e6:
-        return      # beyond here the comparison would measure the finite differences
+        # only the wavelet case on this sparse block is that ill-conditioned; beyond here the
+        # comparison would measure the finite differences
+        assert problem.cameras[0].ap.family == "wavelet"
+        return
     dense_step = np.linalg.solve(N, g)
     # in units of conditional sigma; the finite-difference reference limits the agreement
     assert np.max(np.abs((step - dense_step) * scale)) < 1e-3
