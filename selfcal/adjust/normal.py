@@ -72,25 +72,55 @@ class Linearisation:
     diag_theta: np.ndarray   # diagonal of U (parameter observations included)
 
 
+def _ap_columns(problem: Problem, k: int, o0: int, o1: int, mask: np.ndarray) -> np.ndarray:
+    """Whitened image displacement per unit of each free AP of camera ``k``, (n, 2, n_free_ap), at
+    the measured coordinates of its observations among o0:o1 (``mask``): the AP columns of the
+    Jacobian.
+
+    They depend on the measured coordinates only, so they are evaluated once per
+    problem and kept (a WAP basis costs far more to evaluate than to store).
+    """
+    cam = problem.cameras[k]
+    free = cam.free[3:]
+    key = (k, o0, o1, free.tobytes())
+    columns = problem._ap_columns.get(key)
+    if columns is None:
+        xy = problem.obs_xy_mm[o0:o1][mask]
+        bx, by = cam.ap.basis(xy[:, 0], xy[:, 1])
+        w = cam.pixel_size_mm / problem.obs_sigma_mm[o0:o1][mask]
+        columns = np.empty((bx.shape[0], 2, int(free.sum())))
+        columns[:, 0] = bx if free.all() else bx[:, free]
+        columns[:, 1] = by if free.all() else by[:, free]
+        columns *= w[:, None, None]
+        problem._ap_columns[key] = columns
+    return columns
+
+
 def _camera_terms(problem: Problem, state: State, o0: int, o1: int, img: np.ndarray):
-    """Additional-parameter displacement (mm) and camera-parameter columns of observations o0:o1."""
+    """Additional-parameter displacement (mm) of observations o0:o1, and per camera the
+    observations it takes (mask) with the (whitened) Jacobian columns of its free APs."""
     m = o1 - o0
     cam_of_obs = problem.image_camera[img]
     delta = np.zeros((m, 2))
-    cam_cols = []  # (camera index, mask, Bx, By)
-    xy = problem.obs_xy_mm[o0:o1]
+    cam_cols = []  # (camera index, mask, whitened columns (n, 2, n_free_ap))
+    single = len(problem.cameras) == 1
     for k, cam in enumerate(problem.cameras):
-        mask = cam_of_obs == k
-        if not mask.any():
+        mask = slice(None) if single else cam_of_obs == k
+        if not single and not mask.any():
             continue
         if cam.ap.n_params:
-            bx, by = cam.ap.basis(xy[mask, 0], xy[mask, 1])
             a = state.cameras[k][3:]
-            delta[mask, 0] = cam.pixel_size_mm * (bx @ a)
-            delta[mask, 1] = cam.pixel_size_mm * (by @ a)
+            free = cam.free[3:]
+            columns = _ap_columns(problem, k, o0, o1, mask)
+            delta[mask] = (columns @ a[free]) * problem.obs_sigma_mm[o0:o1][mask, None]
+            if np.any(a[~free] != 0):          # APs held at a non-zero value
+                xy = problem.obs_xy_mm[o0:o1][mask]
+                bx, by = cam.ap.basis(xy[:, 0], xy[:, 1])
+                held = np.where(free, 0.0, a)
+                delta[mask] += cam.pixel_size_mm * np.stack([bx @ held, by @ held], axis=1)
         else:
-            bx = by = np.zeros((int(mask.sum()), 0))
-        cam_cols.append((k, mask, bx, by))
+            columns = np.zeros((m if single else int(mask.sum()), 2, 0))
+        cam_cols.append((k, mask, columns))
     return delta, cam_cols
 
 
@@ -212,15 +242,20 @@ def chunk_rows(problem: Problem, state: State, cs, rotation=None, iop_all=None):
     r = (problem.obs_xy_mm[o0:o1] - xy - delta) * w[:, None]
     j_e *= w[:, None, None]
     j_p *= w[:, None, None]
+    if len(problem.cameras) == 1 and problem.cameras[0].free[:3].all():
+        # one camera with its interior orientation free: the common case, assembled in one pass
+        j_d = np.concatenate([j_i * w[:, None, None], cam_cols[0][2]], axis=2)
+        return r, j_e, j_p, j_d
     j_d = np.zeros((m, 2, n_d))
-    for k, mask, bx, by in cam_cols:
+    for k, mask, columns in cam_cols:
         cam = problem.cameras[k]
-        n_free = int(cam.free.sum())
-        if n_free == 0:
-            continue
-        full = np.concatenate([j_i[mask], cam.pixel_size_mm * np.stack([bx, by], axis=1)], axis=2)
         start = problem.d_offset[k] - n_e
-        j_d[mask, :, start:start + n_free] = full[:, :, cam.free] * w[mask, None, None]
+        iop_free = cam.free[:3]
+        n_iop = int(iop_free.sum())
+        if n_iop:
+            j_d[mask, :, start:start + n_iop] = j_i[mask][:, :, iop_free] * w[mask, None, None]
+        if columns.shape[2]:
+            j_d[mask, :, start + n_iop:start + n_iop + columns.shape[2]] = columns
     return r, j_e, j_p, j_d
 
 

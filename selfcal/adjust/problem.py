@@ -98,6 +98,7 @@ class Problem:
     d_offset: list[int]             # start of each camera's free parameters in theta
     _structure: object = field(default=None, repr=False)
     _ap_gram: object = field(default=None, repr=False)
+    _ap_columns: dict = field(default_factory=dict, repr=False)
 
     def d_varying(self) -> np.ndarray:
         """Columns of the camera part whose Jacobian changes between iterations.

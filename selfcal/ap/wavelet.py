@@ -218,19 +218,26 @@ class WaveletAP(APModel):
         return np.concatenate(out, axis=1)
 
     def _raw_basis(self, x_mm, y_mm, kept_only: bool = False):
+        """The raw x and y displacement columns: [B, 0] and [0, B] (only the kept functions if asked)."""
         xw, yw = self._domain(x_mm, y_mm)
         B = self._blocks(xw, yw)
-        zero = np.zeros_like(B)
-        Bx, By = np.concatenate([B, zero], axis=1), np.concatenate([zero, B], axis=1)
-        if kept_only:
-            return Bx[:, self._kept], By[:, self._kept]
+        n = B.shape[1]
+        keep_x, keep_y = (self._kept[:n], self._kept[n:]) if kept_only else (slice(None), slice(None))
+        Bx_part, By_part = B[:, keep_x], B[:, keep_y]
+        n_x = Bx_part.shape[1]
+        Bx = np.zeros((B.shape[0], n_x + By_part.shape[1]))
+        By = np.zeros_like(Bx)
+        Bx[:, :n_x] = Bx_part
+        By[:, n_x:] = By_part
         return Bx, By
 
     def basis(self, x_mm, y_mm):
         x_mm, y_mm = np.asarray(x_mm, float), np.asarray(y_mm, float)
         Bx, By = self._raw_basis(x_mm, y_mm, kept_only=True)
         Fx, Fy = _iop_fields(self.frame, x_mm, y_mm)
-        return Bx - Fx @ self._iop_projection, By - Fy @ self._iop_projection
+        Bx -= Fx @ self._iop_projection
+        By -= Fy @ self._iop_projection
+        return Bx, By
 
     def basis_derivatives(self, x_mm, y_mm):
         xw, yw = self._domain(x_mm, y_mm)
