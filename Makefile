@@ -29,6 +29,7 @@ demo: install
 
 bench: install
 	$(PY) benchmarks/bench_spine.py
+	$(PY) benchmarks/bench_stats.py
 
 clean:
 	rm -rf $(VENV) demo-results .pytest_cache

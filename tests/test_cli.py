@@ -105,3 +105,20 @@ def test_console_script_runs(selfcal_exe, tmp_path):
     assert "block folder not found" in done.stderr
     done = subprocess.run([selfcal_exe, "--help"], capture_output=True, text=True)
     assert done.returncode == 0 and "adjust" in done.stdout
+
+
+def test_adjust_with_screening_and_variance_components(simulated, tmp_path):
+    out = tmp_path / "res"
+    assert run_cli("adjust", str(simulated / "type4"), "--out", str(out), "--snoop", "0", "--screen",
+                   "--variance-components", "--quiet") == 0
+    summary = json.loads(_read(out / "summary.json"))
+    vc = summary["variance_components"]
+    assert vc["converged"] and {g["group"] for g in vc["groups"]} == {"image", "GCP", "GNSS", "IMU"}
+    image = next(g for g in vc["groups"] if g["group"] == "image")
+    assert image["sigma_apriori"] == [0.5] and image["sigma_aposteriori"][0] == pytest.approx(0.5, rel=0.02)
+    assert summary["variance_factor"] == pytest.approx(1.0, abs=0.02)
+    screening = json.loads(_read(out / "screening.json"))
+    assert screening["options"]["joint_alpha"] == 0.05
+    owners = {d["camera_id"] for d in screening["dropped"]}
+    assert owners <= {"GNSS", "IMU"} and "IMU" in owners          # no APs here; the absent IMU drifts go
+    assert screening["joint_tests"] and not screening["joint_tests"][-1]["jointly_significant"]

@@ -4,7 +4,7 @@ import pytest
 from scipy.stats import norm
 
 from selfcal.adjust import AdjustOptions, adjust
-from selfcal.stats import SnoopingOptions, adjust_with_tests, observation_tests
+from selfcal.stats import ScreeningOptions, SnoopingOptions, adjust_with_tests, observation_tests
 from selfcal.stats.reliability import noncentrality
 
 from conftest import pruned, residual_vector, simulation, unpack
@@ -114,3 +114,78 @@ def test_ce90_and_le90_match_the_normal_distribution():
     assert abs(ce90(d[:, :2]) / (sigma * np.sqrt(-2 * np.log(0.1))) - 1) < 0.01
     assert abs(le90(d[:, 2]) / (sigma * 1.6448536) - 1) < 0.01
     assert ce90(np.zeros((0, 2))) is None and le90(np.zeros(0)) is None
+
+
+def test_backward_elimination_equals_the_constrained_least_squares_solution():
+    """Dropping parameters by the sweep update gives the estimate, cofactors and Omega of solving
+    the normal equations without them (exact for a linear model)."""
+    from selfcal.stats.screening import _Elimination
+    rng = np.random.default_rng(3)
+    A = rng.normal(size=(60, 8))
+    A[:, 5] = A[:, 4] + 0.05 * rng.normal(size=60)           # a strongly correlated pair
+    y = A @ rng.normal(size=8) + rng.normal(size=60)
+    Q = np.linalg.inv(A.T @ A)
+    theta = Q @ A.T @ y
+    omega = float(np.sum((y - A @ theta) ** 2))
+    state = _Elimination(theta, Q, omega, 60 - 8)
+    for i in (5, 2):
+        state.drop(i)
+    keep = [0, 1, 3, 4, 6, 7]
+    Qk = np.linalg.inv(A[:, keep].T @ A[:, keep])
+    theta_k = Qk @ A[:, keep].T @ y
+    np.testing.assert_allclose(state.theta[keep], theta_k, rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(state.Q[np.ix_(keep, keep)], Qk, rtol=1e-10, atol=1e-14)
+    assert state.omega == pytest.approx(float(np.sum((y - A[:, keep] @ theta_k) ** 2)), rel=1e-10)
+    assert state.redundancy == 60 - 6 and state.theta[[2, 5]].tolist() == [0.0, 0.0]
+
+
+def test_screening_keeps_the_simulated_brown_terms_and_drops_the_absent_ones():
+    """The Brown-only field has k1, k2, p1, p2 and no affinity or shear (b1 = b2 = 0)."""
+    block = pruned(simulation(seed=1, distortion="brown"), "type3")
+    tested = adjust_with_tests(block, AdjustOptions(ap="brown"), None, ScreeningOptions())
+    names = tested.result.problem.cameras[0].ap.parameter_names
+    kept = {n for n, f in zip(names, tested.ap_free["ilce7m3"]) if f}
+    assert {"k1", "k2", "p1", "p2"} <= kept and not {"b1", "b2"} & kept, kept
+    dropped = {d.name for _, d in tested.screening_log}
+    assert dropped == set(names) - kept
+    for _, joint in tested.screening_rounds:                # the dropped set is jointly insignificant
+        assert not joint.jointly_significant
+
+
+def test_variance_components_recover_the_simulated_sigmas():
+    """Type 4 block declared with wrong a-priori sigmas (image x2, GNSS x0.4, IMU x3): the estimated
+    sigmas return to the simulated ones within 3.5 standard deviations of the estimator, sigma/sqrt(2 r_g)."""
+    from selfcal.stats import VarianceOptions, estimate_variance_components
+    from selfcal.stats.variance import reweighted
+    from selfcal.simulate.uav import MARK_SIGMA_XY_M
+    sim = simulation(seed=1, distortion="none", points_per_mm2=0.5)
+    block = pruned(sim, "type4")
+    truth = {"image": block.image_sigma_px, "GNSS": block.gnss_sigma_m[0], "IMU": block.imu_sigma_deg[0],
+             "GCP": MARK_SIGMA_XY_M}
+    declared = reweighted(block, {"image": 2.0, "GNSS": 0.4, "IMU": 3.0})
+    result, tests, components, converged = estimate_variance_components(declared, AdjustOptions(), VarianceOptions())
+    assert converged
+    assert {c.group for c in components} == {"image", "GCP", "GNSS", "IMU"}
+    for c in components:
+        assert c.estimated
+        tolerance = 3.5 / np.sqrt(2 * c.redundancy)
+        assert abs(c.sigma_aposteriori[0] / truth[c.group] - 1) < tolerance, (c.group, c.sigma_aposteriori, tolerance)
+    # at the fixed point every group's factor is 1, and so is the overall variance factor
+    assert result.variance_factor == pytest.approx(1.0, abs=0.02)
+    assert sum(c.redundancy for c in components) == pytest.approx(result.redundancy, rel=1e-6)
+
+
+def test_screening_of_the_trajectory_shift_and_drift_follows_the_simulated_truth():
+    """Type 4: the simulated IMU attitudes have strip shifts but no drift, the GNSS positions both."""
+    sim = simulation(seed=1, distortion="none", points_per_mm2=0.5)
+    tested = adjust_with_tests(pruned(sim, "type4"), AdjustOptions(), None, ScreeningOptions())
+    terms = {t.sensor: t for t in tested.result.problem.trajectory}
+    imu = terms["IMU"]
+    drift = np.array([" D1 " in n for n in imu.names])
+    assert np.mean(~tested.ap_free["IMU"][drift]) >= 0.75          # the absent drifts go (chance keeps ~5 %)
+    gnss = terms["GNSS"]
+    kept = dict(zip(gnss.names, tested.ap_free["GNSS"]))
+    for s, shift in enumerate(sim.truth.gnss_shift_m):
+        for axis, value in zip("XYZ", shift):
+            if abs(value) > 0.2:                                     # > 4 sigma of a strip shift
+                assert kept[f"GNSS S{s + 1} D0 {axis}"], (s, axis, value)

@@ -39,6 +39,7 @@ __all__ = [
     "evaluate_cost",
     "image_residuals",
     "chunk_rows",
+    "parameter_observation_groups",
     "parameter_observations",
 ]
 
@@ -160,6 +161,17 @@ def image_residuals(problem: Problem, state: State, o0: int = 0, o1: int | None 
         xy[is_bal] = bal.project(points[is_bal], state.eop[img[is_bal]], iop[is_bal])
     delta, _ = _camera_terms(problem, state, o0, o1, img)
     return problem.obs_xy_mm[o0:o1] - (xy + delta)
+
+
+def parameter_observation_groups(problem: Problem) -> np.ndarray:
+    """The group of each row of :func:`parameter_observations`: "camera" for a-priori interior
+    orientation, else the trajectory sensor ("GNSS", "IMU")."""
+    labels = []
+    for cam in problem.cameras:
+        labels += ["camera"] * int(np.sum(cam.free & np.isfinite(cam.prior_sigma)))
+    for t in problem.trajectory:
+        labels += [t.sensor] * (3 * len(t.index))
+    return np.array(labels, dtype=object)
 
 
 def parameter_observations(problem: Problem, state: State) -> tuple[sp.csr_matrix, np.ndarray]:

@@ -19,7 +19,7 @@ from ..adjust import AdjustOptions
 from ..ap import AP_FAMILIES, parse_ap_spec
 from ..errors import AdjustmentError
 from ..report import result_files
-from ..stats import ScreeningOptions, SnoopingOptions, adjust_with_tests
+from ..stats import ScreeningOptions, SnoopingOptions, VarianceOptions, adjust_with_tests
 
 __all__ = ["Cell", "CellSettings", "run_cell", "run_matrix", "available_models", "PAPER_MODELS", "ALL_MODELS"]
 
@@ -45,6 +45,7 @@ class CellSettings:
     imu_drift: int = 1
     snooping: SnoopingOptions | None = field(default_factory=SnoopingOptions)
     screening: ScreeningOptions | None = field(default_factory=ScreeningOptions)
+    variance: VarianceOptions | None = None
 
 
 @dataclass
@@ -62,7 +63,8 @@ def run_cell(scenario: str, block, model: str, settings: CellSettings = CellSett
     options = AdjustOptions(ap=model, grid=settings.grid, gnss_drift=settings.gnss_drift,
                             imu_drift=settings.imu_drift)
     try:
-        tested = adjust_with_tests(block, options, settings.snooping, settings.screening)
+        tested = adjust_with_tests(block, options, settings.snooping, settings.screening,
+                                   variance=settings.variance)
     except AdjustmentError as exc:
         return Cell(scenario, model, None, str(exc), time.perf_counter() - t0)
     seconds = time.perf_counter() - t0

@@ -9,8 +9,9 @@ from ..adjust import AdjustOptions
 from ..io import read_block
 from ..io.results import write_results
 from ..report import result_files
-from ..stats import ScreeningOptions, SnoopingOptions, adjust_with_tests
-from .options import ap_option, grid_option, progress_printer, round_printer, test_options, trajectory_options
+from ..stats import SnoopingOptions, VarianceOptions, adjust_with_tests
+from .options import (ap_option, grid_option, progress_printer, round_printer, screening_options, test_options,
+                      trajectory_options)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -34,11 +35,12 @@ def run(args: argparse.Namespace) -> int:
         print(f"{block.name}: {len(block.images)} images, {len(block.points)} points, "
               f"{len(block.observations)} image observations; AP model {args.ap}", file=sys.stderr)
     snooping = SnoopingOptions(critical=args.snoop, mode=args.snoop_mode)
-    screening = ScreeningOptions(args.significance, args.max_correlation) if args.screen else None
+    screening = screening_options(args) if args.screen else None
     tested = adjust_with_tests(block, AdjustOptions(ap=args.ap, grid=args.grid, gnss_drift=args.gnss_drift,
-                                             imu_drift=args.imu_drift), snooping, screening,
+                                                    imu_drift=args.imu_drift), snooping, screening,
                                progress=None if args.quiet else progress_printer(block.image_sigma_px),
-                               report=None if args.quiet else round_printer())
+                               report=None if args.quiet else round_printer(),
+                               variance=VarianceOptions() if args.variance_components else None)
     files = result_files(block, tested, {"seconds": time.perf_counter() - t0}, screening)
     write_results(args.out, files)
     s = files["summary.json"]

@@ -13,8 +13,8 @@ from ..io import read_block
 from ..io.atomic import atomic_folder
 from ..io.results import write_files
 from ..report.compare import comparison_csv, comparison_markdown, comparison_rows
-from ..stats import ScreeningOptions, SnoopingOptions
-from .options import grid_option, test_options, trajectory_options
+from ..stats import SnoopingOptions, VarianceOptions
+from .options import grid_option, screening_options, test_options, trajectory_options
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -46,7 +46,8 @@ def run(args: argparse.Namespace) -> int:
     settings = CellSettings(
         grid=args.grid, gnss_drift=args.gnss_drift, imu_drift=args.imu_drift,
         snooping=SnoopingOptions(critical=args.snoop, mode=args.snoop_mode),
-        screening=None if args.no_screen else ScreeningOptions(args.significance, args.max_correlation))
+        screening=None if args.no_screen else screening_options(args),
+        variance=VarianceOptions() if args.variance_components else None)
     total = len(blocks) * len(models)
     finished = []
 

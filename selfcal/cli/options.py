@@ -5,7 +5,7 @@ import argparse
 import sys
 
 __all__ = ["grid", "ap_option", "grid_option", "progress_printer", "test_options", "round_printer",
-           "trajectory_options", "drift_order"]
+           "trajectory_options", "drift_order", "screening_options"]
 
 
 def grid(text: str) -> tuple[int, int]:
@@ -53,6 +53,19 @@ def test_options(parser: argparse.ArgumentParser) -> None:
                         help="screening: drop an AP with |a|/sigma < T (default 1.96)")
     parser.add_argument("--max-correlation", type=float, default=0.9, metavar="R",
                         help="screening: drop the less significant AP of a pair with |rho| > R (default 0.9)")
+    parser.add_argument("--joint-alpha", type=float, default=0.05, metavar="A",
+                        help="screening: the APs dropped in a round must pass their joint F-test at level A "
+                             "(default 0.05; 0 switches the guard off)")
+    parser.add_argument("--variance-components", action="store_true",
+                        help="estimate a variance factor per observation group (image, GCP, GNSS, IMU) and "
+                             "report the a-posteriori sigmas next to the a-priori ones")
+
+
+def screening_options(args: argparse.Namespace):
+    """ScreeningOptions from the command line (the thresholds apply wherever screening is on)."""
+    from ..stats import ScreeningOptions
+    return ScreeningOptions(args.significance, args.max_correlation,
+                            joint_alpha=args.joint_alpha if args.joint_alpha > 0 else None)
 
 
 def round_printer():

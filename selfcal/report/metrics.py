@@ -98,6 +98,9 @@ def summary(tested, extra: dict | None = None) -> dict:
         "snooping": {"critical": tested.tests.critical, "delta0": tested.tests.delta0,
                      "rounds": [vars(r) for r in tested.rounds]},
         "max_abs_corr": max_abs_correlation_by_group(result.problem, result.Q_theta),
+        "variance_components": None if tested.variance_components is None else {
+            "converged": tested.variance_converged,
+            "groups": [c.as_dict() for c in tested.variance_components]},
         "dropped": block.dropped.as_dict(),
         "warnings": list(block.dropped.messages),
         "notes": list(result.notes),
@@ -225,6 +228,9 @@ def screening_json(tested, options=None) -> dict:
         "n_ap_significant": int(tested.n_ap_significant),
         "dropped": [{"round": k, "camera_id": d.camera_id, "name": d.name, "t": d.t, "reason": d.reason}
                     for k, d in tested.screening_log],
+        "joint_tests": [{"round": k, "n_dropped": j.n_dropped, "f_statistic": j.f_statistic,
+                         "f_critical": j.f_critical, "jointly_significant": j.jointly_significant}
+                        for k, j in tested.screening_rounds],
     }
 
 

@@ -16,8 +16,9 @@ import numpy as np
 from ..adjust import AdjustmentResult, AdjustOptions, adjust
 from ..block import Block, prune
 from .reliability import ObservationTests, observation_tests
-from .screening import ScreeningDecision, ScreeningOptions, screen_once
+from .screening import ScreeningDecision, ScreeningOptions, ScreeningRound, screen_once
 from .snooping import SnoopingOptions, SnoopingRound, image_w, reject_candidates
+from .variance import VarianceComponent, VarianceOptions, estimate_variance_components
 
 __all__ = ["TestedAdjustment", "adjust_with_tests"]
 
@@ -32,6 +33,9 @@ class TestedAdjustment:
     n_ap_initial: int
     rounds: list[SnoopingRound] = field(default_factory=list)
     screening_log: list[tuple[int, ScreeningDecision]] = field(default_factory=list)
+    screening_rounds: list[tuple[int, ScreeningRound]] = field(default_factory=list)
+    variance_components: list[VarianceComponent] | None = None
+    variance_converged: bool | None = None
 
     @property
     def n_ap_significant(self) -> int:
@@ -43,11 +47,15 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
                       snooping: SnoopingOptions | None = SnoopingOptions(),
                       screening: ScreeningOptions | None = None,
                       progress: Callable | None = None,
-                      report: Callable[[SnoopingRound], None] | None = None) -> TestedAdjustment:
+                      report: Callable[[SnoopingRound], None] | None = None,
+                      variance: VarianceOptions | None = None) -> TestedAdjustment:
     """Adjust ``block`` (pruned, as read) with data snooping and AP screening.
 
     ``snooping=None`` (or a critical value of 0) disables snooping;
-    ``screening=None`` disables screening.
+    ``screening=None`` disables screening. With ``variance``, a variance
+    component per observation group is estimated at the end, on the block that
+    the tests left (:mod:`.variance`); the returned adjustment and tests are
+    then those of the reweighted block.
     """
     snoop_on = snooping is not None and snooping.critical > 0
     critical = snooping.critical if snoop_on else 3.0
@@ -62,15 +70,18 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
     rejected_w = np.zeros(0)
     rounds: list[SnoopingRound] = []
     log: list[tuple[int, ScreeningDecision]] = []
+    joint_tests: list[tuple[int, ScreeningRound]] = []
     max_rounds = max(snooping.max_rounds if snoop_on else 0, screening.max_rounds if screening else 0)
     for k in range(1, max_rounds + 1):
         dropped = 0
         if screening is not None and screenable:
-            new_free, decisions = screen_once(result, screening)
+            before = joint_tests[-1][1] if joint_tests else None
+            new_free, decisions, joint = screen_once(result, screening, before)
             if decisions:
                 free = new_free
                 dropped = len(decisions)
                 log += [(k, d) for d in decisions]
+                joint_tests.append((k, joint))
         picks = np.zeros(0, np.int64)
         largest = 0.0
         if snoop_on:
@@ -89,5 +100,11 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
         sub = prune(replace(block, observations=block.observations.take(np.flatnonzero(keep))))
         result = adjust(sub, options, progress=progress, start=result, free=free, ap_models=models)
         tests = observation_tests(result, critical)
+    components = converged = None
+    if variance is not None:
+        result, tests, components, converged = estimate_variance_components(
+            result.block, options, variance, start=result, free=free, ap_models=models, critical=critical,
+            progress=progress)
     order = np.argsort(rejected)
-    return TestedAdjustment(result, tests, rejected[order], rejected_w[order], free, n_ap_initial, rounds, log)
+    return TestedAdjustment(result, tests, rejected[order], rejected_w[order], free, n_ap_initial, rounds, log,
+                            joint_tests, components, converged)
