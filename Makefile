@@ -22,7 +22,8 @@ browser:
 	  $$SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq chromium >/dev/null; }
 
 test: install browser
-	$(PY) -m pytest -q -n 2 --durations=15
+	# one BLAS thread per test worker: two workers on two cores, not four threads fighting
+	OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 MKL_NUM_THREADS=1 $(PY) -m pytest -q -n 2 --durations=15
 
 demo: install
 	$(VENV)/bin/selfcal demo --out demo-results

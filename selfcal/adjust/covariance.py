@@ -21,12 +21,21 @@ from .kernels import point_cofactor_pairs
 __all__ = ["point_cofactors"]
 
 
+def _by_point_and_image(Z_e: np.ndarray, img: np.ndarray, ptl: np.ndarray, n_pc: int, n_img: int) -> sp.csr_matrix:
+    """Sparse (3 n_pc, 6 n_img) matrix holding Z_e[o]^T at (point of o, image of o), summed."""
+    m = len(img)
+    rows = (3 * ptl[:, None, None] + np.arange(3)[None, :, None]).repeat(6, axis=2)      # (m, 3, 6)
+    cols = (6 * img[:, None, None] + np.arange(6)[None, None, :]).repeat(3, axis=1)
+    vals = Z_e.transpose(0, 2, 1)                                                        # (m, 3, 6)
+    return sp.csr_matrix((vals.ravel(), (rows.ravel(), cols.ravel())), shape=(3 * n_pc, 6 * n_img))
+
+
 def point_cofactors(problem: Problem, lin: Linearisation, v_inv: list, Q: np.ndarray) -> np.ndarray:
     """Cofactor blocks Q_pp of all points, shape (n_points, 3, 3)."""
     n_img, n_e, n_d = problem.n_images, problem.n_e, problem.n_d
     Q_e = np.ascontiguousarray(Q[:n_e, :n_e])
-    Q_ed = Q[:n_e, n_e:n_e + n_d].reshape(n_img, 6, n_d)
     Q_dd = Q[n_e:n_e + n_d, n_e:n_e + n_d]
+    Q_ed_2d = np.ascontiguousarray(Q[:n_e, n_e:n_e + n_d])
     out = np.zeros((problem.n_points, 3, 3))
     for ch, cs, Vi in zip(lin.chunks, problem.structure().chunks, v_inv):
         n_pc = ch.p1 - ch.p0
@@ -38,11 +47,13 @@ def point_cofactors(problem: Problem, lin: Linearisation, v_inv: list, Q: np.nda
         if n_d:
             Z_d = np.einsum("dpk,pkl->dpl", ch.W_d.reshape(n_d, n_pc, 3), Vi)   # (n_d, n_pc, 3)
             QZ = (Q_dd @ Z_d.reshape(n_d, 3 * n_pc)).reshape(n_d, n_pc, 3)
-            Qp += np.einsum("dpi,dpj->pij", Z_d, QZ)
-            A = Z_e.transpose(0, 2, 1) @ Q_ed[img]                         # (m, 3, n_d)
-            cross = A @ Z_d[:, ptl, :].transpose(1, 0, 2)
-            by_obs = sp.csr_matrix((np.ones(m), (ptl, np.arange(m))), shape=(n_pc, m))
-            cross = (by_obs @ cross.reshape(m, 9)).reshape(n_pc, 3, 3)
-            Qp += cross + cross.transpose(0, 2, 1)
+            # per point: sum over its observations of Z_e^T Q_ed(image), as one sparse product
+            A = (_by_point_and_image(Z_e, img, ptl, n_pc, n_img) @ Q_ed_2d).reshape(n_pc, 3, n_d)
+            for i in range(3):
+                for j in range(3):
+                    Qp[:, i, j] += np.einsum("dp,dp->p", Z_d[:, :, i], QZ[:, :, j])
+                    cross = np.einsum("pd,dp->p", A[:, i, :], Z_d[:, :, j])
+                    Qp[:, i, j] += cross
+                    Qp[:, j, i] += cross
         out[ch.p0:ch.p1] = 0.5 * (Qp + Qp.transpose(0, 2, 1))
     return out

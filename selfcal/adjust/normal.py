@@ -150,6 +150,12 @@ def _project_rows(problem: Problem, state: State, points: np.ndarray, img: np.nd
 
 def image_residuals(problem: Problem, state: State, o0: int = 0, o1: int | None = None) -> np.ndarray:
     """Residuals l - f (mm, photo axes) of image observations o0:o1 (sorted order), shape (m, 2)."""
+    if o0 == 0 and o1 is None and len(problem.chunks) > 1:
+        # chunk by chunk: the AP columns are kept per assembly chunk
+        out = np.empty((problem.n_image_observations, 2))
+        for cs in problem.structure().chunks:
+            out[cs.o0:cs.o1] = image_residuals(problem, state, cs.o0, cs.o1)
+        return out
     o1 = problem.n_image_observations if o1 is None else o1
     img = problem.obs_image[o0:o1]
     iop = np.array([c[:3] for c in state.cameras])[problem.image_camera[img]]

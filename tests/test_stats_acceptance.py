@@ -1,0 +1,64 @@
+"""Issue 4 acceptance: snooping and screening with a wavelet AP model on the 28-image Type 3 block.
+
+sym4 on the 9x6 grid (257 WAPs), 0.5 px noise, the check-point RMSD against
+the marks' reference coordinates (the way a surveyor measures it).
+"""
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from selfcal.adjust import AdjustOptions, adjust
+from selfcal.block import prune
+from selfcal.stats import ScreeningOptions, SnoopingOptions, adjust_with_tests
+
+from conftest import pruned, simulation
+
+WAP = AdjustOptions(ap="wavelet:sym4")
+
+
+def chk_rmsd(result) -> np.ndarray:
+    pts = result.block.points
+    chk = pts.role == "chk"
+    d = result.state.points[chk] - pts.xyz_m[chk]
+    return np.array([np.sqrt(np.mean(np.sum(d[:, :2] ** 2, axis=1))), np.sqrt(np.mean(d[:, 2] ** 2))])
+
+
+def test_snooping_with_waps_finds_the_blunders():
+    """0.3 % blunders of 4-15 px on the local+Brown field: recall >= 95 %, false rejections <= 1 %,
+    and the check-point RMSD within 10 % of the run on the same block without the blunders."""
+    sim = simulation(seed=1, distortion="local+brown", blunder_rate=0.003)
+    block = pruned(sim, "type3")
+    tests = (SnoopingOptions(3.0), ScreeningOptions())
+    tested = adjust_with_tests(block, WAP, *tests)
+    used = set(tested.result.block.observations.row.tolist())
+    blunders = set(sim.truth.blunder_obs.tolist())
+    assert len(blunders) > 200
+    recall = len(blunders - used) / len(blunders)
+    false = len(set(block.observations.row.tolist()) - used - blunders) / len(block.observations)
+    assert recall >= 0.95 and false <= 0.01, (recall, false)
+    # the blunder-free run: the same noise, the blundered observations taken out
+    clean_obs = np.flatnonzero(~np.isin(block.observations.row, sim.truth.blunder_obs))
+    clean = prune(replace(block, observations=block.observations.take(clean_obs)))
+    reference = adjust_with_tests(clean, WAP, *tests)
+    assert np.all(chk_rmsd(tested.result) <= 1.10 * chk_rmsd(reference.result)), (
+        chk_rmsd(tested.result), chk_rmsd(reference.result))
+
+
+def test_screening_of_waps_on_the_brown_field():
+    """Brown-only field: screening removes >= 20 % of the WAPs and costs <= 5 % of check-point RMSD."""
+    block = pruned(simulation(seed=1, distortion="brown"), "type3")
+    full = adjust(block, WAP)
+    screened = adjust_with_tests(block, WAP, None, ScreeningOptions())
+    assert screened.n_ap_initial == 257
+    assert screened.n_ap_significant <= 0.80 * screened.n_ap_initial, screened.n_ap_significant
+    assert np.all(chk_rmsd(screened.result) <= 1.05 * chk_rmsd(full)), (chk_rmsd(screened.result), chk_rmsd(full))
+    assert screened.result.converged
+    # the translation ranges shrink with the screening (Table 3 of seed 000)
+    model = screened.result.problem.cameras[0].ap
+    before = model.active_ranges(np.ones(model.n_params, bool))
+    after = model.active_ranges(screened.ap_free["ilce7m3"])
+    assert after[0] >= before[0] and after[1] <= before[1] and after[2] >= before[2] and after[3] <= before[3]
+    assert not any(joint.jointly_significant for _, joint in screened.screening_rounds)
+    log_names = {d.name for _, d in screened.screening_log}
+    assert len(log_names) == screened.n_ap_initial - screened.n_ap_significant
