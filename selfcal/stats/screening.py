@@ -185,7 +185,6 @@ def screen_once(result, options: ScreeningOptions, before: ScreeningRound | None
 
     n_before = before.n_dropped if before else 0
     increase_before = before.increase if before else 0.0
-    n_dropped = 0
     protected: set[tuple[int, int]] = set()          # correlated pairs whose weaker member is needed
     alpha = options.joint_alpha if options.joint_alpha is not None else 0.05
 
@@ -196,7 +195,7 @@ def screen_once(result, options: ScreeningOptions, before: ScreeningRound | None
         """Would the dropped set, with ``index``, still pass its joint F-test?"""
         if options.joint_alpha is None:
             return True
-        k = n_before + n_dropped + 1
+        k = n_before + len(decisions) + 1
         chi2 = increase(state.theta[index] ** 2 / state.Q[index, index])
         return chi2 / k <= f_distribution.ppf(1 - alpha, k, result.redundancy)
 
@@ -205,7 +204,6 @@ def screen_once(result, options: ScreeningOptions, before: ScreeningRound | None
         k = int(np.argmin(t))
         if t[k] < options.significance and jointly_insignificant(int(active[k])):
             drop(int(active[k]), float(t[k]), f"insignificant (t = {t[k]:.2f} < {options.significance:g})")
-            n_dropped += 1
             continue
         pick = _most_correlated(state.Q, active[is_ap[active]], orientation, options.max_correlation, protected)
         if pick is None:
@@ -221,10 +219,9 @@ def screen_once(result, options: ScreeningOptions, before: ScreeningRound | None
             continue
         why = ", less significant" if is_ap[other] else ""
         drop(weaker, float(t_w), f"correlated with {result.theta_names[stronger]} (|rho| = {rho:.3f}){why}")
-        n_dropped += 1
     if not decisions:
         return free, [], None
-    n = n_before + n_dropped
+    n = n_before + len(decisions)
     joint = ScreeningRound(n, float(increase()), float(f_distribution.ppf(1 - alpha, n, result.redundancy)))
     return free, decisions, joint
 
