@@ -46,9 +46,10 @@ usually 3). The construction depends only on
 the frame, the wavelet, the grid and the ranges, so it is recreated exactly
 when a model is reloaded. The correction field keeps every local shape of
 the wavelets and c, x0, y0 stay estimable. The parameter correlations are
-not small before screening (max |rho| IOP-WAP up to 0.998 on the simulated
-Type 3 block, driven by edge translations); Table 4 of seed 000 (< 0.01)
-matches what remains after screening.
+not small (max |rho| IOP-WAP up to 0.998 on the simulated Type 3 block,
+driven by edge translations) and screening keeps many of them: significant
+correlated WAPs are not dropped (see selfcal.stats.screening), so the small
+values of Table 4 of seed 000 are not reproduced.
 """
 from __future__ import annotations
 
