@@ -10,11 +10,12 @@ from selfcal.stats.reliability import noncentrality
 from conftest import pruned, residual_vector, simulation, unpack
 
 
-@pytest.fixture(scope="module")
-def small_result():
-    sim = simulation(seed=5, distortion="none", points_per_mm2=0.04)
+@pytest.fixture(scope="module", params=["none", "brown"])
+def small_result(request):
+    """A small Type 2 block (GNSS/IMU observed), without and with APs (camera columns of the leverage)."""
+    sim = simulation(seed=5, distortion="brown", points_per_mm2=0.04)
     block = pruned(sim, "type2")
-    return adjust(block, AdjustOptions(gnss_drift=1, imu_drift=0))
+    return adjust(block, AdjustOptions(ap=request.param, gnss_drift=1, imu_drift=0))
 
 
 def test_redundancy_numbers_equal_dense_reference(small_result):

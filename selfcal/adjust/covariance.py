@@ -18,10 +18,10 @@ from .normal import Linearisation
 from .problem import Problem
 from .kernels import point_cofactor_pairs
 
-__all__ = ["point_cofactors"]
+__all__ = ["point_cofactors", "by_point_and_image"]
 
 
-def _by_point_and_image(Z_e: np.ndarray, img: np.ndarray, ptl: np.ndarray, n_pc: int, n_img: int) -> sp.csr_matrix:
+def by_point_and_image(Z_e: np.ndarray, img: np.ndarray, ptl: np.ndarray, n_pc: int, n_img: int) -> sp.csr_matrix:
     """Sparse (3 n_pc, 6 n_img) matrix holding Z_e[o]^T at (point of o, image of o), summed."""
     m = len(img)
     rows = (3 * ptl[:, None, None] + np.arange(3)[None, :, None]).repeat(6, axis=2)      # (m, 3, 6)
@@ -48,7 +48,7 @@ def point_cofactors(problem: Problem, lin: Linearisation, v_inv: list, Q: np.nda
             Z_d = np.einsum("dpk,pkl->dpl", ch.W_d.reshape(n_d, n_pc, 3), Vi)   # (n_d, n_pc, 3)
             QZ = (Q_dd @ Z_d.reshape(n_d, 3 * n_pc)).reshape(n_d, n_pc, 3)
             # per point: sum over its observations of Z_e^T Q_ed(image), as one sparse product
-            A = (_by_point_and_image(Z_e, img, ptl, n_pc, n_img) @ Q_ed_2d).reshape(n_pc, 3, n_d)
+            A = (by_point_and_image(Z_e, img, ptl, n_pc, n_img) @ Q_ed_2d).reshape(n_pc, 3, n_d)
             for i in range(3):
                 for j in range(3):
                     Qp[:, i, j] += np.einsum("dp,dp->p", Z_d[:, :, i], QZ[:, :, j])

@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["accumulate_observations", "schur_image_blocks", "point_cofactor_pairs", "leverage_pairs"]
+__all__ = ["accumulate_observations", "schur_image_blocks", "point_cofactor_pairs", "leverage_pairs", "rows_times_blocks"]
 
 
 @njit(cache=True, nogil=True)
@@ -151,3 +151,21 @@ def leverage_pairs(Z_e, img, pair_a, pair_b, Q_e, G):
                     s2 += Q_e[bb + a, ba + b] * Z_e[oa, b, j]
                 G[oa, a, j] += s1
                 G[ob, a, j] += s2
+
+
+@njit(cache=True, nogil=True)
+def rows_times_blocks(X, index, M):
+    """out[o] = X[o] @ M[index[o]] for X (m, a, b) and M (n, b, c): the NumPy ``X @ M[index]``
+    without materialising M[index] (which is large when b is the number of camera parameters)."""
+    m, na, nb = X.shape
+    nc = M.shape[2]
+    out = np.zeros((m, na, nc))
+    for o in range(m):
+        Mo = M[index[o]]
+        for a in range(na):
+            for b in range(nb):
+                x = X[o, a, b]
+                if x != 0.0:
+                    for c in range(nc):
+                        out[o, a, c] += x * Mo[b, c]
+    return out

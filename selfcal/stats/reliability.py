@@ -32,7 +32,8 @@ import numpy as np
 from scipy.stats import norm
 
 from ..adjust.normal import chunk_rows, parameter_observations
-from ..adjust.kernels import leverage_pairs
+from ..adjust.covariance import by_point_and_image
+from ..adjust.kernels import leverage_pairs, rows_times_blocks
 from ..geometry.rotation import matrix_from_opk_with_derivatives
 
 __all__ = ["ObservationTests", "observation_tests", "noncentrality"]
@@ -76,8 +77,9 @@ def _image_leverage(problem, state, lin, v_inv, Q, Q_points):
     n_img, n_e, n_d = problem.n_images, problem.n_e, problem.n_d
     Q_ee = Q[:n_e, :n_e].reshape(n_img, 6, n_img, 6)
     Q_e = np.ascontiguousarray(Q[:n_e, :n_e])
-    Q_ed = Q[:n_e, n_e:n_e + n_d].reshape(n_img, 6, n_d)
     Q_dd = Q[n_e:n_e + n_d, n_e:n_e + n_d]
+    Q_ed_2d = np.ascontiguousarray(Q[:n_e, n_e:n_e + n_d])
+    Q_ed = Q_ed_2d.reshape(n_img, 6, n_d)
     rotation = matrix_from_opk_with_derivatives(state.eop[:, 3:])
     iop_all = np.array([c[:3] for c in state.cameras])
     h_all = np.zeros((problem.n_image_observations, 2))
@@ -95,13 +97,13 @@ def _image_leverage(problem, state, lin, v_inv, Q, Q_points):
         jp_term = j_e @ G                                                   # (m, 2, 3), completed below
         if n_d:
             Z_d = np.einsum("dpk,pkl->dpl", ch.W_d.reshape(n_d, n_pc, 3), Vi)   # (n_d, n_pc, 3)
-            G += Q_ed[img] @ Z_d[:, ptl, :].transpose(1, 0, 2)
-            jp_term = j_e @ G
-            H = (Q_dd @ Z_d.reshape(n_d, 3 * n_pc)).reshape(n_d, n_pc, 3).transpose(1, 0, 2)  # (n_pc, n_d, 3)
-            HB = Q_ed[img].transpose(0, 2, 1) @ Z_e                          # (m, n_d, 3)
-            H = H + (cs.sum_by_point @ HB.reshape(m, -1)).reshape(n_pc, n_d, 3)
-            jp_term = jp_term + j_d @ H[ptl]
-            je_Qed = j_e @ Q_ed[img]                                         # (m, 2, n_d)
+            je_Qed = rows_times_blocks(j_e, img, Q_ed)                          # (m, 2, n_d) = j_e Q_ed(image)
+            jp_term += rows_times_blocks(je_Qed, ptl, np.ascontiguousarray(Z_d.transpose(1, 0, 2)))
+            # H_p = Q_dd Z_d(p) + sum over the point's observations of Q_ed(image)^T Z_e
+            H = (Q_dd @ Z_d.reshape(n_d, 3 * n_pc)).reshape(n_d, n_pc, 3).transpose(1, 0, 2)
+            A = (by_point_and_image(Z_e, img, ptl, n_pc, n_img) @ Q_ed_2d).reshape(n_pc, 3, n_d)
+            H = np.ascontiguousarray(H + A.transpose(0, 2, 1))                  # (n_pc, n_d, 3)
+            jp_term += rows_times_blocks(j_d, ptl, H)
             h += 2.0 * np.einsum("okd,okd->ok", je_Qed, j_d)
             jd2 = j_d.reshape(2 * m, n_d)
             h += np.einsum("rd,rd->r", jd2 @ Q_dd, jd2).reshape(m, 2)
