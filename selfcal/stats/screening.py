@@ -185,7 +185,6 @@ def screen_once(result, options: ScreeningOptions, before: ScreeningRound | None
 
     n_before = before.n_dropped if before else 0
     increase_before = before.increase if before else 0.0
-    protected: set[tuple[int, int]] = set()          # correlated pairs whose weaker member is needed
     alpha = options.joint_alpha if options.joint_alpha is not None else 0.05
 
     def increase(extra: float = 0.0) -> float:
@@ -205,7 +204,14 @@ def screen_once(result, options: ScreeningOptions, before: ScreeningRound | None
         if t[k] < options.significance and jointly_insignificant(int(active[k])):
             drop(int(active[k]), float(t[k]), f"insignificant (t = {t[k]:.2f} < {options.significance:g})")
             continue
-        pick = _most_correlated(state.Q, active[is_ap[active]], orientation, options.max_correlation, protected)
+        ap = active[is_ap[active]]
+        if options.joint_alpha is None:
+            droppable = np.ones(ap.size, bool)
+        else:
+            k = n_before + len(decisions) + 1
+            chi2 = increase() + state.theta[ap] ** 2 / np.diag(state.Q)[ap] / vf0
+            droppable = chi2 / k <= f_distribution.ppf(1 - alpha, k, result.redundancy)
+        pick = _most_correlated(state.Q, ap, orientation, options.max_correlation, state.t(ap), droppable)
         if pick is None:
             break
         a, other, rho = pick
@@ -214,9 +220,6 @@ def screen_once(result, options: ScreeningOptions, before: ScreeningRound | None
             weaker, stronger, t_w = (a, other, t_a) if t_a <= t_o else (other, a, t_o)
         else:
             weaker, stronger, t_w = a, other, float(state.t(np.array([a]))[0])
-        if not jointly_insignificant(weaker):
-            protected.add((a, other))
-            continue
         why = ", less significant" if is_ap[other] else ""
         drop(weaker, float(t_w), f"correlated with {result.theta_names[stronger]} (|rho| = {rho:.3f}){why}")
     if not decisions:
@@ -227,25 +230,20 @@ def screen_once(result, options: ScreeningOptions, before: ScreeningRound | None
 
 
 def _most_correlated(Q: np.ndarray, ap: np.ndarray, orientation: np.ndarray, threshold: float,
-                     protected: set[tuple[int, int]]):
-    """(AP index, other index, |rho|) of the largest |rho| of an AP above ``threshold``, or None.
-
-    Pairs in ``protected`` are passed over.
-    """
+                     t: np.ndarray, droppable: np.ndarray):
+    """(AP index, other index, |rho|) of the largest |rho| above ``threshold`` among the pairs whose
+    member to drop (the AP against orientation, the less significant of two APs) may be dropped; None
+    when there is none. ``t`` and ``droppable`` are over ``ap``."""
     if ap.size == 0:
         return None
     d = np.sqrt(np.diag(Q))
     others = np.concatenate([ap, orientation])
     rho = np.abs(Q[np.ix_(ap, others)]) / d[ap][:, None] / d[others][None, :]
     rho[np.arange(ap.size), np.arange(ap.size)] = 0.0
-    if protected:
-        position = {int(v): j for j, v in enumerate(others)}
-        row = {int(v): j for j, v in enumerate(ap)}
-        for a, o in protected:
-            if a in row and o in position:
-                rho[row[a], position[o]] = 0.0
-            if o in row and a in position:
-                rho[row[o], position[a]] = 0.0
+    pair = rho[:, :ap.size]
+    weaker_row = t[:, None] <= t[None, :]
+    pair[~np.where(weaker_row, droppable[:, None], droppable[None, :])] = 0.0
+    rho[~droppable, ap.size:] = 0.0
     r, c = np.unravel_index(int(np.argmax(rho)), rho.shape)
     if rho[r, c] <= threshold:
         return None
