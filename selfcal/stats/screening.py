@@ -185,33 +185,27 @@ def screen_once(result, options: ScreeningOptions, before: ScreeningRound | None
 
     n_before = before.n_dropped if before else 0
     increase_before = before.increase if before else 0.0
-    alpha = options.joint_alpha if options.joint_alpha is not None else 0.05
+    alpha = options.joint_alpha if options.joint_alpha is not None else 0.05   # for the report when unguarded
 
-    def increase(extra: float = 0.0) -> float:
-        return increase_before + (state.omega - state.omega0 + extra) / vf0
+    def increase() -> float:
+        return increase_before + (state.omega - state.omega0) / vf0
 
-    def jointly_insignificant(index: int) -> bool:
-        """Would the dropped set, with ``index``, still pass its joint F-test?"""
+    def jointly_insignificant(index: np.ndarray) -> np.ndarray:
+        """Per candidate: would the dropped set, with it added, still pass its joint F-test?"""
         if options.joint_alpha is None:
-            return True
+            return np.ones(index.size, bool)
         k = n_before + len(decisions) + 1
-        chi2 = increase(state.theta[index] ** 2 / state.Q[index, index])
+        chi2 = increase() + state.theta[index] ** 2 / np.diag(state.Q)[index] / vf0
         return chi2 / k <= f_distribution.ppf(1 - alpha, k, result.redundancy)
 
     while active.size:
         t = state.t(active)
         k = int(np.argmin(t))
-        if t[k] < options.significance and jointly_insignificant(int(active[k])):
+        if t[k] < options.significance and jointly_insignificant(active[k:k + 1])[0]:
             drop(int(active[k]), float(t[k]), f"insignificant (t = {t[k]:.2f} < {options.significance:g})")
             continue
         ap = active[is_ap[active]]
-        if options.joint_alpha is None:
-            droppable = np.ones(ap.size, bool)
-        else:
-            k = n_before + len(decisions) + 1
-            chi2 = increase() + state.theta[ap] ** 2 / np.diag(state.Q)[ap] / vf0
-            droppable = chi2 / k <= f_distribution.ppf(1 - alpha, k, result.redundancy)
-        pick = _most_correlated(state.Q, ap, orientation, options.max_correlation, state.t(ap), droppable)
+        pick = _most_correlated(state.Q, ap, orientation, options.max_correlation, state.t(ap), jointly_insignificant(ap))
         if pick is None:
             break
         a, other, rho = pick

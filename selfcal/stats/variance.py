@@ -129,11 +129,11 @@ def estimate_variance_components(block: Block, options: AdjustOptions, vce: Vari
     tests = observation_tests(result, critical)
     scale: dict[str, float] = {}
     converged = False
-    for _ in range(vce.max_iterations + 1):
+    for iteration in range(vce.max_iterations + 1):
         groups = group_redundancy(result, tests)
         factors = {g: omega / r for g, (_, omega, r) in groups.items() if r >= vce.min_redundancy}
         converged = all(abs(f - 1.0) <= vce.tolerance for f in factors.values())
-        if converged or _ == vce.max_iterations:
+        if converged or iteration == vce.max_iterations:
             break
         for g, f in factors.items():
             scale[g] = scale.get(g, 1.0) * float(np.sqrt(f))
