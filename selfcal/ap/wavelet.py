@@ -26,14 +26,20 @@ least ``MIN_OBSERVATIONS`` observations fall where |phi(t + k)| is above that
 threshold (the "adaptive" ranges of Table 3). The ranges form a rectangle.
 Coefficients are in pixels, the basis is dimensionless (selfcal.ap.base).
 
-Interior orientation (ours; the paper does not say how it separates them):
-the integer translates of a scaling function are a partition of unity and
-reproduce linear functions (Strang-Fix), so the raw WAP field contains the
-image-space effect of the principal point (a constant shift) and of the
-principal distance (the field (x, y) · dc / c); estimating c, x0, y0 together
-with the raw basis is singular. Each basis function (Bx_i, By_i) is therefore
-made orthogonal, in the L2 inner product over the frame, to the three
-interior-orientation fields (1, 0), (0, 1) and (x, y):
+Interior orientation and attitude (ours; the paper does not say how it
+separates them): the integer translates of a scaling function are a
+partition of unity and reproduce polynomials (Strang-Fix; degree 3 for db4,
+sym4 and bl4), so the raw WAP field contains the image-space effect of the
+principal point (a constant shift), of the principal distance (the field
+(x, y) · dc / c) and of a rotation of the camera that is the same in every
+image: kappa turns the image, (y, -x), and omega and phi add the projective
+fields (x y, y^2) and (x^2, x y) to a shift. Estimating c, x0, y0 together
+with the raw basis is singular, and the exterior orientations of all images
+together with it nearly so: with ground control only, a camera-fixed phi of
+0.6 degrees traded against the WAPs at 7 sigma of the final estimate and
+Gauss-Newton needed 30-50 iterations to follow that valley. Each basis
+function (Bx_i, By_i) is therefore made orthogonal, in the L2 inner product
+over the frame, to these six fields F:
 
     B'_i = B_i - F (F^T F)^-1 F^T B_i,
 
@@ -42,10 +48,13 @@ translations cover the frame, the raw span contains those fields (exactly or
 to a fraction of a percent at the edges) and as many orthogonalised functions
 become (near) combinations of the others; the last pivots of a pivoted QR of
 the sampled basis are left out (``n_dependent`` in :meth:`WaveletAP.to_dict`,
-usually 3). The construction depends only on
-the frame, the wavelet, the grid and the ranges, so it is recreated exactly
-when a model is reloaded. The correction field keeps every local shape of
-the wavelets and c, x0, y0 stay estimable. The parameter correlations are
+usually 6). The construction depends only on the frame, the wavelet, the grid
+and the ranges, so it is recreated exactly when a model is reloaded. The
+correction field keeps every local shape of the wavelets, c, x0, y0 stay
+estimable and the attitudes are fixed by the block, not by the APs. What the
+WAPs no longer carry is a field that a common tilt of the camera produces
+(e.g. the projective part of decentring distortion): the attitudes take it,
+which leaves the object points unchanged. The parameter correlations are
 not small (max |rho| IOP-WAP up to 0.998 on the simulated Type 3 block,
 driven by edge translations) and screening keeps many of them: significant
 correlated WAPs are not dropped (see selfcal.stats.screening), so the small
@@ -65,9 +74,9 @@ __all__ = ["WaveletAP", "MIN_OBSERVATIONS"]
 #: or 0.2 % of the camera's observations if that is more
 MIN_OBSERVATIONS = 20
 #: sample points per grid cell and axis of the frame integral that removes the
-#: interior-orientation fields from the basis
+#: interior-orientation and camera-rotation fields from the basis
 ORTHO_SAMPLES = 16
-#: an interior-orientation field that the raw basis reproduces to this relative
+#: a field of :func:`_camera_fields` that the raw basis reproduces to this relative
 #: RMS over the frame makes one orthogonalised function (nearly) dependent
 REPRODUCTION_TOLERANCE = 0.01
 
@@ -76,13 +85,28 @@ def _half_diagonal_mm(frame: ImageFrame) -> float:
     return 0.5 * float(np.hypot(frame.width_mm, frame.height_mm))
 
 
-def _iop_fields(frame: ImageFrame, x_mm: np.ndarray, y_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The image-space fields of x0, y0 and c (up to scale) at photo coordinates: (n, 3) each for x and y."""
-    n = len(x_mm)
+def _camera_fields(frame: ImageFrame, x_mm: np.ndarray, y_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The image-space fields (up to scale) of a change of x0, y0, c and of a camera-fixed rotation
+    (kappa, phi, omega) at photo coordinates: (n, 6) each for x and y. Scaled by the half-diagonal r
+    so that every field is of order one over the frame."""
     r = _half_diagonal_mm(frame)
-    Fx = np.column_stack([np.ones(n), np.zeros(n), x_mm / r])
-    Fy = np.column_stack([np.zeros(n), np.ones(n), y_mm / r])
+    u, v = np.asarray(x_mm, float) / r, np.asarray(y_mm, float) / r
+    one, zero = np.ones_like(u), np.zeros_like(u)
+    Fx = np.column_stack([one, zero, u, v, u * u, u * v])
+    Fy = np.column_stack([zero, one, v, -u, u * v, v * v])
     return Fx, Fy
+
+
+def _camera_field_gradients(frame: ImageFrame, x_mm: np.ndarray, y_mm: np.ndarray):
+    """d/dx and d/dy (per mm) of the fields of :func:`_camera_fields`: (dFx/dx, dFx/dy, dFy/dx, dFy/dy)."""
+    r = _half_diagonal_mm(frame)
+    u, v = np.asarray(x_mm, float) / r, np.asarray(y_mm, float) / r
+    one, zero = np.ones_like(u), np.zeros_like(u)
+    dFx_dx = np.column_stack([zero, zero, one, zero, 2 * u, v]) / r
+    dFx_dy = np.column_stack([zero, zero, zero, one, zero, u]) / r
+    dFy_dx = np.column_stack([zero, zero, zero, -one, v, zero]) / r
+    dFy_dy = np.column_stack([zero, zero, one, zero, u, 2 * v]) / r
+    return dFx_dx, dFx_dy, dFy_dx, dFy_dy
 
 
 def _independent_details(w, half: float, k_phi: np.ndarray, samples: int = 4000, tol: float = 0.05) -> np.ndarray:
@@ -154,12 +178,12 @@ class WaveletAP(APModel):
                 prefix = f"a{axis}" if part == "phi" else f"a{axis}{part}"
                 kxs, kys = uses[part]
                 names += [f"{prefix}[{kx:+d},{ky:+d}]" for ky in kys for kx in kxs]
-        self._kept, self._iop_projection = self._orthogonalise()
+        self._kept, self._field_projection = self._orthogonalise()
         self._names = [n for n, k in zip(names, self._kept) if k]
 
     def _orthogonalise(self) -> tuple[np.ndarray, np.ndarray]:
-        """Which raw basis functions are kept (bool, n), and the coefficients M (3, n_kept) of the
-        least-squares projection of each kept function on the interior-orientation fields over a
+        """Which raw basis functions are kept (bool, n), and the coefficients M (6, n_kept) of the
+        least-squares projection of each kept function on the camera fields over a
         dense midpoint sample of the frame. Functions are left out when the orthogonalised basis
         is (nearly) dependent with them."""
         gx, gy = self.grid
@@ -168,10 +192,10 @@ class WaveletAP(APModel):
         y = (np.arange(ny) + 0.5) / ny * self.frame.height_mm - 0.5 * self.frame.height_mm
         xs, ys = (a.ravel() for a in np.meshgrid(x, y))
         Bx, By = self._raw_basis(xs, ys)
-        Fx, Fy = _iop_fields(self.frame, xs, ys)
+        Fx, Fy = _camera_fields(self.frame, xs, ys)
         B, F = np.vstack([Bx, By]), np.vstack([Fx, Fy])
         M = np.linalg.solve(F.T @ F, F.T @ B)
-        # each interior-orientation field the raw span reproduces costs one dimension
+        # each camera field the raw span reproduces costs one dimension
         fit = np.linalg.lstsq(B, F, rcond=None)[0]
         misfit = np.linalg.norm(F - B @ fit, axis=0) / np.linalg.norm(F, axis=0)
         n_dependent = int(np.sum(misfit < REPRODUCTION_TOLERANCE))
@@ -235,23 +259,24 @@ class WaveletAP(APModel):
     def basis(self, x_mm, y_mm):
         x_mm, y_mm = np.asarray(x_mm, float), np.asarray(y_mm, float)
         Bx, By = self._raw_basis(x_mm, y_mm, kept_only=True)
-        Fx, Fy = _iop_fields(self.frame, x_mm, y_mm)
-        Bx -= Fx @ self._iop_projection
-        By -= Fy @ self._iop_projection
+        Fx, Fy = _camera_fields(self.frame, x_mm, y_mm)
+        Bx -= Fx @ self._field_projection
+        By -= Fy @ self._field_projection
         return Bx, By
 
     def basis_derivatives(self, x_mm, y_mm):
+        x_mm, y_mm = np.asarray(x_mm, float), np.asarray(y_mm, float)
         xw, yw = self._domain(x_mm, y_mm)
         sx = self.grid[0] / self.frame.width_mm
         sy = self.grid[1] / self.frame.height_mm
         Bdx = sx * self._blocks(xw, yw, dx=True)
         Bdy = sy * self._blocks(xw, yw, dy=True)
         zero = np.zeros_like(Bdx)
-        # the scale field (x, y) / half-diagonal is the only interior-orientation field with a gradient
-        scale = self._iop_projection[2] / _half_diagonal_mm(self.frame)
-        kept = self._kept
-        return (np.concatenate([Bdx, zero], axis=1)[:, kept] - scale, np.concatenate([Bdy, zero], axis=1)[:, kept],
-                np.concatenate([zero, Bdx], axis=1)[:, kept], np.concatenate([zero, Bdy], axis=1)[:, kept] - scale)
+        kept, M = self._kept, self._field_projection
+        gradients = _camera_field_gradients(self.frame, x_mm, y_mm)
+        raw = (np.concatenate([Bdx, zero], axis=1), np.concatenate([Bdy, zero], axis=1),
+               np.concatenate([zero, Bdx], axis=1), np.concatenate([zero, Bdy], axis=1))
+        return tuple(part[:, kept] - grad @ M for part, grad in zip(raw, gradients))
 
     def active_ranges(self, active: np.ndarray) -> tuple[int, int, int, int] | None:
         """k ranges of the active coefficients (after screening); None if none is active."""
