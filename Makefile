@@ -3,6 +3,8 @@ PYTHON ?= python3
 VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed-stamp
+# glibc keeps freed memory instead of re-mapping (and re-zeroing) it every iteration (selfcal/batch/allocator.py)
+MALLOC := MALLOC_MMAP_THRESHOLD_=33554432 MALLOC_TRIM_THRESHOLD_=2147483647 MALLOC_TOP_PAD_=268435456
 
 .PHONY: install browser test demo bench clean
 
@@ -23,7 +25,7 @@ browser:
 
 test: install browser
 	# one BLAS thread per test worker: two workers on two cores, not four threads fighting
-	OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 MKL_NUM_THREADS=1 $(PY) -m pytest -q -n 2 --durations=15
+	OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 MKL_NUM_THREADS=1 $(MALLOC) $(PY) -m pytest -q -n 2 --durations=15
 
 demo: install
 	$(VENV)/bin/selfcal demo --out demo-results

@@ -3,8 +3,9 @@
 Fields are the simulator's: a Brown field (about -11 px radial at the corners)
 and the non-stationary "local" field (Gaussian bumps of 2-3 px). Fit on a dense
 noise-free sample, evaluate on a separate 121 x 81 grid. As in the adjustment,
-where c, x0 and y0 are estimated with the APs, the fit includes the image-space
-fields of the interior orientation (shift in x, shift in y, scale).
+where c, x0, y0 and the attitudes are estimated with the APs, the fit includes the
+image-space fields of the interior orientation (shift in x, shift in y, scale) and
+of a common rotation of the camera.
 """
 import numpy as np
 import pytest
@@ -24,10 +25,12 @@ CLASSIC = ["brown", "ebner", "gruen", "legendre", "fourier"]
 
 
 def interior_orientation_fields(xy_mm):
-    """Image-space effect of x0, y0 and c (in pixels per unit): shift x, shift y, scale."""
-    n = len(xy_mm)
-    fx = np.column_stack([np.ones(n), np.zeros(n), xy_mm[:, 0] / FRAME.width_mm])
-    fy = np.column_stack([np.zeros(n), np.ones(n), xy_mm[:, 1] / FRAME.width_mm])
+    """What the block absorbs besides the APs (pixels per unit): the image-space effect of x0, y0, c and
+    of a rotation of the camera common to all images (kappa; omega and phi as a shift plus a projective field)."""
+    u, v = xy_mm[:, 0] / FRAME.width_mm, xy_mm[:, 1] / FRAME.width_mm
+    one, zero = np.ones(len(u)), np.zeros(len(u))
+    fx = np.column_stack([one, zero, u, v, u * u, u * v])
+    fy = np.column_stack([zero, one, v, -u, u * v, v * v])
     return fx, fy
 
 

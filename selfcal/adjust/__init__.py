@@ -21,7 +21,7 @@ from ..errors import AdjustmentError
 from .covariance import point_cofactors
 from .initial import initial_state
 from .linalg import DENSE_LIMIT, SingularSystem, factorise, null_directions
-from .normal import Linearisation, image_residuals, reduce
+from .normal import Linearisation, carry_ap_columns, image_residuals, reduce
 from .problem import Problem, State, build_problem
 from .solver import IterationRecord, SolverOptions, solve
 
@@ -212,6 +212,9 @@ def adjust(block: Block, options: AdjustOptions = AdjustOptions(),
             if t.sensor in free:
                 t.free[:] = np.asarray(free[t.sensor], bool)
         problem.d_offset = _offsets(problem)
+    if start is not None:
+        carry_ap_columns(problem, block.observations.row[problem.obs_order],
+                         start.problem, start.block.observations.row[start.problem.obs_order])
     state, notes = initial_state(problem, block, start)
     names = problem.theta_names(block.images.image_id)
     solver_options = options.solver

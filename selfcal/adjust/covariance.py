@@ -16,7 +16,7 @@ import scipy.sparse as sp
 
 from .normal import Linearisation
 from .problem import Problem
-from .kernels import point_cofactor_pairs
+from .kernels import point_blocks_times, point_cofactor_pairs
 
 __all__ = ["point_cofactors", "by_point_and_image"]
 
@@ -45,15 +45,11 @@ def point_cofactors(problem: Problem, lin: Linearisation, v_inv: list, Q: np.nda
         Qp = Vi.copy()
         point_cofactor_pairs(Z_e, img, ptl, cs.pair_a, cs.pair_b, Q_e, Qp)
         if n_d:
-            Z_d = np.einsum("dpk,pkl->dpl", ch.W_d.reshape(n_d, n_pc, 3), Vi)   # (n_d, n_pc, 3)
-            QZ = (Q_dd @ Z_d.reshape(n_d, 3 * n_pc)).reshape(n_d, n_pc, 3)
+            Z = point_blocks_times(Vi, ch.W_pd, False).reshape(n_pc, 3, n_d)    # Z[p] = Vi[p] W_pd[p]
+            QZ = (Z.reshape(3 * n_pc, n_d) @ Q_dd).reshape(n_pc, 3, n_d)
             # per point: sum over its observations of Z_e^T Q_ed(image), as one sparse product
             A = (by_point_and_image(Z_e, img, ptl, n_pc, n_img) @ Q_ed_2d).reshape(n_pc, 3, n_d)
-            for i in range(3):
-                for j in range(3):
-                    Qp[:, i, j] += np.einsum("dp,dp->p", Z_d[:, :, i], QZ[:, :, j])
-                    cross = np.einsum("pd,dp->p", A[:, i, :], Z_d[:, :, j])
-                    Qp[:, i, j] += cross
-                    Qp[:, j, i] += cross
+            cross = A @ Z.transpose(0, 2, 1)
+            Qp += Z @ QZ.transpose(0, 2, 1) + cross + cross.transpose(0, 2, 1)
         out[ch.p0:ch.p1] = 0.5 * (Qp + Qp.transpose(0, 2, 1))
     return out

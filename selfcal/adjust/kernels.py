@@ -16,7 +16,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["accumulate_observations", "schur_image_blocks", "point_cofactor_pairs", "leverage_pairs", "rows_times_blocks"]
+__all__ = ["accumulate_observations", "schur_image_blocks", "point_cofactor_pairs", "leverage_pairs", "rows_times_blocks",
+           "camera_couplings", "point_blocks_times", "subtract_image_couplings"]
 
 
 @njit(cache=True, nogil=True)
@@ -169,3 +170,73 @@ def rows_times_blocks(X, index, M):
                     for c in range(nc):
                         out[o, a, c] += x * Mo[b, c]
     return out
+
+
+@njit(cache=True, nogil=True)
+def camera_couplings(j_d, j_e, j_p, r, img, ptl, varying, U_ed, W_pd, g_d, U_vd):
+    """Accumulate, in one pass over the camera-parameter rows j_d (m, 2, n_d):
+
+    U_ed[6 i + a] += sum over observations of image i of j_e[o, :, a] j_d[o]  (the image x camera block),
+    W_pd[3 p + a] += sum over observations of point p of j_p[o, :, a] j_d[o]  (point x camera coupling),
+    g_d += j_d^T r, and U_vd[v] += j_d[:, :, varying[v]]^T j_d (the rows of U_dd that change).
+
+    The NumPy form reads the large j_d four times (sparse products and a transpose);
+    here every row of j_d is loaded once and the accumulators stay in cache.
+    """
+    m = j_d.shape[0]
+    n_d = j_d.shape[2]
+    for o in range(m):
+        i6 = 6 * img[o]
+        p3 = 3 * ptl[o]
+        for k in range(2):
+            row = j_d[o, k]
+            rk = r[o, k]
+            for d in range(n_d):
+                g_d[d] += rk * row[d]
+            for a in range(6):
+                c = j_e[o, k, a]
+                if c != 0.0:
+                    for d in range(n_d):
+                        U_ed[i6 + a, d] += c * row[d]
+            for a in range(3):
+                c = j_p[o, k, a]
+                if c != 0.0:
+                    for d in range(n_d):
+                        W_pd[p3 + a, d] += c * row[d]
+            for v in range(varying.shape[0]):
+                c = row[varying[v]]
+                if c != 0.0:
+                    for d in range(n_d):
+                        U_vd[v, d] += c * row[d]
+
+
+@njit(cache=True, nogil=True)
+def point_blocks_times(B, W_pd, transpose):
+    """out[3 p + l] = sum_k B[p, k, l] W_pd[3 p + k] (``transpose``) or B[p, l, k] W_pd[3 p + k]:
+    each point's 3 rows of W_pd (3 n_p, n) multiplied by its 3x3 block, B^T or B."""
+    n = W_pd.shape[1]
+    out = np.zeros_like(W_pd)
+    for p in range(B.shape[0]):
+        for l in range(3):
+            for k in range(3):
+                c = B[p, k, l] if transpose else B[p, l, k]
+                if c != 0.0:
+                    for d in range(n):
+                        out[3 * p + l, d] += c * W_pd[3 * p + k, d]
+    return out
+
+
+@njit(cache=True, nogil=True)
+def subtract_image_couplings(Y, W_pd, img, ptl, S_ed):
+    """S_ed[6 i + a] -= sum over observations of image i of sum_k Y[o, a, k] W_pd[3 p + k]:
+    the image x camera part of W V^-1 W^T (Y = w_e V^-1 per observation)."""
+    n = W_pd.shape[1]
+    for o in range(Y.shape[0]):
+        i6 = 6 * img[o]
+        p3 = 3 * ptl[o]
+        for a in range(6):
+            for k in range(3):
+                c = Y[o, a, k]
+                if c != 0.0:
+                    for d in range(n):
+                        S_ed[i6 + a, d] -= c * W_pd[p3 + k, d]

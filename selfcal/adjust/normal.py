@@ -22,12 +22,14 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.linalg.blas
 import scipy.sparse as sp
 
 from ..geometry.rotation import matrix_from_opk, matrix_from_opk_with_derivatives
 from ..sensors import bal
 from ..sensors.frame import project, project_with_jacobians_indexed
-from .kernels import accumulate_observations, schur_image_blocks
+from .kernels import (accumulate_observations, camera_couplings, point_blocks_times, schur_image_blocks,
+                      subtract_image_couplings)
 from .problem import Problem, State
 
 __all__ = [
@@ -38,6 +40,7 @@ __all__ = [
     "back_substitute",
     "evaluate_cost",
     "image_residuals",
+    "carry_ap_columns",
     "chunk_rows",
     "parameter_observation_groups",
     "parameter_observations",
@@ -57,7 +60,7 @@ class ChunkLinearisation:
     V: np.ndarray        # (n_pc, 3, 3) point normal blocks, control prior included
     g_p: np.ndarray      # (n_pc, 3)
     w_e: np.ndarray      # (m_c, 6, 3) coupling of each observation's image with its point
-    W_d: np.ndarray      # (n_d, 3 n_pc) coupling of camera parameters with the points
+    W_pd: np.ndarray     # (3 n_pc, n_d) coupling of the points with the camera parameters
 
 
 @dataclass
@@ -73,28 +76,81 @@ class Linearisation:
     diag_theta: np.ndarray   # diagonal of U (parameter observations included)
 
 
-def _ap_columns(problem: Problem, k: int, o0: int, o1: int, mask: np.ndarray) -> np.ndarray:
-    """Whitened image displacement per unit of each free AP of camera ``k``, (n, 2, n_free_ap), at
-    the measured coordinates of its observations among o0:o1 (``mask``): the AP columns of the
-    Jacobian.
+def _camera_jacobian(problem: Problem, k: int) -> np.ndarray:
+    """Whitened camera-parameter Jacobian of camera ``k`` at all its observations (in problem
+    order), (n_k, 2, 3 + n_free_ap): three slots for the interior orientation, which the caller
+    fills in every iteration, then the image displacement per unit of each free AP.
 
-    They depend on the measured coordinates only, so they are evaluated once per
-    problem and kept (a WAP basis costs far more to evaluate than to store).
+    The AP columns depend on the measured coordinates only, so they are evaluated
+    once per problem and kept (a WAP basis costs far more to evaluate than to
+    store), or taken over from the adjustment this one re-runs
+    (:func:`carry_ap_columns`). Keeping the interior-orientation slots in the same
+    array lets one camera's Jacobian rows be a view, not a fresh copy per iteration.
     """
     cam = problem.cameras[k]
     free = cam.free[3:]
-    key = (k, o0, o1, free.tobytes())
+    key = (k, free.tobytes())
     columns = problem._ap_columns.get(key)
     if columns is None:
-        xy = problem.obs_xy_mm[o0:o1][mask]
+        mine = problem.image_camera[problem.obs_image] == k
+        xy = problem.obs_xy_mm[mine]
         bx, by = cam.ap.basis(xy[:, 0], xy[:, 1])
-        w = cam.pixel_size_mm / problem.obs_sigma_mm[o0:o1][mask]
-        columns = np.empty((bx.shape[0], 2, int(free.sum())))
-        columns[:, 0] = bx if free.all() else bx[:, free]
-        columns[:, 1] = by if free.all() else by[:, free]
-        columns *= w[:, None, None]
+        w = cam.pixel_size_mm / problem.obs_sigma_mm[mine]
+        columns = np.zeros((bx.shape[0], 2, 3 + int(free.sum())))
+        columns[:, 0, 3:] = bx if free.all() else bx[:, free]
+        columns[:, 1, 3:] = by if free.all() else by[:, free]
+        columns[:, :, 3:] *= w[:, None, None]
         problem._ap_columns[key] = columns
     return columns
+
+
+def _ap_columns(problem: Problem, k: int, o0: int, o1: int, mask) -> np.ndarray:
+    """The AP columns of camera ``k`` at its observations among o0:o1 (``mask``): a view for a
+    single camera, a gathered copy (kept) otherwise."""
+    columns = _camera_jacobian(problem, k)[:, :, 3:]
+    if isinstance(mask, slice):
+        return columns[o0:o1]
+    key = (k, o0, o1, problem.cameras[k].free[3:].tobytes())
+    part = problem._ap_columns.get(key)
+    if part is None:
+        position = np.cumsum(problem.image_camera[problem.obs_image] == k) - 1
+        part = problem._ap_columns[key] = columns[position[o0:o1][mask]]
+    return part
+
+
+def carry_ap_columns(problem: Problem, rows: np.ndarray, previous: Problem, previous_rows: np.ndarray) -> None:
+    """Give ``problem`` the AP columns of ``previous`` where both use the same AP model object.
+
+    A re-adjustment after data snooping or AP screening keeps a subset of the
+    observations and of the free APs; its columns are rows and columns of the
+    previous ones (rescaled where an observation's sigma changed, as in a
+    variance-component iteration). ``rows`` and ``previous_rows`` are the block
+    row numbers of each problem's observations in problem order.
+    """
+    lookup = np.argsort(previous_rows)
+    if np.any(np.diff(previous_rows[lookup]) == 0):
+        return                                                  # row numbers do not name observations
+    where = np.searchsorted(previous_rows, rows, sorter=lookup)
+    if np.any(where >= len(previous_rows)) or np.any(previous_rows[lookup[np.minimum(where, len(lookup) - 1)]] != rows):
+        return                                                  # not a subset of the previous observations
+    source = lookup[where]                                      # previous observation of each observation
+    for k, cam in enumerate(problem.cameras):
+        old_k = next((j for j, c in enumerate(previous.cameras) if c.camera_id == cam.camera_id), None)
+        if old_k is None or previous.cameras[old_k].ap is not cam.ap or not cam.ap.n_params:
+            continue
+        old_free, free = previous.cameras[old_k].free[3:], cam.free[3:]
+        old_columns = previous._ap_columns.get((old_k, old_free.tobytes()))
+        if old_columns is None or np.any(free & ~old_free):
+            continue
+        old_position = np.cumsum(previous.image_camera[previous.obs_image] == old_k) - 1
+        mine = problem.image_camera[problem.obs_image] == k
+        take = old_position[source[mine]]
+        keep = np.concatenate([np.ones(3, bool), free[old_free]])   # the slots and the still free APs
+        columns = old_columns[take][:, :, keep] if not keep.all() else old_columns[take]
+        ratio = previous.obs_sigma_mm[source[mine]] / problem.obs_sigma_mm[mine]
+        if np.any(ratio != 1.0):
+            columns *= ratio[:, None, None]
+        problem._ap_columns[(k, free.tobytes())] = columns
 
 
 def _camera_terms(problem: Problem, state: State, o0: int, o1: int, img: np.ndarray):
@@ -112,8 +168,15 @@ def _camera_terms(problem: Problem, state: State, o0: int, o1: int, img: np.ndar
         if cam.ap.n_params:
             a = state.cameras[k][3:]
             free = cam.free[3:]
-            columns = _ap_columns(problem, k, o0, o1, mask)
-            delta[mask] = (columns @ a[free]) * problem.obs_sigma_mm[o0:o1][mask, None]
+            if single:
+                # the kept Jacobian rows are contiguous with the interior-orientation slots first:
+                # one matrix-vector product over them, the slots weighted by zero
+                rows = _camera_jacobian(problem, k)[o0:o1]
+                columns = rows[:, :, 3:]
+                delta[:] = (rows @ np.concatenate([np.zeros(3), a[free]])) * problem.obs_sigma_mm[o0:o1, None]
+            else:
+                columns = _ap_columns(problem, k, o0, o1, mask)
+                delta[mask] = (columns @ a[free]) * problem.obs_sigma_mm[o0:o1][mask, None]
             if np.any(a[~free] != 0):          # APs held at a non-zero value
                 xy = problem.obs_xy_mm[o0:o1][mask]
                 bx, by = cam.ap.basis(xy[:, 0], xy[:, 1])
@@ -245,7 +308,8 @@ def chunk_rows(problem: Problem, state: State, cs, rotation=None, iop_all=None):
     r : (m, 2) whitened residuals l - f
     j_e : (m, 2, 6) derivatives with respect to the observation's image orientation
     j_p : (m, 2, 3) derivatives with respect to its point
-    j_d : (m, 2, n_d) derivatives with respect to the free camera parameters (theta order)
+    j_d : (m, 2, n_d) derivatives with respect to the free camera parameters (theta order); for a
+        single camera a view of a kept array, valid until the next call: read it, do not keep or change it
     """
     n_e, n_d = problem.n_e, problem.n_d
     if rotation is None:
@@ -261,8 +325,10 @@ def chunk_rows(problem: Problem, state: State, cs, rotation=None, iop_all=None):
     j_e *= w[:, None, None]
     j_p *= w[:, None, None]
     if len(problem.cameras) == 1 and problem.cameras[0].free[:3].all():
-        # one camera with its interior orientation free: the common case, assembled in one pass
-        j_d = np.concatenate([j_i * w[:, None, None], cam_cols[0][2]], axis=2)
+        # one camera with its interior orientation free, the common case: the rows are a view of the
+        # kept AP Jacobian with the interior orientation written into its slots (valid until the next call)
+        j_d = _camera_jacobian(problem, 0)[o0:o1]
+        np.multiply(j_i, w[:, None, None], out=j_d[:, :, :3])
         return r, j_e, j_p, j_d
     j_d = np.zeros((m, 2, n_d))
     for k, mask, columns in cam_cols:
@@ -294,6 +360,8 @@ def linearise(problem: Problem, state: State) -> Linearisation:
     control_of_point[problem.control_index] = np.arange(len(problem.control_index))
     varying = problem.d_varying()
     constant = np.setdiff1d(np.arange(n_d), varying)
+    if not constant.size:
+        varying = np.arange(n_d)
     gram = problem._ap_gram
     build_gram = gram is None and constant.size > 0
     if build_gram:
@@ -309,21 +377,19 @@ def linearise(problem: Problem, state: State) -> Linearisation:
         U_c, g_c, V, g_p, w_e = accumulate_observations(j_e, j_p, r, cs.img, cs.ptl, n_img, n_pc)
         U_ee += U_c
         g_e += g_c
+        W_pd = np.zeros((3 * n_pc, n_d))
         if n_d:
-            jd2 = j_d.reshape(2 * m, n_d)
-            U_ed += cs.image_rows.matrix(j_e) @ jd2
+            U_vd = np.zeros((varying.size, n_d))
+            camera_couplings(j_d, j_e, j_p, r, cs.img, cs.ptl, varying, U_ed, W_pd, g_d, U_vd)
             if constant.size:
                 # the AP columns are constant: their Gram block is summed once per problem
-                jv = jd2[:, varying]
-                block = jv.T @ jd2
-                U_dd[varying, :] += block
-                U_dd[np.ix_(constant, varying)] += block[:, constant].T
+                U_dd[varying, :] += U_vd
+                U_dd[np.ix_(constant, varying)] += U_vd[:, constant].T
                 if build_gram:
-                    jc = jd2[:, constant]
+                    jc = j_d.reshape(2 * m, n_d)[:, constant]
                     gram += jc.T @ jc
             else:
-                U_dd += jd2.T @ jd2
-            g_d += jd2.T @ r.ravel()
+                U_dd += U_vd
 
         ctl = control_of_point[p0:p1]
         has = np.flatnonzero(ctl >= 0)
@@ -333,11 +399,7 @@ def linearise(problem: Problem, state: State) -> Linearisation:
             cost += 0.5 * float(np.sum(rc * rc))
             V[has] += np.einsum("ni,ij->nij", 1.0 / sig**2, np.eye(3))
             g_p[has] += rc / sig
-        if n_d:
-            W_d = np.ascontiguousarray((cs.point_cols.matrix(j_p).T @ jd2).T)
-        else:
-            W_d = np.zeros((0, 3 * n_pc))
-        chunks.append(ChunkLinearisation(p0, p1, o0, o1, V, g_p, w_e, W_d))
+        chunks.append(ChunkLinearisation(p0, p1, o0, o1, V, g_p, w_e, W_pd))
 
     if constant.size:
         if build_gram:
@@ -359,6 +421,18 @@ def _damped_inverse(V: np.ndarray, lam: float) -> np.ndarray:
     if lam:
         V = V + lam * np.einsum("nii,ij->nij", V, np.eye(3))
     return np.linalg.inv(V)
+
+
+def _point_schur(Vi: np.ndarray, W_pd: np.ndarray) -> np.ndarray:
+    """W_pd^T blockdiag(Vi) W_pd, (n_d, n_d): with Vi = L L^T per point, Z = blockdiag(L^T) W_pd
+    and the product is Z^T Z, a symmetric rank-k update (half the flops of a general product)."""
+    try:
+        L = np.linalg.cholesky(Vi)
+    except np.linalg.LinAlgError:                       # a point block not positive definite: the plain product
+        return W_pd.T @ point_blocks_times(Vi, W_pd, False)
+    Z = point_blocks_times(L, W_pd, True)
+    upper = scipy.linalg.blas.dsyrk(1.0, Z.T, trans=0, lower=0)      # Z.T is Fortran-ordered: no copy
+    return upper + np.triu(upper, 1).T
 
 
 def reduce(problem: Problem, lin: Linearisation, lam: float = 0.0, dense: bool = True):
@@ -394,11 +468,9 @@ def reduce(problem: Problem, lin: Linearisation, lam: float = 0.0, dense: bool =
         schur_image_blocks(Y, ch.w_e, cs.img, cs.pair_a, cs.pair_b, cs.pair_key, diag_blocks, off_blocks)
         g[:n_e] -= (cs.sum_by_image @ np.einsum("oik,ok->oi", Y, ch.g_p[cs.ptl])).ravel()
         if n_d:
-            Y_e = cs.image_point.matrix(Y)
-            T_d = np.einsum("dpk,pkl->dpl", ch.W_d.reshape(n_d, n_pc, 3), Vi).reshape(n_d, 3 * n_pc)
-            S_ed -= Y_e @ ch.W_d.T
-            S_dd -= T_d @ ch.W_d.T
-            g[n_e:n_e + n_d] -= T_d @ ch.g_p.ravel()
+            subtract_image_couplings(Y, ch.W_pd, cs.img, cs.ptl, S_ed)
+            S_dd -= _point_schur(Vi, ch.W_pd)
+            g[n_e:n_e + n_d] -= ch.W_pd.T @ np.einsum("pij,pj->pi", Vi, ch.g_p).ravel()
     ia, ib = structure.image_pair_a, structure.image_pair_b
 
     damp = lam * lin.diag_theta
@@ -445,7 +517,7 @@ def back_substitute(problem: Problem, lin: Linearisation, v_inv: list, d_theta: 
         starts = problem.point_start[ch.p0:ch.p1] - ch.o0
         wt = np.add.reduceat(np.einsum("oik,oi->ok", ch.w_e, d_e[img]), starts, axis=0)
         if n_d:
-            wt += (ch.W_d.T @ d_d).reshape(-1, 3)
+            wt += (ch.W_pd @ d_d).reshape(-1, 3)
         d_p[ch.p0:ch.p1] = np.einsum("pij,pj->pi", Vi, ch.g_p - wt)
     return d_p
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from ..batch.allocator import keep_freed_memory
 from ..errors import SelfcalError
 from . import adjust, compare, demo, import_, simulate
 
@@ -36,6 +37,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    keep_freed_memory()
     try:
         return int(COMMANDS[args.command].run(args) or 0)
     except SelfcalError as exc:

@@ -109,17 +109,18 @@ def _terrain(x, y):
             + 6.0 * np.sin(2 * np.pi * (x + 0.6 * y) / 260.0))
 
 
-def _distortion(name: str, pixel_size_mm: float, pp: tuple[float, float]) -> TrueDistortion:
+def _distortion(name: str, pixel_size_mm: float, pp: tuple[float, float], scale: float = 1.0) -> TrueDistortion:
     if name not in DISTORTIONS:
         raise ValueError(f"unknown distortion field '{name}' (known: {', '.join(DISTORTIONS)})")
     brown = None
     bumps: tuple = ()
     if "brown" in name:
         # about -11 px of radial distortion in the corners, 1 px decentering
-        brown = {"k1": -9.1e-6, "k2": 5.0e-9, "p1": 4.0e-6, "p2": -3.0e-6}
+        brown = {k: scale * v for k, v in {"k1": -9.1e-6, "k2": 5.0e-9, "p1": 4.0e-6, "p2": -3.0e-6}.items()}
     if "local" in name:
         # a non-stationary defect near the upper-right corner and a weaker one at the left edge
-        bumps = ((12.5, 7.0, 3.5, 2.4, -1.6), (-14.0, -2.0, 2.5, -1.2, 0.9))
+        bumps = tuple((x, y, s, scale * dx, scale * dy)
+                      for x, y, s, dx, dy in ((12.5, 7.0, 3.5, 2.4, -1.6), (-14.0, -2.0, 2.5, -1.2, 0.9)))
     return TrueDistortion(pixel_size_mm, pp, brown, bumps)
 
 
@@ -127,7 +128,7 @@ def simulate_uav(seed: int = 0, distortion: str = "local+brown", image_sigma_px:
                  blunder_rate: float = 0.0, points_per_mm2: float = 3.5,
                  gnss_sigma_m=(0.05, 0.05, 0.10), imu_sigma_deg=(0.02, 0.02, 0.05),
                  gnss_shift_m: float = 0.2, gnss_drift_mm_s: float = 5.0, imu_shift_deg: float = 0.05,
-                 ) -> UAVSimulation:
+                 distortion_scale: float = 1.0) -> UAVSimulation:
     """Simulate the seed-000 block; returns the four scenario blocks and the truth.
 
     Parameters
@@ -135,6 +136,9 @@ def simulate_uav(seed: int = 0, distortion: str = "local+brown", image_sigma_px:
     seed : int
         Random seed: the same seed gives the same block.
     distortion : {"none", "brown", "local", "local+brown"}
+    distortion_scale : float
+        Multiplies the whole field (1: about -11 px of radial distortion in the corners and local
+        bumps of 2-3 px).
     image_sigma_px : float
         Standard deviation of the image measurement noise (and the blocks' a-priori sigma).
     blunder_rate : float
@@ -148,7 +152,7 @@ def simulate_uav(seed: int = 0, distortion: str = "local+brown", image_sigma_px:
     width_px, height_px, pixel = 6000, 4000, 0.0059
     nominal = FrameCamera("ilce7m3", width_px, height_px, pixel, focal_mm=21.0, x0_mm=0.0, y0_mm=0.0)
     true_cam = FrameCamera("ilce7m3", width_px, height_px, pixel, focal_mm=20.962, x0_mm=0.034, y0_mm=-0.021)
-    field_ = _distortion(distortion, pixel, (true_cam.x0_mm, true_cam.y0_mm))
+    field_ = _distortion(distortion, pixel, (true_cam.x0_mm, true_cam.y0_mm), distortion_scale)
     agl = 215.0
     scale = agl / true_cam.focal_mm                                     # m per mm
     foot_x, foot_y = nominal.width_mm * scale, nominal.height_mm * scale

@@ -33,7 +33,7 @@ from scipy.stats import norm
 
 from ..adjust.normal import chunk_rows, parameter_observations
 from ..adjust.covariance import by_point_and_image
-from ..adjust.kernels import leverage_pairs, rows_times_blocks
+from ..adjust.kernels import leverage_pairs, point_blocks_times, rows_times_blocks
 from ..geometry.rotation import matrix_from_opk_with_derivatives
 
 __all__ = ["ObservationTests", "observation_tests", "noncentrality"]
@@ -96,13 +96,13 @@ def _image_leverage(problem, state, lin, v_inv, Q, Q_points):
         h = np.einsum("oki,oij,okj->ok", j_e, Q_ee[img, :, img, :], j_e)
         jp_term = j_e @ G                                                   # (m, 2, 3), completed below
         if n_d:
-            Z_d = np.einsum("dpk,pkl->dpl", ch.W_d.reshape(n_d, n_pc, 3), Vi)   # (n_d, n_pc, 3)
+            Z = point_blocks_times(Vi, ch.W_pd, False).reshape(n_pc, 3, n_d)    # Z[p] = Vi[p] W_pd[p]
             je_Qed = rows_times_blocks(j_e, img, Q_ed)                          # (m, 2, n_d) = j_e Q_ed(image)
-            jp_term += rows_times_blocks(je_Qed, ptl, np.ascontiguousarray(Z_d.transpose(1, 0, 2)))
+            jp_term += rows_times_blocks(je_Qed, ptl, np.ascontiguousarray(Z.transpose(0, 2, 1)))
             # H_p = Q_dd Z_d(p) + sum over the point's observations of Q_ed(image)^T Z_e
-            H = (Q_dd @ Z_d.reshape(n_d, 3 * n_pc)).reshape(n_d, n_pc, 3).transpose(1, 0, 2)
+            QZ = (Z.reshape(3 * n_pc, n_d) @ Q_dd).reshape(n_pc, 3, n_d)
             A = (by_point_and_image(Z_e, img, ptl, n_pc, n_img) @ Q_ed_2d).reshape(n_pc, 3, n_d)
-            H = np.ascontiguousarray(H + A.transpose(0, 2, 1))                  # (n_pc, n_d, 3)
+            H = np.ascontiguousarray((QZ + A).transpose(0, 2, 1))              # (n_pc, n_d, 3)
             jp_term += rows_times_blocks(j_d, ptl, H)
             h += 2.0 * np.einsum("okd,okd->ok", je_Qed, j_d)
             jd2 = j_d.reshape(2 * m, n_d)
