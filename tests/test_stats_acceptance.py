@@ -46,13 +46,17 @@ def test_snooping_with_waps_finds_the_blunders():
 
 
 def test_screening_of_waps_on_the_brown_field():
-    """Brown-only field: screening removes >= 20 % of the WAPs and costs <= 5 % of check-point RMSD."""
-    block = pruned(simulation(seed=1, distortion="brown"), "type3")
-    full = adjust(block, WAP)
-    screened = adjust_with_tests(block, WAP, None, ScreeningOptions())
-    assert screened.n_ap_initial == 254
-    assert screened.n_ap_significant <= 0.80 * screened.n_ap_initial, screened.n_ap_significant
-    assert np.all(chk_rmsd(screened.result) <= 1.05 * chk_rmsd(full)), (chk_rmsd(screened.result), chk_rmsd(full))
+    """Brown-only field: screening removes >= 20 % of the WAPs and costs <= 5 % of check-point RMSD,
+    pooled over two seeds (12 check points each; one seed alone ranged 0.94-1.05 over seeds 1-4)."""
+    squares = np.zeros((2, 2))                   # (full, screened) x (XY, Z)
+    for seed in (1, 2):
+        block = pruned(simulation(seed=seed, distortion="brown"), "type3")
+        full = adjust(block, WAP)
+        screened = adjust_with_tests(block, WAP, None, ScreeningOptions())
+        assert screened.n_ap_initial == 254
+        assert screened.n_ap_significant <= 0.80 * screened.n_ap_initial, screened.n_ap_significant
+        squares += np.array([chk_rmsd(full), chk_rmsd(screened.result)]) ** 2
+    assert np.all(squares[1] <= 1.05 ** 2 * squares[0]), np.sqrt(squares)
     assert screened.result.converged
     # the translation ranges shrink with the screening (Table 3 of seed 000)
     model = screened.result.problem.cameras[0].ap

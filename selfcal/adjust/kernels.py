@@ -17,7 +17,7 @@ import numpy as np
 from numba import njit
 
 __all__ = ["accumulate_observations", "schur_image_blocks", "point_cofactor_pairs", "leverage_pairs", "rows_times_blocks",
-           "camera_couplings", "point_blocks_times", "subtract_image_couplings"]
+           "camera_couplings", "point_blocks_times", "subtract_image_couplings", "rows_dot_blocks"]
 
 
 @njit(cache=True, nogil=True)
@@ -240,3 +240,22 @@ def subtract_image_couplings(Y, W_pd, img, ptl, S_ed):
                 if c != 0.0:
                     for d in range(n):
                         S_ed[i6 + a, d] -= c * W_pd[p3 + k, d]
+
+
+@njit(cache=True, nogil=True, fastmath=True)
+def rows_dot_blocks(X, index, Mt):
+    """out[o] = X[o] @ Mt[index[o]].T for X (m, a, n) and Mt (k, c, n): like :func:`rows_times_blocks`
+    with the blocks stored transposed, so that every entry is a dot product over the long axis n
+    (vectorised; ``fastmath`` only lets the sum be reassociated)."""
+    m, na, n = X.shape
+    nc = Mt.shape[1]
+    out = np.zeros((m, na, nc))
+    for o in range(m):
+        Mo = Mt[index[o]]
+        for a in range(na):
+            for c in range(nc):
+                s = 0.0
+                for b in range(n):
+                    s += X[o, a, b] * Mo[c, b]
+                out[o, a, c] = s
+    return out

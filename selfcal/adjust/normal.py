@@ -118,6 +118,15 @@ def _ap_columns(problem: Problem, k: int, o0: int, o1: int, mask) -> np.ndarray:
     return part
 
 
+def _gather(columns: np.ndarray, rows: np.ndarray, keep: np.ndarray | None, block: int = 4096) -> np.ndarray:
+    """columns[rows][:, :, keep] in one pass, block by block (no full-size temporary)."""
+    out = np.empty((len(rows), columns.shape[1], columns.shape[2] if keep is None else len(keep)))
+    for start in range(0, len(rows), block):
+        part = columns[rows[start:start + block]]
+        out[start:start + block] = part if keep is None else part[:, :, keep]
+    return out
+
+
 def carry_ap_columns(problem: Problem, rows: np.ndarray, previous: Problem, previous_rows: np.ndarray) -> None:
     """Give ``problem`` the AP columns of ``previous`` where both use the same AP model object.
 
@@ -146,7 +155,7 @@ def carry_ap_columns(problem: Problem, rows: np.ndarray, previous: Problem, prev
         mine = problem.image_camera[problem.obs_image] == k
         take = old_position[source[mine]]
         keep = np.concatenate([np.ones(3, bool), free[old_free]])   # the slots and the still free APs
-        columns = old_columns[take][:, :, keep] if not keep.all() else old_columns[take]
+        columns = _gather(old_columns, take, None if keep.all() else np.flatnonzero(keep))
         ratio = previous.obs_sigma_mm[source[mine]] / problem.obs_sigma_mm[mine]
         if np.any(ratio != 1.0):
             columns *= ratio[:, None, None]

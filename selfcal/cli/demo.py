@@ -21,13 +21,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--blunder-rate", type=float, default=0.003,
                         help="share of image observations with a 4-15 px blunder (default 0.003)")
-    parser.add_argument("--scheduler", default="local", help="'local' Dask cluster (default) or 'serial'")
+    parser.add_argument("--distortion-scale", type=float, default=4.0, metavar="S",
+                        help="strength of the simulated local + Brown field (default 4: -44 px of radial distortion "
+                             "in the corners, 1.2 %% of the half-diagonal, and local bumps of 5-10 px, an uncorrected "
+                             "wide-angle lens as in seed 000, where no APs left several GSD at the check points)")
+    parser.add_argument("--scheduler", default="local",
+                        help="'local' Dask cluster (default), 'serial', or the address of a Dask scheduler")
 
 
 def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     print("simulating the seed-000 UAV block (28 images, local + Brown distortion, blunders) ...", file=sys.stderr)
-    sim = simulate_uav(seed=args.seed, distortion="local+brown", blunder_rate=args.blunder_rate)
+    sim = simulate_uav(seed=args.seed, distortion="local+brown", blunder_rate=args.blunder_rate,
+                       distortion_scale=args.distortion_scale)
     blocks = {name: prune(sim.blocks[name]) for name in SCENARIOS}
     models = available_models(PAPER_MODELS)
     total = len(blocks) * len(models)

@@ -29,11 +29,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.linalg.blas
 from scipy.stats import norm
 
 from ..adjust.normal import chunk_rows, parameter_observations
 from ..adjust.covariance import by_point_and_image
-from ..adjust.kernels import leverage_pairs, point_blocks_times, rows_times_blocks
+from ..adjust.kernels import leverage_pairs, point_blocks_times, rows_dot_blocks, rows_times_blocks
 from ..geometry.rotation import matrix_from_opk_with_derivatives
 
 __all__ = ["ObservationTests", "observation_tests", "noncentrality"]
@@ -72,6 +73,15 @@ class ObservationTests:
         return w[np.arange(len(w)), pick]
 
 
+def _quadratic_rows(X: np.ndarray, Q: np.ndarray, L: np.ndarray | None) -> np.ndarray:
+    """diag(X Q X^T): with Q = L L^T the row norms of X L, a triangular product (half the flops of X Q)."""
+    if L is None:
+        return np.einsum("rd,rd->r", X @ Q, X)
+    # X^T is Fortran-ordered: L^T X^T is X L, written to a copy (X may be a view of kept data)
+    XL = scipy.linalg.blas.dtrmm(1.0, L, X.T, side=0, lower=1, trans_a=1).T
+    return np.einsum("rd,rd->r", XL, XL)
+
+
 def _image_leverage(problem, state, lin, v_inv, Q, Q_points):
     """h (m, 2) of every image coordinate (sorted order) and whitened residuals l - f."""
     n_img, n_e, n_d = problem.n_images, problem.n_e, problem.n_d
@@ -83,6 +93,10 @@ def _image_leverage(problem, state, lin, v_inv, Q, Q_points):
     rotation = matrix_from_opk_with_derivatives(state.eop[:, 3:])
     iop_all = np.array([c[:3] for c in state.cameras])
     h_all = np.zeros((problem.n_image_observations, 2))
+    try:
+        L_dd = np.linalg.cholesky(Q_dd) if n_d else None
+    except np.linalg.LinAlgError:
+        L_dd = None
     r_all = np.zeros((problem.n_image_observations, 2))
     structure = problem.structure()
     for ch, cs, Vi in zip(lin.chunks, structure.chunks, v_inv):
@@ -98,15 +112,13 @@ def _image_leverage(problem, state, lin, v_inv, Q, Q_points):
         if n_d:
             Z = point_blocks_times(Vi, ch.W_pd, False).reshape(n_pc, 3, n_d)    # Z[p] = Vi[p] W_pd[p]
             je_Qed = rows_times_blocks(j_e, img, Q_ed)                          # (m, 2, n_d) = j_e Q_ed(image)
-            jp_term += rows_times_blocks(je_Qed, ptl, np.ascontiguousarray(Z.transpose(0, 2, 1)))
+            jp_term += rows_dot_blocks(je_Qed, ptl, Z)
             # H_p = Q_dd Z_d(p) + sum over the point's observations of Q_ed(image)^T Z_e
             QZ = (Z.reshape(3 * n_pc, n_d) @ Q_dd).reshape(n_pc, 3, n_d)
             A = (by_point_and_image(Z_e, img, ptl, n_pc, n_img) @ Q_ed_2d).reshape(n_pc, 3, n_d)
-            H = np.ascontiguousarray((QZ + A).transpose(0, 2, 1))              # (n_pc, n_d, 3)
-            jp_term += rows_times_blocks(j_d, ptl, H)
+            jp_term += rows_dot_blocks(j_d, ptl, QZ + A)                       # H_p^T stored (n_pc, 3, n_d)
             h += 2.0 * np.einsum("okd,okd->ok", je_Qed, j_d)
-            jd2 = j_d.reshape(2 * m, n_d)
-            h += np.einsum("rd,rd->r", jd2 @ Q_dd, jd2).reshape(m, 2)
+            h += _quadratic_rows(j_d.reshape(2 * m, n_d), Q_dd, L_dd).reshape(m, 2)
         h -= 2.0 * np.einsum("okj,okj->ok", jp_term, j_p)
         h += np.einsum("oki,oij,okj->ok", j_p, Q_points[ch.p0:ch.p1][ptl], j_p)
         h_all[cs.o0:cs.o1] = h
