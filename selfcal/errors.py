@@ -4,12 +4,14 @@ Two kinds of failure reach the user, each with its own exit code (DESIGN.md §5)
 
 * :class:`BlockError` — bad input. It names the file, the line and the column
   where the defect is, and why it is one. Exit code 2.
+* :class:`UsageError` — a command-line value that cannot be used (an unknown
+  AP model in a list). Exit code 2, as for argparse's own usage errors.
 * :class:`AdjustmentError` — the input is well formed but the adjustment cannot
   produce an estimate (singular normal equations, divergence). Exit code 1.
 """
 from __future__ import annotations
 
-__all__ = ["SelfcalError", "BlockError", "AdjustmentError"]
+__all__ = ["SelfcalError", "BlockError", "UsageError", "AdjustmentError"]
 
 
 class SelfcalError(Exception):
@@ -49,6 +51,12 @@ class BlockError(SelfcalError, ValueError):
         if self.column is not None:
             where += f", column '{self.column}'"
         return f"{where}: {self.reason}"
+
+
+class UsageError(SelfcalError, ValueError):
+    """A command-line value that cannot be used; the message names it."""
+
+    exit_code = 2
 
 
 class AdjustmentError(SelfcalError, RuntimeError):

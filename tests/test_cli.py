@@ -122,3 +122,19 @@ def test_adjust_with_screening_and_variance_components(simulated, tmp_path):
     owners = {d["camera_id"] for d in screening["dropped"]}
     assert owners <= {"GNSS", "IMU"} and "IMU" in owners          # no APs here; the absent IMU drifts go
     assert screening["joint_tests"] and not screening["joint_tests"][-1]["jointly_significant"]
+
+
+def test_adjust_auto_chooses_the_model_and_logs_the_candidates(simulated, tmp_path, capsys):
+    """No distortion simulated: BIC keeps the model without APs; every candidate is in model_choice.csv."""
+    out = tmp_path / "res"
+    assert run_cli("adjust", str(simulated / "type3"), "--out", str(out), "--ap", "auto:none,brown,ebner") == 0
+    assert "chosen AP model: none" in capsys.readouterr().err
+    lines = _read(out / "model_choice.csv").splitlines()
+    header = lines[0].split(",")
+    rows = [dict(zip(header, line.split(","))) for line in lines[1:]]
+    assert [r["model"] for r in rows] == ["none", "brown", "ebner"]
+    assert [r["chosen"] for r in rows] == ["1", "0", "0"]
+    assert all(float(r["delta_bic"]) > 0 for r in rows[1:])
+    assert json.loads(_read(out / "summary.json"))["ap_model"] == "none"
+    assert run_cli("adjust", str(simulated / "type3"), "--out", str(tmp_path / "x"), "--ap", "auto:brown,bogus") == 2
+    assert "unknown AP model 'bogus'" in capsys.readouterr().err

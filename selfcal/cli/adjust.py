@@ -4,12 +4,16 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from dataclasses import replace
 
 from ..adjust import AdjustOptions
+from ..ap import AP_FAMILIES, parse_ap_spec
+from ..batch import ALL_MODELS
+from ..errors import UsageError
 from ..io import read_block
 from ..io.results import write_results
-from ..report import result_files
-from ..stats import SnoopingOptions, VarianceOptions, adjust_with_tests
+from ..report import model_choice_table, result_files
+from ..stats import SnoopingOptions, VarianceOptions, adjust_with_tests, choose_ap_model, parse_candidate
 from .options import (ap_option, grid_option, progress_printer, round_printer, screening_options, test_options,
                       trajectory_options)
 
@@ -36,12 +40,17 @@ def run(args: argparse.Namespace) -> int:
               f"{len(block.observations)} image observations; AP model {args.ap}", file=sys.stderr)
     snooping = SnoopingOptions(critical=args.snoop, mode=args.snoop_mode)
     screening = screening_options(args) if args.screen else None
-    tested = adjust_with_tests(block, AdjustOptions(ap=args.ap, grid=args.grid, gnss_drift=args.gnss_drift,
-                                                    imu_drift=args.imu_drift), snooping, screening,
+    options = AdjustOptions(ap=args.ap, grid=args.grid, gnss_drift=args.gnss_drift, imu_drift=args.imu_drift)
+    extra_files = {}
+    if args.ap == "auto" or args.ap.startswith("auto:"):
+        choice = _choose(block, args, options, snooping)
+        options = replace(options, ap=choice.model, grid=choice.grid)
+        extra_files["model_choice.csv"] = model_choice_table(choice)
+    tested = adjust_with_tests(block, options, snooping, screening,
                                progress=None if args.quiet else progress_printer(block.image_sigma_px),
                                report=None if args.quiet else round_printer(),
                                variance=VarianceOptions() if args.variance_components else None)
-    files = result_files(block, tested, {"seconds": time.perf_counter() - t0}, screening)
+    files = result_files(block, tested, {"seconds": time.perf_counter() - t0}, screening) | extra_files
     write_results(args.out, files)
     s = files["summary.json"]
     print(f"sigma0 {s['sigma0_px']:.3f} px, check points RMSD XY {_m(s['rmsd_chk_xy_m'])} Z {_m(s['rmsd_chk_z_m'])}"
@@ -51,6 +60,36 @@ def run(args: argparse.Namespace) -> int:
         print(f"selfcal adjust: error: the adjustment did not converge: {tested.result.reason}", file=sys.stderr)
         return 1
     return 0
+
+
+def _choose(block, args, options, snooping):
+    """``--ap auto`` (the ten default models) or ``--ap auto:MODEL,MODEL@GxXGy,...``: choose by BIC."""
+    listed = args.ap.partition(":")[2]
+    names = [m for m in listed.split(",") if m.strip()] if listed else list(ALL_MODELS)
+    candidates = []
+    for name in names:
+        try:
+            model, grid_ = parse_candidate(name, args.grid)
+        except ValueError as exc:
+            raise UsageError(str(exc)) from None
+        if parse_ap_spec(model)[0] not in AP_FAMILIES:
+            raise UsageError(f"unknown AP model '{model}' in --ap {args.ap} (known: {', '.join(AP_FAMILIES)})")
+        candidates.append((model, grid_))
+    if not args.quiet:
+        print(f"choosing the AP model among {len(candidates)} candidates by BIC (blunders first, with the "
+              f"richest candidate) ...", file=sys.stderr)
+
+    def show(score):
+        if args.quiet:
+            return
+        status = f"BIC {score.bic:.1f}, sigma0 {score.sigma0_px:.4f} px" if score.bic is not None else \
+            f"failed: {(score.error or '').splitlines()[0]}"
+        print(f"  {score.label}: {score.n_ap} camera parameters, {status}", file=sys.stderr, flush=True)
+    choice = choose_ap_model(block, candidates, options, snooping, progress=show)
+    label = choice.model + (f"@{choice.grid[0]}x{choice.grid[1]}" if choice.model.startswith("wavelet") else "")
+    print(f"chosen AP model: {label} (smallest BIC; {choice.n_blunders} observations left out as blunders for "
+          f"every candidate; scores in model_choice.csv)", file=sys.stderr)
+    return choice
 
 
 def _m(value) -> str:

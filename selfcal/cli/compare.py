@@ -8,7 +8,7 @@ import time
 
 from ..ap import parse_ap_spec, AP_FAMILIES
 from ..batch import ALL_MODELS, CellSettings, run_matrix
-from ..errors import BlockError
+from ..errors import BlockError, UsageError
 from ..io import read_block
 from ..io.atomic import atomic_folder
 from ..io.results import write_files
@@ -36,7 +36,7 @@ def run(args: argparse.Namespace) -> int:
     models = [m.strip() for m in args.ap.split(",") if m.strip()]
     for m in models:
         if parse_ap_spec(m)[0] not in AP_FAMILIES:
-            raise SystemExit(f"selfcal compare: error: unknown AP model '{m}' (known: {', '.join(AP_FAMILIES)})")
+            raise UsageError(f"unknown AP model '{m}' (known: {', '.join(AP_FAMILIES)})")
     blocks = {}
     for folder in args.blocks:
         name = os.path.basename(os.path.normpath(folder))

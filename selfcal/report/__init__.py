@@ -1,4 +1,4 @@
 """Metrics, tables and (later) figures of an adjustment: what a surveyor reads."""
-from .metrics import result_files, summary
+from .metrics import model_choice_table, result_files, summary
 
-__all__ = ["result_files", "summary"]
+__all__ = ["model_choice_table", "result_files", "summary"]

@@ -17,7 +17,7 @@ from ..sensors.frame import photo_from_pixel
 from ..stats.accuracy import ce90, le90
 from ..stats.correlation import max_abs_correlation_by_group
 
-__all__ = ["ground_sample_distance", "summary", "camera_json", "image_table", "point_table",
+__all__ = ["ground_sample_distance", "model_choice_table", "summary", "camera_json", "image_table", "point_table",
            "residual_table", "screening_json", "correlation_table", "distortion_grid_table", "result_files"]
 
 
@@ -290,3 +290,26 @@ def result_files(block_read, tested, summary_extra: dict | None = None, screenin
         "screening.json": screening_json(tested, screening_options),
         "correlation.csv": correlation_table(result),
     }
+
+
+def model_choice_table(choice) -> tuple:
+    """model_choice.csv: every candidate of ``--ap auto`` with its score (selfcal.stats.model_choice)."""
+    header = ["model", "grid", "n_camera_parameters", "n_observations", "n_unknowns", "omega", "sigma0_px",
+              "bic", "delta_bic", "chosen", "rmsd_chk_xy_m", "rmsd_chk_z_m", "error"]
+    best = min(s.bic for s in choice.candidates if s.bic is not None)
+
+    def num(value):
+        return np.nan if value is None else value
+    rows = choice.candidates
+    cols = [np.array([s.model for s in rows], dtype=object),
+            np.array([f"{s.grid[0]}x{s.grid[1]}" if s.model.startswith("wavelet") else "" for s in rows],
+                     dtype=object),
+            np.array([s.n_ap for s in rows]), np.array([s.n_observations for s in rows]),
+            np.array([s.n_unknowns for s in rows]), np.array([s.omega for s in rows]),
+            np.array([s.sigma0_px for s in rows]), np.array([num(s.bic) for s in rows]),
+            np.array([num(s.bic) - best for s in rows]),
+            np.array([int(s.model == choice.model and s.grid == choice.grid) for s in rows]),
+            np.array([num(s.rmsd_chk_xy_m) for s in rows]), np.array([num(s.rmsd_chk_z_m) for s in rows]),
+            np.array([s.error.splitlines()[0].replace(",", ";") if s.error else "" for s in rows], dtype=object)]
+    fmts = ["", "", "d", "d", "d", ".3f", ".4f", ".2f", ".2f", "d", ".4f", ".4f", ""]
+    return header, cols, fmts

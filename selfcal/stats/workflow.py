@@ -48,18 +48,19 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
                       screening: ScreeningOptions | None = None,
                       progress: Callable | None = None,
                       report: Callable[[SnoopingRound], None] | None = None,
-                      variance: VarianceOptions | None = None) -> TestedAdjustment:
+                      variance: VarianceOptions | None = None, ap_models: dict | None = None) -> TestedAdjustment:
     """Adjust ``block`` (pruned, as read) with data snooping and AP screening.
 
     ``snooping=None`` (or a critical value of 0) disables snooping;
     ``screening=None`` disables screening. With ``variance``, a variance
     component per observation group is estimated at the end, on the block that
     the tests left (:mod:`.variance`); the returned adjustment and tests are
-    then those of the reweighted block.
+    then those of the reweighted block. ``ap_models`` (camera id -> APModel)
+    replaces the models built from ``options.ap``.
     """
     snoop_on = snooping is not None and snooping.critical > 0
     critical = snooping.critical if snoop_on else 3.0
-    result = adjust(block, options, progress=progress)
+    result = adjust(block, options, progress=progress, ap_models=ap_models)
     models = {cam.camera_id: cam.ap for cam in result.problem.cameras}
     free = {cam.camera_id: cam.free[3:].copy() for cam in result.problem.cameras}
     free.update({t.sensor: t.free.copy() for t in result.problem.trajectory})

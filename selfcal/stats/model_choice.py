@@ -1,0 +1,141 @@
+"""Choosing the AP model automatically (``--ap auto``; beyond seed 000, which leaves the choice open).
+
+1. **Blunders first.** The candidate with the most parameters is adjusted with
+   data snooping, and the observations it rejects are left out for every
+   candidate. A model that cannot follow the distortion would reject the
+   distortion itself (without APs, a quarter of the observations of a
+   wide-angle block), and each candidate would be scored on data of its own
+   choosing.
+2. **The same data for all.** Every candidate (family, order, grid) is adjusted
+   on those observations, without tests.
+3. **Bayesian information criterion** with the variance factor unknown:
+
+       BIC = n ln(Omega / n) + k ln(n),
+
+   n scalar observations, Omega = v^T P v, k unknowns. The candidates share
+   the orientations and points, so k differs by their camera parameters;
+   ln(n) (about 12 for a UAV block) per parameter, where AIC's 2 would let
+   any grid refinement that lowers Omega by 2 per coefficient win.
+
+The smallest BIC wins. The check-point RMSD of every candidate is reported
+next to its score and never used to choose (check points stay independent).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import Callable
+
+import numpy as np
+
+from ..adjust import AdjustOptions, adjust
+from ..adjust.problem import build_problem
+from ..block import Block, prune
+from ..errors import AdjustmentError
+from .snooping import SnoopingOptions
+from .workflow import adjust_with_tests
+
+__all__ = ["CandidateScore", "ModelChoice", "parse_candidate", "choose_ap_model"]
+
+
+@dataclass(frozen=True)
+class CandidateScore:
+    model: str
+    grid: tuple[int, int]
+    n_ap: int                       # camera parameters estimated (APs and interior orientation)
+    n_observations: int
+    n_unknowns: int
+    omega: float                    # v^T P v (a-priori weights)
+    sigma0_px: float
+    bic: float | None               # None when the candidate failed
+    rmsd_chk_xy_m: float | None     # for the log only, never for the choice
+    rmsd_chk_z_m: float | None
+    error: str | None = None
+
+    @property
+    def label(self) -> str:
+        return f"{self.model}@{self.grid[0]}x{self.grid[1]}" if self.model.startswith("wavelet") else self.model
+
+
+@dataclass(frozen=True)
+class ModelChoice:
+    model: str
+    grid: tuple[int, int]
+    candidates: list[CandidateScore]
+    n_blunders: int                 # observations left out for every candidate (step 1)
+
+
+def parse_candidate(text: str, grid: tuple[int, int]) -> tuple[str, tuple[int, int]]:
+    """``MODEL`` or ``MODEL@GxXGy`` (a wavelet grid) -> (model, grid)."""
+    model, _, grid_text = text.strip().partition("@")
+    if grid_text:
+        try:
+            gx, gy = (int(v) for v in grid_text.lower().split("x"))
+        except ValueError:
+            raise ValueError(f"candidate '{text}': the grid must look like 9x6") from None
+        grid = (gx, gy)
+    return model, grid
+
+
+def _rmsd_chk(result) -> tuple[float | None, float | None]:
+    pts = result.block.points
+    chk = pts.role == "chk"
+    if not chk.any():
+        return None, None
+    d = result.state.points[chk] - pts.xyz_m[chk]
+    return float(np.sqrt(np.mean(np.sum(d[:, :2] ** 2, axis=1)))), float(np.sqrt(np.mean(d[:, 2] ** 2)))
+
+
+def choose_ap_model(block: Block, candidates: list[tuple[str, tuple[int, int]]],
+                    options: AdjustOptions = AdjustOptions(), snooping: SnoopingOptions | None = SnoopingOptions(),
+                    progress: Callable[[CandidateScore], None] | None = None) -> ModelChoice:
+    """Adjust ``block`` (pruned) with every candidate (model, grid) and pick the smallest BIC.
+
+    ``options`` gives everything but the AP model and grid (trajectory drift
+    orders, solver). Raises AdjustmentError when no candidate can be adjusted.
+    """
+    if not candidates:
+        raise ValueError("no candidate AP models")
+    models, sizes = [], []
+    for model, grid in candidates:
+        try:
+            problem = build_problem(block, model, {"grid": grid} if model.startswith("wavelet") else {})
+        except (AdjustmentError, ValueError) as exc:
+            models.append(exc)
+            sizes.append(-1)
+        else:
+            models.append({cam.camera_id: cam.ap for cam in problem.cameras})
+            sizes.append(problem.n_d)
+    data = block
+    n_blunders = 0
+    if snooping is not None and snooping.critical > 0 and max(sizes) >= 0:
+        richest = int(np.argmax(sizes))
+        model, grid = candidates[richest]
+        tested = adjust_with_tests(block, replace(options, ap=model, grid=grid), snooping, ap_models=models[richest])
+        n_blunders = len(tested.rejected_rows)
+        keep = np.flatnonzero(~np.isin(block.observations.row, tested.rejected_rows))
+        data = prune(replace(block, observations=block.observations.take(keep)))
+    scores = []
+    for (model, grid), ap_models in zip(candidates, models):
+        try:
+            if isinstance(ap_models, Exception):
+                raise ap_models
+            result = adjust(data, replace(options, ap=model, grid=grid), ap_models=ap_models)
+        except (AdjustmentError, ValueError) as exc:
+            score = CandidateScore(model, grid, 0, 0, 0, np.nan, np.nan, None, None, None, str(exc))
+        else:
+            n, k = result.n_observations, result.n_unknowns
+            omega = result.variance_factor * (n - k)
+            xy, z = _rmsd_chk(result)
+            bic = n * np.log(omega / n) + k * np.log(n) if result.converged else None
+            score = CandidateScore(model, grid, result.problem.n_d, n, k, float(omega), result.sigma0_px,
+                                   None if bic is None else float(bic), xy, z,
+                                   None if result.converged else result.reason)
+        scores.append(score)
+        if progress is not None:
+            progress(score)
+    valid = [s for s in scores if s.bic is not None]
+    if not valid:
+        raise AdjustmentError("no candidate AP model could be adjusted:\n  "
+                              + "\n  ".join(f"{s.label}: {s.error}" for s in scores))
+    best = min(valid, key=lambda s: s.bic)
+    return ModelChoice(best.model, best.grid, scores, n_blunders)
