@@ -33,6 +33,7 @@ demo: install
 bench: install
 	$(PY) benchmarks/bench_spine.py
 	$(PY) benchmarks/bench_stats.py
+	$(PY) benchmarks/bench_batch.py
 
 clean:
 	rm -rf $(VENV) demo-results .pytest_cache

@@ -6,7 +6,6 @@ the marks' reference coordinates (the way a surveyor measures it).
 from dataclasses import replace
 
 import numpy as np
-import pytest
 
 from selfcal.adjust import AdjustOptions, adjust
 from selfcal.block import prune

@@ -469,8 +469,6 @@ def reduce(problem: Problem, lin: Linearisation, lam: float = 0.0, dense: bool =
     off_blocks = np.zeros((len(structure.pair_keys), 6, 6))
     v_inv = []
     for ch, cs in zip(lin.chunks, structure.chunks):
-        n_pc = ch.p1 - ch.p0
-        m = ch.o1 - ch.o0
         Vi = _damped_inverse(ch.V, lam)
         v_inv.append(Vi)
         Y = ch.w_e @ Vi[cs.ptl]                                  # (m, 6, 3) = W V^-1 per observation

@@ -63,7 +63,8 @@ def observation_pairs(point_local: np.ndarray, n_points: int, upper: bool = Fals
 
 @dataclass
 class ChunkStructure:
-    """Index arrays and sparse patterns of one chunk of points and their observations."""
+    """Index arrays and summing matrices of one chunk of points and their observations (the
+    camera-parameter couplings are accumulated by the kernels in selfcal.adjust.kernels)."""
 
     p0: int
     p1: int
@@ -73,9 +74,6 @@ class ChunkStructure:
     ptl: np.ndarray                 # point of each observation, relative to p0
     sum_by_image: sp.csr_matrix     # (n_images, m)
     sum_by_point: sp.csr_matrix     # (n_pc, m)
-    image_rows: SparsePattern       # (n_e, 2m) from (m, 2, 6): J_e^T arranged by image
-    point_cols: SparsePattern       # (2m, 3 n_pc) from (m, 2, 3): J_p arranged by point
-    image_point: SparsePattern      # (n_e, 3 n_pc) from (m, 6, 3): W_e (and W_e V^-1)
     pair_a: np.ndarray              # upper pairs a < b of observations of the same point
     pair_b: np.ndarray
     pair_key: np.ndarray            # index into BlockStructure.pair_keys of each pair
@@ -92,7 +90,6 @@ class BlockStructure:
 def build_structure(problem) -> BlockStructure:
     """The structure of a problem's normal equations (see module docstring)."""
     n_img = problem.n_images
-    n_e = 6 * n_img
     per_chunk = []
     all_keys = []
     for p0, p1 in problem.chunks:
@@ -108,21 +105,11 @@ def build_structure(problem) -> BlockStructure:
 
     chunks = []
     for p0, p1, o0, o1, m, n_pc, img, ptl, a, b, keys in per_chunk:
-        six, three, two = np.arange(6), np.arange(3), np.arange(2)
-        rows_e = np.broadcast_to(6 * img[:, None, None] + six[None, None, :], (m, 2, 6))
-        cols_e = np.broadcast_to(2 * np.arange(m)[:, None, None] + two[None, :, None], (m, 2, 6))
-        rows_p = np.broadcast_to(2 * np.arange(m)[:, None, None] + two[None, :, None], (m, 2, 3))
-        cols_p = np.broadcast_to(3 * ptl[:, None, None] + three[None, None, :], (m, 2, 3))
-        rows_w = np.broadcast_to(6 * img[:, None, None] + six[None, :, None], (m, 6, 3))
-        cols_w = np.broadcast_to(3 * ptl[:, None, None] + three[None, None, :], (m, 6, 3))
         key_index = np.searchsorted(pair_keys, keys)
         chunks.append(ChunkStructure(
             p0=p0, p1=p1, o0=o0, o1=o1, img=img, ptl=ptl,
             sum_by_image=_summing(img, n_img),
             sum_by_point=_summing(ptl, n_pc),
-            image_rows=SparsePattern(rows_e, cols_e, (n_e, 2 * m)),
-            point_cols=SparsePattern(rows_p, cols_p, (2 * m, 3 * n_pc)),
-            image_point=SparsePattern(rows_w, cols_w, (n_e, 3 * n_pc)),
             pair_a=a, pair_b=b, pair_key=key_index,
         ))
     return BlockStructure(chunks, pair_keys, pair_keys // n_img if n_img else pair_keys,
