@@ -5,6 +5,7 @@ import argparse
 import os
 import sys
 
+from ..errors import UsageError
 from ..io.atomic import atomic_folder
 from ..io.block_folder import write_block
 from ..io.results import write_files
@@ -20,6 +21,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="control scenario to write (repeatable; default: all four)")
     parser.add_argument("--distortion", choices=DISTORTIONS, default="local+brown",
                         help="true distortion field of the camera (default: local+brown)")
+    parser.add_argument("--distortion-scale", type=float, default=1.0, metavar="S",
+                        help="multiply the field (1: -11 px radial in the corners, bumps of 2-3 px; "
+                             "selfcal demo uses 4)")
     parser.add_argument("--noise-px", type=float, default=0.5, help="image measurement noise sigma (default 0.5)")
     parser.add_argument("--blunder-rate", type=float, default=0.0,
                         help="share of image observations with a 4-15 px blunder (default 0)")
@@ -27,11 +31,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     if not 0.0 <= args.blunder_rate < 0.5:
-        raise SystemExit("selfcal simulate: error: --blunder-rate must be in [0, 0.5)")
+        raise UsageError("--blunder-rate must be in [0, 0.5)")
     if args.noise_px <= 0:
-        raise SystemExit("selfcal simulate: error: --noise-px must be positive")
-    sim = simulate_uav(seed=args.seed, distortion=args.distortion, image_sigma_px=args.noise_px,
-                       blunder_rate=args.blunder_rate)
+        raise UsageError("--noise-px must be positive")
+    if args.distortion_scale < 0:
+        raise UsageError("--distortion-scale must not be negative")
+    sim = simulate_uav(seed=args.seed, distortion=args.distortion, distortion_scale=args.distortion_scale,
+                       image_sigma_px=args.noise_px, blunder_rate=args.blunder_rate)
     scenarios = args.scenario or list(SCENARIOS)
     with atomic_folder(args.out) as tmp:
         for name in scenarios:
