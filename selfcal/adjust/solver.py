@@ -96,23 +96,19 @@ def _singular_message(problem: Problem, S, names: list[str], detail: str) -> str
 
 def _shortened(problem: Problem, state: State, cost: float, d_theta: np.ndarray, d_p: np.ndarray,
                predicted: float, halvings: int):
-    """The Gauss-Newton step halved until it lowers the cost (at most ``halvings`` times).
+    """The Gauss-Newton step halved until it lowers the cost (at most ``halvings`` >= 1 times).
 
     For the undamped step the model predicts a decrease (a - a^2/2) d^T g for
     the share a of the step; the full step's prediction is d^T g / 2.
     Returns the last step tried, its state, cost and predicted decrease.
     """
-    share, candidate, new_cost = 1.0, None, np.inf
+    share = 1.0
     for _ in range(halvings):
         share *= 0.5
         candidate = problem.apply(state, share * d_theta, share * d_p)
         new_cost = evaluate_cost(problem, candidate)
         if new_cost < cost:
             break
-    if candidate is None:
-        candidate = problem.apply(state, d_theta, d_p)
-        new_cost = evaluate_cost(problem, candidate)
-        share = 1.0
     return share * d_theta, share * d_p, candidate, new_cost, 2.0 * predicted * (share - 0.5 * share * share)
 
 
@@ -160,7 +156,7 @@ def solve(problem: Problem, state: State, names: list[str], options: SolverOptio
         predicted = 0.5 * (d_theta @ lin.g_theta + np.sum(d_p * g_p)
                            + lam * (d_theta @ (lin.diag_theta * d_theta) + np.sum(diag_p * d_p * d_p)))
         full_gauss_newton = lam == 0.0
-        if (full_gauss_newton and not options.free_network and not new_cost < lin.cost
+        if (full_gauss_newton and options.line_search and not options.free_network and not new_cost < lin.cost
                 and abs(new_cost - lin.cost) > 1e-12 * lin.cost):
             d_theta, d_p, candidate, new_cost, predicted = _shortened(problem, state, lin.cost, d_theta, d_p,
                                                                       predicted, options.line_search)
