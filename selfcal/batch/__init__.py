@@ -70,7 +70,8 @@ def run_cell(scenario: str, block, model: str, settings: CellSettings = CellSett
     except AdjustmentError as exc:
         return Cell(scenario, model, None, str(exc), time.perf_counter() - t0)
     seconds = time.perf_counter() - t0
-    files = result_files(block, tested, {"scenario": scenario, "seconds": seconds}, settings.screening)
+    files = result_files(block, tested, {"scenario": scenario, "seconds": seconds, "grid": list(settings.grid)},
+                         settings.screening)
     return Cell(scenario, model, files, None, seconds)
 
 

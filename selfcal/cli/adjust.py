@@ -11,8 +11,8 @@ from ..ap import AP_FAMILIES, parse_ap_spec
 from ..batch import ALL_MODELS
 from ..errors import UsageError
 from ..io import read_block
-from ..io.results import write_results
-from ..report import model_choice_table, result_files
+from ..io.results import results_from_files, write_results
+from ..report import model_choice_table, render_report, result_files
 from ..stats import SnoopingOptions, VarianceOptions, adjust_with_tests, choose_ap_model, parse_candidate
 from .options import (ap_option, grid_option, progress_printer, round_printer, screening_options, test_options,
                       trajectory_options)
@@ -25,6 +25,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     grid_option(parser)
     test_options(parser)
     trajectory_options(parser)
+    parser.add_argument("--no-report", action="store_true",
+                        help="do not render report.html and figures/ (selfcal report RESULTS does it later)")
     parser.add_argument("--quiet", action="store_true", help="no progress output")
 
 
@@ -50,7 +52,13 @@ def run(args: argparse.Namespace) -> int:
                                progress=None if args.quiet else progress_printer(block.image_sigma_px),
                                report=None if args.quiet else round_printer(),
                                variance=VarianceOptions() if args.variance_components else None)
-    files = result_files(block, tested, {"seconds": time.perf_counter() - t0}, screening) | extra_files
+    files = result_files(block, tested, {"seconds": time.perf_counter() - t0, "grid": list(args.grid)},
+                         screening) | extra_files
+    if not args.no_report:
+        t_report = time.perf_counter()
+        files |= render_report(results_from_files(files))
+        if not args.quiet:
+            print(f"report rendered in {time.perf_counter() - t_report:.1f} s", file=sys.stderr)
     write_results(args.out, files)
     s = files["summary.json"]
     print(f"sigma0 {s['sigma0_px']:.3f} px, check points RMSD XY {_m(s['rmsd_chk_xy_m'])} Z {_m(s['rmsd_chk_z_m'])}"

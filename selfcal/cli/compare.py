@@ -11,7 +11,8 @@ from ..batch import ALL_MODELS, CellSettings, run_matrix
 from ..errors import BlockError, UsageError
 from ..io import read_block
 from ..io.atomic import atomic_folder
-from ..io.results import write_files
+from ..io.results import results_from_files, write_files
+from ..report import best_cells, render_comparison_report, render_report
 from ..report.compare import comparison_csv, comparison_markdown, comparison_rows
 from ..stats import SnoopingOptions, VarianceOptions
 from .options import grid_option, screening_options, test_options, trajectory_options
@@ -30,6 +31,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="Dask scheduler: 'local' (a cluster on this machine, default), 'serial' "
                              "(no Dask), or the address of a running scheduler (tcp://host:8786)")
     parser.add_argument("--workers", type=int, default=None, help="worker processes of the local cluster")
+    parser.add_argument("--no-report", action="store_true",
+                        help="no report.html (the comparison's, and each scenario's best model's)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -62,13 +65,34 @@ def run(args: argparse.Namespace) -> int:
     seconds = time.perf_counter() - t0
     rows = comparison_rows(cells)
     with atomic_folder(args.out) as tmp:
-        for cell in cells:
-            if cell.files:
-                folder = os.path.join(tmp, cell.scenario, cell.model.replace(":", "-"))
-                os.makedirs(folder)
-                write_files(folder, cell.files)
-        write_files(tmp, {"comparison.csv": comparison_csv(rows),
-                          "comparison.md": comparison_markdown(rows, "selfcal compare")})
+        write_matrix(tmp, cells, rows, "selfcal compare", report=not args.no_report)
     print(comparison_markdown(rows))
     print(f"{total} adjustments in {seconds:.1f} s ({args.scheduler}); results in {args.out}", file=sys.stderr)
     return 1 if any(c.error for c in cells) else 0
+
+
+def cell_folder(scenario: str, model: str) -> str:
+    """Results folder of one cell, relative to the comparison folder."""
+    return f"{scenario}/{model.replace(':', '-')}"
+
+
+def write_matrix(folder: str, cells, rows: list[dict], title: str, report: bool = True) -> None:
+    """Write every cell's results, the comparison table and, with ``report``, the comparison report and
+    the report of each scenario's best model (smallest check-point RMSD)."""
+    for cell in cells:
+        if cell.files:
+            write_files(os.path.join(folder, cell_folder(cell.scenario, cell.model)), cell.files)
+    files = {"comparison.csv": comparison_csv(rows), "comparison.md": comparison_markdown(rows, title)}
+    if report:
+        t0 = time.perf_counter()
+        by_key = {(c.scenario, c.model): c for c in cells}
+        links = {}
+        for scenario, row in best_cells(rows).items():
+            cell = by_key[(scenario, row["ap_model"])]
+            name = cell_folder(scenario, cell.model)
+            write_files(os.path.join(folder, name), render_report(results_from_files(cell.files)))
+            links[(scenario, cell.model)] = f"{name}/report.html"
+        files |= render_comparison_report(rows, comparison_markdown(rows), links, title)
+        print(f"reports of the comparison and of {len(links)} best models rendered in "
+              f"{time.perf_counter() - t0:.1f} s", file=sys.stderr)
+    write_files(folder, files)

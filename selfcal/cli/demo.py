@@ -11,8 +11,9 @@ from ..block import prune
 from ..io.atomic import atomic_folder
 from ..io.block_folder import write_block
 from ..io.results import write_files
-from ..report.compare import comparison_csv, comparison_markdown, comparison_rows
+from ..report.compare import comparison_markdown, comparison_rows
 from ..simulate import SCENARIOS, simulate_uav, truth_files
+from .compare import write_matrix
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -52,13 +53,7 @@ def run(args: argparse.Namespace) -> int:
             write_block(sim.blocks[name], os.path.join(tmp, "blocks", name))
         os.makedirs(os.path.join(tmp, "blocks", "truth"))
         write_files(os.path.join(tmp, "blocks", "truth"), truth_files(sim.truth))
-        for cell in cells:
-            if cell.files:
-                folder = os.path.join(tmp, cell.scenario, cell.model.replace(":", "-"))
-                os.makedirs(folder)
-                write_files(folder, cell.files)
-        write_files(tmp, {"comparison.csv": comparison_csv(rows),
-                          "comparison.md": comparison_markdown(rows, "seed-000 block, 24 cases")})
+        write_matrix(tmp, cells, rows, "seed-000 block, 24 cases")
     print(comparison_markdown(rows))
     print(f"GSD {sim.truth.gsd_m * 100:.1f} cm; 'gruen' (Grün's 44 polynomials) stands for BINGO's AP set. "
           f"{total} adjustments, {time.perf_counter() - t0:.0f} s in all; results in {args.out}", file=sys.stderr)

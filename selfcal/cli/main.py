@@ -11,13 +11,14 @@ import sys
 
 from ..batch.allocator import keep_freed_memory
 from ..errors import SelfcalError
-from . import adjust, compare, demo, import_, simulate
+from . import adjust, compare, demo, import_, report, simulate
 
 #: verb -> module with ``add_arguments(parser)`` and ``run(args) -> int``
 COMMANDS = {
     "adjust": adjust,
     "simulate": simulate,
     "compare": compare,
+    "report": report,
     "import": import_,
     "demo": demo,
 }

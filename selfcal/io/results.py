@@ -1,21 +1,35 @@
 """Write a results folder (DESIGN.md §4) atomically.
 
 The caller passes every file as data: a dict is written as JSON, a
-``(header, columns, formats)`` tuple as CSV, a str as text. The folder appears complete or
-not at all (:func:`selfcal.io.atomic.atomic_folder`).
+``(header, columns, formats)`` tuple as CSV, a str as text, bytes as they are; a name
+may hold a sub-folder (``figures/residuals.png``). The folder appears complete or not
+at all (:func:`selfcal.io.atomic.atomic_folder`).
+
+:func:`read_results` reads a results folder back (for ``selfcal report``);
+:func:`results_from_files` gives the same view of files still in memory.
 """
 from __future__ import annotations
 
+import csv
 import json
 import math
 import os
+from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..errors import BlockError
 from .atomic import atomic_folder, atomic_write
 from .table import write_table
 
-__all__ = ["write_results", "write_files", "to_jsonable"]
+__all__ = ["write_results", "write_files", "to_jsonable", "ResultsFolder", "read_results", "results_from_files",
+           "RESULT_TABLES"]
+
+#: the CSV tables of a results folder that the report reads (DESIGN.md §4), by short name
+RESULT_TABLES = {"images": "images.csv", "points": "points.csv", "residuals": "residuals.csv",
+                 "distortion_grid": "distortion_grid.csv", "correlation": "correlation.csv"}
+#: columns that hold names, not numbers
+_TEXT_COLUMNS = {"image_id", "camera_id", "strip_id", "point_id", "role", "parameter"}
 
 
 def to_jsonable(value):
@@ -36,10 +50,14 @@ def to_jsonable(value):
 
 
 def write_files(folder: str, files: dict) -> None:
-    """Write files into an existing folder, each atomically."""
+    """Write files into a folder (created with any sub-folders a name holds), each atomically."""
     for name, content in files.items():
         path = os.path.join(folder, name)
-        if isinstance(content, str):
+        os.makedirs(os.path.dirname(path), exist_ok=True)
+        if isinstance(content, bytes):
+            with atomic_write(path, "wb") as handle:
+                handle.write(content)
+        elif isinstance(content, str):
             with atomic_write(path) as handle:
                 handle.write(content)
         elif isinstance(content, dict):
@@ -56,3 +74,101 @@ def write_results(folder: str | os.PathLike, files: dict) -> None:
     """Replace ``folder`` by a complete results folder holding ``files``."""
     with atomic_folder(folder) as tmp:
         write_files(tmp, files)
+
+
+@dataclass
+class ResultsFolder:
+    """A results folder as plain data: JSON files as dicts, CSV tables as columns by name.
+
+    Text columns are object arrays; numeric columns are float arrays with NaN
+    where the file has an empty field.
+    """
+
+    path: str | None
+    summary: dict
+    camera: dict
+    screening: dict = field(default_factory=dict)
+    tables: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
+
+
+def _columns(header: list[str], rows: list[list[str]], path: str) -> dict[str, np.ndarray]:
+    out = {}
+    for j, name in enumerate(header):
+        texts = [row[j] for row in rows]
+        if name in _TEXT_COLUMNS:
+            out[name] = np.array(texts, dtype=object)
+            continue
+        try:
+            out[name] = np.array([float(t) if t.strip() else math.nan for t in texts], dtype=float)
+        except ValueError:
+            bad = next(i for i, t in enumerate(texts) if t.strip() and not _is_number(t))
+            raise BlockError(path, f"'{texts[bad]}' is not a number", bad + 2, name) from None
+    return out
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def _read_csv(path: str) -> dict[str, np.ndarray]:
+    with open(path, newline="", encoding="utf-8") as handle:
+        lines = list(csv.reader(handle))
+    if not lines:
+        raise BlockError(path, "the file is empty; expected a header line")
+    header, rows = lines[0], lines[1:]
+    for k, row in enumerate(rows):
+        if len(row) != len(header):
+            raise BlockError(path, f"{len(row)} fields where the header has {len(header)}", k + 2)
+    return _columns(header, rows, path)
+
+
+def _read_json(path: str) -> dict:
+    try:
+        with open(path, encoding="utf-8") as handle:
+            return json.load(handle)
+    except json.JSONDecodeError as exc:
+        raise BlockError(path, f"not valid JSON: {exc.msg}", exc.lineno) from None
+
+
+def read_results(folder: str | os.PathLike) -> ResultsFolder:
+    """Read the files of a results folder that the report needs; a missing one is a BlockError."""
+    folder = os.fspath(folder)
+    if not os.path.isdir(folder):
+        raise BlockError(folder, "no such results folder")
+    def path(name):
+        p = os.path.join(folder, name)
+        if not os.path.isfile(p):
+            raise BlockError(p, "missing: is this a results folder written by 'selfcal adjust'?")
+        return p
+    screening = os.path.join(folder, "screening.json")
+    return ResultsFolder(
+        path=folder,
+        summary=_read_json(path("summary.json")),
+        camera=_read_json(path("camera.json")),
+        screening=_read_json(screening) if os.path.isfile(screening) else {},
+        tables={key: _read_csv(path(name)) for key, name in RESULT_TABLES.items()})
+
+
+def results_from_files(files: dict, path: str | None = None) -> ResultsFolder:
+    """The view :func:`read_results` gives, of results-folder files still in memory.
+
+    JSON contents pass through :func:`to_jsonable`, so the numbers are those the
+    files hold.
+    """
+    def table(content):
+        header, columns, _ = content
+        out = {}
+        for name, column in zip(header, columns):
+            values = np.asarray(column)
+            out[name] = values.astype(object) if name in _TEXT_COLUMNS else values.astype(float)
+        return out
+    return ResultsFolder(
+        path=path,
+        summary=to_jsonable(files["summary.json"]),
+        camera=to_jsonable(files["camera.json"]),
+        screening=to_jsonable(files.get("screening.json", {})),
+        tables={key: table(files[name]) for key, name in RESULT_TABLES.items()})

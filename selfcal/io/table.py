@@ -114,10 +114,17 @@ def read_table(path: str | os.PathLike, columns: list[Column]) -> Table:
     return Table(path, out, np.array(lines, dtype=np.int64))
 
 
+def _quoted(text: str) -> str:
+    """A CSV field as RFC 4180 writes it: quoted when it holds a comma, a quote or a line break."""
+    if any(c in text for c in ',"\n\r'):
+        return '"' + text.replace('"', '""') + '"'
+    return text
+
+
 def _column_text(column, fmt: str) -> list[str]:
     values = np.asarray(column).tolist()
     if fmt == "":
-        return [str(v) for v in values]
+        return [_quoted(str(v)) for v in values]
     return ["" if isinstance(v, float) and not math.isfinite(v) else format(v, fmt) for v in values]
 
 
@@ -127,7 +134,7 @@ def write_table(handle, header: list[str], columns: list, formats: list[str]) ->
     ``formats`` are ``format()`` specifications per column (``""`` for
     strings); NaN numbers are written as empty fields.
     """
-    handle.write(",".join(header) + "\n")
+    handle.write(",".join(_quoted(h) for h in header) + "\n")
     texts = [_column_text(c, f) for c, f in zip(columns, formats)]
     if texts and texts[0]:
         handle.write("\n".join(",".join(row) for row in zip(*texts)))

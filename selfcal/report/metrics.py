@@ -158,16 +158,24 @@ def image_table(block, result):
     return header, cols, fmts
 
 
-def point_table(block, result):
+def point_table(block, result, tests=None):
+    """points.csv: adjusted points with sigma; for control and check points d = adjusted - reference.
+
+    For weighted control points, ``w_X, w_Y, w_Z`` are Baarda's w of the control
+    coordinates (``tests``, :func:`selfcal.stats.observation_tests`); empty elsewhere.
+    """
     pts = block.points
     xyz = result.state.points
     sd = np.sqrt(np.einsum("nii->ni", result.point_covariance()))
     diff = np.where((pts.role != "tie")[:, None], xyz - pts.xyz_m, np.nan)
     n_images = np.bincount(block.observations.point_index, minlength=len(pts))
+    w = np.full((len(pts), 3), np.nan)
+    if tests is not None:
+        w[result.problem.control_index] = tests.control_w
     header = ["point_id", "role", "X", "Y", "Z", "sigma_X_m", "sigma_Y_m", "sigma_Z_m", "n_images",
-              "dX_m", "dY_m", "dZ_m"]
-    cols = [pts.point_id, pts.role, *xyz.T, *sd.T, n_images, *diff.T]
-    fmts = ["", ""] + [".4f"] * 3 + [".5f"] * 3 + ["d"] + [".4f"] * 3
+              "dX_m", "dY_m", "dZ_m", "w_X", "w_Y", "w_Z"]
+    cols = [pts.point_id, pts.role, *xyz.T, *sd.T, n_images, *diff.T, *w.T]
+    fmts = ["", ""] + [".4f"] * 3 + [".5f"] * 3 + ["d"] + [".4f"] * 3 + [".3f"] * 3
     return header, cols, fmts
 
 
@@ -177,8 +185,8 @@ def residual_table(block_read, tested):
     v = adjusted - observed in pixels along the photo axes; w, redundancy numbers,
     minimal detectable blunder (px) and Baarda's external reliability factor per
     coordinate. For a rejected observation, v is computed at the final estimate
-    (NaN if its image or point left the adjustment) and w_test is the w with
-    which it was rejected.
+    (NaN if its image or point left the adjustment), and w_test and the MDB are
+    those of the adjustment that rejected it.
     """
     result, tests = tested.result, tested.tests
     ob = block_read.observations
@@ -211,6 +219,7 @@ def residual_table(block_read, tested):
     rejected = np.isin(ob.row, tested.rejected_rows)
     rej_pos = np.searchsorted(tested.rejected_rows, ob.row[rejected])
     w_test[rejected] = tested.rejected_w[rej_pos]
+    mdb[rejected] = tested.rejected_mdb_px[rej_pos]
     header = ["image_id", "point_id", "vx_px", "vy_px", "w_test", "rejected", "col_px", "row_px", "w_x", "w_y",
               "redundancy_x", "redundancy_y", "mdb_x_px", "mdb_y_px", "external_x", "external_y"]
     cols = [block_read.images.image_id[ob.image_index], block_read.points.point_id[ob.point_index],
@@ -284,7 +293,7 @@ def result_files(block_read, tested, summary_extra: dict | None = None, screenin
         "summary.json": summary(tested, summary_extra),
         "camera.json": camera_json(result.block, result),
         "images.csv": image_table(result.block, result),
-        "points.csv": point_table(result.block, result),
+        "points.csv": point_table(result.block, result, tested.tests),
         "residuals.csv": residual_table(block_read, tested),
         "distortion_grid.csv": distortion_grid_table(result.block, result),
         "screening.json": screening_json(tested, screening_options),

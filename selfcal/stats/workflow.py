@@ -29,6 +29,7 @@ class TestedAdjustment:
     tests: ObservationTests
     rejected_rows: np.ndarray                       # rows of the block as read
     rejected_w: np.ndarray                          # |w| of each rejected observation when it was rejected
+    rejected_mdb_px: np.ndarray                     # (n, 2) its minimal detectable blunders (x, y) then
     ap_free: dict[str, np.ndarray]
     n_ap_initial: int
     rounds: list[SnoopingRound] = field(default_factory=list)
@@ -69,6 +70,7 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
     tests = observation_tests(result, critical)
     rejected = np.zeros(0, np.int64)
     rejected_w = np.zeros(0)
+    rejected_mdb = np.zeros((0, 2))
     rounds: list[SnoopingRound] = []
     log: list[tuple[int, ScreeningDecision]] = []
     joint_tests: list[tuple[int, ScreeningRound]] = []
@@ -91,6 +93,7 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
             picks = reject_candidates(result.block, w, critical, snooping.mode)
             rejected = np.concatenate([rejected, result.block.observations.row[picks]])
             rejected_w = np.concatenate([rejected_w, w[picks]])
+            rejected_mdb = np.concatenate([rejected_mdb, tests.image_mdb_px[picks]])
         if dropped == 0 and picks.size == 0:
             break
         record = SnoopingRound(k, int(picks.size), dropped, largest, result.sigma0_px)
@@ -107,5 +110,5 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
             result.block, options, variance, start=result, free=free, ap_models=models, critical=critical,
             progress=progress)
     order = np.argsort(rejected)
-    return TestedAdjustment(result, tests, rejected[order], rejected_w[order], free, n_ap_initial, rounds, log,
+    return TestedAdjustment(result, tests, rejected[order], rejected_w[order], rejected_mdb[order], free, n_ap_initial, rounds, log,
                             joint_tests, components, converged)

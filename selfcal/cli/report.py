@@ -1,0 +1,29 @@
+"""Render the report of a results folder again (report.html, figures/), without adjusting."""
+from __future__ import annotations
+
+import argparse
+import glob
+import os
+import sys
+import time
+
+from ..io.results import read_results, write_files
+from ..report import render_report
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("results", metavar="RESULTS", help="results folder written by selfcal adjust")
+
+
+def run(args: argparse.Namespace) -> int:
+    t0 = time.perf_counter()
+    files = render_report(read_results(args.results))
+    write_files(args.results, files)
+    # figures of an earlier rendering that this one did not draw (e.g. fewer cameras) would mislead
+    for path in glob.glob(os.path.join(args.results, "figures", "*")):
+        if os.path.relpath(path, args.results).replace(os.sep, "/") not in files:
+            os.unlink(path)
+    n_figures = sum(name.endswith(".png") for name in files)
+    print(f"{os.path.join(args.results, 'report.html')}: {n_figures} figures, rendered in "
+          f"{time.perf_counter() - t0:.1f} s", file=sys.stderr)
+    return 0

@@ -1,0 +1,414 @@
+"""Turn a results folder (as data) into the adjustment report: ``report.html`` and ``figures/``.
+
+:func:`render_report` takes a :class:`selfcal.io.results.ResultsFolder` (read
+from disk by ``selfcal report`` or built in memory by ``selfcal adjust``) and
+returns the report's files as data: ``{"report.html": str, "figures/NAME.png":
+bytes, "figures/NAME.svg": bytes}``; :mod:`selfcal.io.results` writes them.
+:func:`render_comparison_report` does the same for the table of ``selfcal
+compare`` (Figs. 3-5 of seed 000). Nothing is re-adjusted: every number comes
+from the results files.
+"""
+from __future__ import annotations
+
+import html
+import io
+import math
+
+import numpy as np
+
+from . import figures
+from .page import Page, fmt, summary_cell
+
+__all__ = ["render_report", "render_comparison_report", "best_cells", "FIGURE_DPI", "MAX_CAMERA_FIGURES"]
+
+FIGURE_DPI = 110
+#: image-space figures are drawn for this many cameras at most (those with the most observations)
+MAX_CAMERA_FIGURES = 4
+#: rejected observations listed in the report (largest |w| first); all of them are in residuals.csv
+MAX_REJECTED_ROWS = 200
+
+_SUMMARY_ROWS = [
+    ("AP model", "ap_model", ""), ("converged", "converged", ""), ("iterations", "iterations", ""),
+    ("σ̂0 [px]", "sigma0_px", ".4f"), ("variance factor σ̂0²/σ0²", "variance_factor", ".4f"),
+    ("observations / unknowns / redundancy", None, ""),
+    ("RMS image residual [px]", "rms_image_residual_px", ".4f"),
+    ("ground sample distance [m]", "gsd_m", ".4f"),
+    ("control points used (GCP)", "n_gcp_used", ""), ("check points used (CHK)", "n_chk_used", ""),
+    ("RMSD XY at check points [m]", "rmsd_chk_xy_m", ".4f"), ("RMSD Z at check points [m]", "rmsd_chk_z_m", ".4f"),
+    ("RMSD XY at check points [GSD]", "rmsd_chk_xy_gsd", ".3f"),
+    ("RMSD Z at check points [GSD]", "rmsd_chk_z_gsd", ".3f"),
+    ("CE90 / LE90 at check points [m]", None, ""),
+    ("RMS residual at control points XY / Z [m]", None, ""),
+    ("RMS σ̂ of tie points XY / Z [m]", None, ""),
+    ("RMS σ̂ of tie points XY / Z [GSD]", None, ""),
+    ("APs significant / initial", None, ""),
+    ("observations rejected", "n_obs_rejected", ""),
+    ("images / tie points / image observations", None, ""),
+    ("seconds", "seconds", ".1f"),
+]
+_PAIRS = {
+    "observations / unknowns / redundancy": [("n_observations", ""), ("n_unknowns", ""), ("redundancy", "")],
+    "CE90 / LE90 at check points [m]": [("ce90_chk_m", ".4f"), ("le90_chk_m", ".4f")],
+    "RMS residual at control points XY / Z [m]": [("rms_gcp_residual_xy_m", ".4f"), ("rms_gcp_residual_z_m", ".4f")],
+    "RMS σ̂ of tie points XY / Z [m]": [("rms_sigma_tie_xy_m", ".4f"), ("rms_sigma_tie_z_m", ".4f")],
+    "RMS σ̂ of tie points XY / Z [GSD]": [("rms_sigma_tie_xy_gsd", ".3f"), ("rms_sigma_tie_z_gsd", ".3f")],
+    "APs significant / initial": [("n_ap_significant", ""), ("n_ap_initial", "")],
+    "images / tie points / image observations": [("n_images", ""), ("n_tie_points", ""),
+                                                 ("n_image_observations", "")],
+}
+
+
+def _figure_files(fig, stem: str) -> tuple[dict, bytes]:
+    png, svg = io.BytesIO(), io.BytesIO()
+    fig.savefig(png, format="png", dpi=FIGURE_DPI)
+    fig.savefig(svg, format="svg", metadata={"Date": None})
+    return {f"figures/{stem}.png": png.getvalue(), f"figures/{stem}.svg": svg.getvalue()}, png.getvalue()
+
+
+def _add_figure(page: Page, files: dict, fig, stem: str, caption: str) -> None:
+    out, png = _figure_files(fig, stem)
+    files.update(out)
+    page.figure(png, f"figures/{stem}.svg", caption, alt=caption.split(".")[0])
+
+
+def _summary_section(page: Page, s: dict) -> None:
+    rows = []
+    for label, key, spec in _SUMMARY_ROWS:
+        cells = [summary_cell(s, k, f) for k, f in _PAIRS[label]] if key is None else [summary_cell(s, key, spec)]
+        rows.append(f'<tr><td class="text">{html.escape(label)}</td>{"".join(cells)}</tr>')
+    page.add("<table><tbody>" + "".join(rows) + "</tbody></table>")
+    corr = s.get("max_abs_corr") or {}
+    if corr:
+        head = "".join(f"<th>{html.escape(k)}</th>" for k in corr)
+        cells = "".join(summary_cell(s, f"max_abs_corr.{k}", ".3f") for k in corr)
+        page.add('<p class="note">Largest |correlation| of the camera parameters with each group '
+                 "(Table 4 of seed 000):</p>"
+                 f"<table><thead><tr>{head}</tr></thead><tbody><tr>{cells}</tr></tbody></table>")
+
+
+def _camera_rows(results, camera_id: str) -> dict[str, np.ndarray]:
+    """The used observations of one camera, in pixel axes: col, row, v along col and row."""
+    res = results.tables["residuals"]
+    images = results.tables["images"]
+    camera_of = dict(zip(images["image_id"], images["camera_id"]))
+    cam = np.array([camera_of.get(i) for i in res["image_id"]], dtype=object)
+    pick = (cam == camera_id) & (res["rejected"] == 0) & np.isfinite(res["vx_px"]) & np.isfinite(res["vy_px"])
+    return {"col": res["col_px"][pick], "row": res["row_px"][pick],
+            "vcol": res["vx_px"][pick], "vrow": -res["vy_px"][pick]}
+
+
+def _cameras_to_draw(results) -> list[str]:
+    res, images = results.tables["residuals"], results.tables["images"]
+    camera_of = dict(zip(images["image_id"], images["camera_id"]))
+    counts: dict[str, int] = {}
+    for image_id in res["image_id"]:
+        cam = camera_of.get(image_id)
+        counts[cam] = counts.get(cam, 0) + 1
+    order = sorted(results.camera.get("cameras", {}), key=lambda c: -counts.get(c, 0))
+    return order[:MAX_CAMERA_FIGURES]
+
+
+def _grid_of(results, camera: dict) -> tuple[int, int]:
+    grid = camera.get("ap", {}).get("grid") or results.summary.get("grid") or (9, 6)
+    return int(grid[0]), int(grid[1])
+
+
+def _image_space_section(page: Page, files: dict, results) -> None:
+    s = results.summary
+    dist = results.tables["distortion_grid"]
+    cameras = results.camera.get("cameras", {})
+    chosen = _cameras_to_draw(results)
+    if len(cameras) > len(chosen):
+        page.paragraph(f"{len(cameras)} cameras; the image-space figures show the {len(chosen)} with the most "
+                       "observations (all are in distortion_grid.csv and residuals.csv).", "note")
+    for k, camera_id in enumerate(chosen):
+        cam = cameras[camera_id]
+        width, height = float(cam["width_px"]), float(cam["height_px"])
+        suffix = f"-{k + 1}" if len(chosen) > 1 else ""
+        label = f"camera {camera_id}" if len(cameras) > 1 else "camera"
+        pick = dist["camera_id"] == camera_id if "camera_id" in dist else np.ones(len(dist["col"]), bool)
+        model = cam.get("ap", {}).get("spec", s.get("ap_model", ""))
+        fig = figures.distortion_figure(dist["col"][pick], dist["row"][pick], dist["dcol"][pick],
+                                        dist["drow"][pick], width, height, f"Estimated distortion Δ, {model}")
+        _add_figure(page, files, fig, f"distortion{suffix}",
+                    f"Estimated distortion Δ of the {label} ({model}, active APs only) on a "
+                    f"{int(np.unique(dist['col'][pick]).size)}-column grid: colour |Δ|, arrows on every 4th "
+                    "node, along the pixel axes (column right, row down).")
+        obs = _camera_rows(results, camera_id)
+        grid = _grid_of(results, cam)
+        fig = figures.residual_grid_figure(obs["col"], obs["row"], obs["vcol"], obs["vrow"], width, height, grid,
+                                           "Grid-averaged image residuals")
+        _add_figure(page, files, fig, f"residual-grid{suffix}",
+                    f"Image residuals v = adjusted − observed of the {label}, averaged in {grid[0]}×{grid[1]} "
+                    f"cells ({obs['col'].size} observations, rejected ones excluded): the systematic error "
+                    "the AP model left.")
+        redundancy = float(s.get("mean_redundancy_image") or 1.0)
+        fig = figures.residual_histogram_figure(obs["vcol"], -obs["vrow"], float(s.get("sigma0_px") or 0.0),
+                                                redundancy, f"Image residuals of the {label}")
+        _add_figure(page, files, fig, f"residual-histogram{suffix}",
+                    "Histograms of v_x (right) and v_y (up) with bins of width σ̂0 and the share within ±σ̂0. "
+                    f"A residual has σ̂0·√r (r its redundancy number; mean r = {redundancy:.3f}), so the curve, "
+                    "the normal density with σ̂0·√r̄, and the expected share are those of the residuals.")
+
+
+def _point_rows(results):
+    pts = results.tables["points"]
+    role = pts["role"]
+    ctl = (role == "gcp") | (role == "chk")
+    d = np.column_stack([pts["dX_m"], pts["dY_m"], pts["dZ_m"]])
+    sigma = np.column_stack([pts["sigma_X_m"], pts["sigma_Y_m"], pts["sigma_Z_m"]])
+    w = np.column_stack([pts.get(f"w_{c}", np.full(len(role), np.nan)) for c in "XYZ"])
+    return pts, ctl, d, sigma, w
+
+
+def _control_section(page: Page, files: dict, results) -> None:
+    pts, ctl, d, sigma, w = _point_rows(results)
+    critical = float((results.summary.get("snooping") or {}).get("critical") or 3.0)
+    if not ctl.any():
+        page.paragraph("The block has no control or check points (free network): no object-space errors.", "note")
+        return
+    xy = np.column_stack([pts["X"], pts["Y"]])[ctl]
+    fig = figures.control_error_figure(xy, d[ctl], pts["role"][ctl], list(pts["point_id"][ctl]),
+                                       "Errors at control and check points (adjusted − reference)")
+    _add_figure(page, files, fig, "control-errors",
+                "Errors at check points (circles) and residuals at control points (triangles), adjusted − "
+                "reference: in plan (left) and in height (right, arrows up where the adjusted point is too high).")
+    rows, flags = [], []
+    for i in np.flatnonzero(ctl):
+        role = pts["role"][i]
+        if role == "chk":
+            z = np.abs(d[i]) / sigma[i]
+            flag = bool(np.nanmax(z) > 3.0) if np.isfinite(z).any() else False
+            test = f"|d|/σ {np.nanmax(z):.1f}" if np.isfinite(z).any() else ""
+        else:
+            flag = bool(np.nanmax(np.abs(w[i])) > critical) if np.isfinite(w[i]).any() else False
+            test = f"|w| {np.nanmax(np.abs(w[i])):.1f}" if np.isfinite(w[i]).any() else ""
+        rows.append([pts["point_id"][i], role, fmt(d[i, 0]), fmt(d[i, 1]), fmt(d[i, 2]),
+                     fmt(float(np.hypot(d[i, 0], d[i, 1]))), fmt(sigma[i, 0], ".4f"), fmt(sigma[i, 1], ".4f"),
+                     fmt(sigma[i, 2], ".4f"), int(pts["n_images"][i]), test, "⚑" if flag else ""])
+        flags.append(flag)
+    page.table(["point", "role", "dX [m]", "dY [m]", "dZ [m]", "|dXY| [m]", "σX [m]", "σY [m]", "σZ [m]", "images",
+                "test", "flag"], rows, text_columns=2, flagged=flags, ident="control-points")
+    page.paragraph(f"d = adjusted − reference. Check points are flagged when a coordinate error exceeds 3σ, σ the "
+                   "a-posteriori standard deviation of the adjusted point (the reference's own error is not "
+                   f"included); control points when Baarda's w of a coordinate exceeds {critical:g}.", "note")
+
+
+def _precision_section(page: Page, files: dict, results) -> None:
+    pts = results.tables["points"]
+    tie = pts["role"] == "tie"
+    if not tie.any():
+        return
+    xy = np.column_stack([pts["X"], pts["Y"]])[tie]
+    sigma = np.column_stack([pts["sigma_X_m"], pts["sigma_Y_m"], pts["sigma_Z_m"]])[tie]
+    fig = figures.precision_map_figure(xy, sigma, f"A-posteriori precision of {int(tie.sum())} tie points")
+    _add_figure(page, files, fig, "tie-precision",
+                "A-posteriori standard deviations of the tie points (σ̂0² times the cofactor): σ_XY = "
+                "sqrt(σX² + σY²) and σ_Z.")
+
+
+def _correlation_section(page: Page, files: dict, results) -> None:
+    corr = results.tables["correlation"]
+    names = [str(n) for n in corr.get("parameter", [])]
+    if len(names) < 2:
+        page.paragraph("Fewer than two camera parameters are estimated: no correlation matrix.", "note")
+        return
+    rho = np.column_stack([corr[n] for n in names])
+    groups, previous = [], None
+    for k, name in enumerate(names):
+        camera, _, parameter = name.partition(":")
+        if camera != previous:
+            groups.append((k, camera))
+            previous = camera
+        elif parameter not in ("c", "x0", "y0") and names[k - 1].partition(":")[2] in ("c", "x0", "y0"):
+            groups.append((k, "AP"))
+    fig = figures.correlation_figure(names, rho, "Correlations of the interior orientation and the APs", groups)
+    _add_figure(page, files, fig, "correlation",
+                "Correlation matrix of the estimated interior orientation (c, x0, y0) and the active APs, "
+                "from the a-posteriori covariance; the full matrix is in correlation.csv.")
+
+
+def _camera_section(page: Page, results) -> None:
+    dropped = {}
+    for entry in (results.screening or {}).get("dropped", []):
+        dropped[(entry.get("camera_id"), entry.get("name"))] = entry
+    for camera_id, cam in results.camera.get("cameras", {}).items():
+        page.heading(f"Camera {camera_id}", 3)
+        rows = []
+        for key, label in (("focal_mm", "principal distance c [mm]"), ("x0_mm", "x0 [mm]"), ("y0_mm", "y0 [mm]")):
+            e = cam.get(key) or {}
+            rows.append([label, fmt(e.get("value"), ".5f"), fmt(e.get("sigma"), ".5f"),
+                         "estimated" if e.get("estimated") else "fixed"])
+        page.table(["interior orientation", "value", "σ", ""], rows)
+        ap = cam.get("ap", {})
+        coefficients = ap.get("coefficients", [])
+        if not coefficients:
+            continue
+        rows = []
+        for c in coefficients:
+            value, sigma = c.get("value_px"), c.get("sigma_px")
+            t = abs(value) / sigma if value is not None and sigma else None
+            entry = dropped.get((camera_id, c["name"]))
+            outcome = "kept" if c.get("active") else (
+                f"dropped in round {entry['round']}: {entry['reason']}" if entry else "not estimated")
+            rows.append([c["name"], fmt(value, ".4f"), fmt(sigma, ".4f"), fmt(t, ".1f"), outcome])
+        page.paragraph(f"{ap.get('spec', '')}: {ap.get('n_active', 0)} of {len(coefficients)} coefficients active "
+                       "(in pixels; t = |value|/σ).", "note")
+        page.table(["AP", "value [px]", "σ [px]", "t", "screening"], rows, text_columns={0, 4},
+                   ident=f"ap-{camera_id}")
+
+
+def _images_section(page: Page, results) -> None:
+    im = results.tables["images"]
+    rows = []
+    for i in range(len(im["image_id"])):
+        rows.append([im["image_id"][i], im["strip_id"][i]] +
+                    [fmt(im[k][i], ".3f") for k in ("X0", "Y0", "Z0")] +
+                    [fmt(im[k][i], ".4f") for k in ("omega_deg", "phi_deg", "kappa_deg")] +
+                    [fmt(im[k][i] * 100, ".2f") for k in ("sigma_X0_m", "sigma_Y0_m", "sigma_Z0_m")] +
+                    [fmt(im[k][i] * 3600, ".1f") for k in ("sigma_omega_deg", "sigma_phi_deg", "sigma_kappa_deg")] +
+                    [int(im["n_points"][i])])
+    page.table(["image", "strip", "X0 [m]", "Y0 [m]", "Z0 [m]", "ω [°]", "φ [°]", "κ [°]", "σX0 [cm]", "σY0 [cm]",
+                "σZ0 [cm]", "σω [″]", "σφ [″]", "σκ [″]", "points"], rows, text_columns=2, ident="images")
+
+
+def _rejected_section(page: Page, results) -> None:
+    res = results.tables["residuals"]
+    rejected = np.flatnonzero(res["rejected"] == 1)
+    s = results.summary
+    if rejected.size == 0:
+        page.paragraph("No observation was rejected.", "note")
+        return
+    order = rejected[np.argsort(-np.abs(np.nan_to_num(res["w_test"][rejected])))]
+    shown = order[:MAX_REJECTED_ROWS]
+    rows = [[res["image_id"][i], res["point_id"][i], fmt(res["col_px"][i], ".1f"), fmt(res["row_px"][i], ".1f"),
+             fmt(res["vx_px"][i], ".2f"), fmt(res["vy_px"][i], ".2f"), fmt(res["w_test"][i], ".2f"),
+             fmt(res["mdb_x_px"][i], ".2f"), fmt(res["mdb_y_px"][i], ".2f")] for i in shown]
+    critical = (s.get("snooping") or {}).get("critical")
+    page.paragraph(f"{rejected.size} image observations rejected by data snooping (|w| > {fmt(critical, 'g')}), "
+                   f"largest |w| first{f'; the first {len(shown)} shown, all in residuals.csv' if len(shown) < rejected.size else ''}. "
+                   "v at the final estimate; w and the minimal detectable blunder (MDB) of the adjustment that "
+                   "rejected it.", "note")
+    page.table(["image", "point", "col [px]", "row [px]", "v_x [px]", "v_y [px]", "|w|", "MDB x [px]",
+                "MDB y [px]"], rows, text_columns=2, ident="rejected")
+
+
+def _notes_section(page: Page, s: dict) -> None:
+    rounds = (s.get("snooping") or {}).get("rounds") or []
+    if rounds:
+        page.heading("Testing rounds", 3)
+        page.table(["round", "rejected", "APs dropped", "largest |w|", "σ̂0 before [px]"],
+                   [[r.get("round"), r.get("rejected"), r.get("dropped_aps"), fmt(r.get("largest_w"), ".2f"),
+                     fmt(r.get("sigma0_px"), ".4f")] for r in rounds], text_columns=0)
+    vc = s.get("variance_components")
+    if vc:
+        page.heading("Variance components", 3)
+        page.table(["group", "observations", "redundancy", "a-priori σ", "a-posteriori σ", "unit"],
+                   [[g.get("group"), g.get("n_observations"), fmt(g.get("redundancy"), ".1f"),
+                     _join(g.get("sigma_apriori")), _join(g.get("sigma_aposteriori")), g.get("unit", "")]
+                    for g in vc.get("groups", [])])
+    messages = list(s.get("warnings") or []) + list(s.get("notes") or [])
+    if messages:
+        page.heading("Warnings and notes", 3)
+        page.add("<ul>" + "".join(f"<li>{html.escape(str(m))}</li>" for m in messages) + "</ul>")
+
+
+def _join(values) -> str:
+    if isinstance(values, (list, tuple)):
+        return ", ".join(fmt(v, ".4g") for v in values)
+    return fmt(values, ".4g")
+
+
+def render_report(results, title: str | None = None) -> dict:
+    """The report of one adjustment: ``report.html`` and its figures, as data."""
+    s = results.summary
+    title = title or f"selfcal adjustment report: {s.get('block', '')}, {s.get('ap_model', '')}"
+    page = Page(title)
+    files: dict = {}
+    page.heading(title, 1)
+    status = "converged" if s.get("converged") else "NOT CONVERGED"
+    page.add(f'<p class="lede">{html.escape(status)} ({html.escape(str(s.get("convergence", "")))}); '
+             f"{html.escape(_scenario_text(s))}every number below comes from summary.json, camera.json and the "
+             "CSV tables beside this page.</p>")
+    page.heading("Summary", anchor="summary")
+    _summary_section(page, s)
+    page.heading("Image space: distortion and residuals", anchor="image-space")
+    _image_space_section(page, files, results)
+    page.heading("Object space: control and check points", anchor="control")
+    _control_section(page, files, results)
+    page.heading("Precision and correlations", anchor="precision")
+    _precision_section(page, files, results)
+    _correlation_section(page, files, results)
+    page.heading("Interior orientation and additional parameters", anchor="camera")
+    _camera_section(page, results)
+    page.heading("Exterior orientation", anchor="images")
+    _images_section(page, results)
+    page.heading("Rejected observations", anchor="rejected")
+    _rejected_section(page, results)
+    _notes_section(page, s)
+    files["report.html"] = page.html()
+    return files
+
+
+def _scenario_text(s: dict) -> str:
+    return f"scenario {s['scenario']}; " if s.get("scenario") else ""
+
+
+def best_cells(rows: list[dict]) -> dict[str, dict]:
+    """Per scenario, the row with the smallest check-point RMSD sqrt(XY² + Z²) (rows of report.compare)."""
+    best: dict[str, dict] = {}
+    for row in rows:
+        if row.get("error") or row.get("rmsd_xy_m") is None or row.get("rmsd_z_m") is None:
+            continue
+        score = math.hypot(row["rmsd_xy_m"], row["rmsd_z_m"])
+        if row["scenario"] not in best or score < best[row["scenario"]][0]:
+            best[row["scenario"]] = (score, row)
+    return {k: v[1] for k, v in best.items()}
+
+
+def render_comparison_report(rows: list[dict], table_markdown: str, links: dict[tuple[str, str], str],
+                             title: str) -> dict:
+    """Report of a (scenario x model) comparison: bar charts of Figs. 3-5 and the table.
+
+    ``links`` maps (scenario, model) to the relative path of a rendered cell report.
+    """
+    page = Page(title)
+    files: dict = {}
+    page.heading(title, 1)
+    scenarios = list(dict.fromkeys(r["scenario"] for r in rows))
+    models = list(dict.fromkeys(r["ap_model"] for r in rows))
+    index = {(r["scenario"], r["ap_model"]): r for r in rows}
+
+    def table(key):
+        out = np.full((len(scenarios), len(models)), np.nan)
+        for i, sc in enumerate(scenarios):
+            for j, m in enumerate(models):
+                value = index.get((sc, m), {}).get(key)
+                if value is not None:
+                    out[i, j] = value
+        return out
+    specs = [("rmsd", {"RMSD XY": table("rmsd_xy_gsd"), "RMSD Z": table("rmsd_z_gsd")}, "[GSD]",
+              "Accuracy at check points: RMSD(XY) and RMSD(Z) in GSD (Fig. 3 of seed 000)."),
+             ("precision", {"RMS σ̂XY": table("rms_sigma_xy_gsd"), "RMS σ̂Z": table("rms_sigma_z_gsd")}, "[GSD]",
+              "Precision of the tie points: RMS of the a-posteriori σ in GSD (Fig. 4 of seed 000)."),
+             ("sigma0", {"σ̂0": table("sigma0_px")}, "[px]", "A-posteriori σ̂0 of an image coordinate (Fig. 5).")]
+    for stem, values, unit, caption in specs:
+        fig = figures.comparison_figure(scenarios, models, values, unit, caption.split(":")[0])
+        _add_figure(page, files, fig, f"comparison-{stem}", caption)
+    best = best_cells(rows)
+    if best:
+        page.heading("Best model per scenario", 2)
+        items = []
+        for scenario, row in best.items():
+            link = links.get((scenario, row["ap_model"]))
+            name = html.escape(row["ap_model"])
+            target = f'<a href="{html.escape(link)}">{name}</a>' if link else name
+            items.append(f"<li>{html.escape(scenario)}: {target} (RMSD XY {fmt(row['rmsd_xy_m'])} m, Z "
+                         f"{fmt(row['rmsd_z_m'])} m at check points)</li>")
+        page.add("<ul>" + "".join(items) + "</ul>")
+        page.paragraph("Best = smallest sqrt(RMSD_XY² + RMSD_Z²) at the check points. Other cells: "
+                       "selfcal report SCENARIO/MODEL renders their report.", "note")
+    page.heading("Table", 2)
+    page.add(f"<pre>{html.escape(table_markdown)}</pre>")
+    files["report.html"] = page.html()
+    return files
