@@ -34,6 +34,7 @@ bench: install
 	$(PY) benchmarks/bench_spine.py
 	$(PY) benchmarks/bench_stats.py
 	$(PY) benchmarks/bench_batch.py
+	$(PY) benchmarks/bench_report.py
 
 clean:
 	rm -rf $(VENV) demo-results .pytest_cache
