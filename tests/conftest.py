@@ -16,10 +16,11 @@ SHARED_DATA = os.path.join(os.path.dirname(__file__), "..", "..", "shared", "dat
 
 @functools.lru_cache(maxsize=None)
 def simulation(seed: int = 1, distortion: str = "none", points_per_mm2: float = 3.5, blunder_rate: float = 0.0,
-               image_sigma_px: float = 0.5):
-    """A cached seed-000 simulation (the same arguments give the same object)."""
+               image_sigma_px: float = 0.5, **trajectory):
+    """A cached seed-000 simulation (the same arguments give the same object); ``trajectory`` passes
+    gnss_shift_m, gnss_drift_mm_s, imu_shift_deg, lever_arm_m, boresight_deg (hashable values)."""
     return simulate_uav(seed=seed, distortion=distortion, points_per_mm2=points_per_mm2,
-                        blunder_rate=blunder_rate, image_sigma_px=image_sigma_px)
+                        blunder_rate=blunder_rate, image_sigma_px=image_sigma_px, **trajectory)
 
 
 def pruned(sim, scenario: str):

@@ -73,3 +73,61 @@ def test_trajectory_data_improve_the_check_points():
         assert np.all(sigma["type2"] < sigma["type1"]) and np.all(sigma["type4"] < sigma["type3"])
     assert squares["type2"] < squares["type1"], squares
     assert squares["type4"] < 1.03 ** 2 * squares["type3"], squares
+
+
+LEVER_ARM_M = np.array([0.05, -0.12, 0.25])
+BORESIGHT_DEG = np.array([0.08, -0.05, 0.12])
+
+
+def test_lever_arm_and_boresight_within_three_sigma():
+    """A GNSS antenna 0.05/-0.12/0.25 m from the perspective centre and an IMU turned by 0.08/-0.05/0.12
+    degrees, no strip-wise errors: both recovered (four seeds pooled), with sigmas small against them."""
+    z, sd = [], []
+    for seed in (10, 11, 12, 13):
+        sim = simulation(seed=seed, distortion="none", points_per_mm2=0.3, gnss_shift_m=0.0,
+                         gnss_drift_mm_s=0.0, imu_shift_deg=0.0, lever_arm_m=tuple(LEVER_ARM_M),
+                         boresight_deg=tuple(BORESIGHT_DEG))
+        np.testing.assert_allclose(sim.truth.lever_arm_m, LEVER_ARM_M)
+        result = adjust(pruned(sim, "type4"), AdjustOptions(gnss_drift=-1, imu_drift=-1, lever_arm=True,
+                                                             boresight=True))
+        assert result.converged and result.problem.extra_names[:3] == ["GNSS lever arm x", "GNSS lever arm y",
+                                                                       "GNSS lever arm z"]
+        n0 = result.problem.n_e + result.problem.n_d
+        sigma = np.sqrt(result.variance_factor * np.diag(result.Q_theta)[n0:])
+        truth = np.concatenate([sim.truth.lever_arm_m, sim.truth.boresight_rad])
+        z.append((result.state.extra - truth) / sigma)
+        sd.append(sigma)
+    z, sd = np.array(z), np.array(sd)
+    assert np.all(np.abs(z) < 3), z
+    assert 0.4 < np.sqrt(np.mean(z ** 2)) < 1.5, z
+    # x, y of the lever arm to 2.5 cm; its z rides on the principal distance over flat ground (sigma ~ 0.17 m)
+    assert np.all(sd[:, :2] < 0.025) and np.all(sd[:, 2] < 0.25)
+    assert np.all(np.degrees(sd[:, 3:]) < [0.006, 0.006, 0.012])       # IMU sigma / sqrt(28 images)
+
+
+def test_lever_arm_with_strip_shifts_is_refused(tmp_path, capsys):
+    from conftest import run_cli
+    block = tmp_path / "sim"
+    assert run_cli("simulate", "uav", "--out", str(block), "--seed", "2", "--distortion", "none",
+                   "--scenario", "type2") == 0
+    assert run_cli("adjust", str(block / "type2"), "--out", str(tmp_path / "r"), "--lever-arm") == 2
+    assert "--gnss-drift none" in capsys.readouterr().err
+    assert run_cli("adjust", str(block / "type2"), "--out", str(tmp_path / "r"), "--boresight",
+                   "--gnss-drift", "none", "--imu-drift", "0") == 2
+    assert "--imu-drift none" in capsys.readouterr().err
+    assert not (tmp_path / "r").exists()
+
+
+def test_trajectory_csv_lists_every_term(adjusted):
+    from selfcal.report.metrics import trajectory_table
+    sim, result = adjusted
+    header, cols, _ = trajectory_table(result)
+    table = dict(zip(header, cols))
+    gnss_d0 = (table["sensor"] == "GNSS") & (table["term"] == "D0")
+    assert gnss_d0.sum() == 12 and set(table["unit"][table["term"] == "D1"]) == {"m/s"}
+    value, sigma = estimates(result, "GNSS", 0)
+    np.testing.assert_allclose(table["value"][gnss_d0].reshape(4, 3), value)
+    np.testing.assert_allclose(table["sigma"][gnss_d0].reshape(4, 3), sigma)
+    imu = table["sensor"] == "IMU"
+    np.testing.assert_allclose(table["value"][imu].reshape(4, 3), np.degrees(estimates(result, "IMU", 0)[0]))
+    assert set(table["unit"][imu]) == {"deg"}

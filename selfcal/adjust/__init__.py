@@ -41,6 +41,8 @@ class AdjustOptions:
     gnss_drift, imu_drift : int
         Order of the strip-wise shift/drift of GNSS positions and IMU attitudes
         (Eq. 12 of seed 000): -1 none, 0 shift, 1 shift + linear drift (default), 2 quadratic.
+    lever_arm, boresight : bool
+        Estimate the GNSS lever arm and the IMU boresight angles (need the order -1).
     solver : SolverOptions
     """
 
@@ -48,6 +50,8 @@ class AdjustOptions:
     grid: tuple[int, int] = (9, 6)
     gnss_drift: int = 1
     imu_drift: int = 1
+    lever_arm: bool = False
+    boresight: bool = False
     solver: SolverOptions = field(default_factory=SolverOptions)
 
 
@@ -203,7 +207,8 @@ def adjust(block: Block, options: AdjustOptions = AdjustOptions(),
     t0 = time.perf_counter()
     settings = {"grid": options.grid} if options.ap.startswith("wavelet") else {}
     problem = build_problem(block, options.ap, settings, ap_models=ap_models,
-                            gnss_drift=options.gnss_drift, imu_drift=options.imu_drift)
+                            gnss_drift=options.gnss_drift, imu_drift=options.imu_drift,
+                            lever_arm=options.lever_arm, boresight=options.boresight)
     if free:
         for cam in problem.cameras:
             if cam.camera_id in free:

@@ -121,7 +121,7 @@ def _from_previous(problem: Problem, block, state: State, start) -> tuple[np.nda
     prev_names = [n for t in start.problem.trajectory for n in t.names]
     names = [n for t in problem.trajectory for n in t.names]
     if prev_names == names:
-        state.extra[:] = np.where(problem.extra_free, start.state.extra, 0.0)
+        state.extra[:] = np.where(problem.extra_free, start.state.extra, state.extra)
     prev_cams = {c.camera_id: (c, v) for c, v in zip(start.problem.cameras, start.state.cameras)}
     for k, cam in enumerate(problem.cameras):
         if cam.camera_id in prev_cams:
@@ -154,7 +154,7 @@ def initial_state(problem: Problem, block, start=None) -> tuple[State, list[str]
     cameras = [cam.prior_value.copy() for cam in problem.cameras]
     xyz = points.xyz_m.copy()
     state = State(eop=eop, cameras=cameras, points=xyz,
-                  extra=np.zeros(sum(t.n_params for t in problem.trajectory)))
+                  extra=np.concatenate([np.zeros(0)] + [t.initial() for t in problem.trajectory]))
     notes: list[str] = []
     if start is not None:
         has_img, has_pt = _from_previous(problem, block, state, start)

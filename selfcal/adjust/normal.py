@@ -25,7 +25,7 @@ import numpy as np
 import scipy.linalg.blas
 import scipy.sparse as sp
 
-from ..geometry.rotation import matrix_from_opk, matrix_from_opk_with_derivatives
+from ..geometry.rotation import matrix_from_opk, matrix_from_opk_with_derivatives, opk_from_matrix_with_derivatives
 from ..sensors import bal
 from ..sensors.frame import project, project_with_jacobians_indexed
 from .kernels import (accumulate_observations, camera_couplings, point_blocks_times, schur_image_blocks,
@@ -252,6 +252,32 @@ def parameter_observation_groups(problem: Problem) -> np.ndarray:
     return np.array(labels, dtype=object)
 
 
+def _mounted_sensor(t, eop: np.ndarray, mounting: np.ndarray):
+    """What a trajectory sensor observes of each image before shift/drift, with derivatives.
+
+    GNSS: X0 + M^T a (lever arm a in the camera frame). IMU: the angles of
+    B(b)^T M (boresight angles b). Returns the model (n, 3), its derivatives with
+    respect to the image's six orientation unknowns (n, 3, 6) and with respect to
+    the mounting (n, 3, 3).
+    """
+    n = len(eop)
+    d_eop = np.zeros((n, 3, 6))
+    if not t.mounted:
+        d_eop[:, np.arange(3), t.offset + np.arange(3)] = 1.0
+        return eop[:, t.offset:t.offset + 3].copy(), d_eop, np.zeros((n, 3, 3))
+    M, dM = matrix_from_opk_with_derivatives(eop[:, 3:])
+    if t.offset == 0:
+        d_eop[:, np.arange(3), np.arange(3)] = 1.0
+        d_eop[:, :, 3:] = np.einsum("nkji,j->nik", dM, mounting)       # d(M^T a)/d angle k
+        return eop[:, :3] + np.einsum("nji,j->ni", M, mounting), d_eop, np.swapaxes(M, 1, 2)
+    B, dB = matrix_from_opk_with_derivatives(mounting)
+    N = np.einsum("ji,njk->nik", B, M)                                  # B^T M
+    angles, d_angles = opk_from_matrix_with_derivatives(N)
+    d_eop[:, :, 3:] = np.einsum("naij,nkij->nak", d_angles, np.einsum("ji,nkjl->nkil", B, dM))
+    d_mount = np.einsum("naij,nkij->nak", d_angles, np.einsum("kji,njl->nkil", dB, M))  # dB_k^T M
+    return angles, d_eop, d_mount
+
+
 def parameter_observations(problem: Problem, state: State) -> tuple[sp.csr_matrix, np.ndarray]:
     """Whitened Jacobian (k, n_theta) and residuals l - f of the parameter observations."""
     rows, cols, vals, res = [], [], [], []
@@ -273,19 +299,28 @@ def parameter_observations(problem: Problem, state: State) -> tuple[sp.csr_matri
             x_col += int(t.free.sum())
             x_full += t.n_params
             continue
-        model = state.eop[t.index, t.offset:t.offset + 3].copy()
         powers = t.design()                                            # (n, order + 1)
         values = state.extra[x_full:x_full + t.n_params]
+        model, d_eop, d_mount = _mounted_sensor(t, state.eop[t.index], t.mounting_of(values))
         if t.order >= 0:
-            coeff = values.reshape(len(t.strips), t.order + 1, 3)
+            coeff = values[:t.n_strip_params].reshape(len(t.strips), t.order + 1, 3)
             model += np.einsum("nk,nka->na", powers, coeff[t.strip_of])
         diff = t.observed - model
         if t.wrap:
             diff = _wrap(diff)
         rows_here = k + np.arange(3 * n).reshape(n, 3)
-        rows.append(rows_here.ravel())
-        cols.append((6 * t.index[:, None] + t.offset + np.arange(3)).ravel())
-        vals.append(np.tile(1.0 / t.sigma, n))
+        # d(model)/d(the image's six orientation unknowns), whitened: (n, 3 rows, 6 columns)
+        nz = d_eop != 0
+        rows.append(np.broadcast_to(rows_here[:, :, None], (n, 3, 6))[nz])
+        cols.append(np.broadcast_to(6 * t.index[:, None, None] + np.arange(6)[None, None, :], (n, 3, 6))[nz])
+        vals.append((d_eop / t.sigma[None, :, None])[nz])
+        if t.estimate_mounting:
+            free_pos = np.cumsum(t.free) - 1
+            ok = t.free[t.n_strip_params:t.n_strip_params + 3]
+            mount_cols = x_col + free_pos[t.n_strip_params + np.arange(3)]
+            rows.append(np.broadcast_to(rows_here[:, :, None], (n, 3, 3))[:, :, ok].ravel())
+            cols.append(np.broadcast_to(mount_cols[None, None, :], (n, 3, 3))[:, :, ok].ravel())
+            vals.append((d_mount / t.sigma[None, :, None])[:, :, ok].ravel())
         if t.order >= 0:
             # column of (strip s, power j, axis a) among this sensor's free parameters
             full_index = (t.strip_of[:, None, None] * (t.order + 1) + np.arange(t.order + 1)[None, :, None]) * 3 \

@@ -32,6 +32,7 @@ from ..ap import APModel, ImageFrame, create_ap
 from ..ap.none import NoAP
 from ..sensors.bal import CAMERA_NAMES as BAL_CAMERA_NAMES
 from ..block import Block
+from ..errors import UsageError
 from ..sensors.frame import EOP_NAMES, IOP_NAMES, photo_from_pixel
 
 __all__ = ["CameraParameters", "Problem", "State", "TrajectoryTerms", "build_problem", "trajectory_terms",
@@ -212,7 +213,14 @@ class TrajectoryTerms:
     with P0 the image's exterior orientation (position for GNSS, attitude for
     IMU) and dt the time since the strip's first exposure. ``order`` -1 means
     plain observations (no shift/drift); 0 a shift D0; 1 shift and drift; 2 adds D2.
-    Parameters are laid out per strip as [D0 (3), D1 (3), D2 (3)].
+
+    The mounting of the sensor enters P0: the GNSS antenna sits at the lever arm
+    ``a`` (camera frame, metres), P0 = X0 + M^T a; the IMU body frame is turned by
+    the boresight angles ``b`` from the camera, P0 = opk(B(b)^T M) (M the camera's
+    object-to-image rotation). ``mounting`` holds a or b (radians) as given; with
+    ``estimate_mounting`` they are three more unknowns, starting from it.
+
+    Parameters are laid out per strip as [D0 (3), D1 (3), D2 (3)], then the mounting (3) if estimated.
     """
 
     sensor: str                 # "GNSS" or "IMU"
@@ -226,14 +234,35 @@ class TrajectoryTerms:
     strips: list[str]
     free: np.ndarray            # bool over the parameters (screening holds some at zero)
     names: list[str]
+    mounting: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    estimate_mounting: bool = False
 
     @property
     def n_params(self) -> int:
         return len(self.free)
 
     @property
+    def n_strip_params(self) -> int:
+        return len(self.strips) * (self.order + 1) * 3 if self.order >= 0 else 0
+
+    @property
     def wrap(self) -> bool:
         return self.offset == 3
+
+    @property
+    def mounted(self) -> bool:
+        """Whether the mounting enters the model (estimated, or given and not zero)."""
+        return self.estimate_mounting or bool(np.any(self.mounting != 0))
+
+    def initial(self) -> np.ndarray:
+        """Initial values of the parameters: zero shift/drift, the given mounting."""
+        return np.concatenate([np.zeros(self.n_strip_params), self.mounting if self.estimate_mounting else []])
+
+    def mounting_of(self, values: np.ndarray) -> np.ndarray:
+        """The lever arm or boresight angles in effect, from this sensor's parameter values."""
+        if self.estimate_mounting:
+            return values[self.n_strip_params:self.n_strip_params + 3]
+        return self.mounting
 
     def design(self) -> np.ndarray:
         """(k, order + 1) powers of dt."""
@@ -241,9 +270,18 @@ class TrajectoryTerms:
 
 
 def trajectory_terms(sensor: str, images, index: np.ndarray, observed: np.ndarray, sigma: np.ndarray,
-                     offset: int, order: int) -> TrajectoryTerms:
-    """Set up one sensor's trajectory observations with strip-wise shift/drift of ``order``."""
+                     offset: int, order: int, mounting=None, estimate_mounting: bool = False) -> TrajectoryTerms:
+    """Set up one sensor's trajectory observations with strip-wise shift/drift of ``order``.
+
+    ``mounting``: the lever arm (GNSS, metres) or boresight angles (IMU, radians); with
+    ``estimate_mounting`` they are unknowns. They cannot be told apart from strip-wise
+    shifts (the attitude is nearly constant along a strip), so estimating them needs ``order`` -1.
+    """
     from ..errors import AdjustmentError
+    what = "lever arm" if offset == 0 else "boresight angles"
+    if estimate_mounting and order >= 0:
+        raise UsageError(f"the {sensor} {what} cannot be separated from strip-wise {sensor} shifts (the attitude "
+                         f"hardly changes along a strip): estimate them with --{sensor.lower()}-drift none")
     strip_ids = images.strip_id[index]
     strips = list(dict.fromkeys(strip_ids.tolist()))
     strip_of = np.array([strips.index(s) for s in strip_ids], dtype=np.int64)
@@ -255,8 +293,12 @@ def trajectory_terms(sensor: str, images, index: np.ndarray, observed: np.ndarra
     dt = np.nan_to_num(times - t0[strip_of]) if order >= 1 else np.zeros(len(index))
     axes = ("X", "Y", "Z") if offset == 0 else ("omega", "phi", "kappa")
     names = [f"{sensor} {strip} D{k} {a}" for strip in strips for k in range(order + 1) for a in axes]
+    if estimate_mounting:
+        names += [f"GNSS lever arm {a}" for a in "xyz"] if offset == 0 else \
+            [f"IMU boresight {a}" for a in ("omega", "phi", "kappa")]
     return TrajectoryTerms(sensor, index, observed, sigma, offset, order, strip_of, dt, strips,
-                           np.ones(len(names), bool), names)
+                           np.ones(len(names), bool), names,
+                           np.zeros(3) if mounting is None else np.asarray(mounting, float), estimate_mounting)
 
 
 def _chunks(point_start: np.ndarray, target: int) -> list[tuple[int, int]]:
@@ -274,7 +316,8 @@ def _chunks(point_start: np.ndarray, target: int) -> list[tuple[int, int]]:
 
 def build_problem(block: Block, ap_spec: str = "none", ap_settings: dict | None = None,
                   chunk_observations: int = CHUNK_OBSERVATIONS, ap_models: dict | None = None,
-                  gnss_drift: int = 1, imu_drift: int = 1) -> Problem:
+                  gnss_drift: int = 1, imu_drift: int = 1, lever_arm: bool = False,
+                  boresight: bool = False) -> Problem:
     """Arrange a (pruned) block for the engine.
 
     Parameters
@@ -289,6 +332,9 @@ def build_problem(block: Block, ap_spec: str = "none", ap_settings: dict | None 
     gnss_drift, imu_drift : int
         Order of the strip-wise shift/drift of the trajectory observations
         (-1 none, 0 shift, 1 shift + linear drift, 2 adds a quadratic term).
+    lever_arm, boresight : bool
+        Estimate the GNSS lever arm / the IMU boresight angles (block.toml gives their
+        initial values, else zero); both need the shift/drift order -1.
     """
     ap_settings = ap_settings or {}
     obs = block.observations
@@ -342,14 +388,21 @@ def build_problem(block: Block, ap_spec: str = "none", ap_settings: dict | None 
     control = np.flatnonzero(pts.role == "gcp")
     images = block.images
     trajectory = []
+    if lever_arm and block.gnss_sigma_m is None:
+        raise UsageError("--lever-arm needs GNSS observations ([gnss] in block.toml)")
+    if boresight and block.imu_sigma_deg is None:
+        raise UsageError("--boresight needs IMU observations ([imu] in block.toml)")
     if block.gnss_sigma_m is not None:
         index = np.flatnonzero(np.isfinite(images.position_m).all(axis=1))
         trajectory.append(trajectory_terms("GNSS", images, index, images.position_m[index],
-                                           np.array(block.gnss_sigma_m, float), 0, gnss_drift))
+                                           np.array(block.gnss_sigma_m, float), 0, gnss_drift,
+                                           block.gnss_lever_arm_m, lever_arm))
     if block.imu_sigma_deg is not None:
         index = np.flatnonzero(np.isfinite(images.attitude_rad).all(axis=1))
         trajectory.append(trajectory_terms("IMU", images, index, images.attitude_rad[index],
-                                           np.radians(np.array(block.imu_sigma_deg, float)), 3, imu_drift))
+                                           np.radians(np.array(block.imu_sigma_deg, float)), 3, imu_drift,
+                                           None if block.imu_boresight_deg is None else
+                                           np.radians(np.array(block.imu_boresight_deg, float)), boresight))
 
     return Problem(
         n_images=len(images),

@@ -44,6 +44,8 @@ class CellSettings:
     grid: tuple[int, int] = (9, 6)
     gnss_drift: int = 1
     imu_drift: int = 1
+    lever_arm: bool = False
+    boresight: bool = False
     snooping: SnoopingOptions | None = field(default_factory=SnoopingOptions)
     screening: ScreeningOptions | None = field(default_factory=ScreeningOptions)
     variance: VarianceOptions | None = None
@@ -63,7 +65,7 @@ def run_cell(scenario: str, block, model: str, settings: CellSettings = CellSett
     keep_freed_memory()
     t0 = time.perf_counter()
     options = AdjustOptions(ap=model, grid=settings.grid, gnss_drift=settings.gnss_drift,
-                            imu_drift=settings.imu_drift)
+                            imu_drift=settings.imu_drift, lever_arm=settings.lever_arm, boresight=settings.boresight)
     try:
         tested = adjust_with_tests(block, options, settings.snooping, settings.screening,
                                    variance=settings.variance)

@@ -42,7 +42,8 @@ def run(args: argparse.Namespace) -> int:
               f"{len(block.observations)} image observations; AP model {args.ap}", file=sys.stderr)
     snooping = SnoopingOptions(critical=args.snoop, mode=args.snoop_mode)
     screening = screening_options(args) if args.screen else None
-    options = AdjustOptions(ap=args.ap, grid=args.grid, gnss_drift=args.gnss_drift, imu_drift=args.imu_drift)
+    options = AdjustOptions(ap=args.ap, grid=args.grid, gnss_drift=args.gnss_drift, imu_drift=args.imu_drift,
+                            lever_arm=args.lever_arm, boresight=args.boresight)
     extra_files = {}
     if args.ap == "auto" or args.ap.startswith("auto:"):
         choice = _choose(block, args, options, snooping)

@@ -47,7 +47,8 @@ def run(args: argparse.Namespace) -> int:
             raise BlockError(folder, f"two blocks are named '{name}'; give each scenario its own folder name")
         blocks[name] = read_block(folder)
     settings = CellSettings(
-        grid=args.grid, gnss_drift=args.gnss_drift, imu_drift=args.imu_drift,
+        grid=args.grid, gnss_drift=args.gnss_drift, imu_drift=args.imu_drift, lever_arm=args.lever_arm,
+        boresight=args.boresight,
         snooping=SnoopingOptions(critical=args.snoop, mode=args.snoop_mode),
         screening=None if args.no_screen else screening_options(args),
         variance=VarianceOptions() if args.variance_components else None)

@@ -89,3 +89,8 @@ def trajectory_options(parser: argparse.ArgumentParser) -> None:
                         help="GNSS positions: none, 0 (shift), 1 (shift + drift, default), 2 (+ quadratic)")
     parser.add_argument("--imu-drift", type=drift_order, default=1, metavar="N",
                         help="IMU attitudes: none, 0 (shift), 1 (shift + drift, default), 2 (+ quadratic)")
+    parser.add_argument("--lever-arm", action="store_true",
+                        help="estimate the GNSS antenna's lever arm (camera frame; start: [gnss] lever_arm_m or 0); "
+                             "needs --gnss-drift none")
+    parser.add_argument("--boresight", action="store_true",
+                        help="estimate the IMU boresight angles (start: [imu] boresight_deg or 0); needs --imu-drift none")

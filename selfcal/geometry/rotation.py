@@ -17,7 +17,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["matrix_from_opk", "matrix_from_opk_with_derivatives", "opk_from_matrix", "matrix_from_quaternion",
+__all__ = ["matrix_from_opk", "matrix_from_opk_with_derivatives", "opk_from_matrix",
+           "opk_from_matrix_with_derivatives", "matrix_from_quaternion",
            "matrix_from_rotation_vector"]
 
 
@@ -67,6 +68,28 @@ def opk_from_matrix(m: np.ndarray) -> np.ndarray:
     omega = np.arctan2(-m[..., 2, 1], m[..., 2, 2])
     kappa = np.arctan2(-m[..., 1, 0], m[..., 0, 0])
     return np.stack([omega, phi, kappa], axis=-1)
+
+
+def opk_from_matrix_with_derivatives(m: np.ndarray):
+    """Angles of M (as :func:`opk_from_matrix`) and their derivatives with respect to its elements.
+
+    Returns
+    -------
+    opk : ndarray (..., 3)
+    d_opk : ndarray (..., 3, 3, 3)
+        ``d_opk[..., k, i, j]`` = d(angle k) / d(M[i, j]); only M[2, 0], M[2, 1], M[2, 2], M[1, 0], M[0, 0] enter.
+    """
+    m = np.asarray(m, float)
+    opk = opk_from_matrix(m)
+    d = np.zeros(m.shape[:-2] + (3, 3, 3))
+    r_omega = m[..., 2, 1] ** 2 + m[..., 2, 2] ** 2
+    d[..., 0, 2, 1] = -m[..., 2, 2] / r_omega
+    d[..., 0, 2, 2] = m[..., 2, 1] / r_omega
+    d[..., 1, 2, 0] = 1.0 / np.sqrt(np.clip(1.0 - m[..., 2, 0] ** 2, 1e-300, None))
+    r_kappa = m[..., 1, 0] ** 2 + m[..., 0, 0] ** 2
+    d[..., 2, 1, 0] = -m[..., 0, 0] / r_kappa
+    d[..., 2, 0, 0] = m[..., 1, 0] / r_kappa
+    return opk, d
 
 
 def matrix_from_quaternion(q: np.ndarray, scalar_first: bool = True) -> np.ndarray:

@@ -39,7 +39,7 @@ OBSERVATION_COLUMNS = [
 ]
 
 # block.toml schema: key -> (type, required). Types: "str", "int", "pos" (> 0),
-# "num", "nonneg" (>= 0), "vec3pos" (three numbers > 0).
+# "num", "nonneg" (>= 0), "vec3pos" (three numbers > 0), "vec3" (three finite numbers).
 _TOP_KEYS = {"name": ("str", False), "crs": ("str", False), "datum": ("str", False)}
 _FRAME_CAMERA_KEYS = {
     "model": ("str", True),
@@ -64,8 +64,8 @@ _BAL_CAMERA_KEYS = {
 _CAMERA_MODELS = {"frame": (FrameCamera, _FRAME_CAMERA_KEYS), "bal": (BalCamera, _BAL_CAMERA_KEYS)}
 _SECTIONS = {
     "observations": {"image_sigma_px": ("pos", True)},
-    "gnss": {"sigma_m": ("vec3pos", True)},
-    "imu": {"sigma_deg": ("vec3pos", True)},
+    "gnss": {"sigma_m": ("vec3pos", True), "lever_arm_m": ("vec3", False)},
+    "imu": {"sigma_deg": ("vec3pos", True), "boresight_deg": ("vec3", False)},
 }
 
 
@@ -98,11 +98,13 @@ def _check_value(path, text, section, key, value, kind):
         if not isinstance(value, int) or isinstance(value, bool) or value <= 0:
             fail(f"must be a positive integer, found {value!r}")
         return value
-    if kind == "vec3pos":
+    if kind in ("vec3pos", "vec3"):
         if (not isinstance(value, list) or len(value) != 3
                 or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)):
             fail(f"must be a list of three numbers, found {value!r}")
-        if not all(math.isfinite(v) and v > 0 for v in value):
+        if kind == "vec3" and not all(math.isfinite(v) for v in value):
+            fail(f"all three values must be finite, found {value!r}")
+        if kind == "vec3pos" and not all(math.isfinite(v) and v > 0 for v in value):
             fail(f"all three values must be positive and finite, found {value!r}")
         return tuple(float(v) for v in value)
     if not isinstance(value, (int, float)) or isinstance(value, bool):
@@ -324,6 +326,8 @@ def read_block(folder: str | os.PathLike, min_gcp: int = 3) -> Block:
         image_sigma_px=image_sigma,
         gnss_sigma_m=gnss,
         imu_sigma_deg=imu,
+        gnss_lever_arm_m=settings.get("gnss", {}).get("lever_arm_m"),
+        imu_boresight_deg=settings.get("imu", {}).get("boresight_deg"),
         datum=settings.get("datum", "control"),
     )
     block = prune(block)
@@ -376,9 +380,15 @@ def block_toml_text(block: Block) -> str:
         lines.append("")
     lines += ["[observations]", f"image_sigma_px = {_fmt_toml_value(block.image_sigma_px)}", ""]
     if block.gnss_sigma_m is not None:
-        lines += ["[gnss]", f"sigma_m = {_fmt_toml_value(block.gnss_sigma_m)}", ""]
+        lines += ["[gnss]", f"sigma_m = {_fmt_toml_value(block.gnss_sigma_m)}"]
+        if block.gnss_lever_arm_m is not None:
+            lines.append(f"lever_arm_m = {_fmt_toml_value(block.gnss_lever_arm_m)}")
+        lines.append("")
     if block.imu_sigma_deg is not None:
-        lines += ["[imu]", f"sigma_deg = {_fmt_toml_value(block.imu_sigma_deg)}", ""]
+        lines += ["[imu]", f"sigma_deg = {_fmt_toml_value(block.imu_sigma_deg)}"]
+        if block.imu_boresight_deg is not None:
+            lines.append(f"boresight_deg = {_fmt_toml_value(block.imu_boresight_deg)}")
+        lines.append("")
     return "\n".join(lines)
 
 

@@ -23,13 +23,16 @@ from .atomic import atomic_folder, atomic_write
 from .table import write_table
 
 __all__ = ["write_results", "write_files", "to_jsonable", "ResultsFolder", "read_results", "results_from_files",
-           "RESULT_TABLES"]
+           "RESULT_TABLES", "OPTIONAL_TABLES"]
 
 #: the CSV tables of a results folder that the report reads (DESIGN.md §4), by short name
 RESULT_TABLES = {"images": "images.csv", "points": "points.csv", "residuals": "residuals.csv",
                  "distortion_grid": "distortion_grid.csv", "correlation": "correlation.csv"}
+#: tables that only some results folders have (trajectory.csv: blocks with [gnss] or [imu])
+OPTIONAL_TABLES = {"trajectory": "trajectory.csv"}
 #: columns that hold names, not numbers
-_TEXT_COLUMNS = {"image_id", "camera_id", "strip_id", "point_id", "role", "parameter"}
+_TEXT_COLUMNS = {"image_id", "camera_id", "strip_id", "point_id", "role", "parameter", "sensor", "term", "axis",
+                 "unit"}
 
 
 def to_jsonable(value):
@@ -145,12 +148,15 @@ def read_results(folder: str | os.PathLike) -> ResultsFolder:
             raise BlockError(p, "missing: is this a results folder written by 'selfcal adjust'?")
         return p
     screening = os.path.join(folder, "screening.json")
+    tables = {key: _read_csv(path(name)) for key, name in RESULT_TABLES.items()}
+    tables |= {key: _read_csv(os.path.join(folder, name)) for key, name in OPTIONAL_TABLES.items()
+               if os.path.isfile(os.path.join(folder, name))}
     return ResultsFolder(
         path=folder,
         summary=_read_json(path("summary.json")),
         camera=_read_json(path("camera.json")),
         screening=_read_json(screening) if os.path.isfile(screening) else {},
-        tables={key: _read_csv(path(name)) for key, name in RESULT_TABLES.items()})
+        tables=tables)
 
 
 def results_from_files(files: dict, path: str | None = None) -> ResultsFolder:
@@ -171,4 +177,4 @@ def results_from_files(files: dict, path: str | None = None) -> ResultsFolder:
         summary=to_jsonable(files["summary.json"]),
         camera=to_jsonable(files["camera.json"]),
         screening=to_jsonable(files.get("screening.json", {})),
-        tables={key: table(files[name]) for key, name in RESULT_TABLES.items()})
+        tables={key: table(files[name]) for key, name in (RESULT_TABLES | OPTIONAL_TABLES).items() if name in files})

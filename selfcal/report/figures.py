@@ -251,6 +251,8 @@ def comparison_figure(scenarios: list[str], models: list[str], values: dict[str,
     """Grouped bars, one group per scenario and one bar per model (Figs. 3-5 of seed 000).
 
     ``values`` maps a panel label to a (n_scenarios, n_models) array (NaN: no value).
+    A panel whose values span more than a factor 20 gets a logarithmic axis, so that
+    the small values stay readable next to those of ``none``.
     """
     panels = list(values)
     fig = Figure(figsize=(_WIDTH_IN, 2.8 * len(panels) + 0.4), layout="constrained")
@@ -262,10 +264,14 @@ def comparison_figure(scenarios: list[str], models: list[str], values: dict[str,
         for j, model in enumerate(models):
             ax.bar(x - 0.4 + (j + 0.5) * width, np.nan_to_num(table[:, j], nan=0.0), width, label=model,
                    color=f"C{j % 10}")
+        positive = table[np.isfinite(table) & (table > 0)]
+        if positive.size and positive.max() > 20 * positive.min():
+            ax.set_yscale("log")
         ax.set_ylabel(f"{panel} {ylabel}")
-        ax.grid(axis="y", color="0.9")
+        ax.grid(axis="y", color="0.9", which="both")
         ax.set_axisbelow(True)
     axes[-1].set_xticks(x, scenarios)
-    axes[0].legend(fontsize=7, ncols=min(len(models), 5), loc="upper right")
+    handles, labels = axes[0].get_legend_handles_labels()
+    fig.legend(handles, labels, fontsize=7, ncols=min(len(models), 6), loc="outside upper center")
     fig.suptitle(title, x=0.01, ha="left", fontsize=10)
     return fig

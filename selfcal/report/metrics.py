@@ -18,7 +18,8 @@ from ..stats.accuracy import ce90, le90
 from ..stats.correlation import max_abs_correlation_by_group
 
 __all__ = ["ground_sample_distance", "model_choice_table", "summary", "camera_json", "image_table", "point_table",
-           "residual_table", "screening_json", "correlation_table", "distortion_grid_table", "result_files"]
+           "residual_table", "screening_json", "correlation_table", "distortion_grid_table", "trajectory_table",
+           "result_files"]
 
 
 def ground_sample_distance(block, result) -> float:
@@ -298,7 +299,43 @@ def result_files(block_read, tested, summary_extra: dict | None = None, screenin
         "distortion_grid.csv": distortion_grid_table(result.block, result),
         "screening.json": screening_json(tested, screening_options),
         "correlation.csv": correlation_table(result),
-    }
+    } | ({"trajectory.csv": trajectory_table(result)} if result.problem.trajectory else {})
+
+
+def trajectory_table(result):
+    """trajectory.csv: the strip-wise shift/drift (Eq. 12 of seed 000) and the mounting of each trajectory sensor.
+
+    One row per parameter: ``sensor`` (GNSS, IMU), ``strip_id`` (empty for the mounting),
+    ``term`` (D0, D1, D2, lever_arm, boresight), ``axis``, value and a-posteriori sigma in
+    ``unit`` (m, m/s, m/s^2 for GNSS; deg, deg/s, deg/s^2 for IMU), and ``active``
+    (false: held at zero by screening, sigma empty).
+    """
+    problem, state = result.problem, result.state
+    diag = np.diag(result.Q_theta)
+    cols = {k: [] for k in ("sensor", "strip_id", "term", "axis", "value", "sigma", "unit", "active")}
+    full, free_col = 0, problem.n_e + problem.n_d
+    for t in problem.trajectory:
+        gnss = t.offset == 0
+        axes = ("X", "Y", "Z") if gnss else ("omega", "phi", "kappa")
+        base = "m" if gnss else "deg"
+        scale = 1.0 if gnss else float(np.degrees(1.0))
+        meta = [(t.strips[s], f"D{k}", axes[a], base + ("" if k == 0 else "/s" if k == 1 else "/s^2"))
+                for s in range(len(t.strips)) for k in range(t.order + 1) for a in range(3)]
+        if t.estimate_mounting:
+            meta += [("", "lever_arm", a, "m") for a in "xyz"] if gnss else \
+                [("", "boresight", a, "deg") for a in axes]
+        for j, (strip, term, axis, unit) in enumerate(meta):
+            active = bool(t.free[j])
+            sigma = np.sqrt(result.variance_factor * diag[free_col]) * scale if active else np.nan
+            free_col += int(active)
+            for key, value in zip(cols, (t.sensor, strip, term, axis, state.extra[full + j] * scale, sigma, unit,
+                                         int(active))):
+                cols[key].append(value)
+        full += t.n_params
+    header = list(cols)
+    columns = [np.array(cols[h], dtype=object) if h in ("sensor", "strip_id", "term", "axis", "unit")
+               else np.array(cols[h], dtype=float if h != "active" else int) for h in header]
+    return header, columns, ["", "", "", "", ".6f", ".6f", "", "d"]
 
 
 def model_choice_table(choice) -> tuple:

@@ -258,6 +258,22 @@ def _camera_section(page: Page, results) -> None:
                    ident=f"ap-{camera_id}")
 
 
+def _trajectory_section(page: Page, results) -> None:
+    traj = results.tables.get("trajectory")
+    if traj is None or not len(traj["sensor"]):
+        return
+    page.heading("Trajectory: strip-wise shift and drift, mounting", 3)
+    rows = [[traj["sensor"][i], traj["strip_id"][i], traj["term"][i], traj["axis"][i],
+             fmt(traj["value"][i], ".5f"), fmt(traj["sigma"][i], ".5f"), traj["unit"][i],
+             "estimated" if traj["active"][i] == 1 else "dropped by screening"]
+            for i in range(len(traj["sensor"]))]
+    page.paragraph("GNSS positions and IMU attitudes observed as P0 + D0 + D1·Δt + D2·Δt² per strip (Eq. 12 of "
+                   "seed 000), Δt from the strip's first exposure; a lever arm (camera frame) or boresight angles "
+                   "when estimated. Also in trajectory.csv.", "note")
+    page.table(["sensor", "strip", "term", "axis", "value", "σ", "unit", ""], rows, text_columns={0, 1, 2, 3, 6, 7},
+               ident="trajectory")
+
+
 def _images_section(page: Page, results) -> None:
     im = results.tables["images"]
     rows = []
@@ -343,6 +359,7 @@ def render_report(results, title: str | None = None) -> dict:
     _camera_section(page, results)
     page.heading("Exterior orientation", anchor="images")
     _images_section(page, results)
+    _trajectory_section(page, results)
     page.heading("Rejected observations", anchor="rejected")
     _rejected_section(page, results)
     _notes_section(page, s)

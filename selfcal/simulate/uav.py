@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..block import Block, Dropped, FrameCamera, Images, Observations, Points
+from ..geometry.rotation import matrix_from_opk, opk_from_matrix
 from ..sensors.frame import pixel_from_photo, project
 
 __all__ = ["TrueDistortion", "UAVTruth", "UAVSimulation", "simulate_uav", "truth_files", "SCENARIOS", "DISTORTIONS"]
@@ -92,6 +93,8 @@ class UAVTruth:
     gnss_shift_m: np.ndarray            # (n_strips, 3) D0
     gnss_drift_m_s: np.ndarray          # (n_strips, 3) D1
     imu_shift_rad: np.ndarray           # (n_strips, 3)
+    lever_arm_m: np.ndarray             # (3,) GNSS antenna in the camera frame
+    boresight_rad: np.ndarray           # (3,) IMU boresight angles
     image_sigma_px: float
     gsd_m: float
 
@@ -128,7 +131,8 @@ def simulate_uav(seed: int = 0, distortion: str = "local+brown", image_sigma_px:
                  blunder_rate: float = 0.0, points_per_mm2: float = 3.5,
                  gnss_sigma_m=(0.05, 0.05, 0.10), imu_sigma_deg=(0.02, 0.02, 0.05),
                  gnss_shift_m: float = 0.2, gnss_drift_mm_s: float = 5.0, imu_shift_deg: float = 0.05,
-                 distortion_scale: float = 1.0) -> UAVSimulation:
+                 distortion_scale: float = 1.0, lever_arm_m=(0.0, 0.0, 0.0),
+                 boresight_deg=(0.0, 0.0, 0.0)) -> UAVSimulation:
     """Simulate the seed-000 block; returns the four scenario blocks and the truth.
 
     Parameters
@@ -147,6 +151,10 @@ def simulate_uav(seed: int = 0, distortion: str = "local+brown", image_sigma_px:
         Image point density.
     gnss_shift_m, gnss_drift_mm_s, imu_shift_deg : float
         Typical size of the per-strip trajectory errors of Eq. (12).
+    lever_arm_m, boresight_deg : 3 floats
+        Mounting of the GNSS antenna (camera frame) and of the IMU: the GNSS observes
+        X0 + M^T a, the IMU the angles of B(b)^T M (selfcal.adjust.normal._mounted_sensor).
+        The blocks do not give them (block.toml has no lever_arm_m / boresight_deg).
     """
     rng = np.random.default_rng(seed)
     width_px, height_px, pixel = 6000, 4000, 0.0059
@@ -262,8 +270,13 @@ def simulate_uav(seed: int = 0, distortion: str = "local+brown", image_sigma_px:
     imu_shift = np.radians(rng.normal(0, imu_shift_deg, (n_strips, 3)))
     t_strip0 = np.array([times[strip_of == s].min() for s in range(n_strips)])
     dt = times - t_strip0[strip_of]
-    gnss = eop[:, :3] + shift[strip_of] + drift[strip_of] * dt[:, None] + rng.normal(0, 1, (n_img, 3)) * gnss_sigma
-    imu = eop[:, 3:] + imu_shift[strip_of] + rng.normal(0, 1, (n_img, 3)) * imu_sigma
+    lever_arm = np.array(lever_arm_m, float)
+    boresight = np.radians(np.array(boresight_deg, float))
+    M = matrix_from_opk(eop[:, 3:])
+    antenna = eop[:, :3] + np.einsum("nji,j->ni", M, lever_arm)
+    body = opk_from_matrix(np.einsum("ji,njk->nik", matrix_from_opk(boresight), M)) if boresight.any() else eop[:, 3:]
+    gnss = antenna + shift[strip_of] + drift[strip_of] * dt[:, None] + rng.normal(0, 1, (n_img, 3)) * gnss_sigma
+    imu = body + imu_shift[strip_of] + rng.normal(0, 1, (n_img, 3)) * imu_sigma
     imu = (imu + np.pi) % (2 * np.pi) - np.pi
 
     strip_names = np.array([f"S{s + 1}" for s in range(n_strips)], dtype=object)
@@ -308,7 +321,7 @@ def simulate_uav(seed: int = 0, distortion: str = "local+brown", image_sigma_px:
         camera=true_cam, distortion=field_, image_id=images.image_id, eop=eop,
         point_id=point_id, xyz=xyz_true, blunder_obs=blunder_obs, blunder_px=blunder_px,
         strip_id=strip_names, gnss_shift_m=shift, gnss_drift_m_s=drift, imu_shift_rad=imu_shift,
-        image_sigma_px=image_sigma_px, gsd_m=pixel * agl / true_cam.focal_mm,
+        lever_arm_m=lever_arm, boresight_rad=boresight, image_sigma_px=image_sigma_px, gsd_m=pixel * agl / true_cam.focal_mm,
     )
     info = {"n_images": n_img, "n_points": len(xyz_true), "n_observations": n_obs,
             "points_per_image": n_obs / n_img, "n_marks": n_marks, "seed": seed, "distortion": distortion}
@@ -334,6 +347,7 @@ def truth_files(truth: UAVTruth, nodes_x: int = 61) -> dict:
         "strip_id": list(truth.strip_id),
         "gnss_shift_m": truth.gnss_shift_m, "gnss_drift_m_s": truth.gnss_drift_m_s,
         "imu_shift_deg": np.degrees(truth.imu_shift_rad),
+        "lever_arm_m": truth.lever_arm_m, "boresight_deg": np.degrees(truth.boresight_rad),
     }
     return {
         "camera.json": camera,
