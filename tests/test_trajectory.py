@@ -131,3 +131,18 @@ def test_trajectory_csv_lists_every_term(adjusted):
     imu = table["sensor"] == "IMU"
     np.testing.assert_allclose(table["value"][imu].reshape(4, 3), np.degrees(estimates(result, "IMU", 0)[0]))
     assert set(table["unit"][imu]) == {"deg"}
+
+
+def test_mounting_keys_round_trip_through_block_toml(tmp_path):
+    from dataclasses import replace
+    from selfcal.io import read_block, write_block
+    sim = simulation(seed=2, distortion="none", points_per_mm2=0.3)
+    block = replace(sim.blocks["type4"], gnss_lever_arm_m=(0.1, -0.2, 0.3), imu_boresight_deg=(0.5, 0.0, -1.0))
+    write_block(block, tmp_path / "b")
+    again = read_block(tmp_path / "b")
+    assert again.gnss_lever_arm_m == (0.1, -0.2, 0.3) and again.imu_boresight_deg == (0.5, 0.0, -1.0)
+    toml = (tmp_path / "b" / "block.toml").read_text()
+    (tmp_path / "b" / "block.toml").write_text(toml.replace("lever_arm_m = [0.1, -0.2, 0.3]", "lever_arm_m = [0.1, 0.2]"))
+    from selfcal.errors import BlockError
+    with pytest.raises(BlockError, match="three numbers"):
+        read_block(tmp_path / "b")

@@ -148,13 +148,14 @@ def read_results(folder: str | os.PathLike) -> ResultsFolder:
             raise BlockError(p, "missing: is this a results folder written by 'selfcal adjust'?")
         return p
     screening = os.path.join(folder, "screening.json")
+    summary, camera = _read_json(path("summary.json")), _read_json(path("camera.json"))
     tables = {key: _read_csv(path(name)) for key, name in RESULT_TABLES.items()}
     tables |= {key: _read_csv(os.path.join(folder, name)) for key, name in OPTIONAL_TABLES.items()
                if os.path.isfile(os.path.join(folder, name))}
     return ResultsFolder(
         path=folder,
-        summary=_read_json(path("summary.json")),
-        camera=_read_json(path("camera.json")),
+        summary=summary,
+        camera=camera,
         screening=_read_json(screening) if os.path.isfile(screening) else {},
         tables=tables)
 
