@@ -272,6 +272,6 @@ def comparison_figure(scenarios: list[str], models: list[str], values: dict[str,
         ax.set_axisbelow(True)
     axes[-1].set_xticks(x, scenarios)
     handles, labels = axes[0].get_legend_handles_labels()
-    fig.legend(handles, labels, fontsize=7, ncols=min(len(models), 6), loc="outside upper center")
+    fig.legend(handles, labels, fontsize=7, ncols=min(len(models), 6), loc="outside lower center")
     fig.suptitle(title, x=0.01, ha="left", fontsize=10)
     return fig
