@@ -220,6 +220,12 @@ def test_report_opens_in_headless_chromium(adjusted, tmp_path):
     subprocess.run(common + [f"--screenshot={shot}", url], check=True, capture_output=True, timeout=180)
     dom = subprocess.run(common + ["--virtual-time-budget=5000", "--dump-dom", url], check=True,
                          capture_output=True, text=True, timeout=180).stdout
+    pdf = tmp_path / "report.pdf"                             # printable: Chromium's print to PDF
+    subprocess.run(common + [f"--print-to-pdf={pdf}", "--no-pdf-header-footer", url], check=True,
+                   capture_output=True, timeout=180)
+    with open(pdf, "rb") as handle:
+        assert handle.read(5) == b"%PDF-"
+    assert os.path.getsize(pdf) > 200_000                     # the figures went to paper too
     # the page's own check: every <img> loaded (complete, with a natural width)
     assert f'data-images="{len(FIGURES)}"' in dom and 'data-broken-images="0"' in dom
     from PIL import Image
