@@ -60,14 +60,12 @@ def _vectors(ax, x, y, u, v, spacing: float, unit: str, color="C0", key_pos=(0.8
     largest = float(np.nanmax(length)) if length.size and np.isfinite(length).any() else 0.0
     if largest <= 0:
         ax.plot(x, y, ".", color=color, ms=2)
-        return None
+        return
     scale = largest / (1.2 * spacing)           # data units of the vector per axis unit
     q = ax.quiver(x, y, u, v, angles="xy", scale_units="xy", scale=scale, color=color,
                   width=0.003, headwidth=4, headlength=5, zorder=3)
     key = nice_length(largest / 2)
-    label = f"{key:g} {unit}"
-    ax.quiverkey(q, *key_pos, key, label, labelpos="E", coordinates="axes")
-    return q
+    ax.quiverkey(q, *key_pos, key, f"{key:g} {unit}", labelpos="E", coordinates="axes")
 
 
 def distortion_figure(col, row, dcol, drow, width_px: float, height_px: float, title: str,
@@ -81,7 +79,8 @@ def distortion_figure(col, row, dcol, drow, width_px: float, height_px: float, t
     nx = int(np.unique(col).size)
     ny = col.size // max(nx, 1)
     magnitude = np.hypot(dcol, drow)
-    if nx * ny == col.size and nx > 1 and ny > 1:
+    gridded = nx * ny == col.size and nx > 1 and ny > 1
+    if gridded:
         mesh = ax.pcolormesh(col.reshape(ny, nx), row.reshape(ny, nx), magnitude.reshape(ny, nx),
                              shading="gouraud", cmap="viridis", rasterized=True)
         fig.colorbar(mesh, ax=ax, label="|Δ| [px]", shrink=0.85)
@@ -92,8 +91,7 @@ def distortion_figure(col, row, dcol, drow, width_px: float, height_px: float, t
     else:
         pick = np.ones(col.size, bool)
         spacing = width_px / 15
-    _vectors(ax, col[pick], row[pick], dcol[pick], drow[pick], spacing, "px", color="white"
-             if nx * ny == col.size else "C0")
+    _vectors(ax, col[pick], row[pick], dcol[pick], drow[pick], spacing, "px", color="white" if gridded else "C0")
     _frame_axes(ax, width_px, height_px)
     ax.set_title(f"{title}: max |Δ| {float(np.max(magnitude)) if magnitude.size else 0:.2f} px", loc="left",
                  fontsize=10)

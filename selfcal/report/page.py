@@ -90,17 +90,13 @@ class Page:
                  f"<figcaption>{html.escape(caption)}{link}</figcaption></figure>")
 
     def table(self, header: list[str], rows: list[list], text_columns: int | set[int] = 1,
-              flagged: list[bool] | None = None, raw: bool = False, ident: str | None = None) -> None:
-        """A table; columns of text align left (the first ``text_columns``, or those in the set).
-
-        ``raw`` cells are markup already.
-        """
+              flagged: list[bool] | None = None, ident: str | None = None) -> None:
+        """A table; columns of text align left (the first ``text_columns``, or those in the set)."""
         left = set(range(text_columns)) if isinstance(text_columns, int) else set(text_columns)
 
         def cell(j, value, tag):
             css = ' class="text"' if j in left else ""
-            text = str(value) if raw and tag == "td" else html.escape(str(value))
-            return f"<{tag}{css}>{text}</{tag}>"
+            return f"<{tag}{css}>{html.escape(str(value))}</{tag}>"
         out = [f'<table id="{html.escape(ident)}">' if ident else "<table>"]
         out += ["<thead><tr>" + "".join(cell(j, h, "th") for j, h in enumerate(header)) + "</tr></thead><tbody>"]
         for i, row in enumerate(rows):

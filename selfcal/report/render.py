@@ -27,35 +27,29 @@ MAX_CAMERA_FIGURES = 4
 #: rejected observations listed in the report (largest |w| first); all of them are in residuals.csv
 MAX_REJECTED_ROWS = 200
 
+#: the summary table: a label and the summary.json keys (with their formats) printed on its row
 _SUMMARY_ROWS = [
-    ("AP model", "ap_model", ""), ("converged", "converged", ""), ("iterations", "iterations", ""),
-    ("σ̂0 [px]", "sigma0_px", ".4f"), ("variance factor σ̂0²/σ0²", "variance_factor", ".4f"),
-    ("observations / unknowns / redundancy", None, ""),
-    ("RMS image residual [px]", "rms_image_residual_px", ".4f"),
-    ("ground sample distance [m]", "gsd_m", ".4f"),
-    ("control points used (GCP)", "n_gcp_used", ""), ("check points used (CHK)", "n_chk_used", ""),
-    ("RMSD XY at check points [m]", "rmsd_chk_xy_m", ".4f"), ("RMSD Z at check points [m]", "rmsd_chk_z_m", ".4f"),
-    ("RMSD XY at check points [GSD]", "rmsd_chk_xy_gsd", ".3f"),
-    ("RMSD Z at check points [GSD]", "rmsd_chk_z_gsd", ".3f"),
-    ("CE90 / LE90 at check points [m]", None, ""),
-    ("RMS residual at control points XY / Z [m]", None, ""),
-    ("RMS σ̂ of tie points XY / Z [m]", None, ""),
-    ("RMS σ̂ of tie points XY / Z [GSD]", None, ""),
-    ("APs significant / initial", None, ""),
-    ("observations rejected", "n_obs_rejected", ""),
-    ("images / tie points / image observations", None, ""),
-    ("seconds", "seconds", ".1f"),
+    ("AP model", [("ap_model", "")]), ("converged", [("converged", "")]), ("iterations", [("iterations", "")]),
+    ("σ̂0 [px]", [("sigma0_px", ".4f")]), ("variance factor σ̂0²/σ0²", [("variance_factor", ".4f")]),
+    ("observations / unknowns / redundancy", [("n_observations", ""), ("n_unknowns", ""), ("redundancy", "")]),
+    ("RMS image residual [px]", [("rms_image_residual_px", ".4f")]),
+    ("ground sample distance [m]", [("gsd_m", ".4f")]),
+    ("control points used (GCP)", [("n_gcp_used", "")]), ("check points used (CHK)", [("n_chk_used", "")]),
+    ("RMSD XY at check points [m]", [("rmsd_chk_xy_m", ".4f")]),
+    ("RMSD Z at check points [m]", [("rmsd_chk_z_m", ".4f")]),
+    ("RMSD XY at check points [GSD]", [("rmsd_chk_xy_gsd", ".3f")]),
+    ("RMSD Z at check points [GSD]", [("rmsd_chk_z_gsd", ".3f")]),
+    ("CE90 / LE90 at check points [m]", [("ce90_chk_m", ".4f"), ("le90_chk_m", ".4f")]),
+    ("RMS residual at control points XY / Z [m]", [("rms_gcp_residual_xy_m", ".4f"),
+                                                    ("rms_gcp_residual_z_m", ".4f")]),
+    ("RMS σ̂ of tie points XY / Z [m]", [("rms_sigma_tie_xy_m", ".4f"), ("rms_sigma_tie_z_m", ".4f")]),
+    ("RMS σ̂ of tie points XY / Z [GSD]", [("rms_sigma_tie_xy_gsd", ".3f"), ("rms_sigma_tie_z_gsd", ".3f")]),
+    ("APs significant / initial", [("n_ap_significant", ""), ("n_ap_initial", "")]),
+    ("observations rejected", [("n_obs_rejected", "")]),
+    ("images / tie points / image observations", [("n_images", ""), ("n_tie_points", ""),
+                                                  ("n_image_observations", "")]),
+    ("seconds", [("seconds", ".1f")]),
 ]
-_PAIRS = {
-    "observations / unknowns / redundancy": [("n_observations", ""), ("n_unknowns", ""), ("redundancy", "")],
-    "CE90 / LE90 at check points [m]": [("ce90_chk_m", ".4f"), ("le90_chk_m", ".4f")],
-    "RMS residual at control points XY / Z [m]": [("rms_gcp_residual_xy_m", ".4f"), ("rms_gcp_residual_z_m", ".4f")],
-    "RMS σ̂ of tie points XY / Z [m]": [("rms_sigma_tie_xy_m", ".4f"), ("rms_sigma_tie_z_m", ".4f")],
-    "RMS σ̂ of tie points XY / Z [GSD]": [("rms_sigma_tie_xy_gsd", ".3f"), ("rms_sigma_tie_z_gsd", ".3f")],
-    "APs significant / initial": [("n_ap_significant", ""), ("n_ap_initial", "")],
-    "images / tie points / image observations": [("n_images", ""), ("n_tie_points", ""),
-                                                 ("n_image_observations", "")],
-}
 
 
 def _figure_files(fig, stem: str) -> tuple[dict, bytes]:
@@ -73,8 +67,8 @@ def _add_figure(page: Page, files: dict, fig, stem: str, caption: str) -> None:
 
 def _summary_section(page: Page, s: dict) -> None:
     rows = []
-    for label, key, spec in _SUMMARY_ROWS:
-        cells = [summary_cell(s, k, f) for k, f in _PAIRS[label]] if key is None else [summary_cell(s, key, spec)]
+    for label, keys in _SUMMARY_ROWS:
+        cells = [summary_cell(s, key, spec) for key, spec in keys]
         rows.append(f'<tr><td class="text">{html.escape(label)}</td>{"".join(cells)}</tr>')
     page.add("<table><tbody>" + "".join(rows) + "</tbody></table>")
     corr = s.get("max_abs_corr") or {}
@@ -86,25 +80,26 @@ def _summary_section(page: Page, s: dict) -> None:
                  f"<table><thead><tr>{head}</tr></thead><tbody><tr>{cells}</tr></tbody></table>")
 
 
-def _camera_rows(results, camera_id: str) -> dict[str, np.ndarray]:
-    """The used observations of one camera, in pixel axes: col, row, v along col and row."""
-    res = results.tables["residuals"]
+def _residual_cameras(results) -> np.ndarray:
+    """The camera of each row of residuals.csv (through its image)."""
     images = results.tables["images"]
     camera_of = dict(zip(images["image_id"], images["camera_id"]))
-    cam = np.array([camera_of.get(i) for i in res["image_id"]], dtype=object)
-    pick = (cam == camera_id) & (res["rejected"] == 0) & np.isfinite(res["vx_px"]) & np.isfinite(res["vy_px"])
+    return np.array([camera_of.get(i) for i in results.tables["residuals"]["image_id"]], dtype=object)
+
+
+def _camera_rows(results, cameras: np.ndarray, camera_id: str) -> dict[str, np.ndarray]:
+    """The used observations of one camera, in pixel axes: col, row, v along col and row."""
+    res = results.tables["residuals"]
+    pick = (cameras == camera_id) & (res["rejected"] == 0) & np.isfinite(res["vx_px"]) & np.isfinite(res["vy_px"])
     return {"col": res["col_px"][pick], "row": res["row_px"][pick],
             "vcol": res["vx_px"][pick], "vrow": -res["vy_px"][pick]}
 
 
-def _cameras_to_draw(results) -> list[str]:
-    res, images = results.tables["residuals"], results.tables["images"]
-    camera_of = dict(zip(images["image_id"], images["camera_id"]))
-    counts: dict[str, int] = {}
-    for image_id in res["image_id"]:
-        cam = camera_of.get(image_id)
-        counts[cam] = counts.get(cam, 0) + 1
-    order = sorted(results.camera.get("cameras", {}), key=lambda c: -counts.get(c, 0))
+def _cameras_to_draw(results, cameras: np.ndarray) -> list[str]:
+    """At most MAX_CAMERA_FIGURES cameras, those with the most observations first."""
+    names, counts = np.unique(cameras.astype(str), return_counts=True)
+    count = dict(zip(names, counts))
+    order = sorted(results.camera.get("cameras", {}), key=lambda c: -count.get(c, 0))
     return order[:MAX_CAMERA_FIGURES]
 
 
@@ -117,7 +112,8 @@ def _image_space_section(page: Page, files: dict, results) -> None:
     s = results.summary
     dist = results.tables["distortion_grid"]
     cameras = results.camera.get("cameras", {})
-    chosen = _cameras_to_draw(results)
+    of_residual = _residual_cameras(results)
+    chosen = _cameras_to_draw(results, of_residual)
     if len(cameras) > len(chosen):
         page.paragraph(f"{len(cameras)} cameras; the image-space figures show the {len(chosen)} with the most "
                        "observations (all are in distortion_grid.csv and residuals.csv).", "note")
@@ -134,7 +130,7 @@ def _image_space_section(page: Page, files: dict, results) -> None:
                     f"Estimated distortion Δ of the {label} ({model}, active APs only) on a "
                     f"{int(np.unique(dist['col'][pick]).size)}-column grid: colour |Δ|, arrows on every 4th "
                     "node, along the pixel axes (column right, row down).")
-        obs = _camera_rows(results, camera_id)
+        obs = _camera_rows(results, of_residual, camera_id)
         grid = _grid_of(results, cam)
         fig = figures.residual_grid_figure(obs["col"], obs["row"], obs["vcol"], obs["vrow"], width, height, grid,
                                            "Grid-averaged image residuals")
