@@ -54,12 +54,13 @@ def test_trajectory_data_improve_the_check_points():
     """Types 2 and 4 add GNSS/IMU (with strip-wise shift and drift free) to Types 1 and 3.
 
     The precision (cofactor) of every check point improves: added observations cannot worsen it. In
-    accuracy the gain is small in this simulation (the paper reports 7-12 % in XY for 1 -> 2):
-    pooled over four seeds the 3-D RMSD against the true coordinates improves from Type 1 to
-    Type 2, and with 27 GCPs (Type 3 -> 4) it stays within 3 %.
+    accuracy the expected gain is small in this simulation (a few per cent; the paper reports 7-12 % in XY
+    for 1 -> 2) and one block's 12 check points cannot show it, so the test pools 32 seeds and compares
+    each seed's Types with the same data (paired). benchmarks/study_trajectory.py runs 96 seeds:
+    1 -> 2 -2.6 %, 3 -> 4 -3.0 %, both more than 4 standard errors from zero.
     """
-    squares = {s: 0.0 for s in ("type1", "type2", "type3", "type4")}
-    for seed in (1, 2, 3, 4):
+    squares = {s: [] for s in ("type1", "type2", "type3", "type4")}
+    for seed in range(1, 33):
         sim = simulation(seed=seed, distortion="brown", points_per_mm2=1.0)
         lookup = {p: i for i, p in enumerate(sim.truth.point_id)}
         sigma = {}
@@ -68,11 +69,15 @@ def test_trajectory_data_improve_the_check_points():
             block = result.block
             chk = np.flatnonzero(block.points.role == "chk")
             d = result.state.points[chk] - sim.truth.xyz[[lookup[p] for p in block.points.point_id[chk]]]
-            squares[scenario] += float(np.sum(d * d))
+            squares[scenario].append(float(np.mean(np.sum(d * d, axis=1))))
             sigma[scenario] = np.einsum("nii->n", result.Q_points[chk])         # cofactors: the design alone
         assert np.all(sigma["type2"] < sigma["type1"]) and np.all(sigma["type4"] < sigma["type3"])
-    assert squares["type2"] < squares["type1"], squares
-    assert squares["type4"] < 1.03 ** 2 * squares["type3"], squares
+    sq = {k: np.array(v) for k, v in squares.items()}
+    for without, with_trajectory in (("type1", "type2"), ("type3", "type4")):
+        gain = sq[with_trajectory] - sq[without]                    # paired: same seed, same image data
+        t = gain.mean() / (gain.std(ddof=1) / np.sqrt(len(gain)))
+        assert t < -2.0, (without, with_trajectory, gain.mean(), t)
+        assert np.sqrt(sq[with_trajectory].mean()) < 0.99 * np.sqrt(sq[without].mean())
 
 
 LEVER_ARM_M = np.array([0.05, -0.12, 0.25])
