@@ -17,6 +17,7 @@ import numpy as np
 
 __all__ = [
     "ROLES",
+    "InitialAP",
     "FrameCamera",
     "BalCamera",
     "Images",
@@ -37,6 +38,18 @@ MIN_POINTS_PER_IMAGE = 6
 
 
 @dataclass(frozen=True)
+class InitialAP:
+    """Initial values of a camera's additional parameters (`[cameras.ID.initial_ap]`): an AP model
+    and its coefficients in pixels, named as ap.csv of a results folder names them (e.g. a
+    calibration imported from COLMAP as ``brown``). An adjustment with another AP model starts
+    from that model's least-squares fit of the same distortion field."""
+
+    spec: str
+    names: tuple[str, ...]
+    values_px: tuple[float, ...]
+
+
+@dataclass(frozen=True)
 class FrameCamera:
     """Interior orientation of a frame camera (DESIGN.md §3, `[cameras.ID]`).
 
@@ -54,6 +67,7 @@ class FrameCamera:
     sigma_focal_mm: float | None = None
     sigma_x0_mm: float | None = None
     sigma_y0_mm: float | None = None
+    initial_ap: InitialAP | None = None
 
     model = "frame"
 

@@ -5,7 +5,9 @@ The conventions of each source are translated here, once:
 * COLMAP: world-to-camera poses with the camera looking along +z (y down)
   become perspective centres and M = R3(kappa) R2(phi) R1(omega) of a camera
   looking along -z (y up); camera models become principal distance and
-  principal point (the distortion is left to the AP model of the adjustment).
+  principal point; their distortion becomes the initial values of the
+  ``brown`` additional parameters (a least-squares fit, as selfcal's Delta is
+  a function of the measured, COLMAP's of the ideal position).
   With ground control, the arbitrary frame of the reconstruction is moved
   into the control's CRS by a 3-D similarity estimated from the control
   points intersected in that frame.
@@ -15,14 +17,17 @@ The conventions of each source are translated here, once:
 """
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
-from .block import BalCamera, Block, FrameCamera, Images, Observations, Points
+from .ap import ImageFrame, create_ap, fit_displacement
+from .block import BalCamera, Block, FrameCamera, Images, InitialAP, Observations, Points
 from .errors import BlockError
 from .geometry.rotation import matrix_from_quaternion, opk_from_matrix
 from .geometry.similarity import fit_similarity, intersect_rays
 
-__all__ = ["block_from_colmap", "colmap_undistort", "block_from_bal"]
+__all__ = ["block_from_colmap", "colmap_undistort", "colmap_distortion_as_brown", "block_from_bal"]
 
 #: camera-axis flip between COLMAP (y down, looking along +z) and photogrammetry (y up, looking along -z)
 _FLIP = np.diag([1.0, -1.0, -1.0])
@@ -60,6 +65,35 @@ def colmap_undistort(cam, pixel: np.ndarray, iterations: int = 20) -> np.ndarray
         y = (yd - dy) / radial
     return np.column_stack([x, y])
 
+
+def colmap_distortion_as_brown(cam, camera: FrameCamera, nodes_x: int = 61) -> tuple[InitialAP | None, float]:
+    """COLMAP's distortion of ``cam`` as initial values of selfcal's ``brown`` APs on ``camera``.
+
+    On a grid over the image, Delta = measured - ideal (photo coordinates, mm) with the ideal
+    position from COLMAP's inverse model, c = ``camera.focal_mm`` and the principal point of
+    ``camera`` (a difference of fx and fy becomes the affinity b1). Returns None for models
+    without distortion, and the largest misfit of the fit in pixels.
+    """
+    if not set(cam.params) - {"f", "fx", "fy", "cx", "cy"}:
+        return None, 0.0
+    nodes_y = int(round((nodes_x - 1) * cam.height / cam.width)) + 1
+    col, row = np.meshgrid(np.linspace(0, cam.width, nodes_x), np.linspace(0, cam.height, nodes_y))
+    pixel = np.column_stack([col.ravel(), row.ravel()])
+    ideal = colmap_undistort(cam, pixel)
+    p = camera.pixel_size_mm
+    x = (pixel[:, 0] - cam.width / 2) * p
+    y = (cam.height / 2 - pixel[:, 1]) * p
+    dx = x - (camera.x0_mm + camera.focal_mm * ideal[:, 0])
+    dy = y - (camera.y0_mm - camera.focal_mm * ideal[:, 1])
+    brown = create_ap("brown", ImageFrame(camera.width_mm, camera.height_mm, p))
+    values, misfit = fit_displacement(brown, x, y, dx / p, dy / p)
+    return (InitialAP("brown", tuple(brown.parameter_names), tuple(float(v) for v in values)),
+            float(np.max(np.hypot(misfit[:, 0], misfit[:, 1]))))
+
+
+#: a control measurement is dropped when its ray misses the surveyed point by more than this many
+#: standard deviations (the control point's larger sigma seen from the camera, with the image sigma)
+MEASUREMENT_MISS_SIGMAS = 3.0
 
 #: rays of one control point that miss their intersection by more than this hold a blunder
 MAX_RAY_MISS_DEG = 1.0
@@ -120,8 +154,14 @@ def block_from_colmap(model, control=None, pixel_size_mm: float = 0.005, image_s
                                         f"(supported: {', '.join(PERSPECTIVE_MODELS)})")
         fx, fy, cx, cy, _ = _intrinsics(cam)
         p = pixel_size_mm
-        cameras[f"cam{cid}"] = FrameCamera(f"cam{cid}", cam.width, cam.height, p, focal_mm=0.5 * (fx + fy) * p,
-                                           x0_mm=(cx - cam.width / 2) * p, y0_mm=(cam.height / 2 - cy) * p)
+        camera = FrameCamera(f"cam{cid}", cam.width, cam.height, p, focal_mm=0.5 * (fx + fy) * p,
+                             x0_mm=(cx - cam.width / 2) * p, y0_mm=(cam.height / 2 - cy) * p)
+        initial, misfit_px = colmap_distortion_as_brown(cam, camera)
+        if initial is not None:
+            camera = replace(camera, initial_ap=initial)
+            notes.append(f"camera {cid} ({cam.model}): its distortion is the initial value of the brown APs "
+                         f"(largest misfit of the conversion {misfit_px:.3f} px)")
+        cameras[camera.camera_id] = camera
     R = matrix_from_quaternion(model.qvec)                       # world -> COLMAP camera
     centres = -np.einsum("nji,nj->ni", R, model.tvec)
     M = _FLIP @ R                                                # object -> image axes (photogrammetric)
@@ -163,7 +203,21 @@ def block_from_colmap(model, control=None, pixel_size_mm: float = 0.005, image_s
         xyz = sim.apply(xyz)
         M = M @ sim.rotation.T
         gcp_xyz = control.xyz
-        gcp_obs = (img, pt, pix)
+        # a measurement whose ray misses its surveyed point by far more than the point's sigma allows is a
+        # misidentified target: left out (the adjustment would not converge with it)
+        focal_px = np.array([np.mean(_intrinsics(model.cameras[int(model.image_camera[i])])[:2]) for i in img])
+        to_point = gcp_xyz[pt] - centres[img]
+        depth = np.linalg.norm(to_point, axis=1)
+        unit = (directions @ sim.rotation.T) / np.linalg.norm(directions, axis=1, keepdims=True)
+        angle = np.arccos(np.clip(np.einsum("ni,ni->n", to_point, unit) / depth, -1.0, 1.0))
+        miss_px = focal_px * np.tan(np.minimum(angle, 1.5))
+        allowed_px = MEASUREMENT_MISS_SIGMAS * np.hypot(max(control_sigma_m) * focal_px / depth, image_sigma_px)
+        bad = miss_px > allowed_px
+        for k in np.flatnonzero(bad):
+            notes.append(f"gcp '{control.point_names[pt[k]]}' in image '{model.image_names[img[k]]}': the "
+                         f"measurement is {miss_px[k]:.0f} px from the georeferenced point ({allowed_px[k]:.0f} px "
+                         f"allowed by its sigma); dropped as a misidentified target")
+        gcp_obs = (img[~bad], pt[~bad], pix[~bad])
 
     # images
     n = len(model.image_ids)

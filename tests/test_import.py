@@ -81,6 +81,84 @@ def test_georeference_rejects_the_inconsistent_target(models):
     assert np.all(np.abs(block.images.attitude_rad[:, :2]) < np.radians(30))
     pruned = prune(block)
     assert np.sum(pruned.points.role == "gcp") >= 9
+    # gcp04's measurement in IMG_0031 misses the surveyed point by about 7000 px (its sigma allows about
+    # 3000): a misidentified target, dropped; its two consistent measurements stay
+    assert any("'gcp04' in image 'IMG_0031.jpg'" in n and "misidentified" in n for n in notes)
+    gcp04 = list(block.points.point_id).index("gcp04")
+    assert np.sum(block.observations.point_index == gcp04) == 2
+    assert sum("misidentified" in n for n in notes) == 1
+
+
+def test_colmap_distortion_becomes_initial_brown_values(models):
+    """selfcal's Delta is a function of the measured position, COLMAP's of the ideal one: the Brown values
+    the import writes take a measured pixel to COLMAP's ideal position within 0.2 px over the image."""
+    from selfcal.ap import ImageFrame, create_ap
+    from selfcal.convert import colmap_undistort
+    from selfcal.sensors.frame import photo_from_pixel
+
+    block, notes = block_from_colmap(models[0], None, pixel_size_mm=0.0052)
+    camera = block.cameras["cam1"]
+    assert camera.initial_ap.spec == "brown" and camera.initial_ap.names[0] == "k1"
+    assert any("initial value of the brown APs" in n for n in notes)
+    cam = models[0].cameras[1]
+    rng = np.random.default_rng(0)
+    pixel = rng.uniform([0, 0], [cam.width, cam.height], (500, 2))
+    xy = photo_from_pixel(pixel, cam.width, cam.height, 0.0052)
+    brown = create_ap("brown", ImageFrame(camera.width_mm, camera.height_mm, 0.0052))
+    dx, dy = brown.displacement_px(xy[:, 0], xy[:, 1], np.array(camera.initial_ap.values_px))
+    ideal_mm = xy - 0.0052 * np.column_stack([dx, dy])
+    n = colmap_undistort(cam, pixel)
+    expected_mm = np.column_stack([camera.x0_mm + camera.focal_mm * n[:, 0], camera.y0_mm - camera.focal_mm * n[:, 1]])
+    miss_px = np.hypot(*(ideal_mm - expected_mm).T) / 0.0052
+    assert miss_px.max() < 0.2, miss_px.max()
+    # the distortion is large: 80 px at the corners (k1 = -0.156)
+    assert np.max(np.hypot(dx, dy)) > 40
+
+
+def test_initial_ap_values_carry_over_to_other_families(tmp_path):
+    """block.toml [cameras.ID.initial_ap]: written and read back; another AP family starts from its
+    least-squares fit of the same field; unknown coefficient names are errors naming the key."""
+    from dataclasses import replace
+
+    from selfcal.adjust.problem import build_problem
+    from selfcal.ap import ImageFrame, create_ap, frame_nodes_mm
+    from selfcal.block import InitialAP
+    from selfcal.io import read_block, write_block
+
+    from conftest import simulation
+
+    block = simulation(seed=1, distortion="none", points_per_mm2=0.2).blocks["type3"]
+    cam = block.cameras["ilce7m3"]
+    initial = InitialAP("brown", ("k1", "k2", "p1"), (-30.0, 4.0, 1.5))
+    block = replace(block, cameras={cam.camera_id: replace(cam, initial_ap=initial)})
+    write_block(block, tmp_path / "b")
+    assert "[cameras.ilce7m3.initial_ap]" in (tmp_path / "b" / "block.toml").read_text()
+    again = read_block(tmp_path / "b")
+    assert again.cameras["ilce7m3"].initial_ap == initial
+    frame = ImageFrame(cam.width_mm, cam.height_mm, cam.pixel_size_mm)
+    x, y = frame_nodes_mm(frame)
+    brown = create_ap("brown", frame)
+    full = np.zeros(brown.n_params)
+    full[[0, 1, 3]] = initial.values_px
+    bx, by = brown.displacement_px(x, y, full)
+    problem = build_problem(prune(again), "brown")
+    np.testing.assert_array_equal(problem.cameras[0].prior_value[3:], full)
+    # legendre leaves shift, scale, rotation and the projective fields to the orientation: compared
+    # modulo those six fields
+    problem = build_problem(prune(again), "legendre")
+    lx, ly = problem.cameras[0].ap.displacement_px(x, y, problem.cameras[0].prior_value[3:])
+    s = 1.0 / x.max()
+    u, v = s * x, s * y
+    low = np.vstack([np.column_stack([np.ones_like(x), 0 * x, u, v, u * u, u * v]),
+                     np.column_stack([0 * x, np.ones_like(x), v, -u, u * v, v * v])])
+    diff = np.concatenate([lx - bx, ly - by])
+    rest = diff - low @ np.linalg.lstsq(low, diff, rcond=None)[0]
+    assert np.sqrt(np.mean(rest ** 2)) < 0.01 * np.sqrt(np.mean(bx ** 2 + by ** 2)), np.sqrt(np.mean(rest ** 2))
+    text = (tmp_path / "b" / "block.toml").read_text().replace("k2 = 4.0", "k9 = 4.0")
+    (tmp_path / "b" / "block.toml").write_text(text)
+    with pytest.raises(BlockError) as info:
+        build_problem(prune(read_block(tmp_path / "b")), "brown")
+    assert info.value.column == "cameras.ilce7m3.initial_ap.k9" and "k1, k2" in info.value.reason
 
 
 def test_malformed_inputs_name_the_line(tmp_path):

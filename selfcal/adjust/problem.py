@@ -28,11 +28,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..ap import APModel, ImageFrame, create_ap
+from ..ap import APModel, ImageFrame, create_ap, fit_displacement, frame_nodes_mm
 from ..ap.none import NoAP
 from ..sensors.bal import CAMERA_NAMES as BAL_CAMERA_NAMES
 from ..block import Block
-from ..errors import UsageError
+from ..errors import BlockError, UsageError
 from ..sensors.frame import EOP_NAMES, IOP_NAMES, photo_from_pixel
 
 __all__ = ["CameraParameters", "Problem", "State", "TrajectoryTerms", "build_problem", "trajectory_terms",
@@ -314,6 +314,29 @@ def _chunks(point_start: np.ndarray, target: int) -> list[tuple[int, int]]:
     return [(a, b) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
 
 
+def initial_coefficients(ap: APModel, initial, frame: ImageFrame, observed_xy_mm: np.ndarray,
+                         camera_id: str) -> np.ndarray:
+    """Initial AP coefficients from block.toml `[cameras.ID.initial_ap]`: the values themselves when the
+    model is the same, else ``ap``'s least-squares fit of their distortion field on a 61-node grid (the parts
+    the orientation absorbs fitted alongside and left to it)."""
+    where = f"cameras.{camera_id}.initial_ap"
+    try:
+        source = create_ap(initial.spec, frame, observed_xy_mm)
+    except ValueError as exc:
+        raise BlockError("block.toml", str(exc), None, f"{where}.model") from None
+    given = dict(zip(initial.names, initial.values_px))
+    unknown = sorted(set(given) - set(source.parameter_names))
+    if unknown:
+        raise BlockError("block.toml", f"{initial.spec} has no coefficient {unknown[0]!r} (its coefficients: "
+                                       f"{', '.join(source.parameter_names)})", None, f"{where}.{unknown[0]}")
+    values = np.array([given.get(name, 0.0) for name in source.parameter_names])
+    if source.spec == ap.spec and source.parameter_names == ap.parameter_names:
+        return values
+    x, y = frame_nodes_mm(frame)
+    dx, dy = source.displacement_px(x, y, values)
+    return fit_displacement(ap, x, y, dx, dy, absorbed=True)[0]
+
+
 def build_problem(block: Block, ap_spec: str = "none", ap_settings: dict | None = None,
                   chunk_observations: int = CHUNK_OBSERVATIONS, ap_models: dict | None = None,
                   gnss_drift: int = 1, imu_drift: int = 1, lever_arm: bool = False,
@@ -367,6 +390,8 @@ def build_problem(block: Block, ap_spec: str = "none", ap_settings: dict | None 
         free = np.ones(n, bool)
         prior_value = np.zeros(n)
         prior_value[:3] = (cam.focal_mm, cam.x0_mm, cam.y0_mm)
+        if cam.initial_ap is not None:
+            prior_value[3:] = initial_coefficients(ap, cam.initial_ap, frame, xy[cam_of_obs == k], cid)
         prior_sigma = np.full(n, np.nan)
         for i, sigma in enumerate((cam.sigma_focal_mm, cam.sigma_x0_mm, cam.sigma_y0_mm)):
             if sigma is not None:

@@ -16,7 +16,8 @@ from .legendre import LegendreAP
 from .none import NoAP
 from .wavelet import WaveletAP
 
-__all__ = ["AP_FAMILIES", "APModel", "ImageFrame", "create_ap", "ap_from_dict", "parse_ap_spec"]
+__all__ = ["AP_FAMILIES", "APModel", "ImageFrame", "create_ap", "ap_from_dict", "parse_ap_spec", "frame_nodes_mm",
+           "fit_displacement"]
 
 #: family name -> model class
 AP_FAMILIES: dict[str, type[APModel]] = {
@@ -49,3 +50,39 @@ def ap_from_dict(data: dict, frame: ImageFrame) -> APModel:
     """Rebuild an AP model from :meth:`APModel.to_dict` output."""
     cls, _ = _family(data["spec"])
     return cls.from_dict(data, frame)
+
+
+def frame_nodes_mm(frame: ImageFrame, nodes_x: int = 61) -> tuple[np.ndarray, np.ndarray]:
+    """Photo coordinates (mm) of a regular grid over the frame, corners included, ``nodes_x`` across and as
+    many down as keep the cells square (61 x 41 on a 3:2 frame)."""
+    nodes_y = max(2, int(round((nodes_x - 1) * frame.height_mm / frame.width_mm)) + 1)
+    x, y = np.meshgrid(np.linspace(-0.5, 0.5, nodes_x) * frame.width_mm,
+                       np.linspace(-0.5, 0.5, nodes_y) * frame.height_mm)
+    return x.ravel(), y.ravel()
+
+
+def fit_displacement(model: APModel, x_mm: np.ndarray, y_mm: np.ndarray, dx_px: np.ndarray,
+                     dy_px: np.ndarray, absorbed: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Coefficients (px) of ``model`` that fit a displacement field Delta(x, y) in the least-squares sense.
+
+    The basis is linear in its coefficients, so this is one linear solve. With ``absorbed``, the six
+    fields the orientation takes up in an adjustment (shifts in x and y: the principal point; scale: the
+    principal distance; rotation: kappa; the two projective fields of omega and phi) are fitted alongside and left out of the coefficients, so that a
+    family without them does not bend its terms towards them. Returns the coefficients and the misfit
+    (n, 2) in pixels at the given points.
+    """
+    x, y = np.asarray(x_mm, float), np.asarray(y_mm, float)
+    bx, by = model.basis(x, y)
+    design = np.vstack([bx, by])
+    if absorbed:
+        s = 1.0 / max(np.max(np.abs(x)), np.max(np.abs(y)), 1e-300)
+        one, zero = np.ones_like(x), np.zeros_like(x)
+        u, v = s * x, s * y
+        design = np.hstack([design, np.vstack([np.column_stack([one, zero, u, v, u * u, u * v]),
+                                               np.column_stack([zero, one, v, -u, u * v, v * v])])])
+    target = np.concatenate([dx_px, dy_px])
+    if design.shape[1] == 0:
+        return np.zeros(0), np.column_stack([dx_px, dy_px])
+    solution = np.linalg.lstsq(design, target, rcond=None)[0]
+    misfit = (design @ solution - target).reshape(2, -1).T
+    return solution[:model.n_params], misfit

@@ -14,7 +14,7 @@ import tomllib
 
 import numpy as np
 
-from ..block import ROLES, BalCamera, Block, FrameCamera, Images, Observations, Points, prune
+from ..block import ROLES, BalCamera, Block, FrameCamera, Images, InitialAP, Observations, Points, prune
 from ..errors import BlockError
 from .atomic import atomic_folder, atomic_write
 from .table import NUM, OPT_NUM, STR, Column, read_table, write_table
@@ -134,6 +134,19 @@ def _check_table(path, text, section, table, schema):
     return values
 
 
+def _initial_ap(path, text, section, table) -> InitialAP:
+    """`[cameras.ID.initial_ap]`: ``model`` (an AP spec) and one number per coefficient, in pixels."""
+    if not isinstance(table, dict):
+        raise BlockError(path, "must be a table: model = \"brown\" and one number per coefficient",
+                         _key_line(text, section.rsplit(".", 1)[0], "initial_ap"), section)
+    if not isinstance(table.get("model"), str):
+        raise BlockError(path, "missing key 'model' (the AP model of the initial values, e.g. \"brown\")",
+                         _key_line(text, section, None), f"{section}.model")
+    names = [k for k in table if k != "model"]
+    values = [_check_value(path, text, section, k, table[k], "num") for k in names]
+    return InitialAP(table["model"], tuple(names), tuple(values))
+
+
 def _read_settings(folder: str) -> dict:
     path = os.path.join(folder, "block.toml")
     if not os.path.isfile(path):
@@ -169,8 +182,12 @@ def _read_settings(folder: str) -> dict:
                                    f"{', '.join(repr(m) for m in _CAMERA_MODELS)})",
                              _key_line(text, section, "model"), f"{section}.model")
         cls, keys = _CAMERA_MODELS[model]
-        values = _check_table(path, text, section, table, keys)
+        initial = table.get("initial_ap") if model == "frame" else None     # a sub-table of frame cameras
+        plain = {k: v for k, v in table.items() if not (k == "initial_ap" and model == "frame")}
+        values = _check_table(path, text, section, plain, keys)
         values.pop("model")
+        if initial is not None:
+            values["initial_ap"] = _initial_ap(path, text, f"{section}.initial_ap", initial)
         settings["cameras"][camera_id] = cls(camera_id=camera_id, **values)
     if "observations" not in doc:
         raise BlockError(path, "missing table [observations] (image_sigma_px)", None, "observations")
@@ -363,6 +380,11 @@ def _fmt_toml_value(value) -> str:
     return repr(float(value))
 
 
+def _toml_key(name: str) -> str:
+    """A bare key when TOML allows one, else a quoted key (WAP names such as ``ax[-4,-2]``)."""
+    return name if re.fullmatch(r"[A-Za-z0-9_-]+", name) else _fmt_toml_value(name)
+
+
 def block_toml_text(block: Block) -> str:
     lines = [f"name = {_fmt_toml_value(block.name)}", f"crs = {_fmt_toml_value(block.crs)}"]
     if block.datum != "control":
@@ -378,6 +400,11 @@ def block_toml_text(block: Block) -> str:
             if value is not None:
                 lines.append(f"{key} = {_fmt_toml_value(value)}")
         lines.append("")
+        initial = getattr(camera, "initial_ap", None)
+        if initial is not None:
+            lines += [f"[cameras.{camera.camera_id}.initial_ap]", f"model = {_fmt_toml_value(initial.spec)}"]
+            lines += [f"{_toml_key(n)} = {_fmt_toml_value(v)}" for n, v in zip(initial.names, initial.values_px)]
+            lines.append("")
     lines += ["[observations]", f"image_sigma_px = {_fmt_toml_value(block.image_sigma_px)}", ""]
     if block.gnss_sigma_m is not None:
         lines += ["[gnss]", f"sigma_m = {_fmt_toml_value(block.gnss_sigma_m)}"]
