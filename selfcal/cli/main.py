@@ -11,7 +11,7 @@ import sys
 
 from ..batch.allocator import keep_freed_memory
 from ..errors import SelfcalError
-from . import adjust, compare, demo, import_, report, simulate
+from . import adjust, compare, demo, export, import_, report, simulate, undistort
 
 #: verb -> module with ``add_arguments(parser)`` and ``run(args) -> int``
 COMMANDS = {
@@ -20,6 +20,8 @@ COMMANDS = {
     "compare": compare,
     "report": report,
     "import": import_,
+    "export": export,
+    "undistort": undistort,
     "demo": demo,
 }
 

@@ -20,8 +20,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import BlockError
+from .atomic import atomic_write
 
-__all__ = ["ColmapCamera", "ColmapModel", "read_colmap", "CAMERA_MODELS", "PERSPECTIVE_MODELS"]
+__all__ = ["ColmapCamera", "ColmapModel", "read_colmap", "write_cameras_txt", "CAMERA_MODELS",
+           "PERSPECTIVE_MODELS"]
 
 #: model id -> (name, parameter names)
 CAMERA_MODELS = {
@@ -282,3 +284,17 @@ def read_colmap(folder: str | os.PathLike) -> ColmapModel:
     porder = np.argsort(pids, kind="stable")
     return ColmapModel(cameras, ids[order], names[order], cams[order], q[order], t[order],
                        oi[obs_order], oxy[obs_order], op[obs_order], pids[porder], xyz[porder], err[porder])
+
+
+def write_cameras_txt(path: str | os.PathLike, cameras: list[tuple[int, str, int, int, list[float]]]) -> None:
+    """COLMAP's cameras.txt: one ``CAMERA_ID MODEL WIDTH HEIGHT PARAMS[]`` line per camera."""
+    names = {name: params for name, params in CAMERA_MODELS.values()}
+    lines = ["# Camera list with one line of data per camera:",
+             "#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]",
+             f"# Number of cameras: {len(cameras)}"]
+    for camera_id, model, width, height, params in cameras:
+        if len(params) != len(names[model]):
+            raise ValueError(f"COLMAP's {model} has {len(names[model])} parameters, given {len(params)}")
+        lines.append(" ".join([str(camera_id), model, str(width), str(height)] + [repr(float(p)) for p in params]))
+    with atomic_write(path) as handle:
+        handle.write("\n".join(lines) + "\n")

@@ -22,7 +22,8 @@ from ..errors import BlockError
 from .atomic import atomic_folder, atomic_write
 from .table import write_table
 
-__all__ = ["write_results", "write_files", "to_jsonable", "ResultsFolder", "read_results", "results_from_files",
+__all__ = ["write_results", "write_files", "to_jsonable", "ResultsFolder", "read_results", "read_camera_json",
+           "results_from_files",
            "RESULT_TABLES", "OPTIONAL_TABLES"]
 
 #: the CSV tables of a results folder that the report reads (DESIGN.md §4), by short name
@@ -158,6 +159,17 @@ def read_results(folder: str | os.PathLike) -> ResultsFolder:
         camera=camera,
         screening=_read_json(screening) if os.path.isfile(screening) else {},
         tables=tables)
+
+
+def read_camera_json(folder: str | os.PathLike) -> dict:
+    """camera.json of a results folder (the calibration, for exports); missing or unreadable: BlockError."""
+    folder = os.fspath(folder)
+    if not os.path.isdir(folder):
+        raise BlockError(folder, "no such results folder")
+    path = os.path.join(folder, "camera.json")
+    if not os.path.isfile(path):
+        raise BlockError(path, "missing: is this a results folder written by 'selfcal adjust'?")
+    return _read_json(path)
 
 
 def results_from_files(files: dict, path: str | None = None) -> ResultsFolder:

@@ -1,0 +1,282 @@
+"""An estimated frame-camera calibration, and what other programs need from it.
+
+selfcal's model (DESIGN.md §2) gives the distortion as a function of the
+*measured* position: ideal = measured - Delta(measured). OpenCV and COLMAP
+give it as a function of the *ideal* position: measured = D(ideal). This module
+holds the calibration of one camera (:class:`Calibration`) and converts:
+
+* :meth:`Calibration.measured_from_ideal` inverts selfcal's model by Newton's
+  method on the AP basis derivatives;
+* :func:`fit_opencv` finds the OpenCV camera (camera matrix and distortion
+  coefficients of a chosen model) that projects like selfcal, by least squares
+  over the image, and reports the misfit in pixels;
+* :func:`undistortion_maps` builds the per-pixel source positions that
+  ``cv2.remap`` needs to turn a measured image into an ideal (distortion-free)
+  one: exact on a grid of nodes, bicubic between them.
+
+Pixel conventions, the source of many exporter bugs: selfcal and COLMAP put
+(0, 0) at the upper-left corner of the first pixel (its centre at (0.5, 0.5));
+OpenCV puts the centre of the first pixel at (0, 0). Hence
+``u_opencv = col - 0.5``, and COLMAP's principal point is OpenCV's + 0.5.
+Camera frames: OpenCV's looks along +z with y down; selfcal's along -z with y
+up, so (X, Y, Z)_opencv = (X, -Y, -Z)_selfcal.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.interpolate import RectBivariateSpline
+from scipy.optimize import least_squares
+
+from .ap import APModel, ImageFrame, ap_from_dict
+
+__all__ = ["Calibration", "OpenCVCamera", "OPENCV_MODELS", "fit_opencv", "undistortion_maps",
+           "opencv_project", "colmap_parameters"]
+
+#: OpenCV distortion models by name: number of coefficients, in OpenCV's order
+#: (k1, k2, p1, p2, k3, k4, k5, k6, s1, s2, s3, s4); opencv4 is COLMAP's OPENCV model,
+#: rational its FULL_OPENCV
+OPENCV_MODELS = {"opencv4": 4, "plumb_bob": 5, "rational": 8, "thin_prism": 12}
+
+#: Newton's method for the inverse stops when the step is below this (pixels)
+INVERSE_TOLERANCE_PX = 1e-9
+#: points per chunk of the inverse (bounds the memory of the basis matrices)
+CHUNK_POINTS = 8192
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """Interior orientation and additional parameters of one frame camera (camera.json of a results folder)."""
+
+    camera_id: str
+    width_px: int
+    height_px: int
+    pixel_size_mm: float
+    focal_mm: float
+    x0_mm: float
+    y0_mm: float
+    ap: APModel
+    coefficients_px: np.ndarray          # inactive (screened-out) coefficients are zero
+
+    @classmethod
+    def from_camera_json(cls, camera_id: str, entry: dict) -> "Calibration":
+        p = float(entry["pixel_size_mm"])
+        frame = ImageFrame(entry["width_px"] * p, entry["height_px"] * p, p)
+        ap = ap_from_dict(entry["ap"], frame)
+        values = np.array([c["value_px"] if c["active"] else 0.0 for c in entry["ap"]["coefficients"]], float)
+        if len(values) != ap.n_params:
+            raise ValueError(f"camera {camera_id}: {len(values)} AP coefficients for {ap.spec}, which has "
+                             f"{ap.n_params}")
+        return cls(camera_id, int(entry["width_px"]), int(entry["height_px"]), p, float(entry["focal_mm"]["value"]),
+                   float(entry["x0_mm"]["value"]), float(entry["y0_mm"]["value"]), ap, values)
+
+    @property
+    def focal_px(self) -> float:
+        return self.focal_mm / self.pixel_size_mm
+
+    @property
+    def principal_point_px(self) -> tuple[float, float]:
+        """(col, row) of the principal point in selfcal's (= COLMAP's) pixel convention."""
+        return (self.width_px / 2 + self.x0_mm / self.pixel_size_mm,
+                self.height_px / 2 - self.y0_mm / self.pixel_size_mm)
+
+    def delta_px(self, pixel: np.ndarray) -> np.ndarray:
+        """Delta along the pixel axes (dcol, drow) at measured positions (col, row), shape (n, 2)."""
+        pixel = np.atleast_2d(np.asarray(pixel, float))
+        x = (pixel[:, 0] - self.width_px / 2) * self.pixel_size_mm
+        y = (self.height_px / 2 - pixel[:, 1]) * self.pixel_size_mm
+        dx, dy = self.ap.displacement_px(x, y, self.coefficients_px)
+        return np.column_stack([dx, -dy])
+
+    def ideal_from_measured(self, pixel: np.ndarray) -> np.ndarray:
+        """Ideal (distortion-free) pixel positions of measured ones: measured - Delta(measured)."""
+        pixel = np.atleast_2d(np.asarray(pixel, float))
+        return pixel - self.delta_px(pixel)
+
+    def measured_from_ideal(self, ideal: np.ndarray, max_iterations: int = 30) -> np.ndarray:
+        """Where an ideal position is measured: solves m - Delta(m) = ideal by Newton's method.
+
+        Raises
+        ------
+        ArithmeticError
+            If some positions do not converge (a distortion so strong that the
+            mapping folds over, far outside the image).
+        """
+        ideal = np.atleast_2d(np.asarray(ideal, float))
+        if self.ap.n_params == 0 or not np.any(self.coefficients_px):
+            return ideal.copy()
+        # in chunks: the basis matrices are (points x coefficients), hundreds of columns for WAPs
+        return np.concatenate([self._newton(ideal[k:k + CHUNK_POINTS], max_iterations)
+                               for k in range(0, len(ideal), CHUNK_POINTS)])
+
+    def _newton(self, ideal: np.ndarray, max_iterations: int) -> np.ndarray:
+        m = ideal.copy()
+        p = self.pixel_size_mm
+        todo = np.ones(len(m), bool)
+        for _ in range(max_iterations):
+            x = (m[todo, 0] - self.width_px / 2) * p
+            y = (self.height_px / 2 - m[todo, 1]) * p
+            a = self.coefficients_px
+            bx, by = self.ap.basis(x, y)
+            dbx_dx, dbx_dy, dby_dx, dby_dy = self.ap.basis_derivatives(x, y)
+            # residual of m - Delta(m) - ideal along the pixel axes (drow = -dy) and its Jacobian per pixel
+            r = m[todo] - np.column_stack([bx @ a, -(by @ a)]) - ideal[todo]
+            j11 = 1.0 - p * (dbx_dx @ a)              # d(col - dx)/dcol, x grows with col
+            j12 = p * (dbx_dy @ a)                    # d(col - dx)/drow, y falls with row
+            j21 = p * (dby_dx @ a)                    # d(row + dy)/dcol
+            j22 = 1.0 - p * (dby_dy @ a)              # d(row + dy)/drow
+            det = j11 * j22 - j12 * j21
+            step = np.column_stack([(j22 * r[:, 0] - j12 * r[:, 1]) / det, (j11 * r[:, 1] - j21 * r[:, 0]) / det])
+            m[todo] -= step
+            done = np.max(np.abs(step), axis=1) < INVERSE_TOLERANCE_PX
+            todo[np.flatnonzero(todo)[done]] = False
+            if not todo.any():
+                return m
+        raise ArithmeticError(f"{int(todo.sum())} position(s) of camera {self.camera_id} did not converge in the "
+                              f"inverse of the distortion (e.g. ideal {ideal[todo][0]})")
+
+    def opencv_intrinsics(self) -> np.ndarray:
+        """The ideal camera as an OpenCV camera matrix (pixel centres at integers)."""
+        col, row = self.principal_point_px
+        f = self.focal_px
+        return np.array([[f, 0.0, col - 0.5], [0.0, f, row - 0.5], [0.0, 0.0, 1.0]])
+
+    def normalised_from_measured(self, pixel: np.ndarray) -> np.ndarray:
+        """Normalised ideal coordinates (X/Z, Y/Z in OpenCV's camera frame) of measured positions."""
+        ideal = self.ideal_from_measured(pixel)
+        col, row = self.principal_point_px
+        return np.column_stack([(ideal[:, 0] - col) / self.focal_px, (ideal[:, 1] - row) / self.focal_px])
+
+
+@dataclass(frozen=True)
+class OpenCVCamera:
+    """An OpenCV camera: camera matrix, distortion coefficients (OpenCV's order) and how well they
+    reproduce the calibration they were fitted to (misfit over the image, pixels)."""
+
+    model: str
+    camera_matrix: np.ndarray
+    distortion: np.ndarray
+    misfit_rms_px: float
+    misfit_max_px: float
+    width_px: int
+    height_px: int
+
+
+#: COLMAP camera model of each OpenCV distortion model COLMAP has
+COLMAP_MODELS = {"opencv4": "OPENCV", "rational": "FULL_OPENCV"}
+
+
+def colmap_parameters(camera: OpenCVCamera) -> tuple[str, list[float]]:
+    """COLMAP's model name and parameters of an OpenCV camera (principal point + 0.5: COLMAP puts the
+    centre of the first pixel at (0.5, 0.5))."""
+    if camera.model not in COLMAP_MODELS:
+        raise ValueError(f"COLMAP has no camera model for OpenCV's '{camera.model}' (it has: "
+                         f"{', '.join(COLMAP_MODELS)})")
+    K = camera.camera_matrix
+    params = [K[0, 0], K[1, 1], K[0, 2] + 0.5, K[1, 2] + 0.5]
+    return COLMAP_MODELS[camera.model], [float(v) for v in params + list(camera.distortion)]
+
+
+def opencv_distort(normalised: np.ndarray, coefficients: np.ndarray) -> np.ndarray:
+    """OpenCV's distortion of normalised coordinates (the formula of cv::projectPoints)."""
+    k = np.zeros(12)
+    k[:len(coefficients)] = coefficients
+    x, y = normalised[:, 0], normalised[:, 1]
+    r2 = x * x + y * y
+    radial = (1 + k[0] * r2 + k[1] * r2**2 + k[4] * r2**3) / (1 + k[5] * r2 + k[6] * r2**2 + k[7] * r2**3)
+    xd = x * radial + 2 * k[2] * x * y + k[3] * (r2 + 2 * x * x) + k[8] * r2 + k[9] * r2**2
+    yd = y * radial + k[2] * (r2 + 2 * y * y) + 2 * k[3] * x * y + k[10] * r2 + k[11] * r2**2
+    return np.column_stack([xd, yd])
+
+
+def opencv_project(normalised: np.ndarray, camera_matrix: np.ndarray, coefficients: np.ndarray) -> np.ndarray:
+    """OpenCV pixel positions (centres at integers) of normalised ideal coordinates."""
+    d = opencv_distort(normalised, coefficients)
+    K = camera_matrix
+    return np.column_stack([K[0, 0] * d[:, 0] + K[0, 2], K[1, 1] * d[:, 1] + K[1, 2]])
+
+
+def _image_grid(calibration: Calibration, nodes_x: int) -> np.ndarray:
+    nodes_y = int(round((nodes_x - 1) * calibration.height_px / calibration.width_px)) + 1
+    col, row = np.meshgrid(np.linspace(0, calibration.width_px, nodes_x),
+                           np.linspace(0, calibration.height_px, nodes_y))
+    return np.column_stack([col.ravel(), row.ravel()])
+
+
+def fit_opencv(calibration: Calibration, models=tuple(OPENCV_MODELS), tolerance_px: float = 0.01,
+               nodes_x: int = 121) -> OpenCVCamera:
+    """The OpenCV camera that projects like ``calibration`` over its image.
+
+    On a grid of measured positions, selfcal gives the ideal normalised
+    coordinates n; the camera matrix (fx, fy, cx, cy) and the distortion
+    coefficients are fitted so that OpenCV projects n to the measured
+    position (nonlinear least squares). ``models`` are tried in order (each
+    starting from the previous fit): the first whose largest misfit is within
+    ``tolerance_px`` is returned, else the one with the smallest misfit.
+
+    selfcal's Delta cannot always be written in OpenCV's form: its terms are
+    centred on the frame, not the principal point, the shear b2 has no OpenCV
+    counterpart, and the inverse of radial plus tangential distortion has cross
+    terms. The misfit says how much is lost; undistortion maps lose nothing.
+    """
+    unknown = [m for m in models if m not in OPENCV_MODELS]
+    if unknown or not models:
+        raise ValueError(f"unknown OpenCV distortion model '{unknown[0] if unknown else ''}' "
+                         f"(known: {', '.join(OPENCV_MODELS)})")
+    measured = _image_grid(calibration, nodes_x)
+    target = measured - 0.5                                   # OpenCV's pixel convention
+    n = calibration.normalised_from_measured(measured)
+    K0 = calibration.opencv_intrinsics()
+    start = np.array([K0[0, 0], K0[1, 1], K0[0, 2], K0[1, 2]])
+    best = None
+    for name in sorted(models, key=OPENCV_MODELS.get):        # each model starts from the previous fit
+        count = OPENCV_MODELS[name]
+
+        def residual(q):
+            K = np.array([[q[0], 0, q[2]], [0, q[1], q[3]], [0, 0, 1]])
+            return (opencv_project(n, K, q[4:]) - target).ravel()
+
+        start = np.concatenate([start, np.zeros(4 + count - len(start))])
+        fit = least_squares(residual, start, method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15,
+                            x_scale=np.concatenate([[K0[0, 0]] * 2, [1.0, 1.0], np.full(count, 0.01)]))
+        start = fit.x
+        miss = np.hypot(*fit.fun.reshape(-1, 2).T)
+        camera = OpenCVCamera(name, np.array([[start[0], 0, start[2]], [0, start[1], start[3]], [0, 0, 1]]),
+                              start[4:].copy(), float(np.sqrt(np.mean(miss ** 2))), float(miss.max()),
+                              calibration.width_px, calibration.height_px)
+        if camera.misfit_max_px <= tolerance_px:
+            return camera
+        if best is None or camera.misfit_max_px < best.misfit_max_px:
+            best = camera
+    return best
+
+
+def undistortion_maps(calibration: Calibration, step_px: int = 4) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Maps for ``cv2.remap`` from a measured image to the ideal one, and the ideal camera matrix.
+
+    The ideal image has the size of the measured one, the principal distance as
+    fx = fy and the principal point of the calibration (no resampling of scale).
+    For every ideal pixel centre (u, v) (OpenCV convention) the maps hold the
+    measured position that shows it: exact (Newton) on nodes every ``step_px``
+    pixels, bicubic splines between them. Between nodes 4 px apart the maps
+    follow a db4 WAP field (whose scaling function is only about 1.6 times
+    differentiable) within 0.01 px; polynomial fields far better.
+
+    Returns
+    -------
+    map_x, map_y : float32 (height, width)
+    camera_matrix : (3, 3) of the ideal image (OpenCV convention)
+    """
+    w, h = calibration.width_px, calibration.height_px
+    u_nodes = np.unique(np.concatenate([np.arange(0, w, step_px), [w - 1]])).astype(float)
+    v_nodes = np.unique(np.concatenate([np.arange(0, h, step_px), [h - 1]])).astype(float)
+    U, V = np.meshgrid(u_nodes, v_nodes)
+    ideal = np.column_stack([U.ravel(), V.ravel()]) + 0.5      # selfcal's convention
+    measured = calibration.measured_from_ideal(ideal) - 0.5
+    mx = RectBivariateSpline(v_nodes, u_nodes, measured[:, 0].reshape(U.shape), kx=3, ky=3)
+    my = RectBivariateSpline(v_nodes, u_nodes, measured[:, 1].reshape(U.shape), kx=3, ky=3)
+    u_all, v_all = np.arange(w, dtype=float), np.arange(h, dtype=float)
+    map_x = mx(v_all, u_all).astype(np.float32)
+    map_y = my(v_all, u_all).astype(np.float32)
+    return map_x, map_y, calibration.opencv_intrinsics()

@@ -1,0 +1,53 @@
+"""Resample images to the ideal (distortion-free) camera of a results folder, with OpenCV's remap."""
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+
+import numpy as np
+
+from ..calibration import OpenCVCamera, undistortion_maps
+from ..errors import BlockError
+from ..io.atomic import atomic_folder
+from ..io.opencv import write_opencv_yaml
+from .export import calibrations, pick_camera
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("results", metavar="RESULTS", help="results folder written by selfcal adjust")
+    parser.add_argument("images", nargs="+", metavar="IMAGE", help="images taken with the camera")
+    parser.add_argument("--out", required=True, metavar="DIR",
+                        help="folder for the undistorted images (same names) and ideal_camera.yaml (replaced)")
+    parser.add_argument("--camera", metavar="ID", help="camera of the images (needed when the block has several)")
+
+
+def run(args: argparse.Namespace) -> int:
+    import cv2
+
+    cal = pick_camera(calibrations(args.results), args.camera)
+    images = []
+    for path in args.images:
+        image = cv2.imread(path, cv2.IMREAD_UNCHANGED)
+        if image is None:
+            raise BlockError(path, "cannot be read as an image")
+        if image.shape[:2] != (cal.height_px, cal.width_px):
+            raise BlockError(path, f"is {image.shape[1]} x {image.shape[0]} px, camera {cal.camera_id} is "
+                                   f"{cal.width_px} x {cal.height_px} px")
+        images.append((path, image))
+    names = [os.path.basename(p) for p, _ in images]
+    if len(set(names)) < len(names):
+        raise BlockError(args.images[0], "two images have the same file name; they would overwrite each other")
+    map_x, map_y, camera_matrix = undistortion_maps(cal)
+    ideal = OpenCVCamera("none", camera_matrix, np.zeros(4), 0.0, 0.0, cal.width_px, cal.height_px)
+    with atomic_folder(args.out) as tmp:
+        for k, ((path, image), name) in enumerate(zip(images, names), start=1):
+            out = cv2.remap(image, map_x, map_y, cv2.INTER_CUBIC, borderMode=cv2.BORDER_CONSTANT)
+            if not cv2.imwrite(os.path.join(tmp, name), out):
+                raise BlockError(path, f"OpenCV cannot write '{name}' (unknown extension?)")
+            print(f"[{k}/{len(images)}] {name}", file=sys.stderr)
+        write_opencv_yaml(ideal, os.path.join(tmp, "ideal_camera.yaml"),
+                          source=f"ideal camera of the undistorted images of camera {cal.camera_id}")
+    print(f"{len(images)} images undistorted into {args.out} (camera {cal.camera_id}, {cal.ap.spec})",
+          file=sys.stderr)
+    return 0
