@@ -35,6 +35,7 @@ bench: install
 	$(PY) benchmarks/bench_stats.py
 	$(PY) benchmarks/bench_batch.py
 	$(PY) benchmarks/bench_report.py
+	$(PY) benchmarks/bench_colmap.py
 	$(PY) benchmarks/study_trajectory.py
 
 clean:
