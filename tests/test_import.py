@@ -204,3 +204,43 @@ def test_bal_import_reproduces_the_initial_cost(tmp_path):
     cost = evaluate_cost(problem, state)
     # exact up to the 10 significant digits the block folder stores
     assert cost == pytest.approx(reference["problem-49-7776-pre.txt"]["initial_cost_half_sum_sq"], rel=1e-7)
+
+
+@pytest.mark.parametrize("model, params", [
+    ("SIMPLE_PINHOLE", {"f": 3000.0, "cx": 1000.0, "cy": 750.0}),
+    ("SIMPLE_RADIAL", {"f": 3000.0, "cx": 1000.0, "cy": 750.0, "k": -0.08}),
+    ("RADIAL", {"f": 3000.0, "cx": 1000.0, "cy": 750.0, "k1": -0.08, "k2": 0.02}),
+    ("OPENCV", {"fx": 3000.0, "fy": 3001.0, "cx": 1010.0, "cy": 745.0, "k1": -0.08, "k2": 0.02,
+                "p1": 2e-4, "p2": -1e-4}),
+    ("FULL_OPENCV", {"fx": 3000.0, "fy": 3000.0, "cx": 1000.0, "cy": 750.0, "k1": -0.08, "k2": 0.02,
+                     "p1": 0.0, "p2": 0.0, "k3": 0.001, "k4": 0.01, "k5": 0.0, "k6": 0.0}),
+])
+def test_every_perspective_model_becomes_brown_initial_values(model, params):
+    """Each COLMAP perspective model: principal distance and point from f/fx/fy/cx/cy, and its distortion
+    as brown values that take measured pixels to COLMAP's ideal positions within 0.05 px (0 for pinholes;
+    0.15 px for the OPENCV case, whose principal point is 11 px off centre: selfcal's Brown terms are
+    centred on the frame, COLMAP's on the principal point)."""
+    from selfcal.ap import ImageFrame, create_ap
+    from selfcal.block import FrameCamera
+    from selfcal.convert import colmap_distortion_as_brown, colmap_undistort
+    from selfcal.io.colmap import ColmapCamera
+    from selfcal.sensors.frame import photo_from_pixel
+
+    cam = ColmapCamera(1, model, 2000, 1500, params)
+    p = 0.004
+    f = params.get("f", 0.5 * (params.get("fx", 0) + params.get("fy", 0)))
+    camera = FrameCamera("c", 2000, 1500, p, f * p, (params["cx"] - 1000) * p, (750 - params["cy"]) * p)
+    initial, misfit = colmap_distortion_as_brown(cam, camera)
+    if model == "SIMPLE_PINHOLE":
+        assert initial is None and misfit == 0.0
+        return
+    bound = 0.15 if model == "OPENCV" else 0.05
+    assert misfit < bound, misfit
+    pixel = np.random.default_rng(1).uniform([0, 0], [2000, 1500], (300, 2))
+    xy = photo_from_pixel(pixel, 2000, 1500, p)
+    brown = create_ap("brown", ImageFrame(2000 * p, 1500 * p, p))
+    dx, dy = brown.displacement_px(xy[:, 0], xy[:, 1], np.array(initial.values_px))
+    n = colmap_undistort(cam, pixel)
+    ideal = np.column_stack([camera.x0_mm + camera.focal_mm * n[:, 0], camera.y0_mm - camera.focal_mm * n[:, 1]])
+    miss = np.hypot(*((xy - p * np.column_stack([dx, dy])) - ideal).T) / p
+    assert miss.max() < bound and np.max(np.hypot(dx, dy)) > 10
