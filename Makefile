@@ -36,6 +36,7 @@ bench: install
 	$(PY) benchmarks/bench_batch.py
 	$(PY) benchmarks/bench_report.py
 	$(PY) benchmarks/bench_colmap.py
+	$(PY) benchmarks/bench_engine.py
 	$(PY) benchmarks/study_trajectory.py
 
 clean:

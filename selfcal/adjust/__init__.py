@@ -21,7 +21,7 @@ from ..errors import AdjustmentError
 from .covariance import point_cofactors
 from .initial import initial_state
 from .linalg import DENSE_LIMIT, SingularSystem, factorise, null_directions
-from .normal import Linearisation, carry_ap_columns, image_residuals, reduce
+from .normal import Linearisation, SingularPoints, carry_ap_columns, image_residuals, reduce
 from .problem import Problem, State, build_problem
 from .solver import IterationRecord, SolverOptions, solve
 
@@ -225,10 +225,14 @@ def adjust(block: Block, options: AdjustOptions = AdjustOptions(),
     solver_options = options.solver
     if block.datum == "free" and not solver_options.free_network:
         solver_options = replace(solver_options, free_network=True)
-    outcome = solve(problem, state, names, solver_options, progress)
-    lin = outcome.linearisation
-    dense = problem.n_theta <= DENSE_LIMIT
-    S, _, v_inv = reduce(problem, lin, 0.0, dense)
+    try:
+        outcome = solve(problem, state, names, solver_options, progress)
+        lin = outcome.linearisation
+        dense = problem.n_theta <= DENSE_LIMIT
+        S, _, v_inv = reduce(problem, lin, 0.0, dense)
+    except SingularPoints as exc:
+        ids = ", ".join(f"'{block.points.point_id[i]}'" for i in exc.indices[:5])
+        raise AdjustmentError(f"{exc} (e.g. {ids}): remove them or check their observations") from None
     if solver_options.free_network:
         Q = _free_network_cofactor(S, notes)
     else:

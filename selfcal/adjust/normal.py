@@ -25,6 +25,7 @@ import numpy as np
 import scipy.linalg.blas
 import scipy.sparse as sp
 
+from ..errors import AdjustmentError
 from ..geometry.rotation import matrix_from_opk, matrix_from_opk_with_derivatives, opk_from_matrix_with_derivatives
 from ..sensors import bal
 from ..sensors.frame import project, project_with_jacobians_indexed
@@ -461,10 +462,23 @@ def linearise(problem: Problem, state: State) -> Linearisation:
     return Linearisation(cost, U_ee, U_ed, U_dd, g_theta, J_x, r_x, chunks, diag_theta)
 
 
-def _damped_inverse(V: np.ndarray, lam: float) -> np.ndarray:
+class SingularPoints(AdjustmentError):
+    """Point blocks of the normal equations that cannot be inverted (``indices`` into the points)."""
+
+    def __init__(self, indices: np.ndarray):
+        self.indices = np.asarray(indices)
+        super().__init__(f"{len(self.indices)} object point(s) are not determined by their rays (parallel rays, "
+                         f"or a point gone to infinity or behind its cameras)")
+
+
+def _damped_inverse(V: np.ndarray, lam: float, first_point: int = 0) -> np.ndarray:
     if lam:
         V = V + lam * np.einsum("nii,ij->nij", V, np.eye(3))
-    return np.linalg.inv(V)
+    try:
+        return np.linalg.inv(V)
+    except np.linalg.LinAlgError:
+        w = np.linalg.eigvalsh(V)
+        raise SingularPoints(first_point + np.flatnonzero(w[:, 0] <= 1e-14 * np.abs(w[:, 2]))) from None
 
 
 def _point_schur(Vi: np.ndarray, W_pd: np.ndarray) -> np.ndarray:
@@ -504,7 +518,7 @@ def reduce(problem: Problem, lin: Linearisation, lam: float = 0.0, dense: bool =
     off_blocks = np.zeros((len(structure.pair_keys), 6, 6))
     v_inv = []
     for ch, cs in zip(lin.chunks, structure.chunks):
-        Vi = _damped_inverse(ch.V, lam)
+        Vi = _damped_inverse(ch.V, lam, ch.p0)
         v_inv.append(Vi)
         Y = ch.w_e @ Vi[cs.ptl]                                  # (m, 6, 3) = W V^-1 per observation
         schur_image_blocks(Y, ch.w_e, cs.img, cs.pair_a, cs.pair_b, cs.pair_key, diag_blocks, off_blocks)
