@@ -29,20 +29,44 @@ class SingularSystem(np.linalg.LinAlgError):
 
 
 class Factor:
-    """A factorisation of S that solves S x = b for vectors and matrices."""
+    """A factorisation of S that solves S x = b for vectors and matrices.
 
-    def __init__(self, solve, scale: np.ndarray, n: int):
+    ``lower`` is the dense Cholesky factor of the scaled S when there is one;
+    ``scaled`` the scaled sparse S otherwise (for :meth:`inverse`).
+    """
+
+    def __init__(self, solve, scale: np.ndarray, n: int, lower: np.ndarray | None = None, scaled=None):
         self._solve = solve
         self.scale = scale
         self.n = n
+        self._lower = lower
+        self._scaled = scaled
 
     def solve(self, b: np.ndarray) -> np.ndarray:
         s = self.scale if b.ndim == 1 else self.scale[:, None]
         return s * self._solve(s * b)
 
     def inverse(self) -> np.ndarray:
-        """The dense inverse S^-1 (the cofactor matrix of theta)."""
-        return self.solve(np.eye(self.n))
+        """The dense inverse S^-1 (the cofactor matrix of theta).
+
+        From the Cholesky factor by LAPACK's potri (n^3/3 flops), not by n
+        solves: a sparse factorisation solving for the identity column by
+        column took 10 of the 16 s of a 1000-image adjustment, and 70 of 77 s
+        at 2000 images. A sparse S is made dense for it (what it returns is
+        dense anyway).
+        """
+        lower = self._lower
+        if lower is None:
+            dense = self._scaled.toarray()
+            lower, info = la.lapack.dpotrf(dense, lower=1, overwrite_a=1, clean=0)
+            if info != 0:
+                raise SingularSystem(f"not positive definite (dpotrf info {info})")
+        inverse, info = la.lapack.dpotri(lower, lower=1, overwrite_c=self._lower is None)
+        if info != 0:
+            raise SingularSystem(f"singular (dpotri info {info})")
+        inverse = np.tril(inverse)
+        inverse += np.tril(inverse, -1).T
+        return inverse * self.scale[:, None] * self.scale[None, :]
 
 
 def factorise(S, rcond: float = 1e-13) -> Factor:
@@ -70,7 +94,7 @@ def factorise(S, rcond: float = 1e-13) -> Factor:
         pivots = np.diag(c) ** 2
         if pivots.min() < rcond:
             raise SingularSystem(f"numerically singular (smallest scaled pivot {pivots.min():.1e})")
-        return Factor(lambda b: la.cho_solve((c, lower), b, check_finite=False), scale, n)
+        return Factor(lambda b: la.cho_solve((c, lower), b, check_finite=False), scale, n, lower=c)
     D = sp.diags(scale)
     Ss = (D @ S @ D).tocsc()
     if _cholmod is not None:
@@ -81,7 +105,7 @@ def factorise(S, rcond: float = 1e-13) -> Factor:
         d = f.D()
         if d.min() < rcond:
             raise SingularSystem(f"numerically singular (smallest scaled pivot {d.min():.1e})")
-        return Factor(f, scale, n)
+        return Factor(f, scale, n, scaled=Ss)
     try:
         lu = spla.splu(Ss, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
                        options={"SymmetricMode": True})
@@ -90,7 +114,7 @@ def factorise(S, rcond: float = 1e-13) -> Factor:
     u = np.abs(lu.U.diagonal())
     if u.min() < rcond or np.any(lu.U.diagonal() <= 0):
         raise SingularSystem(f"not positive definite or singular (smallest pivot {u.min():.1e})")
-    return Factor(lu.solve, scale, n)
+    return Factor(lu.solve, scale, n, scaled=Ss)
 
 
 def null_directions(S, names: list[str], tol: float = 1e-10, top: int = 6) -> list[str]:

@@ -132,7 +132,7 @@ def simulate_uav(seed: int = 0, distortion: str = "local+brown", image_sigma_px:
                  gnss_sigma_m=(0.05, 0.05, 0.10), imu_sigma_deg=(0.02, 0.02, 0.05),
                  gnss_shift_m: float = 0.2, gnss_drift_mm_s: float = 5.0, imu_shift_deg: float = 0.05,
                  distortion_scale: float = 1.0, lever_arm_m=(0.0, 0.0, 0.0),
-                 boresight_deg=(0.0, 0.0, 0.0)) -> UAVSimulation:
+                 boresight_deg=(0.0, 0.0, 0.0), n_strips: int = 4, images_per_strip: int = 7) -> UAVSimulation:
     """Simulate the seed-000 block; returns the four scenario blocks and the truth.
 
     Parameters
@@ -151,6 +151,9 @@ def simulate_uav(seed: int = 0, distortion: str = "local+brown", image_sigma_px:
         Image point density.
     gnss_shift_m, gnss_drift_mm_s, imu_shift_deg : float
         Typical size of the per-strip trajectory errors of Eq. (12).
+    n_strips, images_per_strip : int
+        Block size (seed 000: 4 x 7 = 28 images). Larger blocks keep the overlaps and the point
+        density; the 39 marks spread over the larger area (for performance studies).
     lever_arm_m, boresight_deg : 3 floats
         Mounting of the GNSS antenna (camera frame) and of the IMU: the GNSS observes
         X0 + M^T a, the IMU the angles of B(b)^T M (selfcal.adjust.normal._mounted_sensor).
@@ -165,7 +168,9 @@ def simulate_uav(seed: int = 0, distortion: str = "local+brown", image_sigma_px:
     scale = agl / true_cam.focal_mm                                     # m per mm
     foot_x, foot_y = nominal.width_mm * scale, nominal.height_mm * scale
     base, spacing = 0.25 * foot_x, 0.40 * foot_y
-    n_strips, per_strip = 4, 7
+    per_strip = images_per_strip
+    if n_strips < 2 or per_strip < 3:
+        raise ValueError(f"a block needs at least 2 strips of 3 images, asked for {n_strips} x {per_strip}")
     speed = 8.0
 
     # --- exterior orientation (true)
@@ -181,7 +186,7 @@ def simulate_uav(seed: int = 0, distortion: str = "local+brown", image_sigma_px:
             eop.append([x, y, z, np.radians(rng.normal(0, 1.2)), np.radians(rng.normal(0, 1.2)), kappa])
             image_id.append(f"S{s + 1}_{k + 1:02d}")
             strip_of.append(s)
-            times.append(s * 150.0 + k * base / speed)
+            times.append(s * max(150.0, per_strip * base / speed + 60.0) + k * base / speed)
     eop = np.array(eop)
     eop[:, 5] = (eop[:, 5] + np.pi) % (2 * np.pi) - np.pi
     times = np.array(times)
@@ -222,16 +227,23 @@ def simulate_uav(seed: int = 0, distortion: str = "local+brown", image_sigma_px:
     iop = np.array([true_cam.focal_mm, true_cam.x0_mm, true_cam.y0_mm])
     n_pts = len(xyz_true)
     obs_img, obs_pt, obs_pix = [], [], []
+    half = 0.75 * max(foot_x, foot_y)                # beyond any footprint (tilts of a few degrees)
+    order = np.argsort(xyz_true[:, 0], kind="stable")
+    x_sorted = xyz_true[order, 0]
     for i in range(n_img):
-        xy = project(xyz_true, np.broadcast_to(eop[i], (n_pts, 6)), iop)
+        lo, hi = np.searchsorted(x_sorted, [eop[i, 0] - half, eop[i, 0] + half])
+        near = np.sort(order[lo:hi])
+        near = near[np.abs(xyz_true[near, 1] - eop[i, 1]) < half]
+        xy = project(xyz_true[near], np.broadcast_to(eop[i], (near.size, 6)), iop)
         dx, dy = field_.displacement_px(xy[:, 0], xy[:, 1])
         xy_obs = xy + np.column_stack([dx, dy]) * pixel
         pix = pixel_from_photo(xy_obs, width_px, height_px, pixel)
         inside = ((pix[:, 0] > 1) & (pix[:, 0] < width_px - 1) & (pix[:, 1] > 1) & (pix[:, 1] < height_px - 1))
-        idx = np.flatnonzero(inside)
+        idx = near[inside]
+        pix = pix[inside]
         obs_img.append(np.full(idx.size, i))
         obs_pt.append(idx)
-        obs_pix.append(pix[idx])
+        obs_pix.append(pix)
     obs_img = np.concatenate(obs_img)
     obs_pt = np.concatenate(obs_pt)
     obs_pix = np.concatenate(obs_pix)
