@@ -193,10 +193,109 @@ def run_scipy(target: float | None) -> dict:
             "converged": first[0] is not None, "peak_mb": _peak_mb()}
 
 
-RUNNERS = {"selfcal": run_selfcal, "pycolmap": run_pycolmap, "scipy": run_scipy}
+# --- synthetic frame blocks -------------------------------------------------------------------------
+
+#: images -> (strips, images per strip) of selfcal.simulate.simulate_uav
+SYNTHETIC = {28: (4, 7), 200: (10, 20), 1000: (20, 50)}
 
 
-def _child(which: str, target: float | None) -> dict:
+def _synthetic_block(images: int):
+    """A free-network frame block with its start: Type 3 geometry, points as tie points at their
+    intersected start values, orientation from images.csv (approximate), c, x0, y0 free, no APs."""
+    from dataclasses import replace
+    from selfcal.adjust.initial import initial_state
+    from selfcal.adjust.problem import build_problem
+    from selfcal.block import prune
+    from selfcal.simulate import simulate_uav
+
+    strips, per_strip = SYNTHETIC[images]
+    sim = simulate_uav(seed=1, distortion="none", points_per_mm2=0.5, n_strips=strips, images_per_strip=per_strip)
+    block = prune(sim.blocks["type3"])
+    state, _ = initial_state(build_problem(block), block)
+    points = replace(block.points, role=np.full(len(block.points), "tie", dtype=object), xyz_m=state.points,
+                     sigma_m=np.full_like(state.points, np.nan))
+    images = replace(block.images, position_m=state.eop[:, :3], attitude_rad=state.eop[:, 3:])
+    return replace(block, points=points, images=images, datum="free")
+
+
+def run_selfcal_frame(images: int) -> dict:
+    """selfcal's solve (to its last iteration: Ceres computes no covariance) and, where it can, the
+    whole adjustment with the covariance (free networks: up to 6000 orientation unknowns)."""
+    from selfcal.adjust import AdjustOptions, adjust
+    from selfcal.errors import AdjustmentError
+
+    block = _synthetic_block(images)
+    records = []
+    t0 = time.perf_counter()
+    try:
+        adjust(block, AdjustOptions(), progress=lambda record: records.append((time.perf_counter(), record)))
+        total = time.perf_counter() - t0
+    except AdjustmentError:
+        total = float("nan")
+    last_time, last = records[-1]
+    weight = block.image_sigma_px ** 2                         # selfcal's cost is in units of sigma
+    return {"seconds": last_time - t0, "total_seconds": total, "iterations": last.iteration,
+            "cost": last.cost * weight, "converged": True, "peak_mb": _peak_mb(),
+            "observations": len(block.observations)}
+
+
+def _frame_colmap_model(block, folder: str) -> None:
+    """A frame block as a COLMAP text model: one SIMPLE_PINHOLE camera, poses turned from selfcal's
+    camera (looking along -z, y up) to COLMAP's (+z, y down)."""
+    from scipy.spatial.transform import Rotation
+    from selfcal.geometry.rotation import matrix_from_opk
+
+    cam = next(iter(block.cameras.values()))
+    f = cam.focal_mm / cam.pixel_size_mm
+    cx = cam.width_px / 2 + cam.x0_mm / cam.pixel_size_mm
+    cy = cam.height_px / 2 - cam.y0_mm / cam.pixel_size_mm
+    flip = np.diag([1.0, -1.0, -1.0])
+    R = flip @ matrix_from_opk(block.images.attitude_rad)
+    t = -np.einsum("nij,nj->ni", R, block.images.position_m)
+    q = Rotation.from_matrix(R).as_quat().tolist()
+    t = t.tolist()
+    obs = block.observations
+    pixel = obs.pixel.tolist()
+    with open(os.path.join(folder, "cameras.txt"), "w") as handle:
+        handle.write(f"1 SIMPLE_PINHOLE {cam.width_px} {cam.height_px} {float(f)!r} {float(cx)!r} {float(cy)!r}\n")
+    track: dict[int, list[str]] = {}
+    with open(os.path.join(folder, "images.txt"), "w") as handle:
+        for k in range(len(block.images)):
+            sel = np.flatnonzero(obs.image_index == k)
+            handle.write(f"{k + 1} {q[k][3]!r} {q[k][0]!r} {q[k][1]!r} {q[k][2]!r} {t[k][0]!r} {t[k][1]!r} "
+                         f"{t[k][2]!r} 1 img{k}\n")
+            handle.write(" ".join(f"{pixel[i][0]!r} {pixel[i][1]!r} {obs.point_index[i] + 1}" for i in sel) + "\n")
+            for j, i in enumerate(sel):
+                track.setdefault(int(obs.point_index[i]), []).append(f"{k + 1} {j}")
+    with open(os.path.join(folder, "points3D.txt"), "w") as handle:
+        for p, xyz in enumerate(block.points.xyz_m.tolist()):
+            handle.write(f"{p + 1} {xyz[0]!r} {xyz[1]!r} {xyz[2]!r} 0 0 0 0 {' '.join(track.get(p, []))}\n")
+
+
+def run_pycolmap_frame(images: int) -> dict:
+    import pycolmap
+
+    block = _synthetic_block(images)
+    with tempfile.TemporaryDirectory() as folder:
+        _frame_colmap_model(block, folder)
+        reconstruction = pycolmap.Reconstruction(folder)
+    options = pycolmap.BundleAdjustmentOptions()
+    options.print_summary = False
+    options.refine_principal_point = True
+    options.ceres.solver_options.max_num_iterations = 200
+    options.ceres.solver_options.function_tolerance = 1e-9
+    t0 = time.perf_counter()
+    pycolmap.bundle_adjustment(reconstruction, options)
+    seconds = time.perf_counter() - t0
+    return {"seconds": seconds, "iterations": 0, "cost": _colmap_cost(reconstruction), "converged": True,
+            "peak_mb": _peak_mb(), "observations": len(block.observations)}
+
+
+RUNNERS = {"selfcal": run_selfcal, "pycolmap": run_pycolmap, "scipy": run_scipy,
+           "selfcal-frame": run_selfcal_frame, "pycolmap-frame": run_pycolmap_frame}
+
+
+def _child(which: str, target) -> dict:
     out = subprocess.run([sys.executable, __file__, "--child", which, "--target", repr(target)],
                          capture_output=True, text=True, check=True)
     return json.loads(out.stdout.strip().splitlines()[-1])
@@ -207,8 +306,12 @@ def main() -> None:
     parser.add_argument("--child")
     parser.add_argument("--target", default="None")
     parser.add_argument("--skip-scipy", action="store_true")
+    parser.add_argument("--images", default="28,200,1000", help="synthetic frame blocks (default 28,200,1000)")
     args = parser.parse_args()
     if args.child:
+        if args.child.endswith("-frame"):
+            print(json.dumps(RUNNERS[args.child](int(args.target))))
+            return
         target = None if args.target == "None" else float(args.target)
         print(json.dumps(RUNNERS[args.child](target)))
         return
@@ -235,6 +338,17 @@ def main() -> None:
         else:
             print(f"SciPy stopped at {r['cost']:.4f} after {r['seconds']:.1f} s without reaching selfcal's final "
                   f"cost + 0.1 % ({target:.4f}): scipy/selfcal > {r['seconds'] / ours['seconds']:.1f}x")
+    sizes = [int(v) for v in args.images.split(",") if v]
+    if sizes:
+        print("\nsynthetic frame blocks (free network, c, x0, y0 free, no APs; cost = 1/2 sum of squared px)")
+        print(f"{'images':>7}{'observations':>14}{'selfcal s':>10}{'(+cov.)':>9}{'iter.':>6}{'pycolmap s':>11}"
+              f"{'selfcal cost':>15}{'pycolmap cost':>15}{'time ratio':>11}")
+        for n in sizes:
+            a = _child("selfcal-frame", n)
+            b = _child("pycolmap-frame", n)
+            print(f"{n:>7}{a['observations']:>14}{a['seconds']:>10.2f}{a['total_seconds']:>9.2f}{a['iterations']:>6}"
+                  f"{b['seconds']:>11.2f}"
+                  f"{a['cost']:>15.4f}{b['cost']:>15.4f}{a['seconds'] / b['seconds']:>11.2f}", flush=True)
 
 if __name__ == "__main__":
     main()
