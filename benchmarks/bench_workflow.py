@@ -70,12 +70,12 @@ def main() -> None:
     print(f"seed-000 Type 3 block: {len(block.images)} images, {len(block.observations)} image observations, "
           f"{cam.ap.n_params} WAPs (sym4, 9x6) -> {int(cam.free[3:].sum())} kept; {len(tested.rejected_rows)} "
           f"observations rejected in {len(tested.rounds)} rounds; {len(iterations)} iterations in all")
-    print(f"{"stage":<46}{'seconds':>9}{'share':>8}")
+    print(f"{'stage':<46}{'seconds':>9}{'share':>8}")
     for name, label in (("solve", "solve (all iterations)"), ("covariance", "covariance (theta + every tie point)"),
                         ("tests", "tests (w, redundancy, rejection, screening)"), ("setup", "setup (problems, initial values)")):
         value = stages.get(name, 0.0)
         print(f"{label:<46}{value:>9.2f}{100 * value / total:>7.0f}%")
-    print(f"{"total":<46}{total:>9.2f}   (issue 10: <= 10 s on 2 cores)")
+    print(f"{'total':<46}{total:>9.2f}   (issue 10: <= 10 s on 2 cores)")
 
 
 if __name__ == "__main__":
