@@ -163,6 +163,14 @@ def carry_ap_columns(problem: Problem, rows: np.ndarray, previous: Problem, prev
         problem._ap_columns[(k, free.tobytes())] = columns
 
 
+def _rows_times(rows: np.ndarray, vector: np.ndarray) -> np.ndarray:
+    """(n, 2, k) @ (k,) as one BLAS matrix-vector product (a batched 3-D matmul is ~5x slower)."""
+    n, two, k = rows.shape
+    if rows.flags.c_contiguous:
+        return (rows.reshape(n * two, k) @ vector).reshape(n, two)
+    return rows @ vector
+
+
 def _camera_terms(problem: Problem, state: State, o0: int, o1: int, img: np.ndarray):
     """Additional-parameter displacement (mm) of observations o0:o1, and per camera the
     observations it takes (mask) with the (whitened) Jacobian columns of its free APs."""
@@ -183,10 +191,10 @@ def _camera_terms(problem: Problem, state: State, o0: int, o1: int, img: np.ndar
                 # one matrix-vector product over them, the slots weighted by zero
                 rows = _camera_jacobian(problem, k)[o0:o1]
                 columns = rows[:, :, 3:]
-                delta[:] = (rows @ np.concatenate([np.zeros(3), a[free]])) * problem.obs_sigma_mm[o0:o1, None]
+                delta[:] = _rows_times(rows, np.concatenate([np.zeros(3), a[free]])) * problem.obs_sigma_mm[o0:o1, None]
             else:
                 columns = _ap_columns(problem, k, o0, o1, mask)
-                delta[mask] = (columns @ a[free]) * problem.obs_sigma_mm[o0:o1][mask, None]
+                delta[mask] = _rows_times(columns, a[free]) * problem.obs_sigma_mm[o0:o1][mask, None]
             if np.any(a[~free] != 0):          # APs held at a non-zero value
                 xy = problem.obs_xy_mm[o0:o1][mask]
                 bx, by = cam.ap.basis(xy[:, 0], xy[:, 1])
