@@ -27,7 +27,8 @@ from .errors import BlockError
 from .geometry.rotation import matrix_from_quaternion, opk_from_matrix
 from .geometry.similarity import fit_similarity, intersect_rays
 
-__all__ = ["block_from_colmap", "colmap_undistort", "colmap_distortion_as_brown", "block_from_bal"]
+__all__ = ["block_from_colmap", "colmap_undistort", "colmap_distortion_as_brown", "block_from_bal",
+           "bal_behind_camera"]
 
 #: camera-axis flip between COLMAP (y down, looking along +z) and photogrammetry (y up, looking along -z)
 _FLIP = np.diag([1.0, -1.0, -1.0])
@@ -274,6 +275,18 @@ def block_from_colmap(model, control=None, pixel_size_mm: float = 0.005, image_s
     block = Block(name=name, crs=crs, cameras=cameras, images=images, points=points,
                   observations=observations, image_sigma_px=image_sigma_px)
     return block, notes
+
+
+def bal_behind_camera(problem) -> np.ndarray:
+    """Observations (bool over the file's) whose point lies behind its camera (P_z > 0; BAL cameras
+    look along -z). BAL's formula p = -P/P_z still gives them a residual, fitted by a mirrored
+    projection; COLMAP's cost function would ignore them."""
+    from .geometry.rotation import matrix_from_rotation_vector
+
+    cam = problem.cameras[problem.obs_camera]
+    R = matrix_from_rotation_vector(cam[:, :3])
+    P = np.einsum("nij,nj->ni", R, problem.points[problem.obs_point]) + cam[:, 3:6]
+    return P[:, 2] > 0
 
 
 def block_from_bal(problem, image_sigma_px: float = 1.0, name: str = "bal") -> Block:

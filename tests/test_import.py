@@ -183,7 +183,7 @@ def test_malformed_inputs_name_the_line(tmp_path):
     assert run_cli("import", "colmap", str(folder), "--out", str(tmp_path / "b")) == 2
 
 
-def test_bal_import_reproduces_the_initial_cost(tmp_path):
+def test_bal_import_reproduces_the_initial_cost(tmp_path, capsys):
     """BAL import through a block folder: the cost at the file's values is the reference cost exactly."""
     import json
 
@@ -197,6 +197,8 @@ def test_bal_import_reproduces_the_initial_cost(tmp_path):
         reference = json.load(handle)
     out = tmp_path / "ladybug"
     assert run_cli("import", "bal", os.path.join(bal_dir, "problem-49-7776-pre.txt"), "--out", str(out)) == 0
+    # 31 observations of 10 points start behind their camera (cheirality), and the import says so
+    assert "31 observations of 10 points lie behind their camera" in capsys.readouterr().err
     block = read_block(out)
     assert len(block.images) == 49 and len(block.points) == 7776 and len(block.observations) == 31843
     problem = build_problem(block)

@@ -5,7 +5,7 @@ import argparse
 import os
 import sys
 
-from ..convert import block_from_bal, block_from_colmap
+from ..convert import bal_behind_camera, block_from_bal, block_from_colmap
 from ..io.bal import read_bal
 from ..io.block_folder import write_block
 from ..io.colmap import read_colmap
@@ -36,8 +36,13 @@ def run(args: argparse.Namespace) -> int:
         if not value > 0:
             raise SystemExit(f"selfcal import: error: {name} must be positive, found {value}")
     if args.format == "bal":
-        block = block_from_bal(read_bal(args.source), args.image_sigma_px,
-                               name=os.path.basename(os.path.normpath(args.out)))
+        problem = read_bal(args.source)
+        block = block_from_bal(problem, args.image_sigma_px, name=os.path.basename(os.path.normpath(args.out)))
+        behind = bal_behind_camera(problem)
+        if behind.any():
+            print(f"warning: {int(behind.sum())} observations of {len(set(problem.obs_point[behind]))} points lie "
+                  f"behind their camera; BAL's formula still gives them a residual (COLMAP would ignore them)",
+                  file=sys.stderr)
         write_block(block, args.out)
         print(f"imported {len(block.images)} images (one BAL camera each), {len(block.points)} points, "
               f"{len(block.observations)} observations into {args.out}; BAL has no datum: adjust it with "
