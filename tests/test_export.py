@@ -191,3 +191,23 @@ def test_undistort_moves_image_features_to_their_ideal_positions(tmp_path, wavel
     cv2.imwrite(str(tmp_path / "small.png"), np.zeros((10, 10), np.uint8))
     assert run_cli("undistort", str(folder), str(tmp_path / "small.png"), "--out", str(tmp_path / "u2")) == 2
     assert not (tmp_path / "u2").exists()
+
+
+def test_export_errors_exit_with_two(tmp_path, capsys):
+    """No results folder, no camera.json, two cameras without --camera, an unknown model: exit 2, no file."""
+    out = tmp_path / "cam.yaml"
+    assert run_cli("export", "opencv", str(tmp_path / "nothing"), "--out", str(out)) == 2
+    (tmp_path / "empty").mkdir()
+    assert run_cli("export", "opencv", str(tmp_path / "empty"), "--out", str(out)) == 2
+    assert "camera.json" in capsys.readouterr().err
+    two = tmp_path / "two"
+    two.mkdir()
+    (two / "camera.json").write_text(json.dumps({"cameras": {"a": camera_entry(), "b": camera_entry()}}))
+    assert run_cli("export", "opencv", str(two), "--out", str(out)) == 2
+    assert "--camera" in capsys.readouterr().err
+    assert run_cli("export", "opencv", str(two), "--camera", "b", "--opencv-model", "fisheye",
+                   "--out", str(out)) == 2
+    assert not out.exists()
+    assert run_cli("export", "colmap", str(two), "--out", str(tmp_path / "cameras.txt")) == 0
+    assert len([line for line in (tmp_path / "cameras.txt").read_text().splitlines()
+                if not line.startswith("#")]) == 2
