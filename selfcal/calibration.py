@@ -31,7 +31,7 @@ from scipy.optimize import least_squares
 
 from .ap import APModel, ImageFrame, ap_from_dict
 
-__all__ = ["Calibration", "OpenCVCamera", "OPENCV_MODELS", "fit_opencv", "undistortion_maps",
+__all__ = ["Calibration", "OpenCVCamera", "OPENCV_MODELS", "fit_opencv", "undistortion_maps", "undistort_image",
            "opencv_project", "colmap_parameters"]
 
 #: OpenCV distortion models by name: number of coefficients, in OpenCV's order
@@ -280,3 +280,11 @@ def undistortion_maps(calibration: Calibration, step_px: int = 4) -> tuple[np.nd
     map_x = mx(v_all, u_all).astype(np.float32)
     map_y = my(v_all, u_all).astype(np.float32)
     return map_x, map_y, calibration.opencv_intrinsics()
+
+
+def undistort_image(image: np.ndarray, map_x: np.ndarray, map_y: np.ndarray) -> np.ndarray:
+    """The ideal image: ``cv2.remap`` with the maps of :func:`undistortion_maps`, bicubic, black outside
+    (OpenCV rounds source positions to 1/32 px)."""
+    import cv2
+
+    return cv2.remap(image, map_x, map_y, cv2.INTER_CUBIC, borderMode=cv2.BORDER_CONSTANT)

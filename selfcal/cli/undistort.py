@@ -7,10 +7,10 @@ import sys
 
 import numpy as np
 
-from ..calibration import OpenCVCamera, undistortion_maps
+from ..calibration import OpenCVCamera, undistort_image, undistortion_maps
 from ..errors import BlockError
 from ..io.atomic import atomic_folder
-from ..io.opencv import write_opencv_yaml
+from ..io.opencv import read_image, write_image, write_opencv_yaml
 from .export import calibrations, pick_camera
 
 
@@ -23,31 +23,23 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import cv2
-
     cal = pick_camera(calibrations(args.results), args.camera)
-    images = []
-    for path in args.images:
-        image = cv2.imread(path, cv2.IMREAD_UNCHANGED)
-        if image is None:
-            raise BlockError(path, "cannot be read as an image")
-        if image.shape[:2] != (cal.height_px, cal.width_px):
-            raise BlockError(path, f"is {image.shape[1]} x {image.shape[0]} px, camera {cal.camera_id} is "
-                                   f"{cal.width_px} x {cal.height_px} px")
-        images.append((path, image))
-    names = [os.path.basename(p) for p, _ in images]
+    names = [os.path.basename(p) for p in args.images]
     if len(set(names)) < len(names):
         raise BlockError(args.images[0], "two images have the same file name; they would overwrite each other")
     map_x, map_y, camera_matrix = undistortion_maps(cal)
     ideal = OpenCVCamera("none", camera_matrix, np.zeros(4), 0.0, 0.0, cal.width_px, cal.height_px)
+    # one image in memory at a time; a bad one anywhere leaves no output folder (atomic)
     with atomic_folder(args.out) as tmp:
-        for k, ((path, image), name) in enumerate(zip(images, names), start=1):
-            out = cv2.remap(image, map_x, map_y, cv2.INTER_CUBIC, borderMode=cv2.BORDER_CONSTANT)
-            if not cv2.imwrite(os.path.join(tmp, name), out):
-                raise BlockError(path, f"OpenCV cannot write '{name}' (unknown extension?)")
-            print(f"[{k}/{len(images)}] {name}", file=sys.stderr)
+        for k, (path, name) in enumerate(zip(args.images, names), start=1):
+            image = read_image(path)
+            if image.shape[:2] != (cal.height_px, cal.width_px):
+                raise BlockError(path, f"is {image.shape[1]} x {image.shape[0]} px, camera {cal.camera_id} is "
+                                       f"{cal.width_px} x {cal.height_px} px")
+            write_image(os.path.join(tmp, name), undistort_image(image, map_x, map_y))
+            print(f"[{k}/{len(names)}] {name}", file=sys.stderr)
         write_opencv_yaml(ideal, os.path.join(tmp, "ideal_camera.yaml"),
                           source=f"ideal camera of the undistorted images of camera {cal.camera_id}")
-    print(f"{len(images)} images undistorted into {args.out} (camera {cal.camera_id}, {cal.ap.spec})",
+    print(f"{len(names)} images undistorted into {args.out} (camera {cal.camera_id}, {cal.ap.spec})",
           file=sys.stderr)
     return 0
