@@ -95,7 +95,7 @@ def test_opencv_misfit_is_reported_as_measured(tmp_path, capsys):
 
 def test_colmap_cameras_txt_projects_like_selfcal(tmp_path):
     """pycolmap reads the exported camera and projects where selfcal measures (COLMAP's pixel convention)."""
-    pycolmap = pytest.importorskip("pycolmap")
+    import pycolmap
     entry = camera_entry("brown", [-30.0, 3.0, 0.0, 0.05, -0.03, 0.0, 0.0], x0_mm=0.0, y0_mm=0.0)
     folder = results_folder(tmp_path / "r", entry)
     assert run_cli("export", "colmap", str(folder), "--out", str(tmp_path / "cameras.txt")) == 0

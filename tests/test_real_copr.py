@@ -13,7 +13,6 @@ sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "benchmarks"))
 def test_brown_reprojection_within_two_percent_of_pycolmap():
     """Same start, same observations: selfcal brown (free network) reaches a reprojection RMS within 2 % of
     pycolmap's OPENCV bundle adjustment (measured: 0.636 px against 0.627 px, ratio 1.014)."""
-    pytest.importorskip("pycolmap")
     from bench_colmap import pycolmap_run, selfcal_run
 
     path = os.path.join(SHARED_DATA, "copr", "sparse")
