@@ -2,7 +2,7 @@
 # The Coal Oil Point Reserve block (../shared/data/copr, CC BY-SA 4.0): import COLMAP's reconstruction
 # with the ODM ground control, adjust it with four AP models (data snooping on, APs screened), write
 # the reports, and check the control by leaving each target out in turn.
-# Run from the repository root: sh examples/copr/run.sh [OUT]   (about 7 minutes on 2 cores)
+# Run from the repository root: sh examples/copr/run.sh [OUT]   (about 3.5 minutes on 2 cores)
 set -e
 DATA=${COPR_DATA:-../shared/data/copr}
 OUT=${1:-copr-results}
