@@ -32,6 +32,7 @@ demo: install
 
 bench: install
 	$(PY) benchmarks/bench_spine.py
+	$(PY) benchmarks/bench_spine.py --images 1000 --density 0.5
 	$(PY) benchmarks/bench_stats.py
 	$(PY) benchmarks/bench_batch.py
 	$(PY) benchmarks/bench_report.py

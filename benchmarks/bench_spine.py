@@ -14,7 +14,7 @@ Two meanings of "the same final cost" are measured:
 * within 0.1 %: the wall time until each first reaches selfcal's final cost
   + 0.1 % (SciPy with its default LSMR tolerances, stopped by a callback).
 
-Run: ``make bench`` or ``python benchmarks/bench_spine.py [--seed N] [--density D]``.
+Run: ``make bench`` or ``python benchmarks/bench_spine.py [--seed N] [--density D] [--images 28|200|1000]``.
 """
 from __future__ import annotations
 
@@ -29,13 +29,20 @@ import numpy as np
 import scipy.sparse as sp
 
 
+#: --images -> (strips, images per strip) of the simulator
+BLOCKS = {28: (4, 7), 200: (10, 20), 1000: (20, 50)}
+
+
 def _problem(seed: int, density: float):
     from selfcal.adjust.initial import initial_state
     from selfcal.adjust.problem import build_problem
     from selfcal.block import prune
     from selfcal.simulate import simulate_uav
 
-    sim = simulate_uav(seed=seed, distortion="none", points_per_mm2=density)
+    images = int(sys.argv[sys.argv.index("--images") + 1]) if "--images" in sys.argv else 28
+    strips, per_strip = BLOCKS[images]
+    sim = simulate_uav(seed=seed, distortion="none", points_per_mm2=density, n_strips=strips,
+                       images_per_strip=per_strip)
     block = prune(sim.blocks["type3"])
     problem = build_problem(block, "none")
     state, _ = initial_state(problem, block)
@@ -122,8 +129,10 @@ def _stopper(target_cost: float):
     return callback
 
 
-def _child(which: str, seed: int, density: float, target: float | None, tight: bool = False) -> dict:
-    argv = [sys.executable, __file__, "--child", which, "--seed", str(seed), "--density", str(density)]
+def _child(which: str, seed: int, density: float, target: float | None, tight: bool = False,
+           images: int = 28) -> dict:
+    argv = [sys.executable, __file__, "--child", which, "--seed", str(seed), "--density", str(density),
+            "--images", str(images)]
     if target is not None:
         argv += ["--target", json.dumps(target)]
     if tight:
@@ -139,16 +148,19 @@ def main() -> None:
     parser.add_argument("--child", choices=["selfcal", "scipy"])
     parser.add_argument("--target")
     parser.add_argument("--tight", action="store_true")
+    parser.add_argument("--images", type=int, default=28, choices=sorted(BLOCKS),
+                        help="block size: 28 (the paper's), 200 or 1000 images (Type 3 control)")
     args = parser.parse_args()
     if args.child:
         out = run_selfcal(args.seed, args.density) if args.child == "selfcal" else run_scipy(args.seed, args.density)
         out["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
         print(json.dumps(out))
         return
-    ours = _child("selfcal", args.seed, args.density, None)
-    converged = _child("scipy", args.seed, args.density, None, tight=True)
-    stopped = _child("scipy", args.seed, args.density, ours["cost"])
-    print(f"seed-000 Type 3 block: {ours['n_observations']} observations, {ours['n_unknowns']} unknowns")
+    ours = _child("selfcal", args.seed, args.density, None, images=args.images)
+    converged = _child("scipy", args.seed, args.density, None, tight=True, images=args.images)
+    stopped = _child("scipy", args.seed, args.density, ours["cost"], images=args.images)
+    print(f"seed-000 Type 3 geometry, {args.images} images: {ours['n_observations']} observations, "
+          f"{ours['n_unknowns']} unknowns")
     print(f"{'solver':<44}{'seconds':>9}{'evals':>7}{'final cost':>16}{'peak MB':>9}")
     rows = (("selfcal (Schur complement + Cholesky)", ours),
             ("scipy trf/LSMR tight, to convergence", converged),
