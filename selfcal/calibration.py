@@ -30,6 +30,7 @@ from scipy.interpolate import RectBivariateSpline
 from scipy.optimize import least_squares
 
 from .ap import APModel, ImageFrame, ap_from_dict
+from .sensors.frame import photo_from_pixel
 
 __all__ = ["Calibration", "OpenCVCamera", "OPENCV_MODELS", "fit_opencv", "undistortion_maps", "undistort_image",
            "opencv_project", "colmap_parameters"]
@@ -83,11 +84,12 @@ class Calibration:
 
     def delta_px(self, pixel: np.ndarray) -> np.ndarray:
         """Delta along the pixel axes (dcol, drow) at measured positions (col, row), shape (n, 2)."""
-        pixel = np.atleast_2d(np.asarray(pixel, float))
-        x = (pixel[:, 0] - self.width_px / 2) * self.pixel_size_mm
-        y = (self.height_px / 2 - pixel[:, 1]) * self.pixel_size_mm
-        dx, dy = self.ap.displacement_px(x, y, self.coefficients_px)
+        xy = self._photo(np.atleast_2d(np.asarray(pixel, float)))
+        dx, dy = self.ap.displacement_px(xy[:, 0], xy[:, 1], self.coefficients_px)
         return np.column_stack([dx, -dy])
+
+    def _photo(self, pixel: np.ndarray) -> np.ndarray:
+        return photo_from_pixel(pixel, self.width_px, self.height_px, self.pixel_size_mm)
 
     def ideal_from_measured(self, pixel: np.ndarray) -> np.ndarray:
         """Ideal (distortion-free) pixel positions of measured ones: measured - Delta(measured)."""
@@ -114,10 +116,9 @@ class Calibration:
         m = ideal.copy()
         p = self.pixel_size_mm
         todo = np.ones(len(m), bool)
+        a = self.coefficients_px
         for _ in range(max_iterations):
-            x = (m[todo, 0] - self.width_px / 2) * p
-            y = (self.height_px / 2 - m[todo, 1]) * p
-            a = self.coefficients_px
+            x, y = self._photo(m[todo]).T
             bx, by = self.ap.basis(x, y)
             dbx_dx, dbx_dy, dby_dx, dby_dy = self.ap.basis_derivatives(x, y)
             # residual of m - Delta(m) - ideal along the pixel axes (drow = -dy) and its Jacobian per pixel
