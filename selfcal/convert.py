@@ -26,6 +26,7 @@ from .block import BalCamera, Block, FrameCamera, Images, InitialAP, Observation
 from .errors import BlockError
 from .geometry.rotation import matrix_from_quaternion, opk_from_matrix
 from .geometry.similarity import fit_similarity, intersect_rays
+from .sensors.frame import photo_from_pixel
 
 __all__ = ["block_from_colmap", "colmap_undistort", "colmap_distortion_as_brown", "block_from_bal",
            "bal_behind_camera"]
@@ -82,8 +83,7 @@ def colmap_distortion_as_brown(cam, camera: FrameCamera, nodes_x: int = 61) -> t
     pixel = np.column_stack([col.ravel(), row.ravel()])
     ideal = colmap_undistort(cam, pixel)
     p = camera.pixel_size_mm
-    x = (pixel[:, 0] - cam.width / 2) * p
-    y = (cam.height / 2 - pixel[:, 1]) * p
+    x, y = photo_from_pixel(pixel, cam.width, cam.height, p).T
     dx = x - (camera.x0_mm + camera.focal_mm * ideal[:, 0])
     dy = y - (camera.y0_mm - camera.focal_mm * ideal[:, 1])
     brown = create_ap("brown", ImageFrame(camera.width_mm, camera.height_mm, p))
