@@ -86,10 +86,8 @@ def run_selfcal(target: float | None) -> dict:
 
 def _behind(problem, state) -> np.ndarray:
     """Observations whose point lies behind the camera (BAL: P_z > 0), in the problem's order."""
-    from selfcal.geometry.rotation import matrix_from_rotation_vector
-    R = matrix_from_rotation_vector(state.eop[problem.obs_image, :3])
-    P = np.einsum("nij,nj->ni", R, state.points[problem.obs_point]) + state.eop[problem.obs_image, 3:]
-    return P[:, 2] > 0
+    from selfcal.sensors.bal import behind_camera
+    return behind_camera(state.points[problem.obs_point], state.eop[problem.obs_image])
 
 
 def _colmap_model(problem, folder: str) -> None:

@@ -29,8 +29,8 @@ import numpy as np
 from scipy.interpolate import RectBivariateSpline
 from scipy.optimize import least_squares
 
-from .ap import APModel, ImageFrame, ap_from_dict
-from .sensors.frame import photo_from_pixel
+from .ap import APModel, ImageFrame, ap_from_dict, frame_nodes_mm
+from .sensors.frame import photo_from_pixel, pixel_from_photo
 
 __all__ = ["Calibration", "OpenCVCamera", "OPENCV_MODELS", "fit_opencv", "undistortion_maps", "undistort_image",
            "opencv_project", "colmap_parameters"]
@@ -199,10 +199,10 @@ def opencv_project(normalised: np.ndarray, camera_matrix: np.ndarray, coefficien
 
 
 def _image_grid(calibration: Calibration, nodes_x: int) -> np.ndarray:
-    nodes_y = int(round((nodes_x - 1) * calibration.height_px / calibration.width_px)) + 1
-    col, row = np.meshgrid(np.linspace(0, calibration.width_px, nodes_x),
-                           np.linspace(0, calibration.height_px, nodes_y))
-    return np.column_stack([col.ravel(), row.ravel()])
+    """Pixel positions (col, row) of the frame's node grid (:func:`selfcal.ap.frame_nodes_mm`)."""
+    x, y = frame_nodes_mm(calibration.ap.frame, nodes_x)
+    return pixel_from_photo(np.column_stack([x, y]), calibration.width_px, calibration.height_px,
+                            calibration.pixel_size_mm)
 
 
 def fit_opencv(calibration: Calibration, models=tuple(OPENCV_MODELS), tolerance_px: float = 0.01,

@@ -21,12 +21,12 @@ from dataclasses import replace
 
 import numpy as np
 
-from .ap import ImageFrame, create_ap, fit_displacement
+from .ap import ImageFrame, create_ap, fit_displacement, frame_nodes_mm
 from .block import BalCamera, Block, FrameCamera, Images, InitialAP, Observations, Points
 from .errors import BlockError
 from .geometry.rotation import matrix_from_quaternion, opk_from_matrix
 from .geometry.similarity import fit_similarity, intersect_rays
-from .sensors.frame import photo_from_pixel
+from .sensors.frame import pixel_from_photo
 
 __all__ = ["block_from_colmap", "colmap_undistort", "colmap_distortion_as_brown", "block_from_bal",
            "bal_behind_camera"]
@@ -78,15 +78,13 @@ def colmap_distortion_as_brown(cam, camera: FrameCamera, nodes_x: int = 61) -> t
     """
     if not set(cam.params) - {"f", "fx", "fy", "cx", "cy"}:
         return None, 0.0
-    nodes_y = int(round((nodes_x - 1) * cam.height / cam.width)) + 1
-    col, row = np.meshgrid(np.linspace(0, cam.width, nodes_x), np.linspace(0, cam.height, nodes_y))
-    pixel = np.column_stack([col.ravel(), row.ravel()])
-    ideal = colmap_undistort(cam, pixel)
     p = camera.pixel_size_mm
-    x, y = photo_from_pixel(pixel, cam.width, cam.height, p).T
+    frame = ImageFrame(camera.width_mm, camera.height_mm, p)
+    x, y = frame_nodes_mm(frame, nodes_x)
+    ideal = colmap_undistort(cam, pixel_from_photo(np.column_stack([x, y]), cam.width, cam.height, p))
     dx = x - (camera.x0_mm + camera.focal_mm * ideal[:, 0])
     dy = y - (camera.y0_mm - camera.focal_mm * ideal[:, 1])
-    brown = create_ap("brown", ImageFrame(camera.width_mm, camera.height_mm, p))
+    brown = create_ap("brown", frame)
     values, misfit = fit_displacement(brown, x, y, dx / p, dy / p)
     return (InitialAP("brown", tuple(brown.parameter_names), tuple(float(v) for v in values)),
             float(np.max(np.hypot(misfit[:, 0], misfit[:, 1]))))
@@ -278,15 +276,12 @@ def block_from_colmap(model, control=None, pixel_size_mm: float = 0.005, image_s
 
 
 def bal_behind_camera(problem) -> np.ndarray:
-    """Observations (bool over the file's) whose point lies behind its camera (P_z > 0; BAL cameras
-    look along -z). BAL's formula p = -P/P_z still gives them a residual, fitted by a mirrored
-    projection; COLMAP's cost function would ignore them."""
-    from .geometry.rotation import matrix_from_rotation_vector
+    """Observations (bool over the file's) whose point lies behind its camera; BAL's formula
+    p = -P/P_z still gives them a residual, fitted by a mirrored projection; COLMAP's cost
+    function would ignore them."""
+    from .sensors.bal import behind_camera
 
-    cam = problem.cameras[problem.obs_camera]
-    R = matrix_from_rotation_vector(cam[:, :3])
-    P = np.einsum("nij,nj->ni", R, problem.points[problem.obs_point]) + cam[:, 3:6]
-    return P[:, 2] > 0
+    return behind_camera(problem.points[problem.obs_point], problem.cameras[problem.obs_camera, :6])
 
 
 def block_from_bal(problem, image_sigma_px: float = 1.0, name: str = "bal") -> Block:

@@ -35,10 +35,9 @@ class Factor:
     ``scaled`` the scaled sparse S otherwise (for :meth:`inverse`).
     """
 
-    def __init__(self, solve, scale: np.ndarray, n: int, lower: np.ndarray | None = None, scaled=None):
+    def __init__(self, solve, scale: np.ndarray, lower: np.ndarray | None = None, scaled=None):
         self._solve = solve
         self.scale = scale
-        self.n = n
         self._lower = lower
         self._scaled = scaled
 
@@ -78,7 +77,6 @@ def factorise(S, rcond: float = 1e-13) -> Factor:
         When S is not positive definite, or its scaled diagonal pivots fall below
         ``rcond`` (numerically singular).
     """
-    n = S.shape[0]
     diag = S.diagonal() if sp.issparse(S) else np.diag(S).copy()
     if np.any(~np.isfinite(diag)):
         raise SingularSystem("the normal matrix has non-finite entries")
@@ -94,7 +92,7 @@ def factorise(S, rcond: float = 1e-13) -> Factor:
         pivots = np.diag(c) ** 2
         if pivots.min() < rcond:
             raise SingularSystem(f"numerically singular (smallest scaled pivot {pivots.min():.1e})")
-        return Factor(lambda b: la.cho_solve((c, lower), b, check_finite=False), scale, n, lower=c)
+        return Factor(lambda b: la.cho_solve((c, lower), b, check_finite=False), scale, lower=c)
     D = sp.diags(scale)
     Ss = (D @ S @ D).tocsc()
     if _cholmod is not None:
@@ -105,7 +103,7 @@ def factorise(S, rcond: float = 1e-13) -> Factor:
         d = f.D()
         if d.min() < rcond:
             raise SingularSystem(f"numerically singular (smallest scaled pivot {d.min():.1e})")
-        return Factor(f, scale, n, scaled=Ss)
+        return Factor(f, scale, scaled=Ss)
     try:
         lu = spla.splu(Ss, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
                        options={"SymmetricMode": True})
@@ -114,7 +112,7 @@ def factorise(S, rcond: float = 1e-13) -> Factor:
     u = np.abs(lu.U.diagonal())
     if u.min() < rcond or np.any(lu.U.diagonal() <= 0):
         raise SingularSystem(f"not positive definite or singular (smallest pivot {u.min():.1e})")
-    return Factor(lu.solve, scale, n, scaled=Ss)
+    return Factor(lu.solve, scale, scaled=Ss)
 
 
 def null_directions(S, names: list[str], tol: float = 1e-10, top: int = 6) -> list[str]:

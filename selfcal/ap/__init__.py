@@ -54,10 +54,11 @@ def ap_from_dict(data: dict, frame: ImageFrame) -> APModel:
 
 def frame_nodes_mm(frame: ImageFrame, nodes_x: int = 61) -> tuple[np.ndarray, np.ndarray]:
     """Photo coordinates (mm) of a regular grid over the frame, corners included, ``nodes_x`` across and as
-    many down as keep the cells square (61 x 41 on a 3:2 frame)."""
+    many down as keep the cells square (61 x 41 on a 3:2 frame); row by row from the top of the image, as
+    pixel rows run (the grid of distortion_grid.csv, of the OpenCV fit and of initial-value transfers)."""
     nodes_y = max(2, int(round((nodes_x - 1) * frame.height_mm / frame.width_mm)) + 1)
     x, y = np.meshgrid(np.linspace(-0.5, 0.5, nodes_x) * frame.width_mm,
-                       np.linspace(-0.5, 0.5, nodes_y) * frame.height_mm)
+                       np.linspace(0.5, -0.5, nodes_y) * frame.height_mm)
     return x.ravel(), y.ravel()
 
 
@@ -67,9 +68,9 @@ def fit_displacement(model: APModel, x_mm: np.ndarray, y_mm: np.ndarray, dx_px: 
 
     The basis is linear in its coefficients, so this is one linear solve. With ``absorbed``, the six
     fields the orientation takes up in an adjustment (shifts in x and y: the principal point; scale: the
-    principal distance; rotation: kappa; the two projective fields of omega and phi) are fitted alongside and left out of the coefficients, so that a
-    family without them does not bend its terms towards them. Returns the coefficients and the misfit
-    (n, 2) in pixels at the given points.
+    principal distance; rotation: kappa; the two projective fields of omega and phi) are fitted
+    alongside and left out of the coefficients, so that a family without them does not bend its terms
+    towards them. Returns the coefficients and the misfit (n, 2) in pixels at the given points.
     """
     x, y = np.asarray(x_mm, float), np.asarray(y_mm, float)
     bx, by = model.basis(x, y)

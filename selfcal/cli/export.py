@@ -57,6 +57,13 @@ def pick_camera(cameras: dict[str, Calibration], camera_id: str | None) -> Calib
     return cameras[camera_id]
 
 
+def maps_of(cal: Calibration):
+    """:func:`undistortion_maps`, saying that it is under way (half a minute for WAPs on 12 MP)."""
+    print(f"camera {cal.camera_id}: inverting its {cal.ap.spec} distortion on nodes every 4 px "
+          f"(about half a minute for a WAP model on a 12-megapixel frame) ...", file=sys.stderr)
+    return undistortion_maps(cal)
+
+
 def _models(option: str, allowed) -> tuple[str, ...]:
     if option == "auto":
         return tuple(allowed)
@@ -94,9 +101,7 @@ def run(args: argparse.Namespace) -> int:
         write_cameras_txt(args.out, rows)
     else:
         cal = pick_camera(cameras, args.camera)
-        print(f"camera {cal.camera_id}: inverting its {cal.ap.spec} distortion on nodes every 4 px "
-              f"(about half a minute for a WAP model on a 12-megapixel frame) ...", file=sys.stderr)
-        map_x, map_y, camera_matrix = undistortion_maps(cal)
+        map_x, map_y, camera_matrix = maps_of(cal)
         write_undistortion_maps(args.out, map_x, map_y, camera_matrix, cal.camera_id)
         print(f"camera {cal.camera_id}: undistortion maps {cal.width_px} x {cal.height_px} for cv2.remap; ideal "
               f"camera fx = fy = {camera_matrix[0, 0]:.3f} px, principal point ({camera_matrix[0, 2]:.3f}, "

@@ -7,11 +7,11 @@ import sys
 
 import numpy as np
 
-from ..calibration import OpenCVCamera, undistort_image, undistortion_maps
+from ..calibration import OpenCVCamera, undistort_image
 from ..errors import BlockError
 from ..io.atomic import atomic_folder
 from ..io.opencv import read_image, write_image, write_opencv_yaml
-from .export import calibrations, pick_camera
+from .export import calibrations, maps_of, pick_camera
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -27,9 +27,7 @@ def run(args: argparse.Namespace) -> int:
     names = [os.path.basename(p) for p in args.images]
     if len(set(names)) < len(names):
         raise BlockError(args.images[0], "two images have the same file name; they would overwrite each other")
-    print(f"camera {cal.camera_id}: inverting its {cal.ap.spec} distortion on nodes every 4 px "
-          f"(about half a minute for a WAP model on a 12-megapixel frame) ...", file=sys.stderr)
-    map_x, map_y, camera_matrix = undistortion_maps(cal)
+    map_x, map_y, camera_matrix = maps_of(cal)
     ideal = OpenCVCamera("none", camera_matrix, np.zeros(4), 0.0, 0.0, cal.width_px, cal.height_px)
     # one image in memory at a time; a bad one anywhere leaves no output folder (atomic)
     with atomic_folder(args.out) as tmp:

@@ -13,7 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..sensors.frame import photo_from_pixel
+from ..ap import frame_nodes_mm
+from ..sensors.frame import pixel_from_photo
 from ..stats.accuracy import ce90, le90
 from ..stats.correlation import max_abs_correlation_by_group
 
@@ -271,11 +272,9 @@ def distortion_grid_table(block, result, nodes_x: int = 61):
     cols_out = {k: [] for k in ("camera_id", "col", "row", "dcol", "drow")}
     for cam, values in zip(result.problem.cameras, result.state.cameras):
         cfg = block.cameras[cam.camera_id]
-        nodes_y = int(round((nodes_x - 1) * cfg.height_px / cfg.width_px)) + 1
-        col, row = np.meshgrid(np.linspace(0, cfg.width_px, nodes_x), np.linspace(0, cfg.height_px, nodes_y))
-        col, row = col.ravel(), row.ravel()
-        xy = photo_from_pixel(np.column_stack([col, row]), cfg.width_px, cfg.height_px, cfg.pixel_size_mm)
-        dx, dy = cam.ap.displacement_px(xy[:, 0], xy[:, 1], values[3:] * cam.free[3:])
+        x, y = frame_nodes_mm(cam.ap.frame, nodes_x)
+        col, row = pixel_from_photo(np.column_stack([x, y]), cfg.width_px, cfg.height_px, cfg.pixel_size_mm).T
+        dx, dy = cam.ap.displacement_px(x, y, values[3:] * cam.free[3:])
         cols_out["camera_id"].append(np.full(col.size, cam.camera_id, dtype=object))
         cols_out["col"].append(col)
         cols_out["row"].append(row)

@@ -75,6 +75,13 @@ def project(points: np.ndarray, params: np.ndarray, camera: np.ndarray) -> np.nd
     return camera[:, 0:1] * d[:, None] * p
 
 
+def behind_camera(points: np.ndarray, params: np.ndarray) -> np.ndarray:
+    """Per observation, whether its point (n, 3) lies behind the camera [r, t] (n, 6): P_z > 0, as BAL
+    cameras look along -z. BAL's formula still projects such a point (mirrored)."""
+    R = matrix_from_rotation_vector(params[:, :3])
+    return (np.einsum("nij,nj->ni", R, points) + params[:, 3:6])[:, 2] > 0
+
+
 def left_jacobian(r: np.ndarray) -> np.ndarray:
     """Left Jacobian of SO(3) at rotation vectors r (..., 3): R(r + d) ~ Exp(J_l(r) d) R(r)."""
     r = np.asarray(r, float)
