@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from .normal import Linearisation
+from .normal import Linearisation, point_camera_coupling
 from .problem import Problem
 from .kernels import point_blocks_times, point_cofactor_pairs
 
@@ -43,7 +43,8 @@ def point_cofactors(problem: Problem, lin: Linearisation, v_inv: list, Q: np.nda
         Qp = Vi.copy()
         point_cofactor_pairs(Z_e, img, ptl, cs.pair_a, cs.pair_b, Q_e, Qp)
         if n_d:
-            Z = point_blocks_times(Vi, ch.W_pd, False).reshape(n_pc, 3, n_d)    # Z[p] = Vi[p] W_pd[p]
+            W_pd = point_camera_coupling(problem, ch, cs)
+            Z = point_blocks_times(Vi, W_pd, False).reshape(n_pc, 3, n_d)      # Z[p] = Vi[p] W_pd[p]
             QZ = (Z.reshape(3 * n_pc, n_d) @ Q_dd).reshape(n_pc, 3, n_d)
             # per point: sum over its observations of Z_e^T Q_ed(image), as one sparse product
             A = (by_point_and_image(Z_e, img, ptl, n_pc, n_img) @ Q_ed_2d).reshape(n_pc, 3, n_d)

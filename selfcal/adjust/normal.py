@@ -29,8 +29,8 @@ from ..errors import AdjustmentError
 from ..geometry.rotation import matrix_from_opk, matrix_from_opk_with_derivatives, opk_from_matrix_with_derivatives
 from ..sensors import bal
 from ..sensors.frame import project, project_with_jacobians_indexed
-from .kernels import (accumulate_observations, camera_couplings, point_blocks_times, schur_image_blocks,
-                      subtract_image_couplings)
+from .kernels import (accumulate_observations, camera_couplings, camera_couplings_compact, point_blocks_times,
+                      schur_camera_blocks, schur_image_blocks, subtract_image_couplings)
 from .problem import Problem, State
 
 __all__ = [
@@ -43,6 +43,7 @@ __all__ = [
     "image_residuals",
     "carry_ap_columns",
     "chunk_rows",
+    "point_camera_coupling",
     "parameter_observation_groups",
     "parameter_observations",
 ]
@@ -61,7 +62,8 @@ class ChunkLinearisation:
     V: np.ndarray        # (n_pc, 3, 3) point normal blocks, control prior included
     g_p: np.ndarray      # (n_pc, 3)
     w_e: np.ndarray      # (m_c, 6, 3) coupling of each observation's image with its point
-    W_pd: np.ndarray     # (3 n_pc, n_d) coupling of the points with the camera parameters
+    W_pd: np.ndarray | None      # (3 n_pc, n_d) coupling of the points with the camera parameters (dense form)
+    w_d: np.ndarray | None = None  # (m_c, 3, width) its non-zero parts per observation (compact form)
 
 
 @dataclass
@@ -353,7 +355,7 @@ def parameter_observations(problem: Problem, state: State) -> tuple[sp.csr_matri
     return sp.csr_matrix((vals, (rows, cols)), shape=(k, problem.n_theta)), res
 
 
-def chunk_rows(problem: Problem, state: State, cs, rotation=None, iop_all=None):
+def chunk_rows(problem: Problem, state: State, cs, rotation=None, iop_all=None, compact: bool = False):
     """Whitened residuals and Jacobian rows of the image observations of one chunk.
 
     Returns
@@ -362,7 +364,9 @@ def chunk_rows(problem: Problem, state: State, cs, rotation=None, iop_all=None):
     j_e : (m, 2, 6) derivatives with respect to the observation's image orientation
     j_p : (m, 2, 3) derivatives with respect to its point
     j_d : (m, 2, n_d) derivatives with respect to the free camera parameters (theta order); for a
-        single camera a view of a kept array, valid until the next call: read it, do not keep or change it
+        single camera a view of a kept array, valid until the next call: read it, do not keep or change it.
+        With ``compact``, (m, 2, width): the derivatives with respect to the free parameters of the
+        observation's own camera, in the order of :meth:`Problem.camera_columns`
     """
     n_e, n_d = problem.n_e, problem.n_d
     if rotation is None:
@@ -383,10 +387,10 @@ def chunk_rows(problem: Problem, state: State, cs, rotation=None, iop_all=None):
         j_d = _camera_jacobian(problem, 0)[o0:o1]
         np.multiply(j_i, w[:, None, None], out=j_d[:, :, :3])
         return r, j_e, j_p, j_d
-    j_d = np.zeros((m, 2, n_d))
+    j_d = np.zeros((m, 2, problem.camera_columns().shape[1] if compact else n_d))
     for k, mask, columns in cam_cols:
         cam = problem.cameras[k]
-        start = problem.d_offset[k] - n_e
+        start = 0 if compact else problem.d_offset[k] - n_e
         iop_free = cam.free[:3]
         n_iop = int(iop_free.sum())
         if n_iop:
@@ -415,6 +419,11 @@ def linearise(problem: Problem, state: State) -> Linearisation:
     constant = np.setdiff1d(np.arange(n_d), varying)
     if not constant.size:
         varying = np.arange(n_d)
+    compact = problem.compact_cameras
+    if compact:
+        cols = problem.camera_columns()
+        constant = constant[:0]                 # the camera blocks are summed in every iteration
+        varying = np.arange(n_d)
     gram = problem._ap_gram
     build_gram = gram is None and constant.size > 0
     if build_gram:
@@ -423,15 +432,19 @@ def linearise(problem: Problem, state: State) -> Linearisation:
     for cs in structure.chunks:
         p0, p1, o0, o1 = cs.p0, cs.p1, cs.o0, cs.o1
         m, n_pc = o1 - o0, p1 - p0
-        r, j_e, j_p, j_d = chunk_rows(problem, state, cs, rotation, iop_all)
+        r, j_e, j_p, j_d = chunk_rows(problem, state, cs, rotation, iop_all, compact)
         cost += 0.5 * float(np.sum(r * r))
 
         # image and point blocks, and the coupling of each observation's image and point
         U_c, g_c, V, g_p, w_e = accumulate_observations(j_e, j_p, r, cs.img, cs.ptl, n_img, n_pc)
         U_ee += U_c
         g_e += g_c
-        W_pd = np.zeros((3 * n_pc, n_d))
-        if n_d:
+        W_pd, w_d = None, None
+        if n_d and compact:
+            w_d = camera_couplings_compact(j_d, j_e, j_p, r, cs.img, problem.image_camera[cs.img], cols,
+                                           U_ed, U_dd, g_d)
+        elif n_d:
+            W_pd = np.zeros((3 * n_pc, n_d))
             U_vd = np.zeros((varying.size, n_d))
             camera_couplings(j_d, j_e, j_p, r, cs.img, cs.ptl, varying, U_ed, W_pd, g_d, U_vd)
             if constant.size:
@@ -452,7 +465,7 @@ def linearise(problem: Problem, state: State) -> Linearisation:
             cost += 0.5 * float(np.sum(rc * rc))
             V[has] += np.einsum("ni,ij->nij", 1.0 / sig**2, np.eye(3))
             g_p[has] += rc / sig
-        chunks.append(ChunkLinearisation(p0, p1, o0, o1, V, g_p, w_e, W_pd))
+        chunks.append(ChunkLinearisation(p0, p1, o0, o1, V, g_p, w_e, W_pd, w_d))
 
     if constant.size:
         if build_gram:
@@ -468,6 +481,22 @@ def linearise(problem: Problem, state: State) -> Linearisation:
     if J_x.shape[0]:
         diag_theta += np.asarray(J_x.multiply(J_x).sum(axis=0)).ravel()
     return Linearisation(cost, U_ee, U_ed, U_dd, g_theta, J_x, r_x, chunks, diag_theta)
+
+
+def point_camera_coupling(problem: Problem, ch: ChunkLinearisation, cs) -> np.ndarray:
+    """The dense coupling W_pd (3 n_pc, n_d) of a chunk's points with the camera parameters,
+    assembled from its compact parts where the linearisation kept those."""
+    if ch.W_pd is not None:
+        return ch.W_pd
+    W_pd = np.zeros((3 * (ch.p1 - ch.p0), problem.n_d))
+    if ch.w_d is None:
+        return W_pd
+    own = problem.camera_columns()[problem.image_camera[cs.img]]             # (m, width)
+    rows = np.broadcast_to((3 * cs.ptl)[:, None, None] + np.arange(3)[None, :, None], ch.w_d.shape)
+    cols = np.broadcast_to(own[:, None, :], ch.w_d.shape)
+    keep = cols >= 0
+    np.add.at(W_pd, (rows[keep], cols[keep]), ch.w_d[keep])
+    return W_pd
 
 
 class SingularPoints(AdjustmentError):
@@ -531,7 +560,10 @@ def reduce(problem: Problem, lin: Linearisation, lam: float = 0.0, dense: bool =
         Y = ch.w_e @ Vi[cs.ptl]                                  # (m, 6, 3) = W V^-1 per observation
         schur_image_blocks(Y, ch.w_e, cs.img, cs.pair_a, cs.pair_b, cs.pair_key, diag_blocks, off_blocks)
         g[:n_e] -= (cs.sum_by_image @ np.einsum("oik,ok->oi", Y, ch.g_p[cs.ptl])).ravel()
-        if n_d:
+        if n_d and ch.w_d is not None:
+            schur_camera_blocks(ch.w_e, ch.w_d, Vi, ch.g_p, cs.img, problem.image_camera[cs.img], cs.ptl,
+                                problem.camera_columns(), cs.pair_a, cs.pair_b, S_ed, S_dd, g[n_e:n_e + n_d])
+        elif n_d:
             subtract_image_couplings(Y, ch.W_pd, cs.img, cs.ptl, S_ed)
             S_dd -= _point_schur(Vi, ch.W_pd)
             g[n_e:n_e + n_d] -= ch.W_pd.T @ np.einsum("pij,pj->pi", Vi, ch.g_p).ravel()
@@ -580,7 +612,10 @@ def back_substitute(problem: Problem, lin: Linearisation, v_inv: list, d_theta: 
         img = problem.obs_image[ch.o0:ch.o1]
         starts = problem.point_start[ch.p0:ch.p1] - ch.o0
         wt = np.add.reduceat(np.einsum("oik,oi->ok", ch.w_e, d_e[img]), starts, axis=0)
-        if n_d:
+        if n_d and ch.w_d is not None:
+            d_own = np.append(d_d, 0.0)[problem.camera_columns()[problem.image_camera[img]]]   # -1 pads: 0
+            wt += np.add.reduceat(np.einsum("okc,oc->ok", ch.w_d, d_own), starts, axis=0)
+        elif n_d:
             wt += (ch.W_pd @ d_d).reshape(-1, 3)
         d_p[ch.p0:ch.p1] = np.einsum("pij,pj->pi", Vi, ch.g_p - wt)
     return d_p

@@ -41,6 +41,9 @@ __all__ = ["CameraParameters", "Problem", "State", "TrajectoryTerms", "build_pro
 #: observations per chunk of the normal-equation assembly (bounds memory)
 CHUNK_OBSERVATIONS = 16384
 
+#: widest camera (free parameters) kept in compact form, see Problem.compact_cameras
+COMPACT_CAMERA_WIDTH = 32
+
 
 @dataclass
 class CameraParameters:
@@ -113,6 +116,30 @@ class Problem:
             limit = 3 if cam.sensor == "frame" else cam.size
             cols += [int(pos[i]) for i in range(min(limit, cam.size)) if cam.free[i]]
         return np.array(cols, dtype=np.int64)
+
+    def camera_columns(self) -> np.ndarray:
+        """Columns of the camera part (0 .. n_d) of each camera's free parameters, one row per
+        camera, padded with -1 to the widest camera: (n_cameras, width)."""
+        widths = [int(c.free.sum()) for c in self.cameras]
+        out = np.full((len(self.cameras), max(widths, default=0)), -1, dtype=np.int64)
+        for k, (start, n) in enumerate(zip(self.d_offset, widths)):
+            out[k, :n] = start - self.n_e + np.arange(n)
+        return out
+
+    @property
+    def compact_cameras(self) -> bool:
+        """Whether the camera part is kept per camera (compact rows, pair sums) rather than as
+        dense columns.
+
+        Every observation touches the parameters of one camera only. With many small
+        cameras (per-image intrinsics, as in BAL) the dense point-camera coupling is
+        mostly zeros and its products grow with the square of all camera parameters; the
+        compact form sums small blocks over the pairs of observations of each point. One
+        camera, or wide cameras (hundreds of APs), keep the dense form, whose AP Gram
+        matrix is computed once per problem.
+        """
+        widths = [int(c.free.sum()) for c in self.cameras]
+        return len(widths) > 1 and 0 < max(widths) <= COMPACT_CAMERA_WIDTH and 4 * max(widths) <= sum(widths)
 
     @property
     def extra_free(self) -> np.ndarray:

@@ -32,7 +32,7 @@ import numpy as np
 import scipy.linalg.blas
 from scipy.stats import norm
 
-from ..adjust.normal import chunk_rows, parameter_observations
+from ..adjust.normal import chunk_rows, parameter_observations, point_camera_coupling
 from ..adjust.covariance import by_point_and_image
 from ..adjust.kernels import leverage_pairs, point_blocks_times, rows_dot_blocks, rows_times_blocks
 from ..geometry.rotation import matrix_from_opk_with_derivatives
@@ -110,7 +110,8 @@ def _image_leverage(problem, state, lin, v_inv, Q, Q_points):
         h = np.einsum("oki,oij,okj->ok", j_e, Q_ee[img, :, img, :], j_e)
         jp_term = j_e @ G                                                   # (m, 2, 3), completed below
         if n_d:
-            Z = point_blocks_times(Vi, ch.W_pd, False).reshape(n_pc, 3, n_d)    # Z[p] = Vi[p] W_pd[p]
+            W_pd = point_camera_coupling(problem, ch, cs)
+            Z = point_blocks_times(Vi, W_pd, False).reshape(n_pc, 3, n_d)      # Z[p] = Vi[p] W_pd[p]
             je_Qed = rows_times_blocks(j_e, img, Q_ed)                          # (m, 2, n_d) = j_e Q_ed(image)
             jp_term += rows_dot_blocks(je_Qed, ptl, Z)
             # H_p = Q_dd Z_d(p) + sum over the point's observations of Q_ed(image)^T Z_e
