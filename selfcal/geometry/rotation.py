@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 __all__ = ["matrix_from_opk", "matrix_from_opk_with_derivatives", "opk_from_matrix",
-           "opk_from_matrix_with_derivatives", "matrix_from_quaternion",
+           "opk_from_matrix_with_derivatives", "matrix_from_quaternion", "quaternion_from_matrix",
            "matrix_from_rotation_vector"]
 
 
@@ -110,6 +110,29 @@ def matrix_from_quaternion(q: np.ndarray, scalar_first: bool = True) -> np.ndarr
         np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
         np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1),
     ], -2)
+
+
+def quaternion_from_matrix(m: np.ndarray, scalar_first: bool = True) -> np.ndarray:
+    """Unit quaternions (..., 4) of rotation matrices (..., 3, 3), the inverse of
+    :func:`matrix_from_quaternion` (scalar part >= 0). Shepperd's method: the largest of
+    the four squared components is taken from the diagonal, the others from sums and
+    differences of off-diagonal elements."""
+    m = np.asarray(m, float)
+    t = np.stack([1 + m[..., 0, 0] + m[..., 1, 1] + m[..., 2, 2], 1 + m[..., 0, 0] - m[..., 1, 1] - m[..., 2, 2],
+                  1 - m[..., 0, 0] + m[..., 1, 1] - m[..., 2, 2], 1 - m[..., 0, 0] - m[..., 1, 1] + m[..., 2, 2]], -1)
+    pick = np.argmax(t, axis=-1)
+    s = 2.0 * np.sqrt(np.take_along_axis(t, pick[..., None], -1)[..., 0])
+    d21, d02, d10 = m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0], m[..., 1, 0] - m[..., 0, 1]
+    s21, s02, s10 = m[..., 2, 1] + m[..., 1, 2], m[..., 0, 2] + m[..., 2, 0], m[..., 1, 0] + m[..., 0, 1]
+    candidates = np.stack([
+        np.stack([s / 4, d21 / s, d02 / s, d10 / s], -1),
+        np.stack([d21 / s, s / 4, s10 / s, s02 / s], -1),
+        np.stack([d02 / s, s10 / s, s / 4, s21 / s], -1),
+        np.stack([d10 / s, s02 / s, s21 / s, s / 4], -1),
+    ], -2)                                                        # (..., 4 cases, (w, x, y, z))
+    q = np.take_along_axis(candidates, pick[..., None, None], -2)[..., 0, :]
+    q = q * np.where(q[..., :1] < 0, -1.0, 1.0)
+    return q if scalar_first else np.concatenate([q[..., 1:], q[..., :1]], -1)
 
 
 def matrix_from_rotation_vector(v: np.ndarray) -> np.ndarray:

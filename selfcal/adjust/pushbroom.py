@@ -1,0 +1,253 @@
+"""In-flight self-calibration of pushbroom images: the models M1-M7 of seed 001.
+
+Unknowns: the free calibration parameters of each image (:data:`selfcal.sensors.pushbroom.
+PARAMETER_NAMES`) and the ECEF coordinates of every observed ground point. Observations:
+
+* image points (row, col), each giving the time of its line; the collinearity condition of
+  :func:`~selfcal.sensors.pushbroom.photo_coordinates` in pixels (row residual x / p,
+  column residual (ys - y) / p), weighted by the image sigma;
+* ground control: the surveyed coordinates of GCPs, with their covariance;
+* parameter weights (M6): a prior observation of a parameter at its start value, with
+  an a-priori sigma that bounds how far it may move.
+
+A pushbroom block has few unknowns (tens of parameters and a few hundred point
+coordinates), so the normal equations are dense; Gauss-Newton stops when every
+correction is below 1e-4 of its standard deviation.
+
+Mono adjustment uses the GCPs of one image; the check points are then restituted on the
+terrain (:func:`~selfcal.sensors.pushbroom.image_to_ground`). Stereo adjustment uses every
+point of two or three images, the check points as tie points.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import AdjustmentError, UsageError
+from ..geometry.earth import geodetic_from_ecef, local_up
+from ..sensors.pushbroom import PARAMETER_NAMES, LineImage, line_of_sight, photo_coordinates
+
+__all__ = ["SENSOR_MODELS", "M6_SIGMA", "SensorModel", "sensor_model", "PushbroomResult", "adjust_pushbroom",
+           "track_frame"]
+
+_P = {name: k for k, name in enumerate(PARAMETER_NAMES)}
+
+#: the parameter sets of seed 001 (Table 1); M6 is M5 with parameter weights
+SENSOR_MODELS = {
+    "M1": ("d_roll0", "d_pitch0"),
+    "M2": ("d_roll0", "d_pitch0", "d_yaw0"),
+    "M3": ("d_roll0", "d_pitch0", "focal"),
+    "M4": ("d_roll0", "d_pitch0", "d_yaw0", "focal"),
+    "M5": ("d_roll0", "d_roll1", "d_pitch0", "d_pitch1", "d_yaw0", "d_yaw1"),
+    "M6": ("d_roll0", "d_roll1", "d_pitch0", "d_pitch1", "d_yaw0", "d_yaw1"),
+    "M7": ("d_roll0", "d_roll1", "d_pitch0", "d_pitch1", "d_yaw0", "d_yaw1", "focal"),
+}
+
+#: a-priori sigma of M6's parameters (rad, rad/s): the uncertainty of the attitude data. Roll and
+#: pitch are weighted more than yaw (seed 001: yaw steering takes the bulk of the yaw motion)
+M6_SIGMA = {"d_roll0": 1.0e-4, "d_pitch0": 1.0e-4, "d_yaw0": 5.0e-4,
+            "d_roll1": 1.0e-5, "d_pitch1": 1.0e-5, "d_yaw1": 5.0e-5}
+
+
+@dataclass(frozen=True)
+class SensorModel:
+    """Which calibration parameters are estimated, and with which a-priori sigma (inf: free)."""
+
+    name: str
+    free: tuple[str, ...]
+    prior_sigma: dict
+
+    def mask(self) -> np.ndarray:
+        return np.array([n in self.free for n in PARAMETER_NAMES])
+
+    def sigmas(self) -> np.ndarray:
+        return np.array([self.prior_sigma.get(n, np.inf) for n in PARAMETER_NAMES])
+
+
+def sensor_model(spec: str, prior_sigma: dict | None = None) -> SensorModel:
+    """``M1`` ... ``M7``, or an explicit comma-separated list of parameter names (free unless
+    ``prior_sigma`` weights them)."""
+    if spec.upper() in SENSOR_MODELS:
+        name = spec.upper()
+        sigmas = dict(M6_SIGMA) if name == "M6" else {}
+        sigmas.update(prior_sigma or {})
+        return SensorModel(name, SENSOR_MODELS[name], sigmas)
+    names = tuple(n.strip() for n in spec.split(",") if n.strip())
+    unknown = [n for n in names if n not in _P]
+    if unknown or not names:
+        raise UsageError(f"unknown sensor model {spec!r}: use M1..M7 or parameter names from "
+                         f"{', '.join(PARAMETER_NAMES)}")
+    return SensorModel("custom", names, dict(prior_sigma or {}))
+
+
+@dataclass
+class PushbroomResult:
+    images: list[LineImage]
+    points_ecef: np.ndarray          # (n_points, 3) adjusted (unobserved points keep their start values)
+    point_cov: np.ndarray            # (n_points, 3, 3) a-posteriori covariance, m² (NaN for unobserved)
+    parameter_names: list[str]       # "IMAGE.name" of each estimated parameter
+    parameter_values: np.ndarray
+    parameter_sigma: np.ndarray      # a-posteriori
+    correlation: np.ndarray          # of the estimated parameters
+    residuals_px: np.ndarray         # (n_obs, 2) row, col residuals v = f - l
+    sigma0: float                    # a-posteriori sigma of unit weight
+    redundancy: int
+    iterations: int
+    converged: bool
+
+
+def _control_whitening(cov: np.ndarray) -> np.ndarray:
+    """W (n, 3, 3) with W^T W = cov^-1, per point."""
+    return np.linalg.inv(np.linalg.cholesky(cov))
+
+
+def adjust_pushbroom(images: list[LineImage], obs_image: np.ndarray, obs_point: np.ndarray, obs_row: np.ndarray,
+                     obs_col: np.ndarray, points_ecef: np.ndarray, control_index: np.ndarray,
+                     control_ecef: np.ndarray, control_cov: np.ndarray, model: SensorModel | list[SensorModel],
+                     image_sigma_px: float = 0.3, max_iterations: int = 20, tolerance: float = 1e-4
+                     ) -> PushbroomResult:
+    """Adjust ``images`` (start values in their parameters) to image points and ground control.
+
+    ``points_ecef`` are start values of all points (the GCPs' surveyed coordinates, the
+    other points' intersections); ``control_index`` names the GCPs among them, with
+    ``control_ecef`` and covariance ``control_cov`` (n, 3, 3, m²). ``model``: one
+    :class:`SensorModel` for every image, or one per image.
+    """
+    models = model if isinstance(model, list) else [model] * len(images)
+    obs_image, obs_point = np.asarray(obs_image), np.asarray(obs_point)
+    obs_row, obs_col = np.asarray(obs_row, float), np.asarray(obs_col, float)
+    points = np.array(points_ecef, float)
+    n_obs = len(obs_row)
+    observed = np.unique(obs_point)
+    point_slot = np.full(len(points), -1)
+    point_slot[observed] = np.arange(observed.size)
+    # layout: the free parameters of each image, then 3 per observed point
+    seen = np.isin(np.arange(len(images)), obs_image)
+    masks = [m.mask() & seen[i] for i, m in enumerate(models)]      # images without observations stay as they are
+    offsets = np.cumsum([0] + [int(m.sum()) for m in masks])
+    n_par = int(offsets[-1])
+    n_unk = n_par + 3 * observed.size
+    names = [f"{img.image_id}.{PARAMETER_NAMES[j]}" for img, m in zip(images, masks) for j in np.flatnonzero(m)]
+    priors = []                  # (column, prior value, sigma) of each weighted parameter
+    for i, (img, m, mod) in enumerate(zip(images, masks, models)):
+        sigma = mod.sigmas()
+        priors += [(offsets[i] + k, img.parameters[j], sigma[j]) for k, j in enumerate(np.flatnonzero(m))
+                   if np.isfinite(sigma[j])]
+    control_index = np.asarray(control_index, int)
+    ctl_in = point_slot[control_index] >= 0
+    W_ctl = _control_whitening(np.asarray(control_cov, float)[ctl_in])
+    ctl_slots = point_slot[control_index[ctl_in]]
+    ctl_xyz = np.asarray(control_ecef, float)[ctl_in]
+    n_rows = 2 * n_obs + len(priors) + 3 * ctl_slots.size
+    redundancy = n_rows - n_unk
+    if redundancy < 0:
+        raise AdjustmentError(f"pushbroom adjustment: {n_rows} observations for {n_unk} unknowns")
+    images = list(images)
+
+    def evaluate(images, points, jacobians):
+        res = np.zeros((n_obs, 2))
+        J = np.zeros((2 * n_obs, n_unk)) if jacobians else None
+        for i, img in enumerate(images):
+            sel = np.flatnonzero(obs_image == i)
+            if not sel.size:
+                continue
+            t = img.time_of_row(obs_row[sel])
+            p = img.camera.pixel_size_mm
+            out = photo_coordinates(img, points[obs_point[sel]], t, jacobians=jacobians)
+            xy = out[0] if jacobians else out
+            res[sel, 0] = (0.0 - xy[:, 0]) / p
+            res[sel, 1] = (img.ys_mm(obs_col[sel]) - xy[:, 1]) / p
+            if jacobians:
+                _, d_par, d_pt = out
+                rows = (2 * sel[:, None] + np.arange(2)[None, :])
+                cols_par = offsets[i] + np.arange(int(masks[i].sum()))
+                J[rows[:, :, None], cols_par[None, None, :]] = d_par[:, :, masks[i]] / p
+                cols_pt = n_par + 3 * point_slot[obs_point[sel]][:, None] + np.arange(3)[None, :]
+                J[rows[:, :, None], cols_pt[:, None, :]] = d_pt / p
+        return res, J
+
+    def whitened(images, points, jacobians=True):
+        res, J = evaluate(images, points, jacobians)
+        r = [res.ravel() / image_sigma_px]
+        A = [J / image_sigma_px] if jacobians else []
+        if priors:
+            cols = np.array([c for c, _, _ in priors])
+            values = np.concatenate([img.parameters[m] for img, m in zip(images, masks)])
+            p0 = np.array([v for _, v, _ in priors])
+            sig = np.array([s for _, _, s in priors])
+            r.append((p0 - values[cols]) / sig)
+            if jacobians:
+                Jp = np.zeros((len(priors), n_unk))
+                Jp[np.arange(len(priors)), cols] = 1.0 / sig
+                A.append(Jp)
+        if ctl_slots.size:
+            diff = ctl_xyz - points[observed[ctl_slots]]
+            r.append(np.einsum("nij,nj->ni", W_ctl, diff).ravel())
+            if jacobians:
+                Jc = np.zeros((3 * ctl_slots.size, n_unk))
+                for k, (slot, W) in enumerate(zip(ctl_slots, W_ctl)):
+                    Jc[3 * k:3 * k + 3, n_par + 3 * slot:n_par + 3 * slot + 3] = W
+                A.append(Jc)
+        return np.concatenate(r), (np.vstack(A) if jacobians else None), res
+
+    converged = False
+    iterations = 0
+    for iterations in range(1, max_iterations + 1):
+        r, A, _ = whitened(images, points)
+        N = A.T @ A
+        g = A.T @ r
+        scale = 1.0 / np.sqrt(np.maximum(np.diag(N), 1e-300))
+        Ns = N * np.outer(scale, scale)
+        try:
+            L = np.linalg.cholesky(Ns)
+        except np.linalg.LinAlgError:
+            raise AdjustmentError("pushbroom adjustment: the normal equations are singular "
+                                  "(too few control points for the sensor model?)") from None
+        dx = scale * np.linalg.solve(L.T, np.linalg.solve(L, g * scale))
+        sigma_cond = scale                                   # conditional sigma (unit weight) of each unknown
+        images = [img.with_parameters(_apply(img.parameters, m, dx[offsets[i]:offsets[i + 1]]))
+                  for i, (img, m) in enumerate(zip(images, masks))]
+        points[observed] += dx[n_par:].reshape(-1, 3)
+        if np.max(np.abs(dx) / sigma_cond) < tolerance:
+            converged = True
+            break
+
+    r, A, res = whitened(images, points)
+    N = A.T @ A
+    Q = np.linalg.inv(N)
+    sigma0 = float(np.sqrt(r @ r / redundancy)) if redundancy > 0 else float("nan")
+    s0 = sigma0 if redundancy > 0 else 1.0
+    values = np.concatenate([img.parameters[m] for img, m in zip(images, masks)])
+    sd = np.sqrt(np.diag(Q))
+    Q_par = Q[:n_par, :n_par]
+    corr = Q_par / np.outer(sd[:n_par], sd[:n_par]) if n_par else np.zeros((0, 0))
+    cov = np.full((len(points), 3, 3), np.nan)
+    for slot, p in enumerate(observed):
+        cov[p] = s0 ** 2 * Q[n_par + 3 * slot:n_par + 3 * slot + 3, n_par + 3 * slot:n_par + 3 * slot + 3]
+    return PushbroomResult(images, points, cov, names, values, s0 * sd[:n_par], corr, -res, sigma0, redundancy,
+                           iterations, converged)
+
+
+def _apply(parameters: np.ndarray, mask: np.ndarray, step: np.ndarray) -> np.ndarray:
+    out = parameters.copy()
+    out[mask] += step
+    return out
+
+
+def track_frame(image: LineImage) -> tuple[np.ndarray, np.ndarray]:
+    """The scene centre (ECEF, on the ellipsoid) and R (3, 3) whose rows are the across-track (X),
+    along-track (Y) and up (Z) unit vectors there: check-point errors are reported in it."""
+    row = image.rows / 2
+    col = image.camera.center_col
+    S, d = line_of_sight(image, [row - 1000, row + 1000], [col, col])
+    b = np.einsum("ni,ni->n", S, d)
+    c = np.einsum("ni,ni->n", S, S) - 6371000.0 ** 2
+    ground = S + (-b - np.sqrt(b * b - c))[:, None] * d
+    lat, lon, _ = geodetic_from_ecef(ground.mean(axis=0))
+    up = local_up(lat, lon)
+    along = ground[1] - ground[0]
+    along -= (along @ up) * up
+    along /= np.linalg.norm(along)
+    across = np.cross(along, up)
+    return ground.mean(axis=0), np.stack([across, along, up])

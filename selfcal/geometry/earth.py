@@ -1,0 +1,97 @@
+"""The Earth: inertial and Earth-fixed frames (pyerfa), the WGS 84 ellipsoid, the orbit frame.
+
+Conventions of DESIGN.md §3: ECI is the GCRS, ECEF the ITRS; GCRS -> ITRS by the IAU
+2006/2000A model (``erfa.c2t06a``) with UT1 = UTC and zero polar motion unless
+given. The orbit frame of a satellite at position r and velocity v has
+z_o = -r/|r| (towards the Earth's centre), y_o = -(r x v)/|r x v| and
+x_o = y_o x z_o (about along track).
+"""
+from __future__ import annotations
+
+from datetime import datetime, timezone
+
+import erfa
+import numpy as np
+
+__all__ = ["WGS84_A_M", "WGS84_F", "utc_two_part", "itrs_from_gcrs", "orbit_frame",
+           "ecef_from_geodetic", "geodetic_from_ecef", "local_up"]
+
+WGS84_A_M = 6378137.0
+WGS84_F = 1.0 / 298.257223563
+_E2 = WGS84_F * (2.0 - WGS84_F)
+_B_M = WGS84_A_M * (1.0 - WGS84_F)
+
+SECONDS_PER_DAY = 86400.0
+
+
+def utc_two_part(epoch_utc: str) -> tuple[float, float]:
+    """The two-part Julian date (UTC) of an ISO 8601 instant, e.g. ``2007-05-12T01:45:00Z``."""
+    moment = datetime.fromisoformat(epoch_utc.replace("Z", "+00:00"))
+    if moment.tzinfo is not None:
+        moment = moment.astimezone(timezone.utc)
+    seconds = moment.second + moment.microsecond * 1e-6
+    return erfa.dtf2d("UTC", moment.year, moment.month, moment.day, moment.hour, moment.minute, seconds)
+
+
+def itrs_from_gcrs(epoch_utc: str, time_s, dut1_s: float = 0.0, polar_motion_rad=(0.0, 0.0)) -> np.ndarray:
+    """Rotation matrices (n, 3, 3) taking GCRS (ECI) vectors to the ITRS (ECEF) at ``epoch_utc + time_s``.
+
+    IAU 2006/2000A, CIO based (``erfa.c2t06a``); UT1 = UTC + ``dut1_s``.
+    """
+    u1, u2 = utc_two_part(epoch_utc)
+    t = np.atleast_1d(np.asarray(time_s, float))
+    utc2 = u2 + t / SECONDS_PER_DAY
+    tai1, tai2 = erfa.utctai(u1, utc2)
+    tt1, tt2 = erfa.taitt(tai1, tai2)
+    ut1_2 = utc2 + dut1_s / SECONDS_PER_DAY
+    return erfa.c2t06a(tt1, tt2, u1, ut1_2, polar_motion_rad[0], polar_motion_rad[1])
+
+
+def orbit_frame(position: np.ndarray, velocity: np.ndarray) -> np.ndarray:
+    """R_FO (n, 3, 3): the orbit frame's axes x_o, y_o, z_o as columns, in the frame of r and v."""
+    r = np.atleast_2d(position)
+    v = np.atleast_2d(velocity)
+    z = -r / np.linalg.norm(r, axis=1, keepdims=True)
+    h = np.cross(r, v)
+    y = -h / np.linalg.norm(h, axis=1, keepdims=True)
+    x = np.cross(y, z)
+    return np.stack([x, y, z], axis=2)
+
+
+def ecef_from_geodetic(lat_rad, lon_rad, height_m) -> np.ndarray:
+    """WGS 84 geodetic latitude, longitude (radians) and ellipsoidal height (m) to ECEF metres (n, 3)."""
+    lat, lon, h = np.broadcast_arrays(np.asarray(lat_rad, float), np.asarray(lon_rad, float),
+                                      np.asarray(height_m, float))
+    n = WGS84_A_M / np.sqrt(1.0 - _E2 * np.sin(lat) ** 2)
+    return np.stack([(n + h) * np.cos(lat) * np.cos(lon), (n + h) * np.cos(lat) * np.sin(lon),
+                     (n * (1.0 - _E2) + h) * np.sin(lat)], axis=-1)
+
+
+def geodetic_from_ecef(xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """ECEF metres (..., 3) to WGS 84 latitude, longitude (radians) and height (m).
+
+    Bowring's iteration on the parametric latitude; four iterations reach 1e-12 rad
+    anywhere near the Earth's surface.
+    """
+    xyz = np.asarray(xyz, float)
+    x, y, z = xyz[..., 0], xyz[..., 1], xyz[..., 2]
+    p = np.hypot(x, y)
+    lon = np.arctan2(y, x)
+    ep2 = _E2 / (1.0 - _E2)
+    beta = np.arctan2(z, (1.0 - WGS84_F) * p)
+    for _ in range(4):
+        lat = np.arctan2(z + ep2 * _B_M * np.sin(beta) ** 3, p - _E2 * WGS84_A_M * np.cos(beta) ** 3)
+        beta = np.arctan2((1.0 - WGS84_F) * np.sin(lat), np.cos(lat))
+    n = WGS84_A_M / np.sqrt(1.0 - _E2 * np.sin(lat) ** 2)
+    cos_lat, sin_lat = np.cos(lat), np.sin(lat)
+    # height from the better conditioned of the two forms (near the poles: from z)
+    near_pole = np.abs(cos_lat) < 1e-3
+    h = np.where(near_pole, z / np.where(near_pole, sin_lat, 1.0) - n * (1.0 - _E2),
+                 p / np.where(near_pole, 1.0, cos_lat) - n)
+    return lat, lon, h
+
+
+def local_up(lat_rad, lon_rad) -> np.ndarray:
+    """Unit ellipsoid normals (n, 3) in ECEF."""
+    lat, lon = np.asarray(lat_rad, float), np.asarray(lon_rad, float)
+    return np.stack([np.cos(lat) * np.cos(lon), np.cos(lat) * np.sin(lon), np.sin(lat)], axis=-1)

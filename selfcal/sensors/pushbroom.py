@@ -1,0 +1,428 @@
+"""The generic pushbroom (linear CCD) sensor model of seed 001, with analytic Jacobians.
+
+Frames (DESIGN.md §3): a detector column gives the line of sight u = (0, ys, f) in the
+telescope frame T (x along track, y across track, z towards the scene), ys = (col -
+center_col) * pixel size. The chain to the Earth-fixed frame E is
+
+    u_E = R_EF(t) R_FO(t) R_OB(t) R_BT u,
+
+with R_BT = Ry(view_pitch + b_pitch) Rx(b_roll) Rz(b_yaw) (telescope -> body, boresight
+angles b), R_OB = Ry(pitch) Rx(roll) Rz(yaw) (body -> orbit, Eq. 4), R_FO the orbit frame
+of the fitted position and velocity in the ephemeris frame F, and R_EF = GCRS -> ITRS
+(pyerfa) when F is ECI (the identity when F is ECEF).
+
+Roll, pitch and yaw come from the attitude quaternions (Eqs. 2-3): R_OB = R_FO^T R(q).
+Ephemeris and attitude are fitted by least-squares polynomials in time (Eq. 5), and
+the attitude is corrected by a constant and a linear term in time (Eq. 6),
+
+    roll(t) = roll_fit(t) + d_roll0 + d_roll1 (t - t_ref),   and the same for pitch and yaw,
+
+t_ref being the scene centre. With the focal length and the three boresight angles these
+are the ten calibration parameters of an image (:data:`PARAMETER_NAMES`).
+
+An image point (row, col) was recorded at t = t_first + row * line_period. A ground point
+P lies on that line when the x component of w = R_TE(t) (P - S(t)) vanishes; in photo
+coordinates the collinearity condition is
+
+    x = f w_x / w_z = 0,     y = f w_y / w_z = ys,
+
+the form the adjustment uses (its row residual is x over the pixel size, its column
+residual y - ys over the pixel size). Ground-to-image solves x(t) = 0 for t by Newton's
+method (:data:`TIME_TOLERANCE_LINES`).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from ..geometry.earth import ecef_from_geodetic, geodetic_from_ecef, itrs_from_gcrs, local_up, orbit_frame
+
+__all__ = ["PARAMETER_NAMES", "PARAMETER_UNITS", "LineCamera", "Polynomial", "fit_polynomial", "Trajectory",
+           "fit_trajectory", "LineImage", "rotation_x", "rotation_y", "rotation_z", "angles_from_body_to_orbit",
+           "photo_coordinates", "ground_to_image", "line_of_sight", "image_to_ground", "intersect",
+           "TIME_TOLERANCE_LINES"]
+
+#: calibration parameters of a pushbroom image, in the order of :attr:`LineImage.parameters`
+PARAMETER_NAMES = ("d_roll0", "d_roll1", "d_pitch0", "d_pitch1", "d_yaw0", "d_yaw1", "focal",
+                   "boresight_roll", "boresight_pitch", "boresight_yaw")
+#: units in code (files and reports convert: deg, deg/s, mm)
+PARAMETER_UNITS = ("rad", "rad/s", "rad", "rad/s", "rad", "rad/s", "mm", "rad", "rad", "rad")
+
+#: ground-to-image stops when the time correction is below this fraction of a line period
+TIME_TOLERANCE_LINES = 1e-7
+_MAX_NEWTON = 30
+
+
+# --- elementary rotations --------------------------------------------------------------------------
+
+def rotation_x(angle) -> np.ndarray:
+    """Rx(a) (..., 3, 3): turns +y towards +z."""
+    c, s = np.cos(angle), np.sin(angle)
+    o, z = np.ones_like(c), np.zeros_like(c)
+    return np.stack([np.stack([o, z, z], -1), np.stack([z, c, -s], -1), np.stack([z, s, c], -1)], -2)
+
+
+def rotation_y(angle) -> np.ndarray:
+    """Ry(a) (..., 3, 3): turns +z towards +x (a positive view pitch looks forward)."""
+    c, s = np.cos(angle), np.sin(angle)
+    o, z = np.ones_like(c), np.zeros_like(c)
+    return np.stack([np.stack([c, z, s], -1), np.stack([z, o, z], -1), np.stack([-s, z, c], -1)], -2)
+
+
+def rotation_z(angle) -> np.ndarray:
+    """Rz(a) (..., 3, 3): turns +x towards +y."""
+    c, s = np.cos(angle), np.sin(angle)
+    o, z = np.ones_like(c), np.zeros_like(c)
+    return np.stack([np.stack([c, -s, z], -1), np.stack([s, c, z], -1), np.stack([z, z, o], -1)], -2)
+
+
+_GENERATORS = {  # dR/da = R(a) G
+    "x": np.array([[0.0, 0, 0], [0, 0, -1], [0, 1, 0]]),
+    "y": np.array([[0.0, 0, 1], [0, 0, 0], [-1, 0, 0]]),
+    "z": np.array([[0.0, -1, 0], [1, 0, 0], [0, 0, 0]]),
+}
+
+
+def _chain(pitch, roll, yaw):
+    """Ry(pitch) Rx(roll) Rz(yaw) and its derivatives with respect to (roll, pitch, yaw)."""
+    Ry, Rx, Rz = rotation_y(pitch), rotation_x(roll), rotation_z(yaw)
+    R = Ry @ Rx @ Rz
+    d_roll = Ry @ Rx @ _GENERATORS["x"] @ Rz
+    d_pitch = Ry @ _GENERATORS["y"] @ Rx @ Rz
+    d_yaw = R @ _GENERATORS["z"]
+    return R, (d_roll, d_pitch, d_yaw)
+
+
+def angles_from_body_to_orbit(R_OB: np.ndarray) -> np.ndarray:
+    """(roll, pitch, yaw) (..., 3) of R_OB = Ry(pitch) Rx(roll) Rz(yaw)."""
+    roll = np.arcsin(np.clip(-R_OB[..., 1, 2], -1.0, 1.0))
+    pitch = np.arctan2(R_OB[..., 0, 2], R_OB[..., 2, 2])
+    yaw = np.arctan2(R_OB[..., 1, 0], R_OB[..., 1, 1])
+    return np.stack([roll, pitch, yaw], -1)
+
+
+# --- telemetry ------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class LineCamera:
+    """A linear CCD camera: one virtual array of ``columns`` detectors (several chips merged)."""
+
+    camera_id: str
+    columns: int
+    center_col: float
+    pixel_size_mm: float
+    focal_mm: float
+    line_period_s: float
+    view_pitch_deg: float = 0.0
+
+
+@dataclass(frozen=True)
+class Polynomial:
+    """Least-squares polynomial in time, a0 + a1 tau + ... with tau = (t - t_ref) / t_scale."""
+
+    t_ref: float
+    t_scale: float
+    coefficients: np.ndarray        # (order + 1, k)
+
+    @property
+    def order(self) -> int:
+        return self.coefficients.shape[0] - 1
+
+    def _tau(self, t):
+        return (np.asarray(t, float) - self.t_ref) / self.t_scale
+
+    def __call__(self, t) -> np.ndarray:
+        tau = self._tau(t)
+        return np.polynomial.polynomial.polyval(tau, self.coefficients).T if np.ndim(tau) else \
+            np.polynomial.polynomial.polyval(tau, self.coefficients)
+
+    def rate(self, t) -> np.ndarray:
+        """d/dt of the polynomial."""
+        d = np.polynomial.polynomial.polyder(self.coefficients, axis=0) / self.t_scale
+        tau = self._tau(t)
+        return np.polynomial.polynomial.polyval(tau, d).T if np.ndim(tau) else np.polynomial.polynomial.polyval(tau, d)
+
+
+def fit_polynomial(t: np.ndarray, values: np.ndarray, order: int, t_ref: float | None = None
+                   ) -> tuple[Polynomial, np.ndarray]:
+    """Fit ``values`` (n, k) at times ``t`` by a polynomial of ``order`` (Eq. 5 of seed 001).
+
+    Returns the polynomial and the residuals values - fit (n, k). Needs more samples than
+    coefficients.
+    """
+    t = np.asarray(t, float)
+    values = np.asarray(values, float).reshape(len(t), -1)
+    if len(t) <= order:
+        raise ValueError(f"{len(t)} samples cannot determine a polynomial of order {order}")
+    t_ref = float(np.mean(t)) if t_ref is None else float(t_ref)
+    t_scale = float(max(np.max(np.abs(t - t_ref)), 1e-9))
+    V = np.polynomial.polynomial.polyvander((t - t_ref) / t_scale, order)
+    coefficients = np.linalg.lstsq(V, values, rcond=None)[0]
+    return Polynomial(t_ref, t_scale, coefficients), values - V @ coefficients
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """An image's fitted telemetry: position and velocity (frame F), roll/pitch/yaw (orbit frame)."""
+
+    frame: str                   # "ECI" or "ECEF": the frame of position, velocity and quaternions
+    epoch_utc: str               # times count from here
+    position: Polynomial         # m
+    velocity: Polynomial         # m/s
+    attitude: Polynomial         # rad: roll, pitch, yaw
+    fit_rms: dict = field(default_factory=dict)   # residual RMS of each fit (m, m/s, rad)
+
+    def frame_to_ecef(self, t) -> np.ndarray:
+        """R_EF (n, 3, 3) at times t."""
+        t = np.atleast_1d(np.asarray(t, float))
+        if self.frame == "ECEF":
+            return np.broadcast_to(np.eye(3), (len(t), 3, 3))
+        return itrs_from_gcrs(self.epoch_utc, t)
+
+
+def fit_trajectory(frame: str, epoch_utc: str, ephemeris_t: np.ndarray, position: np.ndarray, velocity: np.ndarray,
+                   attitude_t: np.ndarray, quaternions: np.ndarray, orders: tuple[int, int, int] = (7, 7, 3),
+                   t_ref: float | None = None, given_attitude: bool = True) -> Trajectory:
+    """Fit an image's ephemeris and attitude (quaternions q1..q4, scalar last, body -> F).
+
+    Roll, pitch and yaw are those of R_OB = R_FO^T R(q) with R_FO from the fitted
+    position and velocity at the quaternion times. ``given_attitude=False`` ignores the
+    quaternions (roll = pitch = yaw = 0 before the corrections of Eq. 6; seed 001, Table 5).
+    """
+    from ..geometry.rotation import matrix_from_quaternion
+
+    if frame not in ("ECI", "ECEF"):
+        raise ValueError(f"frame must be ECI or ECEF, not {frame!r}")
+    pos, pos_res = fit_polynomial(ephemeris_t, position, orders[0], t_ref)
+    vel, vel_res = fit_polynomial(ephemeris_t, velocity, orders[1], t_ref)
+    attitude_t = np.asarray(attitude_t, float)
+    if given_attitude:
+        R_FB = matrix_from_quaternion(np.asarray(quaternions, float), scalar_first=False)
+        R_FO = orbit_frame(pos(attitude_t), vel(attitude_t))
+        angles = angles_from_body_to_orbit(np.swapaxes(R_FO, 1, 2) @ R_FB)
+    else:
+        angles = np.zeros((len(attitude_t), 3))
+    att, att_res = fit_polynomial(attitude_t, angles, orders[2], t_ref)
+
+    def rms(r):
+        return np.sqrt(np.mean(r ** 2, axis=0))
+
+    return Trajectory(frame, epoch_utc, pos, vel, att,
+                      {"position_m": rms(pos_res), "velocity_m_s": rms(vel_res), "attitude_rad": rms(att_res)})
+
+
+@dataclass(frozen=True)
+class LineImage:
+    """One pushbroom image: its camera, fitted trajectory, first-line time and calibration parameters."""
+
+    image_id: str
+    camera: LineCamera
+    trajectory: Trajectory
+    t_first_s: float
+    rows: int
+    parameters: np.ndarray        # (10,) in the order of PARAMETER_NAMES; focal in mm
+
+    @classmethod
+    def nominal(cls, image_id: str, camera: LineCamera, trajectory: Trajectory, t_first_s: float, rows: int):
+        parameters = np.zeros(len(PARAMETER_NAMES))
+        parameters[PARAMETER_NAMES.index("focal")] = camera.focal_mm
+        return cls(image_id, camera, trajectory, float(t_first_s), int(rows), parameters)
+
+    @property
+    def t_ref(self) -> float:
+        """Scene-centre time: the origin of the linear attitude corrections (Eq. 6)."""
+        return self.t_first_s + 0.5 * self.rows * self.camera.line_period_s
+
+    def with_parameters(self, parameters: np.ndarray) -> "LineImage":
+        return replace(self, parameters=np.asarray(parameters, float).copy())
+
+    def time_of_row(self, row) -> np.ndarray:
+        return self.t_first_s + np.asarray(row, float) * self.camera.line_period_s
+
+    def row_of_time(self, t) -> np.ndarray:
+        return (np.asarray(t, float) - self.t_first_s) / self.camera.line_period_s
+
+    def ys_mm(self, col) -> np.ndarray:
+        return (np.asarray(col, float) - self.camera.center_col) * self.camera.pixel_size_mm
+
+    def col_of_ys(self, ys_mm) -> np.ndarray:
+        return self.camera.center_col + np.asarray(ys_mm, float) / self.camera.pixel_size_mm
+
+
+def _attitude(image: LineImage, t: np.ndarray):
+    """Corrected roll, pitch, yaw (n, 3) at times t."""
+    a = image.parameters
+    tau = t - image.t_ref
+    fitted = np.atleast_2d(image.trajectory.attitude(t))
+    return fitted + np.stack([a[0] + a[1] * tau, a[2] + a[3] * tau, a[4] + a[5] * tau], -1)
+
+
+def _frames(image: LineImage, t: np.ndarray):
+    """S_F (n, 3), R_FE (n, 3, 3) (Earth-fixed -> ephemeris frame), R_FO, the attitude chain
+    R_OB with its angle derivatives, and R_BT with its boresight derivatives."""
+    traj = image.trajectory
+    S = np.atleast_2d(traj.position(t))
+    V = np.atleast_2d(traj.velocity(t))
+    R_FE = np.swapaxes(traj.frame_to_ecef(t), 1, 2)
+    R_FO = orbit_frame(S, V)
+    roll, pitch, yaw = _attitude(image, t).T
+    R_OB, d_OB = _chain(pitch, roll, yaw)
+    a = image.parameters
+    b_roll, b_pitch, b_yaw = a[7], a[8], a[9]
+    R_BT, d_BT = _chain(np.radians(image.camera.view_pitch_deg) + b_pitch, b_roll, b_yaw)
+    return S, R_FE, R_FO, R_OB, d_OB, R_BT, d_BT
+
+
+def photo_coordinates(image: LineImage, points_ecef: np.ndarray, t: np.ndarray, jacobians: bool = False):
+    """Photo coordinates (x, y) in mm (n, 2) of ground points at the times ``t`` of their lines.
+
+    x = f w_x / w_z is 0 for a point on the line recorded at t; y = f w_y / w_z is its ys.
+    With ``jacobians`` also d(x, y)/d(parameters) (n, 2, 10) and d(x, y)/d(point) (n, 2, 3).
+    """
+    P = np.atleast_2d(np.asarray(points_ecef, float))
+    t = np.broadcast_to(np.asarray(t, float), (len(P),))
+    S, R_FE, R_FO, R_OB, d_OB, R_BT, d_BT = _frames(image, t)
+    P_F = np.einsum("nij,nj->ni", R_FE, P)
+    D_O = np.einsum("nji,nj->ni", R_FO, P_F - S)              # R_FO^T (P_F - S)
+    D_B = np.einsum("nji,nj->ni", R_OB, D_O)                  # R_OB^T D_O
+    w = np.einsum("ji,nj->ni", R_BT, D_B) if R_BT.ndim == 2 else np.einsum("...ji,nj->ni", R_BT, D_B)
+    f = image.parameters[6]
+    xy = f * w[:, :2] / w[:, 2:3]
+    if not jacobians:
+        return xy
+    n = len(P)
+    # d(x, y)/dw
+    dxy_dw = np.zeros((n, 2, 3))
+    dxy_dw[:, 0, 0] = f / w[:, 2]
+    dxy_dw[:, 1, 1] = f / w[:, 2]
+    dxy_dw[:, :, 2] = -f * w[:, :2] / w[:, 2:3] ** 2
+    R_TB = np.swapaxes(R_BT, -1, -2)
+    d_params = np.zeros((n, 2, len(PARAMETER_NAMES)))
+    tau = t - image.t_ref
+    for k, dR in enumerate(d_OB):                              # roll, pitch, yaw of R_OB
+        dw = np.einsum("ij,nj->ni", R_TB, np.einsum("nji,nj->ni", dR, D_O))
+        g = np.einsum("nij,nj->ni", dxy_dw, dw)
+        d_params[:, :, 2 * k] = g
+        d_params[:, :, 2 * k + 1] = g * tau[:, None]
+    d_params[:, :, 6] = xy / f
+    for k, dR in enumerate(d_BT):                              # boresight roll, pitch, yaw
+        dw = np.einsum("ji,nj->ni", dR, D_B)
+        d_params[:, :, 7 + k] = np.einsum("nij,nj->ni", dxy_dw, dw)
+    # dw/dP = R_TB R_OB^T R_FO^T R_FE
+    M = np.einsum("ij,nkj,nlk,nlm->nim", R_TB, R_OB, R_FO, R_FE)
+    d_point = dxy_dw @ M
+    return xy, d_params, d_point
+
+
+def ground_to_image(image: LineImage, points_ecef: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(row, col) of ground points: Newton's method on x(t) = 0, with dx/dt by central differences
+    over one line period. Points that do not converge (far outside the strip) are NaN."""
+    P = np.atleast_2d(np.asarray(points_ecef, float))
+    period = image.camera.line_period_s
+    t = np.full(len(P), image.t_ref)
+    active = np.ones(len(P), bool)
+    for _ in range(_MAX_NEWTON):
+        idx = np.flatnonzero(active)
+        if not idx.size:
+            break
+        tt = t[idx]
+        x0 = photo_coordinates(image, P[idx], tt)[:, 0]
+        xp = photo_coordinates(image, P[idx], tt + period)[:, 0]
+        xm = photo_coordinates(image, P[idx], tt - period)[:, 0]
+        slope = (xp - xm) / (2 * period)
+        step = x0 / slope
+        t[idx] = tt - step
+        active[idx] = np.abs(step) > TIME_TOLERANCE_LINES * period
+    y = photo_coordinates(image, P, t)[:, 1]
+    row, col = image.row_of_time(t), image.col_of_ys(y)
+    row[active] = np.nan
+    col[active] = np.nan
+    return row, col
+
+
+def line_of_sight(image: LineImage, row, col) -> tuple[np.ndarray, np.ndarray]:
+    """Perspective centre (n, 3) and unit line-of-sight direction (n, 3), ECEF, of image points."""
+    row, col = np.broadcast_arrays(np.atleast_1d(np.asarray(row, float)), np.atleast_1d(np.asarray(col, float)))
+    t = image.time_of_row(row)
+    S, R_FE, R_FO, R_OB, _, R_BT, _ = _frames(image, t)
+    u = np.stack([np.zeros_like(t), image.ys_mm(col), np.full_like(t, image.parameters[6])], -1)
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    d_F = np.einsum("nij,njk,kl,nl->ni", R_FO, R_OB, R_BT, u) if R_BT.ndim == 2 else \
+        np.einsum("nij,njk,nkl,nl->ni", R_FO, R_OB, R_BT, u)
+    R_EF = np.swapaxes(R_FE, 1, 2)
+    return np.einsum("nij,nj->ni", R_EF, S), np.einsum("nij,nj->ni", R_EF, d_F)
+
+
+def image_to_ground(image: LineImage, row, col, height, tolerance_m: float = 1e-4, max_iterations: int = 30
+                    ) -> np.ndarray:
+    """Mono restitution: the ECEF point (n, 3) where the line of sight of (row, col) meets a height.
+
+    ``height`` is an ellipsoidal height in metres (scalar or per point) or a callable
+    ``height(lat_deg, lon_deg) -> m`` (a DEM). Newton's method along the ray on
+    h(S + s d) - height = 0; it stops when the height misfit is below ``tolerance_m``.
+    """
+    S, d = line_of_sight(image, row, col)
+    dem = height if callable(height) else None
+    target = None if dem else np.broadcast_to(np.asarray(height, float), (len(S),))
+    # start: the range to a sphere of the mean Earth radius
+    radius = 6371000.0 + (0.0 if dem else float(np.mean(target)))
+    b = np.einsum("ni,ni->n", S, d)
+    c = np.einsum("ni,ni->n", S, S) - radius ** 2
+    s = -b - np.sqrt(np.maximum(b * b - c, 0.0))
+    for _ in range(max_iterations):
+        X = S + s[:, None] * d
+        lat, lon, h = geodetic_from_ecef(X)
+        goal = dem(np.degrees(lat), np.degrees(lon)) if dem else target
+        misfit = h - goal
+        if np.all(np.abs(misfit) < tolerance_m):
+            break
+        up = local_up(lat, lon)
+        s -= misfit / np.einsum("ni,ni->n", d, up)           # dh/ds = d . up (the DEM slope is left out)
+    return S + s[:, None] * d
+
+
+def intersect(images: list[LineImage], image_index: np.ndarray, rows: np.ndarray, cols: np.ndarray,
+              sigma_px: float = 1.0, iterations: int = 10) -> tuple[np.ndarray, np.ndarray]:
+    """Multi-image (stereo) intersection of one ground point from its image points.
+
+    Least squares on the photo coordinates of all its observations (Gauss-Newton from
+    the closest point of the rays). Returns the ECEF point (3,) and its covariance (3, 3)
+    in m², for image coordinates of standard deviation ``sigma_px``.
+    """
+    image_index = np.asarray(image_index)
+    origins, directions = [], []
+    for k, r, c in zip(image_index, rows, cols):
+        S, d = line_of_sight(images[k], r, c)
+        origins.append(S[0])
+        directions.append(d[0])
+    origins, directions = np.array(origins), np.array(directions)
+    A = np.zeros((3, 3))
+    b = np.zeros(3)
+    for S, d in zip(origins, directions):
+        proj = np.eye(3) - np.outer(d, d)
+        A += proj
+        b += proj @ S
+    X = np.linalg.solve(A, b)
+    for _ in range(iterations):
+        N = np.zeros((3, 3))
+        g = np.zeros(3)
+        for k, r, c in zip(image_index, rows, cols):
+            img = images[k]
+            t = img.time_of_row(np.atleast_1d(r))
+            xy, _, dP = photo_coordinates(img, X[None], t, jacobians=True)
+            p = img.camera.pixel_size_mm
+            res = (np.array([0.0, float(img.ys_mm(c))]) - xy[0]) / p
+            J = dP[0] / p
+            N += J.T @ J
+            g += J.T @ res
+        dX = np.linalg.solve(N, g)
+        X = X + dX
+        if np.max(np.abs(dX)) < 1e-6:
+            break
+    return X, sigma_px ** 2 * np.linalg.inv(N)
+
+
+def ecef_of(lat_deg, lon_deg, height_m) -> np.ndarray:
+    """ECEF metres of geodetic degrees and ellipsoidal metres (a shorthand for callers in degrees)."""
+    return ecef_from_geodetic(np.radians(lat_deg), np.radians(lon_deg), height_m)
