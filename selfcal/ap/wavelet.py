@@ -195,22 +195,15 @@ class WaveletAP(APModel):
         Fx, Fy = _camera_fields(self.frame, xs, ys)
         B, F = np.vstack([Bx, By]), np.vstack([Fx, Fy])
         M = np.linalg.solve(F.T @ F, F.T @ B)
-        # each camera field the raw span reproduces costs one dimension; B is block diagonal with
-        # the same scalar basis in both blocks, so the fit separates into one for x and one for y
-        n = Bx.shape[1] // 2
-        scalar = Bx[:, :n]
-        fit = np.linalg.lstsq(scalar, np.hstack([Fx, Fy]), rcond=None)[0]
-        misfit = np.hypot(np.linalg.norm(Fx - scalar @ fit[:, :6], axis=0),
-                          np.linalg.norm(Fy - scalar @ fit[:, 6:], axis=0)) / np.linalg.norm(F, axis=0)
+        # each camera field the raw span reproduces costs one dimension
+        fit = np.linalg.lstsq(B, F, rcond=None)[0]
+        misfit = np.linalg.norm(F - B @ fit, axis=0) / np.linalg.norm(F, axis=0)
         n_dependent = int(np.sum(misfit < REPRODUCTION_TOLERANCE))
         kept = np.ones(B.shape[1], bool)
         if n_dependent:
             A = B - F @ M
             A /= np.maximum(np.linalg.norm(A, axis=0), np.finfo(float).tiny)
-            # column pivoting on the triangular factor of A picks the same columns as on A itself
-            # (A = Q R with Q orthogonal), at a small fraction of the cost of pivoting on all rows
-            R = scipy.linalg.qr(A, mode="r", overwrite_a=True)[0]
-            pivots = scipy.linalg.qr(R, mode="r", pivoting=True)[1]
+            pivots = scipy.linalg.qr(A, mode="r", pivoting=True)[1]
             kept[pivots[len(pivots) - n_dependent:]] = False
         return kept, M[:, kept]
 
