@@ -150,3 +150,35 @@ def test_compact_camera_rows_equal_dense(ap, monkeypatch):
     np.testing.assert_allclose(d_p_c, d_p_d, rtol=1e-7, atol=1e-9 * np.abs(d_p_d).max())
     np.testing.assert_allclose(Qp_c, Qp_d, rtol=1e-6, atol=1e-9 * np.abs(Qp_d).max())
     np.testing.assert_allclose(h_c, h_d, atol=1e-8)
+
+
+def test_re_adjustment_carries_ap_columns_and_gram():
+    """A re-adjustment on a subset (observations rejected, APs dropped) takes over the AP columns
+    and their Gram matrix from the previous one: equal to building them afresh."""
+    import dataclasses
+
+    from selfcal.adjust import adjust, AdjustOptions
+    from selfcal.block import prune
+
+    sim = simulation(seed=5, distortion="local+brown", points_per_mm2=0.04)
+    block = pruned(sim, "type2")
+    options = AdjustOptions(ap="legendre:3")
+    first = adjust(block, options)
+    rng = np.random.default_rng(2)
+    keep = np.flatnonzero(rng.random(len(block.observations)) > 0.03)
+    sub = prune(dataclasses.replace(block, observations=block.observations.take(keep)))
+    cam = first.problem.cameras[0]
+    free = {cam.camera_id: cam.free[3:].copy()}
+    free[cam.camera_id][[1, 4]] = False
+    models = {cam.camera_id: cam.ap}
+    carried = adjust(sub, options, start=first, free=free, ap_models=models)
+    fresh = adjust(sub, options, free=free, ap_models=models)
+    gram_c, gram_f = carried.problem._ap_gram, fresh.problem._ap_gram
+    assert gram_c is not None and gram_c.shape == (int(free[cam.camera_id].sum()),) * 2
+    np.testing.assert_allclose(gram_c, gram_f, rtol=1e-9, atol=1e-12 * np.abs(gram_f).max())
+    # the same estimate, within the solver's tolerance (1 % of sigma) of each other
+    problem = carried.problem
+    d0, mask = problem.d_offset[0], problem.cameras[0].free
+    sigma = np.sqrt(np.diag(carried.Q_theta)[d0:d0 + int(mask.sum())] * carried.variance_factor)
+    diff = (carried.state.cameras[0] - fresh.state.cameras[0])[mask]
+    assert np.max(np.abs(diff) / sigma) < 0.02

@@ -229,7 +229,11 @@ def adjust(block: Block, options: AdjustOptions = AdjustOptions(),
         outcome = solve(problem, state, names, solver_options, progress)
         lin = outcome.linearisation
         dense = problem.n_theta <= DENSE_LIMIT
-        S, _, v_inv = reduce(problem, lin, 0.0, dense)
+        if outcome.reduction is not None:
+            S, factor, v_inv = outcome.reduction
+        else:
+            S, _, v_inv = reduce(problem, lin, 0.0, dense)
+            factor = None
     except SingularPoints as exc:
         ids = ", ".join(f"'{block.points.point_id[i]}'" for i in exc.indices[:5])
         raise AdjustmentError(f"{exc} (e.g. {ids}): remove them or check their observations") from None
@@ -237,7 +241,7 @@ def adjust(block: Block, options: AdjustOptions = AdjustOptions(),
         Q = _free_network_cofactor(S, notes)
     else:
         try:
-            factor = factorise(S)
+            factor = factor or factorise(S)
         except SingularSystem as exc:
             directions = null_directions(S, names)
             raise AdjustmentError(f"the normal equations are singular at the solution ({exc}):\n  "
@@ -247,7 +251,7 @@ def adjust(block: Block, options: AdjustOptions = AdjustOptions(),
     n_obs, n_unk = problem.n_observations(), problem.n_unknowns()
     if n_obs <= n_unk:
         raise AdjustmentError(f"no redundancy: {n_obs} observations for {n_unk} unknowns")
-    variance_factor = 2.0 * lin.cost / (n_obs - n_unk)
+    variance_factor = 2.0 * outcome.cost / (n_obs - n_unk)
     v_sorted = -image_residuals(problem, outcome.state)
     residuals = np.empty_like(v_sorted)
     residuals[problem.obs_order] = v_sorted
@@ -259,7 +263,7 @@ def adjust(block: Block, options: AdjustOptions = AdjustOptions(),
         reason=outcome.reason,
         iterations=outcome.iterations,
         history=outcome.history,
-        cost=lin.cost,
+        cost=outcome.cost,
         n_observations=n_obs,
         n_unknowns=n_unk,
         variance_factor=variance_factor,

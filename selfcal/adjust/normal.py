@@ -163,6 +163,23 @@ def carry_ap_columns(problem: Problem, rows: np.ndarray, previous: Problem, prev
         if np.any(ratio != 1.0):
             columns *= ratio[:, None, None]
         problem._ap_columns[(k, free.tobytes())] = columns
+        if len(problem.cameras) == 1 and len(previous.cameras) == 1 and np.all(ratio == 1.0):
+            problem._ap_gram = _carried_gram(previous, old_columns, source, free[old_free])
+
+
+def _carried_gram(previous: Problem, old_columns: np.ndarray, source: np.ndarray, keep: np.ndarray):
+    """The Gram matrix of the constant AP columns of a one-camera problem that keeps the
+    observations ``source`` of ``previous`` and its APs ``keep`` (bool over the previous free
+    APs): the previous Gram minus the rows of the observations that were left out, or None
+    (computed afresh) when there is none to carry or most rows went."""
+    gram = previous._ap_gram
+    if gram is None or gram.shape[0] != old_columns.shape[2] - 3:
+        return None
+    removed = np.setdiff1d(np.arange(previous.n_image_observations), source)
+    if removed.size > 0.2 * previous.n_image_observations:
+        return None                          # the difference would lose digits: sum afresh
+    rows = old_columns[removed, :, 3:].reshape(2 * removed.size, -1)
+    return (gram - rows.T @ rows)[np.ix_(keep, keep)]
 
 
 def _rows_times(rows: np.ndarray, vector: np.ndarray) -> np.ndarray:
@@ -400,6 +417,15 @@ def chunk_rows(problem: Problem, state: State, cs, rotation=None, iop_all=None, 
     return r, j_e, j_p, j_d
 
 
+def _gram(rows: np.ndarray, columns: np.ndarray) -> np.ndarray:
+    """rows[:, columns]^T rows[:, columns]: the symmetric rank-k update of all columns (rows is
+    C-ordered, so rows.T goes to BLAS without a copy), then the block of ``columns``. A strided
+    view or a gathered copy of the columns is several times slower than the few extra ones."""
+    rows_t = rows.T if rows.flags.c_contiguous else np.asfortranarray(rows.T)
+    upper = scipy.linalg.blas.dsyrk(1.0, rows_t, trans=0, lower=0)
+    return (upper + np.triu(upper, 1).T)[np.ix_(columns, columns)]
+
+
 def linearise(problem: Problem, state: State) -> Linearisation:
     """Jacobians and normal-equation blocks at ``state``."""
     n_img, n_e, n_d = problem.n_images, problem.n_e, problem.n_d
@@ -452,8 +478,7 @@ def linearise(problem: Problem, state: State) -> Linearisation:
                 U_dd[varying, :] += U_vd
                 U_dd[np.ix_(constant, varying)] += U_vd[:, constant].T
                 if build_gram:
-                    jc = j_d.reshape(2 * m, n_d)[:, constant]
-                    gram += jc.T @ jc
+                    gram += _gram(j_d.reshape(2 * m, n_d), constant)
             else:
                 U_dd += U_vd
 
