@@ -35,7 +35,9 @@ def test_redundancy_numbers_equal_dense_reference(small_result):
     tests = observation_tests(result)
     m = problem.n_image_observations
     image = redundancy[:2 * m].reshape(m, 2)                 # sorted (by point) order
-    np.testing.assert_allclose(tests.image_redundancy[problem.obs_order], image, atol=2e-6)
+    # the tests use the normal equations of the last iteration, before the final correction (below
+    # 1e-3 sigma); the reference linearises at the final estimate: they differ by a few 1e-6
+    np.testing.assert_allclose(tests.image_redundancy[problem.obs_order], image, atol=5e-6)
     k = 3 * len(problem.control_index)
     np.testing.assert_allclose(tests.control_redundancy.ravel(), redundancy[2 * m:2 * m + k], atol=2e-6)
     np.testing.assert_allclose(tests.parameter_redundancy, redundancy[2 * m + k:], atol=2e-6)

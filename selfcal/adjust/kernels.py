@@ -16,9 +16,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["accumulate_observations", "schur_image_blocks", "point_cofactor_pairs", "leverage_pairs", "rows_times_blocks",
-           "camera_couplings", "point_blocks_times", "subtract_image_couplings", "rows_dot_blocks",
-           "camera_couplings_compact", "schur_camera_blocks"]
+__all__ = ["accumulate_observations", "schur_image_blocks", "point_cofactor_pairs", "leverage_pairs", "camera_couplings", "point_blocks_times", "subtract_image_couplings", "rows_dot_blocks",
+           "camera_couplings_compact", "schur_camera_blocks", "leverage_camera_cross"]
 
 
 @njit(cache=True, nogil=True)
@@ -156,24 +155,6 @@ def leverage_pairs(Z_e, img, pair_a, pair_b, Q_e, G):
 
 
 @njit(cache=True, nogil=True)
-def rows_times_blocks(X, index, M):
-    """out[o] = X[o] @ M[index[o]] for X (m, a, b) and M (n, b, c): the NumPy ``X @ M[index]``
-    without materialising M[index] (which is large when b is the number of camera parameters)."""
-    m, na, nb = X.shape
-    nc = M.shape[2]
-    out = np.zeros((m, na, nc))
-    for o in range(m):
-        Mo = M[index[o]]
-        for a in range(na):
-            for b in range(nb):
-                x = X[o, a, b]
-                if x != 0.0:
-                    for c in range(nc):
-                        out[o, a, c] += x * Mo[b, c]
-    return out
-
-
-@njit(cache=True, nogil=True)
 def camera_couplings(j_d, j_e, j_p, r, img, ptl, varying, U_ed, W_pd, g_d, U_vd):
     """Accumulate, in one pass over the camera-parameter rows j_d (m, 2, n_d):
 
@@ -245,9 +226,9 @@ def subtract_image_couplings(Y, W_pd, img, ptl, S_ed):
 
 @njit(cache=True, nogil=True, fastmath=True)
 def rows_dot_blocks(X, index, Mt):
-    """out[o] = X[o] @ Mt[index[o]].T for X (m, a, n) and Mt (k, c, n): like :func:`rows_times_blocks`
-    with the blocks stored transposed, so that every entry is a dot product over the long axis n
-    (vectorised; ``fastmath`` only lets the sum be reassociated)."""
+    """out[o] = X[o] @ Mt[index[o]].T for X (m, a, n) and Mt (k, c, n), without materialising
+    Mt[index]: every entry is a dot product over the long axis n (vectorised; ``fastmath`` only
+    lets the sum be reassociated)."""
     m, na, n = X.shape
     nc = Mt.shape[1]
     out = np.zeros((m, na, nc))
@@ -359,3 +340,41 @@ def schur_camera_blocks(w_e, w_d, Vi, g_p, img, cam, ptl, cols, pair_a, pair_b, 
                     for k in range(3):
                         s += w_d[oa, k, c1] * T[ob, k, c2]
                     S_dd[d1, d2] -= s
+
+
+@njit(cache=True, nogil=True, fastmath=True)
+def leverage_camera_cross(j_e, j_d, img, ptl, Q_ed, Z, jp_term, h):
+    """The image x camera cross terms of the leverages, without the (m, 2, n_d) product j_e Q_ed:
+
+    jp_term[o] += j_e[o] Q_ed[img o] Z[ptl o]^T      (2 x 3)
+    h[o, k]    += 2 j_e[o, k] Q_ed[img o] j_d[o, k]^T
+
+    Q_ed (n_img, 6, n_d), Z (n_pc, 3, n_d), j_d (m, 2, n_d): every entry is a dot product
+    over the long axis n_d (vectorised; ``fastmath`` only lets the sums be reassociated).
+    """
+    m, _, n = j_d.shape
+    T = np.zeros((6, 5))
+    for o in range(m):
+        Qi = Q_ed[img[o]]
+        Zp = Z[ptl[o]]
+        for e in range(6):
+            for c in range(3):
+                s = 0.0
+                for d in range(n):
+                    s += Qi[e, d] * Zp[c, d]
+                T[e, c] = s
+            for k in range(2):
+                s = 0.0
+                for d in range(n):
+                    s += Qi[e, d] * j_d[o, k, d]
+                T[e, 3 + k] = s
+        for k in range(2):
+            for c in range(3):
+                s = 0.0
+                for e in range(6):
+                    s += j_e[o, k, e] * T[e, c]
+                jp_term[o, k, c] += s
+            s = 0.0
+            for e in range(6):
+                s += j_e[o, k, e] * T[e, 3 + k]
+            h[o, k] += 2.0 * s

@@ -178,8 +178,10 @@ def _carried_gram(previous: Problem, old_columns: np.ndarray, source: np.ndarray
     removed = np.setdiff1d(np.arange(previous.n_image_observations), source)
     if removed.size > 0.2 * previous.n_image_observations:
         return None                          # the difference would lose digits: sum afresh
-    rows = old_columns[removed, :, 3:].reshape(2 * removed.size, -1)
-    return (gram - rows.T @ rows)[np.ix_(keep, keep)]
+    if removed.size:
+        rows = old_columns[removed, :, 3:].reshape(2 * removed.size, gram.shape[0])
+        gram = gram - rows.T @ rows
+    return gram[np.ix_(keep, keep)]
 
 
 def _rows_times(rows: np.ndarray, vector: np.ndarray) -> np.ndarray:

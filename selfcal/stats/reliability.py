@@ -34,7 +34,7 @@ from scipy.stats import norm
 
 from ..adjust.normal import chunk_rows, parameter_observations, point_camera_coupling
 from ..adjust.covariance import by_point_and_image
-from ..adjust.kernels import leverage_pairs, point_blocks_times, rows_dot_blocks, rows_times_blocks
+from ..adjust.kernels import leverage_camera_cross, leverage_pairs, point_blocks_times, rows_dot_blocks
 from ..geometry.rotation import matrix_from_opk_with_derivatives
 
 __all__ = ["ObservationTests", "observation_tests", "noncentrality"]
@@ -112,13 +112,11 @@ def _image_leverage(problem, state, lin, v_inv, Q, Q_points):
         if n_d:
             W_pd = point_camera_coupling(problem, ch, cs)
             Z = point_blocks_times(Vi, W_pd, False).reshape(n_pc, 3, n_d)      # Z[p] = Vi[p] W_pd[p]
-            je_Qed = rows_times_blocks(j_e, img, Q_ed)                          # (m, 2, n_d) = j_e Q_ed(image)
-            jp_term += rows_dot_blocks(je_Qed, ptl, Z)
+            leverage_camera_cross(j_e, j_d, img, ptl, Q_ed, Z, jp_term, h)      # the j_e Q_ed terms
             # H_p = Q_dd Z_d(p) + sum over the point's observations of Q_ed(image)^T Z_e
             QZ = (Z.reshape(3 * n_pc, n_d) @ Q_dd).reshape(n_pc, 3, n_d)
             A = (by_point_and_image(Z_e, img, ptl, n_pc, n_img) @ Q_ed_2d).reshape(n_pc, 3, n_d)
             jp_term += rows_dot_blocks(j_d, ptl, QZ + A)                       # H_p^T stored (n_pc, 3, n_d)
-            h += 2.0 * np.einsum("okd,okd->ok", je_Qed, j_d)
             h += _quadratic_rows(j_d.reshape(2 * m, n_d), Q_dd, L_dd).reshape(m, 2)
         h -= 2.0 * np.einsum("okj,okj->ok", jp_term, j_p)
         h += np.einsum("oki,oij,okj->ok", j_p, Q_points[ch.p0:ch.p1][ptl], j_p)
