@@ -195,9 +195,13 @@ class WaveletAP(APModel):
         Fx, Fy = _camera_fields(self.frame, xs, ys)
         B, F = np.vstack([Bx, By]), np.vstack([Fx, Fy])
         M = np.linalg.solve(F.T @ F, F.T @ B)
-        # each camera field the raw span reproduces costs one dimension
-        fit = np.linalg.lstsq(B, F, rcond=None)[0]
-        misfit = np.linalg.norm(F - B @ fit, axis=0) / np.linalg.norm(F, axis=0)
+        # each camera field the raw span reproduces costs one dimension. B is block diagonal with the
+        # same scalar basis in both blocks: the fit separates into one for x and one for y (8x fewer flops)
+        scalar = Bx[:, :Bx.shape[1] // 2]
+        fit = np.linalg.lstsq(scalar, np.hstack([Fx, Fy]), rcond=None)[0]
+        n_fields = Fx.shape[1]
+        misfit = np.hypot(np.linalg.norm(Fx - scalar @ fit[:, :n_fields], axis=0),
+                          np.linalg.norm(Fy - scalar @ fit[:, n_fields:], axis=0)) / np.linalg.norm(F, axis=0)
         n_dependent = int(np.sum(misfit < REPRODUCTION_TOLERANCE))
         kept = np.ones(B.shape[1], bool)
         if n_dependent:
