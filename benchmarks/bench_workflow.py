@@ -57,25 +57,37 @@ def main() -> None:
 
     sim = simulate_uav(seed=1, distortion="local+brown", points_per_mm2=3.5, blunder_rate=0.003)
     block = prune(sim.blocks["type3"])
-    iterations = []
-    start = time.perf_counter()
-    tested = workflow.adjust_with_tests(block, AdjustOptions(ap="wavelet:sym4"), screening=ScreeningOptions(),
-                                        progress=lambda record: iterations.append(record))
-    total = time.perf_counter() - start
-    # the final factorisation inside adjust() is timed in covariance; the one inside solve() in solve
-    stages = dict(watch.seconds)
-    stages["setup"] = total - sum(stages.values())
+    runs = []
+    for _ in range(REPEAT):
+        watch.seconds = {}
+        iterations = []
+        start = time.perf_counter()
+        tested = workflow.adjust_with_tests(block, AdjustOptions(ap="wavelet:sym4"), screening=ScreeningOptions(),
+                                            progress=lambda record: iterations.append(record))
+        total = time.perf_counter() - start
+        # the final factorisation inside adjust() is timed in covariance; the one inside solve() in solve
+        stages = dict(watch.seconds)
+        stages["setup"] = total - sum(stages.values())
+        runs.append((total, stages, tested, len(iterations)))
+    runs.sort(key=lambda run: run[0])
+    total, stages, tested, n_iterations = runs[len(runs) // 2]
     result = tested.result
     cam = result.problem.cameras[0]
     print(f"seed-000 Type 3 block: {len(block.images)} images, {len(block.observations)} image observations, "
           f"{cam.ap.n_params} WAPs (sym4, 9x6) -> {int(cam.free[3:].sum())} kept; {len(tested.rejected_rows)} "
-          f"observations rejected in {len(tested.rounds)} rounds; {len(iterations)} iterations in all")
+          f"observations rejected in {len(tested.rounds)} rounds; {n_iterations} iterations in all")
+    print(f"the median of {REPEAT} runs (the VM's timing varies by 10-20 %): "
+          + ", ".join(f"{run[0]:.2f}" for run in runs) + " s")
     print(f"{'stage':<46}{'seconds':>9}{'share':>8}")
     for name, label in (("solve", "solve (all iterations)"), ("covariance", "covariance (theta + every tie point)"),
                         ("tests", "tests (w, redundancy, rejection, screening)"), ("setup", "setup (problems, initial values)")):
         value = stages.get(name, 0.0)
         print(f"{label:<46}{value:>9.2f}{100 * value / total:>7.0f}%")
     print(f"{'total':<46}{total:>9.2f}   (issue 10: <= 10 s on 2 cores)")
+
+
+#: runs of the whole workflow; the median is reported
+REPEAT = 3
 
 
 if __name__ == "__main__":
