@@ -20,6 +20,9 @@ __all__ = [
     "InitialAP",
     "FrameCamera",
     "BalCamera",
+    "PushbroomCamera",
+    "Ephemeris",
+    "AttitudeSamples",
     "Images",
     "Points",
     "Observations",
@@ -110,6 +113,56 @@ class BalCamera:
     @property
     def height_mm(self) -> float:
         return float(self.height_px)
+
+
+@dataclass(frozen=True)
+class PushbroomCamera:
+    """A linear CCD camera (``model = "pushbroom"``, DESIGN.md §3): ``columns`` detectors merged into
+    one virtual array, ``rows`` lines per image; line of sight of column col: (0, (col - center_col) p, f)
+    in the telescope frame, turned forward by ``view_pitch_deg``. ``t0_s`` is a clock offset added to
+    every image's time_s. Positions, velocities and quaternions are in ``frame`` (ECI = GCRS,
+    ECEF = ITRS) and times count from ``epoch_utc``."""
+
+    camera_id: str
+    columns: int
+    rows: int
+    center_col: float
+    pixel_size_mm: float
+    focal_mm: float
+    line_period_s: float
+    epoch_utc: str
+    frame: str = "ECI"
+    view_pitch_deg: float = 0.0
+    t0_s: float = 0.0
+
+    model = "pushbroom"
+
+    @property
+    def width_px(self) -> int:
+        return self.columns
+
+    @property
+    def height_px(self) -> int:
+        return self.rows
+
+
+@dataclass(frozen=True)
+class Ephemeris:
+    """Perspective-centre positions (m) and velocities (m/s) of pushbroom cameras (ephemeris.csv)."""
+
+    camera_id: np.ndarray
+    time_s: np.ndarray
+    position_m: np.ndarray       # (n, 3)
+    velocity_m_s: np.ndarray     # (n, 3)
+
+
+@dataclass(frozen=True)
+class AttitudeSamples:
+    """Attitude quaternions of pushbroom cameras (attitude.csv): q1..q3 vector, q4 scalar, body -> frame."""
+
+    camera_id: np.ndarray
+    time_s: np.ndarray
+    quaternion: np.ndarray       # (n, 4)
 
 
 @dataclass(frozen=True)
@@ -219,7 +272,7 @@ class Block:
 
     name: str
     crs: str
-    cameras: dict[str, "FrameCamera | BalCamera"]
+    cameras: dict[str, "FrameCamera | BalCamera | PushbroomCamera"]
     images: Images
     points: Points
     observations: Observations
@@ -234,6 +287,15 @@ class Block:
     imu_boresight_deg: tuple[float, float, float] | None = None
     dropped: Dropped = field(default_factory=Dropped)
     datum: str = "control"          # "control": fixed by control/trajectory; "free": a relative (free) network
+    #: pushbroom telemetry (ephemeris.csv, attitude.csv) and terrain (``[terrain]``: a DEM file or a height)
+    ephemeris: Ephemeris | None = None
+    attitude: AttitudeSamples | None = None
+    dem_path: str | None = None
+    terrain_height_m: float | None = None
+
+    @property
+    def is_pushbroom(self) -> bool:
+        return any(c.model == "pushbroom" for c in self.cameras.values())
 
     @property
     def has_trajectory(self) -> bool:

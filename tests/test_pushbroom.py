@@ -3,15 +3,14 @@ simulated PRISM triplet (known focal lengths, attitude bias and drift, boresight
 import numpy as np
 import pytest
 
-from selfcal.adjust.pushbroom import SENSOR_MODELS, sensor_model, track_frame
-from selfcal.batch.pushbroom import (ATTITUDE_FREE_SIGMA, calibrate_focal, choose_gcps, run_case, with_focal)
+from selfcal.adjust.pushbroom import SENSOR_MODELS, pushbroom_block, sensor_model, track_frame
+from selfcal.batch.pushbroom import ATTITUDE_FREE_SIGMA, calibrate_focal, choose_gcps, run_case, with_focal
 from selfcal.errors import UsageError
 from selfcal.sensors.pushbroom import PARAMETER_NAMES, ground_to_image, image_to_ground, intersect, photo_coordinates
 from selfcal.simulate.prism import (ATTITUDE_BIAS_RAD, ATTITUDE_DRIFT_RAD_S, NADIR_CENTRE_S, TRUE_FOCAL_MM,
-                                    simulate_prism)
+                                    prism_block, simulate_prism)
 
 PIXEL_M = 2.5          # ground sample distance of the simulated PRISM images
-CONTROL_SIGMA_M = 0.1
 
 
 @pytest.fixture(scope="module")
@@ -20,23 +19,20 @@ def sim():
 
 
 @pytest.fixture(scope="module")
-def control(sim):
-    rng = np.random.default_rng(1)
-    return sim.truth.points_ecef + rng.normal(0.0, CONTROL_SIGMA_M, sim.truth.points_ecef.shape)
+def data(sim):
+    """The simulation as a block (5 GCPs with 0.1 m survey error, 23 check points), telemetry fitted."""
+    return pushbroom_block(prism_block(sim, seed=1))
 
 
 @pytest.fixture(scope="module")
-def calibrated(sim, control):
-    """Step 1: focal lengths from M7 on the triplet with 5 GCPs; the images with them."""
-    images = sim.images()
-    gcps = choose_gcps(sim.obs_image, sim.obs_point, sim.obs_row, sim.obs_col, images[1], 5)
-    focal, sigma = calibrate_focal(sim, images, gcps, control[gcps], CONTROL_SIGMA_M)
-    return focal, sigma, with_focal(images, focal)
+def calibrated(data, sim):
+    """Step 1: focal lengths from M7 on the triplet with the 5 GCPs; the images with them."""
+    focal, sigma = calibrate_focal(data, sim.dem)
+    return focal, sigma, with_focal(data.images, focal)
 
 
-def _case(sim, images, control, model, n_gcp, image_set, label=""):
-    gcps = choose_gcps(sim.obs_image, sim.obs_point, sim.obs_row, sim.obs_col, images[1], n_gcp)
-    return run_case(sim, images, model, gcps, image_set, control[gcps], CONTROL_SIGMA_M, label)
+def _case(data, images, dem, model, n_gcp, image_set, label=""):
+    return run_case(data, model, choose_gcps(data, n_gcp), image_set, dem, label, images)
 
 
 def test_triplet_sees_every_point_in_every_image(sim):
@@ -59,8 +55,8 @@ def test_ground_image_ground_round_trip(sim):
         assert np.max(np.abs(row2 - rows)) < 1e-4 and np.max(np.abs(col2 - cols)) < 1e-4
 
 
-def test_jacobians_match_finite_differences(sim):
-    image = sim.images()[0]
+def test_jacobians_match_finite_differences(sim, data):
+    image = data.images[0]
     parameters = image.parameters.copy()
     parameters[[0, 1, 2, 3, 4, 5, 7, 8, 9]] = [2e-5, 1e-6, -3e-5, 2e-6, 4e-5, -1e-6, 1e-5, -2e-5, 3e-5]
     image = image.with_parameters(parameters)
@@ -87,7 +83,7 @@ def test_attitude_from_quaternions_recovers_the_telemetry():
     """Noise-free telemetry: roll/pitch/yaw fitted from the quaternions are the true attitude minus
     the simulated bias and drift (Eqs. 2-5), and the position fit is exact."""
     quiet = simulate_prism(seed=3, ephemeris_sigma_m=0.0, attitude_sigma_rad=0.0)
-    for image, true in zip(quiet.images(), quiet.truth.images):
+    for image, true in zip(pushbroom_block(prism_block(quiet)).images, quiet.truth.images):
         t = image.time_of_row(np.linspace(0, image.rows, 11))
         expected = true.trajectory.attitude(t) - (ATTITUDE_BIAS_RAD + np.outer(t - NADIR_CENTRE_S, ATTITUDE_DRIFT_RAD_S))
         np.testing.assert_allclose(image.trajectory.attitude(t), expected, atol=1e-10)
@@ -104,11 +100,11 @@ def test_focal_length_recovered_within_0_1_mm(calibrated):
     assert all(abs(1939.0 - true) > 0.7 for true in TRUE_FOCAL_MM.values())
 
 
-def test_models_one_to_four_leave_the_drift_along_track(sim, control, calibrated):
+def test_models_one_to_four_leave_the_drift_along_track(sim, data, calibrated):
     """Mono nadir, 4 GCPs: constant corrections (M1-M4) leave the simulated attitude drift as an
     along-track error above a pixel; constant + linear terms (M5-M7) bring X and Y below a pixel."""
     images = calibrated[2]
-    rmse = {m: _case(sim, images, control, sensor_model(m), 4, (1,)).rmse_m for m in SENSOR_MODELS}
+    rmse = {m: _case(data, images, sim.dem, sensor_model(m), 4, (1,)).rmse_m for m in SENSOR_MODELS}
     for m in ("M1", "M2", "M3", "M4"):
         assert rmse[m][1] > PIXEL_M and rmse[m][0] < PIXEL_M, (m, rmse[m])
     for m in ("M5", "M6", "M7"):
@@ -117,34 +113,34 @@ def test_models_one_to_four_leave_the_drift_along_track(sim, control, calibrated
 
 
 @pytest.mark.parametrize("image_set", [(0,), (1,), (2,)])
-def test_m6_with_three_gcps_is_sub_pixel(sim, control, calibrated, image_set):
+def test_m6_with_three_gcps_is_sub_pixel(sim, data, calibrated, image_set):
     """M6's parameter weights make three GCPs enough (M5 and M7 have no redundancy with three)."""
     images = calibrated[2]
-    case = _case(sim, images, control, sensor_model("M6"), 3, image_set)
+    case = _case(data, images, sim.dem, sensor_model("M6"), 3, image_set)
     assert np.all(case.rmse_m[:2] < PIXEL_M), case.rmse_m
-    assert _case(sim, images, control, sensor_model("M7"), 3, image_set).rmse_m is None
+    assert _case(data, images, sim.dem, sensor_model("M7"), 3, image_set).rmse_m is None
 
 
-def test_stereo_triplet_is_sub_pixel_and_as_precise_as_it_says(sim, control, calibrated):
+def test_stereo_triplet_is_sub_pixel_and_as_precise_as_it_says(sim, data, calibrated):
     images = calibrated[2]
-    case = _case(sim, images, control, sensor_model("M6"), 4, (0, 1, 2), "F+N+B")
-    assert np.all(case.rmse_m < PIXEL_M), case.rmse_m
+    case = _case(data, images, sim.dem, sensor_model("M6"), 4, (0, 1, 2), "F+N+B")
+    assert case.n_check == 24 and np.all(case.rmse_m < PIXEL_M), case.rmse_m
     assert 0.7 < case.result.sigma0 < 1.3
     # the height error is what the a-posteriori precision predicts (base-to-height 0.88, 0.3 px)
-    gcps = choose_gcps(sim.obs_image, sim.obs_point, sim.obs_row, sim.obs_col, images[1], 4)
-    checks = np.setdiff1d(np.arange(len(sim.point_ids)), gcps)
     _, R = track_frame(images[1])
-    sigma_z = np.sqrt(np.mean([(R @ c @ R.T)[2, 2] for c in case.result.point_cov[checks]]))
+    sigma_z = np.sqrt(np.mean([(R @ c @ R.T)[2, 2] for c in case.result.point_cov[case.checks]]))
     assert 0.6 < case.rmse_m[2] / sigma_z < 1.5
 
 
-def test_attitude_free_run_matches_the_given_attitude_within_ten_percent(sim, control):
+def test_attitude_free_run_matches_the_given_attitude_within_ten_percent(sim):
     """Seed 001, Table 5: without the attitude telemetry, M6's corrections alone reach the same
     accuracy (the constant terms take the whole attitude)."""
-    given = with_focal(sim.images(), TRUE_FOCAL_MM)
-    free = with_focal(sim.images(given_attitude=False), TRUE_FOCAL_MM)
-    a = _case(sim, given, control, sensor_model("M6"), 4, (1,)).rmse_m
-    b = _case(sim, free, control, sensor_model("M6", ATTITUDE_FREE_SIGMA), 4, (1,)).rmse_m
+    block = prism_block(sim, seed=1)
+    given = pushbroom_block(block)
+    free = pushbroom_block(block, given_attitude=False)
+    a = _case(given, with_focal(given.images, TRUE_FOCAL_MM), sim.dem, sensor_model("M6"), 4, (1,)).rmse_m
+    b = _case(free, with_focal(free.images, TRUE_FOCAL_MM), sim.dem, sensor_model("M6", ATTITUDE_FREE_SIGMA), 4,
+              (1,)).rmse_m
     planimetric = np.hypot(*a[:2]), np.hypot(*b[:2])
     assert abs(planimetric[1] / planimetric[0] - 1.0) < 0.10, (a, b)
     assert planimetric[1] < PIXEL_M

@@ -24,12 +24,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import AdjustmentError, UsageError
+from ..errors import AdjustmentError, BlockError, UsageError
 from ..geometry.earth import geodetic_from_ecef, local_up
-from ..sensors.pushbroom import PARAMETER_NAMES, LineImage, line_of_sight, photo_coordinates
+from ..sensors.pushbroom import PARAMETER_NAMES, LineCamera, LineImage, fit_trajectory, line_of_sight, photo_coordinates
 
 __all__ = ["SENSOR_MODELS", "M6_SIGMA", "SensorModel", "sensor_model", "PushbroomResult", "adjust_pushbroom",
-           "track_frame"]
+           "track_frame", "PushbroomBlock", "pushbroom_block", "FIT_ORDERS", "TELEMETRY_MARGIN_S"]
 
 _P = {name: k for k, name in enumerate(PARAMETER_NAMES)}
 
@@ -251,3 +251,81 @@ def track_frame(image: LineImage) -> tuple[np.ndarray, np.ndarray]:
     along /= np.linalg.norm(along)
     across = np.cross(along, up)
     return ground.mean(axis=0), np.stack([across, along, up])
+
+
+#: polynomial orders of the ephemeris position, velocity and attitude fits (Eq. 5)
+FIT_ORDERS = (7, 7, 3)
+#: telemetry used beyond each end of an image
+TELEMETRY_MARGIN_S = 10.0
+
+
+@dataclass
+class PushbroomBlock:
+    """A pushbroom block ready for adjustment: images with fitted telemetry (start values of the
+    calibration parameters), points in ECEF with their reference coordinates and covariance,
+    image points (row, col)."""
+
+    images: list[LineImage]
+    point_ids: np.ndarray
+    role: np.ndarray                 # gcp | chk | tie
+    reference_ecef: np.ndarray       # (n, 3), NaN for tie points
+    reference_cov: np.ndarray        # (n, 3, 3) m², from sigma_xy / sigma_z in the local horizon
+    obs_image: np.ndarray
+    obs_point: np.ndarray
+    obs_row: np.ndarray
+    obs_col: np.ndarray
+    image_sigma_px: float
+
+    def subset(self, image_index) -> tuple[np.ndarray, ...]:
+        """The observations of some images: (obs_image, obs_point, obs_row, obs_col)."""
+        keep = np.isin(self.obs_image, image_index)
+        return self.obs_image[keep], self.obs_point[keep], self.obs_row[keep], self.obs_col[keep]
+
+
+def _horizon_covariance(ecef: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+    """Covariances (n, 3, 3) in ECEF of sigmas (east, north, up) in the local horizon."""
+    lat, lon, _ = geodetic_from_ecef(ecef)
+    up = local_up(lat, lon)
+    east = np.stack([-np.sin(lon), np.cos(lon), np.zeros_like(lon)], -1)
+    north = np.cross(up, east)
+    R = np.stack([east, north, up], -1)                       # columns: east, north, up
+    return np.einsum("nij,nj,nkj->nik", R, sigma ** 2, R)
+
+
+def pushbroom_block(block, given_attitude: bool = True, orders=FIT_ORDERS,
+                    margin_s: float = TELEMETRY_MARGIN_S) -> PushbroomBlock:
+    """Fit each image's telemetry (its camera's ephemeris and attitude over the scene, +/-
+    ``margin_s``) and bring the points to ECEF (``block.crs`` through pyproj)."""
+    from pyproj import Transformer
+
+    images = []
+    for k in range(len(block.images)):
+        cam = block.cameras[block.images.camera_id[k]]
+        t_first = float(block.images.time_s[k]) + cam.t0_s
+        t_last = t_first + cam.rows * cam.line_period_s
+        e, a = block.ephemeris, block.attitude
+        pick_e = (e.camera_id == cam.camera_id) & (e.time_s >= t_first - margin_s) & (e.time_s <= t_last + margin_s)
+        pick_a = (a.camera_id == cam.camera_id) & (a.time_s >= t_first - margin_s) & (a.time_s <= t_last + margin_s)
+        for name, pick, order in (("ephemeris.csv", pick_e, max(orders[:2])), ("attitude.csv", pick_a, orders[2])):
+            if pick.sum() <= order + 1:
+                raise BlockError(name, f"image '{block.images.image_id[k]}' ({t_first:.3f} - {t_last:.3f} s) has "
+                                       f"{int(pick.sum())} samples within {margin_s:g} s; the fit of order {order} "
+                                       f"needs more")
+        camera = LineCamera(cam.camera_id, cam.columns, cam.center_col, cam.pixel_size_mm, cam.focal_mm,
+                            cam.line_period_s, cam.view_pitch_deg)
+        t_ref = t_first + 0.5 * cam.rows * cam.line_period_s
+        trajectory = fit_trajectory(cam.frame, cam.epoch_utc, e.time_s[pick_e], e.position_m[pick_e],
+                                    e.velocity_m_s[pick_e], a.time_s[pick_a], a.quaternion[pick_a], orders,
+                                    t_ref=t_ref, given_attitude=given_attitude)
+        images.append(LineImage.nominal(str(block.images.image_id[k]), camera, trajectory, t_first, cam.rows))
+    xyz = block.points.xyz_m
+    if block.crs not in ("EPSG:4978", "ECEF"):
+        transformer = Transformer.from_crs(block.crs, "EPSG:4978", always_xy=True)
+        xyz = np.column_stack(transformer.transform(xyz[:, 0], xyz[:, 1], xyz[:, 2]))
+    sigma = np.nan_to_num(block.points.sigma_m, nan=1.0)
+    known = ~np.isnan(xyz).any(axis=1)
+    cov = np.full((len(xyz), 3, 3), np.nan)
+    cov[known] = _horizon_covariance(xyz[known], sigma[known])
+    ob = block.observations
+    return PushbroomBlock(images, block.points.point_id, block.points.role, xyz, cov, ob.image_index.copy(),
+                          ob.point_index.copy(), ob.pixel[:, 1].copy(), ob.pixel[:, 0].copy(), block.image_sigma_px)

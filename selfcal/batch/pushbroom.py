@@ -1,11 +1,12 @@
 """The pushbroom study of seed 001: models M1-M7 x {3, 4, 5} GCPs x {mono F, N, B; stereo F+N, F+N+B}.
 
-As in the paper, the focal length of each camera is calibrated first (M7 on the stereo
-triplet with the largest GCP set) and then held for every model; the models differ in
-which attitude corrections they estimate. Check points are every point that is not a
-GCP: in mono they are restituted on the terrain from their image coordinates in the one
-image, in stereo they are tie points of the adjustment. Errors are given across track
-(X), along track (Y) and up (Z) at the scene centre of the nadir image.
+As in the paper, the focal length of each camera is calibrated first (M7 on all images
+with every GCP of the block) and then held for every model; the models differ in which
+attitude corrections they estimate. The GCPs of a case are chosen among the block's gcp
+points, spread over the scene (:data:`GCP_LAYOUTS`); every other gcp and chk point is a
+check point. In mono, check points are restituted on the terrain from their image
+coordinates in the one image; in stereo they are tie points of the adjustment. Errors are
+given across track (X), along track (Y) and up (Z) at the scene centre of the middle image.
 """
 from __future__ import annotations
 
@@ -13,22 +14,20 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..adjust.pushbroom import (M6_SIGMA, SENSOR_MODELS, PushbroomResult, SensorModel, adjust_pushbroom, sensor_model,
-                                track_frame)
-from ..errors import AdjustmentError
+from ..adjust.pushbroom import (M6_SIGMA, SENSOR_MODELS, PushbroomBlock, PushbroomResult, SensorModel,
+                                adjust_pushbroom, sensor_model, track_frame)
+from ..errors import AdjustmentError, UsageError
 from ..sensors.pushbroom import PARAMETER_NAMES, LineImage, image_to_ground, intersect
 
-__all__ = ["GCP_LAYOUTS", "IMAGE_SETS", "PushbroomCase", "choose_gcps", "calibrate_focal", "run_case", "run_study",
-           "ATTITUDE_FREE_SIGMA"]
+__all__ = ["GCP_LAYOUTS", "PushbroomCase", "choose_gcps", "calibrate_focal", "run_case", "run_study", "with_focal",
+           "image_sets", "ATTITUDE_FREE_SIGMA"]
 
-#: where the GCPs are, as (row, col) fractions of the nadir image: spread over the scene
+#: where the GCPs of a case are, as (row, col) fractions of the middle image: spread over the scene
 GCP_LAYOUTS = {
     3: ((0.1, 0.1), (0.1, 0.9), (0.9, 0.5)),
     4: ((0.1, 0.1), (0.1, 0.9), (0.9, 0.1), (0.9, 0.9)),
     5: ((0.1, 0.1), (0.1, 0.9), (0.9, 0.1), (0.9, 0.9), (0.5, 0.5)),
 }
-#: image sets of the study (indices into the simulation's F, N, B)
-IMAGE_SETS = {"F": (0,), "N": (1,), "B": (2,), "F+N": (0, 1), "F+N+B": (0, 1, 2)}
 #: M6 without the given attitude (seed 001, Table 5): the constant terms are free to take the whole
 #: attitude (loose weights), the linear terms keep M6's weights
 ATTITUDE_FREE_SIGMA = {**M6_SIGMA, "d_roll0": 1e-2, "d_pitch0": 1e-2, "d_yaw0": 1e-2}
@@ -43,14 +42,35 @@ class PushbroomCase:
     n_check: int
     sigma0: float
     result: PushbroomResult | None
+    gcps: np.ndarray
+    checks: np.ndarray
+    check_errors_m: np.ndarray | None = None     # (n, 3) across, along, up
     failure: str = ""
 
 
-def choose_gcps(obs_image: np.ndarray, obs_point: np.ndarray, obs_row: np.ndarray, obs_col: np.ndarray,
-                nadir: LineImage, n: int) -> np.ndarray:
-    """The points nearest to the layout of ``n`` GCPs (:data:`GCP_LAYOUTS`) in the nadir image."""
-    mine = obs_image == 1
-    rows, cols, points = obs_row[mine] / nadir.rows, obs_col[mine] / nadir.camera.columns, obs_point[mine]
+def image_sets(data: PushbroomBlock) -> dict[str, tuple[int, ...]]:
+    """Mono for every image, stereo for the first two and for all (F+N, F+N+B for a triplet)."""
+    ids = [img.image_id for img in data.images]
+    sets = {i: (k,) for k, i in enumerate(ids)}
+    if len(ids) >= 2:
+        sets["+".join(ids[:2])] = (0, 1)
+    if len(ids) >= 3:
+        sets["+".join(ids)] = tuple(range(len(ids)))
+    return sets
+
+
+def choose_gcps(data: PushbroomBlock, n: int) -> np.ndarray:
+    """``n`` of the block's gcp points, those nearest to the layout of :data:`GCP_LAYOUTS` in the
+    middle image (all of them when ``n`` is None or the block has no more)."""
+    candidates = np.flatnonzero(data.role == "gcp")
+    if n is None or n >= candidates.size:
+        return candidates
+    if n not in GCP_LAYOUTS:
+        raise UsageError(f"--gcps {n}: choose 3, 4 or 5 of the block's {candidates.size} gcp")
+    middle = len(data.images) // 2
+    image = data.images[middle]
+    mine = (data.obs_image == middle) & np.isin(data.obs_point, candidates)
+    rows, cols, points = data.obs_row[mine] / image.rows, data.obs_col[mine] / image.camera.columns, data.obs_point[mine]
     chosen: list[int] = []
     for r, c in GCP_LAYOUTS[n]:
         for k in np.argsort((rows - r) ** 2 + (cols - c) ** 2):
@@ -60,57 +80,69 @@ def choose_gcps(obs_image: np.ndarray, obs_point: np.ndarray, obs_row: np.ndarra
     return np.array(chosen)
 
 
-def _observations(sim, image_set, points=None):
-    keep = np.isin(sim.obs_image, image_set)
-    if points is not None:
-        keep &= np.isin(sim.obs_point, points)
-    return sim.obs_image[keep], sim.obs_point[keep], sim.obs_row[keep], sim.obs_col[keep]
-
-
-def _start_points(images, sim, gcps, control_xyz):
-    """GCPs at their surveyed coordinates, the other points intersected from the images."""
-    start = np.zeros((len(sim.point_ids), 3))
-    for p in range(len(sim.point_ids)):
-        sel = sim.obs_point == p
-        start[p], _ = intersect(images, sim.obs_image[sel], sim.obs_row[sel], sim.obs_col[sel])
-    start[gcps] = control_xyz
+def _start_points(data: PushbroomBlock, gcps: np.ndarray) -> np.ndarray:
+    """GCPs at their surveyed coordinates, every other point intersected from all its images."""
+    start = data.reference_ecef.copy()
+    for p in range(len(data.point_ids)):
+        sel = data.obs_point == p
+        if p not in gcps and np.unique(data.obs_image[sel]).size >= 2:
+            start[p], _ = intersect(data.images, data.obs_image[sel], data.obs_row[sel], data.obs_col[sel])
     return start
 
 
-def run_case(sim, images: list[LineImage], model: SensorModel, gcps: np.ndarray, image_set: tuple[int, ...],
-             control_xyz: np.ndarray, control_sigma_m: float, label: str = "") -> PushbroomCase:
-    """One adjustment of the study and its check-point errors against the simulation's truth."""
-    truth = sim.truth.points_ecef
-    checks = np.setdiff1d(np.arange(len(sim.point_ids)), gcps)
+def run_case(data: PushbroomBlock, model: SensorModel, gcps: np.ndarray, image_set: tuple[int, ...], dem,
+             label: str = "", images: list[LineImage] | None = None) -> PushbroomCase:
+    """One adjustment with ``gcps`` as control, on the images ``image_set``; check points are the other
+    points with reference coordinates, restituted on ``dem`` (mono) or intersected (stereo)."""
+    images = data.images if images is None else images
+    data_here = data if images is data.images else _replace_images(data, images)
     mono = len(image_set) == 1
-    cov = np.broadcast_to(np.eye(3) * control_sigma_m ** 2, (len(gcps), 3, 3))
-    obs = _observations(sim, image_set, gcps if mono else None)
-    start = _start_points(images, sim, gcps, control_xyz)
+    known = np.flatnonzero(~np.isnan(data.reference_ecef).any(axis=1))
+    checks = np.setdiff1d(known, gcps)
+    obs_image, obs_point, obs_row, obs_col = data.subset(image_set)
+    if mono:
+        keep = np.isin(obs_point, gcps)
+        obs_image, obs_point, obs_row, obs_col = obs_image[keep], obs_point[keep], obs_row[keep], obs_col[keep]
+    else:
+        seen = np.unique(obs_point[np.isin(obs_image, image_set)], return_counts=True)
+        checks = np.intersect1d(checks, seen[0][seen[1] >= 2])
+    start = _start_points(data_here, gcps)
+    fail = dict(model=model.name, n_gcp=len(gcps), images=label, rmse_m=None, n_check=checks.size, gcps=gcps,
+                checks=checks)
     try:
-        result = adjust_pushbroom(images, *obs, start, gcps, control_xyz, cov, model, sim.image_sigma_px)
+        result = adjust_pushbroom(images, obs_image, obs_point, obs_row, obs_col, start, gcps,
+                                  data.reference_ecef[gcps], data.reference_cov[gcps], model, data.image_sigma_px)
     except AdjustmentError as exc:
-        return PushbroomCase(model.name, len(gcps), label, None, checks.size, np.nan, None, str(exc))
+        return PushbroomCase(sigma0=np.nan, result=None, failure=str(exc), **fail)
     if not result.converged:
-        return PushbroomCase(model.name, len(gcps), label, None, checks.size, result.sigma0, result,
-                             f"no convergence in {result.iterations} iterations")
-    _, R = track_frame(images[1])
+        return PushbroomCase(sigma0=result.sigma0, result=result,
+                             failure=f"no convergence in {result.iterations} iterations", **fail)
+    _, R = track_frame(images[len(images) // 2])
     if mono:
         i = image_set[0]
-        sel = (sim.obs_image == i) & np.isin(sim.obs_point, checks)
-        restituted = image_to_ground(result.images[i], sim.obs_row[sel], sim.obs_col[sel], sim.dem)
-        errors = (restituted - truth[sim.obs_point[sel]]) @ R.T
+        sel = np.flatnonzero((data.obs_image == i) & np.isin(data.obs_point, checks))
+        restituted = image_to_ground(result.images[i], data.obs_row[sel], data.obs_col[sel], dem)
+        checks = data.obs_point[sel]
+        errors = (restituted - data.reference_ecef[checks]) @ R.T
     else:
-        errors = (result.points_ecef[checks] - truth[checks]) @ R.T
-    rmse = np.sqrt(np.mean(errors ** 2, axis=0))
-    return PushbroomCase(model.name, len(gcps), label, rmse, len(errors), result.sigma0, result)
+        errors = (result.points_ecef[checks] - data.reference_ecef[checks]) @ R.T
+    rmse = np.sqrt(np.mean(errors ** 2, axis=0)) if len(errors) else None
+    return PushbroomCase(model.name, len(gcps), label, rmse, len(errors), result.sigma0, result, gcps, checks,
+                         errors)
 
 
-def calibrate_focal(sim, images: list[LineImage], gcps: np.ndarray, control_xyz: np.ndarray,
-                    control_sigma_m: float) -> tuple[dict[str, float], dict[str, float]]:
-    """Step 1 of seed 001: each camera's focal length (mm) and its sigma from M7 on the triplet."""
-    case = run_case(sim, images, sensor_model("M7"), gcps, (0, 1, 2), control_xyz, control_sigma_m, "F+N+B")
-    if case.result is None:
-        raise AdjustmentError(f"focal-length calibration failed: {case.failure}")
+def _replace_images(data: PushbroomBlock, images: list[LineImage]) -> PushbroomBlock:
+    from dataclasses import replace
+    return replace(data, images=images)
+
+
+def calibrate_focal(data: PushbroomBlock, dem, gcps: np.ndarray | None = None
+                    ) -> tuple[dict[str, float], dict[str, float]]:
+    """Step 1 of seed 001: each camera's focal length (mm) and its sigma, from M7 on all images."""
+    gcps = np.flatnonzero(data.role == "gcp") if gcps is None else gcps
+    case = run_case(data, sensor_model("M7"), gcps, tuple(range(len(data.images))), dem, "all")
+    if case.result is None or not case.result.converged:
+        raise AdjustmentError(f"focal-length calibration (M7 on all images) failed: {case.failure}")
     values, sigmas = {}, {}
     for name, value, sigma in zip(case.result.parameter_names, case.result.parameter_values,
                                   case.result.parameter_sigma):
@@ -129,24 +161,21 @@ def with_focal(images: list[LineImage], focal_mm: dict[str, float]) -> list[Line
     return out
 
 
-def run_study(sim, models=tuple(SENSOR_MODELS), gcp_counts=(3, 4, 5), image_sets=tuple(IMAGE_SETS),
-              control_sigma_m: float = 0.1, seed: int = 0, given_attitude: bool = True,
-              prior_sigma: dict | None = None) -> tuple[list[PushbroomCase], dict, dict]:
-    """The whole matrix. GCP coordinates are the truth plus noise of ``control_sigma_m``.
-    Returns the cases and the calibrated focal lengths with their sigma."""
-    rng = np.random.default_rng(seed)
-    control_all = sim.truth.points_ecef + rng.normal(0.0, control_sigma_m, sim.truth.points_ecef.shape)
-    images = sim.images(given_attitude=given_attitude)
-    largest = max(gcp_counts)
-    gcps = choose_gcps(sim.obs_image, sim.obs_point, sim.obs_row, sim.obs_col, images[1], largest)
-    focal, focal_sigma = calibrate_focal(sim, images, gcps, control_all[gcps], control_sigma_m)
-    images = with_focal(images, focal)
+def run_study(data: PushbroomBlock, dem, models=tuple(SENSOR_MODELS), gcp_counts=(3, 4, 5), sets=None,
+              prior_sigma: dict | None = None, calibrate: bool = True, progress=None
+              ) -> tuple[list[PushbroomCase], dict, dict]:
+    """The whole matrix. Returns the cases and the calibrated focal lengths with their sigma
+    (empty when ``calibrate`` is False: the block's focal lengths are used)."""
+    focal, focal_sigma = calibrate_focal(data, dem) if calibrate else ({}, {})
+    images = with_focal(data.images, focal) if calibrate else data.images
+    sets = image_sets(data) if sets is None else sets
     cases = []
-    for label in image_sets:
+    for label, image_set in sets.items():
         for name in models:
             model = sensor_model(name, prior_sigma if name == "M6" else None)
             for n in gcp_counts:
-                gcps = choose_gcps(sim.obs_image, sim.obs_point, sim.obs_row, sim.obs_col, images[1], n)
-                cases.append(run_case(sim, images, model, gcps, IMAGE_SETS[label], control_all[gcps],
-                                      control_sigma_m, label))
+                case = run_case(data, model, choose_gcps(data, n), image_set, dem, label, images)
+                cases.append(case)
+                if progress is not None:
+                    progress(case)
     return cases, focal, focal_sigma

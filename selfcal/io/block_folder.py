@@ -14,12 +14,14 @@ import tomllib
 
 import numpy as np
 
-from ..block import ROLES, BalCamera, Block, FrameCamera, Images, InitialAP, Observations, Points, prune
+from ..block import (ROLES, AttitudeSamples, BalCamera, Block, Ephemeris, FrameCamera, Images, InitialAP, Observations,
+                     Points, PushbroomCamera, prune)
 from ..errors import BlockError
 from .atomic import atomic_folder, atomic_write
 from .table import NUM, OPT_NUM, STR, Column, read_table, write_table
 
-__all__ = ["read_block", "write_block", "IMAGE_COLUMNS", "POINT_COLUMNS", "OBSERVATION_COLUMNS"]
+__all__ = ["read_block", "write_block", "IMAGE_COLUMNS", "POINT_COLUMNS", "OBSERVATION_COLUMNS", "EPHEMERIS_COLUMNS",
+           "ATTITUDE_COLUMNS"]
 
 IMAGE_COLUMNS = [
     Column("image_id"), Column("camera_id"), Column("strip_id"),
@@ -32,6 +34,12 @@ POINT_COLUMNS = [
     Column("X", OPT_NUM), Column("Y", OPT_NUM), Column("Z", OPT_NUM),
     Column("sigma_xy_m", OPT_NUM), Column("sigma_z_m", OPT_NUM),
 ]
+EPHEMERIS_COLUMNS = [
+    Column("camera_id"), Column("time_s", NUM),
+    Column("X", NUM), Column("Y", NUM), Column("Z", NUM), Column("VX", NUM), Column("VY", NUM), Column("VZ", NUM),
+]
+ATTITUDE_COLUMNS = [Column("camera_id"), Column("time_s", NUM),
+                    Column("q1", NUM), Column("q2", NUM), Column("q3", NUM), Column("q4", NUM)]
 OBSERVATION_COLUMNS = [
     Column("image_id"), Column("point_id"),
     Column("col_px", NUM), Column("row_px", NUM),
@@ -61,8 +69,23 @@ _BAL_CAMERA_KEYS = {
     "k1": ("num", False),
     "k2": ("num", False),
 }
-_CAMERA_MODELS = {"frame": (FrameCamera, _FRAME_CAMERA_KEYS), "bal": (BalCamera, _BAL_CAMERA_KEYS)}
+_PUSHBROOM_CAMERA_KEYS = {
+    "model": ("str", True),
+    "columns": ("int", True),
+    "rows": ("int", True),
+    "center_col": ("num", True),
+    "pixel_size_mm": ("pos", True),
+    "focal_mm": ("pos", True),
+    "line_period_s": ("pos", True),
+    "epoch_utc": ("str", True),
+    "frame": ("str", False),
+    "view_pitch_deg": ("num", False),
+    "t0_s": ("num", False),
+}
+_CAMERA_MODELS = {"frame": (FrameCamera, _FRAME_CAMERA_KEYS), "bal": (BalCamera, _BAL_CAMERA_KEYS),
+                  "pushbroom": (PushbroomCamera, _PUSHBROOM_CAMERA_KEYS)}
 _SECTIONS = {
+    "terrain": {"dem": ("str", False), "height_m": ("num", False)},
     "observations": {"image_sigma_px": ("pos", True)},
     "gnss": {"sigma_m": ("vec3pos", True), "lever_arm_m": ("vec3", False)},
     "imu": {"sigma_deg": ("vec3pos", True), "boresight_deg": ("vec3", False)},
@@ -186,6 +209,8 @@ def _read_settings(folder: str) -> dict:
         plain = {k: v for k, v in table.items() if not (k == "initial_ap" and model == "frame")}
         values = _check_table(path, text, section, plain, keys)
         values.pop("model")
+        if model == "pushbroom":
+            _check_pushbroom(path, text, section, values)
         if initial is not None:
             values["initial_ap"] = _initial_ap(path, text, f"{section}.initial_ap", initial)
         settings["cameras"][camera_id] = cls(camera_id=camera_id, **values)
@@ -197,6 +222,51 @@ def _read_settings(folder: str) -> dict:
                 raise BlockError(path, "must be a table", _key_line(text, None, section), section)
             settings[section] = _check_table(path, text, section, doc[section], schema)
     return settings
+
+
+def _check_pushbroom(path, text, section, values) -> None:
+    from datetime import datetime
+    if values.get("frame", "ECI") not in ("ECI", "ECEF"):
+        raise BlockError(path, f"frame must be \"ECI\" or \"ECEF\", found {values['frame']!r}",
+                         _key_line(text, section, "frame"), f"{section}.frame")
+    try:
+        datetime.fromisoformat(values["epoch_utc"].replace("Z", "+00:00"))
+    except ValueError:
+        raise BlockError(path, f"epoch_utc must be an ISO 8601 instant (e.g. 2007-05-12T01:45:00Z), found "
+                               f"{values['epoch_utc']!r}", _key_line(text, section, "epoch_utc"),
+                         f"{section}.epoch_utc") from None
+
+
+def _read_telemetry(folder: str, cameras: dict) -> tuple[Ephemeris, AttitudeSamples]:
+    """ephemeris.csv and attitude.csv of the pushbroom cameras: known cameras, times increasing,
+    enough samples per camera, unit quaternions."""
+    pushbroom = [c for c, cam in cameras.items() if cam.model == "pushbroom"]
+    out = []
+    for name, columns in (("ephemeris.csv", EPHEMERIS_COLUMNS), ("attitude.csv", ATTITUDE_COLUMNS)):
+        table = read_table(os.path.join(folder, name), columns)
+        for value, line in zip(table["camera_id"], table.line):
+            if value not in pushbroom:
+                raise BlockError(table.path, f"unknown pushbroom camera '{value}' (block.toml has: "
+                                             f"{', '.join(pushbroom)})", int(line), "camera_id")
+        for camera in pushbroom:
+            mine = np.flatnonzero(table["camera_id"] == camera)
+            if mine.size < 8:
+                raise BlockError(table.path, f"camera '{camera}' has {mine.size} samples; at least 8 are needed "
+                                             f"for the polynomial fit", None, "camera_id")
+            back = np.flatnonzero(np.diff(table["time_s"][mine]) <= 0)
+            if back.size:
+                raise BlockError(table.path, "times of a camera must increase", int(table.line[mine[back[0] + 1]]),
+                                 "time_s")
+        out.append(table)
+    eph, att = out
+    q = np.column_stack([att["q1"], att["q2"], att["q3"], att["q4"]])
+    bad = np.flatnonzero(np.abs(np.linalg.norm(q, axis=1) - 1.0) > 1e-6)
+    if bad.size:
+        raise BlockError(att.path, f"not a unit quaternion (norm {np.linalg.norm(q[bad[0]]):.9f})",
+                         int(att.line[bad[0]]), "q1")
+    return (Ephemeris(eph["camera_id"], eph["time_s"], np.column_stack([eph["X"], eph["Y"], eph["Z"]]),
+                      np.column_stack([eph["VX"], eph["VY"], eph["VZ"]])),
+            AttitudeSamples(att["camera_id"], att["time_s"], q))
 
 
 def _unique_ids(table, column: str) -> dict[str, int]:
@@ -329,6 +399,22 @@ def read_block(folder: str | os.PathLike, min_gcp: int = 3) -> Block:
     observations = _read_observations(folder, images, image_index, point_index, cameras, image_sigma)
     gnss = settings.get("gnss", {}).get("sigma_m")
     imu = settings.get("imu", {}).get("sigma_deg")
+    ephemeris = attitude = None
+    if any(c.model == "pushbroom" for c in cameras.values()):
+        if len({c.model for c in cameras.values()}) > 1:
+            raise BlockError(os.path.join(folder, "block.toml"), "a block has either pushbroom or frame cameras",
+                             None, "cameras")
+        ephemeris, attitude = _read_telemetry(folder, cameras)
+        missing = np.flatnonzero(np.isnan(images.time_s))
+        if missing.size:
+            raise BlockError(os.path.join(folder, "images.csv"), "a pushbroom image needs the time of its first "
+                             "line", int(images.line[missing[0]]), "time_s")
+    terrain = settings.get("terrain", {})
+    dem = terrain.get("dem")
+    if dem is not None:
+        dem = dem if os.path.isabs(dem) else os.path.join(folder, dem)
+        if not os.path.isfile(dem):
+            raise BlockError(os.path.join(folder, "block.toml"), f"DEM file not found: {dem}", None, "terrain.dem")
     if gnss is not None:
         _require_trajectory(folder, images, ("X0", "Y0", "Z0"), images.position_m, "gnss")
     if imu is not None:
@@ -346,8 +432,13 @@ def read_block(folder: str | os.PathLike, min_gcp: int = 3) -> Block:
         gnss_lever_arm_m=settings.get("gnss", {}).get("lever_arm_m"),
         imu_boresight_deg=settings.get("imu", {}).get("boresight_deg"),
         datum=settings.get("datum", "control"),
+        ephemeris=ephemeris,
+        attitude=attitude,
+        dem_path=dem,
+        terrain_height_m=terrain.get("height_m"),
     )
-    block = prune(block)
+    # a pushbroom block is used as read: mono restitution needs check points seen in one image
+    block = block if block.is_pushbroom else prune(block)
     n_gcp = int(np.sum(block.points.role == "gcp"))
     if block.datum == "control" and not block.has_trajectory and n_gcp < min_gcp:
         raise BlockError(os.path.join(folder, "points.csv"),
@@ -406,6 +497,13 @@ def block_toml_text(block: Block) -> str:
             lines += [f"{_toml_key(n)} = {_fmt_toml_value(v)}" for n, v in zip(initial.names, initial.values_px)]
             lines.append("")
     lines += ["[observations]", f"image_sigma_px = {_fmt_toml_value(block.image_sigma_px)}", ""]
+    if block.dem_path is not None or block.terrain_height_m is not None:
+        lines.append("[terrain]")
+        if block.dem_path is not None:
+            lines.append(f"dem = {_fmt_toml_value(os.path.basename(block.dem_path))}")
+        if block.terrain_height_m is not None:
+            lines.append(f"height_m = {_fmt_toml_value(block.terrain_height_m)}")
+        lines.append("")
     if block.gnss_sigma_m is not None:
         lines += ["[gnss]", f"sigma_m = {_fmt_toml_value(block.gnss_sigma_m)}"]
         if block.gnss_lever_arm_m is not None:
@@ -448,3 +546,14 @@ def write_block(block: Block, folder: str | os.PathLike) -> None:
                 header.append("sigma_px")
                 formats.append(".4f")
             write_table(handle, header, columns, formats)
+        if block.ephemeris is not None:
+            e = block.ephemeris
+            with atomic_write(os.path.join(tmp, "ephemeris.csv")) as handle:
+                write_table(handle, [c.name for c in EPHEMERIS_COLUMNS],
+                            [e.camera_id, e.time_s, *e.position_m.T, *e.velocity_m_s.T],
+                            ["", ".6f", ".4f", ".4f", ".4f", ".6f", ".6f", ".6f"])
+        if block.attitude is not None:
+            a = block.attitude
+            with atomic_write(os.path.join(tmp, "attitude.csv")) as handle:
+                write_table(handle, [c.name for c in ATTITUDE_COLUMNS], [a.camera_id, a.time_s, *a.quaternion.T],
+                            ["", ".6f", ".15f", ".15f", ".15f", ".15f"])

@@ -19,17 +19,17 @@ Times count from the simulation's epoch; the nadir scene is centred at
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..geometry.earth import ecef_from_geodetic, geodetic_from_ecef, itrs_from_gcrs, local_up, orbit_frame
+from ..geometry.earth import geodetic_from_ecef, itrs_from_gcrs, orbit_frame
 from ..geometry.rotation import quaternion_from_matrix
-from ..sensors.pushbroom import (LineCamera, LineImage, fit_polynomial, fit_trajectory, ground_to_image, image_to_ground,
-                                 rotation_x, rotation_y, rotation_z, Trajectory)
+from ..sensors.pushbroom import (LineCamera, LineImage, Trajectory, fit_polynomial, ground_to_image, image_to_ground,
+                                 rotation_x, rotation_y, rotation_z)
 
-__all__ = ["PrismSimulation", "PrismTruth", "AnalyticDem", "simulate_prism", "CAMERAS", "TRUE_FOCAL_MM",
-           "NOMINAL_FOCAL_MM", "NADIR_CENTRE_S"]
+__all__ = ["PrismSimulation", "PrismTruth", "AnalyticDem", "simulate_prism", "prism_block", "dem_grid",
+           "prism_truth_files", "CAMERAS", "TRUE_FOCAL_MM", "NOMINAL_FOCAL_MM", "NADIR_CENTRE_S", "GCP_SIGMA_M"]
 
 GM_M3_S2 = 3.986004418e14
 ALTITUDE_M = 691_650.0
@@ -96,26 +96,6 @@ class PrismSimulation:
     image_sigma_px: float
     dem: AnalyticDem
     truth: PrismTruth
-    fit_orders: tuple[int, int, int] = (7, 7, 3)
-    notes: list[str] = field(default_factory=list)
-
-    def images(self, given_attitude: bool = True, margin_s: float = 10.0) -> list[LineImage]:
-        """The images as the adjustment starts: telemetry fitted by polynomials over each scene
-        (+/- ``margin_s``), nominal focal length, no boresight or attitude corrections."""
-        out = []
-        for image_id in self.image_ids:
-            t0 = self.t_first_s[image_id]
-            t1 = t0 + self.rows * LINE_PERIOD_S
-            e, a = self.ephemeris, self.attitude
-            pick_e = (e["t"] >= t0 - margin_s) & (e["t"] <= t1 + margin_s)
-            pick_a = (a["t"] >= t0 - margin_s) & (a["t"] <= t1 + margin_s)
-            camera = self.cameras[image_id]
-            t_ref = t0 + 0.5 * self.rows * camera.line_period_s
-            trajectory = fit_trajectory("ECI", self.epoch_utc, e["t"][pick_e], e["position"][pick_e],
-                                        e["velocity"][pick_e], a["t"][pick_a], a["quaternion"][pick_a],
-                                        self.fit_orders, t_ref=t_ref, given_attitude=given_attitude)
-            out.append(LineImage.nominal(image_id, camera, trajectory, t0, self.rows))
-        return out
 
 
 # --- the true motion ------------------------------------------------------------------------------
@@ -236,3 +216,89 @@ def simulate_prism(seed: int = 0, image_sigma_px: float = 0.3, n_points: int = 2
                            {"t": t_e, "position": pos, "velocity": vel}, {"t": t_a, "quaternion": quaternion},
                            [f"p{k + 1:02d}" for k in range(n_points)], points, np.array(obs_image),
                            np.array(obs_point), np.array(obs_row), np.array(obs_col), image_sigma_px, dem, truth)
+
+
+#: a-priori sigma (and simulated error) of the surveyed GCP coordinates, per axis
+GCP_SIGMA_M = 0.1
+#: the GCPs of the simulated block, as (row, col) fractions of the nadir image: four corners and the centre
+GCP_LAYOUT = ((0.1, 0.1), (0.1, 0.9), (0.9, 0.1), (0.9, 0.9), (0.5, 0.5))
+
+
+def prism_block(sim: PrismSimulation, seed: int = 0, dem_file: str | None = "dem.tif"):
+    """The simulation as a block (DESIGN.md §3): three pushbroom cameras F, N, B with one image
+    each, the telemetry as ephemeris.csv / attitude.csv (ECI), points in ECEF (EPSG:4978).
+
+    Five points spread over the scene are GCPs (their surveyed coordinates carry
+    :data:`GCP_SIGMA_M` of error); the others are check points at their true coordinates.
+    """
+    from ..block import AttitudeSamples, Block, Ephemeris, Images, Observations, Points, PushbroomCamera
+
+    rng = np.random.default_rng(seed + 1000)
+    cameras = {k: PushbroomCamera(k, c.columns, sim.rows, c.center_col, c.pixel_size_mm, c.focal_mm,
+                                  c.line_period_s, sim.epoch_utc, "ECI", c.view_pitch_deg)
+               for k, c in sim.cameras.items()}
+    n_img = len(sim.image_ids)
+    nan3 = np.full((n_img, 3), np.nan)
+    images = Images(np.array(sim.image_ids, object), np.array(sim.image_ids, object), np.full(n_img, "", object),
+                    np.array([sim.t_first_s[k] for k in sim.image_ids]), nan3, nan3.copy(), np.arange(2, n_img + 2))
+    nadir = sim.obs_image == 1
+    rows, cols, pts = sim.obs_row[nadir] / sim.rows, sim.obs_col[nadir] / COLUMNS, sim.obs_point[nadir]
+    gcps: list[int] = []
+    for r, c in GCP_LAYOUT:
+        for k in np.argsort((rows - r) ** 2 + (cols - c) ** 2):
+            if pts[k] not in gcps:
+                gcps.append(int(pts[k]))
+                break
+    n_pt = len(sim.point_ids)
+    role = np.full(n_pt, "chk", dtype=object)
+    role[gcps] = "gcp"
+    xyz = sim.points_ecef.copy()
+    xyz[gcps] += rng.normal(0.0, GCP_SIGMA_M, (len(gcps), 3))
+    sigma = np.full((n_pt, 3), np.nan)
+    sigma[gcps] = GCP_SIGMA_M
+    points = Points(np.array(sim.point_ids, object), role, xyz, sigma, np.arange(2, n_pt + 2))
+    pixel = np.column_stack([sim.obs_col, sim.obs_row])
+    m = len(sim.obs_row)
+    observations = Observations(sim.obs_image.copy(), sim.obs_point.copy(), pixel, np.full(m, sim.image_sigma_px),
+                                np.arange(2, m + 2))
+    e, a = sim.ephemeris, sim.attitude
+    ids_e = np.repeat(np.array(sim.image_ids, object), len(e["t"]))
+    ids_a = np.repeat(np.array(sim.image_ids, object), len(a["t"]))
+    ephemeris = Ephemeris(ids_e, np.tile(e["t"], n_img), np.tile(e["position"], (n_img, 1)),
+                          np.tile(e["velocity"], (n_img, 1)))
+    attitude = AttitudeSamples(ids_a, np.tile(a["t"], n_img), np.tile(a["quaternion"], (n_img, 1)))
+    return Block(name="prism-triplet", crs="EPSG:4978", cameras=cameras, images=images, points=points,
+                 observations=observations, image_sigma_px=sim.image_sigma_px, ephemeris=ephemeris,
+                 attitude=attitude, dem_path=dem_file)
+
+
+def dem_grid(sim: PrismSimulation, spacing_deg: float = 0.0005, margin_deg: float = 0.05):
+    """The simulated terrain sampled on a geographic grid (about 50 m) covering the points."""
+    from ..geometry.terrain import GridDem
+
+    lat, lon, _ = geodetic_from_ecef(sim.points_ecef)
+    lat0, lat1 = np.degrees(lat.min()) - margin_deg, np.degrees(lat.max()) + margin_deg
+    lon0, lon1 = np.degrees(lon.min()) - margin_deg, np.degrees(lon.max()) + margin_deg
+    cols = int(np.ceil((lon1 - lon0) / spacing_deg))
+    rows = int(np.ceil((lat1 - lat0) / spacing_deg))
+    lons = lon0 + (np.arange(cols) + 0.5) * spacing_deg
+    lats = lat1 - (np.arange(rows) + 0.5) * spacing_deg
+    heights = sim.dem(lats[:, None], lons[None, :])
+    return GridDem(heights, (spacing_deg, 0.0, lon0, 0.0, -spacing_deg, lat1))
+
+
+def prism_truth_files(sim: PrismSimulation) -> dict:
+    """truth/: what the adjustment should find (JSON: focal lengths, attitude error, boresight; CSV: points)."""
+    truth = sim.truth
+    cameras = {k: {"focal_mm": truth.focal_mm[k], "boresight_roll_pitch_yaw_rad": list(truth.boresight_rad[k]),
+                   "center_col": sim.cameras[k].center_col, "nominal_focal_mm": NOMINAL_FOCAL_MM}
+               for k in sim.image_ids}
+    return {
+        "camera_truth.json": {"cameras": cameras,
+                              "attitude_bias_rad": truth.attitude_bias_rad.tolist(),
+                              "attitude_drift_rad_s": truth.attitude_drift_rad_s.tolist(),
+                              "attitude_error_reference_time_s": NADIR_CENTRE_S,
+                              "note": "true attitude = telemetry + bias + drift (t - reference time)"},
+        "points_truth.csv": (["point_id", "X", "Y", "Z"],
+                             [np.array(sim.point_ids, object), *truth.points_ecef.T], ["", ".4f", ".4f", ".4f"]),
+    }
