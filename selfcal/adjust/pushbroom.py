@@ -141,8 +141,8 @@ def adjust_pushbroom(images: list[LineImage], obs_image: np.ndarray, obs_point: 
     ctl_xyz = np.asarray(control_ecef, float)[ctl_in]
     n_rows = 2 * n_obs + len(priors) + 3 * ctl_slots.size
     redundancy = n_rows - n_unk
-    if redundancy < 0:
-        raise AdjustmentError(f"pushbroom adjustment: {n_rows} observations for {n_unk} unknowns")
+    if redundancy <= 0:
+        raise AdjustmentError(f"no redundancy: {n_rows} observations for {n_unk} unknowns")
     images = list(images)
 
     def evaluate(images, points, jacobians):

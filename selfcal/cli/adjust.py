@@ -14,6 +14,7 @@ from ..io import read_block
 from ..io.results import results_from_files, write_results
 from ..report import model_choice_table, render_report, result_files
 from ..stats import SnoopingOptions, VarianceOptions, adjust_with_tests, choose_ap_model, parse_candidate
+from . import pushbroom
 from .options import (ap_option, grid_option, progress_printer, round_printer, screening_options, test_options,
                       trajectory_options)
 
@@ -28,11 +29,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-report", action="store_true",
                         help="do not render report.html and figures/ (selfcal report RESULTS does it later)")
     parser.add_argument("--quiet", action="store_true", help="no progress output")
+    pushbroom.adjust_arguments(parser)
 
 
 def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     block = read_block(args.block)
+    if block.is_pushbroom:
+        return pushbroom.run_adjust(block, args)
     for message in block.dropped.messages[:20]:
         print(f"warning: {message}", file=sys.stderr)
     if len(block.dropped.messages) > 20:

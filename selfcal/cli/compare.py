@@ -15,6 +15,7 @@ from ..io.results import results_from_files, write_files
 from ..report import best_cells, render_comparison_report, render_report
 from ..report.compare import comparison_csv, comparison_markdown, comparison_rows
 from ..stats import SnoopingOptions, VarianceOptions
+from . import pushbroom
 from .options import grid_option, screening_options, test_options, trajectory_options
 
 
@@ -33,9 +34,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--workers", type=int, default=None, help="worker processes of the local cluster")
     parser.add_argument("--no-report", action="store_true",
                         help="no report.html (the comparison's, and each scenario's best model's)")
+    pushbroom.compare_arguments(parser)
 
 
 def run(args: argparse.Namespace) -> int:
+    if len(args.blocks) == 1:
+        block = read_block(args.blocks[0])
+        if block.is_pushbroom:
+            return pushbroom.run_compare(block, args)
     models = [m.strip() for m in args.ap.split(",") if m.strip()]
     for m in models:
         if parse_ap_spec(m)[0] not in AP_FAMILIES:

@@ -1,4 +1,4 @@
-"""Simulate a block with known truth (the UAV block of seed 000)."""
+"""Simulate a block with known truth (the UAV block of seed 000, the PRISM triplet of seed 001)."""
 from __future__ import annotations
 
 import argparse
@@ -13,9 +13,11 @@ from ..simulate import DISTORTIONS, SCENARIOS, simulate_uav, truth_files
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("kind", choices=["uav"], help="what to simulate (uav: the 28-image block of seed 000)")
+    parser.add_argument("kind", choices=["uav", "prism"],
+                        help="what to simulate (uav: the 28-image block of seed 000; prism: the ALOS/PRISM "
+                             "forward/nadir/backward triplet of seed 001)")
     parser.add_argument("--out", required=True, metavar="DIR",
-                        help="folder to write: one block folder per scenario and truth/")
+                        help="folder to write: the block folders (uav: one per scenario; prism: triplet/) and truth/")
     parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     parser.add_argument("--scenario", choices=SCENARIOS, action="append",
                         help="control scenario to write (repeatable; default: all four)")
@@ -30,6 +32,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.kind == "prism":
+        return _prism(args)
     if not 0.0 <= args.blunder_rate < 0.5:
         raise UsageError("--blunder-rate must be in [0, 0.5)")
     if args.noise_px <= 0:
@@ -48,4 +52,25 @@ def run(args: argparse.Namespace) -> int:
     print(f"simulated {info['n_images']} images, {info['n_points']} points, {info['n_observations']} image "
           f"observations ({info['points_per_image']:.0f} per image), distortion {args.distortion}; "
           f"wrote {', '.join(scenarios)} and truth/ to {args.out}", file=sys.stderr)
+    return 0
+
+
+def _prism(args: argparse.Namespace) -> int:
+    from ..io.dem import write_dem
+    from ..simulate.prism import dem_grid, prism_block, prism_truth_files, simulate_prism
+
+    noise = 0.3 if args.noise_px == 0.5 else args.noise_px       # seed 001's points: about 0.3 px
+    if noise <= 0:
+        raise UsageError("--noise-px must be positive")
+    sim = simulate_prism(seed=args.seed, image_sigma_px=noise)
+    block = prism_block(sim, seed=args.seed)
+    with atomic_folder(args.out) as tmp:
+        folder = os.path.join(tmp, "triplet")
+        write_block(block, folder)
+        write_dem(os.path.join(folder, "dem.tif"), dem_grid(sim))
+        os.makedirs(os.path.join(tmp, "truth"))
+        write_files(os.path.join(tmp, "truth"), prism_truth_files(sim))
+    print(f"simulated the PRISM triplet F/N/B: {len(sim.point_ids)} points ({int((block.points.role == 'gcp').sum())} "
+          f"GCP), {len(sim.obs_row)} image points with {noise} px noise, telemetry at 1 Hz / 10 Hz; wrote triplet/ "
+          f"and truth/ to {args.out}", file=sys.stderr)
     return 0
