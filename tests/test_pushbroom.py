@@ -193,7 +193,9 @@ def test_cli_simulate_adjust_and_compare(tmp_path, capsys):
     assert run_cli("adjust", block, "--out", str(tmp_path / "res"), "--sensor-model", "M6", "--images", "N",
                    "--gcps", "4", "--calibrate-focal") == 0
     summary = json.loads((tmp_path / "res" / "summary.json").read_text())
-    assert summary["n_gcp_used"] == 4 and summary["n_chk_used"] == 24
+    assert summary["n_gcp_used"] == 4 and summary["n_chk_used"] == 24 and summary["n_obs_rejected"] == 0
+    residuals = (tmp_path / "res" / "residuals.csv").read_text().splitlines()
+    assert residuals[0].startswith("image_id,point_id,v_row_px,v_col_px,w_row,w_col") and len(residuals) == 1 + 4
     assert summary["rmse_chk_across_m"] < PIXEL_M and summary["rmse_chk_along_m"] < PIXEL_M
     for camera, true in TRUE_FOCAL_MM.items():
         assert abs(summary["calibrated_focal_mm"][camera]["value"] - true) < 0.1
@@ -232,3 +234,28 @@ def test_cli_pushbroom_input_errors(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "attitude.csv" in err and "line 6" in err and "unit quaternion" in err
     assert not (tmp_path / "r").exists()
+
+
+def test_data_snooping_finds_a_blunder_in_the_triplet(sim):
+    """A 4 px blunder in one image point (13 sigma): the largest |w| is that point's; snooping rejects it
+    alone and the check points come back to the blunder-free accuracy."""
+    import dataclasses
+
+    from selfcal.stats.snooping import SnoopingOptions
+
+    clean = pushbroom_block(prism_block(sim, seed=1))
+    images = with_focal(clean.images, TRUE_FOCAL_MM)
+    k = int(np.flatnonzero((clean.obs_image == 0) & (clean.obs_point == 10))[0])
+    col = clean.obs_col.copy()
+    col[k] += 4.0
+    spoiled = dataclasses.replace(clean, obs_col=col)
+    gcps = choose_gcps(clean, 4)
+    reference = run_case(clean, sensor_model("M6"), gcps, (0, 1, 2), sim.dem, "F+N+B", images)
+    plain = run_case(spoiled, sensor_model("M6"), gcps, (0, 1, 2), sim.dem, "F+N+B", images)
+    snooped = run_case(spoiled, sensor_model("M6"), gcps, (0, 1, 2), sim.dem, "F+N+B", images, SnoopingOptions())
+    assert np.argmax(np.abs(plain.result.w_test).max(axis=1)) == k
+    assert [i for i, _ in snooped.rejected] == [k] and snooped.rejected[0][1] > 8
+    assert np.abs(plain.rmse_m[0] - reference.rmse_m[0]) > 0.2
+    np.testing.assert_allclose(snooped.rmse_m, reference.rmse_m, rtol=0.1)
+    # every image coordinate is controlled and none is fully redundant
+    assert np.all((reference.result.redundancy_numbers > 0) & (reference.result.redundancy_numbers < 1))

@@ -91,6 +91,8 @@ class PushbroomResult:
     parameter_sigma: np.ndarray      # a-posteriori
     correlation: np.ndarray          # of the estimated parameters
     residuals_px: np.ndarray         # (n_obs, 2) row, col residuals v = f - l
+    redundancy_numbers: np.ndarray   # (n_obs, 2) r = 1 - h of each image coordinate
+    w_test: np.ndarray               # (n_obs, 2) Baarda's w = v / (sigma sqrt(r)), with the a-priori sigma
     sigma0: float                    # a-posteriori sigma of unit weight
     redundancy: int
     iterations: int
@@ -216,6 +218,9 @@ def adjust_pushbroom(images: list[LineImage], obs_image: np.ndarray, obs_point: 
     r, A, res = whitened(images, points)
     N = A.T @ A
     Q = np.linalg.inv(N)
+    leverage = np.einsum("ij,ij->i", A[:2 * n_obs] @ Q, A[:2 * n_obs]).reshape(n_obs, 2)
+    redundancy_numbers = np.clip(1.0 - leverage, 1e-12, None)
+    w_test = (-res / image_sigma_px) / np.sqrt(redundancy_numbers)
     sigma0 = float(np.sqrt(r @ r / redundancy)) if redundancy > 0 else float("nan")
     s0 = sigma0 if redundancy > 0 else 1.0
     values = np.concatenate([img.parameters[m] for img, m in zip(images, masks)])
@@ -225,8 +230,8 @@ def adjust_pushbroom(images: list[LineImage], obs_image: np.ndarray, obs_point: 
     cov = np.full((len(points), 3, 3), np.nan)
     for slot, p in enumerate(observed):
         cov[p] = s0 ** 2 * Q[n_par + 3 * slot:n_par + 3 * slot + 3, n_par + 3 * slot:n_par + 3 * slot + 3]
-    return PushbroomResult(images, points, cov, names, values, s0 * sd[:n_par], corr, -res, sigma0, redundancy,
-                           iterations, converged)
+    return PushbroomResult(images, points, cov, names, values, s0 * sd[:n_par], corr, -res, redundancy_numbers,
+                           w_test, sigma0, redundancy, iterations, converged)
 
 
 def _apply(parameters: np.ndarray, mask: np.ndarray, step: np.ndarray) -> np.ndarray:

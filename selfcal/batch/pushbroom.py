@@ -14,8 +14,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..adjust.pushbroom import (M6_SIGMA, SENSOR_MODELS, PushbroomBlock, PushbroomResult, SensorModel,
-                                adjust_pushbroom, sensor_model, track_frame)
+from ..adjust.pushbroom import (M6_SIGMA, SENSOR_MODELS, PushbroomBlock, PushbroomResult, SensorModel, sensor_model,
+                                track_frame)
+from ..stats.pushbroom import adjust_pushbroom_with_snooping
+from ..stats.snooping import SnoopingOptions
 from ..errors import AdjustmentError, UsageError
 from ..sensors.pushbroom import PARAMETER_NAMES, LineImage, image_to_ground, intersect
 
@@ -46,6 +48,8 @@ class PushbroomCase:
     checks: np.ndarray
     check_errors_m: np.ndarray | None = None     # (n, 3) across, along, up
     failure: str = ""
+    observations: np.ndarray | None = None       # indices into the block's observations that were adjusted
+    rejected: list | None = None                 # (index into the block's observations, |w|) of data snooping
 
 
 def image_sets(data: PushbroomBlock) -> dict[str, tuple[int, ...]]:
@@ -91,29 +95,34 @@ def _start_points(data: PushbroomBlock, gcps: np.ndarray) -> np.ndarray:
 
 
 def run_case(data: PushbroomBlock, model: SensorModel, gcps: np.ndarray, image_set: tuple[int, ...], dem,
-             label: str = "", images: list[LineImage] | None = None) -> PushbroomCase:
+             label: str = "", images: list[LineImage] | None = None,
+             snooping: SnoopingOptions | None = None) -> PushbroomCase:
     """One adjustment with ``gcps`` as control, on the images ``image_set``; check points are the other
-    points with reference coordinates, restituted on ``dem`` (mono) or intersected (stereo)."""
+    points with reference coordinates, restituted on ``dem`` (mono) or intersected (stereo). With
+    ``snooping``, Baarda's data snooping rejects image points one at a time."""
     images = data.images if images is None else images
     data_here = data if images is data.images else _replace_images(data, images)
     mono = len(image_set) == 1
     known = np.flatnonzero(~np.isnan(data.reference_ecef).any(axis=1))
     checks = np.setdiff1d(known, gcps)
-    obs_image, obs_point, obs_row, obs_col = data.subset(image_set)
+    take = np.isin(data.obs_image, image_set)
     if mono:
-        keep = np.isin(obs_point, gcps)
-        obs_image, obs_point, obs_row, obs_col = obs_image[keep], obs_point[keep], obs_row[keep], obs_col[keep]
+        take &= np.isin(data.obs_point, gcps)
     else:
-        seen = np.unique(obs_point[np.isin(obs_image, image_set)], return_counts=True)
+        seen = np.unique(data.obs_point[take], return_counts=True)
         checks = np.intersect1d(checks, seen[0][seen[1] >= 2])
+    take = np.flatnonzero(take)
     start = _start_points(data_here, gcps)
     fail = dict(model=model.name, n_gcp=len(gcps), images=label, rmse_m=None, n_check=checks.size, gcps=gcps,
                 checks=checks)
     try:
-        result = adjust_pushbroom(images, obs_image, obs_point, obs_row, obs_col, start, gcps,
-                                  data.reference_ecef[gcps], data.reference_cov[gcps], model, data.image_sigma_px)
+        snooped = adjust_pushbroom_with_snooping(
+            images, data.obs_image[take], data.obs_point[take], data.obs_row[take], data.obs_col[take], start, gcps,
+            data.reference_ecef[gcps], data.reference_cov[gcps], model, data.image_sigma_px, snooping)
     except AdjustmentError as exc:
         return PushbroomCase(sigma0=np.nan, result=None, failure=str(exc), **fail)
+    result = snooped.result
+    fail |= {"observations": take[snooped.kept], "rejected": [(int(take[k]), w) for k, w in snooped.rejected]}
     if not result.converged:
         return PushbroomCase(sigma0=result.sigma0, result=result,
                              failure=f"no convergence in {result.iterations} iterations", **fail)
@@ -128,7 +137,7 @@ def run_case(data: PushbroomBlock, model: SensorModel, gcps: np.ndarray, image_s
         errors = (result.points_ecef[checks] - data.reference_ecef[checks]) @ R.T
     rmse = np.sqrt(np.mean(errors ** 2, axis=0)) if len(errors) else None
     return PushbroomCase(model.name, len(gcps), label, rmse, len(errors), result.sigma0, result, gcps, checks,
-                         errors)
+                         errors, "", fail["observations"], fail["rejected"])
 
 
 def _replace_images(data: PushbroomBlock, images: list[LineImage]) -> PushbroomBlock:
@@ -162,8 +171,8 @@ def with_focal(images: list[LineImage], focal_mm: dict[str, float]) -> list[Line
 
 
 def run_study(data: PushbroomBlock, dem, models=tuple(SENSOR_MODELS), gcp_counts=(3, 4, 5), sets=None,
-              prior_sigma: dict | None = None, calibrate: bool = True, progress=None
-              ) -> tuple[list[PushbroomCase], dict, dict]:
+              prior_sigma: dict | None = None, calibrate: bool = True, progress=None,
+              snooping: SnoopingOptions | None = None) -> tuple[list[PushbroomCase], dict, dict]:
     """The whole matrix. Returns the cases and the calibrated focal lengths with their sigma
     (empty when ``calibrate`` is False: the block's focal lengths are used)."""
     focal, focal_sigma = calibrate_focal(data, dem) if calibrate else ({}, {})
@@ -174,7 +183,7 @@ def run_study(data: PushbroomBlock, dem, models=tuple(SENSOR_MODELS), gcp_counts
         for name in models:
             model = sensor_model(name, prior_sigma if name == "M6" else None)
             for n in gcp_counts:
-                case = run_case(data, model, choose_gcps(data, n), image_set, dem, label, images)
+                case = run_case(data, model, choose_gcps(data, n), image_set, dem, label, images, snooping)
                 cases.append(case)
                 if progress is not None:
                     progress(case)

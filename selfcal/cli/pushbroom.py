@@ -12,6 +12,7 @@ from ..io.atomic import atomic_folder
 from ..io.dem import read_dem
 from ..io.results import write_files, write_results
 from ..report.pushbroom import pushbroom_files, study_csv, study_markdown
+from ..stats.snooping import SnoopingOptions
 
 __all__ = ["adjust_arguments", "compare_arguments", "run_adjust", "run_compare"]
 
@@ -85,7 +86,11 @@ def run_adjust(block, args) -> int:
     if not args.quiet:
         print(f"{block.name}: pushbroom images {', '.join(labels)}, {len(gcps)} GCP, sensor model {model.name} "
               f"({', '.join(model.free)})", file=sys.stderr)
-    case = run_case(data, model, gcps, image_set, dem, "+".join(labels), images)
+    snooping = SnoopingOptions(critical=args.snoop)
+    case = run_case(data, model, gcps, image_set, dem, "+".join(labels), images, snooping)
+    for k, w in case.rejected or []:
+        print(f"rejected image point {data.point_ids[data.obs_point[k]]} in {data.images[data.obs_image[k]].image_id} "
+              f"(|w| {w:.1f})", file=sys.stderr)
     extra["seconds"] = time.perf_counter() - t0
     extra["trajectory_fit_rms"] = {img.image_id: {k: v.tolist() for k, v in img.trajectory.fit_rms.items()}
                                    for img in data.images}
@@ -121,7 +126,8 @@ def run_compare(block, args) -> int:
             "RMSE " + " / ".join(f"{v:.2f}" for v in case.rmse_m) + " m"
         print(f"{case.images} {case.model} {case.n_gcp} GCP: {status}", file=sys.stderr, flush=True)
 
-    cases, focal, sigma = run_study(data, dem, models, counts, prior_sigma=prior, progress=show)
+    cases, focal, sigma = run_study(data, dem, models, counts, prior_sigma=prior, progress=show,
+                                    snooping=SnoopingOptions(critical=args.snoop))
     table = study_markdown(cases, focal, sigma)
     with atomic_folder(args.out) as tmp:
         write_files(tmp, {"comparison.md": table, "comparison.csv": study_csv(cases)})

@@ -35,6 +35,7 @@ def pushbroom_files(data, case, sensor_model: str, image_labels: list[str], extr
         "n_gcp_used": int(len(case.gcps)),
         "n_chk_used": int(case.n_check),
         "gcp_ids": [str(data.point_ids[p]) for p in case.gcps],
+        "n_obs_rejected": len(case.rejected or []),
     } | extra
     files = {"summary.json": summary}
     if result is None:
@@ -58,6 +59,22 @@ def pushbroom_files(data, case, sensor_model: str, image_labels: list[str], extr
                                      [data.point_ids[case.checks].astype(object), data.role[case.checks].astype(object),
                                       e[:, 0], e[:, 1], e[:, 2]],
                                      ["", "", ".4f", ".4f", ".4f"])
+    obs = case.observations
+    image_ids = np.array([img.image_id for img in data.images], object)
+    v, w, r = result.residuals_px, result.w_test, result.redundancy_numbers
+    files["residuals.csv"] = (["image_id", "point_id", "v_row_px", "v_col_px", "w_row", "w_col", "r_row", "r_col"],
+                              [image_ids[data.obs_image[obs]], data.point_ids[data.obs_point[obs]].astype(object),
+                               v[:, 0], v[:, 1], w[:, 0], w[:, 1], r[:, 0], r[:, 1]],
+                              ["", "", ".4f", ".4f", ".3f", ".3f", ".4f", ".4f"])
+    if case.rejected:
+        k = np.array([i for i, _ in case.rejected])
+        files["rejected.csv"] = (["image_id", "point_id", "abs_w"],
+                                 [image_ids[data.obs_image[k]], data.point_ids[data.obs_point[k]].astype(object),
+                                  np.array([w for _, w in case.rejected])], ["", "", ".2f"])
+    names = result.parameter_names
+    files["correlation.csv"] = (["parameter"] + names,
+                                [np.array(names, object)] + [result.correlation[:, j] for j in range(len(names))],
+                                [""] + [".4f"] * len(names))
     observed = np.flatnonzero(~np.isnan(result.point_cov[:, 0, 0]))
     sd = np.sqrt(np.einsum("nii->ni", result.point_cov[observed]))
     p = result.points_ecef[observed]
