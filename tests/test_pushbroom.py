@@ -191,7 +191,7 @@ def test_cli_simulate_adjust_and_compare(tmp_path, capsys):
     assert run_cli("simulate", "prism", "--out", str(tmp_path / "sim"), "--seed", "2") == 0
     block = str(tmp_path / "sim" / "triplet")
     assert run_cli("adjust", block, "--out", str(tmp_path / "res"), "--sensor-model", "M6", "--images", "N",
-                   "--gcps", "4", "--calibrate-focal") == 0
+                   "--gcps", "4") == 0
     summary = json.loads((tmp_path / "res" / "summary.json").read_text())
     assert summary["n_gcp_used"] == 4 and summary["n_chk_used"] == 24 and summary["n_obs_rejected"] == 0
     residuals = (tmp_path / "res" / "residuals.csv").read_text().splitlines()
@@ -207,6 +207,9 @@ def test_cli_simulate_adjust_and_compare(tmp_path, capsys):
     for name, value in truth.items():
         got, sigma = estimated[name]
         assert abs(got - np.degrees(value)) < 4 * sigma, (name, got, np.degrees(value), sigma)
+    html = (tmp_path / "res" / "report.html").read_text()
+    assert "Calibration parameters" in html and html.count("<img") == 3
+    assert run_cli("report", str(tmp_path / "res")) == 0
     capsys.readouterr()
     assert run_cli("compare", block, "--out", str(tmp_path / "cmp"), "--sensor-models", "M1,M6", "--gcps", "4") == 0
     table = (tmp_path / "cmp" / "comparison.md").read_text()

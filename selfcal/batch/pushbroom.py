@@ -123,6 +123,8 @@ def run_case(data: PushbroomBlock, model: SensorModel, gcps: np.ndarray, image_s
         return PushbroomCase(sigma0=np.nan, result=None, failure=str(exc), **fail)
     result = snooped.result
     fail |= {"observations": take[snooped.kept], "rejected": [(int(take[k]), w) for k, w in snooped.rejected]}
+    if snooped.failure:
+        return PushbroomCase(sigma0=result.sigma0, result=result, failure=snooped.failure, **fail)
     if not result.converged:
         return PushbroomCase(sigma0=result.sigma0, result=result,
                              failure=f"no convergence in {result.iterations} iterations", **fail)

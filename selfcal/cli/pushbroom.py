@@ -10,8 +10,8 @@ from ..batch.pushbroom import ATTITUDE_FREE_SIGMA, calibrate_focal, choose_gcps,
 from ..errors import UsageError
 from ..io.atomic import atomic_folder
 from ..io.dem import read_dem
-from ..io.results import write_files, write_results
-from ..report.pushbroom import pushbroom_files, study_csv, study_markdown
+from ..io.results import results_from_files, write_files, write_results
+from ..report.pushbroom import pushbroom_files, render_pushbroom_report, study_csv, study_markdown
 from ..stats.snooping import SnoopingOptions
 
 __all__ = ["adjust_arguments", "compare_arguments", "run_adjust", "run_compare"]
@@ -33,8 +33,9 @@ def adjust_arguments(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--images", metavar="ID,ID", help="images to adjust: one (mono) or more (stereo); default all")
     group.add_argument("--gcps", type=int, metavar="N",
                        help="use N (3, 4 or 5) of the block's gcp, spread over the scene; the others are checked")
-    group.add_argument("--calibrate-focal", action="store_true",
-                       help="first calibrate each camera's focal length (M7 on all images), then hold it")
+    group.add_argument("--keep-focal", action="store_true",
+                       help="use block.toml's focal_mm as it is; by default each camera's focal length is first "
+                            "calibrated (M7 on all images, every gcp) and then held, as seed 001 does")
     _common(group)
 
 
@@ -76,7 +77,7 @@ def run_adjust(block, args) -> int:
     prior = ATTITUDE_FREE_SIGMA if args.no_attitude and args.sensor_model.upper() == "M6" else None
     model = sensor_model(args.sensor_model, prior)
     images, extra = data.images, {}
-    if args.calibrate_focal:
+    if not args.keep_focal and "focal" not in model.free:
         focal, sigma = calibrate_focal(data, dem)
         images = with_focal(data.images, focal)
         extra["calibrated_focal_mm"] = {k: {"value": v, "sigma": sigma[k]} for k, v in focal.items()}
@@ -94,7 +95,10 @@ def run_adjust(block, args) -> int:
     extra["seconds"] = time.perf_counter() - t0
     extra["trajectory_fit_rms"] = {img.image_id: {k: v.tolist() for k, v in img.trajectory.fit_rms.items()}
                                    for img in data.images}
-    write_results(args.out, pushbroom_files(data, case, args.sensor_model, labels, extra))
+    files = pushbroom_files(data, case, args.sensor_model, labels, extra)
+    if not args.no_report:
+        files |= render_pushbroom_report(results_from_files(files))
+    write_results(args.out, files)
     if case.rmse_m is None:
         print(f"selfcal adjust: error: the pushbroom adjustment failed: {case.failure}", file=sys.stderr)
         return 1
@@ -126,8 +130,8 @@ def run_compare(block, args) -> int:
             "RMSE " + " / ".join(f"{v:.2f}" for v in case.rmse_m) + " m"
         print(f"{case.images} {case.model} {case.n_gcp} GCP: {status}", file=sys.stderr, flush=True)
 
-    cases, focal, sigma = run_study(data, dem, models, counts, prior_sigma=prior, progress=show,
-                                    snooping=SnoopingOptions(critical=args.snoop))
+    # no data snooping here: the rows of M1-M4 are there to show the model error that snooping would reject
+    cases, focal, sigma = run_study(data, dem, models, counts, prior_sigma=prior, progress=show)
     table = study_markdown(cases, focal, sigma)
     with atomic_folder(args.out) as tmp:
         write_files(tmp, {"comparison.md": table, "comparison.csv": study_csv(cases)})

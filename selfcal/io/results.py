@@ -161,6 +161,25 @@ def read_results(folder: str | os.PathLike) -> ResultsFolder:
         tables=tables)
 
 
+#: tables of a pushbroom results folder (selfcal adjust on a pushbroom block), by report name
+PUSHBROOM_TABLES = {"parameters": "parameters.csv", "check_points": "check_points.csv",
+                    "residuals": "residuals.csv", "correlation": "correlation.csv", "rejected": "rejected.csv"}
+
+
+def is_pushbroom_results(folder: str | os.PathLike) -> bool:
+    path = os.path.join(os.fspath(folder), "summary.json")
+    return os.path.isfile(path) and _read_json(path).get("sensor") == "pushbroom"
+
+
+def read_pushbroom_results(folder: str | os.PathLike) -> ResultsFolder:
+    """summary.json and the tables of a pushbroom results folder (absent tables are left out)."""
+    folder = os.fspath(folder)
+    summary = _read_json(os.path.join(folder, "summary.json"))
+    tables = {key: _read_csv(os.path.join(folder, name)) for key, name in PUSHBROOM_TABLES.items()
+              if os.path.isfile(os.path.join(folder, name))}
+    return ResultsFolder(path=folder, summary=summary, camera={}, tables=tables)
+
+
 def read_camera_json(folder: str | os.PathLike) -> dict:
     """camera.json of a results folder (the calibration, for exports); missing or unreadable: BlockError."""
     folder = os.fspath(folder)
@@ -188,6 +207,7 @@ def results_from_files(files: dict, path: str | None = None) -> ResultsFolder:
     return ResultsFolder(
         path=path,
         summary=to_jsonable(files["summary.json"]),
-        camera=to_jsonable(files["camera.json"]),
+        camera=to_jsonable(files.get("camera.json", {})),
         screening=to_jsonable(files.get("screening.json", {})),
-        tables={key: table(files[name]) for key, name in (RESULT_TABLES | OPTIONAL_TABLES).items() if name in files})
+        tables={key: table(files[name]) for key, name in (RESULT_TABLES | OPTIONAL_TABLES | PUSHBROOM_TABLES).items()
+                if name in files})

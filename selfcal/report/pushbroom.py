@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..adjust.pushbroom import track_frame
 from ..sensors.pushbroom import PARAMETER_NAMES, PARAMETER_UNITS
 
-__all__ = ["pushbroom_files", "study_markdown", "study_csv"]
+__all__ = ["pushbroom_files", "study_markdown", "study_csv", "render_pushbroom_report"]
 
 _DISPLAY = {"rad": ("deg", np.degrees), "rad/s": ("deg/s", np.degrees), "mm": ("mm", lambda v: v)}
 
@@ -54,11 +55,14 @@ def pushbroom_files(data, case, sensor_model: str, image_labels: list[str], extr
                                 np.array(sigmas), np.array(units, object)], ["", "", ".9g", ".3g", ""])
     if case.check_errors_m is not None and len(case.checks):
         e = case.check_errors_m
+        centre, R = track_frame(case.result.images[len(case.result.images) // 2])
+        where = (data.reference_ecef[case.checks] - centre) @ R.T / 1000.0
         # the role in the block: a gcp left out of this case's control is checked too
-        files["check_points.csv"] = (["point_id", "role", "d_across_m", "d_along_m", "d_up_m"],
+        files["check_points.csv"] = (["point_id", "role", "x_across_km", "y_along_km", "d_across_m", "d_along_m",
+                                      "d_up_m"],
                                      [data.point_ids[case.checks].astype(object), data.role[case.checks].astype(object),
-                                      e[:, 0], e[:, 1], e[:, 2]],
-                                     ["", "", ".4f", ".4f", ".4f"])
+                                      where[:, 0], where[:, 1], e[:, 0], e[:, 1], e[:, 2]],
+                                     ["", "", ".3f", ".3f", ".4f", ".4f", ".4f"])
     obs = case.observations
     image_ids = np.array([img.image_id for img in data.images], object)
     v, w, r = result.residuals_px, result.w_test, result.redundancy_numbers
@@ -137,3 +141,79 @@ def study_markdown(cases, focal: dict, focal_sigma: dict, title: str = "selfcal 
         lines += ["—: no solution. " + "; ".join(sorted({f"{c.model} with {c.n_gcp} GCP: {c.failure.splitlines()[0]}"
                                                         for c in failures}))[:2000], ""]
     return "\n".join(lines)
+
+
+_SUMMARY = [
+    ("sensor model / images", ("sensor_model", "images")),
+    ("σ̂0 [px] / redundancy", ("sigma0_px", "redundancy")),
+    ("RMSE at check points across / along / up [m]", ("rmse_chk_across_m", "rmse_chk_along_m", "rmse_chk_up_m")),
+    ("GCP / check points used", ("n_gcp_used", "n_chk_used")),
+    ("image points rejected (data snooping)", ("n_obs_rejected",)),
+    ("iterations / seconds", ("iterations", "seconds")),
+]
+
+
+def render_pushbroom_report(results) -> dict:
+    """report.html and figures/ of a pushbroom results folder (:class:`~selfcal.io.results.ResultsFolder`)."""
+    import html
+
+    from .figures import control_error_figure, correlation_figure, residual_histogram_figure
+    from .page import Page, fmt
+    from .render import _add_figure
+
+    s, tables = results.summary, results.tables
+    title = f"selfcal pushbroom adjustment: {s.get('sensor_model')} on {'+'.join(s.get('images') or [])}"
+    page, files = Page(title), {}
+    page.heading(title, 1)
+    status = "converged" if s.get("converged") else f"FAILED: {s.get('failure')}"
+    page.add(f'<p class="lede">{html.escape(status)}; every number comes from summary.json and the CSV tables '
+             "beside this page. X is across track, Y along track, Z up, at the scene centre.</p>")
+    page.heading("Summary", anchor="summary")
+    rows = []
+    for label, keys in _SUMMARY:
+        values = [s.get(k) for k in keys]
+        rows.append([label, " / ".join(", ".join(v) if isinstance(v, list) else fmt(v, ".3f") for v in values)])
+    page.table(["", "value"], rows, text_columns=2)
+    if "calibrated_focal_mm" in s:
+        page.paragraph("Focal lengths calibrated first (M7 on all images): " + ", ".join(
+            f"{k} {v['value']:.3f} ± {v['sigma']:.3f} mm" for k, v in s["calibrated_focal_mm"].items()))
+    if "parameters" in tables:
+        t = tables["parameters"]
+        page.heading("Calibration parameters", anchor="parameters")
+        page.table(["image", "parameter", "value", "σ", "unit", "|value|/σ"],
+                   [[i, n, f"{v:.6g}", f"{e:.2g}", u, f"{abs(v) / e:.1f}" if e > 0 else "–"]
+                    for i, n, v, e, u in zip(t["image_id"], t["parameter"], t["value"], t["sigma"], t["unit"])],
+                   text_columns={0, 1, 4})
+    if "correlation" in tables and len(tables["correlation"]["parameter"]) > 1:
+        t = tables["correlation"]
+        names = list(t["parameter"])
+        rho = np.column_stack([t[n] for n in names])
+        _add_figure(page, files, correlation_figure(names, rho, "Correlations of the calibration parameters"),
+                    "correlation", "Correlation matrix of the estimated calibration parameters.")
+    if "check_points" in tables:
+        t = tables["check_points"]
+        page.heading("Check points", anchor="check")
+        xy = np.column_stack([t["x_across_km"], t["y_along_km"]]) * 1000.0
+        d = np.column_stack([t["d_across_m"], t["d_along_m"], t["d_up_m"]])
+        _add_figure(page, files, control_error_figure(xy, d, np.array(["chk"] * len(d), object), t["point_id"],
+                                                      "Errors at the check points (axes: across / along track)"),
+                    "check_points", "Check-point errors: restituted or intersected minus reference.")
+        page.table(["point", "role", "X across [km]", "Y along [km]", "dX [m]", "dY [m]", "dZ [m]"],
+                   [[p, r, f"{x:.2f}", f"{y:.2f}", f"{a:.3f}", f"{b:.3f}", f"{c:.3f}"]
+                    for p, r, x, y, a, b, c in zip(t["point_id"], t["role"], t["x_across_km"], t["y_along_km"],
+                                                   t["d_across_m"], t["d_along_m"], t["d_up_m"])], text_columns=2)
+    if "residuals" in tables:
+        t = tables["residuals"]
+        page.heading("Image residuals", anchor="residuals")
+        r = np.concatenate([t["r_row"], t["r_col"]])
+        _add_figure(page, files, residual_histogram_figure(t["v_col_px"], t["v_row_px"], s.get("sigma0_px") or 0.0,
+                                                           float(np.mean(r)) if r.size else 1.0,
+                                                           "Residuals: v_x = column (across), v_y = row (along)"),
+                    "residual_histogram", "Histograms of the image residuals in bins of σ̂0.")
+    if "rejected" in tables:
+        t = tables["rejected"]
+        page.heading("Rejected image points", anchor="rejected")
+        page.table(["image", "point", "|w|"], [[i, p, f"{w:.1f}"] for i, p, w in
+                                               zip(t["image_id"], t["point_id"], t["abs_w"])], text_columns=2)
+    files["report.html"] = page.html()
+    return files

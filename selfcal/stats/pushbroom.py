@@ -9,7 +9,11 @@ import numpy as np
 from ..adjust.pushbroom import PushbroomResult, adjust_pushbroom
 from .snooping import SnoopingOptions
 
-__all__ = ["SnoopedPushbroom", "adjust_pushbroom_with_snooping"]
+__all__ = ["SnoopedPushbroom", "adjust_pushbroom_with_snooping", "MAX_REJECTED_SHARE"]
+
+#: data snooping stops with a failure rather than reject more than this share of the image points:
+#: so many outliers are a wrong model, not blunders
+MAX_REJECTED_SHARE = 0.1
 
 
 @dataclass
@@ -17,6 +21,7 @@ class SnoopedPushbroom:
     result: PushbroomResult
     kept: np.ndarray                 # bool over the observations given
     rejected: list[tuple[int, float]]   # (observation index, |w| when rejected), in order
+    failure: str = ""                   # why the tests stopped short, if they did
 
 
 def adjust_pushbroom_with_snooping(images, obs_image, obs_point, obs_row, obs_col, points_ecef, control_index,
@@ -28,6 +33,7 @@ def adjust_pushbroom_with_snooping(images, obs_image, obs_point, obs_row, obs_co
     below ``snooping.min_redundancy`` are not tested (they are not controlled)."""
     kept = np.ones(len(obs_row), bool)
     rejected: list[tuple[int, float]] = []
+    limit = max(1, int(MAX_REJECTED_SHARE * len(obs_row)))
     rounds = snooping.max_rounds if snooping is not None and snooping.critical > 0 else 0
     for _ in range(rounds + 1):
         idx = np.flatnonzero(kept)
@@ -41,6 +47,11 @@ def adjust_pushbroom_with_snooping(images, obs_image, obs_point, obs_row, obs_co
         k = int(np.argmax(worst))
         if worst[k] <= snooping.critical:
             break
+        if len(rejected) >= limit:
+            return SnoopedPushbroom(result, kept, rejected, (
+                f"data snooping would reject more than {MAX_REJECTED_SHARE:.0%} of the image points (|w| "
+                f"{worst[k]:.1f} after {len(rejected)}): the sensor model does not fit the data (a focal length "
+                f"not calibrated? too few parameters?)"))
         kept[idx[k]] = False
         rejected.append((int(idx[k]), float(worst[k])))
     return SnoopedPushbroom(result, kept, rejected)
