@@ -134,6 +134,10 @@ class PushbroomCamera:
     frame: str = "ECI"
     view_pitch_deg: float = 0.0
     t0_s: float = 0.0
+    #: chips of the virtual array: first column of every chip after the first, and each chip's known
+    #: (along, across) displacement in pixels (seed 001, Fig. 1); empty: one ideal line
+    chip_starts: tuple[int, ...] | None = None
+    chip_offsets_px: tuple[tuple[float, float], ...] | None = None
 
     model = "pushbroom"
 

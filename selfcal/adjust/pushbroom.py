@@ -158,8 +158,7 @@ def adjust_pushbroom(images: list[LineImage], obs_image: np.ndarray, obs_point: 
             p = img.camera.pixel_size_mm
             out = photo_coordinates(img, points[obs_point[sel]], t, jacobians=jacobians)
             xy = out[0] if jacobians else out
-            res[sel, 0] = (0.0 - xy[:, 0]) / p
-            res[sel, 1] = (img.ys_mm(obs_col[sel]) - xy[:, 1]) / p
+            res[sel] = (img.detector_mm(obs_col[sel]) - xy) / p
             if jacobians:
                 _, d_par, d_pt = out
                 rows = (2 * sel[:, None] + np.arange(2)[None, :])
@@ -317,7 +316,7 @@ def pushbroom_block(block, given_attitude: bool = True, orders=FIT_ORDERS,
                                        f"{int(pick.sum())} samples within {margin_s:g} s; the fit of order {order} "
                                        f"needs more")
         camera = LineCamera(cam.camera_id, cam.columns, cam.center_col, cam.pixel_size_mm, cam.focal_mm,
-                            cam.line_period_s, cam.view_pitch_deg)
+                            cam.line_period_s, cam.view_pitch_deg, cam.chip_starts or (), cam.chip_offsets_px or ())
         t_ref = t_first + 0.5 * cam.rows * cam.line_period_s
         trajectory = fit_trajectory(cam.frame, cam.epoch_utc, e.time_s[pick_e], e.position_m[pick_e],
                                     e.velocity_m_s[pick_e], a.time_s[pick_a], a.quaternion[pick_a], orders,

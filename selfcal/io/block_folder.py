@@ -81,6 +81,8 @@ _PUSHBROOM_CAMERA_KEYS = {
     "frame": ("str", False),
     "view_pitch_deg": ("num", False),
     "t0_s": ("num", False),
+    "chip_starts": ("intlist", False),
+    "chip_offsets_px": ("pairlist", False),
 }
 _CAMERA_MODELS = {"frame": (FrameCamera, _FRAME_CAMERA_KEYS), "bal": (BalCamera, _BAL_CAMERA_KEYS),
                   "pushbroom": (PushbroomCamera, _PUSHBROOM_CAMERA_KEYS)}
@@ -121,6 +123,17 @@ def _check_value(path, text, section, key, value, kind):
         if not isinstance(value, int) or isinstance(value, bool) or value <= 0:
             fail(f"must be a positive integer, found {value!r}")
         return value
+    if kind == "intlist":
+        if not isinstance(value, list) or not all(isinstance(v, int) and not isinstance(v, bool) and v > 0
+                                                  for v in value) or sorted(set(value)) != value:
+            fail(f"must be a list of increasing positive column numbers, found {value!r}")
+        return tuple(value)
+    if kind == "pairlist":
+        if not isinstance(value, list) or not all(
+                isinstance(v, list) and len(v) == 2 and all(isinstance(x, (int, float)) and not isinstance(x, bool)
+                                                            and math.isfinite(x) for x in v) for v in value):
+            fail(f"must be a list of [along, across] pixel pairs, found {value!r}")
+        return tuple((float(a), float(b)) for a, b in value)
     if kind in ("vec3pos", "vec3"):
         if (not isinstance(value, list) or len(value) != 3
                 or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)):
@@ -226,6 +239,14 @@ def _read_settings(folder: str) -> dict:
 
 def _check_pushbroom(path, text, section, values) -> None:
     from datetime import datetime
+    starts, offsets = values.get("chip_starts"), values.get("chip_offsets_px")
+    if (starts is None) != (offsets is None) or (offsets is not None and len(offsets) != len(starts) + 1):
+        raise BlockError(path, "chip_starts (first column of every chip after the first) and chip_offsets_px "
+                               "(one [along, across] pair per chip) go together", _key_line(text, section, None),
+                         f"{section}.chip_offsets_px")
+    if starts and starts[-1] >= values["columns"]:
+        raise BlockError(path, f"chip start {starts[-1]} is beyond the {values['columns']} columns",
+                         _key_line(text, section, "chip_starts"), f"{section}.chip_starts")
     if values.get("frame", "ECI") not in ("ECI", "ECEF"):
         raise BlockError(path, f"frame must be \"ECI\" or \"ECEF\", found {values['frame']!r}",
                          _key_line(text, section, "frame"), f"{section}.frame")

@@ -21,14 +21,16 @@ t_ref being the scene centre. With the focal length and the three boresight angl
 are the ten calibration parameters of an image (:data:`PARAMETER_NAMES`).
 
 An image point (row, col) was recorded at t = t_first + row * line_period. A ground point
-P lies on that line when the x component of w = R_TE(t) (P - S(t)) vanishes; in photo
-coordinates the collinearity condition is
+P lies on that line when w = R_TE(t) (P - S(t)) points at the detector of column col; in
+photo coordinates the collinearity condition is
 
-    x = f w_x / w_z = 0,     y = f w_y / w_z = ys,
+    x = f w_x / w_z = x_d,     y = f w_y / w_z = y_d,
 
-the form the adjustment uses (its row residual is x over the pixel size, its column
-residual y - ys over the pixel size). Ground-to-image solves x(t) = 0 for t by Newton's
-method (:data:`TIME_TOLERANCE_LINES`).
+with (x_d, y_d) the detector's focal-plane position: (0, ys) on the ideal line, displaced by
+the known offset of its chip when the virtual array is made of several chips
+(:class:`LineCamera`). The adjustment uses this form (row residual (x_d - x) / p, column
+residual (y_d - y) / p). Ground-to-image solves x(t) = x_d for t by Newton's method
+(:data:`TIME_TOLERANCE_LINES`).
 """
 from __future__ import annotations
 
@@ -106,7 +108,13 @@ def angles_from_body_to_orbit(R_OB: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True)
 class LineCamera:
-    """A linear CCD camera: one virtual array of ``columns`` detectors (several chips merged)."""
+    """A linear CCD camera: one virtual array of ``columns`` detectors (several chips merged).
+
+    The chips of the array (seed 001, Fig. 1) start at the columns ``chip_starts`` (the first
+    chip at column 0 is implied); ``chip_offsets_px`` gives each chip's known displacement
+    (along track, across track) in pixels from the ideal line, so that the detector of column
+    col sits at x = along p, y = (col - center_col + across) p in the focal plane.
+    """
 
     camera_id: str
     columns: int
@@ -115,6 +123,21 @@ class LineCamera:
     focal_mm: float
     line_period_s: float
     view_pitch_deg: float = 0.0
+    chip_starts: tuple[int, ...] = ()
+    chip_offsets_px: tuple[tuple[float, float], ...] = ()
+
+    def __post_init__(self):
+        if self.chip_offsets_px and len(self.chip_offsets_px) != len(self.chip_starts) + 1:
+            raise ValueError(f"{len(self.chip_starts) + 1} chips need as many (along, across) offsets, "
+                             f"found {len(self.chip_offsets_px)}")
+
+    def offsets_px(self, col) -> np.ndarray:
+        """(along, across) offset in pixels of the chip of each column, (n, 2)."""
+        col = np.atleast_1d(np.asarray(col, float))
+        if not self.chip_offsets_px:
+            return np.zeros((len(col), 2))
+        chip = np.searchsorted(np.asarray(self.chip_starts, float), col, side="right")
+        return np.asarray(self.chip_offsets_px, float)[chip]
 
 
 @dataclass(frozen=True)
@@ -243,11 +266,21 @@ class LineImage:
     def row_of_time(self, t) -> np.ndarray:
         return (np.asarray(t, float) - self.t_first_s) / self.camera.line_period_s
 
-    def ys_mm(self, col) -> np.ndarray:
-        return (np.asarray(col, float) - self.camera.center_col) * self.camera.pixel_size_mm
+    def detector_mm(self, col) -> np.ndarray:
+        """Focal-plane position (x, y) in mm (n, 2) of the detector of each column: (0, ys) on the
+        ideal line, displaced by its chip's offset."""
+        col = np.atleast_1d(np.asarray(col, float))
+        p = self.camera.pixel_size_mm
+        offset = self.camera.offsets_px(col)
+        return np.stack([offset[:, 0] * p, (col - self.camera.center_col + offset[:, 1]) * p], -1)
 
-    def col_of_ys(self, ys_mm) -> np.ndarray:
-        return self.camera.center_col + np.asarray(ys_mm, float) / self.camera.pixel_size_mm
+    def col_of_y(self, y_mm) -> np.ndarray:
+        """The column whose detector has the focal-plane y (its chip's across offset taken off)."""
+        p = self.camera.pixel_size_mm
+        col = self.camera.center_col + np.atleast_1d(np.asarray(y_mm, float)) / p
+        for _ in range(2):                       # the chip depends on the column; offsets are sub-chip
+            col = self.camera.center_col + np.asarray(y_mm, float) / p - self.camera.offsets_px(col)[:, 1]
+        return col
 
 
 def _attitude(image: LineImage, t: np.ndarray):
@@ -316,7 +349,7 @@ def photo_coordinates(image: LineImage, points_ecef: np.ndarray, t: np.ndarray, 
 
 
 def ground_to_image(image: LineImage, points_ecef: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(row, col) of ground points: Newton's method on x(t) = 0, with dx/dt by central differences
+    """(row, col) of ground points: Newton's method on x(t) = x of the detector, with dx/dt by central differences
     over one line period. Points that do not converge (far outside the strip) are NaN."""
     P = np.atleast_2d(np.asarray(points_ecef, float))
     period = image.camera.line_period_s
@@ -327,15 +360,16 @@ def ground_to_image(image: LineImage, points_ecef: np.ndarray) -> tuple[np.ndarr
         if not idx.size:
             break
         tt = t[idx]
-        x0 = photo_coordinates(image, P[idx], tt)[:, 0]
+        xy = photo_coordinates(image, P[idx], tt)
+        target = image.detector_mm(image.col_of_y(xy[:, 1]))[:, 0]      # the along-track offset of its chip
         xp = photo_coordinates(image, P[idx], tt + period)[:, 0]
         xm = photo_coordinates(image, P[idx], tt - period)[:, 0]
         slope = (xp - xm) / (2 * period)
-        step = x0 / slope
+        step = (xy[:, 0] - target) / slope
         t[idx] = tt - step
         active[idx] = np.abs(step) > TIME_TOLERANCE_LINES * period
     y = photo_coordinates(image, P, t)[:, 1]
-    row, col = image.row_of_time(t), image.col_of_ys(y)
+    row, col = image.row_of_time(t), image.col_of_y(y)
     row[active] = np.nan
     col[active] = np.nan
     return row, col
@@ -346,7 +380,8 @@ def line_of_sight(image: LineImage, row, col) -> tuple[np.ndarray, np.ndarray]:
     row, col = np.broadcast_arrays(np.atleast_1d(np.asarray(row, float)), np.atleast_1d(np.asarray(col, float)))
     t = image.time_of_row(row)
     S, R_FE, R_FO, R_OB, _, R_BT, _ = _frames(image, t)
-    u = np.stack([np.zeros_like(t), image.ys_mm(col), np.full_like(t, image.parameters[6])], -1)
+    detector = image.detector_mm(col)
+    u = np.stack([detector[:, 0], detector[:, 1], np.full_like(t, image.parameters[6])], -1)
     u /= np.linalg.norm(u, axis=1, keepdims=True)
     d_F = np.einsum("nij,njk,kl,nl->ni", R_FO, R_OB, R_BT, u) if R_BT.ndim == 2 else \
         np.einsum("nij,njk,nkl,nl->ni", R_FO, R_OB, R_BT, u)
@@ -412,7 +447,7 @@ def intersect(images: list[LineImage], image_index: np.ndarray, rows: np.ndarray
             t = img.time_of_row(np.atleast_1d(r))
             xy, _, dP = photo_coordinates(img, X[None], t, jacobians=True)
             p = img.camera.pixel_size_mm
-            res = (np.array([0.0, float(img.ys_mm(c))]) - xy[0]) / p
+            res = (img.detector_mm(c)[0] - xy[0]) / p
             J = dP[0] / p
             N += J.T @ J
             g += J.T @ res

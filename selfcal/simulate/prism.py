@@ -2,8 +2,8 @@
 
 An ALOS-like sun-synchronous orbit (circular, 691.65 km, 98.16 deg, descending over the
 scene), the three PRISM cameras (forward +23.8 deg, nadir, backward -23.8 deg view
-pitch; 7 um detectors merged into one 14,496-column virtual array; 2.5 m ground sample
-distance), a terrain model, and 28 ground points measured in all three images.
+pitch; 7 um detectors of three chips merged into one 14,496-column virtual array, each chip
+displaced from the ideal line by a known fraction of a pixel; 2.5 m ground sample distance), a terrain model, and 28 ground points measured in all three images.
 
 What the telemetry gets wrong is the truth the adjustment must find:
 
@@ -49,6 +49,11 @@ ATTITUDE_BIAS_RAD = np.array([3.0e-5, -4.0e-5, 6.0e-5])
 ATTITUDE_DRIFT_RAD_S = np.array([1.5e-6, 3.0e-6, 3.0e-6])
 
 COLUMNS = 14_496
+#: the virtual array of each camera: three chips (first columns of the second and third) with known
+#: (along, across) offsets in pixels
+CHIP_STARTS = (4_832, 9_664)
+CHIP_OFFSETS_PX = {"F": ((0.0, 0.0), (0.4, 0.5), (-0.7, -0.2)), "N": ((0.0, 0.0), (0.6, -0.4), (-0.5, 0.3)),
+                   "B": ((0.0, 0.0), (-0.3, 0.6), (0.5, -0.5))}
 ROWS = 14_000
 PIXEL_SIZE_MM = 0.007
 LINE_PERIOD_S = 0.000_37
@@ -151,8 +156,8 @@ def simulate_prism(seed: int = 0, image_sigma_px: float = 0.3, n_points: int = 2
     rng = np.random.default_rng(seed)
     raan, u0 = _place_orbit()
     dem = AnalyticDem()
-    nominal = {k: LineCamera(k, COLUMNS, COLUMNS / 2, PIXEL_SIZE_MM, NOMINAL_FOCAL_MM, LINE_PERIOD_S, pitch)
-               for k, pitch in CAMERAS.items()}
+    nominal = {k: LineCamera(k, COLUMNS, COLUMNS / 2, PIXEL_SIZE_MM, NOMINAL_FOCAL_MM, LINE_PERIOD_S, pitch,
+                             CHIP_STARTS, CHIP_OFFSETS_PX[k]) for k, pitch in CAMERAS.items()}
     duration = ROWS * LINE_PERIOD_S
     span = (NADIR_CENTRE_S - 80.0, NADIR_CENTRE_S + 80.0)
     true_traj = _true_trajectory(raan, u0, *span)
@@ -235,7 +240,8 @@ def prism_block(sim: PrismSimulation, seed: int = 0, dem_file: str | None = "dem
 
     rng = np.random.default_rng(seed + 1000)
     cameras = {k: PushbroomCamera(k, c.columns, sim.rows, c.center_col, c.pixel_size_mm, c.focal_mm,
-                                  c.line_period_s, sim.epoch_utc, "ECI", c.view_pitch_deg)
+                                  c.line_period_s, sim.epoch_utc, "ECI", c.view_pitch_deg, 0.0, c.chip_starts,
+                                  c.chip_offsets_px)
                for k, c in sim.cameras.items()}
     n_img = len(sim.image_ids)
     nan3 = np.full((n_img, 3), np.nan)
