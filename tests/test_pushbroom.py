@@ -210,6 +210,15 @@ def test_cli_simulate_adjust_and_compare(tmp_path, capsys):
     html = (tmp_path / "res" / "report.html").read_text()
     assert "Calibration parameters" in html and html.count("<img") == 3
     assert run_cli("report", str(tmp_path / "res")) == 0
+    # screening through the files: the triplet with M5, the dropped parameters listed in order
+    assert run_cli("adjust", block, "--out", str(tmp_path / "scr"), "--sensor-model", "M5", "--gcps", "4",
+                   "--screen", "--no-report") == 0
+    screening = json.loads((tmp_path / "scr" / "screening.json").read_text())
+    summary = json.loads((tmp_path / "scr" / "summary.json").read_text())
+    kept = (tmp_path / "scr" / "parameters.csv").read_text().splitlines()[1:]
+    assert screening["n_parameters_initial"] == 18 and summary["n_parameters_kept"] == len(kept)
+    assert len(screening["dropped"]) == 18 - len(kept) > 0
+    assert all(d["t"] < 1.96 or d["reason"].startswith("correlated") for d in screening["dropped"])
     capsys.readouterr()
     assert run_cli("compare", block, "--out", str(tmp_path / "cmp"), "--sensor-models", "M1,M6", "--gcps", "4") == 0
     table = (tmp_path / "cmp" / "comparison.md").read_text()
@@ -288,3 +297,30 @@ def test_chip_offsets_of_the_virtual_array_are_modelled(sim, tmp_path):
     modelled, ignored = cases
     assert 0.7 < modelled.result.sigma0 < 1.3 and ignored.result.sigma0 > 1.3 * modelled.result.sigma0
     assert np.hypot(*ignored.rmse_m[:2]) > np.hypot(*modelled.rmse_m[:2])
+
+
+def test_screening_drops_the_parameters_that_are_zero_in_truth():
+    """Attitude error without yaw and without roll drift: screening M5 on the nadir image (no boresight
+    misalignment) drops only parameters whose true value is zero, keeps the roll and pitch bias and the
+    pitch drift, and leaves the check points as accurate as the full model (within 10 %). On the
+    triplet with M7 started at the true focal lengths, every focal length is found insignificant."""
+    from selfcal.stats.screening import ScreeningOptions
+
+    sim = simulate_prism(seed=2, attitude_bias_rad=(3e-5, -4e-5, 0.0), attitude_drift_rad_s=(0.0, 3e-6, 0.0))
+    data = pushbroom_block(prism_block(sim, seed=2))
+    images = with_focal(data.images, TRUE_FOCAL_MM)
+    gcps = choose_gcps(data, 5)
+    full = run_case(data, sensor_model("M5"), gcps, (1,), sim.dem, "N", images)
+    screened = run_case(data, sensor_model("M5"), gcps, (1,), sim.dem, "N", images, screening=ScreeningOptions())
+    dropped = {d.name for d in screened.screening.dropped}
+    assert dropped and dropped <= {"d_roll1", "d_yaw0", "d_yaw1"}, screened.screening.dropped
+    assert "d_yaw1" in dropped
+    assert [n.split(".")[1] for n in screened.result.parameter_names] == [
+        n for n in SENSOR_MODELS["M5"] if n not in dropped]
+    assert screened.screening.joint.f_statistic < screened.screening.joint.f_critical
+    np.testing.assert_allclose(np.hypot(*screened.rmse_m[:2]), np.hypot(*full.rmse_m[:2]), rtol=0.1)
+    triplet = run_case(data, sensor_model("M7"), choose_gcps(data, 4), (0, 1, 2), sim.dem, "F+N+B", images,
+                       screening=ScreeningOptions())
+    assert {(d.camera_id, d.name) for d in triplet.screening.dropped} >= {("F", "focal"), ("N", "focal"),
+                                                                           ("B", "focal")}
+    assert not any(n.endswith(".focal") for n in triplet.result.parameter_names)

@@ -14,9 +14,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..adjust.pushbroom import (M6_SIGMA, SENSOR_MODELS, PushbroomBlock, PushbroomResult, SensorModel, sensor_model,
-                                track_frame)
-from ..stats.pushbroom import adjust_pushbroom_with_snooping
+from ..adjust.pushbroom import (M6_SIGMA, SENSOR_MODELS, PushbroomBlock, PushbroomResult, SensorModel,
+                                adjust_pushbroom, sensor_model, track_frame)
+from ..stats.pushbroom import ScreenedPushbroom, adjust_pushbroom_with_snooping, screen_pushbroom
+from ..stats.screening import ScreeningOptions
 from ..stats.snooping import SnoopingOptions
 from ..errors import AdjustmentError, UsageError
 from ..sensors.pushbroom import PARAMETER_NAMES, LineImage, image_to_ground, intersect
@@ -50,6 +51,7 @@ class PushbroomCase:
     failure: str = ""
     observations: np.ndarray | None = None       # indices into the block's observations that were adjusted
     rejected: list | None = None                 # (index into the block's observations, |w|) of data snooping
+    screening: ScreenedPushbroom | None = None   # the parameters dropped by screening, when it ran
 
 
 def image_sets(data: PushbroomBlock) -> dict[str, tuple[int, ...]]:
@@ -96,10 +98,12 @@ def _start_points(data: PushbroomBlock, gcps: np.ndarray) -> np.ndarray:
 
 def run_case(data: PushbroomBlock, model: SensorModel, gcps: np.ndarray, image_set: tuple[int, ...], dem,
              label: str = "", images: list[LineImage] | None = None,
-             snooping: SnoopingOptions | None = None) -> PushbroomCase:
+             snooping: SnoopingOptions | None = None, screening: ScreeningOptions | None = None) -> PushbroomCase:
     """One adjustment with ``gcps`` as control, on the images ``image_set``; check points are the other
     points with reference coordinates, restituted on ``dem`` (mono) or intersected (stereo). With
-    ``snooping``, Baarda's data snooping rejects image points one at a time."""
+    ``snooping``, Baarda's data snooping rejects image points one at a time; with ``screening``, the
+    calibration parameters are then screened on the image points kept (the result is the adjustment
+    with the parameters that stay)."""
     images = data.images if images is None else images
     data_here = data if images is data.images else _replace_images(data, images)
     mono = len(image_set) == 1
@@ -123,6 +127,21 @@ def run_case(data: PushbroomBlock, model: SensorModel, gcps: np.ndarray, image_s
         return PushbroomCase(sigma0=np.nan, result=None, failure=str(exc), **fail)
     result = snooped.result
     fail |= {"observations": take[snooped.kept], "rejected": [(int(take[k]), w) for k, w in snooped.rejected]}
+    if screening is not None and not snooped.failure and result.converged:
+        kept = fail["observations"]
+
+        def adjust(models):
+            return adjust_pushbroom(images, data.obs_image[kept], data.obs_point[kept], data.obs_row[kept],
+                                    data.obs_col[kept], start, gcps, data.reference_ecef[gcps],
+                                    data.reference_cov[gcps], models, data.image_sigma_px)
+
+        try:
+            screened = screen_pushbroom(adjust, [img.image_id for img in images], [img.parameters for img in images],
+                                        [model] * len(images), screening)
+        except AdjustmentError as exc:
+            return PushbroomCase(sigma0=result.sigma0, result=result, failure=f"screening: {exc}", **fail)
+        result = screened.result
+        fail["screening"] = screened
     if snooped.failure:
         return PushbroomCase(sigma0=result.sigma0, result=result, failure=snooped.failure, **fail)
     if not result.converged:
@@ -139,7 +158,7 @@ def run_case(data: PushbroomBlock, model: SensorModel, gcps: np.ndarray, image_s
         errors = (result.points_ecef[checks] - data.reference_ecef[checks]) @ R.T
     rmse = np.sqrt(np.mean(errors ** 2, axis=0)) if len(errors) else None
     return PushbroomCase(model.name, len(gcps), label, rmse, len(errors), result.sigma0, result, gcps, checks,
-                         errors, "", fail["observations"], fail["rejected"])
+                         errors, "", fail["observations"], fail["rejected"], fail.get("screening"))
 
 
 def _replace_images(data: PushbroomBlock, images: list[LineImage]) -> PushbroomBlock:

@@ -13,6 +13,7 @@ from ..io.dem import read_dem
 from ..io.results import results_from_files, write_files, write_results
 from ..report.pushbroom import pushbroom_files, render_pushbroom_report, study_csv, study_markdown
 from ..stats.snooping import SnoopingOptions
+from .options import screening_options
 
 __all__ = ["adjust_arguments", "compare_arguments", "run_adjust", "run_compare"]
 
@@ -88,7 +89,11 @@ def run_adjust(block, args) -> int:
         print(f"{block.name}: pushbroom images {', '.join(labels)}, {len(gcps)} GCP, sensor model {model.name} "
               f"({', '.join(model.free)})", file=sys.stderr)
     snooping = SnoopingOptions(critical=args.snoop)
-    case = run_case(data, model, gcps, image_set, dem, "+".join(labels), images, snooping)
+    screening = screening_options(args) if args.screen else None
+    case = run_case(data, model, gcps, image_set, dem, "+".join(labels), images, snooping, screening)
+    if case.screening is not None:
+        for d in case.screening.dropped:
+            print(f"screening: dropped {d.camera_id}.{d.name} (t {d.t:.2f}, {d.reason})", file=sys.stderr)
     for k, w in case.rejected or []:
         print(f"rejected image point {data.point_ids[data.obs_point[k]]} in {data.images[data.obs_image[k]].image_id} "
               f"(|w| {w:.1f})", file=sys.stderr)

@@ -39,6 +39,10 @@ def pushbroom_files(data, case, sensor_model: str, image_labels: list[str], extr
         "n_obs_rejected": len(case.rejected or []),
     } | extra
     files = {"summary.json": summary}
+    if case.screening is not None:
+        files["screening.json"] = screening_json(case.screening)
+        summary["n_parameters_initial"] = case.screening.n_initial
+        summary["n_parameters_kept"] = case.screening.n_kept
     if result is None:
         return files
     image_ids, names, values, sigmas, units = [], [], [], [], []
@@ -86,6 +90,20 @@ def pushbroom_files(data, case, sensor_model: str, image_labels: list[str], extr
                            [data.point_ids[observed].astype(object), p[:, 0], p[:, 1], p[:, 2], sd[:, 0], sd[:, 1],
                             sd[:, 2]], ["", ".4f", ".4f", ".4f", ".4f", ".4f", ".4f"])
     return files
+
+
+def screening_json(screened) -> dict:
+    """screening.json of a pushbroom case: the parameters dropped, in order, and the joint test."""
+    joint = screened.joint
+    return {
+        "n_parameters_initial": screened.n_initial,
+        "n_parameters_kept": screened.n_kept,
+        "dropped": [{"round": k + 1, "camera_id": d.camera_id, "name": d.name, "t": d.t, "reason": d.reason}
+                    for k, d in enumerate(screened.dropped)],
+        "joint_tests": [] if joint is None else [{"round": len(screened.dropped), "n_dropped": joint.n_dropped,
+                                                  "f_statistic": joint.f_statistic, "f_critical": joint.f_critical,
+                                                  "jointly_significant": joint.jointly_significant}],
+    }
 
 
 def study_rows(cases) -> list[dict]:
@@ -184,6 +202,15 @@ def render_pushbroom_report(results) -> dict:
                    [[i, n, f"{v:.6g}", f"{e:.2g}", u, f"{abs(v) / e:.1f}" if e > 0 else "–"]
                     for i, n, v, e, u in zip(t["image_id"], t["parameter"], t["value"], t["sigma"], t["unit"])],
                    text_columns={0, 1, 4})
+    dropped = (results.screening or {}).get("dropped", [])
+    if results.screening:
+        page.heading("Screening", anchor="screening")
+        page.paragraph(f"{s.get('n_parameters_kept')} of {s.get('n_parameters_initial')} calibration parameters kept; "
+                       "a dropped parameter is held at its start value. t = |value − start| / σ when dropped.")
+        if dropped:
+            page.table(["image", "parameter", "t", "reason"],
+                       [[d["camera_id"], d["name"], f"{d['t']:.2f}", d["reason"]] for d in dropped],
+                       text_columns={0, 1, 3})
     if "correlation" in tables and len(tables["correlation"]["parameter"]) > 1:
         t = tables["correlation"]
         names = list(t["parameter"])

@@ -151,8 +151,12 @@ def _place_orbit() -> tuple[float, float]:
 
 
 def simulate_prism(seed: int = 0, image_sigma_px: float = 0.3, n_points: int = 28,
-                   ephemeris_sigma_m: float = 0.3, attitude_sigma_rad: float = 1.0e-6) -> PrismSimulation:
-    """Simulate the PRISM triplet (see the module docstring)."""
+                   ephemeris_sigma_m: float = 0.3, attitude_sigma_rad: float = 1.0e-6,
+                   attitude_bias_rad=ATTITUDE_BIAS_RAD, attitude_drift_rad_s=ATTITUDE_DRIFT_RAD_S) -> PrismSimulation:
+    """Simulate the PRISM triplet (see the module docstring); the attitude error (roll, pitch, yaw) can
+    be chosen."""
+    attitude_bias_rad = np.asarray(attitude_bias_rad, float)
+    attitude_drift_rad_s = np.asarray(attitude_drift_rad_s, float)
     rng = np.random.default_rng(seed)
     raan, u0 = _place_orbit()
     dem = AnalyticDem()
@@ -209,14 +213,14 @@ def simulate_prism(seed: int = 0, image_sigma_px: float = 0.3, n_points: int = 2
     pos = pos + rng.normal(0, ephemeris_sigma_m, pos.shape)
     vel = vel + rng.normal(0, ephemeris_sigma_m / 100.0, vel.shape)
     t_a = np.arange(span[0] + 5, span[1] - 5, 0.1)
-    given = _true_attitude(t_a) - (ATTITUDE_BIAS_RAD + np.outer(t_a - NADIR_CENTRE_S, ATTITUDE_DRIFT_RAD_S))
+    given = _true_attitude(t_a) - (attitude_bias_rad + np.outer(t_a - NADIR_CENTRE_S, attitude_drift_rad_s))
     given = given + rng.normal(0, attitude_sigma_rad, given.shape)
     p_true, v_true = _orbit(t_a, raan, u0)
     R_OB = rotation_y(given[:, 1]) @ rotation_x(given[:, 0]) @ rotation_z(given[:, 2])
     quaternion = quaternion_from_matrix(orbit_frame(p_true, v_true) @ R_OB, scalar_first=False)
 
-    truth = PrismTruth(images, dict(TRUE_FOCAL_MM), dict(TRUE_BORESIGHT_RAD), ATTITUDE_BIAS_RAD.copy(),
-                       ATTITUDE_DRIFT_RAD_S.copy(), points)
+    truth = PrismTruth(images, dict(TRUE_FOCAL_MM), dict(TRUE_BORESIGHT_RAD), attitude_bias_rad.copy(),
+                       attitude_drift_rad_s.copy(), points)
     return PrismSimulation(EPOCH_UTC, nominal, list(CAMERAS), t_first, ROWS,
                            {"t": t_e, "position": pos, "velocity": vel}, {"t": t_a, "quaternion": quaternion},
                            [f"p{k + 1:02d}" for k in range(n_points)], points, np.array(obs_image),

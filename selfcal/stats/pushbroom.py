@@ -1,15 +1,32 @@
-"""Baarda's data snooping for pushbroom adjustments (seed 001 blocks): the same test as for frame
-blocks (:mod:`.snooping`), one observation per round, on the w of the dense pushbroom solution."""
+"""The tests of frame blocks on pushbroom adjustments (seed 001 blocks).
+
+* Baarda's data snooping (:mod:`.snooping`), one image point per round, on the w of the dense
+  pushbroom solution;
+* screening of the calibration parameters (:mod:`.screening`): backward elimination of the least
+  significant parameter, t = |x - x0| / sigma(x) below ``significance``, else of the less significant
+  of the most correlated pair above ``max_correlation``; each drop is followed by a re-adjustment
+  (a pushbroom block has tens of parameters, so re-adjusting costs less than a second and is exact).
+  x0 is the start value: zero for the attitude corrections, the given (or calibrated) focal length
+  and boresight. A dropped parameter is held at x0. The guard is the joint test of everything
+  dropped against the full model, F = (Omega_S - Omega) / (|S| sigma0^2) against the 1 - ``joint_alpha``
+  quantile of F(|S|, redundancy): a drop that would make the dropped set jointly significant is
+  undone and the screening stops.
+"""
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from typing import Callable
 
 import numpy as np
+from scipy.stats import f as f_distribution
 
-from ..adjust.pushbroom import PushbroomResult, adjust_pushbroom
+from ..adjust.pushbroom import PushbroomResult, SensorModel, adjust_pushbroom
+from ..sensors.pushbroom import PARAMETER_NAMES
+from .screening import ScreeningDecision, ScreeningOptions, ScreeningRound
 from .snooping import SnoopingOptions
 
-__all__ = ["SnoopedPushbroom", "adjust_pushbroom_with_snooping", "MAX_REJECTED_SHARE"]
+__all__ = ["SnoopedPushbroom", "adjust_pushbroom_with_snooping", "MAX_REJECTED_SHARE", "ScreenedPushbroom",
+           "screen_pushbroom"]
 
 #: data snooping stops with a failure rather than reject more than this share of the image points:
 #: so many outliers are a wrong model, not blunders
@@ -55,3 +72,78 @@ def adjust_pushbroom_with_snooping(images, obs_image, obs_point, obs_row, obs_co
         kept[idx[k]] = False
         rejected.append((int(idx[k]), float(worst[k])))
     return SnoopedPushbroom(result, kept, rejected)
+
+
+@dataclass
+class ScreenedPushbroom:
+    models: list[SensorModel]            # per image: the parameters kept
+    dropped: list[ScreeningDecision]     # in order; camera_id is the image id
+    joint: ScreeningRound | None         # the joint test of everything dropped (None: nothing dropped)
+    n_initial: int                       # parameters estimated before screening
+    result: PushbroomResult              # the adjustment with the kept parameters
+
+    @property
+    def n_kept(self) -> int:
+        return self.n_initial - len(self.dropped)
+
+
+def _t_values(result: PushbroomResult, start: dict[str, float]) -> np.ndarray:
+    x0 = np.array([start[n] for n in result.parameter_names])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.abs(result.parameter_values - x0) / result.parameter_sigma
+
+
+def _candidate(result: PushbroomResult, t: np.ndarray, options: ScreeningOptions) -> tuple[int, str] | None:
+    """The parameter to drop next, and why (None: every parameter stays)."""
+    if not t.size:
+        return None
+    k = int(np.nanargmin(t))
+    if t[k] < options.significance:
+        return k, "insignificant"
+    rho = np.abs(result.correlation - np.eye(len(t)))
+    i, j = np.unravel_index(int(np.argmax(rho)), rho.shape)
+    if rho[i, j] <= options.max_correlation:
+        return None
+    k, other = (i, j) if t[i] <= t[j] else (j, i)
+    return int(k), f"correlated with {result.parameter_names[other]} (rho {result.correlation[i, j]:+.3f})"
+
+
+def _without(models: list[SensorModel], image_index: int, name: str) -> list[SensorModel]:
+    out = list(models)
+    m = out[image_index]
+    out[image_index] = replace(m, name=m.name + " screened", free=tuple(n for n in m.free if n != name))
+    return out
+
+
+def screen_pushbroom(adjust: Callable[[list[SensorModel]], PushbroomResult], image_ids: list[str],
+                     start: list[np.ndarray], models: list[SensorModel],
+                     options: ScreeningOptions = ScreeningOptions()) -> ScreenedPushbroom:
+    """Screen the calibration parameters of a pushbroom adjustment (see the module docstring).
+
+    ``adjust(models)`` adjusts with one :class:`SensorModel` per image (the observations are fixed by
+    the caller); ``start`` are the images' parameter vectors before adjustment (x0 of the t-test).
+    """
+    x0 = {f"{i}.{n}": float(p[k]) for i, p in zip(image_ids, start) for k, n in enumerate(PARAMETER_NAMES)}
+    full = adjust(models)
+    result, dropped, joint = full, [], None
+    omega_full = full.sigma0 ** 2 * full.redundancy
+    n_initial = len(full.parameter_names)
+    for _ in range(n_initial):
+        t = _t_values(result, x0)
+        pick = _candidate(result, t, options)
+        if pick is None:
+            break
+        k, reason = pick
+        image_id, name = result.parameter_names[k].split(".", 1)
+        trial_models = _without(models, image_ids.index(image_id), name)
+        trial = adjust(trial_models)
+        n_dropped = len(dropped) + 1
+        increase = (trial.sigma0 ** 2 * trial.redundancy - omega_full) / full.sigma0 ** 2
+        test = ScreeningRound(n_dropped, float(increase), float(f_distribution.ppf(1.0 - (options.joint_alpha or 0.0),
+                                                                                   n_dropped, full.redundancy))
+                              if options.joint_alpha else float("inf"))
+        if test.jointly_significant or not trial.converged:
+            break
+        models, result, joint = trial_models, trial, test
+        dropped.append(ScreeningDecision(image_id, name, float(t[k]), reason))
+    return ScreenedPushbroom(models, dropped, joint, n_initial, result)
