@@ -4,8 +4,9 @@ Unknowns: the free calibration parameters of each image (:data:`selfcal.sensors.
 PARAMETER_NAMES`) and the ECEF coordinates of every observed ground point. Observations:
 
 * image points (row, col), each giving the time of its line; the collinearity condition of
-  :func:`~selfcal.sensors.pushbroom.photo_coordinates` in pixels (row residual x / p,
-  column residual (ys - y) / p), weighted by the image sigma;
+  :func:`~selfcal.sensors.pushbroom.photo_coordinates` in image units
+  (:func:`~selfcal.sensors.pushbroom.image_residuals`: the along-track misfit over the image
+  motion per line, the across-track misfit over the detector spacing), weighted by the image sigma;
 * ground control: the surveyed coordinates of GCPs, with their covariance;
 * parameter weights (M6): a prior observation of a parameter at its start value, with
   an a-priori sigma that bounds how far it may move.
@@ -26,7 +27,8 @@ import numpy as np
 
 from ..errors import AdjustmentError, BlockError, UsageError
 from ..geometry.earth import geodetic_from_ecef, local_up
-from ..sensors.pushbroom import PARAMETER_NAMES, LineCamera, LineImage, fit_trajectory, line_of_sight, photo_coordinates
+from ..sensors.pushbroom import (PARAMETER_NAMES, LineCamera, LineImage, fit_trajectory, image_residuals,
+                                image_scales, line_of_sight)
 
 __all__ = ["SENSOR_MODELS", "M6_SIGMA", "SensorModel", "sensor_model", "PushbroomResult", "adjust_pushbroom",
            "track_frame", "PushbroomBlock", "pushbroom_block", "FIT_ORDERS", "TELEMETRY_MARGIN_S"]
@@ -147,6 +149,8 @@ def adjust_pushbroom(images: list[LineImage], obs_image: np.ndarray, obs_point: 
         raise AdjustmentError(f"no redundancy: {n_rows} observations for {n_unk} unknowns")
     images = list(images)
 
+    scales = {}
+
     def evaluate(images, points, jacobians):
         res = np.zeros((n_obs, 2))
         J = np.zeros((2 * n_obs, n_unk)) if jacobians else None
@@ -154,18 +158,17 @@ def adjust_pushbroom(images: list[LineImage], obs_image: np.ndarray, obs_point: 
             sel = np.flatnonzero(obs_image == i)
             if not sel.size:
                 continue
-            t = img.time_of_row(obs_row[sel])
-            p = img.camera.pixel_size_mm
-            out = photo_coordinates(img, points[obs_point[sel]], t, jacobians=jacobians)
-            xy = out[0] if jacobians else out
-            res[sel] = (img.detector_mm(obs_col[sel]) - xy) / p
+            if i not in scales:              # the image scales of the start values serve every iteration
+                scales[i] = image_scales(img, points[obs_point[sel]], obs_row[sel], obs_col[sel])
+            out = image_residuals(img, points[obs_point[sel]], obs_row[sel], obs_col[sel], jacobians, scales[i])
+            res[sel] = out[0] if jacobians else out
             if jacobians:
                 _, d_par, d_pt = out
                 rows = (2 * sel[:, None] + np.arange(2)[None, :])
                 cols_par = offsets[i] + np.arange(int(masks[i].sum()))
-                J[rows[:, :, None], cols_par[None, None, :]] = d_par[:, :, masks[i]] / p
+                J[rows[:, :, None], cols_par[None, None, :]] = d_par[:, :, masks[i]]
                 cols_pt = n_par + 3 * point_slot[obs_point[sel]][:, None] + np.arange(3)[None, :]
-                J[rows[:, :, None], cols_pt[:, None, :]] = d_pt / p
+                J[rows[:, :, None], cols_pt[:, None, :]] = d_pt
         return res, J
 
     def whitened(images, points, jacobians=True):

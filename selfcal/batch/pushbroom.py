@@ -23,7 +23,7 @@ from ..errors import AdjustmentError, UsageError
 from ..sensors.pushbroom import PARAMETER_NAMES, LineImage, image_to_ground, intersect
 
 __all__ = ["GCP_LAYOUTS", "PushbroomCase", "choose_gcps", "calibrate_focal", "run_case", "run_study", "with_focal",
-           "image_sets", "ATTITUDE_FREE_SIGMA"]
+           "image_sets", "intersections", "ATTITUDE_FREE_SIGMA"]
 
 #: where the GCPs of a case are, as (row, col) fractions of the middle image: spread over the scene
 GCP_LAYOUTS = {
@@ -86,26 +86,37 @@ def choose_gcps(data: PushbroomBlock, n: int) -> np.ndarray:
     return np.array(chosen)
 
 
-def _start_points(data: PushbroomBlock, gcps: np.ndarray) -> np.ndarray:
-    """GCPs at their surveyed coordinates, every other point intersected from all its images."""
-    start = data.reference_ecef.copy()
+def intersections(data: PushbroomBlock, images: list[LineImage] | None = None) -> np.ndarray:
+    """Every point seen in two images or more intersected from all its images (NaN for the others):
+    the start values of the tie and check points, the same for every case of a study."""
+    images = data.images if images is None else images
+    out = np.full((len(data.point_ids), 3), np.nan)
     for p in range(len(data.point_ids)):
         sel = data.obs_point == p
-        if p not in gcps and np.unique(data.obs_image[sel]).size >= 2:
-            start[p], _ = intersect(data.images, data.obs_image[sel], data.obs_row[sel], data.obs_col[sel])
+        if np.unique(data.obs_image[sel]).size >= 2:
+            out[p], _ = intersect(images, data.obs_image[sel], data.obs_row[sel], data.obs_col[sel])
+    return out
+
+
+def _start_points(data: PushbroomBlock, gcps: np.ndarray, intersected: np.ndarray) -> np.ndarray:
+    """GCPs at their surveyed coordinates, every other point intersected from all its images."""
+    start = data.reference_ecef.copy()
+    others = np.setdiff1d(np.flatnonzero(~np.isnan(intersected[:, 0])), gcps)
+    start[others] = intersected[others]
     return start
 
 
 def run_case(data: PushbroomBlock, model: SensorModel, gcps: np.ndarray, image_set: tuple[int, ...], dem,
              label: str = "", images: list[LineImage] | None = None,
-             snooping: SnoopingOptions | None = None, screening: ScreeningOptions | None = None) -> PushbroomCase:
+             snooping: SnoopingOptions | None = None, screening: ScreeningOptions | None = None,
+             intersected: np.ndarray | None = None) -> PushbroomCase:
     """One adjustment with ``gcps`` as control, on the images ``image_set``; check points are the other
     points with reference coordinates, restituted on ``dem`` (mono) or intersected (stereo). With
     ``snooping``, Baarda's data snooping rejects image points one at a time; with ``screening``, the
     calibration parameters are then screened on the image points kept (the result is the adjustment
-    with the parameters that stay)."""
+    with the parameters that stay). ``intersected``: :func:`intersections` of ``images``, when the
+    caller has them."""
     images = data.images if images is None else images
-    data_here = data if images is data.images else _replace_images(data, images)
     mono = len(image_set) == 1
     known = np.flatnonzero(~np.isnan(data.reference_ecef).any(axis=1))
     checks = np.setdiff1d(known, gcps)
@@ -116,7 +127,8 @@ def run_case(data: PushbroomBlock, model: SensorModel, gcps: np.ndarray, image_s
         seen = np.unique(data.obs_point[take], return_counts=True)
         checks = np.intersect1d(checks, seen[0][seen[1] >= 2])
     take = np.flatnonzero(take)
-    start = _start_points(data_here, gcps)
+    intersected = intersections(data, images) if intersected is None else intersected
+    start = _start_points(data, gcps, intersected)
     fail = dict(model=model.name, n_gcp=len(gcps), images=label, rmse_m=None, n_check=checks.size, gcps=gcps,
                 checks=checks)
     try:
@@ -161,11 +173,6 @@ def run_case(data: PushbroomBlock, model: SensorModel, gcps: np.ndarray, image_s
                          errors, "", fail["observations"], fail["rejected"], fail.get("screening"))
 
 
-def _replace_images(data: PushbroomBlock, images: list[LineImage]) -> PushbroomBlock:
-    from dataclasses import replace
-    return replace(data, images=images)
-
-
 def calibrate_focal(data: PushbroomBlock, dem, gcps: np.ndarray | None = None
                     ) -> tuple[dict[str, float], dict[str, float]]:
     """Step 1 of seed 001: each camera's focal length (mm) and its sigma, from M7 on all images."""
@@ -199,12 +206,14 @@ def run_study(data: PushbroomBlock, dem, models=tuple(SENSOR_MODELS), gcp_counts
     focal, focal_sigma = calibrate_focal(data, dem) if calibrate else ({}, {})
     images = with_focal(data.images, focal) if calibrate else data.images
     sets = image_sets(data) if sets is None else sets
+    intersected = intersections(data, images)
     cases = []
     for label, image_set in sets.items():
         for name in models:
             model = sensor_model(name, prior_sigma if name == "M6" else None)
             for n in gcp_counts:
-                case = run_case(data, model, choose_gcps(data, n), image_set, dem, label, images, snooping)
+                case = run_case(data, model, choose_gcps(data, n), image_set, dem, label, images, snooping,
+                                intersected=intersected)
                 cases.append(case)
                 if progress is not None:
                     progress(case)

@@ -14,7 +14,7 @@ import erfa
 import numpy as np
 
 __all__ = ["WGS84_A_M", "WGS84_F", "utc_two_part", "itrs_from_gcrs", "orbit_frame",
-           "ecef_from_geodetic", "geodetic_from_ecef", "local_up"]
+           "ecef_from_geodetic", "geodetic_from_ecef", "local_up", "intersect_ellipsoid"]
 
 WGS84_A_M = 6378137.0
 WGS84_F = 1.0 / 298.257223563
@@ -95,3 +95,22 @@ def local_up(lat_rad, lon_rad) -> np.ndarray:
     """Unit ellipsoid normals (n, 3) in ECEF."""
     lat, lon = np.asarray(lat_rad, float), np.asarray(lon_rad, float)
     return np.stack([np.cos(lat) * np.cos(lon), np.cos(lat) * np.sin(lon), np.sin(lat)], axis=-1)
+
+
+def intersect_ellipsoid(origins: np.ndarray, directions: np.ndarray, semi_major_m: float, semi_minor_m: float
+                        ) -> np.ndarray:
+    """The first point (n, 3) where rays S + s d (s > 0) meet the ellipsoid of revolution
+    (x² + y²)/a² + z²/b² = 1 (any body: usgscsm's ``imageToGround`` at height h uses a + h, b + h);
+    NaN where a ray misses it."""
+    S = np.atleast_2d(np.asarray(origins, float))
+    d = np.atleast_2d(np.asarray(directions, float))
+    scale = np.array([1.0 / semi_major_m, 1.0 / semi_major_m, 1.0 / semi_minor_m])
+    Ss, ds = S * scale, d * scale                      # the ellipsoid becomes the unit sphere
+    a = np.einsum("ni,ni->n", ds, ds)
+    b = np.einsum("ni,ni->n", Ss, ds)
+    c = np.einsum("ni,ni->n", Ss, Ss) - 1.0
+    disc = b * b - a * c
+    with np.errstate(invalid="ignore"):
+        s = (-b - np.sqrt(disc)) / a
+    s[(disc < 0) | (s < 0)] = np.nan
+    return S + s[:, None] * d

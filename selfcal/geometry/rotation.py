@@ -19,7 +19,7 @@ import numpy as np
 
 __all__ = ["matrix_from_opk", "matrix_from_opk_with_derivatives", "opk_from_matrix",
            "opk_from_matrix_with_derivatives", "matrix_from_quaternion", "quaternion_from_matrix",
-           "matrix_from_rotation_vector"]
+           "matrix_from_rotation_vector", "slerp"]
 
 
 def _elementary(omega, phi, kappa):
@@ -151,3 +151,30 @@ def matrix_from_rotation_vector(v: np.ndarray) -> np.ndarray:
     vx, vy, vz = v[..., 0], v[..., 1], v[..., 2]
     V = np.stack([np.stack([zero, -vz, vy], -1), np.stack([vz, zero, -vx], -1), np.stack([-vy, vx, zero], -1)], -2)
     return np.where(small[..., None, None], np.eye(3) + V, R)
+
+
+def slerp(times: np.ndarray, quaternions: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Spherical linear interpolation of unit quaternions (n, 4) sampled at increasing ``times``, at ``t``
+    (clamped to the first and last interval: extrapolated along them). Either component order works
+    (the interpolation is component-wise). Neighbours are brought to the same hemisphere first, so the
+    shorter arc is taken."""
+    times = np.asarray(times, float)
+    q = np.array(quaternions, float)
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    if len(q) == 1:
+        return np.broadcast_to(q[0], (np.size(t), 4)).copy()
+    for k in range(1, len(q)):                         # same hemisphere as the previous sample
+        if q[k] @ q[k - 1] < 0:
+            q[k] = -q[k]
+    t = np.atleast_1d(np.asarray(t, float))
+    k = np.clip(np.searchsorted(times, t, side="right") - 1, 0, len(times) - 2)
+    u = (t - times[k]) / (times[k + 1] - times[k])
+    q0, q1 = q[k], q[k + 1]
+    cos = np.clip(np.einsum("ni,ni->n", q0, q1), -1.0, 1.0)
+    angle = np.arccos(cos)
+    small = angle < 1e-12
+    sin = np.where(small, 1.0, np.sin(angle))
+    w0 = np.where(small, 1.0 - u, np.sin((1.0 - u) * angle) / sin)
+    w1 = np.where(small, u, np.sin(u * angle) / sin)
+    out = w0[:, None] * q0 + w1[:, None] * q1
+    return out / np.linalg.norm(out, axis=1, keepdims=True)

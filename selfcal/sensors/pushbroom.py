@@ -42,7 +42,7 @@ from ..geometry.earth import ecef_from_geodetic, geodetic_from_ecef, itrs_from_g
 
 __all__ = ["PARAMETER_NAMES", "PARAMETER_UNITS", "LineCamera", "Polynomial", "fit_polynomial", "Trajectory",
            "fit_trajectory", "LineImage", "rotation_x", "rotation_y", "rotation_z", "angles_from_body_to_orbit",
-           "photo_coordinates", "ground_to_image", "line_of_sight", "image_to_ground", "intersect",
+           "photo_coordinates", "image_scales", "image_residuals", "ground_to_image", "line_of_sight", "image_to_ground", "intersect",
            "TIME_TOLERANCE_LINES"]
 
 #: calibration parameters of a pushbroom image, in the order of :attr:`LineImage.parameters`
@@ -114,6 +114,11 @@ class LineCamera:
     chip at column 0 is implied); ``chip_offsets_px`` gives each chip's known displacement
     (along track, across track) in pixels from the ideal line, so that the detector of column
     col sits at x = along p, y = (col - center_col + across) p in the focal plane.
+
+    A calibrated line (a sensor description that gives the detectors' look directions, or a
+    lens distortion that bends the line) is given instead by ``focal_plane_mm``: the
+    coefficients (power series, lowest first) of x(s) and y(s) in mm with s = (col -
+    center_col) / columns. ``pixel_size_mm`` then only scales residuals to pixels.
     """
 
     camera_id: str
@@ -125,11 +130,14 @@ class LineCamera:
     view_pitch_deg: float = 0.0
     chip_starts: tuple[int, ...] = ()
     chip_offsets_px: tuple[tuple[float, float], ...] = ()
+    focal_plane_mm: tuple[tuple[float, ...], tuple[float, ...]] = ()
 
     def __post_init__(self):
         if self.chip_offsets_px and len(self.chip_offsets_px) != len(self.chip_starts) + 1:
             raise ValueError(f"{len(self.chip_starts) + 1} chips need as many (along, across) offsets, "
                              f"found {len(self.chip_offsets_px)}")
+        if self.focal_plane_mm and (self.chip_offsets_px or len(self.focal_plane_mm) != 2):
+            raise ValueError("focal_plane_mm is (x coefficients, y coefficients) and replaces the chip offsets")
 
     def offsets_px(self, col) -> np.ndarray:
         """(along, across) offset in pixels of the chip of each column, (n, 2)."""
@@ -224,6 +232,8 @@ def fit_trajectory(frame: str, epoch_utc: str, ephemeris_t: np.ndarray, position
         R_FB = matrix_from_quaternion(np.asarray(quaternions, float), scalar_first=False)
         R_FO = orbit_frame(pos(attitude_t), vel(attitude_t))
         angles = angles_from_body_to_orbit(np.swapaxes(R_FO, 1, 2) @ R_FB)
+        order = np.argsort(attitude_t)
+        angles[order] = np.unwrap(angles[order], axis=0)     # a yaw near +/-180 deg stays continuous
     else:
         angles = np.zeros((len(attitude_t), 3))
     att, att_res = fit_polynomial(attitude_t, angles, orders[2], t_ref)
@@ -270,17 +280,36 @@ class LineImage:
         """Focal-plane position (x, y) in mm (n, 2) of the detector of each column: (0, ys) on the
         ideal line, displaced by its chip's offset."""
         col = np.atleast_1d(np.asarray(col, float))
-        p = self.camera.pixel_size_mm
-        offset = self.camera.offsets_px(col)
-        return np.stack([offset[:, 0] * p, (col - self.camera.center_col + offset[:, 1]) * p], -1)
+        cam = self.camera
+        if cam.focal_plane_mm:
+            s = (col - cam.center_col) / cam.columns
+            return np.stack([np.polynomial.polynomial.polyval(s, c) for c in cam.focal_plane_mm], -1)
+        p = cam.pixel_size_mm
+        offset = cam.offsets_px(col)
+        return np.stack([offset[:, 0] * p, (col - cam.center_col + offset[:, 1]) * p], -1)
 
     def col_of_y(self, y_mm) -> np.ndarray:
         """The column whose detector has the focal-plane y (its chip's across offset taken off)."""
+        if self.camera.focal_plane_mm:
+            return self._col_of_y_polynomial(np.atleast_1d(np.asarray(y_mm, float)))
         p = self.camera.pixel_size_mm
         col = self.camera.center_col + np.atleast_1d(np.asarray(y_mm, float)) / p
         for _ in range(2):                       # the chip depends on the column; offsets are sub-chip
             col = self.camera.center_col + np.asarray(y_mm, float) / p - self.camera.offsets_px(col)[:, 1]
         return col
+
+    def _col_of_y_polynomial(self, y_mm: np.ndarray) -> np.ndarray:
+        """Newton's method on y(s) = y_mm (y is monotonic along a detector line), to 1e-12 of the line."""
+        cam = self.camera
+        cy = np.asarray(cam.focal_plane_mm[1], float)
+        dcy = np.polynomial.polynomial.polyder(cy)
+        s = (y_mm - cy[0]) / cy[1] if len(cy) > 1 else np.zeros_like(y_mm)
+        for _ in range(_MAX_NEWTON):
+            step = (np.polynomial.polynomial.polyval(s, cy) - y_mm) / np.polynomial.polynomial.polyval(s, dcy)
+            s = s - step
+            if np.all(np.abs(step) < 1e-12):
+                break
+        return cam.center_col + s * cam.columns
 
 
 def _attitude(image: LineImage, t: np.ndarray):
@@ -346,6 +375,42 @@ def photo_coordinates(image: LineImage, points_ecef: np.ndarray, t: np.ndarray, 
     M = np.einsum("ij,nkj,nlk,nlm->nim", R_TB, R_OB, R_FO, R_FE)
     d_point = dxy_dw @ M
     return xy, d_params, d_point
+
+
+def image_scales(image: LineImage, points_ecef: np.ndarray, row, col) -> np.ndarray:
+    """(n, 2): the image motion per line along track dx/drow (central differences over one line) and
+    the detector spacing dy/dcol across track, in mm, at image points of ground points."""
+    P = np.atleast_2d(np.asarray(points_ecef, float))
+    t = image.time_of_row(np.atleast_1d(np.asarray(row, float)))
+    col = np.atleast_1d(np.asarray(col, float))
+    period = image.camera.line_period_s
+    along = (photo_coordinates(image, P, t + period)[:, 0] - photo_coordinates(image, P, t - period)[:, 0]) / 2
+    across = image.detector_mm(col + 0.5)[:, 1] - image.detector_mm(col - 0.5)[:, 1]
+    return np.stack([along, across], -1)
+
+
+def image_residuals(image: LineImage, points_ecef: np.ndarray, row, col, jacobians: bool = False,
+                    scales: np.ndarray | None = None):
+    """Residuals (n, 2) of image points in image units, observed minus computed row and column, to
+    first order: the along-track misfit x - x_d over the image motion per line, the across-track
+    misfit y_d - y over the detector spacing (:func:`image_scales`; pass them to reuse them: they
+    hardly change with the calibration parameters). With square pixels and a straight line both
+    scales are the pixel size; a sensor whose lines are longer or shorter on the ground than its
+    detectors (usgscsm's LRO NAC ISD: 19 m per line, 1 m per detector) needs them. With ``jacobians``
+    also d(row, col)/d(parameters) (n, 2, 10) and d(row, col)/d(point) (n, 2, 3) of the computed
+    image point."""
+    P = np.atleast_2d(np.asarray(points_ecef, float))
+    row, col = np.atleast_1d(np.asarray(row, float)), np.atleast_1d(np.asarray(col, float))
+    scales = image_scales(image, P, row, col) if scales is None else scales
+    out = photo_coordinates(image, P, image.time_of_row(row), jacobians=jacobians)
+    xy = out[0] if jacobians else out
+    detector = image.detector_mm(col)
+    res = np.stack([(xy[:, 0] - detector[:, 0]) / scales[:, 0], (detector[:, 1] - xy[:, 1]) / scales[:, 1]], -1)
+    if not jacobians:
+        return res
+    _, d_par, d_pt = out
+    factor = np.stack([-1.0 / scales[:, 0], 1.0 / scales[:, 1]], -1)[:, :, None]
+    return res, d_par * factor, d_pt * factor
 
 
 def ground_to_image(image: LineImage, points_ecef: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -439,18 +504,16 @@ def intersect(images: list[LineImage], image_index: np.ndarray, rows: np.ndarray
         A += proj
         b += proj @ S
     X = np.linalg.solve(A, b)
+    scales = []
     for _ in range(iterations):
         N = np.zeros((3, 3))
         g = np.zeros(3)
-        for k, r, c in zip(image_index, rows, cols):
-            img = images[k]
-            t = img.time_of_row(np.atleast_1d(r))
-            xy, _, dP = photo_coordinates(img, X[None], t, jacobians=True)
-            p = img.camera.pixel_size_mm
-            res = (img.detector_mm(c)[0] - xy[0]) / p
-            J = dP[0] / p
-            N += J.T @ J
-            g += J.T @ res
+        if not scales:
+            scales = [image_scales(images[k], X[None], r, c) for k, r, c in zip(image_index, rows, cols)]
+        for k, r, c, sc in zip(image_index, rows, cols, scales):
+            res, _, dP = image_residuals(images[k], X[None], r, c, True, sc)
+            N += dP[0].T @ dP[0]
+            g += dP[0].T @ res[0]
         dX = np.linalg.solve(N, g)
         X = X + dX
         if np.max(np.abs(dX)) < 1e-6:

@@ -1,0 +1,258 @@
+"""A selfcal line camera from a usgscsm line-scan description (ISD), and usgscsm's ground functions.
+
+The frames of usgscsm's line scanner (``UsgsAstroLsSensorModel``), as selfcal reproduces them:
+
+* time of an image point: t = t_i + rate (line - line_i + 0.5) (one entry of ``line_scan_rate``;
+  the 0.5 makes it the line's centre of exposure), so selfcal's first-line time is the t of
+  line 0;
+* focal plane: the detector (starting line, sample x summing + starting sample) minus the
+  detector centre, through the inverse of ``focal2pixel``, gives the distorted (x, y) in mm;
+  the lens distortion is removed (``radial``: x (1 - k0 - k1 r² - k2 r⁴); ``lrolrocnac``:
+  y / (1 + k y²));
+* camera look vector (-x, -y, -f), turned into the target body's frame by the rotation
+  sensor -> J2000 -> body (the ISD's quaternions, scalar first, with their constant
+  rotations);
+* telemetry as usgscsm builds it from an ISD (with ALE): the positions are resampled on at least
+  25 equally spaced nodes by a cubic Hermite spline through the ISD's positions and velocities,
+  rotated to the body frame, and interpolated by Lagrange polynomials of order 8 (lower near the
+  ends); the sensor -> body quaternions are resampled equally spaced (slerp) over the merged
+  times of pointing and body rotation and interpolated the same way, then normalised;
+* ``imageToGround`` at height h meets the ellipsoid of semi-axes a + h, b + h: of the two
+  intersections of the *line* it takes the one nearer the sensor, on either side of it, and a
+  line that misses gives its point nearest the ellipsoid (usgscsm warns; selfcal's own
+  :func:`~selfcal.geometry.earth.intersect_ellipsoid` returns NaN instead).
+
+selfcal's telescope frame T looks along +z with (x_T, y_T) = (-x, y): R_cam,T = Rx(180°), folded
+into the attitude, so the boresight angles stay zero and the detector line is ``focal_plane_mm``
+of :class:`~selfcal.sensors.pushbroom.LineCamera`. The attitude is handed to the sensor model as
+roll, pitch, yaw in the orbit frame of the interpolated position and velocity, computed from the
+interpolated rotation at each time (no fit), so the lines of sight are usgscsm's and the
+calibration parameters of seed 001 (Eq. 6) apply to it unchanged. Velocity aberration and light
+time are not applied (usgscsm's ``imageToGround`` does not either).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..geometry.earth import orbit_frame
+from ..geometry.rotation import matrix_from_quaternion, quaternion_from_matrix, slerp
+from .pushbroom import (LineCamera, LineImage, Trajectory, angles_from_body_to_orbit, ground_to_image, line_of_sight,
+                        rotation_x)
+
+__all__ = ["LineScan", "line_scan_from_isd", "undistort", "LagrangeSeries", "hermite", "usgscsm_ellipsoid_point",
+           "FOCAL_PLANE_TOLERANCE_MM", "DISTORTION_MODELS", "MIN_EPHEMERIS_NODES"]
+
+#: the focal-plane polynomial reproduces the undistorted detector positions to this (mm)
+FOCAL_PLANE_TOLERANCE_MM = 1e-10
+DISTORTION_MODELS = ("radial", "lrolrocnac")
+#: usgscsm resamples the ephemeris on at least this many equally spaced nodes
+MIN_EPHEMERIS_NODES = 25
+
+
+# --- interpolation as usgscsm and ALE do it ------------------------------------------------------
+
+def hermite(times: np.ndarray, values: np.ndarray, rates: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Piecewise cubic Hermite interpolation of ``values`` (n, k) with derivatives ``rates`` at increasing
+    ``times``; returns the values and derivatives at ``t`` (the end intervals extend beyond the ends)."""
+    t = np.atleast_1d(np.asarray(t, float))
+    i = np.clip(np.searchsorted(times, t, side="right") - 1, 0, len(times) - 2)
+    h = (times[i + 1] - times[i])[:, None]
+    u = ((t - times[i])[:, None]) / h
+    p0, p1, v0, v1 = values[i], values[i + 1], rates[i] * h, rates[i + 1] * h
+    u2, u3 = u * u, u * u * u
+    value = (2 * u3 - 3 * u2 + 1) * p0 + (u3 - 2 * u2 + u) * v0 + (-2 * u3 + 3 * u2) * p1 + (u3 - u2) * v1
+    rate = ((6 * u2 - 6 * u) * p0 + (3 * u2 - 4 * u + 1) * v0 + (-6 * u2 + 6 * u) * p1 + (3 * u2 - 2 * u) * v1) / h
+    exact = np.isin(t, times)                  # ALE returns a sample itself at its own time
+    if exact.any():
+        k = np.searchsorted(times, t[exact])
+        value[exact], rate[exact] = values[k], rates[k]
+    return value, rate
+
+
+@dataclass(frozen=True)
+class LagrangeSeries:
+    """Equally spaced samples (n, k) from ``t0`` every ``dt`` s, interpolated as usgscsm's ``lagrangeInterp``:
+    Lagrange polynomials through the 8 nodes around t, fewer (6, 4, 2) within 3 nodes of an end."""
+
+    t0: float
+    dt: float
+    values: np.ndarray
+
+    def __call__(self, t) -> np.ndarray:
+        t = np.atleast_1d(np.asarray(t, float))
+        n = len(self.values)
+        position = (t - self.t0) / self.dt
+        index = np.clip(np.trunc(position).astype(int), 0, n - 2)
+        order = np.where((index >= 3) & (index < n - 4), 8, np.where((index >= 2) & (index < n - 3), 6,
+                                                                       np.where((index >= 1) & (index < n - 2), 4, 2)))
+        out = np.empty((len(t), self.values.shape[1]))
+        for m in np.unique(order):
+            sel = np.flatnonzero(order == m)
+            offsets = np.arange(-(m // 2 - 1), m // 2 + 1)            # nodes index-3 .. index+4 for order 8
+            u = (position[sel] - index[sel])[:, None]
+            weights = np.ones((sel.size, m))
+            for j, a in enumerate(offsets):
+                for b in offsets:
+                    if b != a:
+                        weights[:, j] *= (u[:, 0] - b) / (a - b)
+            out[sel] = np.einsum("nj,njk->nk", weights, self.values[index[sel, None] + offsets[None, :]])
+        return out
+
+
+def _equally_spaced(first: float, last: float, count: int) -> np.ndarray:
+    step = (last - first) / (count - 1)
+    return first + step * np.arange(count)
+
+
+@dataclass(frozen=True)
+class _OrbitAttitude:
+    """Roll, pitch, yaw of the body (selfcal's telescope frame) in the orbit frame of the interpolated
+    ephemeris, from the interpolated rotation telescope -> body-fixed frame: evaluated, not fitted."""
+
+    position: LagrangeSeries
+    velocity: LagrangeSeries
+    quaternions: LagrangeSeries         # x, y, z, w of sensor -> body-fixed (usgscsm's order)
+
+    def __call__(self, t) -> np.ndarray:
+        q = self.quaternions(t)
+        R_FT = matrix_from_quaternion(q, scalar_first=False) @ rotation_x(np.pi)
+        R_FO = orbit_frame(self.position(t), self.velocity(t))
+        return angles_from_body_to_orbit(np.swapaxes(R_FO, -1, -2) @ R_FT)
+
+
+# --- focal plane ----------------------------------------------------------------------------------
+
+def undistort(x_mm: np.ndarray, y_mm: np.ndarray, model: str, coefficients: np.ndarray):
+    """Undistorted focal-plane coordinates of usgscsm's ``radial`` and ``lrolrocnac`` models."""
+    k = np.asarray(coefficients, float)
+    if model == "radial":
+        k = np.concatenate([k, np.zeros(3)])[:3]
+        r2 = x_mm * x_mm + y_mm * y_mm
+        dr = k[0] + r2 * (k[1] + r2 * k[2])
+        return x_mm * (1.0 - dr), y_mm * (1.0 - dr)
+    if model == "lrolrocnac":
+        return x_mm, y_mm / (1.0 + k[0] * y_mm * y_mm)
+    raise ValueError(f"lens distortion model '{model}' is not supported (known: {', '.join(DISTORTION_MODELS)})")
+
+
+def _focal_plane(isd, samples: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Undistorted (x, y) mm of the detectors of image samples (usgscsm: the detector line at line 0)."""
+    l0, l1, l2 = isd.focal2pixel_lines
+    s0, s1, s2 = isd.focal2pixel_samples
+    t1 = isd.starting_detector_line - isd.detector_center_line - l0
+    t2 = samples * isd.sample_summing + isd.starting_detector_sample - isd.detector_center_sample - s0
+    det = l1 * s2 - l2 * s1
+    x = (s2 * t1 - l2 * t2) / det
+    y = (-s1 * t1 + l1 * t2) / det
+    return undistort(x, y, isd.distortion_model, isd.distortion_coefficients)
+
+
+def _fit_focal_plane(isd, center_col: float, max_degree: int = 11):
+    """Polynomials x(s), y(s) (s = (col - center_col) / columns) of the telescope-frame detector
+    positions (x_T, y_T) = (-x, y), of the lowest degree that meets FOCAL_PLANE_TOLERANCE_MM."""
+    n = isd.image_samples
+    nodes = 4 * max_degree + 1
+    cols = 0.5 * n * (1.0 - np.cos(np.pi * np.arange(nodes) / (nodes - 1)))      # Chebyshev-Lobatto nodes
+    x, y = _focal_plane(isd, cols)
+    s = (cols - center_col) / n
+    for degree in range(1, max_degree + 1):
+        V = np.polynomial.polynomial.polyvander(s, degree)
+        cx = np.linalg.lstsq(V, -x, rcond=None)[0]
+        cy = np.linalg.lstsq(V, y, rcond=None)[0]
+        misfit = float(max(np.max(np.abs(V @ cx + x)), np.max(np.abs(V @ cy - y))))
+        if misfit <= FOCAL_PLANE_TOLERANCE_MM:
+            break
+    return (tuple(map(float, cx)), tuple(map(float, cy))), misfit
+
+
+# --- the model ------------------------------------------------------------------------------------
+
+def usgscsm_ellipsoid_point(origins: np.ndarray, directions: np.ndarray, semi_major_m: float,
+                            semi_minor_m: float) -> np.ndarray:
+    """usgscsm's ``losEllipsoidIntersect``: of the two points where the *line* S + s d meets the
+    ellipsoid, the one with the smaller |s| (it may lie behind the sensor); a line that misses gives
+    s = -b / 2a, its point nearest the ellipsoid in the scaled metric."""
+    S, d = np.atleast_2d(origins), np.atleast_2d(directions)
+    k = (semi_major_m / semi_minor_m) ** 2
+    w = np.array([1.0, 1.0, k])
+    a = np.einsum("ni,ni,i->n", d, d, w)
+    b = 2.0 * np.einsum("ni,ni,i->n", d, S, w)
+    c = np.einsum("ni,ni,i->n", S, S, w) - semi_major_m ** 2
+    root = np.sqrt(np.maximum(b * b - 4 * a * c, 0.0))
+    s1, s2 = -b - root, -b + root
+    s = np.where(np.abs(s2) < np.abs(s1), s2, s1) / (2 * a)
+    return S + s[:, None] * d
+
+
+@dataclass(frozen=True)
+class LineScan:
+    """A line-scan image of a usgscsm ISD as a selfcal :class:`LineImage`, with its body's ellipsoid."""
+
+    image: LineImage
+    semi_major_m: float
+    semi_minor_m: float
+    focal_plane_misfit_mm: float           # largest misfit of the focal-plane polynomial
+
+    def image_to_ground(self, line, sample, height_m=0.0) -> np.ndarray:
+        """Body-fixed points (n, 3) of image points at ``height_m`` above the ellipsoid, as usgscsm's
+        ``imageToGround`` (:func:`usgscsm_ellipsoid_point` with a + h, b + h)."""
+        S, d = line_of_sight(self.image, line, sample)
+        return usgscsm_ellipsoid_point(S, d, self.semi_major_m + height_m, self.semi_minor_m + height_m)
+
+    def ground_to_image(self, points_m) -> tuple[np.ndarray, np.ndarray]:
+        """(line, sample) of body-fixed points."""
+        return ground_to_image(self.image, points_m)
+
+    def sensor_position(self, line) -> np.ndarray:
+        line = np.atleast_1d(np.asarray(line, float))
+        return line_of_sight(self.image, line, np.zeros_like(line))[0]
+
+
+def _body_from_j2000(isd, t: np.ndarray) -> np.ndarray:
+    return isd.body_constant @ matrix_from_quaternion(slerp(isd.body_times_s, isd.body_quaternions, t))
+
+
+def _pointing_to_body(isd, t: np.ndarray) -> np.ndarray:
+    """Quaternions (x, y, z, w) of sensor -> body at times t (slerp of both ISD rotations)."""
+    R_sj = isd.pointing_constant @ matrix_from_quaternion(slerp(isd.pointing_times_s, isd.pointing_quaternions, t))
+    q = quaternion_from_matrix(_body_from_j2000(isd, t) @ np.swapaxes(R_sj, 1, 2), scalar_first=False)
+    for k in range(1, len(q)):                 # one hemisphere: the components are interpolated
+        if q[k] @ q[k - 1] < 0:
+            q[k] = -q[k]
+    return q
+
+
+def line_scan_from_isd(isd, image_id: str | None = None) -> LineScan:
+    """Build the selfcal line camera of a :class:`~selfcal.io.usgscsm.LineScanIsd` (module docstring).
+    Times are relative to the ISD's centre ephemeris time."""
+    if len(isd.line_scan_rate) != 1:
+        raise ValueError(f"{isd.path}: {len(isd.line_scan_rate)} line rates; a variable line rate is not supported")
+    line_i, t_i, rate = isd.line_scan_rate[0]
+    t_first = t_i + rate * (0.0 - line_i + 0.5)
+    # the column of the principal point: where the distorted y is zero on the detector line
+    s0, s1, _ = isd.focal2pixel_samples
+    l0, l1, _ = isd.focal2pixel_lines
+    t1 = isd.starting_detector_line - isd.detector_center_line - l0
+    center_col = (s1 * t1 / l1 + isd.detector_center_sample + s0 - isd.starting_detector_sample) / isd.sample_summing
+    focal_plane, misfit = _fit_focal_plane(isd, center_col)
+    pixel_mm = abs(focal_plane[1][1]) / isd.image_samples
+    camera = LineCamera(isd.sensor_name or "csm", isd.image_samples, float(center_col), float(pixel_mm),
+                        isd.focal_length_mm, float(rate), focal_plane_mm=focal_plane)
+    # ephemeris: Hermite-resampled on >= 25 equally spaced nodes, rotated to the body frame
+    tp = isd.position_times_s
+    nodes = _equally_spaced(tp[0], tp[-1], max(len(tp), MIN_EPHEMERIS_NODES))
+    position, velocity = hermite(tp, isd.positions_m, isd.velocities_m_s, nodes)
+    R_bj = _body_from_j2000(isd, nodes)
+    step = nodes[1] - nodes[0]
+    position = LagrangeSeries(float(nodes[0]), float(step), np.einsum("nij,nj->ni", R_bj, position))
+    velocity = LagrangeSeries(float(nodes[0]), float(step), np.einsum("nij,nj->ni", R_bj, velocity))
+    # attitude: sensor -> body on the merged times, resampled equally spaced
+    tq = np.union1d(isd.pointing_times_s, isd.body_times_s)
+    quat_nodes = _equally_spaced(tq[0], tq[-1], len(tq))
+    quaternions = LagrangeSeries(float(quat_nodes[0]), float(quat_nodes[1] - quat_nodes[0]),
+                                 _pointing_to_body(isd, quat_nodes))
+    trajectory = Trajectory("ECEF", "", position, velocity, _OrbitAttitude(position, velocity, quaternions))
+    image = LineImage.nominal(image_id or camera.camera_id, camera, trajectory, t_first, isd.image_lines)
+    return LineScan(image, isd.semi_major_m, isd.semi_minor_m, misfit)
