@@ -40,7 +40,7 @@ import numpy as np
 
 from ..geometry.earth import ecef_from_geodetic, geodetic_from_ecef, itrs_from_gcrs, local_up, orbit_frame
 
-__all__ = ["PARAMETER_NAMES", "PARAMETER_UNITS", "LineCamera", "Polynomial", "fit_polynomial", "Trajectory",
+__all__ = ["PARAMETER_NAMES", "PARAMETER_UNITS", "LineCamera", "fit_focal_plane", "Polynomial", "fit_polynomial", "Trajectory",
            "fit_trajectory", "LineImage", "rotation_x", "rotation_y", "rotation_z", "angles_from_body_to_orbit",
            "photo_coordinates", "image_scales", "image_residuals", "ground_to_image", "line_of_sight", "image_to_ground", "intersect",
            "TIME_TOLERANCE_LINES"]
@@ -102,6 +102,25 @@ def angles_from_body_to_orbit(R_OB: np.ndarray) -> np.ndarray:
     pitch = np.arctan2(R_OB[..., 0, 2], R_OB[..., 2, 2])
     yaw = np.arctan2(R_OB[..., 1, 0], R_OB[..., 1, 1])
     return np.stack([roll, pitch, yaw], -1)
+
+
+def fit_focal_plane(positions_mm, columns: int, center_col: float, tolerance_mm: float = 1e-10,
+                    max_degree: int = 11) -> tuple[tuple[tuple[float, ...], tuple[float, ...]], float]:
+    """The :attr:`LineCamera.focal_plane_mm` polynomials of a detector line given by ``positions_mm(col) ->
+    (x, y)`` (mm, telescope frame), of the lowest degree that reproduces it within ``tolerance_mm`` on
+    Chebyshev-Lobatto nodes over the line (or ``max_degree``); returns them and the largest misfit."""
+    nodes = 4 * max_degree + 1
+    cols = 0.5 * columns * (1.0 - np.cos(np.pi * np.arange(nodes) / (nodes - 1)))
+    x, y = positions_mm(cols)
+    s = (cols - center_col) / columns
+    for degree in range(1, max_degree + 1):
+        V = np.polynomial.polynomial.polyvander(s, degree)
+        cx = np.linalg.lstsq(V, x, rcond=None)[0]
+        cy = np.linalg.lstsq(V, y, rcond=None)[0]
+        misfit = float(max(np.max(np.abs(V @ cx - x)), np.max(np.abs(V @ cy - y))))
+        if misfit <= tolerance_mm:
+            break
+    return (tuple(map(float, cx)), tuple(map(float, cy))), misfit
 
 
 # --- telemetry ------------------------------------------------------------------------------------

@@ -38,8 +38,8 @@ import numpy as np
 
 from ..geometry.earth import orbit_frame
 from ..geometry.rotation import matrix_from_quaternion, quaternion_from_matrix, slerp
-from .pushbroom import (LineCamera, LineImage, Trajectory, angles_from_body_to_orbit, ground_to_image, line_of_sight,
-                        rotation_x)
+from .pushbroom import (LineCamera, LineImage, Trajectory, angles_from_body_to_orbit, fit_focal_plane, ground_to_image,
+                        line_of_sight, rotation_x)
 
 __all__ = ["LineScan", "line_scan_from_isd", "undistort", "LagrangeSeries", "hermite", "usgscsm_ellipsoid_point",
            "FOCAL_PLANE_TOLERANCE_MM", "DISTORTION_MODELS", "MIN_EPHEMERIS_NODES"]
@@ -149,24 +149,6 @@ def _focal_plane(isd, samples: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return undistort(x, y, isd.distortion_model, isd.distortion_coefficients)
 
 
-def _fit_focal_plane(isd, center_col: float, max_degree: int = 11):
-    """Polynomials x(s), y(s) (s = (col - center_col) / columns) of the telescope-frame detector
-    positions (x_T, y_T) = (-x, y), of the lowest degree that meets FOCAL_PLANE_TOLERANCE_MM."""
-    n = isd.image_samples
-    nodes = 4 * max_degree + 1
-    cols = 0.5 * n * (1.0 - np.cos(np.pi * np.arange(nodes) / (nodes - 1)))      # Chebyshev-Lobatto nodes
-    x, y = _focal_plane(isd, cols)
-    s = (cols - center_col) / n
-    for degree in range(1, max_degree + 1):
-        V = np.polynomial.polynomial.polyvander(s, degree)
-        cx = np.linalg.lstsq(V, -x, rcond=None)[0]
-        cy = np.linalg.lstsq(V, y, rcond=None)[0]
-        misfit = float(max(np.max(np.abs(V @ cx + x)), np.max(np.abs(V @ cy - y))))
-        if misfit <= FOCAL_PLANE_TOLERANCE_MM:
-            break
-    return (tuple(map(float, cx)), tuple(map(float, cy))), misfit
-
-
 # --- the model ------------------------------------------------------------------------------------
 
 def usgscsm_ellipsoid_point(origins: np.ndarray, directions: np.ndarray, semi_major_m: float,
@@ -236,7 +218,11 @@ def line_scan_from_isd(isd, image_id: str | None = None) -> LineScan:
     l0, l1, _ = isd.focal2pixel_lines
     t1 = isd.starting_detector_line - isd.detector_center_line - l0
     center_col = (s1 * t1 / l1 + isd.detector_center_sample + s0 - isd.starting_detector_sample) / isd.sample_summing
-    focal_plane, misfit = _fit_focal_plane(isd, center_col)
+    def telescope_frame(cols):                 # (x_T, y_T) = (-x, y) of the undistorted detector positions
+        x, y = _focal_plane(isd, cols)
+        return -x, y
+
+    focal_plane, misfit = fit_focal_plane(telescope_frame, isd.image_samples, center_col, FOCAL_PLANE_TOLERANCE_MM)
     pixel_mm = abs(focal_plane[1][1]) / isd.image_samples
     camera = LineCamera(isd.sensor_name or "csm", isd.image_samples, float(center_col), float(pixel_mm),
                         isd.focal_length_mm, float(rate), focal_plane_mm=focal_plane)
