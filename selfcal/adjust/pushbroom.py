@@ -21,7 +21,7 @@ point of two or three images, the check points as tie points.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -99,6 +99,7 @@ class PushbroomResult:
     redundancy: int
     iterations: int
     converged: bool
+    line_ap_coefficients: dict = field(default_factory=dict)   # camera id -> coefficients (px) of its line APs
 
 
 def _control_whitening(cov: np.ndarray) -> np.ndarray:
@@ -109,14 +110,20 @@ def _control_whitening(cov: np.ndarray) -> np.ndarray:
 def adjust_pushbroom(images: list[LineImage], obs_image: np.ndarray, obs_point: np.ndarray, obs_row: np.ndarray,
                      obs_col: np.ndarray, points_ecef: np.ndarray, control_index: np.ndarray,
                      control_ecef: np.ndarray, control_cov: np.ndarray, model: SensorModel | list[SensorModel],
-                     image_sigma_px: float = 0.3, max_iterations: int = 20, tolerance: float = 1e-4
-                     ) -> PushbroomResult:
+                     image_sigma_px: float = 0.3, max_iterations: int = 20, tolerance: float = 1e-4,
+                     line_aps: dict | None = None, line_ap_masks: dict | None = None,
+                     line_ap_sigma_px: float | None = None) -> PushbroomResult:
     """Adjust ``images`` (start values in their parameters) to image points and ground control.
 
     ``points_ecef`` are start values of all points (the GCPs' surveyed coordinates, the
     other points' intersections); ``control_index`` names the GCPs among them, with
     ``control_ecef`` and covariance ``control_cov`` (n, 3, 3, m²). ``model``: one
-    :class:`SensorModel` for every image, or one per image.
+    :class:`SensorModel` for every image, or one per image. ``line_aps``: camera id ->
+    :class:`~selfcal.ap.line.LineWaveletAP`, the additional parameters of that camera's detector line
+    (shared by its images, estimated from zero, named ``CAMERA.along_c1k+0`` ...); ``line_ap_masks``:
+    camera id -> bool (ap.size,), the coefficients estimated (the others stay zero; default all);
+    ``line_ap_sigma_px``: an a-priori sigma of every line-AP coefficient (a prior observation of zero), or
+    None for free coefficients.
     """
     models = model if isinstance(model, list) else [model] * len(images)
     obs_image, obs_point = np.asarray(obs_image), np.asarray(obs_point)
@@ -130,14 +137,26 @@ def adjust_pushbroom(images: list[LineImage], obs_image: np.ndarray, obs_point: 
     seen = np.isin(np.arange(len(images)), obs_image)
     masks = [m.mask() & seen[i] for i, m in enumerate(models)]      # images without observations stay as they are
     offsets = np.cumsum([0] + [int(m.sum()) for m in masks])
-    n_par = int(offsets[-1])
-    n_unk = n_par + 3 * observed.size
     names = [f"{img.image_id}.{PARAMETER_NAMES[j]}" for img, m in zip(images, masks) for j in np.flatnonzero(m)]
     priors = []                  # (column, prior value, sigma) of each weighted parameter
     for i, (img, m, mod) in enumerate(zip(images, masks, models)):
         sigma = mod.sigmas()
         priors += [(offsets[i] + k, img.parameters[j], sigma[j]) for k, j in enumerate(np.flatnonzero(m))
                    if np.isfinite(sigma[j])]
+    # line APs: one coefficient set per camera with observations, after the image parameters
+    ap_start, ap_values, ap_masks = {}, {}, {}
+    n_par = int(offsets[-1])
+    for cid, ap in (line_aps or {}).items():
+        if any(img.camera.camera_id == cid and seen[i] for i, img in enumerate(images)):
+            mask = np.ones(ap.size, bool) if not line_ap_masks or cid not in line_ap_masks else \
+                np.asarray(line_ap_masks[cid], bool)
+            ap_start[cid], ap_masks[cid] = n_par, mask
+            ap_values[cid] = np.zeros(ap.size)
+            names += [f"{cid}.{n}" for n, free in zip(ap.names, mask) if free]
+            if line_ap_sigma_px is not None:
+                priors += [(n_par + k, 0.0, float(line_ap_sigma_px)) for k in range(int(mask.sum()))]
+            n_par += int(mask.sum())
+    n_unk = n_par + 3 * observed.size
     control_index = np.asarray(control_index, int)
     ctl_in = point_slot[control_index] >= 0
     W_ctl = _control_whitening(np.asarray(control_cov, float)[ctl_in])
@@ -149,7 +168,7 @@ def adjust_pushbroom(images: list[LineImage], obs_image: np.ndarray, obs_point: 
         raise AdjustmentError(f"no redundancy: {n_rows} observations for {n_unk} unknowns")
     images = list(images)
 
-    scales = {}
+    scales, bases = {}, {}
 
     def evaluate(images, points, jacobians):
         res = np.zeros((n_obs, 2))
@@ -160,8 +179,25 @@ def adjust_pushbroom(images: list[LineImage], obs_image: np.ndarray, obs_point: 
                 continue
             if i not in scales:              # the image scales of the start values serve every iteration
                 scales[i] = image_scales(img, points[obs_point[sel]], obs_row[sel], obs_col[sel])
-            out = image_residuals(img, points[obs_point[sel]], obs_row[sel], obs_col[sel], jacobians, scales[i])
+            cid = img.camera.camera_id
+            offset_mm = None
+            if cid in ap_start:
+                ap = line_aps[cid]
+                if i not in bases:
+                    bases[i] = ap.basis(obs_col[sel])
+                m = bases[i].shape[1]
+                v = ap_values[cid]
+                offset_mm = np.stack([bases[i] @ v[:m], bases[i] @ v[m:]], -1) * img.camera.pixel_size_mm
+            out = image_residuals(img, points[obs_point[sel]], obs_row[sel], obs_col[sel], jacobians, scales[i],
+                                  offset_mm)
             res[sel] = out[0] if jacobians else out
+            if jacobians and cid in ap_start:
+                m, p = bases[i].shape[1], img.camera.pixel_size_mm
+                along, across = ap_masks[cid][:m], ap_masks[cid][m:]
+                start, n_along = ap_start[cid], int(along.sum())
+                J[2 * sel[:, None], start + np.arange(n_along)[None, :]] = p * bases[i][:, along] / scales[i][:, :1]
+                J[2 * sel[:, None] + 1, start + n_along + np.arange(int(across.sum()))[None, :]] = \
+                    -p * bases[i][:, across] / scales[i][:, 1:]
             if jacobians:
                 _, d_par, d_pt = out
                 rows = (2 * sel[:, None] + np.arange(2)[None, :])
@@ -177,7 +213,8 @@ def adjust_pushbroom(images: list[LineImage], obs_image: np.ndarray, obs_point: 
         A = [J / image_sigma_px] if jacobians else []
         if priors:
             cols = np.array([c for c, _, _ in priors])
-            values = np.concatenate([img.parameters[m] for img, m in zip(images, masks)])
+            values = np.concatenate([img.parameters[m] for img, m in zip(images, masks)] +
+                                    [ap_values[cid][ap_masks[cid]] for cid in ap_start])
             p0 = np.array([v for _, v, _ in priors])
             sig = np.array([s for _, _, s in priors])
             r.append((p0 - values[cols]) / sig)
@@ -213,6 +250,8 @@ def adjust_pushbroom(images: list[LineImage], obs_image: np.ndarray, obs_point: 
         images = [img.with_parameters(_apply(img.parameters, m, dx[offsets[i]:offsets[i + 1]]))
                   for i, (img, m) in enumerate(zip(images, masks))]
         points[observed] += dx[n_par:].reshape(-1, 3)
+        for cid, start in ap_start.items():
+            ap_values[cid][ap_masks[cid]] += dx[start:start + int(ap_masks[cid].sum())]
         if np.max(np.abs(dx) / sigma_cond) < tolerance:
             converged = True
             break
@@ -225,7 +264,8 @@ def adjust_pushbroom(images: list[LineImage], obs_image: np.ndarray, obs_point: 
     w_test = (-res / image_sigma_px) / np.sqrt(redundancy_numbers)
     sigma0 = float(np.sqrt(r @ r / redundancy)) if redundancy > 0 else float("nan")
     s0 = sigma0 if redundancy > 0 else 1.0
-    values = np.concatenate([img.parameters[m] for img, m in zip(images, masks)])
+    values = np.concatenate([img.parameters[m] for img, m in zip(images, masks)] +
+                            [ap_values[cid][ap_masks[cid]] for cid in ap_start])
     sd = np.sqrt(np.diag(Q))
     Q_par = Q[:n_par, :n_par]
     corr = Q_par / np.outer(sd[:n_par], sd[:n_par]) if n_par else np.zeros((0, 0))
@@ -233,7 +273,7 @@ def adjust_pushbroom(images: list[LineImage], obs_image: np.ndarray, obs_point: 
     for slot, p in enumerate(observed):
         cov[p] = s0 ** 2 * Q[n_par + 3 * slot:n_par + 3 * slot + 3, n_par + 3 * slot:n_par + 3 * slot + 3]
     return PushbroomResult(images, points, cov, names, values, s0 * sd[:n_par], corr, -res, redundancy_numbers,
-                           w_test, sigma0, redundancy, iterations, converged)
+                           w_test, sigma0, redundancy, iterations, converged, ap_values)
 
 
 def _apply(parameters: np.ndarray, mask: np.ndarray, step: np.ndarray) -> np.ndarray:

@@ -52,6 +52,7 @@ class PushbroomCase:
     observations: np.ndarray | None = None       # indices into the block's observations that were adjusted
     rejected: list | None = None                 # (index into the block's observations, |w|) of data snooping
     screening: ScreenedPushbroom | None = None   # the parameters dropped by screening, when it ran
+    line_aps: dict | None = None                 # camera id -> LineWaveletAP estimated in the case
 
 
 def image_sets(data: PushbroomBlock) -> dict[str, tuple[int, ...]]:
@@ -109,13 +110,15 @@ def _start_points(data: PushbroomBlock, gcps: np.ndarray, intersected: np.ndarra
 def run_case(data: PushbroomBlock, model: SensorModel, gcps: np.ndarray, image_set: tuple[int, ...], dem,
              label: str = "", images: list[LineImage] | None = None,
              snooping: SnoopingOptions | None = None, screening: ScreeningOptions | None = None,
-             intersected: np.ndarray | None = None) -> PushbroomCase:
+             intersected: np.ndarray | None = None, line_aps: dict | None = None,
+             line_ap_sigma_px: float | None = None) -> PushbroomCase:
     """One adjustment with ``gcps`` as control, on the images ``image_set``; check points are the other
     points with reference coordinates, restituted on ``dem`` (mono) or intersected (stereo). With
     ``snooping``, Baarda's data snooping rejects image points one at a time; with ``screening``, the
     calibration parameters are then screened on the image points kept (the result is the adjustment
     with the parameters that stay). ``intersected``: :func:`intersections` of ``images``, when the
-    caller has them."""
+    caller has them. ``line_aps``: camera id -> :class:`~selfcal.ap.line.LineWaveletAP` (1-D wavelet
+    APs of the detector lines)."""
     images = data.images if images is None else images
     mono = len(image_set) == 1
     known = np.flatnonzero(~np.isnan(data.reference_ecef).any(axis=1))
@@ -130,11 +133,12 @@ def run_case(data: PushbroomBlock, model: SensorModel, gcps: np.ndarray, image_s
     intersected = intersections(data, images) if intersected is None else intersected
     start = _start_points(data, gcps, intersected)
     fail = dict(model=model.name, n_gcp=len(gcps), images=label, rmse_m=None, n_check=checks.size, gcps=gcps,
-                checks=checks)
+                checks=checks, line_aps=line_aps)
     try:
         snooped = adjust_pushbroom_with_snooping(
             images, data.obs_image[take], data.obs_point[take], data.obs_row[take], data.obs_col[take], start, gcps,
-            data.reference_ecef[gcps], data.reference_cov[gcps], model, data.image_sigma_px, snooping)
+            data.reference_ecef[gcps], data.reference_cov[gcps], model, data.image_sigma_px, snooping, line_aps,
+            line_ap_sigma_px)
     except AdjustmentError as exc:
         return PushbroomCase(sigma0=np.nan, result=None, failure=str(exc), **fail)
     result = snooped.result
@@ -142,14 +146,15 @@ def run_case(data: PushbroomBlock, model: SensorModel, gcps: np.ndarray, image_s
     if screening is not None and not snooped.failure and result.converged:
         kept = fail["observations"]
 
-        def adjust(models):
+        def adjust(models, ap_masks):
             return adjust_pushbroom(images, data.obs_image[kept], data.obs_point[kept], data.obs_row[kept],
                                     data.obs_col[kept], start, gcps, data.reference_ecef[gcps],
-                                    data.reference_cov[gcps], models, data.image_sigma_px)
+                                    data.reference_cov[gcps], models, data.image_sigma_px, line_aps=line_aps,
+                                    line_ap_masks=ap_masks, line_ap_sigma_px=line_ap_sigma_px)
 
         try:
             screened = screen_pushbroom(adjust, [img.image_id for img in images], [img.parameters for img in images],
-                                        [model] * len(images), screening)
+                                        [model] * len(images), screening, line_aps)
         except AdjustmentError as exc:
             return PushbroomCase(sigma0=result.sigma0, result=result, failure=f"screening: {exc}", **fail)
         result = screened.result
@@ -170,7 +175,7 @@ def run_case(data: PushbroomBlock, model: SensorModel, gcps: np.ndarray, image_s
         errors = (result.points_ecef[checks] - data.reference_ecef[checks]) @ R.T
     rmse = np.sqrt(np.mean(errors ** 2, axis=0)) if len(errors) else None
     return PushbroomCase(model.name, len(gcps), label, rmse, len(errors), result.sigma0, result, gcps, checks,
-                         errors, "", fail["observations"], fail["rejected"], fail.get("screening"))
+                         errors, "", fail["observations"], fail["rejected"], fail.get("screening"), line_aps)
 
 
 def calibrate_focal(data: PushbroomBlock, dem, gcps: np.ndarray | None = None

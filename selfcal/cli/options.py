@@ -9,9 +9,12 @@ __all__ = ["grid", "ap_option", "grid_option", "progress_printer", "test_options
 
 
 def grid(text: str) -> tuple[int, int]:
-    """Parse ``GxXGy`` (e.g. ``9x6``)."""
+    """Parse ``GxXGy`` (e.g. ``9x6``), or one number N: N x N over a frame, N cells along a pushbroom line."""
     try:
-        gx, gy = (int(v) for v in text.lower().split("x"))
+        parts = [int(v) for v in text.lower().split("x")]
+        gx, gy = parts if len(parts) == 2 else (parts[0], parts[0]) if len(parts) == 1 else (None, None)
+        if gx is None:
+            raise ValueError
     except ValueError:
         raise argparse.ArgumentTypeError(f"grid must look like 9x6, found '{text}'") from None
     if gx < 1 or gy < 1:
@@ -22,12 +25,14 @@ def grid(text: str) -> tuple[int, int]:
 def ap_option(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--ap", default="none", metavar="MODEL",
                         help="additional-parameter model: none, brown, ebner, gruen, legendre[:deg], "
-                             "fourier[:order], wavelet:db4 | sym4 | meyer | bl4 (default: none)")
+                             "fourier[:order], wavelet:db4 | sym4 | meyer | bl4 (default: none); pushbroom blocks: "
+                             "wavelet1d:db4 | sym4 | meyer | bl4 along the detector line")
 
 
 def grid_option(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--grid", type=grid, default=(9, 6), metavar="GxXGy",
-                        help="grid of the wavelet APs over the frame (default: 9x6)")
+                        help="grid of the wavelet APs over the frame (default: 9x6); for wavelet1d on a pushbroom "
+                             "block, one number: cells along the detector line")
 
 
 def progress_printer(image_sigma_px: float, prefix: str = ""):

@@ -6,6 +6,7 @@ import sys
 import time
 
 from ..adjust.pushbroom import SENSOR_MODELS, pushbroom_block, sensor_model
+from ..ap.line import create_line_ap
 from ..batch.pushbroom import ATTITUDE_FREE_SIGMA, calibrate_focal, choose_gcps, run_case, run_study, with_focal
 from ..errors import UsageError
 from ..io.atomic import atomic_folder
@@ -37,6 +38,11 @@ def adjust_arguments(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--keep-focal", action="store_true",
                        help="use block.toml's focal_mm as it is; by default each camera's focal length is first "
                             "calibrated (M7 on all images, every gcp) and then held, as seed 001 does")
+    group.add_argument("--ap-cameras", metavar="ID,ID",
+                       help="pushbroom, --ap wavelet1d: the cameras whose detector lines get APs (required when "
+                            "more than one camera is adjusted)")
+    group.add_argument("--ap-sigma-px", type=float, metavar="S",
+                       help="pushbroom, --ap wavelet1d: a-priori sigma of every line-AP coefficient (default: free)")
     _common(group)
 
 
@@ -67,6 +73,36 @@ def _image_set(data, text: str | None) -> tuple[tuple[int, ...], list[str]]:
     return tuple(ids.index(v) for v in chosen), chosen
 
 
+def _line_aps(args, images) -> dict | None:
+    """--ap wavelet1d:NAME --grid N: the line APs of every camera of the images adjusted."""
+    if args.ap in ("none", ""):
+        return None
+    if not args.ap.startswith("wavelet1d:"):
+        raise UsageError(f"--ap {args.ap}: a pushbroom block takes none or wavelet1d:NAME (NAME = dbN, symN, meyer, "
+                         "blN), the 1-D wavelet APs along the detector line")
+    cameras = {img.camera.camera_id: img.camera for img in images}
+    if args.ap_cameras:
+        chosen = [c.strip() for c in args.ap_cameras.split(",") if c.strip()]
+        unknown = [c for c in chosen if c not in cameras]
+        if unknown:
+            raise UsageError(f"--ap-cameras: {', '.join(unknown)} not among the cameras adjusted "
+                             f"({', '.join(cameras)})")
+    elif len(cameras) > 1:
+        raise UsageError("--ap wavelet1d with several cameras: name the cameras whose detector lines are calibrated "
+                         "with --ap-cameras. Tie points cannot tell an error common to all the lines (one orbit "
+                         "plane) from the ground: the other lines are the reference (their payload calibration), "
+                         "unless many GCPs control the block")
+    else:
+        chosen = list(cameras)
+    if args.ap_sigma_px is not None and args.ap_sigma_px <= 0:
+        raise UsageError("--ap-sigma-px must be positive")
+    try:
+        return {c: create_line_ap(args.ap, cameras[c].columns, cameras[c].center_col, cameras[c].chip_starts,
+                                  args.grid[0]) for c in chosen}
+    except ValueError as exc:
+        raise UsageError(f"--ap {args.ap}: {exc}") from None
+
+
 def run_adjust(block, args) -> int:
     t0 = time.perf_counter()
     data = pushbroom_block(block, given_attitude=not args.no_attitude)
@@ -90,7 +126,9 @@ def run_adjust(block, args) -> int:
               f"({', '.join(model.free)})", file=sys.stderr)
     snooping = SnoopingOptions(critical=args.snoop)
     screening = screening_options(args) if args.screen else None
-    case = run_case(data, model, gcps, image_set, dem, "+".join(labels), images, snooping, screening)
+    line_aps = _line_aps(args, [data.images[i] for i in image_set])
+    case = run_case(data, model, gcps, image_set, dem, "+".join(labels), images, snooping, screening,
+                    line_aps=line_aps, line_ap_sigma_px=args.ap_sigma_px)
     if case.screening is not None:
         for d in case.screening.dropped:
             print(f"screening: dropped {d.camera_id}.{d.name} (t {d.t:.2f}, {d.reason})", file=sys.stderr)

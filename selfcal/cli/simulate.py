@@ -29,6 +29,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--noise-px", type=float, default=0.5, help="image measurement noise sigma (default 0.5)")
     parser.add_argument("--blunder-rate", type=float, default=0.0,
                         help="share of image observations with a 4-15 px blunder (default 0)")
+    parser.add_argument("--points", type=int, default=28, metavar="N",
+                        help="prism: ground points measured in the triplet (default 28, as seed 001)")
+    parser.add_argument("--line-error", action="store_true",
+                        help="prism: give the nadir camera a chip-wise error of its detector line that the block "
+                             "does not know (chips misaligned by up to 0.9 px, a 1 px bow; for --ap wavelet1d)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -57,12 +62,15 @@ def run(args: argparse.Namespace) -> int:
 
 def _prism(args: argparse.Namespace) -> int:
     from ..io.dem import write_dem
-    from ..simulate.prism import dem_grid, prism_block, prism_truth_files, simulate_prism
+    from ..simulate.prism import LINE_ERROR_PX, dem_grid, prism_block, prism_truth_files, simulate_prism
 
     noise = 0.3 if args.noise_px == 0.5 else args.noise_px       # seed 001's points: about 0.3 px
     if noise <= 0:
         raise UsageError("--noise-px must be positive")
-    sim = simulate_prism(seed=args.seed, image_sigma_px=noise)
+    if args.points < 7:
+        raise UsageError("--points must be at least 7")
+    sim = simulate_prism(seed=args.seed, image_sigma_px=noise, n_points=args.points,
+                         detector_error_px=LINE_ERROR_PX if args.line_error else None)
     block = prism_block(sim, seed=args.seed)
     with atomic_folder(args.out) as tmp:
         folder = os.path.join(tmp, "triplet")

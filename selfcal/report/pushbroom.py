@@ -9,7 +9,10 @@ from ..sensors.pushbroom import PARAMETER_NAMES, PARAMETER_UNITS
 
 __all__ = ["pushbroom_files", "study_markdown", "study_csv", "render_pushbroom_report"]
 
-_DISPLAY = {"rad": ("deg", np.degrees), "rad/s": ("deg/s", np.degrees), "mm": ("mm", lambda v: v)}
+_DISPLAY = {"rad": ("deg", np.degrees), "rad/s": ("deg/s", np.degrees), "mm": ("mm", lambda v: v),
+            "px": ("px", lambda v: v)}
+#: detector_line.csv samples the estimated line APs every this many columns
+DETECTOR_LINE_STEP = 16
 
 
 def _rms(values) -> float | None:
@@ -48,7 +51,8 @@ def pushbroom_files(data, case, sensor_model: str, image_labels: list[str], extr
     image_ids, names, values, sigmas, units = [], [], [], [], []
     for name, value, sigma in zip(result.parameter_names, result.parameter_values, result.parameter_sigma):
         image_id, parameter = name.split(".", 1)
-        unit, convert = _DISPLAY[PARAMETER_UNITS[PARAMETER_NAMES.index(parameter)]]
+        unit, convert = _DISPLAY[PARAMETER_UNITS[PARAMETER_NAMES.index(parameter)]] \
+            if parameter in PARAMETER_NAMES else _DISPLAY["px"]       # line APs
         image_ids.append(image_id)
         names.append(parameter)
         values.append(convert(value))
@@ -57,6 +61,8 @@ def pushbroom_files(data, case, sensor_model: str, image_labels: list[str], extr
     files["parameters.csv"] = (["image_id", "parameter", "value", "sigma", "unit"],
                                [np.array(image_ids, object), np.array(names, object), np.array(values),
                                 np.array(sigmas), np.array(units, object)], ["", "", ".9g", ".3g", ""])
+    if case.line_aps and result.line_ap_coefficients:
+        files["detector_line.csv"] = detector_line_table(case.line_aps, result.line_ap_coefficients)
     if case.check_errors_m is not None and len(case.checks):
         e = case.check_errors_m
         centre, R = track_frame(case.result.images[len(case.result.images) // 2])
@@ -90,6 +96,24 @@ def pushbroom_files(data, case, sensor_model: str, image_labels: list[str], extr
                            [data.point_ids[observed].astype(object), p[:, 0], p[:, 1], p[:, 2], sd[:, 0], sd[:, 1],
                             sd[:, 2]], ["", ".4f", ".4f", ".4f", ".4f", ".4f", ".4f"])
     return files
+
+
+def detector_line_table(line_aps: dict, coefficients: dict):
+    """detector_line.csv: the estimated displacement of the detectors (along, across track, px) of every
+    camera with line APs, every DETECTOR_LINE_STEP columns."""
+    ids, cols, along, across = [], [], [], []
+    for cid, ap in line_aps.items():
+        if cid not in coefficients:
+            continue
+        col = np.arange(0.5, ap.columns, DETECTOR_LINE_STEP)
+        d = ap.displacement_px(col, coefficients[cid])
+        ids += [cid] * len(col)
+        cols.append(col)
+        along.append(d[:, 0])
+        across.append(d[:, 1])
+    return (["camera_id", "col", "d_along_px", "d_across_px"],
+            [np.array(ids, object), np.concatenate(cols), np.concatenate(along), np.concatenate(across)],
+            ["", ".1f", ".4f", ".4f"])
 
 
 def screening_json(screened) -> dict:

@@ -1,7 +1,7 @@
 """A selfcal line camera from the physical model of a Pleiades DIMAP file (:mod:`selfcal.io.dimap`).
 
 Conventions, fixed against the vendor's rational model of the same images (the rows agree to
-0.001 px; ``tests/test_rpc_vs_rigorous.py``):
+0.001 px; tests/test_rpc_vs_rigorous.py):
 
 * time: selfcal row r (the centre of the first pixel at 0.5) is DIMAP row r + 0.5 (1-based
   centres), recorded at START + (r - 0.5) line periods;

@@ -135,9 +135,9 @@ class LineCamera:
     col sits at x = along p, y = (col - center_col + across) p in the focal plane.
 
     A calibrated line (a sensor description that gives the detectors' look directions, or a
-    lens distortion that bends the line) is given instead by ``focal_plane_mm``: the
-    coefficients (power series, lowest first) of x(s) and y(s) in mm with s = (col -
-    center_col) / columns. ``pixel_size_mm`` then only scales residuals to pixels.
+    lens distortion that bends the line) is given by ``focal_plane_mm``: the coefficients (power
+    series, lowest first) of x(s) and y(s) in mm with s = (col - center_col) / columns; chip
+    offsets are then added to that line. ``pixel_size_mm`` then only scales the offsets.
     """
 
     camera_id: str
@@ -155,8 +155,8 @@ class LineCamera:
         if self.chip_offsets_px and len(self.chip_offsets_px) != len(self.chip_starts) + 1:
             raise ValueError(f"{len(self.chip_starts) + 1} chips need as many (along, across) offsets, "
                              f"found {len(self.chip_offsets_px)}")
-        if self.focal_plane_mm and (self.chip_offsets_px or len(self.focal_plane_mm) != 2):
-            raise ValueError("focal_plane_mm is (x coefficients, y coefficients) and replaces the chip offsets")
+        if self.focal_plane_mm and len(self.focal_plane_mm) != 2:
+            raise ValueError("focal_plane_mm is (x coefficients, y coefficients)")
 
     def offsets_px(self, col) -> np.ndarray:
         """(along, across) offset in pixels of the chip of each column, (n, 2)."""
@@ -300,17 +300,24 @@ class LineImage:
         ideal line, displaced by its chip's offset."""
         col = np.atleast_1d(np.asarray(col, float))
         cam = self.camera
-        if cam.focal_plane_mm:
-            s = (col - cam.center_col) / cam.columns
-            return np.stack([np.polynomial.polynomial.polyval(s, c) for c in cam.focal_plane_mm], -1)
         p = cam.pixel_size_mm
         offset = cam.offsets_px(col)
+        if cam.focal_plane_mm:
+            s = (col - cam.center_col) / cam.columns
+            line = np.stack([np.polynomial.polynomial.polyval(s, c) * np.ones_like(s) for c in cam.focal_plane_mm], -1)
+            return line + offset * p
         return np.stack([offset[:, 0] * p, (col - cam.center_col + offset[:, 1]) * p], -1)
 
     def col_of_y(self, y_mm) -> np.ndarray:
         """The column whose detector has the focal-plane y (its chip's across offset taken off)."""
         if self.camera.focal_plane_mm:
-            return self._col_of_y_polynomial(np.atleast_1d(np.asarray(y_mm, float)))
+            y_mm = np.atleast_1d(np.asarray(y_mm, float))
+            col = self._col_of_y_polynomial(y_mm)
+            if self.camera.chip_offsets_px:
+                p = self.camera.pixel_size_mm
+                for _ in range(2):
+                    col = self._col_of_y_polynomial(y_mm - self.camera.offsets_px(col)[:, 1] * p)
+            return col
         p = self.camera.pixel_size_mm
         col = self.camera.center_col + np.atleast_1d(np.asarray(y_mm, float)) / p
         for _ in range(2):                       # the chip depends on the column; offsets are sub-chip
@@ -409,7 +416,7 @@ def image_scales(image: LineImage, points_ecef: np.ndarray, row, col) -> np.ndar
 
 
 def image_residuals(image: LineImage, points_ecef: np.ndarray, row, col, jacobians: bool = False,
-                    scales: np.ndarray | None = None):
+                    scales: np.ndarray | None = None, detector_offset_mm: np.ndarray | None = None):
     """Residuals (n, 2) of image points in image units, observed minus computed row and column, to
     first order: the along-track misfit x - x_d over the image motion per line, the across-track
     misfit y_d - y over the detector spacing (:func:`image_scales`; pass them to reuse them: they
@@ -417,13 +424,15 @@ def image_residuals(image: LineImage, points_ecef: np.ndarray, row, col, jacobia
     scales are the pixel size; a sensor whose lines are longer or shorter on the ground than its
     detectors (usgscsm's LRO NAC ISD: 19 m per line, 1 m per detector) needs them. With ``jacobians``
     also d(row, col)/d(parameters) (n, 2, 10) and d(row, col)/d(point) (n, 2, 3) of the computed
-    image point."""
+    image point. ``detector_offset_mm`` (n, 2) displaces the detectors (additional parameters of the line)."""
     P = np.atleast_2d(np.asarray(points_ecef, float))
     row, col = np.atleast_1d(np.asarray(row, float)), np.atleast_1d(np.asarray(col, float))
     scales = image_scales(image, P, row, col) if scales is None else scales
     out = photo_coordinates(image, P, image.time_of_row(row), jacobians=jacobians)
     xy = out[0] if jacobians else out
     detector = image.detector_mm(col)
+    if detector_offset_mm is not None:
+        detector = detector + detector_offset_mm
     res = np.stack([(xy[:, 0] - detector[:, 0]) / scales[:, 0], (detector[:, 1] - xy[:, 1]) / scales[:, 1]], -1)
     if not jacobians:
         return res

@@ -19,7 +19,7 @@ Times count from the simulation's epoch; the nadir scene is centred at
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -28,8 +28,9 @@ from ..geometry.rotation import quaternion_from_matrix
 from ..sensors.pushbroom import (LineCamera, LineImage, Trajectory, fit_polynomial, ground_to_image, image_to_ground,
                                  rotation_x, rotation_y, rotation_z)
 
-__all__ = ["PrismSimulation", "PrismTruth", "AnalyticDem", "simulate_prism", "prism_block", "dem_grid",
-           "prism_truth_files", "CAMERAS", "TRUE_FOCAL_MM", "NOMINAL_FOCAL_MM", "NADIR_CENTRE_S", "GCP_SIGMA_M"]
+__all__ = ["PrismSimulation", "PrismTruth", "AnalyticDem", "simulate_prism", "detector_error", "prism_block",
+           "dem_grid", "prism_truth_files", "LINE_ERROR_PX", "CAMERAS", "TRUE_FOCAL_MM", "NOMINAL_FOCAL_MM",
+           "NADIR_CENTRE_S", "GCP_SIGMA_M"]
 
 GM_M3_S2 = 3.986004418e14
 ALTITUDE_M = 691_650.0
@@ -55,6 +56,10 @@ CHIP_STARTS = (4_832, 9_664)
 CHIP_OFFSETS_PX = {"F": ((0.0, 0.0), (0.4, 0.5), (-0.7, -0.2)), "N": ((0.0, 0.0), (0.6, -0.4), (-0.5, 0.3)),
                    "B": ((0.0, 0.0), (-0.3, 0.6), (0.5, -0.5))}
 ROWS = 14_000
+#: the chip-wise error of the nadir camera's detector line that ``selfcal simulate prism --line-error`` adds
+#: (unknown to the block): chips 2 and 3 misaligned by up to 0.9 px, the line bent by 1 px along track
+#: and 0.5 px across at its centre
+LINE_ERROR_PX = {"N": {"chip_px": ((0.0, 0.0), (0.9, -0.7), (-0.6, 0.9)), "bow_px": (1.0, 0.5)}}
 PIXEL_SIZE_MM = 0.007
 LINE_PERIOD_S = 0.000_37
 
@@ -81,6 +86,7 @@ class PrismTruth:
     attitude_bias_rad: np.ndarray
     attitude_drift_rad_s: np.ndarray
     points_ecef: np.ndarray          # (n, 3)
+    detector_error_px: dict = field(default_factory=dict)   # camera -> detector_error() arguments
 
 
 @dataclass
@@ -150,11 +156,30 @@ def _place_orbit() -> tuple[float, float]:
     return raan, u0
 
 
+def detector_error(camera: LineCamera, chip_px=(), bow_px=(0.0, 0.0)) -> LineCamera:
+    """``camera`` with its detector line displaced: ``chip_px`` adds (along, across) pixels to each chip's
+    offset, ``bow_px`` bends the line by (along, across) pixels at its centre, 0 at its ends
+    (a parabola in the column)."""
+    if not len(chip_px) and not np.any(bow_px):
+        return camera
+    offsets = np.array(camera.chip_offsets_px or [(0.0, 0.0)] * (len(camera.chip_starts) + 1), float)
+    if len(chip_px):
+        offsets = offsets + np.asarray(chip_px, float)
+    p = camera.pixel_size_mm
+    bow_x, bow_y = np.asarray(bow_px, float) * p
+    mid = (0.5 * camera.columns - camera.center_col) / camera.columns   # the line's middle in s = (col - center_col) / columns
+    parabola = np.array([1.0 - 4 * mid * mid, 8 * mid, -4.0])          # 1 - ((s - mid) / 0.5)^2 in powers of s
+    line = (tuple(bow_x * parabola), tuple(np.array([0.0, camera.columns * p, 0.0]) + bow_y * parabola))
+    return replace(camera, chip_offsets_px=tuple(map(tuple, offsets)), focal_plane_mm=line)
+
+
 def simulate_prism(seed: int = 0, image_sigma_px: float = 0.3, n_points: int = 28,
                    ephemeris_sigma_m: float = 0.3, attitude_sigma_rad: float = 1.0e-6,
-                   attitude_bias_rad=ATTITUDE_BIAS_RAD, attitude_drift_rad_s=ATTITUDE_DRIFT_RAD_S) -> PrismSimulation:
+                   attitude_bias_rad=ATTITUDE_BIAS_RAD, attitude_drift_rad_s=ATTITUDE_DRIFT_RAD_S,
+                   detector_error_px: dict | None = None) -> PrismSimulation:
     """Simulate the PRISM triplet (see the module docstring); the attitude error (roll, pitch, yaw) can
-    be chosen."""
+    be chosen. ``detector_error_px``: camera -> :func:`detector_error` arguments, an error of its
+    detector line that the block does not know (the block keeps the known chip offsets)."""
     attitude_bias_rad = np.asarray(attitude_bias_rad, float)
     attitude_drift_rad_s = np.asarray(attitude_drift_rad_s, float)
     rng = np.random.default_rng(seed)
@@ -167,7 +192,8 @@ def simulate_prism(seed: int = 0, image_sigma_px: float = 0.3, n_points: int = 2
     true_traj = _true_trajectory(raan, u0, *span)
 
     def true_image(k: str, t_first: float) -> LineImage:
-        image = LineImage.nominal(k, nominal[k], true_traj, t_first, ROWS)
+        camera = detector_error(nominal[k], **(detector_error_px or {}).get(k, {}))
+        image = LineImage.nominal(k, camera, true_traj, t_first, ROWS)
         params = image.parameters.copy()
         params[6] = TRUE_FOCAL_MM[k]
         params[7:10] = TRUE_BORESIGHT_RAD[k]
@@ -188,13 +214,16 @@ def simulate_prism(seed: int = 0, image_sigma_px: float = 0.3, n_points: int = 2
         t_first[k] = float(t0)
         images.append(true_image(k, t0))
 
-    # ground points: a jittered 7 x 4 grid over the nadir scene (inset by 4 %), heights from the terrain
-    gx, gy = 7, max(1, n_points // 7)
+    # ground points: a jittered grid over the nadir scene (inset by 4 %; 7 x 4 for the 28 points of
+    # seed 001, about square cells for more), heights from the terrain
+    gx = max(7, int(round(np.sqrt(n_points))))
+    gy = max(1, n_points // gx)
     cols = (np.arange(gx) + 0.5) / gx
     rows = (np.arange(gy) + 0.5) / gy
     cc, rr = np.meshgrid(cols, rows)
-    cc = (0.04 + 0.92 * cc.ravel() + rng.uniform(-0.03, 0.03, cc.size)) * COLUMNS
-    rr = (0.04 + 0.92 * rr.ravel() + rng.uniform(-0.03, 0.03, rr.size)) * ROWS
+    jitter_x, jitter_y = min(0.03, 0.46 / gx), min(0.03, 0.46 / gy)      # at most half a cell
+    cc = (0.04 + 0.92 * cc.ravel() + rng.uniform(-jitter_x, jitter_x, cc.size)) * COLUMNS
+    rr = (0.04 + 0.92 * rr.ravel() + rng.uniform(-jitter_y, jitter_y, rr.size)) * ROWS
     points = image_to_ground(images[1], rr[:n_points], cc[:n_points], dem)
 
     obs_image, obs_point, obs_row, obs_col = [], [], [], []
@@ -220,10 +249,10 @@ def simulate_prism(seed: int = 0, image_sigma_px: float = 0.3, n_points: int = 2
     quaternion = quaternion_from_matrix(orbit_frame(p_true, v_true) @ R_OB, scalar_first=False)
 
     truth = PrismTruth(images, dict(TRUE_FOCAL_MM), dict(TRUE_BORESIGHT_RAD), attitude_bias_rad.copy(),
-                       attitude_drift_rad_s.copy(), points)
+                       attitude_drift_rad_s.copy(), points, dict(detector_error_px or {}))
     return PrismSimulation(EPOCH_UTC, nominal, list(CAMERAS), t_first, ROWS,
                            {"t": t_e, "position": pos, "velocity": vel}, {"t": t_a, "quaternion": quaternion},
-                           [f"p{k + 1:02d}" for k in range(n_points)], points, np.array(obs_image),
+                           [f"p{k + 1:02d}" for k in range(len(points))], points, np.array(obs_image),
                            np.array(obs_point), np.array(obs_row), np.array(obs_col), image_sigma_px, dem, truth)
 
 
@@ -303,6 +332,9 @@ def prism_truth_files(sim: PrismSimulation) -> dict:
     cameras = {k: {"focal_mm": truth.focal_mm[k], "boresight_roll_pitch_yaw_rad": list(truth.boresight_rad[k]),
                    "center_col": sim.cameras[k].center_col, "nominal_focal_mm": NOMINAL_FOCAL_MM}
                for k in sim.image_ids}
+    for k, error in truth.detector_error_px.items():
+        cameras[k]["detector_error_px"] = {"chip_px": [list(map(float, c)) for c in error.get("chip_px", ())],
+                                           "bow_px": list(map(float, error.get("bow_px", (0.0, 0.0))))}
     return {
         "camera_truth.json": {"cameras": cameras,
                               "attitude_bias_rad": truth.attitude_bias_rad.tolist(),

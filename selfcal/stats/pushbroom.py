@@ -6,8 +6,8 @@
   significant parameter, t = |x - x0| / sigma(x) below ``significance``, else of the less significant
   of the most correlated pair above ``max_correlation``; each drop is followed by a re-adjustment
   (a pushbroom block has tens of parameters, so re-adjusting costs less than a second and is exact).
-  x0 is the start value: zero for the attitude corrections, the given (or calibrated) focal length
-  and boresight. A dropped parameter is held at x0. The guard is the joint test of everything
+  x0 is the start value: zero for the attitude corrections and the 1-D wavelet APs of the detector
+  lines, the given (or calibrated) focal length and boresight. A dropped parameter is held at x0. The guard is the joint test of everything
   dropped against the full model, F = (Omega_S - Omega) / (|S| sigma0^2) against the 1 - ``joint_alpha``
   quantile of F(|S|, redundancy): a drop that would make the dropped set jointly significant is
   undone and the screening stops.
@@ -43,7 +43,9 @@ class SnoopedPushbroom:
 
 def adjust_pushbroom_with_snooping(images, obs_image, obs_point, obs_row, obs_col, points_ecef, control_index,
                                    control_ecef, control_cov, model, image_sigma_px: float,
-                                   snooping: SnoopingOptions | None = SnoopingOptions()) -> SnoopedPushbroom:
+                                   snooping: SnoopingOptions | None = SnoopingOptions(),
+                                   line_aps: dict | None = None, line_ap_sigma_px: float | None = None
+                                   ) -> SnoopedPushbroom:
     """:func:`~selfcal.adjust.pushbroom.adjust_pushbroom`, then reject the image point with the largest
     |w| above the critical value and adjust again, until none is above it. Both coordinates of a
     rejected image point go (a misidentified point spoils both). Coordinates with a redundancy number
@@ -55,7 +57,8 @@ def adjust_pushbroom_with_snooping(images, obs_image, obs_point, obs_row, obs_co
     for _ in range(rounds + 1):
         idx = np.flatnonzero(kept)
         result = adjust_pushbroom(images, obs_image[idx], obs_point[idx], obs_row[idx], obs_col[idx], points_ecef,
-                                  control_index, control_ecef, control_cov, model, image_sigma_px)
+                                  control_index, control_ecef, control_cov, model, image_sigma_px,
+                                  line_aps=line_aps, line_ap_sigma_px=line_ap_sigma_px)
         if len(rejected) >= rounds or not result.converged:
             break
         w = np.abs(result.w_test)
@@ -77,6 +80,7 @@ def adjust_pushbroom_with_snooping(images, obs_image, obs_point, obs_row, obs_co
 @dataclass
 class ScreenedPushbroom:
     models: list[SensorModel]            # per image: the parameters kept
+    line_ap_masks: dict                  # camera id -> bool mask of the line-AP coefficients kept
     dropped: list[ScreeningDecision]     # in order; camera_id is the image id
     joint: ScreeningRound | None         # the joint test of everything dropped (None: nothing dropped)
     n_initial: int                       # parameters estimated before screening
@@ -88,7 +92,7 @@ class ScreenedPushbroom:
 
 
 def _t_values(result: PushbroomResult, start: dict[str, float]) -> np.ndarray:
-    x0 = np.array([start[n] for n in result.parameter_names])
+    x0 = np.array([start.get(n, 0.0) for n in result.parameter_names])       # line APs start at zero
     with np.errstate(divide="ignore", invalid="ignore"):
         return np.abs(result.parameter_values - x0) / result.parameter_sigma
 
@@ -115,16 +119,21 @@ def _without(models: list[SensorModel], image_index: int, name: str) -> list[Sen
     return out
 
 
-def screen_pushbroom(adjust: Callable[[list[SensorModel]], PushbroomResult], image_ids: list[str],
+def screen_pushbroom(adjust: Callable[[list[SensorModel], dict], PushbroomResult], image_ids: list[str],
                      start: list[np.ndarray], models: list[SensorModel],
-                     options: ScreeningOptions = ScreeningOptions()) -> ScreenedPushbroom:
+                     options: ScreeningOptions = ScreeningOptions(), line_aps: dict | None = None
+                     ) -> ScreenedPushbroom:
     """Screen the calibration parameters of a pushbroom adjustment (see the module docstring).
 
-    ``adjust(models)`` adjusts with one :class:`SensorModel` per image (the observations are fixed by
-    the caller); ``start`` are the images' parameter vectors before adjustment (x0 of the t-test).
+    ``adjust(models, line_ap_masks)`` adjusts with one :class:`SensorModel` per image and the line-AP
+    coefficients of each camera that the masks leave free (the observations are fixed by the caller);
+    ``start`` are the images' parameter vectors before adjustment (x0 of the t-test); ``line_aps``:
+    camera id -> :class:`~selfcal.ap.line.LineWaveletAP` screened with the rest.
     """
     x0 = {f"{i}.{n}": float(p[k]) for i, p in zip(image_ids, start) for k, n in enumerate(PARAMETER_NAMES)}
-    full = adjust(models)
+    line_aps = line_aps or {}
+    masks = {cid: np.ones(ap.size, bool) for cid, ap in line_aps.items()}
+    full = adjust(models, masks)
     result, dropped, joint = full, [], None
     omega_full = full.sigma0 ** 2 * full.redundancy
     n_initial = len(full.parameter_names)
@@ -134,9 +143,14 @@ def screen_pushbroom(adjust: Callable[[list[SensorModel]], PushbroomResult], ima
         if pick is None:
             break
         k, reason = pick
-        image_id, name = result.parameter_names[k].split(".", 1)
-        trial_models = _without(models, image_ids.index(image_id), name)
-        trial = adjust(trial_models)
+        owner, name = result.parameter_names[k].split(".", 1)
+        trial_models, trial_masks = models, masks
+        if name in PARAMETER_NAMES:
+            trial_models = _without(models, image_ids.index(owner), name)
+        else:
+            trial_masks = {cid: m.copy() for cid, m in masks.items()}
+            trial_masks[owner][line_aps[owner].names.index(name)] = False
+        trial = adjust(trial_models, trial_masks)
         n_dropped = len(dropped) + 1
         increase = (trial.sigma0 ** 2 * trial.redundancy - omega_full) / full.sigma0 ** 2
         test = ScreeningRound(n_dropped, float(increase), float(f_distribution.ppf(1.0 - (options.joint_alpha or 0.0),
@@ -144,6 +158,6 @@ def screen_pushbroom(adjust: Callable[[list[SensorModel]], PushbroomResult], ima
                               if options.joint_alpha else float("inf"))
         if test.jointly_significant or not trial.converged:
             break
-        models, result, joint = trial_models, trial, test
-        dropped.append(ScreeningDecision(image_id, name, float(t[k]), reason))
-    return ScreenedPushbroom(models, dropped, joint, n_initial, result)
+        models, masks, result, joint = trial_models, trial_masks, trial, test
+        dropped.append(ScreeningDecision(owner, name, float(t[k]), reason))
+    return ScreenedPushbroom(models, masks, dropped, joint, n_initial, result)
