@@ -17,13 +17,13 @@ Times are returned in seconds from START. Building a selfcal line camera from it
 from __future__ import annotations
 
 import os
-import xml.etree.ElementTree as ElementTree
 from dataclasses import dataclass
 from datetime import datetime
 
 import numpy as np
 
 from ..errors import BlockError
+from .xmlfile import xml_root
 
 __all__ = ["DimapSensor", "read_dimap_sensor"]
 
@@ -53,10 +53,7 @@ def _utc(text: str) -> datetime:
 def read_dimap_sensor(path: str | os.PathLike) -> DimapSensor:
     """Read the physical model of a Pleiades DIMAP file; errors name the file and the element."""
     path = str(path)
-    try:
-        root = ElementTree.parse(path).getroot()
-    except ElementTree.ParseError as exc:
-        raise BlockError(path, f"not XML: {exc}") from None
+    root = xml_root(path, "DIMAP file")
     model = root.find("Geometric_Data/Sensor_Model_Characteristics")
     if model is None:
         raise BlockError(path, "no Geometric_Data/Sensor_Model_Characteristics: not a DIMAP file with the physical "

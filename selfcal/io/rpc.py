@@ -23,12 +23,12 @@ Errors are :class:`~selfcal.errors.BlockError` naming the file and the missing o
 from __future__ import annotations
 
 import os
-import xml.etree.ElementTree as ElementTree
 
 import numpy as np
 
 from ..errors import BlockError
 from ..sensors.rpc import RpcModel
+from .xmlfile import xml_root
 
 __all__ = ["read_rpc", "read_dimap_rpc", "read_ossim_geom_rpc", "DIMAP_PIXEL_ORIGIN", "OSSIM_PIXEL_ORIGIN"]
 
@@ -61,12 +61,7 @@ def read_rpc(path: str | os.PathLike) -> RpcModel:
 def read_dimap_rpc(path: str | os.PathLike) -> RpcModel:
     """The inverse (ground-to-image) RPC of a DIMAP v2 RPC file or of a DIMAP v1 product file."""
     path = str(path)
-    try:
-        root = ElementTree.parse(path).getroot()
-    except ElementTree.ParseError as exc:
-        raise BlockError(path, f"not XML: {exc}") from None
-    except OSError as exc:
-        raise BlockError(path, f"cannot read the RPC file: {exc.strerror}") from None
+    root = xml_root(path, "RPC file")
     rfm = root.find(".//Global_RFM")
     if rfm is None:
         raise BlockError(path, "no Global_RFM element: not a DIMAP file with a rational function model")

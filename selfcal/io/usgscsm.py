@@ -119,7 +119,8 @@ def read_usgscsm_isd(path: str | os.PathLike) -> LineScanIsd:
     unit = _UNIT_TO_M.get(position.get("unit", "km"))
     if unit is None:
         raise BlockError(path, f"instrument_position.unit '{position['unit']}' is neither km nor m")
-    positions = _array(_need(isd, "positions", path, "instrument_position"), (3,), path, "instrument_position.positions")
+    positions = _array(_need(isd, "positions", path, "instrument_position"), (3,), path,
+                       "instrument_position.positions")
     velocities = _array(_need(isd, "velocities", path, "instrument_position"), (3,), path,
                         "instrument_position.velocities")
     if len(velocities) != len(positions):
