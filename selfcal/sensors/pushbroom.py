@@ -409,10 +409,14 @@ def image_scales(image: LineImage, points_ecef: np.ndarray, row, col) -> np.ndar
     P = np.atleast_2d(np.asarray(points_ecef, float))
     t = image.time_of_row(np.atleast_1d(np.asarray(row, float)))
     col = np.atleast_1d(np.asarray(col, float))
-    period = image.camera.line_period_s
-    along = (photo_coordinates(image, P, t + period)[:, 0] - photo_coordinates(image, P, t - period)[:, 0]) / 2
     across = image.detector_mm(col + 0.5)[:, 1] - image.detector_mm(col - 0.5)[:, 1]
-    return np.stack([along, across], -1)
+    return np.stack([_along_per_line_mm(image, P, t), across], -1)
+
+
+def _along_per_line_mm(image: LineImage, P: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """dx/drow (mm per line) of ground points at times t: central differences over one line period."""
+    period = image.camera.line_period_s
+    return (photo_coordinates(image, P, t + period)[:, 0] - photo_coordinates(image, P, t - period)[:, 0]) / 2
 
 
 def image_residuals(image: LineImage, points_ecef: np.ndarray, row, col, jacobians: bool = False,
@@ -455,10 +459,7 @@ def ground_to_image(image: LineImage, points_ecef: np.ndarray) -> tuple[np.ndarr
         tt = t[idx]
         xy = photo_coordinates(image, P[idx], tt)
         target = image.detector_mm(image.col_of_y(xy[:, 1]))[:, 0]      # the along-track offset of its chip
-        xp = photo_coordinates(image, P[idx], tt + period)[:, 0]
-        xm = photo_coordinates(image, P[idx], tt - period)[:, 0]
-        slope = (xp - xm) / (2 * period)
-        step = (xy[:, 0] - target) / slope
+        step = (xy[:, 0] - target) / _along_per_line_mm(image, P[idx], tt) * period
         t[idx] = tt - step
         active[idx] = np.abs(step) > TIME_TOLERANCE_LINES * period
     y = photo_coordinates(image, P, t)[:, 1]
