@@ -39,7 +39,7 @@ def selfcal_run(path: str):
     start = time.perf_counter()
     result = adjust(block, AdjustOptions(ap="brown"))
     seconds = time.perf_counter() - start
-    v_px = result.residuals_mm / PIXEL_MM
+    v_px = result.residuals_px
     return block, float(np.sqrt(np.mean(np.sum(v_px ** 2, axis=1)))), seconds, result.iterations
 
 

@@ -94,7 +94,7 @@ def run_selfcal(target: float | None) -> dict:
 def _behind(problem, state) -> np.ndarray:
     """Observations whose point lies behind the camera (BAL: P_z > 0), in the problem's order."""
     from selfcal.sensors.bal import behind_camera
-    return behind_camera(state.points[problem.obs_point], state.eop[problem.obs_image])
+    return behind_camera(state.points[problem.obs_point], state.image[problem.obs_image])
 
 
 def _colmap_model(problem, folder: str) -> None:
@@ -232,7 +232,7 @@ def _synthetic_block(images: int):
     state, _ = initial_state(build_problem(block), block)
     points = replace(block.points, role=np.full(len(block.points), "tie", dtype=object), xyz_m=state.points,
                      sigma_m=np.full_like(state.points, np.nan))
-    images = replace(block.images, position_m=state.eop[:, :3], attitude_rad=state.eop[:, 3:])
+    images = replace(block.images, position_m=state.image[:, :3], attitude_rad=state.image[:, 3:])
     return replace(block, points=points, images=images, datum="free")
 
 

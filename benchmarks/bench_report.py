@@ -33,7 +33,8 @@ def main(argv=None) -> int:
     from selfcal.block import prune
     from selfcal.io.results import read_results, results_from_files, write_results
     from selfcal.report import render_report, result_files
-    from selfcal.stats import ScreeningOptions, SnoopingOptions, adjust_with_tests
+    from selfcal.stats import ScreeningOptions, SnoopingOptions
+    from selfcal.workflows import adjust_with_tests
     from selfcal.simulate import simulate_uav
 
     keep_freed_memory()

@@ -75,7 +75,8 @@ def run_scipy(seed: int, density: float) -> dict:
     block, problem, state = _problem(seed, density)
     n_img, n_pts, m = problem.n_images, problem.n_points, problem.n_image_observations
     img, pt = problem.obs_image, problem.obs_point
-    w = 1.0 / problem.obs_sigma_mm
+    w = 1.0 / problem.obs_sigma[:, 0]
+    control_sigma = 1.0 / np.einsum("nii->ni", problem.control_weight)      # the simulated control weights are diagonal
     ctl = problem.control_index
     n_x = 6 * n_img + 3 + 3 * n_pts
 
@@ -87,8 +88,8 @@ def run_scipy(seed: int, density: float) -> dict:
         rot = matrix_from_opk_with_derivatives(eop[:, 3:])
         xy, *_ = project_with_jacobians(pts[pt], eop[img], np.broadcast_to(iop, (m, 3)),
                                         rotation=(rot[0][img], rot[1][img]))
-        r_img = ((xy - problem.obs_xy_mm) * w[:, None]).ravel()
-        r_ctl = ((pts[ctl] - problem.control_xyz) / problem.control_sigma).ravel()
+        r_img = ((xy - problem.obs_value) * w[:, None]).ravel()
+        r_ctl = ((pts[ctl] - problem.control_xyz) / control_sigma).ravel()
         return np.concatenate([r_img, r_ctl])
 
     rows_img = np.repeat(np.arange(2 * m), 12)
@@ -103,10 +104,10 @@ def run_scipy(seed: int, density: float) -> dict:
         J_img = sp.csr_matrix((vals.ravel(), (rows_img, np.repeat(cols, 2, axis=0).ravel())), shape=(2 * m, n_x))
         rc = np.arange(3 * len(ctl))
         cc = (6 * n_img + 3 + 3 * ctl[:, None] + np.arange(3)).ravel()
-        J_ctl = sp.csr_matrix(((1.0 / problem.control_sigma).ravel(), (rc, cc)), shape=(3 * len(ctl), n_x))
+        J_ctl = sp.csr_matrix(((1.0 / control_sigma).ravel(), (rc, cc)), shape=(3 * len(ctl), n_x))
         return sp.vstack([J_img, J_ctl]).tocsr()
 
-    x0 = np.concatenate([state.eop.ravel(), state.cameras[0][:3], state.points.ravel()])
+    x0 = np.concatenate([state.image.ravel(), state.cameras[0][:3], state.points.ravel()])
     target = json.loads(sys.argv[sys.argv.index("--target") + 1]) if "--target" in sys.argv else None
     t0 = time.perf_counter()
     tight = "--tight" in sys.argv
@@ -116,7 +117,7 @@ def run_scipy(seed: int, density: float) -> dict:
                            callback=None if target is None else _stopper(target))
     seconds = time.perf_counter() - t0
     eop, iop, pts = unpack(result.x)
-    state.eop[:], state.cameras[0][:3], state.points[:] = eop, iop, pts
+    state.image[:], state.cameras[0][:3], state.points[:] = eop, iop, pts
     return {"seconds": seconds, "iterations": int(result.nfev), "cost": evaluate_cost(problem, state),
             "status": result.message}
 

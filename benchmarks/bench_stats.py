@@ -41,7 +41,8 @@ def main(argv=None) -> int:
     from selfcal.adjust import AdjustOptions, adjust
     from selfcal.block import prune
     from selfcal.simulate import simulate_uav
-    from selfcal.stats import ScreeningOptions, SnoopingOptions, adjust_with_tests
+    from selfcal.stats import ScreeningOptions, SnoopingOptions
+    from selfcal.workflows import adjust_with_tests
 
     sim = simulate_uav(seed=args.seed, distortion="local+brown", blunder_rate=0.003)
     block = prune(sim.blocks["type3"])

@@ -41,7 +41,7 @@ class Stopwatch:
 def main() -> None:
     import selfcal.adjust as adjust_module
     import selfcal.adjust.linalg as linalg
-    import selfcal.stats.workflow as workflow
+    import selfcal.workflows.tested as workflow
     from selfcal.adjust import AdjustOptions
     from selfcal.block import prune
     from selfcal.simulate import simulate_uav

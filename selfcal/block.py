@@ -296,6 +296,9 @@ class Block:
     attitude: AttitudeSamples | None = None
     dem_path: str | None = None
     terrain_height_m: float | None = None
+    #: image id -> the image's own sensor description, read from its ``sensor_file`` (DESIGN.md §3a): a
+    #: usgscsm/DIMAP/DG line image, an RPC, ...; its sensor uses it instead of fitting telemetry
+    image_models: dict | None = None
 
     @property
     def is_pushbroom(self) -> bool:

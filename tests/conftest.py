@@ -36,8 +36,9 @@ def truth_index(sim, block) -> np.ndarray:
 def residual_vector(problem, state):
     """All whitened residuals l - f of a problem: image, control and parameter observations."""
     from selfcal.adjust.normal import image_residuals, parameter_observations
-    r = (image_residuals(problem, state) / problem.obs_sigma_mm[:, None]).ravel()
-    rc = ((problem.control_xyz - state.points[problem.control_index]) / problem.control_sigma).ravel()
+    r = (image_residuals(problem, state) / problem.obs_sigma).ravel()
+    rc = np.einsum("nij,nj->ni", problem.control_weight,
+                   problem.control_xyz - state.points[problem.control_index]).ravel()
     _, rx = parameter_observations(problem, state)
     return np.concatenate([r, rc, rx])
 

@@ -84,9 +84,9 @@ def test_interior_orientation_recovered(adjusted):
 
 def test_exterior_orientation_recovered(adjusted):
     _, sim, _, result = adjusted
-    diff = result.state.eop - sim.truth.eop
+    diff = result.state.image - sim.truth.eop
     diff[:, 3:] = _wrap(diff[:, 3:])
-    z = diff / result.eop_sigma()
+    z = diff / result.image_sigma()
     assert np.sqrt(np.mean(z ** 2)) < 1.5
     assert np.max(np.abs(z)) < 4.5
 

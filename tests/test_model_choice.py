@@ -2,7 +2,7 @@
 import numpy as np
 
 from selfcal.batch import ALL_MODELS
-from selfcal.stats import choose_ap_model
+from selfcal.workflows import choose_ap_model
 
 from conftest import pruned, simulation
 

@@ -3,10 +3,11 @@ simulated PRISM triplet (known focal lengths, attitude bias and drift, boresight
 import numpy as np
 import pytest
 
-from selfcal.adjust.pushbroom import SENSOR_MODELS, pushbroom_block, sensor_model, track_frame
-from selfcal.batch.pushbroom import ATTITUDE_FREE_SIGMA, calibrate_focal, choose_gcps, run_case, with_focal
+from selfcal.adjust import AdjustOptions
 from selfcal.errors import UsageError
-from selfcal.sensors.pushbroom import PARAMETER_NAMES, ground_to_image, image_to_ground, intersect, photo_coordinates
+from selfcal.sensors.pushbroom import (PARAMETER_NAMES, SENSOR_MODELS, ground_to_image, image_to_ground, intersect,
+                                       line_images, photo_coordinates, sensor_model, track_frame)
+from selfcal.workflows.seed001 import ATTITUDE_FREE_SIGMA, calibrate_focal, choose_gcps, run_case, with_focal
 from selfcal.simulate.prism import (ATTITUDE_BIAS_RAD, ATTITUDE_DRIFT_RAD_S, NADIR_CENTRE_S, TRUE_FOCAL_MM,
                                     prism_block, simulate_prism)
 
@@ -20,19 +21,19 @@ def sim():
 
 @pytest.fixture(scope="module")
 def data(sim):
-    """The simulation as a block (5 GCPs with 0.1 m survey error, 23 check points), telemetry fitted."""
-    return pushbroom_block(prism_block(sim, seed=1))
+    """The simulation as a block (5 GCPs with 0.1 m survey error, 23 check points)."""
+    return prism_block(sim, seed=1)
 
 
 @pytest.fixture(scope="module")
 def calibrated(data, sim):
-    """Step 1: focal lengths from M7 on the triplet with the 5 GCPs; the images with them."""
-    focal, sigma = calibrate_focal(data, sim.dem)
-    return focal, sigma, with_focal(data.images, focal)
+    """Step 1: focal lengths from M7 on the triplet with the 5 GCPs; the block with them."""
+    focal, sigma = calibrate_focal(data)
+    return focal, sigma, with_focal(data, focal)
 
 
-def _case(data, images, dem, model, n_gcp, image_set, label=""):
-    return run_case(data, model, choose_gcps(data, n_gcp), image_set, dem, label, images)
+def _case(block, dem, model, n_gcp, image_set, label=""):
+    return run_case(block, model, choose_gcps(block, n_gcp), image_set, dem, label)
 
 
 def test_triplet_sees_every_point_in_every_image(sim):
@@ -56,7 +57,7 @@ def test_ground_image_ground_round_trip(sim):
 
 
 def test_jacobians_match_finite_differences(sim, data):
-    image = data.images[0]
+    image = line_images(data)[0]
     parameters = image.parameters.copy()
     parameters[[0, 1, 2, 3, 4, 5, 7, 8, 9]] = [2e-5, 1e-6, -3e-5, 2e-6, 4e-5, -1e-6, 1e-5, -2e-5, 3e-5]
     image = image.with_parameters(parameters)
@@ -83,7 +84,7 @@ def test_attitude_from_quaternions_recovers_the_telemetry():
     """Noise-free telemetry: roll/pitch/yaw fitted from the quaternions are the true attitude minus
     the simulated bias and drift (Eqs. 2-5), and the position fit is exact."""
     quiet = simulate_prism(seed=3, ephemeris_sigma_m=0.0, attitude_sigma_rad=0.0)
-    for image, true in zip(pushbroom_block(prism_block(quiet)).images, quiet.truth.images):
+    for image, true in zip(line_images(prism_block(quiet)), quiet.truth.images):
         t = image.time_of_row(np.linspace(0, image.rows, 11))
         expected = true.trajectory.attitude(t) - (ATTITUDE_BIAS_RAD + np.outer(t - NADIR_CENTRE_S, ATTITUDE_DRIFT_RAD_S))
         np.testing.assert_allclose(image.trajectory.attitude(t), expected, atol=1e-10)
@@ -103,8 +104,8 @@ def test_focal_length_recovered_within_0_1_mm(calibrated):
 def test_models_one_to_four_leave_the_drift_along_track(sim, data, calibrated):
     """Mono nadir, 4 GCPs: constant corrections (M1-M4) leave the simulated attitude drift as an
     along-track error above a pixel; constant + linear terms (M5-M7) bring X and Y below a pixel."""
-    images = calibrated[2]
-    rmse = {m: _case(data, images, sim.dem, sensor_model(m), 4, (1,)).rmse_m for m in SENSOR_MODELS}
+    block = calibrated[2]
+    rmse = {m: _case(block, sim.dem, m, 4, (1,)).rmse_m for m in SENSOR_MODELS}
     for m in ("M1", "M2", "M3", "M4"):
         assert rmse[m][1] > PIXEL_M and rmse[m][0] < PIXEL_M, (m, rmse[m])
     for m in ("M5", "M6", "M7"):
@@ -115,32 +116,32 @@ def test_models_one_to_four_leave_the_drift_along_track(sim, data, calibrated):
 @pytest.mark.parametrize("image_set", [(0,), (1,), (2,)])
 def test_m6_with_three_gcps_is_sub_pixel(sim, data, calibrated, image_set):
     """M6's parameter weights make three GCPs enough (M5 and M7 have no redundancy with three)."""
-    images = calibrated[2]
-    case = _case(data, images, sim.dem, sensor_model("M6"), 3, image_set)
+    block = calibrated[2]
+    case = _case(block, sim.dem, "M6", 3, image_set)
     assert np.all(case.rmse_m[:2] < PIXEL_M), case.rmse_m
-    assert _case(data, images, sim.dem, sensor_model("M7"), 3, image_set).rmse_m is None
+    assert _case(block, sim.dem, "M7", 3, image_set).rmse_m is None
 
 
 def test_stereo_triplet_is_sub_pixel_and_as_precise_as_it_says(sim, data, calibrated):
-    images = calibrated[2]
-    case = _case(data, images, sim.dem, sensor_model("M6"), 4, (0, 1, 2), "F+N+B")
+    block = calibrated[2]
+    case = _case(block, sim.dem, "M6", 4, (0, 1, 2), "F+N+B")
     assert case.n_check == 24 and np.all(case.rmse_m < PIXEL_M), case.rmse_m
-    assert 0.7 < case.result.sigma0 < 1.3
+    assert 0.7 < case.sigma0 < 1.3
     # the height error is what the a-posteriori precision predicts (base-to-height 0.88, 0.3 px)
-    _, R = track_frame(images[1])
-    sigma_z = np.sqrt(np.mean([(R @ c @ R.T)[2, 2] for c in case.result.point_cov[case.checks]]))
+    _, R = track_frame(line_images(block)[1])
+    check_cov = case.result.point_covariance()[case.result.block.points.role == "chk"]
+    sigma_z = np.sqrt(np.mean([(R @ c @ R.T)[2, 2] for c in check_cov]))
     assert 0.6 < case.rmse_m[2] / sigma_z < 1.5
 
 
 def test_attitude_free_run_matches_the_given_attitude_within_ten_percent(sim):
     """Seed 001, Table 5: without the attitude telemetry, M6's corrections alone reach the same
     accuracy (the constant terms take the whole attitude)."""
-    block = prism_block(sim, seed=1)
-    given = pushbroom_block(block)
-    free = pushbroom_block(block, given_attitude=False)
-    a = _case(given, with_focal(given.images, TRUE_FOCAL_MM), sim.dem, sensor_model("M6"), 4, (1,)).rmse_m
-    b = _case(free, with_focal(free.images, TRUE_FOCAL_MM), sim.dem, sensor_model("M6", ATTITUDE_FREE_SIGMA), 4,
-              (1,)).rmse_m
+    block = with_focal(prism_block(sim, seed=1), TRUE_FOCAL_MM)
+    gcps = choose_gcps(block, 4)
+    a = run_case(block, "M6", gcps, (1,), sim.dem).rmse_m
+    b = run_case(block, "M6", gcps, (1,), sim.dem,
+                 options=AdjustOptions(attitude_telemetry=False, parameter_sigma=ATTITUDE_FREE_SIGMA)).rmse_m
     planimetric = np.hypot(*a[:2]), np.hypot(*b[:2])
     assert abs(planimetric[1] / planimetric[0] - 1.0) < 0.10, (a, b)
     assert planimetric[1] < PIXEL_M
@@ -255,22 +256,24 @@ def test_data_snooping_finds_a_blunder_in_the_triplet(sim):
 
     from selfcal.stats.snooping import SnoopingOptions
 
-    clean = pushbroom_block(prism_block(sim, seed=1))
-    images = with_focal(clean.images, TRUE_FOCAL_MM)
-    k = int(np.flatnonzero((clean.obs_image == 0) & (clean.obs_point == 10))[0])
-    col = clean.obs_col.copy()
-    col[k] += 4.0
-    spoiled = dataclasses.replace(clean, obs_col=col)
+    clean = with_focal(prism_block(sim, seed=1), TRUE_FOCAL_MM)
+    obs = clean.observations
+    k = int(np.flatnonzero((obs.image_index == 0) & (obs.point_index == 10))[0])
+    pixel = obs.pixel.copy()
+    pixel[k, 0] += 4.0
+    spoiled = dataclasses.replace(clean, observations=dataclasses.replace(obs, pixel=pixel))
     gcps = choose_gcps(clean, 4)
-    reference = run_case(clean, sensor_model("M6"), gcps, (0, 1, 2), sim.dem, "F+N+B", images)
-    plain = run_case(spoiled, sensor_model("M6"), gcps, (0, 1, 2), sim.dem, "F+N+B", images)
-    snooped = run_case(spoiled, sensor_model("M6"), gcps, (0, 1, 2), sim.dem, "F+N+B", images, SnoopingOptions())
-    assert np.argmax(np.abs(plain.result.w_test).max(axis=1)) == k
-    assert [i for i, _ in snooped.rejected] == [k] and snooped.rejected[0][1] > 8
+    reference = run_case(clean, "M6", gcps, (0, 1, 2), sim.dem, "F+N+B")
+    plain = run_case(spoiled, "M6", gcps, (0, 1, 2), sim.dem, "F+N+B")
+    snooped = run_case(spoiled, "M6", gcps, (0, 1, 2), sim.dem, "F+N+B", snooping=SnoopingOptions())
+    w = np.abs(plain.tested.tests.image_w)          # the triplet keeps every observation in the block's order
+    assert np.argmax(w.max(axis=1)) == k
+    assert list(snooped.tested.rejected_rows) == [k] and snooped.tested.rejected_w[0] > 8
     assert np.abs(plain.rmse_m[0] - reference.rmse_m[0]) > 0.2
     np.testing.assert_allclose(snooped.rmse_m, reference.rmse_m, rtol=0.1)
     # every image coordinate is controlled and none is fully redundant
-    assert np.all((reference.result.redundancy_numbers > 0) & (reference.result.redundancy_numbers < 1))
+    r = reference.tested.tests.image_redundancy
+    assert np.all((r > 0) & (r < 1))
 
 
 def test_chip_offsets_of_the_virtual_array_are_modelled(sim, tmp_path):
@@ -290,12 +293,9 @@ def test_chip_offsets_of_the_virtual_array_are_modelled(sim, tmp_path):
     assert again.cameras["N"].chip_starts == (4832, 9664)
     ideal = dataclasses.replace(block, cameras={k: dataclasses.replace(c, chip_starts=None, chip_offsets_px=None)
                                                 for k, c in block.cameras.items()})
-    cases = []
-    for b in (block, ideal):
-        data = pushbroom_block(b)
-        cases.append(_case(data, with_focal(data.images, TRUE_FOCAL_MM), sim.dem, sensor_model("M6"), 4, (0, 1, 2)))
+    cases = [_case(with_focal(b, TRUE_FOCAL_MM), sim.dem, "M6", 4, (0, 1, 2)) for b in (block, ideal)]
     modelled, ignored = cases
-    assert 0.7 < modelled.result.sigma0 < 1.3 and ignored.result.sigma0 > 1.3 * modelled.result.sigma0
+    assert 0.7 < modelled.sigma0 < 1.3 and ignored.sigma0 > 1.3 * modelled.sigma0
     assert np.hypot(*ignored.rmse_m[:2]) > np.hypot(*modelled.rmse_m[:2])
 
 
@@ -307,20 +307,21 @@ def test_screening_drops_the_parameters_that_are_zero_in_truth():
     from selfcal.stats.screening import ScreeningOptions
 
     sim = simulate_prism(seed=2, attitude_bias_rad=(3e-5, -4e-5, 0.0), attitude_drift_rad_s=(0.0, 3e-6, 0.0))
-    data = pushbroom_block(prism_block(sim, seed=2))
-    images = with_focal(data.images, TRUE_FOCAL_MM)
+    data = with_focal(prism_block(sim, seed=2), TRUE_FOCAL_MM)
     gcps = choose_gcps(data, 5)
-    full = run_case(data, sensor_model("M5"), gcps, (1,), sim.dem, "N", images)
-    screened = run_case(data, sensor_model("M5"), gcps, (1,), sim.dem, "N", images, screening=ScreeningOptions())
-    dropped = {d.name for d in screened.screening.dropped}
-    assert dropped and dropped <= {"d_roll1", "d_yaw0", "d_yaw1"}, screened.screening.dropped
+    full = run_case(data, "M5", gcps, (1,), sim.dem, "N")
+    screened = run_case(data, "M5", gcps, (1,), sim.dem, "N", screening=ScreeningOptions())
+    decisions = [d for _, d in screened.tested.screening_log]
+    dropped = {d.name for d in decisions}
+    assert dropped and dropped <= {"d_roll1", "d_yaw0", "d_yaw1"}, decisions
     assert "d_yaw1" in dropped
-    assert [n.split(".")[1] for n in screened.result.parameter_names] == [
+    problem = screened.result.problem
+    assert [n for n, f in zip(problem.image_names[0], problem.image_free[0]) if f] == [
         n for n in SENSOR_MODELS["M5"] if n not in dropped]
-    assert screened.screening.joint.f_statistic < screened.screening.joint.f_critical
+    joint = screened.tested.screening_rounds[-1][1]
+    assert joint.f_statistic < joint.f_critical
     np.testing.assert_allclose(np.hypot(*screened.rmse_m[:2]), np.hypot(*full.rmse_m[:2]), rtol=0.1)
-    triplet = run_case(data, sensor_model("M7"), choose_gcps(data, 4), (0, 1, 2), sim.dem, "F+N+B", images,
-                       screening=ScreeningOptions())
-    assert {(d.camera_id, d.name) for d in triplet.screening.dropped} >= {("F", "focal"), ("N", "focal"),
-                                                                           ("B", "focal")}
-    assert not any(n.endswith(".focal") for n in triplet.result.parameter_names)
+    triplet = run_case(data, "M7", choose_gcps(data, 4), (0, 1, 2), sim.dem, "F+N+B", screening=ScreeningOptions())
+    assert {(d.camera_id, d.name) for _, d in triplet.tested.screening_log} >= {("F", "focal"), ("N", "focal"),
+                                                                               ("B", "focal")}
+    assert not any(cam.free[0] for cam in triplet.result.problem.cameras)

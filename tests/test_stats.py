@@ -4,7 +4,8 @@ import pytest
 from scipy.stats import norm
 
 from selfcal.adjust import AdjustOptions, adjust
-from selfcal.stats import ScreeningOptions, SnoopingOptions, adjust_with_tests, observation_tests
+from selfcal.stats import ScreeningOptions, SnoopingOptions, observation_tests
+from selfcal.workflows import adjust_with_tests
 from selfcal.stats.reliability import noncentrality
 
 from conftest import pruned, residual_vector, simulation, unpack

@@ -9,7 +9,8 @@ import numpy as np
 
 from selfcal.adjust import AdjustOptions, adjust
 from selfcal.block import prune
-from selfcal.stats import ScreeningOptions, SnoopingOptions, adjust_with_tests
+from selfcal.stats import ScreeningOptions, SnoopingOptions
+from selfcal.workflows import adjust_with_tests
 
 from conftest import pruned, simulation
 

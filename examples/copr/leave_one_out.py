@@ -19,7 +19,7 @@ import numpy as np
 from selfcal.adjust import AdjustOptions, adjust
 from selfcal.block import prune
 from selfcal.io import read_block
-from selfcal.stats.workflow import adjust_with_tests
+from selfcal.workflows.tested import adjust_with_tests
 
 
 def main() -> None:

@@ -25,7 +25,7 @@ from .normal import Linearisation, SingularPoints, carry_ap_columns, image_resid
 from .problem import Problem, State, build_problem
 from .solver import IterationRecord, SolverOptions, solve
 
-__all__ = ["AdjustOptions", "AdjustmentResult", "IterationRecord", "adjust", "Problem", "State"]
+__all__ = ["AdjustOptions", "AdjustmentResult", "IterationRecord", "adjust", "apply_free", "Problem", "State"]
 
 
 @dataclass(frozen=True)
@@ -43,6 +43,18 @@ class AdjustOptions:
         (Eq. 12 of seed 000): -1 none, 0 shift, 1 shift + linear drift (default), 2 quadratic.
     lever_arm, boresight : bool
         Estimate the GNSS lever arm and the IMU boresight angles (need the order -1).
+    sensor_model : str, optional
+        Which parameters of a sensor are estimated, where the sensor offers a choice: seed 001's
+        ``M1`` ... ``M7`` or a comma-separated list of parameter names for pushbroom images.
+    parameter_sigma : dict, optional
+        A-priori sigmas (code units) by parameter name, overriding the sensor model's weights.
+    ap_cameras : tuple of str, optional
+        The cameras that get additional parameters (default: all).
+    ap_sigma_px : float, optional
+        A-priori sigma of every AP coefficient (a prior observation of its start value); default free.
+    attitude_telemetry : bool
+        Pushbroom images: fit the attitude of attitude.csv (False: roll = pitch = yaw = 0 before the
+        corrections, seed 001 Table 5).
     solver : SolverOptions
     """
 
@@ -52,6 +64,11 @@ class AdjustOptions:
     imu_drift: int = 1
     lever_arm: bool = False
     boresight: bool = False
+    sensor_model: str | None = None
+    parameter_sigma: dict | None = None
+    ap_cameras: tuple[str, ...] | None = None
+    ap_sigma_px: float | None = None
+    attitude_telemetry: bool = True
     solver: SolverOptions = field(default_factory=SolverOptions)
 
 
@@ -60,7 +77,8 @@ class AdjustmentResult:
     """The estimate, its precision and how it was reached.
 
     Precision is a-posteriori: covariance = variance_factor · cofactor.
-    Residuals follow l + v = f(x): v = adjusted - observed.
+    Residuals follow l + v = f(x): v = adjusted - observed, in the observation units of each
+    image's sensor (:attr:`residuals_px` in pixels).
     """
 
     problem: Problem
@@ -78,7 +96,7 @@ class AdjustmentResult:
     theta_names: list[str]
     Q_theta: np.ndarray
     Q_points: np.ndarray
-    residuals_mm: np.ndarray       # (m, 2) image residuals in ``block``'s observation order, photo axes
+    residuals: np.ndarray          # (m, 2) image residuals in ``block``'s observation order, observation units
     notes: list[str]
     seconds: float
     linearisation: Linearisation = field(repr=False, default=None)
@@ -93,10 +111,23 @@ class AdjustmentResult:
         """A-posteriori sigma of an image coordinate of unit weight, pixels."""
         return self.image_sigma_px * float(np.sqrt(self.variance_factor))
 
-    def eop_sigma(self) -> np.ndarray:
-        """A-posteriori standard deviations of the exterior orientation, (n_images, 6) (m, rad)."""
+    @property
+    def residuals_px(self) -> np.ndarray:
+        """Image residuals (m, 2) in pixels along the photo axes (x right, y up), ``block``'s order."""
+        problem = self.problem
+        out = np.empty_like(self.residuals)
+        v = self.residuals[problem.obs_order]               # sorted order
+        for slot in problem.sensors:
+            col_row = slot.bound.pixel_residuals(slot.observations, v[slot.observations])
+            out[problem.obs_order[slot.observations]] = np.column_stack([col_row[:, 0], -col_row[:, 1]])
+        return out
+
+    def image_sigma(self) -> np.ndarray:
+        """A-posteriori standard deviations of the image parameters, (n_images, width) in code units
+        (a frame image's X0, Y0, Z0 in m, omega, phi, kappa in rad); NaN where held."""
         n_e = self.problem.n_e
-        return np.sqrt(self.variance_factor * np.diag(self.Q_theta)[:n_e]).reshape(-1, 6)
+        s = np.sqrt(self.variance_factor * np.diag(self.Q_theta)[:n_e]).reshape(self.problem.n_images, -1)
+        return np.where(self.problem.image_free, s, np.nan)
 
     def camera_sigma(self) -> list[np.ndarray]:
         """A-posteriori standard deviations of each camera's parameters (NaN where fixed)."""
@@ -115,31 +146,21 @@ class AdjustmentResult:
         NaN where the image or the point is not part of the adjustment (e.g. an
         observation rejected together with its point).
         """
-        from ..sensors.frame import pixel_from_photo, project
         img_lookup = {i: k for k, i in enumerate(self.block.images.image_id)}
         pt_lookup = {p: k for k, p in enumerate(self.block.points.point_id)}
         img = np.array([img_lookup.get(i, -1) for i in image_ids], dtype=np.int64)
         pt = np.array([pt_lookup.get(p, -1) for p in point_ids], dtype=np.int64)
         out = np.full((len(img), 2), np.nan)
         ok = (img >= 0) & (pt >= 0)
-        if not ok.any():
-            return out
-        cam_idx = self.problem.image_camera[img[ok]]
-        iop = np.array([c[:3] for c in self.state.cameras])[cam_idx]
-        xy = project(self.state.points[pt[ok]], self.state.eop[img[ok]], iop)
-        for k, cam in enumerate(self.problem.cameras):
-            sel = np.flatnonzero(cam_idx == k)
-            if sel.size and cam.ap.n_params:
-                # Delta is evaluated at the observed position; at the adjusted one it differs by a second-order term
-                dx, dy = cam.ap.displacement_px(xy[sel, 0], xy[sel, 1], self.state.cameras[k][3:] * cam.free[3:])
-                xy[sel, 0] += cam.pixel_size_mm * dx
-                xy[sel, 1] += cam.pixel_size_mm * dy
-        cfg = self.block.cameras
-        ids = [self.problem.cameras[k].camera_id for k in cam_idx]
-        w = np.array([cfg[c].width_px for c in ids], float)
-        h = np.array([cfg[c].height_px for c in ids], float)
-        p = np.array([cfg[c].pixel_size_mm for c in ids], float)
-        out[ok] = pixel_from_photo(xy, w, h, p)
+        problem = self.problem
+        image_slot = np.zeros(problem.n_images, np.int64)
+        for s, slot in enumerate(problem.sensors):
+            image_slot[slot.images] = s
+        for s, slot in enumerate(problem.sensors):
+            sel = np.flatnonzero(ok & (image_slot[np.maximum(img, 0)] == s))
+            if sel.size:
+                context = slot.bound.context(self.state, False)
+                out[sel] = slot.bound.pixels(context, img[sel], self.state.points[pt[sel]])
         return out
 
     def point_covariance(self) -> np.ndarray:
@@ -171,6 +192,26 @@ def _offsets(problem: Problem) -> list[int]:
         offsets.append(start)
         start += int(cam.free.sum())
     return offsets
+
+
+def apply_free(problem: Problem, free: dict) -> None:
+    """Hold parameters as screening decided: ``free`` maps an owner to a bool mask of what stays
+    estimated, a camera id to its AP coefficients, ``("core", camera id)`` to its sensor's own
+    parameters, ``("image", image id)`` to an image's parameters, "GNSS" / "IMU" to the
+    trajectory terms. Held parameters keep their start value (zero for an AP coefficient)."""
+    image_of = {i: k for k, i in enumerate(problem.image_ids)}
+    for cam in problem.cameras:
+        if cam.camera_id in free:
+            cam.free[cam.n_core:] = np.asarray(free[cam.camera_id], bool)
+        if ("core", cam.camera_id) in free:
+            cam.free[:cam.n_core] = np.asarray(free[("core", cam.camera_id)], bool)
+    for key, mask in free.items():
+        if isinstance(key, tuple) and key[0] == "image" and key[1] in image_of:
+            problem.image_free[image_of[key[1]]] = np.asarray(mask, bool)
+    for t in problem.trajectory:
+        if t.sensor in free:
+            t.free[:] = np.asarray(free[t.sensor], bool)
+    problem.d_offset = _offsets(problem)
 
 
 def adjust(block: Block, options: AdjustOptions = AdjustOptions(),
@@ -208,20 +249,19 @@ def adjust(block: Block, options: AdjustOptions = AdjustOptions(),
     settings = {"grid": options.grid} if options.ap.startswith("wavelet") else {}
     problem = build_problem(block, options.ap, settings, ap_models=ap_models,
                             gnss_drift=options.gnss_drift, imu_drift=options.imu_drift,
-                            lever_arm=options.lever_arm, boresight=options.boresight)
+                            lever_arm=options.lever_arm, boresight=options.boresight, options=options)
     if free:
-        for cam in problem.cameras:
-            if cam.camera_id in free:
-                cam.free[3:] = np.asarray(free[cam.camera_id], bool)
-        for t in problem.trajectory:
-            if t.sensor in free:
-                t.free[:] = np.asarray(free[t.sensor], bool)
-        problem.d_offset = _offsets(problem)
+        apply_free(problem, free)
     if start is not None:
         carry_ap_columns(problem, block.observations.row[problem.obs_order],
                          start.problem, start.block.observations.row[start.problem.obs_order])
     state, notes = initial_state(problem, block, start)
+    for slot in problem.sensors:
+        slot.bound.refine_sigma(state, problem.obs_sigma)
     names = problem.theta_names(block.images.image_id)
+    n_obs, n_unk = problem.n_observations(), problem.n_unknowns()
+    if n_obs <= n_unk:
+        raise AdjustmentError(f"no redundancy: {n_obs} observations for {n_unk} unknowns")
     solver_options = options.solver
     if block.datum == "free" and not solver_options.free_network:
         solver_options = replace(solver_options, free_network=True)
@@ -248,9 +288,6 @@ def adjust(block: Block, options: AdjustOptions = AdjustOptions(),
                                   + "\n  ".join(directions)) from None
         Q = factor.inverse()
     Q_points = point_cofactors(problem, lin, v_inv, Q)
-    n_obs, n_unk = problem.n_observations(), problem.n_unknowns()
-    if n_obs <= n_unk:
-        raise AdjustmentError(f"no redundancy: {n_obs} observations for {n_unk} unknowns")
     variance_factor = 2.0 * outcome.cost / (n_obs - n_unk)
     v_sorted = -image_residuals(problem, outcome.state)
     residuals = np.empty_like(v_sorted)
@@ -271,7 +308,7 @@ def adjust(block: Block, options: AdjustOptions = AdjustOptions(),
         theta_names=names,
         Q_theta=Q,
         Q_points=Q_points,
-        residuals_mm=residuals,
+        residuals=residuals,
         notes=notes,
         seconds=time.perf_counter() - t0,
         linearisation=lin,

@@ -22,11 +22,12 @@ __all__ = ["point_cofactors", "by_point_and_image"]
 
 
 def by_point_and_image(Z_e: np.ndarray, img: np.ndarray, ptl: np.ndarray, n_pc: int, n_img: int) -> sp.csr_matrix:
-    """Sparse (3 n_pc, 6 n_img) matrix holding Z_e[o]^T at (point of o, image of o), summed."""
-    rows = (3 * ptl[:, None, None] + np.arange(3)[None, :, None]).repeat(6, axis=2)      # (m, 3, 6)
-    cols = (6 * img[:, None, None] + np.arange(6)[None, None, :]).repeat(3, axis=1)
-    vals = Z_e.transpose(0, 2, 1)                                                        # (m, 3, 6)
-    return sp.csr_matrix((vals.ravel(), (rows.ravel(), cols.ravel())), shape=(3 * n_pc, 6 * n_img))
+    """Sparse (3 n_pc, w n_img) matrix holding Z_e[o]^T (Z_e: (m, w, 3)) at (point of o, image of o), summed."""
+    w = Z_e.shape[1]
+    rows = (3 * ptl[:, None, None] + np.arange(3)[None, :, None]).repeat(w, axis=2)      # (m, 3, w)
+    cols = (w * img[:, None, None] + np.arange(w)[None, None, :]).repeat(3, axis=1)
+    vals = Z_e.transpose(0, 2, 1)                                                        # (m, 3, w)
+    return sp.csr_matrix((vals.ravel(), (rows.ravel(), cols.ravel())), shape=(3 * n_pc, w * n_img))
 
 
 def point_cofactors(problem: Problem, lin: Linearisation, v_inv: list, Q: np.ndarray) -> np.ndarray:
@@ -39,7 +40,7 @@ def point_cofactors(problem: Problem, lin: Linearisation, v_inv: list, Q: np.nda
     for ch, cs, Vi in zip(lin.chunks, problem.structure().chunks, v_inv):
         n_pc = ch.p1 - ch.p0
         img, ptl = cs.img, cs.ptl
-        Z_e = ch.w_e @ Vi[ptl]                                              # (m, 6, 3)
+        Z_e = ch.w_e @ Vi[ptl]                                              # (m, w, 3)
         Qp = Vi.copy()
         point_cofactor_pairs(Z_e, img, ptl, cs.pair_a, cs.pair_b, Q_e, Qp)
         if n_d:

@@ -1,18 +1,17 @@
 """Initial values: forward intersection of object points and space resection of images.
 
-Exterior orientation comes from images.csv. An image without it (or whose
-given orientation projects its control points far from where they were
-measured) is oriented by space resection from the points whose coordinates
-are known: control and check points, and tie points intersected from the
-other images. Object points are then intersected from all their rays.
+Image parameters come from each image's sensor (a frame image's exterior orientation from
+images.csv). A frame image without it (or whose given orientation projects its control
+points far from where they were measured) is oriented by space resection from the points
+whose coordinates are known: control and check points, and tie points intersected from the
+other images. Object points are then intersected from all their rays (the sensors' rays).
 """
 from __future__ import annotations
 
 import numpy as np
 
 from ..errors import AdjustmentError
-from ..sensors import bal
-from ..sensors.frame import project, project_with_jacobians, rays
+from ..sensors.frame import project, project_with_jacobians
 from .problem import Problem, State
 
 __all__ = ["intersect", "resect", "initial_state"]
@@ -39,16 +38,17 @@ def intersect(problem: Problem, state: State, use: np.ndarray | None = None) -> 
     ok : (n_points,) bool
     """
     use = np.ones(problem.n_image_observations, bool) if use is None else use
-    img = problem.obs_image[use]
-    pt = problem.obs_point[use]
-    eop = state.eop[img]
-    iop = np.array([c[:3] for c in state.cameras])[problem.image_camera[img]]
-    d = rays(problem.obs_xy_mm[use], eop, iop)
-    proj = np.eye(3)[None] - d[:, :, None] * d[:, None, :]
     A = np.zeros((problem.n_points, 3, 3))
     b = np.zeros((problem.n_points, 3))
-    np.add.at(A, pt, proj)
-    np.add.at(b, pt, np.einsum("nij,nj->ni", proj, eop[:, :3]))
+    pt = problem.obs_point[use]
+    for slot in problem.sensors:
+        o = slot.observations[use[slot.observations]]
+        if not o.size:
+            continue
+        origin, d = slot.bound.rays(slot.bound.context(state, False), o, problem.obs_image[o])
+        proj = np.eye(3)[None] - d[:, :, None] * d[:, None, :]
+        np.add.at(A, problem.obs_point[o], proj)
+        np.add.at(b, problem.obs_point[o], np.einsum("nij,nj->ni", proj, origin))
     n_rays = np.bincount(pt, minlength=problem.n_points)
     xyz = np.full((problem.n_points, 3), np.nan)
     w = np.linalg.eigvalsh(A)
@@ -104,8 +104,8 @@ def _control_rms(problem: Problem, state: State, image: int, known: np.ndarray) 
     if sel.sum() < 3:
         return 0.0
     iop = state.cameras[problem.image_camera[image]][:3]
-    pred = project(state.points[problem.obs_point[sel]], np.broadcast_to(state.eop[image], (sel.sum(), 6)), iop)
-    return float(np.sqrt(np.mean(np.sum((pred - problem.obs_xy_mm[sel]) ** 2, axis=1))))
+    pred = project(state.points[problem.obs_point[sel]], np.broadcast_to(state.image[image], (sel.sum(), 6)), iop)
+    return float(np.sqrt(np.mean(np.sum((pred - problem.obs_value[sel]) ** 2, axis=1))))
 
 
 def _from_previous(problem: Problem, block, state: State, start) -> tuple[np.ndarray, np.ndarray]:
@@ -116,7 +116,7 @@ def _from_previous(problem: Problem, block, state: State, start) -> tuple[np.nda
     img_src = np.array([img_lookup.get(i, -1) for i in block.images.image_id])
     pt_src = np.array([pt_lookup.get(p, -1) for p in block.points.point_id])
     has_img, has_pt = img_src >= 0, pt_src >= 0
-    state.eop[has_img] = start.state.eop[img_src[has_img]]
+    state.image[has_img] = start.state.image[img_src[has_img]]
     state.points[has_pt] = start.state.points[pt_src[has_pt]]
     prev_names = [n for t in start.problem.trajectory for n in t.names]
     names = [n for t in problem.trajectory for n in t.names]
@@ -126,45 +126,58 @@ def _from_previous(problem: Problem, block, state: State, start) -> tuple[np.nda
     for k, cam in enumerate(problem.cameras):
         if cam.camera_id in prev_cams:
             pc, values = prev_cams[cam.camera_id]
-            state.cameras[k][:3] = values[:3]
+            nc = cam.n_core
+            state.cameras[k][:nc] = values[:nc]
             if pc.names == cam.names:
-                state.cameras[k][3:] = np.where(cam.free[3:], values[3:], 0.0)
+                state.cameras[k][nc:] = np.where(cam.free[nc:], values[nc:], 0.0)
     return has_img, has_pt
+
+
+def _hold(problem: Problem, state: State) -> None:
+    """Parameters held by the problem keep their start value: an image parameter its sensor's, a core
+    parameter the camera's (block.toml), an AP coefficient zero."""
+    held = ~problem.image_free & np.isfinite(problem.image_prior_value)
+    state.image[held] = problem.image_prior_value[held]
+    for cam, values in zip(problem.cameras, state.cameras):
+        values[:] = np.where(cam.free, values, cam.reference)
 
 
 def initial_state(problem: Problem, block, start=None) -> tuple[State, list[str]]:
     """Initial values of all unknowns, and notes on what was resected.
 
     With ``start`` (a previous :class:`~selfcal.adjust.AdjustmentResult`), its
-    estimates are used wherever image and point ids match (warm start).
+    estimates are used wherever image and point ids match (warm start); held
+    parameters keep their start values.
 
     Raises
     ------
     AdjustmentError
-        When an image can be oriented neither from images.csv nor by resection.
+        When an image can be oriented neither from its sensor nor by resection.
     """
     images, points = block.images, block.points
-    eop = np.column_stack([images.position_m, images.attitude_rad])
-    is_bal = problem.image_sensor == "bal"
-    if is_bal.any():
-        if not np.isfinite(eop[is_bal]).all():
-            raise AdjustmentError("BAL images need their orientation in images.csv (no resection for this model)")
-        eop[is_bal] = bal.params_from_eop(eop[is_bal, :3], eop[is_bal, 3:])
-    eop_given = eop.copy()
+    given_image = problem.image_prior_value.copy()
     cameras = [cam.prior_value.copy() for cam in problem.cameras]
     xyz = points.xyz_m.copy()
-    state = State(eop=eop, cameras=cameras, points=xyz,
+    state = State(image=given_image.copy(), cameras=cameras, points=xyz,
                   extra=np.concatenate([np.zeros(0)] + [t.initial() for t in problem.trajectory]))
     notes: list[str] = []
     if start is not None:
         has_img, has_pt = _from_previous(problem, block, state, start)
+        _hold(problem, state)
         if has_img.all() and has_pt.all():
             return state, notes
-        state.eop[~has_img] = eop_given[~has_img]
+        state.image[~has_img] = given_image[~has_img]
+    resectable = np.zeros(problem.n_images, bool)
+    for slot in problem.sensors:
+        resectable[slot.images] = getattr(slot.sensor, "supports_resection", False)
     known = np.isfinite(xyz).all(axis=1) & (points.role != "tie")  # reference coordinates
-    need = ~np.isfinite(eop).all(axis=1)
+    need = ~np.isfinite(state.image).all(axis=1)
+    if (need & ~resectable).any():
+        bad = images.image_id[np.flatnonzero(need & ~resectable)[0]]
+        raise AdjustmentError(f"image '{bad}' has no initial values from its sensor (and its sensor has no "
+                              f"space resection)")
     # given orientations that miss their control points badly are treated as missing
-    for i in np.flatnonzero(~need & ~is_bal):
+    for i in np.flatnonzero(~need & resectable):
         cam = block.cameras[images.camera_id[i]]
         diagonal = np.hypot(cam.width_mm, cam.height_mm)
         rms = _control_rms(problem, state, i, known)
@@ -172,13 +185,17 @@ def initial_state(problem: Problem, block, start=None) -> tuple[State, list[str]
             notes.append(f"image '{images.image_id[i]}': given orientation misses its control points by "
                          f"{rms / cam.pixel_size_mm:.0f} px rms; re-oriented by space resection")
             need[i] = True
-    state.eop[need] = np.nan
+    state.image[need] = np.nan
 
     given = np.isfinite(points.xyz_m).all(axis=1) & (points.role == "tie")   # approximate tie coordinates
     unknown = (points.role == "chk") | ((points.role == "tie") & ~given)
+    # images with an orientation of their own intersect; images without give no rays until resected
+    intersecting = resectable.copy()
+    for slot in problem.sensors:
+        intersecting[slot.images] |= not getattr(slot.sensor, "given_points_only", False)
 
     def intersect_ties():
-        use = ~need[problem.obs_image] & ~is_bal[problem.obs_image]
+        use = ~need[problem.obs_image] & intersecting[problem.obs_image]
         pts, ok = intersect(problem, state, use)
         state.points[unknown & ok] = pts[unknown & ok]
         return ok | (points.role == "gcp") | given
@@ -193,7 +210,7 @@ def initial_state(problem: Problem, block, start=None) -> tuple[State, list[str]
             if sel.sum() < 4:
                 continue
             iop = state.cameras[problem.image_camera[i]][:3]
-            state.eop[i] = resect(problem.obs_xy_mm[sel], state.points[problem.obs_point[sel]], iop)
+            state.image[i] = resect(problem.obs_value[sel], state.points[problem.obs_point[sel]], iop)
             need[i] = False
             progress = True
             notes.append(f"image '{images.image_id[i]}': oriented by space resection from {int(sel.sum())} points")
@@ -209,7 +226,6 @@ def initial_state(problem: Problem, block, start=None) -> tuple[State, list[str]
     if bad.any():
         raise AdjustmentError(f"{int(bad.sum())} point(s) cannot be intersected (rays do not meet at a useful "
                               f"angle), e.g. '{points.point_id[np.flatnonzero(bad)[0]]}'")
-    # angles into (-pi, pi] (frame images; BAL images hold rotation vectors)
-    frame = ~is_bal
-    state.eop[frame, 3:] = (state.eop[frame, 3:] + np.pi) % (2 * np.pi) - np.pi
+    # angles into (-pi, pi] (frame images)
+    state.image[resectable, 3:] = (state.image[resectable, 3:] + np.pi) % (2 * np.pi) - np.pi
     return state, notes

@@ -28,21 +28,21 @@ def accumulate_observations(j_e, j_p, r, img, ptl, n_img, n_pc):
     V[p] += j_p^T j_p, g_p[p] += j_p^T r over observations of point p;
     w_e[o] = j_e[o]^T j_p[o] (the 6x3 coupling of the observation's image and point).
     """
-    m = j_e.shape[0]
-    U_ee = np.zeros((n_img, 6, 6))
-    g_e = np.zeros((n_img, 6))
+    m, _, ne = j_e.shape
+    U_ee = np.zeros((n_img, ne, ne))
+    g_e = np.zeros((n_img, ne))
     V = np.zeros((n_pc, 3, 3))
     g_p = np.zeros((n_pc, 3))
-    w_e = np.zeros((m, 6, 3))
+    w_e = np.zeros((m, ne, 3))
     for o in range(m):
         i = img[o]
         p = ptl[o]
         for k in range(2):
             rk = r[o, k]
-            for a in range(6):
+            for a in range(ne):
                 ea = j_e[o, k, a]
                 g_e[i, a] += ea * rk
-                for b in range(6):
+                for b in range(ne):
                     U_ee[i, a, b] += ea * j_e[o, k, b]
                 for b in range(3):
                     w_e[o, a, b] += ea * j_p[o, k, b]
@@ -61,10 +61,11 @@ def schur_image_blocks(Y, w_e, img, pair_a, pair_b, pair_key, diag, off):
     diag[img[o]] -= Y[o] w_e[o]^T for every observation; off[pair_key[q]] -= Y[a] w_e[b]^T
     for every pair q = (a, b), a < b, of observations of the same point.
     """
+    ne = Y.shape[1]
     for o in range(Y.shape[0]):
         i = img[o]
-        for a in range(6):
-            for b in range(6):
+        for a in range(ne):
+            for b in range(ne):
                 s = 0.0
                 for k in range(3):
                     s += Y[o, a, k] * w_e[o, b, k]
@@ -73,8 +74,8 @@ def schur_image_blocks(Y, w_e, img, pair_a, pair_b, pair_key, diag, off):
         oa = pair_a[q]
         ob = pair_b[q]
         key = pair_key[q]
-        for a in range(6):
-            for b in range(6):
+        for a in range(ne):
+            for b in range(ne):
                 s = 0.0
                 for k in range(3):
                     s += Y[oa, a, k] * w_e[ob, b, k]
@@ -88,39 +89,39 @@ def point_cofactor_pairs(Z_e, img, ptl, pair_a, pair_b, Q_e, out):
     ``pair_a``, ``pair_b`` hold the unordered pairs a < b; the diagonal (a = b)
     and both orders are added here. Q_e is the dense image part of Q_theta.
     """
-    m = Z_e.shape[0]
-    tmp = np.zeros((6, 3))
+    m, ne, _ = Z_e.shape
+    tmp = np.zeros((ne, 3))
     for o in range(m):
-        base = 6 * img[o]
+        base = ne * img[o]
         p = ptl[o]
-        for a in range(6):
+        for a in range(ne):
             for j in range(3):
                 s = 0.0
-                for b in range(6):
+                for b in range(ne):
                     s += Q_e[base + a, base + b] * Z_e[o, b, j]
                 tmp[a, j] = s
         for i in range(3):
             for j in range(3):
                 s = 0.0
-                for a in range(6):
+                for a in range(ne):
                     s += Z_e[o, a, i] * tmp[a, j]
                 out[p, i, j] += s
     for q in range(pair_a.shape[0]):
         oa = pair_a[q]
         ob = pair_b[q]
-        ba = 6 * img[oa]
-        bb = 6 * img[ob]
+        ba = ne * img[oa]
+        bb = ne * img[ob]
         p = ptl[oa]
-        for a in range(6):
+        for a in range(ne):
             for j in range(3):
                 s = 0.0
-                for b in range(6):
+                for b in range(ne):
                     s += Q_e[ba + a, bb + b] * Z_e[ob, b, j]
                 tmp[a, j] = s
         for i in range(3):
             for j in range(3):
                 s = 0.0
-                for a in range(6):
+                for a in range(ne):
                     s += Z_e[oa, a, i] * tmp[a, j]
                 out[p, i, j] += s          # (a, b)
                 out[p, j, i] += s          # (b, a): its transpose
@@ -129,25 +130,25 @@ def point_cofactor_pairs(Z_e, img, ptl, pair_a, pair_b, Q_e, out):
 @njit(cache=True, nogil=True)
 def leverage_pairs(Z_e, img, pair_a, pair_b, Q_e, G):
     """G[a] += Q(img a, img b) Z_e[b] for every ordered pair of the same point, diagonal included."""
-    m = Z_e.shape[0]
+    m, ne, _ = Z_e.shape
     for o in range(m):
-        base = 6 * img[o]
-        for a in range(6):
+        base = ne * img[o]
+        for a in range(ne):
             for j in range(3):
                 s = 0.0
-                for b in range(6):
+                for b in range(ne):
                     s += Q_e[base + a, base + b] * Z_e[o, b, j]
                 G[o, a, j] += s
     for q in range(pair_a.shape[0]):
         oa = pair_a[q]
         ob = pair_b[q]
-        ba = 6 * img[oa]
-        bb = 6 * img[ob]
-        for a in range(6):
+        ba = ne * img[oa]
+        bb = ne * img[ob]
+        for a in range(ne):
             for j in range(3):
                 s1 = 0.0
                 s2 = 0.0
-                for b in range(6):
+                for b in range(ne):
                     s1 += Q_e[ba + a, bb + b] * Z_e[ob, b, j]
                     s2 += Q_e[bb + a, ba + b] * Z_e[oa, b, j]
                 G[oa, a, j] += s1
@@ -158,7 +159,7 @@ def leverage_pairs(Z_e, img, pair_a, pair_b, Q_e, G):
 def camera_couplings(j_d, j_e, j_p, r, img, ptl, varying, U_ed, W_pd, g_d, U_vd):
     """Accumulate, in one pass over the camera-parameter rows j_d (m, 2, n_d):
 
-    U_ed[6 i + a] += sum over observations of image i of j_e[o, :, a] j_d[o]  (the image x camera block),
+    U_ed[ne i + a] += sum over observations of image i of j_e[o, :, a] j_d[o]  (the image x camera block),
     W_pd[3 p + a] += sum over observations of point p of j_p[o, :, a] j_d[o]  (point x camera coupling),
     g_d += j_d^T r, and U_vd[v] += j_d[:, :, varying[v]]^T j_d (the rows of U_dd that change).
 
@@ -167,15 +168,16 @@ def camera_couplings(j_d, j_e, j_p, r, img, ptl, varying, U_ed, W_pd, g_d, U_vd)
     """
     m = j_d.shape[0]
     n_d = j_d.shape[2]
+    ne = j_e.shape[2]
     for o in range(m):
-        i6 = 6 * img[o]
+        i6 = ne * img[o]
         p3 = 3 * ptl[o]
         for k in range(2):
             row = j_d[o, k]
             rk = r[o, k]
             for d in range(n_d):
                 g_d[d] += rk * row[d]
-            for a in range(6):
+            for a in range(ne):
                 c = j_e[o, k, a]
                 if c != 0.0:
                     for d in range(n_d):
@@ -210,13 +212,14 @@ def point_blocks_times(B, W_pd, transpose):
 
 @njit(cache=True, nogil=True)
 def subtract_image_couplings(Y, W_pd, img, ptl, S_ed):
-    """S_ed[6 i + a] -= sum over observations of image i of sum_k Y[o, a, k] W_pd[3 p + k]:
+    """S_ed[ne i + a] -= sum over observations of image i of sum_k Y[o, a, k] W_pd[3 p + k]:
     the image x camera part of W V^-1 W^T (Y = w_e V^-1 per observation)."""
     n = W_pd.shape[1]
+    ne = Y.shape[1]
     for o in range(Y.shape[0]):
-        i6 = 6 * img[o]
+        i6 = ne * img[o]
         p3 = 3 * ptl[o]
-        for a in range(6):
+        for a in range(ne):
             for k in range(3):
                 c = Y[o, a, k]
                 if c != 0.0:
@@ -254,9 +257,10 @@ def camera_couplings_compact(j_c, j_e, j_p, r, img, cam, cols, U_ed, U_dd, g_d):
     coupling of each observation's point with its camera (the non-zero parts of W_pd).
     """
     m, _, w = j_c.shape
+    ne = j_e.shape[2]
     w_d = np.zeros((m, 3, w))
     for o in range(m):
-        i6 = 6 * img[o]
+        i6 = ne * img[o]
         cc = cols[cam[o]]
         for k in range(2):
             rk = r[o, k]
@@ -266,7 +270,7 @@ def camera_couplings_compact(j_c, j_e, j_p, r, img, cam, cols, U_ed, U_dd, g_d):
                     continue
                 x = j_c[o, k, c]
                 g_d[d] += rk * x
-                for a in range(6):
+                for a in range(ne):
                     U_ed[i6 + a, d] += j_e[o, k, a] * x
                 for a in range(3):
                     w_d[o, a, c] += j_p[o, k, a] * x
@@ -288,6 +292,7 @@ def schur_camera_blocks(w_e, w_d, Vi, g_p, img, cam, ptl, cols, pair_a, pair_b, 
     g_d[cols o] -= w_d[o]^T V^-1 g_p.
     """
     m, _, w = w_d.shape
+    ne = w_e.shape[1]
     T = np.zeros((m, 3, w))                      # V^-1 w_d per observation
     for o in range(m):
         p = ptl[o]
@@ -322,12 +327,12 @@ def schur_camera_blocks(w_e, w_d, Vi, g_p, img, cam, ptl, cols, pair_a, pair_b, 
                 oa, ob = ob, oa
             ca = cols[cam[oa]]
             cb = cols[cam[ob]]
-            i6 = 6 * img[oa]
+            i6 = ne * img[oa]
             for c2 in range(w):
                 d2 = cb[c2]
                 if d2 < 0:
                     continue
-                for e in range(6):
+                for e in range(ne):
                     s = 0.0
                     for k in range(3):
                         s += w_e[oa, e, k] * T[ob, k, c2]
@@ -349,15 +354,16 @@ def leverage_camera_cross(j_e, j_d, img, ptl, Q_ed, Z, jp_term, h):
     jp_term[o] += j_e[o] Q_ed[img o] Z[ptl o]^T      (2 x 3)
     h[o, k]    += 2 j_e[o, k] Q_ed[img o] j_d[o, k]^T
 
-    Q_ed (n_img, 6, n_d), Z (n_pc, 3, n_d), j_d (m, 2, n_d): every entry is a dot product
+    Q_ed (n_img, ne, n_d), Z (n_pc, 3, n_d), j_d (m, 2, n_d): every entry is a dot product
     over the long axis n_d (vectorised; ``fastmath`` only lets the sums be reassociated).
     """
     m, _, n = j_d.shape
-    T = np.zeros((6, 5))
+    ne = j_e.shape[2]
+    T = np.zeros((ne, 5))
     for o in range(m):
         Qi = Q_ed[img[o]]
         Zp = Z[ptl[o]]
-        for e in range(6):
+        for e in range(ne):
             for c in range(3):
                 s = 0.0
                 for d in range(n):
@@ -371,10 +377,10 @@ def leverage_camera_cross(j_e, j_d, img, ptl, Q_ed, Z, jp_term, h):
         for k in range(2):
             for c in range(3):
                 s = 0.0
-                for e in range(6):
+                for e in range(ne):
                     s += j_e[o, k, e] * T[e, c]
                 jp_term[o, k, c] += s
             s = 0.0
-            for e in range(6):
+            for e in range(ne):
                 s += j_e[o, k, e] * T[e, 3 + k]
             h[o, k] += 2.0 * s

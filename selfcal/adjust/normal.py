@@ -26,9 +26,7 @@ import scipy.linalg.blas
 import scipy.sparse as sp
 
 from ..errors import AdjustmentError
-from ..geometry.rotation import matrix_from_opk, matrix_from_opk_with_derivatives, opk_from_matrix_with_derivatives
-from ..sensors import bal
-from ..sensors.frame import project, project_with_jacobians_indexed
+from ..geometry.rotation import matrix_from_opk_with_derivatives, opk_from_matrix_with_derivatives
 from .kernels import (accumulate_observations, camera_couplings, camera_couplings_compact, point_blocks_times,
                       schur_camera_blocks, schur_image_blocks, subtract_image_couplings)
 from .problem import Problem, State
@@ -41,6 +39,8 @@ __all__ = [
     "back_substitute",
     "evaluate_cost",
     "image_residuals",
+    "contexts",
+    "predict",
     "carry_ap_columns",
     "chunk_rows",
     "point_camera_coupling",
@@ -61,7 +61,7 @@ class ChunkLinearisation:
     o1: int
     V: np.ndarray        # (n_pc, 3, 3) point normal blocks, control prior included
     g_p: np.ndarray      # (n_pc, 3)
-    w_e: np.ndarray      # (m_c, 6, 3) coupling of each observation's image with its point
+    w_e: np.ndarray      # (m_c, width, 3) coupling of each observation's image with its point
     W_pd: np.ndarray | None      # (3 n_pc, n_d) coupling of the points with the camera parameters (dense form)
     w_d: np.ndarray | None = None  # (m_c, 3, width) its non-zero parts per observation (compact form)
 
@@ -69,7 +69,7 @@ class ChunkLinearisation:
 @dataclass
 class Linearisation:
     cost: float
-    U_ee: np.ndarray     # (n_images, 6, 6)
+    U_ee: np.ndarray     # (n_images, width, width)
     U_ed: np.ndarray     # (n_e, n_d)
     U_dd: np.ndarray     # (n_d, n_d)
     g_theta: np.ndarray  # (n_theta,) before elimination, parameter observations included
@@ -81,39 +81,44 @@ class Linearisation:
 
 def _camera_jacobian(problem: Problem, k: int) -> np.ndarray:
     """Whitened camera-parameter Jacobian of camera ``k`` at all its observations (in problem
-    order), (n_k, 2, 3 + n_free_ap): three slots for the interior orientation, which the caller
-    fills in every iteration, then the image displacement per unit of each free AP.
+    order), (n_k, 2, n_core + n_free_ap): a slot for each of its sensor's core parameters (a frame
+    camera's interior orientation), which the caller fills in every iteration, then the
+    displacement per unit of each free AP.
 
     The AP columns depend on the measured coordinates only, so they are evaluated
     once per problem and kept (a WAP basis costs far more to evaluate than to
     store), or taken over from the adjustment this one re-runs
-    (:func:`carry_ap_columns`). Keeping the interior-orientation slots in the same
-    array lets one camera's Jacobian rows be a view, not a fresh copy per iteration.
+    (:func:`carry_ap_columns`). Keeping the core slots in the same array lets one
+    camera's Jacobian rows be a view, not a fresh copy per iteration.
     """
     cam = problem.cameras[k]
-    free = cam.free[3:]
+    nc = cam.n_core
+    free = cam.free[nc:]
     key = (k, free.tobytes())
     columns = problem._ap_columns.get(key)
     if columns is None:
-        mine = problem.image_camera[problem.obs_image] == k
-        xy = problem.obs_xy_mm[mine]
-        bx, by = cam.ap.basis(xy[:, 0], xy[:, 1])
-        w = cam.pixel_size_mm / problem.obs_sigma_mm[mine]
-        columns = np.zeros((bx.shape[0], 2, 3 + int(free.sum())))
-        columns[:, 0, 3:] = bx if free.all() else bx[:, free]
-        columns[:, 1, 3:] = by if free.all() else by[:, free]
-        columns[:, :, 3:] *= w[:, None, None]
+        mine = np.flatnonzero(problem.image_camera[problem.obs_image] == k)
+        n_free = int(free.sum())
+        columns = np.zeros((mine.size, 2, nc + n_free))
+        if n_free and mine.size:
+            full = _bound_of(problem, mine).ap_columns(k, mine, cam.ap)
+            columns[:, :, nc:] = (full if free.all() else full[:, :, free]) / problem.obs_sigma[mine][:, :, None]
         problem._ap_columns[key] = columns
     return columns
+
+
+def _bound_of(problem: Problem, o: np.ndarray):
+    """The bound sensor of observations ``o`` (of one camera, hence one sensor)."""
+    return problem.sensors[int(problem.obs_sensor[o[0]])].bound
 
 
 def _ap_columns(problem: Problem, k: int, o0: int, o1: int, mask) -> np.ndarray:
     """The AP columns of camera ``k`` at its observations among o0:o1 (``mask``): a view for a
     single camera, a gathered copy (kept) otherwise."""
-    columns = _camera_jacobian(problem, k)[:, :, 3:]
+    columns = _camera_jacobian(problem, k)[:, :, problem.cameras[k].n_core:]
     if isinstance(mask, slice):
         return columns[o0:o1]
-    key = (k, o0, o1, problem.cameras[k].free[3:].tobytes())
+    key = (k, o0, o1, problem.cameras[k].free[problem.cameras[k].n_core:].tobytes())
     part = problem._ap_columns.get(key)
     if part is None:
         position = np.cumsum(problem.image_camera[problem.obs_image] == k) - 1
@@ -150,18 +155,19 @@ def carry_ap_columns(problem: Problem, rows: np.ndarray, previous: Problem, prev
         old_k = next((j for j, c in enumerate(previous.cameras) if c.camera_id == cam.camera_id), None)
         if old_k is None or previous.cameras[old_k].ap is not cam.ap or not cam.ap.n_params:
             continue
-        old_free, free = previous.cameras[old_k].free[3:], cam.free[3:]
+        nc = cam.n_core
+        old_free, free = previous.cameras[old_k].free[nc:], cam.free[nc:]
         old_columns = previous._ap_columns.get((old_k, old_free.tobytes()))
         if old_columns is None or np.any(free & ~old_free):
             continue
         old_position = np.cumsum(previous.image_camera[previous.obs_image] == old_k) - 1
         mine = problem.image_camera[problem.obs_image] == k
         take = old_position[source[mine]]
-        keep = np.concatenate([np.ones(3, bool), free[old_free]])   # the slots and the still free APs
+        keep = np.concatenate([np.ones(nc, bool), free[old_free]])   # the slots and the still free APs
         columns = _gather(old_columns, take, None if keep.all() else np.flatnonzero(keep))
-        ratio = previous.obs_sigma_mm[source[mine]] / problem.obs_sigma_mm[mine]
+        ratio = previous.obs_sigma[source[mine]] / problem.obs_sigma[mine]
         if np.any(ratio != 1.0):
-            columns *= ratio[:, None, None]
+            columns *= ratio[:, :, None]
         problem._ap_columns[(k, free.tobytes())] = columns
         if len(problem.cameras) == 1 and len(previous.cameras) == 1 and np.all(ratio == 1.0):
             problem._ap_gram = _carried_gram(previous, old_columns, source, free[old_free])
@@ -173,13 +179,14 @@ def _carried_gram(previous: Problem, old_columns: np.ndarray, source: np.ndarray
     APs): the previous Gram minus the rows of the observations that were left out, or None
     (computed afresh) when there is none to carry or most rows went."""
     gram = previous._ap_gram
-    if gram is None or gram.shape[0] != old_columns.shape[2] - 3:
+    n_core = previous.cameras[0].n_core
+    if gram is None or gram.shape[0] != old_columns.shape[2] - n_core:
         return None
     removed = np.setdiff1d(np.arange(previous.n_image_observations), source)
     if removed.size > 0.2 * previous.n_image_observations:
         return None                          # the difference would lose digits: sum afresh
     if removed.size:
-        rows = old_columns[removed, :, 3:].reshape(2 * removed.size, gram.shape[0])
+        rows = old_columns[removed, :, n_core:].reshape(2 * removed.size, gram.shape[0])
         gram = gram - rows.T @ rows
     return gram[np.ix_(keep, keep)]
 
@@ -193,90 +200,97 @@ def _rows_times(rows: np.ndarray, vector: np.ndarray) -> np.ndarray:
 
 
 def _camera_terms(problem: Problem, state: State, o0: int, o1: int, img: np.ndarray):
-    """Additional-parameter displacement (mm) of observations o0:o1, and per camera the
-    observations it takes (mask) with the (whitened) Jacobian columns of its free APs."""
+    """Additional-parameter displacement (observation units) of observations o0:o1, and per camera
+    the observations it takes (mask) with the (whitened) Jacobian columns of its free APs."""
     m = o1 - o0
     cam_of_obs = problem.image_camera[img]
     delta = np.zeros((m, 2))
     cam_cols = []  # (camera index, mask, whitened columns (n, 2, n_free_ap))
     single = len(problem.cameras) == 1
+    sigma = problem.obs_sigma[o0:o1]
     for k, cam in enumerate(problem.cameras):
         mask = slice(None) if single else cam_of_obs == k
         if not single and not mask.any():
             continue
+        nc = cam.n_core
         if cam.ap.n_params:
-            a = state.cameras[k][3:]
-            free = cam.free[3:]
+            a = state.cameras[k][nc:]
+            free = cam.free[nc:]
             if single:
-                # the kept Jacobian rows are contiguous with the interior-orientation slots first:
+                # the kept Jacobian rows are contiguous with the core slots first:
                 # one matrix-vector product over them, the slots weighted by zero
                 rows = _camera_jacobian(problem, k)[o0:o1]
-                columns = rows[:, :, 3:]
-                delta[:] = _rows_times(rows, np.concatenate([np.zeros(3), a[free]])) * problem.obs_sigma_mm[o0:o1, None]
+                columns = rows[:, :, nc:]
+                delta[:] = _rows_times(rows, np.concatenate([np.zeros(nc), a[free]])) * sigma
             else:
                 columns = _ap_columns(problem, k, o0, o1, mask)
-                delta[mask] = _rows_times(columns, a[free]) * problem.obs_sigma_mm[o0:o1][mask, None]
+                delta[mask] = _rows_times(columns, a[free]) * sigma[mask]
             if np.any(a[~free] != 0):          # APs held at a non-zero value
-                xy = problem.obs_xy_mm[o0:o1][mask]
-                bx, by = cam.ap.basis(xy[:, 0], xy[:, 1])
+                o = o0 + (np.arange(m) if single else np.flatnonzero(mask))
                 held = np.where(free, 0.0, a)
-                delta[mask] += cam.pixel_size_mm * np.stack([bx @ held, by @ held], axis=1)
+                delta[mask] += _bound_of(problem, o).ap_columns(k, o, cam.ap) @ held
         else:
             columns = np.zeros((m if single else int(mask.sum()), 2, 0))
         cam_cols.append((k, mask, columns))
     return delta, cam_cols
 
 
-def _sensor_masks(problem: Problem, img: np.ndarray):
-    sensors = {c.sensor for c in problem.cameras}
-    if sensors == {"frame"}:
-        return None
-    is_bal = np.array([c.sensor == "bal" for c in problem.cameras])[problem.image_camera[img]]
-    return is_bal
+def contexts(problem: Problem, state: State, jacobians: bool = True) -> list:
+    """What each sensor needs of ``state`` for its predictions (rotations, ...), computed once."""
+    return [slot.bound.context(state, jacobians) for slot in problem.sensors]
 
 
-def _project_rows(problem: Problem, state: State, points: np.ndarray, img: np.ndarray, rotation, iop_all):
-    """Predicted photo coordinates and Jacobians of observations (frame or BAL images)."""
+def predict(problem: Problem, context: list, o0: int, o1: int, points: np.ndarray, jacobians: bool):
+    """Predictions f (m, 2) of observations o0:o1 by their images' sensors; with ``jacobians`` also
+    (f, j_image (m, 2, width), j_point (m, 2, 3), j_core (m, 2, widest core)). Additional parameters
+    excluded."""
+    img = problem.obs_image[o0:o1]
     cam = problem.image_camera[img]
-    is_bal = _sensor_masks(problem, img)
-    if is_bal is None or not is_bal.any():
-        return project_with_jacobians_indexed(points, state.eop, iop_all, rotation, img, cam)
-    if is_bal.all():
-        return bal.project_with_jacobians_indexed(points, state.eop, iop_all, img, cam)
-    out = project_with_jacobians_indexed(points, state.eop, iop_all, rotation, img, cam)
-    part = bal.project_with_jacobians_indexed(points[is_bal], state.eop, iop_all, img[is_bal], cam[is_bal])
-    for full, sub in zip(out, part):
-        full[is_bal] = sub
-    return out
+    if len(problem.sensors) == 1:
+        return problem.sensors[0].bound.predict(context[0], np.arange(o0, o1), img, cam, points, jacobians)
+    m = o1 - o0
+    kinds = problem.obs_sensor[o0:o1]
+    n_core = max(c.n_core for c in problem.cameras)
+    f = np.zeros((m, 2))
+    j_e = np.zeros((m, 2, problem.image_width))
+    j_p = np.zeros((m, 2, 3))
+    j_c = np.zeros((m, 2, n_core))
+    for s, slot in enumerate(problem.sensors):
+        sel = np.flatnonzero(kinds == s)
+        if not sel.size:
+            continue
+        out = slot.bound.predict(context[s], o0 + sel, img[sel], cam[sel], points[sel], jacobians)
+        if not jacobians:
+            f[sel] = out
+            continue
+        f[sel], j_e[sel], j_p[sel] = out[0], out[1], out[2]
+        j_c[sel, :, :out[3].shape[2]] = out[3]
+    return (f, j_e, j_p, j_c) if jacobians else f
 
 
-def image_residuals(problem: Problem, state: State, o0: int = 0, o1: int | None = None) -> np.ndarray:
-    """Residuals l - f (mm, photo axes) of image observations o0:o1 (sorted order), shape (m, 2)."""
+def image_residuals(problem: Problem, state: State, o0: int = 0, o1: int | None = None, context=None) -> np.ndarray:
+    """Residuals l - f (observation units) of image observations o0:o1 (sorted order), shape (m, 2)."""
+    context = contexts(problem, state, jacobians=False) if context is None else context
     if o0 == 0 and o1 is None and len(problem.chunks) > 1:
         # chunk by chunk: the AP columns are kept per assembly chunk
         out = np.empty((problem.n_image_observations, 2))
         for cs in problem.structure().chunks:
-            out[cs.o0:cs.o1] = image_residuals(problem, state, cs.o0, cs.o1)
+            out[cs.o0:cs.o1] = image_residuals(problem, state, cs.o0, cs.o1, context)
         return out
     o1 = problem.n_image_observations if o1 is None else o1
     img = problem.obs_image[o0:o1]
-    iop = np.array([c[:3] for c in state.cameras])[problem.image_camera[img]]
-    points = state.points[problem.obs_point[o0:o1]]
-    rotation = matrix_from_opk(state.eop[:, 3:])[img]
-    xy = project(points, state.eop[img], iop, rotation)
-    is_bal = _sensor_masks(problem, img)
-    if is_bal is not None and is_bal.any():
-        xy[is_bal] = bal.project(points[is_bal], state.eop[img[is_bal]], iop[is_bal])
+    f = predict(problem, context, o0, o1, state.points[problem.obs_point[o0:o1]], jacobians=False)
     delta, _ = _camera_terms(problem, state, o0, o1, img)
-    return problem.obs_xy_mm[o0:o1] - (xy + delta)
+    return problem.obs_value[o0:o1] - (f + delta)
 
 
 def parameter_observation_groups(problem: Problem) -> np.ndarray:
-    """The group of each row of :func:`parameter_observations`: "camera" for a-priori interior
-    orientation, else the trajectory sensor ("GNSS", "IMU")."""
+    """The group of each row of :func:`parameter_observations`: "camera" for a-priori camera parameters,
+    "image" for a-priori image parameters, else the trajectory sensor ("GNSS", "IMU")."""
     labels = []
     for cam in problem.cameras:
         labels += ["camera"] * int(np.sum(cam.free & np.isfinite(cam.prior_sigma)))
+    labels += ["image"] * int(np.sum(problem.image_free & np.isfinite(problem.image_prior_sigma)))
     for t in problem.trajectory:
         labels += [t.sensor] * (3 * len(t.index))
     return np.array(labels, dtype=object)
@@ -321,6 +335,15 @@ def parameter_observations(problem: Problem, state: State) -> tuple[sp.csr_matri
             vals.append(1.0 / sigma)
             res.append((cam.prior_value[i] - values[i]) / sigma)
             k += 1
+    weighted = np.flatnonzero((problem.image_free & np.isfinite(problem.image_prior_sigma)).ravel())
+    if weighted.size:
+        sigma = problem.image_prior_sigma.ravel()[weighted]
+        rows += list(k + np.arange(weighted.size))
+        cols += list(weighted)
+        vals += list(1.0 / sigma)
+        res += list((problem.image_prior_value.ravel()[weighted] - state.image.ravel()[weighted]) / sigma)
+        k += weighted.size
+    width = problem.image_width
     x_col = problem.n_e + problem.n_d
     x_full = 0
     for t in problem.trajectory:
@@ -331,7 +354,7 @@ def parameter_observations(problem: Problem, state: State) -> tuple[sp.csr_matri
             continue
         powers = t.design()                                            # (n, order + 1)
         values = state.extra[x_full:x_full + t.n_params]
-        model, d_eop, d_mount = _mounted_sensor(t, state.eop[t.index], t.mounting_of(values))
+        model, d_eop, d_mount = _mounted_sensor(t, state.image[t.index], t.mounting_of(values))
         if t.order >= 0:
             coeff = values[:t.n_strip_params].reshape(len(t.strips), t.order + 1, 3)
             model += np.einsum("nk,nka->na", powers, coeff[t.strip_of])
@@ -342,7 +365,7 @@ def parameter_observations(problem: Problem, state: State) -> tuple[sp.csr_matri
         # d(model)/d(the image's six orientation unknowns), whitened: (n, 3 rows, 6 columns)
         nz = d_eop != 0
         rows.append(np.broadcast_to(rows_here[:, :, None], (n, 3, 6))[nz])
-        cols.append(np.broadcast_to(6 * t.index[:, None, None] + np.arange(6)[None, None, :], (n, 3, 6))[nz])
+        cols.append(np.broadcast_to(width * t.index[:, None, None] + np.arange(6)[None, None, :], (n, 3, 6))[nz])
         vals.append((d_eop / t.sigma[None, :, None])[nz])
         if t.estimate_mounting:
             free_pos = np.cumsum(t.free) - 1
@@ -374,13 +397,13 @@ def parameter_observations(problem: Problem, state: State) -> tuple[sp.csr_matri
     return sp.csr_matrix((vals, (rows, cols)), shape=(k, problem.n_theta)), res
 
 
-def chunk_rows(problem: Problem, state: State, cs, rotation=None, iop_all=None, compact: bool = False):
+def chunk_rows(problem: Problem, state: State, cs, context=None, compact: bool = False):
     """Whitened residuals and Jacobian rows of the image observations of one chunk.
 
     Returns
     -------
     r : (m, 2) whitened residuals l - f
-    j_e : (m, 2, 6) derivatives with respect to the observation's image orientation
+    j_e : (m, 2, width) derivatives with respect to the observation's image parameters (zero where held)
     j_p : (m, 2, 3) derivatives with respect to its point
     j_d : (m, 2, n_d) derivatives with respect to the free camera parameters (theta order); for a
         single camera a view of a kept array, valid until the next call: read it, do not keep or change it.
@@ -388,34 +411,34 @@ def chunk_rows(problem: Problem, state: State, cs, rotation=None, iop_all=None, 
         observation's own camera, in the order of :meth:`Problem.camera_columns`
     """
     n_e, n_d = problem.n_e, problem.n_d
-    if rotation is None:
-        rotation = matrix_from_opk_with_derivatives(state.eop[:, 3:])
-    if iop_all is None:
-        iop_all = np.array([c[:3] for c in state.cameras])
+    context = contexts(problem, state) if context is None else context
     p0, p1, o0, o1, img, ptl = cs.p0, cs.p1, cs.o0, cs.o1, cs.img, cs.ptl
     m = o1 - o0
-    xy, j_e, j_p, j_i = _project_rows(problem, state, state.points[p0:p1][ptl], img, rotation, iop_all)
+    f, j_e, j_p, j_i = predict(problem, context, o0, o1, state.points[p0:p1][ptl], jacobians=True)
     delta, cam_cols = _camera_terms(problem, state, o0, o1, img)
-    w = 1.0 / problem.obs_sigma_mm[o0:o1]
-    r = (problem.obs_xy_mm[o0:o1] - xy - delta) * w[:, None]
-    j_e *= w[:, None, None]
-    j_p *= w[:, None, None]
-    if len(problem.cameras) == 1 and problem.cameras[0].free[:3].all():
-        # one camera with its interior orientation free, the common case: the rows are a view of the
-        # kept AP Jacobian with the interior orientation written into its slots (valid until the next call)
+    w = 1.0 / problem.obs_sigma[o0:o1]
+    r = (problem.obs_value[o0:o1] - f - delta) * w
+    j_e *= w[:, :, None]
+    j_p *= w[:, :, None]
+    if not problem.all_images_free:
+        j_e *= problem.image_free[img][:, None, :]
+    if len(problem.cameras) == 1 and problem.cameras[0].free[:problem.cameras[0].n_core].all():
+        # one camera with its core parameters free, the common case: the rows are a view of the
+        # kept AP Jacobian with the core derivatives written into its slots (valid until the next call)
+        nc = problem.cameras[0].n_core
         j_d = _camera_jacobian(problem, 0)[o0:o1]
-        np.multiply(j_i, w[:, None, None], out=j_d[:, :, :3])
+        np.multiply(j_i[:, :, :nc], w[:, :, None], out=j_d[:, :, :nc])
         return r, j_e, j_p, j_d
     j_d = np.zeros((m, 2, problem.camera_columns().shape[1] if compact else n_d))
     for k, mask, columns in cam_cols:
         cam = problem.cameras[k]
         start = 0 if compact else problem.d_offset[k] - n_e
-        iop_free = cam.free[:3]
-        n_iop = int(iop_free.sum())
-        if n_iop:
-            j_d[mask, :, start:start + n_iop] = j_i[mask][:, :, iop_free] * w[mask, None, None]
+        core_free = cam.free[:cam.n_core]
+        n_core = int(core_free.sum())
+        if n_core:
+            j_d[mask, :, start:start + n_core] = j_i[mask][:, :, :cam.n_core][:, :, core_free] * w[mask][:, :, None]
         if columns.shape[2]:
-            j_d[mask, :, start + n_iop:start + n_iop + columns.shape[2]] = columns
+            j_d[mask, :, start + n_core:start + n_core + columns.shape[2]] = columns
     return r, j_e, j_p, j_d
 
 
@@ -430,14 +453,13 @@ def _gram(rows: np.ndarray, columns: np.ndarray) -> np.ndarray:
 
 def linearise(problem: Problem, state: State) -> Linearisation:
     """Jacobians and normal-equation blocks at ``state``."""
-    n_img, n_e, n_d = problem.n_images, problem.n_e, problem.n_d
+    n_img, n_e, n_d, width = problem.n_images, problem.n_e, problem.n_d, problem.image_width
     structure = problem.structure()
-    rotation = matrix_from_opk_with_derivatives(state.eop[:, 3:])
-    iop_all = np.array([c[:3] for c in state.cameras])
-    U_ee = np.zeros((n_img, 6, 6))
+    context = contexts(problem, state)
+    U_ee = np.zeros((n_img, width, width))
     U_ed = np.zeros((n_e, n_d))
     U_dd = np.zeros((n_d, n_d))
-    g_e = np.zeros((n_img, 6))
+    g_e = np.zeros((n_img, width))
     g_d = np.zeros(n_d)
     cost = 0.0
     chunks = []
@@ -460,7 +482,7 @@ def linearise(problem: Problem, state: State) -> Linearisation:
     for cs in structure.chunks:
         p0, p1, o0, o1 = cs.p0, cs.p1, cs.o0, cs.o1
         m, n_pc = o1 - o0, p1 - p0
-        r, j_e, j_p, j_d = chunk_rows(problem, state, cs, rotation, iop_all, compact)
+        r, j_e, j_p, j_d = chunk_rows(problem, state, cs, context, compact)
         cost += 0.5 * float(np.sum(r * r))
 
         # image and point blocks, and the coupling of each observation's image and point
@@ -487,17 +509,21 @@ def linearise(problem: Problem, state: State) -> Linearisation:
         ctl = control_of_point[p0:p1]
         has = np.flatnonzero(ctl >= 0)
         if has.size:
-            sig = problem.control_sigma[ctl[has]]
-            rc = (problem.control_xyz[ctl[has]] - state.points[p0:p1][has]) / sig
+            W = problem.control_weight[ctl[has]]
+            rc = np.einsum("nij,nj->ni", W, problem.control_xyz[ctl[has]] - state.points[p0:p1][has])
             cost += 0.5 * float(np.sum(rc * rc))
-            V[has] += np.einsum("ni,ij->nij", 1.0 / sig**2, np.eye(3))
-            g_p[has] += rc / sig
+            V[has] += np.einsum("nki,nkj->nij", W, W)
+            g_p[has] += np.einsum("nki,nk->ni", W, rc)
         chunks.append(ChunkLinearisation(p0, p1, o0, o1, V, g_p, w_e, W_pd, w_d))
 
     if constant.size:
         if build_gram:
             problem._ap_gram = gram
         U_dd[np.ix_(constant, constant)] += gram
+    if not problem.all_images_free:
+        # held image parameters: a unit diagonal and no coupling, so that their correction is zero
+        held_image, held_entry = np.nonzero(~problem.image_free)
+        U_ee[held_image, held_entry, held_entry] = 1.0
     J_x, r_x = parameter_observations(problem, state)
     cost += 0.5 * float(np.sum(r_x * r_x))
     g_theta = np.concatenate([g_e.ravel(), g_d, np.zeros(problem.n_extra)])
@@ -574,17 +600,18 @@ def reduce(problem: Problem, lin: Linearisation, lam: float = 0.0, dense: bool =
     v_inv : list of (n_pc, 3, 3) damped inverse point blocks per chunk
     """
     n_img, n_e, n_d, n_t = problem.n_images, problem.n_e, problem.n_d, problem.n_theta
+    w = problem.image_width
     structure = problem.structure()
     S_ed = lin.U_ed.copy()
     S_dd = lin.U_dd.copy()
     g = lin.g_theta.copy()
     diag_blocks = lin.U_ee.copy()
-    off_blocks = np.zeros((len(structure.pair_keys), 6, 6))
+    off_blocks = np.zeros((len(structure.pair_keys), w, w))
     v_inv = []
     for ch, cs in zip(lin.chunks, structure.chunks):
         Vi = _damped_inverse(ch.V, lam, ch.p0)
         v_inv.append(Vi)
-        Y = ch.w_e @ Vi[cs.ptl]                                  # (m, 6, 3) = W V^-1 per observation
+        Y = ch.w_e @ Vi[cs.ptl]                                  # (m, w, 3) = W V^-1 per observation
         schur_image_blocks(Y, ch.w_e, cs.img, cs.pair_a, cs.pair_b, cs.pair_key, diag_blocks, off_blocks)
         g[:n_e] -= (cs.sum_by_image @ np.einsum("oik,ok->oi", Y, ch.g_p[cs.ptl])).ravel()
         if n_d and ch.w_d is not None:
@@ -599,7 +626,7 @@ def reduce(problem: Problem, lin: Linearisation, lam: float = 0.0, dense: bool =
     damp = lam * lin.diag_theta
     if dense:
         S = np.zeros((n_t, n_t))
-        S_ee = np.zeros((n_img, n_img, 6, 6))
+        S_ee = np.zeros((n_img, n_img, w, w))
         S_ee[np.arange(n_img), np.arange(n_img)] = diag_blocks
         S_ee[ia, ib] = off_blocks
         S_ee[ib, ia] = off_blocks.transpose(0, 2, 1)
@@ -615,8 +642,8 @@ def reduce(problem: Problem, lin: Linearisation, lam: float = 0.0, dense: bool =
         bi = np.concatenate([np.arange(n_img), ia, ib])
         bj = np.concatenate([np.arange(n_img), ib, ia])
         blocks = np.concatenate([diag_blocks, off_blocks, off_blocks.transpose(0, 2, 1)])
-        rows = np.broadcast_to(6 * bi[:, None, None] + np.arange(6)[None, :, None], blocks.shape)
-        cols = np.broadcast_to(6 * bj[:, None, None] + np.arange(6)[None, None, :], blocks.shape)
+        rows = np.broadcast_to(w * bi[:, None, None] + np.arange(w)[None, :, None], blocks.shape)
+        cols = np.broadcast_to(w * bj[:, None, None] + np.arange(w)[None, None, :], blocks.shape)
         S_ee = sp.csr_matrix((blocks.ravel(), (rows.ravel(), cols.ravel())), shape=(n_e, n_e))
         top = sp.hstack([S_ee, sp.csr_matrix(S_ed), sp.csr_matrix((n_e, problem.n_extra))])
         mid = sp.hstack([sp.csr_matrix(S_ed.T), sp.csr_matrix(S_dd), sp.csr_matrix((n_d, problem.n_extra))])
@@ -632,7 +659,7 @@ def reduce(problem: Problem, lin: Linearisation, lam: float = 0.0, dense: bool =
 def back_substitute(problem: Problem, lin: Linearisation, v_inv: list, d_theta: np.ndarray) -> np.ndarray:
     """Point corrections d_p = V^-1 (g_p - W^T d_theta), shape (n_points, 3)."""
     n_e, n_d = problem.n_e, problem.n_d
-    d_e = d_theta[:n_e].reshape(-1, 6)
+    d_e = d_theta[:n_e].reshape(-1, problem.image_width)
     d_d = d_theta[n_e:n_e + n_d]
     d_p = np.zeros((problem.n_points, 3))
     for ch, Vi in zip(lin.chunks, v_inv):
@@ -650,10 +677,10 @@ def back_substitute(problem: Problem, lin: Linearisation, v_inv: list, d_theta: 
 
 def evaluate_cost(problem: Problem, state: State) -> float:
     """0.5 v^T P v of all observation groups at ``state``."""
-    v = image_residuals(problem, state) / problem.obs_sigma_mm[:, None]
+    v = image_residuals(problem, state) / problem.obs_sigma
     cost = 0.5 * float(np.sum(v * v))
     if len(problem.control_index):
-        rc = (problem.control_xyz - state.points[problem.control_index]) / problem.control_sigma
+        rc = np.einsum("nij,nj->ni", problem.control_weight, problem.control_xyz - state.points[problem.control_index])
         cost += 0.5 * float(np.sum(rc * rc))
     _, r_x = parameter_observations(problem, state)
     return cost + 0.5 * float(np.sum(r_x * r_x))

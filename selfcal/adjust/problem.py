@@ -5,19 +5,24 @@ Schur complement. All other unknowns form the reduced vector theta, laid out as
 
     theta = [ e | d | x ]
 
-* ``e`` — exterior orientation, 6 per image (X0, Y0, Z0, omega, phi, kappa);
-* ``d`` — camera parameters shared by many images: principal distance c,
-  principal point x0, y0 and the AP coefficients of each camera (only the free
-  ones; fixed ones keep their value and have no column);
+* ``e`` — the parameters of every image, a block of ``image_width`` per image (a frame
+  image's exterior orientation X0, Y0, Z0, omega, phi, kappa; a pushbroom image's attitude
+  corrections); entries that a problem holds (a sensor model that does not estimate them,
+  or screening) keep their value: their columns are zero and their diagonal one, so that
+  every image block has the same width;
+* ``d`` — camera parameters shared by many images: the sensor's core parameters (a frame
+  camera's principal distance c and principal point x0, y0) and the coefficients of its
+  additional parameters (only the free ones; fixed ones keep their value and have no column);
 * ``x`` — further parameters that only parameter observations touch
   (trajectory shift and drift, lever arm, ...).
 
 Observation groups, each with its own a-priori standard deviation:
 
-* image coordinates (x, y) of every (image, point) pair, sigma in pixels;
-* ground control coordinates (weighted, not fixed), sigma in metres;
-* parameter observations: priors on interior orientation, GNSS positions and
-  IMU attitudes of the images.
+* image observations, two per (image, point) pair, in the observation units of the image's
+  sensor (:mod:`selfcal.sensors.base`): photo coordinates in mm for frame cameras;
+* ground control coordinates (weighted, not fixed), with a 3x3 weight matrix each;
+* parameter observations: priors on image and camera parameters (interior orientation,
+  seed 001's parameter weights), GNSS positions and IMU attitudes of the images.
 
 Everything is whitened (divided by its sigma), so the normal matrix is J^T J
 and sigma0^2 = v^T P v / (n - u) is unitless.
@@ -28,15 +33,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..ap import APModel, ImageFrame, create_ap, fit_displacement, frame_nodes_mm
-from ..ap.none import NoAP
-from ..sensors.bal import CAMERA_NAMES as BAL_CAMERA_NAMES
+from ..ap import APModel
 from ..block import Block
 from ..errors import BlockError, UsageError
-from ..sensors.frame import EOP_NAMES, IOP_NAMES, photo_from_pixel
 
-__all__ = ["CameraParameters", "Problem", "State", "TrajectoryTerms", "build_problem", "trajectory_terms",
-           "CHUNK_OBSERVATIONS"]
+__all__ = ["CameraParameters", "Problem", "State", "SensorSlot", "TrajectoryTerms", "build_problem",
+           "trajectory_terms", "CHUNK_OBSERVATIONS"]
 
 #: observations per chunk of the normal-equation assembly (bounds memory)
 CHUNK_OBSERVATIONS = 16384
@@ -47,33 +49,57 @@ COMPACT_CAMERA_WIDTH = 32
 
 @dataclass
 class CameraParameters:
-    """One camera's parameter vector [c, x0, y0, a_1 .. a_n] and its settings."""
+    """One camera's parameter vector [core parameters of its sensor | AP coefficients] and its settings."""
 
     camera_id: str
     ap: APModel
     pixel_size_mm: float
     free: np.ndarray          # bool, which entries are unknowns
-    prior_value: np.ndarray   # a-priori values (used where prior_sigma is finite)
+    prior_value: np.ndarray   # a-priori (start) values (observed where prior_sigma is finite)
     prior_sigma: np.ndarray   # NaN: no prior observation
     names: list[str]
-    sensor: str = "frame"     # projection model of the camera's images: "frame" or "bal"
+    sensor: str = "frame"     # name of the camera's sensor model (selfcal.sensors.SENSORS)
+    n_core: int = 3           # the sensor's own parameters, before the AP coefficients
+    core_screened: tuple = (False, False, False)   # which core parameters screening may hold at their start
+    units: tuple = ()         # unit of every entry
 
     @property
     def size(self) -> int:
         return len(self.free)
+
+    @property
+    def screenable(self) -> np.ndarray:
+        """Which entries screening may hold: the flagged core parameters and every AP coefficient."""
+        return np.concatenate([np.asarray(self.core_screened, bool), np.ones(self.size - self.n_core, bool)])
+
+    @property
+    def reference(self) -> np.ndarray:
+        """What screening tests an entry against and holds it at: the start value of a core
+        parameter, zero for an AP coefficient."""
+        return np.concatenate([self.prior_value[:self.n_core], np.zeros(self.size - self.n_core)])
 
 
 @dataclass
 class State:
     """Current values of all unknowns."""
 
-    eop: np.ndarray                 # (n_images, 6)
-    cameras: list[np.ndarray]       # per camera [c, x0, y0, a...]
+    image: np.ndarray               # (n_images, image_width): each image's parameters
+    cameras: list[np.ndarray]       # per camera [core..., a...]
     points: np.ndarray              # (n_points, 3)
     extra: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     def copy(self) -> "State":
-        return State(self.eop.copy(), [c.copy() for c in self.cameras], self.points.copy(), self.extra.copy())
+        return State(self.image.copy(), [c.copy() for c in self.cameras], self.points.copy(), self.extra.copy())
+
+
+@dataclass
+class SensorSlot:
+    """A sensor model and its binding to the images of a problem that use it."""
+
+    sensor: object                  # selfcal.sensors.base.Sensor
+    bound: object                   # selfcal.sensors.base.BoundSensor
+    images: np.ndarray              # problem image indices
+    observations: np.ndarray        # positions (sorted order) of its image observations
 
 
 @dataclass
@@ -87,19 +113,31 @@ class Problem:
     # image observations, sorted by point
     obs_image: np.ndarray
     obs_point: np.ndarray
-    obs_xy_mm: np.ndarray           # measured photo coordinates
-    obs_sigma_mm: np.ndarray
     obs_order: np.ndarray           # position of each sorted observation in the block's observations
     point_start: np.ndarray         # (n_points + 1,) first observation of each point
     chunks: list[tuple[int, int]]   # point ranges [p0, p1) of the assembly chunks
-    # weighted point observations (gcp)
+    # weighted point observations (gcp): W^T W = inverse covariance of the surveyed coordinates
     control_index: np.ndarray
     control_xyz: np.ndarray
-    control_sigma: np.ndarray
+    control_weight: np.ndarray      # (n_gcp, 3, 3)
     # trajectory observations of the images (GNSS positions, IMU attitudes) with their shift/drift
     trajectory: list["TrajectoryTerms"]
     # layout of theta
     d_offset: list[int]             # start of each camera's free parameters in theta
+    camera_ids: list[str] = field(default_factory=list)
+    image_ids: np.ndarray = None
+    # the sensors of the images (filled by build_problem after the layout above)
+    sensors: list[SensorSlot] = field(default_factory=list)
+    obs_sensor: np.ndarray = None   # (n_obs,) index into sensors
+    obs_value: np.ndarray = None    # (n_obs, 2) observation vector, the sensor's observation units
+    obs_sigma: np.ndarray = None    # (n_obs, 2) its a-priori standard deviation
+    image_width: int = 6
+    image_names: list = None        # per image: the names of its parameters
+    image_units: list = None
+    image_free: np.ndarray = None   # (n_images, width) bool
+    image_prior_value: np.ndarray = None    # (n_images, width) a-priori values, observed where the sigma is finite
+    image_prior_sigma: np.ndarray = None    # (n_images, width) NaN: no prior
+    image_screenable: np.ndarray = None     # (n_images, width) bool
     _structure: object = field(default=None, repr=False)
     _ap_gram: object = field(default=None, repr=False)
     _ap_columns: dict = field(default_factory=dict, repr=False)
@@ -113,8 +151,7 @@ class Problem:
         cols = []
         for cam, start in zip(self.cameras, self.d_offset):
             pos = start - self.n_e + np.cumsum(cam.free) - 1
-            limit = 3 if cam.sensor == "frame" else cam.size
-            cols += [int(pos[i]) for i in range(min(limit, cam.size)) if cam.free[i]]
+            cols += [int(pos[i]) for i in range(min(cam.n_core, cam.size)) if cam.free[i]]
         return np.array(cols, dtype=np.int64)
 
     def camera_columns(self) -> np.ndarray:
@@ -176,12 +213,16 @@ class Problem:
 
     @property
     def image_sensor(self) -> np.ndarray:
-        """Projection model of each image ("frame", "bal")."""
+        """Sensor model name of each image."""
         return np.array([self.cameras[k].sensor for k in self.image_camera], dtype=object)
 
     @property
+    def all_images_free(self) -> bool:
+        return bool(self.image_free.all())
+
+    @property
     def n_e(self) -> int:
-        return 6 * self.n_images
+        return self.image_width * self.n_images
 
     @property
     def n_d(self) -> int:
@@ -200,20 +241,27 @@ class Problem:
         n = 2 * len(self.obs_image) + 3 * len(self.control_index)
         n += sum(3 * len(t.index) for t in self.trajectory)
         n += int(sum(np.sum(c.free & np.isfinite(c.prior_sigma)) for c in self.cameras))
+        n += int(np.sum(self.image_free & np.isfinite(self.image_prior_sigma)))
         return n
 
     def n_unknowns(self) -> int:
-        return self.n_theta + 3 * self.n_points
+        return int(self.image_free.sum()) + self.n_d + self.n_extra + 3 * self.n_points
 
-    def theta_names(self, image_ids) -> list[str]:
-        names = [f"image {i}: {p}" for i in image_ids for p in EOP_NAMES]
+    def theta_names(self, image_ids=None) -> list[str]:
+        image_ids = self.image_ids if image_ids is None else image_ids
+        names = [f"image {i}: {p}" + ("" if f else " (held)")
+                 for i, ps, fs in zip(image_ids, self.image_names, self.image_free) for p, f in zip(ps, fs)]
         for cam in self.cameras:
             names += [f"camera {cam.camera_id}: {n}" for n, f in zip(cam.names, cam.free) if f]
         return names + list(self.extra_names)
 
+    def image_theta(self) -> np.ndarray:
+        """theta indices (n_images, width) of the image parameters."""
+        return np.arange(self.n_e).reshape(self.n_images, self.image_width)
+
     def pack(self, state: State) -> np.ndarray:
         """theta of a state (the free entries only)."""
-        parts = [state.eop.ravel()]
+        parts = [state.image.ravel()]
         parts += [c_values[c.free] for c, c_values in zip(self.cameras, state.cameras)]
         parts.append(state.extra[self.extra_free])
         return np.concatenate(parts)
@@ -221,7 +269,7 @@ class Problem:
     def apply(self, state: State, d_theta: np.ndarray, d_points: np.ndarray) -> State:
         """A new state moved by the corrections."""
         new = state.copy()
-        new.eop += d_theta[: self.n_e].reshape(-1, 6)
+        new.image += d_theta[: self.n_e].reshape(-1, self.image_width)
         for cam, values, start in zip(self.cameras, new.cameras, self.d_offset):
             k = int(cam.free.sum())
             values[cam.free] += d_theta[start:start + k]
@@ -341,38 +389,27 @@ def _chunks(point_start: np.ndarray, target: int) -> list[tuple[int, int]]:
     return [(a, b) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
 
 
-def initial_coefficients(ap: APModel, initial, frame: ImageFrame, observed_xy_mm: np.ndarray,
-                         camera_id: str) -> np.ndarray:
-    """Initial AP coefficients from block.toml `[cameras.ID.initial_ap]`: the values themselves when the
-    model is the same, else ``ap``'s least-squares fit of their distortion field on a 61-node grid (the parts
-    the orientation absorbs fitted alongside and left to it)."""
-    where = f"cameras.{camera_id}.initial_ap"
-    try:
-        source = create_ap(initial.spec, frame, observed_xy_mm)
-    except ValueError as exc:
-        raise BlockError("block.toml", str(exc), None, f"{where}.model") from None
-    given = dict(zip(initial.names, initial.values_px))
-    unknown = sorted(set(given) - set(source.parameter_names))
-    if unknown:
-        raise BlockError("block.toml", f"{initial.spec} has no coefficient {unknown[0]!r} (its coefficients: "
-                                       f"{', '.join(source.parameter_names)})", None, f"{where}.{unknown[0]}")
-    values = np.array([given.get(name, 0.0) for name in source.parameter_names])
-    if source.spec == ap.spec and source.parameter_names == ap.parameter_names:
-        return values
-    x, y = frame_nodes_mm(frame)
-    dx, dy = source.displacement_px(x, y, values)
-    return fit_displacement(ap, x, y, dx, dy, absorbed=True)[0]
+def _control_weights(block: Block, control: np.ndarray, object_frame: str) -> np.ndarray:
+    """W (n, 3, 3) with W^T W the inverse covariance of each control point: diagonal in the block's
+    axes, or, for points in ECEF, from sigmas along east, north and up at the point."""
+    sigma = block.points.sigma_m[control]
+    if object_frame != "ECEF":
+        return np.einsum("ni,ij->nij", 1.0 / sigma, np.eye(3))
+    from ..geometry.earth import horizon_covariance
+    covariance = horizon_covariance(block.points.xyz_m[control], sigma)
+    return np.linalg.inv(np.linalg.cholesky(covariance))
 
 
 def build_problem(block: Block, ap_spec: str = "none", ap_settings: dict | None = None,
                   chunk_observations: int = CHUNK_OBSERVATIONS, ap_models: dict | None = None,
                   gnss_drift: int = 1, imu_drift: int = 1, lever_arm: bool = False,
-                  boresight: bool = False) -> Problem:
+                  boresight: bool = False, options=None) -> Problem:
     """Arrange a (pruned) block for the engine.
 
     Parameters
     ----------
     block : Block
+        Object points in the object frame of its sensors (ECEF for satellite sensors).
     ap_spec : str
         AP model name (``none``, ``brown``, ``wavelet:db4``, ...), one model per camera.
     ap_settings : dict, optional
@@ -385,92 +422,119 @@ def build_problem(block: Block, ap_spec: str = "none", ap_settings: dict | None 
     lever_arm, boresight : bool
         Estimate the GNSS lever arm / the IMU boresight angles (block.toml gives their
         initial values, else zero); both need the shift/drift order -1.
+    options : AdjustOptions, optional
+        Handed to the sensors (a sensor model's parameter set and weights).
     """
+    from ..sensors import sensor_of
     ap_settings = ap_settings or {}
     obs = block.observations
-    camera_ids = list(block.cameras)
-    image_camera = block.camera_index()
-    cam_of_obs = image_camera[obs.image_index]
-
-    # measured photo coordinates and their sigma in mm
-    widths = np.array([block.cameras[c].width_px for c in camera_ids], float)
-    heights = np.array([block.cameras[c].height_px for c in camera_ids], float)
-    pix = np.array([block.cameras[c].pixel_size_mm for c in camera_ids], float)
-    xy = photo_from_pixel(obs.pixel, widths[cam_of_obs], heights[cam_of_obs], pix[cam_of_obs])
-    sigma_mm = obs.sigma_px * pix[cam_of_obs]
-
-    cameras = []
-    for k, cid in enumerate(camera_ids):
-        cam = block.cameras[cid]
-        frame = ImageFrame(cam.width_mm, cam.height_mm, cam.pixel_size_mm)
-        if cam.model == "bal":
-            # BAL's own radial model; additional parameters do not apply
-            cameras.append(CameraParameters(cid, NoAP(frame), 1.0, np.ones(3, bool),
-                                            np.array([cam.focal_px, cam.k1, cam.k2]), np.full(3, np.nan),
-                                            list(BAL_CAMERA_NAMES), sensor="bal"))
-            continue
-        if ap_models and cid in ap_models:
-            ap = ap_models[cid]
-        else:
-            ap = create_ap(ap_spec, frame, xy[cam_of_obs == k], **ap_settings)
-        n = 3 + ap.n_params
-        free = np.ones(n, bool)
-        prior_value = np.zeros(n)
-        prior_value[:3] = (cam.focal_mm, cam.x0_mm, cam.y0_mm)
-        if cam.initial_ap is not None:
-            prior_value[3:] = initial_coefficients(ap, cam.initial_ap, frame, xy[cam_of_obs == k], cid)
-        prior_sigma = np.full(n, np.nan)
-        for i, sigma in enumerate((cam.sigma_focal_mm, cam.sigma_x0_mm, cam.sigma_y0_mm)):
-            if sigma is not None:
-                if sigma == 0:
-                    free[i] = False
-                else:
-                    prior_sigma[i] = sigma
-        cameras.append(CameraParameters(cid, ap, cam.pixel_size_mm, free, prior_value, prior_sigma,
-                                        list(IOP_NAMES) + list(ap.parameter_names)))
-
+    used = set(block.images.camera_id.tolist())
+    camera_ids = [c for c in block.cameras if c in used]         # a camera without images has no unknowns
+    lookup = {c: k for k, c in enumerate(camera_ids)}
+    image_camera = np.array([lookup[c] for c in block.images.camera_id], dtype=np.int64)
     order = np.lexsort((obs.image_index, obs.point_index))
     point_start = np.searchsorted(obs.point_index[order], np.arange(len(block.points) + 1))
-    d_offset, start = [], 6 * len(block.images)
-    for cam in cameras:
-        d_offset.append(start)
-        start += int(cam.free.sum())
-
+    sensors = [sensor_of(block.cameras[c]) for c in camera_ids]
+    object_frames = {s.object_frame for s in sensors}
+    if len(object_frames) > 1:
+        raise UsageError("a block mixes sensors with different object frames: "
+                         + ", ".join(sorted({s.name for s in sensors})))
     pts = block.points
     control = np.flatnonzero(pts.role == "gcp")
+    problem = Problem(
+        n_images=len(block.images),
+        n_points=len(pts),
+        cameras=[],
+        image_camera=image_camera,
+        obs_image=obs.image_index[order],
+        obs_point=obs.point_index[order],
+        obs_order=order,
+        point_start=point_start,
+        chunks=_chunks(point_start, chunk_observations),
+        control_index=control,
+        control_xyz=pts.xyz_m[control],
+        control_weight=_control_weights(block, control, object_frames.pop()),
+        trajectory=[],
+        d_offset=[],
+        camera_ids=camera_ids,
+        image_ids=np.asarray(block.images.image_id),
+    )
+
+    # the sensors, bound to their images and observations
+    kinds = list(dict.fromkeys(s.name for s in sensors))
+    sensor_index = np.array([kinds.index(s.name) for s in sensors])[image_camera]
+    problem.obs_sensor = sensor_index[problem.obs_image]
+    problem.obs_value = np.zeros((len(order), 2))
+    problem.obs_sigma = np.ones((len(order), 2))
+    widths = set()
+    problem.image_names = [None] * problem.n_images
+    problem.image_units = [None] * problem.n_images
+    image_setup = {}
+    for s_index, name in enumerate(kinds):
+        sensor = next(s for s in sensors if s.name == name)
+        images = np.flatnonzero(sensor_index == s_index)
+        o = np.flatnonzero(problem.obs_sensor == s_index)
+        bound = sensor.bind(problem, block, o, obs.pixel[order[o]], obs.sigma_px[order[o]], options)
+        problem.obs_value[o], problem.obs_sigma[o] = bound.observations()
+        problem.sensors.append(SensorSlot(sensor, bound, images, o))
+        widths.add(len(sensor.image_parameters))
+        for i in images:
+            problem.image_names[i] = list(sensor.image_names)
+            problem.image_units[i] = [p.unit for p in sensor.image_parameters]
+        image_setup[s_index] = (images, *sensor.image_setup(block, images, options))
+    if len(widths) > 1:
+        raise UsageError("a block mixes sensors whose images have different parameters: " + ", ".join(kinds))
+    width = widths.pop() if widths else 6
+    problem.image_width = width
+    problem.image_free = np.ones((problem.n_images, width), bool)
+    problem.image_prior_value = np.zeros((problem.n_images, width))
+    problem.image_prior_sigma = np.full((problem.n_images, width), np.nan)
+    problem.image_screenable = np.zeros((problem.n_images, width), bool)
+    for s_index, (images, free, sigma) in image_setup.items():
+        slot = problem.sensors[s_index]
+        problem.image_free[images] = free
+        problem.image_prior_sigma[images] = sigma
+        problem.image_prior_value[images] = slot.sensor.initial_images(slot.bound, block, images)
+        problem.image_screenable[images] = [p.screened for p in slot.sensor.image_parameters]
+
+    # the cameras: core parameters of their sensor, then the additional parameters
+    cam_of_obs = image_camera[problem.obs_image]
+    start = problem.n_e
+    ap_cameras = getattr(options, "ap_cameras", None)
+    ap_sigma_px = getattr(options, "ap_sigma_px", None)
+    for k, (cid, sensor) in enumerate(zip(camera_ids, sensors)):
+        cfg = block.cameras[cid]
+        value, free, sigma = sensor.camera_setup(cfg, options)
+        spec = ap_spec if ap_cameras is None or cid in ap_cameras else "none"
+        ap, ap_start = sensor.create_ap(spec, cfg, problem.obs_value[cam_of_obs == k], ap_settings,
+                                        model=(ap_models or {}).get(cid))
+        n_ap = ap.n_params
+        units = tuple(p.unit for p in sensor.camera_parameters) + ("px",) * n_ap
+        ap_sigma = np.full(n_ap, np.nan if ap_sigma_px is None else float(ap_sigma_px))
+        camera = CameraParameters(cid, ap, getattr(cfg, "pixel_size_mm", 1.0),
+                                  np.concatenate([free, np.ones(n_ap, bool)]),
+                                  np.concatenate([value, ap_start]), np.concatenate([sigma, ap_sigma]),
+                                  list(sensor.camera_names) + list(ap.parameter_names), sensor.name,
+                                  len(sensor.camera_parameters), tuple(p.screened for p in sensor.camera_parameters),
+                                  units)
+        problem.cameras.append(camera)
+        problem.d_offset.append(start)
+        start += int(camera.free.sum())
+
     images = block.images
-    trajectory = []
     if lever_arm and block.gnss_sigma_m is None:
         raise UsageError("--lever-arm needs GNSS observations ([gnss] in block.toml)")
     if boresight and block.imu_sigma_deg is None:
         raise UsageError("--boresight needs IMU observations ([imu] in block.toml)")
     if block.gnss_sigma_m is not None:
         index = np.flatnonzero(np.isfinite(images.position_m).all(axis=1))
-        trajectory.append(trajectory_terms("GNSS", images, index, images.position_m[index],
-                                           np.array(block.gnss_sigma_m, float), 0, gnss_drift,
-                                           block.gnss_lever_arm_m, lever_arm))
+        problem.trajectory.append(trajectory_terms("GNSS", images, index, images.position_m[index],
+                                                   np.array(block.gnss_sigma_m, float), 0, gnss_drift,
+                                                   block.gnss_lever_arm_m, lever_arm))
     if block.imu_sigma_deg is not None:
         index = np.flatnonzero(np.isfinite(images.attitude_rad).all(axis=1))
-        trajectory.append(trajectory_terms("IMU", images, index, images.attitude_rad[index],
-                                           np.radians(np.array(block.imu_sigma_deg, float)), 3, imu_drift,
-                                           None if block.imu_boresight_deg is None else
-                                           np.radians(np.array(block.imu_boresight_deg, float)), boresight))
-
-    return Problem(
-        n_images=len(images),
-        n_points=len(pts),
-        cameras=cameras,
-        image_camera=image_camera,
-        obs_image=obs.image_index[order],
-        obs_point=obs.point_index[order],
-        obs_xy_mm=xy[order],
-        obs_sigma_mm=sigma_mm[order],
-        obs_order=order,
-        point_start=point_start,
-        chunks=_chunks(point_start, chunk_observations),
-        control_index=control,
-        control_xyz=pts.xyz_m[control],
-        control_sigma=pts.sigma_m[control],
-        trajectory=trajectory,
-        d_offset=d_offset,
-    )
+        problem.trajectory.append(trajectory_terms("IMU", images, index, images.attitude_rad[index],
+                                                   np.radians(np.array(block.imu_sigma_deg, float)), 3, imu_drift,
+                                                   None if block.imu_boresight_deg is None else
+                                                   np.radians(np.array(block.imu_boresight_deg, float)), boresight))
+    return problem

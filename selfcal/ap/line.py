@@ -61,6 +61,18 @@ class LineWaveletAP:
         return 2 * len(self.keep)
 
     @property
+    def n_params(self) -> int:
+        return self.size
+
+    @property
+    def parameter_names(self) -> list[str]:
+        return self.names
+
+    def to_dict(self) -> dict:
+        return {"spec": self.spec, "columns": self.columns, "chips": [list(c) for c in self.chips],
+                "cells": list(self.cells)}
+
+    @property
     def names(self) -> list[str]:
         labels = [f"c{c + 1}k{k:+d}" for c, ks in enumerate(self.translations) for k in ks]
         kept = [labels[i] for i in self.keep]

@@ -19,7 +19,8 @@ from ..adjust import AdjustOptions
 from ..ap import AP_FAMILIES, parse_ap_spec
 from ..errors import AdjustmentError
 from ..report import result_files
-from ..stats import ScreeningOptions, SnoopingOptions, VarianceOptions, adjust_with_tests
+from ..stats import ScreeningOptions, SnoopingOptions, VarianceOptions
+from ..workflows import adjust_with_tests
 from .allocator import keep_freed_memory
 
 __all__ = ["Cell", "CellSettings", "run_cell", "run_matrix", "available_models", "PAPER_MODELS", "ALL_MODELS"]

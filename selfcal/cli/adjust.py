@@ -13,7 +13,8 @@ from ..errors import UsageError
 from ..io import read_block
 from ..io.results import results_from_files, write_results
 from ..report import model_choice_table, render_report, result_files
-from ..stats import SnoopingOptions, VarianceOptions, adjust_with_tests, choose_ap_model, parse_candidate
+from ..stats import SnoopingOptions, VarianceOptions
+from ..workflows import adjust_with_tests, choose_ap_model, parse_candidate
 from . import pushbroom
 from .options import (ap_option, grid_option, progress_printer, round_printer, screening_options, test_options,
                       trajectory_options)

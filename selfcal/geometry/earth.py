@@ -13,7 +13,7 @@ from datetime import datetime, timezone
 import erfa
 import numpy as np
 
-__all__ = ["WGS84_A_M", "WGS84_F", "utc_two_part", "itrs_from_gcrs", "orbit_frame",
+__all__ = ["horizon_covariance", "WGS84_A_M", "WGS84_F", "utc_two_part", "itrs_from_gcrs", "orbit_frame",
            "ecef_from_geodetic", "geodetic_from_ecef", "local_up", "intersect_ellipsoid"]
 
 WGS84_A_M = 6378137.0
@@ -114,3 +114,14 @@ def intersect_ellipsoid(origins: np.ndarray, directions: np.ndarray, semi_major_
         s = (-b - np.sqrt(disc)) / a
     s[(disc < 0) | (s < 0)] = np.nan
     return S + s[:, None] * d
+
+
+def horizon_covariance(ecef: np.ndarray, sigma_enu: np.ndarray) -> np.ndarray:
+    """Covariances (n, 3, 3) in ECEF (m²) of points whose standard deviations are given along east,
+    north and up of the local horizon (n, 3)."""
+    lat, lon, _ = geodetic_from_ecef(np.atleast_2d(ecef))
+    up = local_up(lat, lon)
+    east = np.stack([-np.sin(lon), np.cos(lon), np.zeros_like(lon)], -1)
+    north = np.cross(up, east)
+    R = np.stack([east, north, up], -1)                       # columns: east, north, up
+    return np.einsum("nij,nj,nkj->nik", R, np.atleast_2d(sigma_enu) ** 2, R)

@@ -32,7 +32,7 @@ def ground_sample_distance(block, result) -> float:
     for i in range(prob.n_images):
         cam = prob.cameras[prob.image_camera[i]]
         c = st.cameras[prob.image_camera[i]][0]
-        gsd.append(cam.pixel_size_mm * (st.eop[i, 2] - heights[i]) / c)
+        gsd.append(cam.pixel_size_mm * (st.image[i, 2] - heights[i]) / c)
     return float(np.mean(np.abs(gsd)))
 
 
@@ -57,8 +57,7 @@ def summary(tested, extra: dict | None = None) -> dict:
     rmsd_z = _rms(diff[chk, 2] ** 2)
     sig_xy = _rms(var[tie, 0] + var[tie, 1])
     sig_z = _rms(var[tie, 2])
-    v = result.residuals_mm / np.array([c.pixel_size_mm for c in result.problem.cameras])[
-        result.problem.image_camera[block.observations.image_index]][:, None]
+    v = result.residuals_px
 
     def gsd_of(x):
         return None if x is None else x / gsd
@@ -128,10 +127,10 @@ def camera_json(block, result) -> dict:
              "active": bool(cam.free[3 + k])}
             for k, name in enumerate(cam.ap.parameter_names)
         ]
-        ap = {**cam.ap.to_dict(), "coefficient_unit": "px", "n_active": int(cam.free[3:].sum())}
+        ap = {**cam.ap.to_dict(), "coefficient_unit": "px", "n_active": int(cam.free[cam.n_core:].sum())}
         if hasattr(cam.ap, "active_ranges"):
             # the translation ranges that remain after screening (Table 3 of seed 000)
-            ap["active_ranges"] = cam.ap.active_ranges(cam.free[3:])
+            ap["active_ranges"] = cam.ap.active_ranges(cam.free[cam.n_core:])
         cameras[cam.camera_id] = {
             "model": "frame",
             "width_px": cfg.width_px,
@@ -147,9 +146,9 @@ def camera_json(block, result) -> dict:
 
 def image_table(block, result):
     im = block.images
-    eop = result.state.eop.copy()
+    eop = result.state.image.copy()
     eop[:, 3:] = (eop[:, 3:] + np.pi) % (2 * np.pi) - np.pi
-    s = result.eop_sigma()
+    s = result.image_sigma()
     header = ["image_id", "camera_id", "strip_id", "X0", "Y0", "Z0", "omega_deg", "phi_deg", "kappa_deg",
               "sigma_X0_m", "sigma_Y0_m", "sigma_Z0_m", "sigma_omega_deg", "sigma_phi_deg", "sigma_kappa_deg",
               "n_points"]
@@ -198,9 +197,8 @@ def residual_table(block_read, tested):
     pos[used.row] = np.arange(len(used))
     where = pos[ob.row]
     kept = where >= 0
-    pix = np.array([block_read.cameras[c].pixel_size_mm for c in block_read.images.camera_id])[ob.image_index]
     v = np.full((n, 2), np.nan)
-    v[kept] = result.residuals_mm[where[kept]] / pix[kept, None]
+    v[kept] = result.residuals_px[where[kept]]
     lost = ~kept
     if lost.any():
         pred = result.predict_pixels(block_read.images.image_id[ob.image_index[lost]],
@@ -274,7 +272,7 @@ def distortion_grid_table(block, result, nodes_x: int = 61):
         cfg = block.cameras[cam.camera_id]
         x, y = frame_nodes_mm(cam.ap.frame, nodes_x)
         col, row = pixel_from_photo(np.column_stack([x, y]), cfg.width_px, cfg.height_px, cfg.pixel_size_mm).T
-        dx, dy = cam.ap.displacement_px(x, y, values[3:] * cam.free[3:])
+        dx, dy = cam.ap.displacement_px(x, y, values[cam.n_core:] * cam.free[cam.n_core:])
         cols_out["camera_id"].append(np.full(col.size, cam.camera_id, dtype=object))
         cols_out["col"].append(col)
         cols_out["row"].append(row)
@@ -338,7 +336,7 @@ def trajectory_table(result):
 
 
 def model_choice_table(choice) -> tuple:
-    """model_choice.csv: every candidate of ``--ap auto`` with its score (selfcal.stats.model_choice)."""
+    """model_choice.csv: every candidate of ``--ap auto`` with its score (selfcal.workflows.model_choice)."""
     header = ["model", "grid", "n_camera_parameters", "n_observations", "n_unknowns", "omega", "sigma0_px",
               "bic", "delta_bic", "chosen", "rmsd_chk_xy_m", "rmsd_chk_z_m", "error"]
     best = min(s.bic for s in choice.candidates if s.bic is not None)

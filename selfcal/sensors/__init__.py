@@ -1,9 +1,27 @@
-"""Projection models with analytic Jacobians, found by name."""
-from . import frame, pushbroom
+"""Sensor models behind one contract (:mod:`.base`), found by name.
 
-#: sensor model name (``model =`` in block.toml) -> module. Foreign descriptions that become a
-#: pushbroom camera are read by selfcal.io (usgscsm ISD, Pleiades DIMAP) and built by the modules
-#: usgscsm and dimap; the vendor RPC of an image is rpc.
-SENSORS = {"frame": frame, "pushbroom": pushbroom}
+A camera's ``model`` in block.toml names its sensor; the engine, the block reader and the
+initial values find it here and never branch on the name. Foreign descriptions that become a
+pushbroom camera are read by :mod:`selfcal.io` (usgscsm ISD, Pleiades DIMAP) and built by the
+modules :mod:`.usgscsm` and :mod:`.dimap`.
+"""
+from . import bal, frame, pushbroom
+from .base import BoundSensor, Parameter, Sensor
 
-__all__ = ["SENSORS", "frame", "pushbroom"]
+#: sensor name (``model =`` of a camera in block.toml) -> the sensor
+SENSORS: dict[str, Sensor] = {
+    "frame": frame.SENSOR,
+    "bal": bal.SENSOR,
+    "pushbroom": pushbroom.SENSOR,
+}
+
+
+def sensor_of(camera) -> Sensor:
+    """The sensor of a block camera (its ``model``)."""
+    try:
+        return SENSORS[camera.model]
+    except KeyError:
+        raise ValueError(f"camera model {camera.model!r} has no sensor (known: {', '.join(SENSORS)})") from None
+
+
+__all__ = ["SENSORS", "Sensor", "BoundSensor", "Parameter", "sensor_of", "frame", "bal", "pushbroom"]

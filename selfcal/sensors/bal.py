@@ -21,11 +21,14 @@ import numpy as np
 from numba import njit
 
 from ..geometry.rotation import matrix_from_opk, matrix_from_rotation_vector, opk_from_matrix
+from .base import BoundSensor, Parameter, Sensor
+from .frame import photo_from_pixel, pixel_from_photo
 
-__all__ = ["CAMERA_NAMES", "project", "project_with_jacobians_indexed", "params_from_eop", "eop_from_params",
+__all__ = ["BalSensor", "SENSOR", "CAMERA_NAMES", "IMAGE_NAMES", "project", "project_with_jacobians_indexed", "params_from_eop", "eop_from_params",
            "rotation_vector_from_matrix", "left_jacobian"]
 
 CAMERA_NAMES = ("f", "k1", "k2")
+IMAGE_NAMES = ("r1", "r2", "r3", "t1", "t2", "t3")
 
 
 def rotation_vector_from_matrix(R: np.ndarray) -> np.ndarray:
@@ -174,3 +177,78 @@ def project_with_jacobians_indexed(points: np.ndarray, params_images: np.ndarray
                             np.ascontiguousarray(cameras, dtype=np.float64),
                             np.ascontiguousarray(image_index, dtype=np.int64),
                             np.ascontiguousarray(camera_index, dtype=np.int64))
+
+
+# --- the sensor contract (selfcal.sensors.base) --------------------------------------------------
+
+class BalBound(BoundSensor):
+    """BAL images of a problem: observations are BAL's centred pixels (x right, y up), pixel size 1."""
+
+    def __init__(self, problem, block, o, pixel, sigma_px):
+        self.problem = problem
+        self.o = np.asarray(o)
+        cams = [block.cameras[c] for c in problem.camera_ids]
+        self.format_px = np.array([(c.width_px, c.height_px) for c in cams], float)
+        w, h = self.format_px[problem.image_camera[problem.obs_image[self.o]]].T
+        self.xy = np.zeros((problem.n_image_observations, 2))
+        self.xy[self.o] = photo_from_pixel(pixel, w, h, 1.0)
+        self.sigma = np.repeat(np.asarray(sigma_px, float)[:, None], 2, axis=1)
+
+    def observations(self):
+        return self.xy[self.o], self.sigma
+
+    def context(self, state, jacobians: bool = True):
+        core = np.array([c[:3] if len(c) >= 3 else np.zeros(3) for c in state.cameras]).reshape(-1, 3)
+        return state.image, core
+
+    def predict(self, context, o, img, cam, points, jacobians):
+        image, core = context
+        if jacobians:
+            return project_with_jacobians_indexed(points, image, core, img, cam)
+        return project(points, image[img], core[cam])
+
+    def rays(self, context, o, img):
+        """Rays of the distortion-free camera: P = s (x/f, y/f, -1) in the camera frame."""
+        image, core = context
+        f = core[self.problem.image_camera[img], 0]
+        R = matrix_from_rotation_vector(image[img, :3])
+        d = np.column_stack([self.xy[o] / f[:, None], -np.ones(len(o))])
+        origin = -np.einsum("nji,nj->ni", R, image[img, 3:])
+        direction = np.einsum("nji,nj->ni", R, d)
+        return origin, direction / np.linalg.norm(direction, axis=1, keepdims=True)
+
+    def pixels(self, context, img, points):
+        image, core = context
+        cam = self.problem.image_camera[img]
+        w, h = self.format_px[cam].T
+        return pixel_from_photo(project(points, image[img], core[cam]), w, h, 1.0)
+
+    def pixel_residuals(self, o, v):
+        return np.column_stack([v[:, 0], -v[:, 1]])
+
+
+class BalSensor(Sensor):
+    """The camera of Bundle Adjustment in the Large: each image its own camera (f, k1, k2)."""
+
+    name = "bal"
+    #: BAL problems come with their points: they are not intersected (BAL's rays need its distortion inverted)
+    given_points_only = True
+    image_parameters = tuple(Parameter(n, "rad" if n[0] == "r" else "m", "EOP") for n in IMAGE_NAMES)
+    camera_parameters = (Parameter("f", "px", "IOP"), Parameter("k1", "", "IOP"), Parameter("k2", "", "IOP"))
+
+    def bind(self, problem, block, o, pixel, sigma_px, options):
+        return BalBound(problem, block, o, pixel, sigma_px)
+
+    def initial_images(self, bound, block, image_index):
+        images = block.images
+        position, attitude = images.position_m[image_index], images.attitude_rad[image_index]
+        if not (np.isfinite(position).all() and np.isfinite(attitude).all()):
+            from ..errors import AdjustmentError
+            raise AdjustmentError("BAL images need their orientation in images.csv (no resection for this model)")
+        return params_from_eop(position, attitude)
+
+    def camera_setup(self, camera, options):
+        return np.array([camera.focal_px, camera.k1, camera.k2], float), np.ones(3, bool), np.full(3, np.nan)
+
+
+SENSOR = BalSensor()

@@ -19,6 +19,7 @@ import numpy as np
 from numba import njit
 
 from ..geometry.rotation import matrix_from_opk, matrix_from_opk_with_derivatives
+from .base import BoundSensor, Parameter, Sensor
 
 __all__ = [
     "EOP_NAMES",
@@ -29,6 +30,9 @@ __all__ = [
     "project_with_jacobians",
     "project_with_jacobians_indexed",
     "rays",
+    "FrameSensor",
+    "FrameBound",
+    "SENSOR",
 ]
 
 EOP_NAMES = ("X0", "Y0", "Z0", "omega", "phi", "kappa")
@@ -184,3 +188,145 @@ def rays(xy_mm: np.ndarray, eop: np.ndarray, iop: np.ndarray) -> np.ndarray:
     v = np.stack([xy_mm[:, 0] - iop[:, 1], xy_mm[:, 1] - iop[:, 2], -iop[:, 0]], axis=-1)
     d = np.einsum("nji,nj->ni", m, v)
     return d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+
+# --- the sensor contract (selfcal.sensors.base) --------------------------------------------------
+
+class FrameBound(BoundSensor):
+    """Frame images of a problem. Observations are photo coordinates in mm (DESIGN.md §2) measured
+    in the image; the prediction is Eq. (1) without the additional parameters, whose Delta is a
+    linear basis at the measured coordinates (:mod:`selfcal.ap`)."""
+
+    def __init__(self, problem, block, o, pixel, sigma_px):
+        self.problem = problem
+        self.o = np.asarray(o)
+        cams = [block.cameras[c] for c in problem.camera_ids]
+        self.format_px = np.array([(c.width_px, c.height_px, c.pixel_size_mm) for c in cams], float)
+        cam_of_obs = problem.image_camera[problem.obs_image[self.o]]
+        w, h, p = self.format_px[cam_of_obs].T
+        self.xy_mm = np.zeros((problem.n_image_observations, 2))
+        self.xy_mm[self.o] = photo_from_pixel(pixel, w, h, p)
+        self.pixel_size_mm = np.full(problem.n_image_observations, np.nan)
+        self.pixel_size_mm[self.o] = p
+        self.sigma_mm = np.repeat((np.asarray(sigma_px, float) * p)[:, None], 2, axis=1)
+
+    def observations(self):
+        return self.xy_mm[self.o], self.sigma_mm
+
+    def context(self, state, jacobians: bool = True):
+        iop = np.array([c[:3] if len(c) >= 3 else np.zeros(3) for c in state.cameras]).reshape(-1, 3)
+        rotation = matrix_from_opk_with_derivatives(state.image[:, 3:]) if jacobians else \
+            matrix_from_opk(state.image[:, 3:])
+        return state.image, iop, rotation, state.cameras
+
+    def predict(self, context, o, img, cam, points, jacobians):
+        image, iop, rotation, _ = context
+        if jacobians:
+            return project_with_jacobians_indexed(points, image, iop, rotation, img, cam)
+        return project(points, image[img], iop[cam], rotation[img])
+
+    def ap_columns(self, camera, o, ap):
+        bx, by = ap.basis(self.xy_mm[o, 0], self.xy_mm[o, 1])
+        return self.pixel_size_mm[o][:, None, None] * np.stack([bx, by], axis=1)
+
+    def rays(self, context, o, img):
+        image, iop, _, _ = context
+        cam = self.problem.image_camera[img]
+        return image[img, :3], rays(self.xy_mm[o], image[img], iop[cam])
+
+    def pixels(self, context, img, points):
+        """Eq. (1) with the additional parameters, Delta evaluated at the predicted position (at the
+        measured one, where the adjustment takes it, it differs by a second-order term)."""
+        image, iop, rotation, values = context
+        cam = self.problem.image_camera[img]
+        M = rotation[0] if isinstance(rotation, tuple) else rotation
+        xy = project(points, image[img], iop[cam], M[img])
+        for k, camera in enumerate(self.problem.cameras):
+            sel = np.flatnonzero(cam == k)
+            if sel.size and camera.ap.n_params:
+                a = values[k][camera.n_core:] * camera.free[camera.n_core:]
+                dx, dy = camera.ap.displacement_px(xy[sel, 0], xy[sel, 1], a)
+                xy[sel, 0] += camera.pixel_size_mm * dx
+                xy[sel, 1] += camera.pixel_size_mm * dy
+        w, h, p = self.format_px[cam].T
+        return pixel_from_photo(xy, w, h, p)
+
+    def pixel_residuals(self, o, v):
+        p = self.pixel_size_mm[o]
+        return np.column_stack([v[:, 0] / p, -v[:, 1] / p])
+
+
+class FrameSensor(Sensor):
+    """A frame camera (seed 000): collinearity, Eq. (1); interior orientation c, x0, y0 (mm) and the
+    additional parameters of :mod:`selfcal.ap` per camera; exterior orientation per image."""
+
+    name = "frame"
+    image_parameters = tuple(Parameter(n, u, "EOP") for n, u in zip(EOP_NAMES, ("m", "m", "m", "rad", "rad", "rad")))
+    camera_parameters = tuple(Parameter(n, "mm", "IOP") for n in IOP_NAMES)
+    ap_domain = "frame"
+    supports_resection = True
+
+    def bind(self, problem, block, o, pixel, sigma_px, options):
+        return FrameBound(problem, block, o, pixel, sigma_px)
+
+    def initial_images(self, bound, block, image_index):
+        images = block.images
+        return np.column_stack([images.position_m[image_index], images.attitude_rad[image_index]])
+
+    def create_ap(self, spec, camera, observed, settings, model=None):
+        """The AP model of a frame camera (``model`` when given) and its initial coefficients (block.toml
+        ``initial_ap``, fitted to the model when another: :func:`initial_coefficients`)."""
+        from ..ap import ImageFrame, create_ap
+        from ..errors import UsageError
+        frame = ImageFrame(camera.width_mm, camera.height_mm, camera.pixel_size_mm)
+        if model is not None:
+            ap = model
+        else:
+            try:
+                ap = create_ap(spec, frame, observed, **settings)
+            except ValueError as exc:
+                raise UsageError(f"--ap {spec}: {exc}") from None
+        initial = np.zeros(ap.n_params)
+        if camera.initial_ap is not None:
+            initial = initial_coefficients(ap, camera.initial_ap, frame, observed, camera.camera_id)
+        return ap, initial
+
+    def camera_setup(self, camera, options):
+        value = np.array([camera.focal_mm, camera.x0_mm, camera.y0_mm], float)
+        free = np.ones(3, bool)
+        sigma = np.full(3, np.nan)
+        for i, s in enumerate((camera.sigma_focal_mm, camera.sigma_x0_mm, camera.sigma_y0_mm)):
+            if s is not None:
+                if s == 0:
+                    free[i] = False
+                else:
+                    sigma[i] = s
+        return value, free, sigma
+
+
+SENSOR = FrameSensor()
+
+
+def initial_coefficients(ap, initial, frame, observed_xy_mm: np.ndarray, camera_id: str) -> np.ndarray:
+    """Initial AP coefficients from block.toml `[cameras.ID.initial_ap]`: the values themselves when the
+    model is the same, else ``ap``'s least-squares fit of their distortion field on a 61-node grid (the parts
+    the orientation absorbs fitted alongside and left to it)."""
+    from ..ap import create_ap, fit_displacement, frame_nodes_mm
+    from ..errors import BlockError
+    where = f"cameras.{camera_id}.initial_ap"
+    try:
+        source = create_ap(initial.spec, frame, observed_xy_mm)
+    except ValueError as exc:
+        raise BlockError("block.toml", str(exc), None, f"{where}.model") from None
+    given = dict(zip(initial.names, initial.values_px))
+    unknown = sorted(set(given) - set(source.parameter_names))
+    if unknown:
+        raise BlockError("block.toml", f"{initial.spec} has no coefficient {unknown[0]!r} (its coefficients: "
+                                       f"{', '.join(source.parameter_names)})", None, f"{where}.{unknown[0]}")
+    values = np.array([given.get(name, 0.0) for name in source.parameter_names])
+    if source.spec == ap.spec and source.parameter_names == ap.parameter_names:
+        return values
+    x, y = frame_nodes_mm(frame)
+    dx, dy = source.displacement_px(x, y, values)
+    return fit_displacement(ap, x, y, dx, dy, absorbed=True)[0]

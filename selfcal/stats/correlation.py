@@ -20,8 +20,8 @@ def parameter_groups(problem) -> dict[str, np.ndarray]:
     iop, ap = [], []
     for cam, start in zip(problem.cameras, problem.d_offset):
         pos = start + np.cumsum(cam.free) - 1
-        iop += [int(pos[i]) for i in range(3) if cam.free[i]]
-        ap += [int(pos[i]) for i in range(3, cam.size) if cam.free[i]]
+        iop += [int(pos[i]) for i in range(cam.n_core) if cam.free[i]]
+        ap += [int(pos[i]) for i in range(cam.n_core, cam.size) if cam.free[i]]
     groups = {"AP": np.array(ap, np.int64), "IOP": np.array(iop, np.int64),
               "EOP": np.arange(n_e, dtype=np.int64)}
     for name in ("GNSS", "IMU"):

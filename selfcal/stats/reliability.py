@@ -32,10 +32,9 @@ import numpy as np
 import scipy.linalg.blas
 from scipy.stats import norm
 
-from ..adjust.normal import chunk_rows, parameter_observations, point_camera_coupling
+from ..adjust.normal import chunk_rows, contexts, parameter_observations, point_camera_coupling
 from ..adjust.covariance import by_point_and_image
 from ..adjust.kernels import leverage_camera_cross, leverage_pairs, point_blocks_times, rows_dot_blocks
-from ..geometry.rotation import matrix_from_opk_with_derivatives
 
 __all__ = ["ObservationTests", "observation_tests", "noncentrality"]
 
@@ -84,14 +83,13 @@ def _quadratic_rows(X: np.ndarray, Q: np.ndarray, L: np.ndarray | None) -> np.nd
 
 def _image_leverage(problem, state, lin, v_inv, Q, Q_points):
     """h (m, 2) of every image coordinate (sorted order) and whitened residuals l - f."""
-    n_img, n_e, n_d = problem.n_images, problem.n_e, problem.n_d
-    Q_ee = Q[:n_e, :n_e].reshape(n_img, 6, n_img, 6)
+    n_img, n_e, n_d, width = problem.n_images, problem.n_e, problem.n_d, problem.image_width
+    Q_ee = Q[:n_e, :n_e].reshape(n_img, width, n_img, width)
     Q_e = np.ascontiguousarray(Q[:n_e, :n_e])
     Q_dd = Q[n_e:n_e + n_d, n_e:n_e + n_d]
     Q_ed_2d = np.ascontiguousarray(Q[:n_e, n_e:n_e + n_d])
-    Q_ed = Q_ed_2d.reshape(n_img, 6, n_d)
-    rotation = matrix_from_opk_with_derivatives(state.eop[:, 3:])
-    iop_all = np.array([c[:3] for c in state.cameras])
+    Q_ed = Q_ed_2d.reshape(n_img, width, n_d)
+    context = contexts(problem, state)
     h_all = np.zeros((problem.n_image_observations, 2))
     try:
         L_dd = np.linalg.cholesky(Q_dd) if n_d else None
@@ -103,9 +101,9 @@ def _image_leverage(problem, state, lin, v_inv, Q, Q_points):
         n_pc = ch.p1 - ch.p0
         img, ptl = cs.img, cs.ptl
         m = len(img)
-        r, j_e, j_p, j_d = chunk_rows(problem, state, cs, rotation, iop_all)
-        Z_e = ch.w_e @ Vi[ptl]                                              # (m, 6, 3)
-        G = np.zeros((m, 6, 3))
+        r, j_e, j_p, j_d = chunk_rows(problem, state, cs, context)
+        Z_e = ch.w_e @ Vi[ptl]                                              # (m, w, 3)
+        G = np.zeros((m, width, 3))
         leverage_pairs(Z_e, img, cs.pair_a, cs.pair_b, Q_e, G)             # sum_b Q_{i_a, i_b} Z_b
         h = np.einsum("oki,oij,okj->ok", j_e, Q_ee[img, :, img, :], j_e)
         jp_term = j_e @ G                                                   # (m, 2, 3), completed below
@@ -144,9 +142,10 @@ def observation_tests(result, critical: float = 3.0) -> ObservationTests:
     external = delta0 * np.sqrt((1.0 - image_r) / image_r)
 
     ctl = problem.control_index
-    ctl_h = np.einsum("nii->ni", Qp[ctl]) / problem.control_sigma**2
+    W = problem.control_weight
+    ctl_h = np.einsum("nij,njk,nik->ni", W, Qp[ctl], W)                # diag(W Q_pp W^T)
     ctl_r = np.clip(1.0 - ctl_h, 1e-12, None)
-    ctl_v = (state.points[ctl] - problem.control_xyz) / problem.control_sigma
+    ctl_v = np.einsum("nij,nj->ni", W, state.points[ctl] - problem.control_xyz)
     J_x, r_x = parameter_observations(problem, state)
     if J_x.shape[0]:
         JQ = J_x @ Q

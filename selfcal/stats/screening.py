@@ -54,7 +54,7 @@ from scipy.stats import f as f_distribution
 
 from .correlation import parameter_groups
 
-__all__ = ["ScreeningOptions", "ScreeningDecision", "ScreeningRound", "screen_once"]
+__all__ = ["ScreeningOptions", "ScreeningDecision", "ScreeningRound", "screen_once", "screening_masks"]
 
 
 @dataclass(frozen=True)
@@ -73,7 +73,7 @@ class ScreeningOptions:
 
 @dataclass(frozen=True)
 class ScreeningDecision:
-    camera_id: str          # owner: a camera id, or "GNSS" / "IMU"
+    camera_id: str          # owner: a camera id, an image id (its sensor's image parameters), or "GNSS" / "IMU"
     name: str
     t: float                # |a| / sigma(a) when dropped (after the earlier drops of its round)
     reason: str
@@ -100,21 +100,51 @@ class ScreeningRound:
         return self.f_statistic > self.f_critical
 
 
-def _screenable(problem) -> dict[int, tuple[str, int, str]]:
-    """theta index -> (owner key, position in the owner's mask, name) of every active screenable parameter."""
+def screening_masks(problem) -> dict:
+    """What a problem estimates of everything screening may hold, by owner (the ``free`` of
+    :func:`selfcal.adjust.adjust`): a camera id -> its AP coefficients, ``("core", camera id)`` -> its
+    sensor's screened core parameters, ``("image", image id)`` -> an image's parameters where its sensor
+    screens them, "GNSS" / "IMU" -> the trajectory terms."""
+    free = {cam.camera_id: cam.free[cam.n_core:].copy() for cam in problem.cameras}
+    free.update({("core", cam.camera_id): cam.free[:cam.n_core].copy()
+                 for cam in problem.cameras if any(cam.core_screened)})
+    free.update({("image", i): f.copy() for i, f, s in zip(problem.image_ids, problem.image_free,
+                                                           problem.image_screenable) if s.any()})
+    free.update({t.sensor: t.free.copy() for t in problem.trajectory})
+    return free
+
+
+def _screenable(problem) -> tuple[dict[int, tuple], np.ndarray]:
+    """theta index -> (owner key, position in the owner's mask, name, owner label, calibration) of every
+    active screenable parameter, and the reference values of theta (what screening tests a parameter
+    against and holds it at: the start value of a sensor's parameter, zero for APs and trajectory terms).
+    ``calibration`` marks the parameters of the correlation test (not the trajectory terms)."""
     owner = {}
+    reference = np.zeros(problem.n_theta)
+    theta = problem.image_theta()
+    reference[:problem.n_e] = np.nan_to_num(problem.image_prior_value).ravel()
+    for i, k in zip(*np.nonzero(problem.image_screenable & problem.image_free)):
+        image_id = str(problem.image_ids[i])
+        owner[int(theta[i, k])] = (("image", image_id), int(k), problem.image_names[i][k], image_id, True)
     for cam, start in zip(problem.cameras, problem.d_offset):
         pos = start + np.cumsum(cam.free) - 1
-        for i in range(3, cam.size):
-            if cam.free[i]:
-                owner[int(pos[i])] = (cam.camera_id, i - 3, cam.ap.parameter_names[i - 3])
+        for i in range(cam.size):
+            if not cam.free[i]:
+                continue
+            reference[int(pos[i])] = cam.reference[i]
+            if i < cam.n_core:
+                if cam.core_screened[i]:
+                    owner[int(pos[i])] = (("core", cam.camera_id), i, cam.names[i], cam.camera_id, True)
+            else:
+                owner[int(pos[i])] = (cam.camera_id, i - cam.n_core, cam.ap.parameter_names[i - cam.n_core],
+                                      cam.camera_id, True)
     start = problem.n_e + problem.n_d
     for t in problem.trajectory:
         pos = start + np.cumsum(t.free) - 1
         for i in np.flatnonzero(t.free):
-            owner[int(pos[i])] = (t.sensor, int(i), t.names[i])
+            owner[int(pos[i])] = (t.sensor, int(i), t.names[i], t.sensor, False)
         start += int(t.free.sum())
-    return owner
+    return owner, reference
 
 
 class _Elimination:
@@ -160,26 +190,26 @@ def screen_once(result, options: ScreeningOptions, before: ScreeningRound | None
     joint : ScreeningRound (the joint test of all dropped so far), None when nothing was dropped
     """
     problem = result.problem
-    free = {cam.camera_id: cam.free[3:].copy() for cam in problem.cameras}
-    free.update({t.sensor: t.free.copy() for t in problem.trajectory})
-    owner = _screenable(problem)
+    free = screening_masks(problem)
+    owner, reference = _screenable(problem)
     if not owner:
         return free, [], None
     groups = parameter_groups(problem)
+    is_ap = np.zeros(problem.n_theta, bool)       # the calibration parameters of the correlation test
+    is_ap[[k for k, o in owner.items() if o[4]]] = True
     orientation = np.concatenate([groups["IOP"], groups["EOP"]]).astype(np.int64)
-    is_ap = np.zeros(problem.n_theta, bool)
-    is_ap[groups["AP"]] = True
+    orientation = orientation[~is_ap[orientation] & _active(problem)[orientation]]
     vf0 = result.variance_factor
-    state = _Elimination(problem.pack(result.state), result.Q_theta,
+    state = _Elimination(problem.pack(result.state) - reference, result.Q_theta,
                          result.variance_factor * result.redundancy, result.redundancy)
     active = np.array(sorted(owner), dtype=np.int64)
     decisions: list[ScreeningDecision] = []
 
     def drop(index: int, t: float, reason: str):
         nonlocal active
-        key, position, name = owner[index]
+        key, position, name, label, _ = owner[index]
         free[key][position] = False
-        decisions.append(ScreeningDecision(key, name, t, reason))
+        decisions.append(ScreeningDecision(label, name, t, reason))
         state.drop(index)
         active = active[active != index]
 
@@ -221,6 +251,13 @@ def screen_once(result, options: ScreeningOptions, before: ScreeningRound | None
     n = n_before + len(decisions)
     joint = ScreeningRound(n, float(increase()), float(f_distribution.ppf(1 - alpha, n, result.redundancy)))
     return free, decisions, joint
+
+
+def _active(problem) -> np.ndarray:
+    """Which entries of theta are estimated (held image parameters are in theta with a unit diagonal)."""
+    out = np.ones(problem.n_theta, bool)
+    out[:problem.n_e] = problem.image_free.ravel()
+    return out
 
 
 def _most_correlated(Q: np.ndarray, ap: np.ndarray, orientation: np.ndarray, threshold: float,

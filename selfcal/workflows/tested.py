@@ -1,10 +1,15 @@
-"""Adjustment with data snooping and AP screening, repeated until stable.
+"""The tested adjustment: data snooping and screening, repeated until stable, for every sensor.
 
-Each round tests the current adjustment: AP screening (significance and
-correlation, :mod:`.screening`) and Baarda's data snooping (:mod:`.snooping`).
-What fails is removed (coefficients held at zero, observations rejected) and
-the block is re-adjusted from the previous estimate, until a round removes
-nothing. The AP basis is built once, from all observations, and kept.
+Each round tests the current adjustment: screening of the APs, the sensors' calibration
+parameters and the trajectory terms (significance and correlation, :mod:`selfcal.stats.screening`)
+and Baarda's data snooping (:mod:`selfcal.stats.snooping`). What fails is removed (parameters
+held at their start values, observations rejected) and the block is re-adjusted from the
+previous estimate, until a round removes nothing. The AP basis is built once, from all
+observations, and kept.
+
+Data snooping stops with a failure rather than reject more than :data:`MAX_REJECTED_SHARE` of
+the image observations: so many outliers are a model that does not fit (an uncalibrated focal
+length, too few parameters), not blunders.
 """
 from __future__ import annotations
 
@@ -15,12 +20,22 @@ import numpy as np
 
 from ..adjust import AdjustmentResult, AdjustOptions, adjust
 from ..block import Block, prune
-from .reliability import ObservationTests, observation_tests
-from .screening import ScreeningDecision, ScreeningOptions, ScreeningRound, screen_once
-from .snooping import SnoopingOptions, SnoopingRound, image_w, reject_candidates
-from .variance import VarianceComponent, VarianceOptions, estimate_variance_components
+from ..stats.reliability import ObservationTests, observation_tests
+from ..stats.screening import ScreeningDecision, ScreeningOptions, ScreeningRound, screen_once, screening_masks
+from ..stats.snooping import SnoopingOptions, SnoopingRound, image_w, reject_candidates
+from ..stats.variance import VarianceComponent, VarianceOptions, estimate_variance_components
 
-__all__ = ["TestedAdjustment", "adjust_with_tests"]
+__all__ = ["TestedAdjustment", "adjust_with_tests", "MAX_REJECTED_SHARE", "prune_for"]
+
+#: data snooping stops with a failure rather than reject more than this share of the image observations
+MAX_REJECTED_SHARE = 0.1
+
+
+def prune_for(block: Block) -> Block:
+    """:func:`selfcal.block.prune` with the fewest points per image that the block's sensors need."""
+    from ..sensors import sensor_of
+    need = min((sensor_of(c).min_points_per_image for c in block.cameras.values()), default=6)
+    return prune(block, min_points_per_image=need)
 
 
 @dataclass
@@ -37,6 +52,7 @@ class TestedAdjustment:
     screening_rounds: list[tuple[int, ScreeningRound]] = field(default_factory=list)
     variance_components: list[VarianceComponent] | None = None
     variance_converged: bool | None = None
+    failure: str = ""                                # why the tests stopped short, if they did
 
     @property
     def n_ap_significant(self) -> int:
@@ -63,10 +79,9 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
     critical = snooping.critical if snoop_on else 3.0
     result = adjust(block, options, progress=progress, ap_models=ap_models)
     models = {cam.camera_id: cam.ap for cam in result.problem.cameras}
-    free = {cam.camera_id: cam.free[3:].copy() for cam in result.problem.cameras}
-    free.update({t.sensor: t.free.copy() for t in result.problem.trajectory})
+    free = screening_masks(result.problem)
     n_ap_initial = int(sum(cam.ap.n_params for cam in result.problem.cameras))
-    screenable = n_ap_initial + sum(t.n_params for t in result.problem.trajectory)
+    screenable = sum(int(v.sum()) for v in free.values())
     tests = observation_tests(result, critical)
     rejected = np.zeros(0, np.int64)
     rejected_w = np.zeros(0)
@@ -74,6 +89,8 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
     rounds: list[SnoopingRound] = []
     log: list[tuple[int, ScreeningDecision]] = []
     joint_tests: list[tuple[int, ScreeningRound]] = []
+    failure = ""
+    limit = max(1, int(MAX_REJECTED_SHARE * len(block.observations)))
     max_rounds = max(snooping.max_rounds if snoop_on else 0, screening.max_rounds if screening else 0)
     for k in range(1, max_rounds + 1):
         dropped = 0
@@ -91,6 +108,11 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
             w = image_w(tests, snooping.min_redundancy)
             largest = float(w.max()) if w.size else 0.0
             picks = reject_candidates(result.block, w, critical, snooping.mode)
+            if picks.size and len(rejected) + picks.size > limit:
+                failure = (f"data snooping would reject more than {MAX_REJECTED_SHARE:.0%} of the image observations "
+                           f"(|w| up to {largest:.1f} after {len(rejected)} rejected): the model does not fit the data "
+                           f"(a focal length not calibrated? too few parameters?)")
+                break
             rejected = np.concatenate([rejected, result.block.observations.row[picks]])
             rejected_w = np.concatenate([rejected_w, w[picks]])
             rejected_mdb = np.concatenate([rejected_mdb, tests.image_mdb_px[picks]])
@@ -101,7 +123,7 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
         if report is not None:
             report(record)
         keep = ~np.isin(block.observations.row, rejected)
-        sub = prune(replace(block, observations=block.observations.take(np.flatnonzero(keep))))
+        sub = prune_for(replace(block, observations=block.observations.take(np.flatnonzero(keep))))
         result = adjust(sub, options, progress=progress, start=result, free=free, ap_models=models)
         tests = observation_tests(result, critical)
     components = converged = None
@@ -110,5 +132,5 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
             result.block, options, variance, start=result, free=free, ap_models=models, critical=critical,
             progress=progress)
     order = np.argsort(rejected)
-    return TestedAdjustment(result, tests, rejected[order], rejected_w[order], rejected_mdb[order], free, n_ap_initial, rounds, log,
-                            joint_tests, components, converged)
+    return TestedAdjustment(result, tests, rejected[order], rejected_w[order], rejected_mdb[order], free, n_ap_initial,
+                            rounds, log, joint_tests, components, converged, failure)

@@ -31,8 +31,8 @@ from ..adjust import AdjustOptions, adjust
 from ..adjust.problem import build_problem
 from ..block import Block, prune
 from ..errors import AdjustmentError
-from .snooping import SnoopingOptions
-from .workflow import adjust_with_tests
+from ..stats.snooping import SnoopingOptions
+from .tested import adjust_with_tests
 
 __all__ = ["CandidateScore", "ModelChoice", "parse_candidate", "choose_ap_model"]
 

@@ -38,11 +38,12 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ..geometry.earth import ecef_from_geodetic, geodetic_from_ecef, itrs_from_gcrs, local_up, orbit_frame
+from ...geometry.earth import ecef_from_geodetic, geodetic_from_ecef, itrs_from_gcrs, local_up, orbit_frame
 
 __all__ = ["PARAMETER_NAMES", "PARAMETER_UNITS", "LineCamera", "fit_focal_plane", "Polynomial", "fit_polynomial", "Trajectory",
            "fit_trajectory", "LineImage", "rotation_x", "rotation_y", "rotation_z", "angles_from_body_to_orbit",
            "photo_coordinates", "image_scales", "image_residuals", "ground_to_image", "line_of_sight", "image_to_ground", "intersect",
+           "track_frame", "ecef_of",
            "TIME_TOLERANCE_LINES"]
 
 #: calibration parameters of a pushbroom image, in the order of :attr:`LineImage.parameters`
@@ -240,7 +241,7 @@ def fit_trajectory(frame: str, epoch_utc: str, ephemeris_t: np.ndarray, position
     position and velocity at the quaternion times. ``given_attitude=False`` ignores the
     quaternions (roll = pitch = yaw = 0 before the corrections of Eq. 6; seed 001, Table 5).
     """
-    from ..geometry.rotation import matrix_from_quaternion
+    from ...geometry.rotation import matrix_from_quaternion
 
     if frame not in ("ECI", "ECEF"):
         raise ValueError(f"frame must be ECI or ECEF, not {frame!r}")
@@ -548,6 +549,24 @@ def intersect(images: list[LineImage], image_index: np.ndarray, rows: np.ndarray
         if np.max(np.abs(dX)) < 1e-6:
             break
     return X, sigma_px ** 2 * np.linalg.inv(N)
+
+
+def track_frame(image: LineImage) -> tuple[np.ndarray, np.ndarray]:
+    """The scene centre (ECEF, on a sphere of the mean Earth radius) and R (3, 3) whose rows are the
+    across-track (X), along-track (Y) and up (Z) unit vectors there: check-point errors are reported in it."""
+    row = image.rows / 2
+    col = image.camera.center_col
+    S, d = line_of_sight(image, [row - 1000, row + 1000], [col, col])
+    b = np.einsum("ni,ni->n", S, d)
+    c = np.einsum("ni,ni->n", S, S) - 6371000.0 ** 2
+    ground = S + (-b - np.sqrt(b * b - c))[:, None] * d
+    lat, lon, _ = geodetic_from_ecef(ground.mean(axis=0))
+    up = local_up(lat, lon)
+    along = ground[1] - ground[0]
+    along -= (along @ up) * up
+    along /= np.linalg.norm(along)
+    across = np.cross(along, up)
+    return ground.mean(axis=0), np.stack([across, along, up])
 
 
 def ecef_of(lat_deg, lon_deg, height_m) -> np.ndarray:

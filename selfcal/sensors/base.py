@@ -1,0 +1,171 @@
+"""The sensor contract: what the adjustment engine asks of a sensor model.
+
+The engine (:mod:`selfcal.adjust`) knows three kinds of unknowns: the parameters of each image
+(a block of the same width for every image of a problem), the parameters of each camera (shared
+by its images: a sensor's own *core* parameters, then the coefficients of an additional-parameter
+basis) and the object points, which it eliminates. A sensor says what its image and core
+parameters are (:class:`Parameter`: name, unit, group, whether screening may drop it) and, for
+the images of a block that use it, provides through :meth:`Sensor.bind` a :class:`BoundSensor`:
+
+* the observation vector ``l`` of every image point and its standard deviation, in the sensor's
+  *observation units* (millimetres in the focal plane for cameras; any unit in which the
+  sensor's prediction is smooth), fixed for the problem;
+* the prediction ``f`` of each observation with analytic Jacobians for the image parameters, the
+  camera core parameters and the object point (:meth:`BoundSensor.predict`); the engine whitens
+  ``l - (f + Delta)`` by the standard deviation, ``Delta`` being the additional parameters'
+  displacement, linear in their coefficients with the columns of :meth:`BoundSensor.ap_columns`;
+* the rays of image points (:meth:`BoundSensor.rays`: initial points by intersection), the
+  image position of object points (:meth:`BoundSensor.pixels`), and residuals in pixels
+  (:meth:`BoundSensor.pixel_residuals`) for the results.
+
+Object points are Cartesian metres of the problem's object frame (the block's coordinates for a
+frame camera, ECEF for satellite sensors). Pixels are DESIGN.md §2's: (col, row), (0, 0) the
+upper-left corner of the upper-left pixel.
+
+A sensor is one module with one :class:`Sensor` subclass, registered by name in
+:data:`selfcal.sensors.SENSORS`; the engine never branches on a sensor's name.
+"""
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["Parameter", "Sensor", "BoundSensor", "display_unit"]
+
+#: code unit -> (unit in files and reports, factor)
+_DISPLAY = {"rad": ("deg", float(np.degrees(1.0))), "rad/s": ("deg/s", float(np.degrees(1.0)))}
+
+
+def display_unit(unit: str) -> tuple[str, float]:
+    """The unit a value in code ``unit`` is written in, and the factor that converts it."""
+    return _DISPLAY.get(unit, (unit, 1.0))
+
+
+@dataclass(frozen=True)
+class Parameter:
+    """One parameter of a sensor model.
+
+    ``group`` names the kind of unknown for correlation tables and the report: ``"EOP"`` for an
+    image's orientation (or its corrections), ``"IOP"`` for a camera's interior orientation and
+    calibration. ``screened``: whether AP screening may hold it at its start value (tested as
+    t = |x - x_start| / sigma(x)); a frame camera's orientation is never screened, seed 001's
+    calibration parameters are.
+    """
+
+    name: str
+    unit: str
+    group: str
+    screened: bool = False
+
+
+class BoundSensor(ABC):
+    """A sensor model bound to the images of one problem that use it.
+
+    Every array argument named ``o`` indexes the problem's image observations (sorted by point);
+    ``img`` and ``cam`` are the observations' image and camera indices in the problem; ``points``
+    (m, 3) their object points.
+    """
+
+    @abstractmethod
+    def observations(self) -> tuple[np.ndarray, np.ndarray]:
+        """(l, sigma): the observation vector (n_obs, 2) of every observation of the problem (rows of
+        other sensors are left at zero) and its standard deviation (n_obs, 2), observation units."""
+
+    def refine_sigma(self, state, sigma: np.ndarray) -> None:
+        """Give observations whose standard deviation in observation units depends on the geometry
+        (a pushbroom image's motion per line) their value at ``state`` (the start values), in place."""
+
+    @abstractmethod
+    def context(self, state):
+        """What :meth:`predict` needs of the current estimate, computed once per evaluation (rotations...)."""
+
+    @abstractmethod
+    def predict(self, context, o: np.ndarray, img: np.ndarray, cam: np.ndarray, points: np.ndarray,
+                jacobians: bool):
+        """f (m, 2) of observations ``o``; with ``jacobians`` also (f, j_image (m, 2, width), j_point (m, 2, 3),
+        j_core (m, 2, n_core)): derivatives with respect to the image's parameters, the object point and
+        the camera's core parameters."""
+
+    def ap_columns(self, camera: int, o: np.ndarray, ap) -> np.ndarray:
+        """Delta per unit coefficient (n, 2, n_ap) of ``ap`` (the camera's additional parameters) at
+        observations ``o`` of that camera, in observation units. Constant over the adjustment."""
+        raise NotImplementedError(f"{type(self).__name__} takes no additional parameters")
+
+    @abstractmethod
+    def rays(self, context, o: np.ndarray, img: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Origins (m, 3) and unit directions (m, 3) of the rays of observations ``o`` (object frame)."""
+
+    @abstractmethod
+    def pixels(self, context, img: np.ndarray, points: np.ndarray) -> np.ndarray:
+        """(col, row) (m, 2) of object points in images ``img``, additional parameters excluded (NaN
+        where a point does not image)."""
+
+    def ground(self, context, img: np.ndarray, pixel: np.ndarray, height) -> np.ndarray:
+        """Mono restitution: object points (m, 3) where the rays of image points (col, row) in images ``img``
+        meet ``height`` (metres above the ellipsoid, or a callable ``height(lat_deg, lon_deg)``: a DEM)."""
+        raise NotImplementedError(f"{type(self).__name__} has no mono restitution")
+
+    @abstractmethod
+    def pixel_residuals(self, o: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """Residuals v (m, 2) of observations ``o`` in observation units, as (v_col, v_row) pixels."""
+
+
+class Sensor(ABC):
+    """A sensor model: its parameters and how its images are bound to a problem."""
+
+    #: registry name (``model =`` of a camera in block.toml)
+    name: str = ""
+    #: the parameters of every image (the engine's image block)
+    image_parameters: tuple[Parameter, ...] = ()
+    #: the camera's own parameters, shared by its images (before any additional parameters)
+    camera_parameters: tuple[Parameter, ...] = ()
+    #: the domain of the additional parameters it takes: "frame" (over the image), "line" (along a
+    #: detector line) or None
+    ap_domain: str | None = None
+    #: the object frame its points live in: "block" (the block's coordinates) or "ECEF"
+    object_frame: str = "block"
+    #: an image with fewer observed points is left out of an adjustment (selfcal.block.prune)
+    min_points_per_image: int = 6
+
+    @property
+    def image_names(self) -> tuple[str, ...]:
+        return tuple(p.name for p in self.image_parameters)
+
+    @property
+    def camera_names(self) -> tuple[str, ...]:
+        return tuple(p.name for p in self.camera_parameters)
+
+    @abstractmethod
+    def bind(self, problem, block, image_index: np.ndarray, observation_index: np.ndarray,
+             options) -> BoundSensor:
+        """Bind the images ``image_index`` of ``block`` (with their observations ``observation_index``,
+        positions in the problem's sorted order) to ``problem``."""
+
+    def initial_images(self, bound: BoundSensor, block, image_index: np.ndarray) -> np.ndarray:
+        """Start values (n, width) of the image parameters; NaN where the sensor cannot give one (a
+        frame image without orientation, oriented later by space resection)."""
+        return np.zeros((len(image_index), len(self.image_parameters)))
+
+    def camera_setup(self, camera, options) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(start value, free, a-priori sigma) of the camera's core parameters (NaN sigma: no prior)."""
+        n = len(self.camera_parameters)
+        return np.zeros(n), np.ones(n, bool), np.full(n, np.nan)
+
+    def create_ap(self, spec: str, camera, observed: np.ndarray, settings: dict, model=None):
+        """(the additional-parameter model ``spec`` of ``camera`` (a block camera), or ``model`` when given,
+        and its initial coefficients); ``observed`` are the camera's observation vectors (adaptive bases).
+        Sensors without additional parameters take ``none`` only."""
+        from ..ap.none import NoAP
+        from ..errors import UsageError
+        if model is not None:
+            return model, np.zeros(model.n_params)
+        if spec.strip().lower() != "none":
+            raise UsageError(f"--ap {spec}: {self.name} cameras take no additional parameters")
+        return NoAP(None), np.zeros(0)
+
+    def image_setup(self, block, image_index: np.ndarray, options) -> tuple[np.ndarray, np.ndarray]:
+        """(free (n, width), a-priori sigma (n, width)) of the image parameters; NaN sigma: no prior."""
+        shape = (len(image_index), len(self.image_parameters))
+        return np.ones(shape, bool), np.full(shape, np.nan)

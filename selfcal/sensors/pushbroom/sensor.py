@@ -1,0 +1,289 @@
+"""Pushbroom images in the adjustment engine: seed 001's generic sensor model behind the sensor contract.
+
+Unknowns (:mod:`selfcal.sensors.base`): per image the attitude corrections of Eq. 6 (a constant and a
+linear term in time for roll, pitch and yaw, the image block); per camera its focal length and the
+three boresight angles (the core parameters) and, with ``--ap wavelet1d:NAME``, the 1-D wavelet APs
+of its detector line (:mod:`selfcal.ap.line`). The sensor models M1-M7 of seed 001 (Table 1) say
+which of them are estimated and M6 weights them (:data:`M6_SIGMA`).
+
+Observations are the focal-plane positions (x_d, y_d) in mm of the detectors that recorded the image
+points (the ideal line, displaced by the chips' known offsets); the prediction is the collinearity
+condition of :func:`~.model.photo_coordinates` at the time of the observed line: the photo
+coordinates (x, y) of the ground point in that line's telescope frame. Their standard deviation is
+the image sigma (px) times the image motion per line along track and the detector spacing across
+track, taken once at the start values (:func:`~.model.image_scales`): the residuals are in image
+units, so a sensor with longer lines than detectors on the ground (usgscsm's LRO NAC ISD) is
+weighted right. Object points are ECEF metres.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ...errors import BlockError, UsageError
+from ..base import BoundSensor, Parameter, Sensor
+from .model import (PARAMETER_NAMES, LineCamera, LineImage, fit_trajectory, ground_to_image, image_scales,
+                    image_to_ground, line_of_sight, photo_coordinates)
+
+__all__ = ["SENSOR_MODELS", "M6_SIGMA", "SensorModel", "sensor_model", "PushbroomSensor", "PushbroomBound",
+           "SENSOR", "line_images", "FIT_ORDERS", "TELEMETRY_MARGIN_S", "IMAGE_PARAMETERS", "CAMERA_PARAMETERS"]
+
+_P = {name: k for k, name in enumerate(PARAMETER_NAMES)}
+
+#: the parameter sets of seed 001 (Table 1); M6 is M5 with parameter weights
+SENSOR_MODELS = {
+    "M1": ("d_roll0", "d_pitch0"),
+    "M2": ("d_roll0", "d_pitch0", "d_yaw0"),
+    "M3": ("d_roll0", "d_pitch0", "focal"),
+    "M4": ("d_roll0", "d_pitch0", "d_yaw0", "focal"),
+    "M5": ("d_roll0", "d_roll1", "d_pitch0", "d_pitch1", "d_yaw0", "d_yaw1"),
+    "M6": ("d_roll0", "d_roll1", "d_pitch0", "d_pitch1", "d_yaw0", "d_yaw1"),
+    "M7": ("d_roll0", "d_roll1", "d_pitch0", "d_pitch1", "d_yaw0", "d_yaw1", "focal"),
+}
+
+#: a-priori sigma of M6's parameters (rad, rad/s): the uncertainty of the attitude data. Roll and
+#: pitch are weighted more than yaw (seed 001: yaw steering takes the bulk of the yaw motion)
+M6_SIGMA = {"d_roll0": 1.0e-4, "d_pitch0": 1.0e-4, "d_yaw0": 5.0e-4,
+            "d_roll1": 1.0e-5, "d_pitch1": 1.0e-5, "d_yaw1": 5.0e-5}
+
+#: polynomial orders of the ephemeris position, velocity and attitude fits (Eq. 5)
+FIT_ORDERS = (7, 7, 3)
+#: telemetry used beyond each end of an image
+TELEMETRY_MARGIN_S = 10.0
+
+_UNITS = dict(zip(PARAMETER_NAMES, ("rad", "rad/s", "rad", "rad/s", "rad", "rad/s", "mm", "rad", "rad", "rad")))
+#: the image block: the attitude corrections of Eq. 6
+IMAGE_PARAMETERS = tuple(Parameter(n, _UNITS[n], "EOP", screened=True) for n in PARAMETER_NAMES[:6])
+#: the camera's own parameters: focal length and boresight angles
+CAMERA_PARAMETERS = tuple(Parameter(n, _UNITS[n], "IOP", screened=True) for n in PARAMETER_NAMES[6:])
+
+
+@dataclass(frozen=True)
+class SensorModel:
+    """Which calibration parameters are estimated, and with which a-priori sigma (inf: free)."""
+
+    name: str
+    free: tuple[str, ...]
+    prior_sigma: dict
+
+    def mask(self) -> np.ndarray:
+        return np.array([n in self.free for n in PARAMETER_NAMES])
+
+    def sigmas(self) -> np.ndarray:
+        return np.array([self.prior_sigma.get(n, np.inf) for n in PARAMETER_NAMES])
+
+
+def sensor_model(spec: str, prior_sigma: dict | None = None) -> SensorModel:
+    """``M1`` ... ``M7``, or an explicit comma-separated list of parameter names (free unless
+    ``prior_sigma`` weights them)."""
+    if spec.upper() in SENSOR_MODELS:
+        name = spec.upper()
+        sigmas = dict(M6_SIGMA) if name == "M6" else {}
+        sigmas.update(prior_sigma or {})
+        return SensorModel(name, SENSOR_MODELS[name], sigmas)
+    names = tuple(n.strip() for n in spec.split(",") if n.strip())
+    unknown = [n for n in names if n not in _P]
+    if unknown or not names:
+        raise UsageError(f"unknown sensor model {spec!r}: use M1..M7 or parameter names from "
+                         f"{', '.join(PARAMETER_NAMES)}")
+    return SensorModel("custom", names, dict(prior_sigma or {}))
+
+
+def _model_of(options) -> SensorModel:
+    return sensor_model(getattr(options, "sensor_model", None) or "M6", getattr(options, "parameter_sigma", None))
+
+
+def _fit_image(block, k: int, given_attitude: bool, orders, margin_s: float) -> LineImage:
+    """The nominal line image of image ``k``: its camera's telemetry within ``margin_s`` of its lines, fitted."""
+    cam = block.cameras[block.images.camera_id[k]]
+    t_first = float(block.images.time_s[k]) + cam.t0_s
+    t_last = t_first + cam.rows * cam.line_period_s
+    e, a = block.ephemeris, block.attitude
+    pick_e = (e.camera_id == cam.camera_id) & (e.time_s >= t_first - margin_s) & (e.time_s <= t_last + margin_s)
+    pick_a = (a.camera_id == cam.camera_id) & (a.time_s >= t_first - margin_s) & (a.time_s <= t_last + margin_s)
+    for name, pick, order in (("ephemeris.csv", pick_e, max(orders[:2])), ("attitude.csv", pick_a, orders[2])):
+        if pick.sum() <= order + 1:
+            raise BlockError(name, f"image '{block.images.image_id[k]}' ({t_first:.3f} - {t_last:.3f} s) has "
+                                   f"{int(pick.sum())} samples within {margin_s:g} s; the fit of order {order} "
+                                   f"needs more")
+    camera = LineCamera(cam.camera_id, cam.columns, cam.center_col, cam.pixel_size_mm, cam.focal_mm,
+                        cam.line_period_s, cam.view_pitch_deg, cam.chip_starts or (), cam.chip_offsets_px or ())
+    t_ref = t_first + 0.5 * cam.rows * cam.line_period_s
+    trajectory = fit_trajectory(cam.frame, cam.epoch_utc, e.time_s[pick_e], e.position_m[pick_e],
+                                e.velocity_m_s[pick_e], a.time_s[pick_a], a.quaternion[pick_a], orders,
+                                t_ref=t_ref, given_attitude=given_attitude)
+    return LineImage.nominal(str(block.images.image_id[k]), camera, trajectory, t_first, cam.rows)
+
+
+#: fitted images by (telemetry, image, attitude use): snooping and screening re-adjust the same images
+_FITTED: dict = {}
+
+
+def line_images(block, given_attitude: bool = True, orders=FIT_ORDERS, margin_s: float = TELEMETRY_MARGIN_S,
+                image_index=None) -> list[LineImage]:
+    """The nominal line image of every image of a pushbroom block (``image_index``: of some), each with its
+    camera's ephemeris and attitude fitted over its lines +/- ``margin_s`` (Eq. 5). The fits are kept for
+    the next adjustment of the same telemetry."""
+    index = range(len(block.images)) if image_index is None else image_index
+    out = []
+    for k in index:
+        cam = block.cameras[block.images.camera_id[k]]
+        key = (id(block.ephemeris), id(block.attitude), id(cam), str(block.images.image_id[k]),
+               float(block.images.time_s[k]), bool(given_attitude), tuple(orders), float(margin_s))
+        hit = _FITTED.get(key)
+        if hit is None or hit[0] is not block.ephemeris or hit[1] is not block.attitude or hit[2] is not cam:
+            if len(_FITTED) > 256:
+                _FITTED.clear()
+            hit = _FITTED[key] = (block.ephemeris, block.attitude, cam,
+                                  _fit_image(block, k, given_attitude, orders, margin_s))
+        out.append(hit[3])
+    return out
+
+
+class PushbroomBound(BoundSensor):
+    """The pushbroom images of a problem (module docstring)."""
+
+    def __init__(self, problem, block, o, pixel, sigma_px, options):
+        self.problem = problem
+        self.o = np.asarray(o)
+        n = problem.n_image_observations
+        mine = np.unique(problem.obs_image[self.o])
+        given = block.image_models or {}
+        fitted = [k for k in mine if block.images.image_id[k] not in given]
+        images = dict(zip(fitted, line_images(block, getattr(options, "attitude_telemetry", True), image_index=fitted)))
+        images.update({k: given[block.images.image_id[k]] for k in mine if k not in images})
+        images = [images[k] for k in mine]
+        self.images: dict[int, LineImage] = dict(zip(mine.tolist(), images))
+        self.row = np.full(n, np.nan)
+        self.col = np.full(n, np.nan)
+        self.row[self.o], self.col[self.o] = pixel[:, 1], pixel[:, 0]
+        self.sigma_px = np.asarray(sigma_px, float)
+        self.detector = np.zeros((n, 2))
+        self.t = np.zeros(n)
+        self.scale = np.ones((n, 2))         # image motion per line (x) and detector spacing (y), mm, signed
+        for i, image in self.images.items():
+            sel = self.o[problem.obs_image[self.o] == i]
+            self.detector[sel] = image.detector_mm(self.col[sel])
+            self.t[sel] = image.time_of_row(self.row[sel])
+            self.scale[sel] = image.camera.pixel_size_mm
+        self._by_image = {i: self.o[problem.obs_image[self.o] == i] for i in self.images}
+
+    def observations(self):
+        return self.detector[self.o], np.abs(self.scale[self.o]) * self.sigma_px[:, None]
+
+    def _image(self, state, i: int) -> LineImage:
+        k = self.problem.image_camera[i]
+        return self.images[i].with_parameters(np.concatenate([state.image[i], state.cameras[k][:4]]))
+
+    def refine_sigma(self, state, sigma):
+        context = self.context(state)
+        for i, o in self._by_image.items():
+            self.scale[o] = image_scales(context[i], state.points[self.problem.obs_point[o]], self.row[o], self.col[o])
+        mine = self.o
+        sigma[mine] = np.abs(self.scale[mine]) * self.sigma_px[:, None]
+
+    def context(self, state, jacobians: bool = True):
+        return {i: self._image(state, i) for i in self.images}
+
+    def predict(self, context, o, img, cam, points, jacobians):
+        m = len(img)
+        f = np.zeros((m, 2))
+        if jacobians:
+            j_e, j_p, j_c = np.zeros((m, 2, 6)), np.zeros((m, 2, 3)), np.zeros((m, 2, 4))
+        for i in np.unique(img):
+            sel = np.flatnonzero(img == i)
+            out = photo_coordinates(context[int(i)], points[sel], self.t[o[sel]], jacobians=jacobians)
+            if not jacobians:
+                f[sel] = out
+                continue
+            f[sel] = out[0]
+            j_e[sel], j_c[sel] = out[1][:, :, :6], out[1][:, :, 6:]
+            j_p[sel] = out[2]
+        return (f, j_e, j_p, j_c) if jacobians else f
+
+    def ap_columns(self, camera, o, ap):
+        """The line APs displace the detectors (the observations): Delta = -p B per coefficient."""
+        B = ap.basis(self.col[o])
+        m = B.shape[1]
+        p = self.problem.cameras[camera].pixel_size_mm
+        out = np.zeros((len(o), 2, 2 * m))
+        out[:, 0, :m] = -p * B
+        out[:, 1, m:] = -p * B
+        return out
+
+    def rays(self, context, o, img):
+        origin, direction = np.zeros((len(o), 3)), np.zeros((len(o), 3))
+        for i in np.unique(img):
+            sel = np.flatnonzero(img == i)
+            origin[sel], direction[sel] = line_of_sight(context[int(i)], self.row[o[sel]], self.col[o[sel]])
+        return origin, direction
+
+    def pixels(self, context, img, points):
+        out = np.full((len(img), 2), np.nan)
+        for i in np.unique(img):
+            sel = np.flatnonzero(img == i)
+            row, col = ground_to_image(context[int(i)], points[sel])
+            out[sel] = np.column_stack([col, row])
+        return out
+
+    def ground(self, context, img, pixel, height):
+        out = np.full((len(img), 3), np.nan)
+        for i in np.unique(img):
+            sel = np.flatnonzero(img == i)
+            out[sel] = image_to_ground(context[int(i)], pixel[sel, 1], pixel[sel, 0], height)
+        return out
+
+    def pixel_residuals(self, o, v):
+        """v = f - l in mm: across track over the detector spacing is the column, along track over the
+        (signed) image motion per line the negative row (a later line images the point further back)."""
+        return np.column_stack([v[:, 1] / self.scale[o, 1], -v[:, 0] / self.scale[o, 0]])
+
+
+class PushbroomSensor(Sensor):
+    """Seed 001's generic pushbroom sensor (module docstring)."""
+
+    name = "pushbroom"
+    image_parameters = IMAGE_PARAMETERS
+    camera_parameters = CAMERA_PARAMETERS
+    ap_domain = "line"
+    object_frame = "ECEF"
+    #: an image is oriented by its telemetry: a mono image with three weighted GCPs adjusts (M6)
+    min_points_per_image = 1
+
+    def bind(self, problem, block, o, pixel, sigma_px, options):
+        return PushbroomBound(problem, block, o, pixel, sigma_px, options)
+
+    def image_setup(self, block, image_index, options):
+        model = _model_of(options)
+        sigma = model.sigmas()[:6]
+        shape = (len(image_index), 6)
+        return (np.broadcast_to(model.mask()[:6], shape).copy(),
+                np.broadcast_to(np.where(np.isfinite(sigma), sigma, np.nan), shape).copy())
+
+    def camera_setup(self, camera, options):
+        model = _model_of(options)
+        sigma = model.sigmas()[6:]
+        return (np.array([camera.focal_mm, 0.0, 0.0, 0.0]), model.mask()[6:].copy(),
+                np.where(np.isfinite(sigma), sigma, np.nan))
+
+    def create_ap(self, spec, camera, observed, settings, model=None):
+        """``wavelet1d:NAME`` along the camera's detector line (:mod:`selfcal.ap.line`), or none."""
+        from ...ap.line import create_line_ap
+        from ...ap.none import NoAP
+        if model is not None:
+            return model, np.zeros(model.n_params)
+        if spec.strip().lower() == "none":
+            return NoAP(None), np.zeros(0)
+        if not spec.startswith("wavelet1d:"):
+            raise UsageError(f"--ap {spec}: a pushbroom block takes none or wavelet1d:NAME (NAME = dbN, symN, "
+                             f"meyer, blN), the 1-D wavelet APs along the detector line")
+        grid = settings.get("grid", (12, 12))
+        try:
+            ap = create_line_ap(spec, camera.columns, camera.center_col, camera.chip_starts or (), grid[0])
+        except ValueError as exc:
+            raise UsageError(f"--ap {spec}: {exc}") from None
+        return ap, np.zeros(ap.n_params)
+
+
+SENSOR = PushbroomSensor()
