@@ -21,6 +21,7 @@ __all__ = [
     "FrameCamera",
     "BalCamera",
     "PushbroomCamera",
+    "RpcCamera",
     "Ephemeris",
     "AttitudeSamples",
     "Images",
@@ -148,6 +149,22 @@ class PushbroomCamera:
     @property
     def height_px(self) -> int:
         return self.rows
+
+
+@dataclass(frozen=True)
+class RpcCamera:
+    """Images with vendor RPCs (``model = "rpc"``, DESIGN.md §3a): each image's RPC is its ``sensor_file``;
+    the adjustment estimates an image-space ``bias`` per image, ``"shift"`` (a0, b0) or ``"affine"`` (six
+    terms), weighted by ``sigma_bias_px`` when given (px; the linear terms by it over the larger image size)."""
+
+    camera_id: str
+    bias: str = "affine"
+    width_px: int | None = None
+    height_px: int | None = None
+    sigma_bias_px: float | None = None
+
+    model = "rpc"
+    pixel_size_mm = 1.0
 
 
 @dataclass(frozen=True)
@@ -299,6 +316,8 @@ class Block:
     #: image id -> the image's own sensor description, read from its ``sensor_file`` (DESIGN.md §3a): a
     #: usgscsm/DIMAP/DG line image, an RPC, ...; its sensor uses it instead of fitting telemetry
     image_models: dict | None = None
+    #: image id -> the path of its sensor_file (for writing the block again)
+    image_files: dict | None = None
 
     @property
     def is_pushbroom(self) -> bool:

@@ -5,10 +5,10 @@ import json
 import numpy as np
 import pytest
 
-from selfcal.adjust.pushbroom import adjust_pushbroom, pushbroom_block, sensor_model
+from selfcal.adjust import AdjustOptions
 from selfcal.ap.line import create_line_ap
-from selfcal.batch.pushbroom import choose_gcps, intersections, run_case, with_focal
-from selfcal.sensors.pushbroom import LineImage
+from selfcal.sensors.pushbroom import LineImage, line_images
+from selfcal.workflows.seed001 import choose_gcps, run_case, with_focal
 from selfcal.simulate.prism import LINE_ERROR_PX, TRUE_FOCAL_MM, detector_error, prism_block, simulate_prism
 
 
@@ -31,8 +31,8 @@ def test_line_basis_is_chip_wise_and_free_of_the_attitude_fields(wavelet):
 def distorted():
     """289 points in the triplet (0.1 px), the nadir line with the chip-wise error the block does not know."""
     sim = simulate_prism(seed=4, n_points=300, image_sigma_px=0.1, detector_error_px=LINE_ERROR_PX)
-    data = pushbroom_block(prism_block(sim, seed=4))
-    return sim, data, with_focal(data.images, TRUE_FOCAL_MM)
+    block = with_focal(prism_block(sim, seed=4), TRUE_FOCAL_MM)
+    return sim, block, line_images(block)
 
 
 def test_wavelet_line_aps_recover_a_chip_wise_error(distorted):
@@ -40,26 +40,26 @@ def test_wavelet_line_aps_recover_a_chip_wise_error(distorted):
     nadir line sigma0 returns to the noise and the estimated displacement equals the simulated one within
     0.1 px RMS (measured: 0.03 along, 0.08 across) over the columns observed, up to the constant and linear
     parts that the attitude takes."""
-    sim, data, images = distorted
-    gcps = choose_gcps(data, 5)
-    plain = run_case(data, sensor_model("M6"), gcps, (0, 1, 2), sim.dem, "F+N+B", images)
-    nadir = data.obs_image[plain.observations] == 1
-    assert np.sqrt(np.mean(plain.result.residuals_px[nadir] ** 2, axis=0))[0] >= 0.5
+    sim, block, images = distorted
+    gcps = choose_gcps(block, 5)
+    plain = run_case(block, "M6", gcps, (0, 1, 2), sim.dem, "F+N+B")
+    result = plain.result
+    nadir = result.block.observations.image_index == 1
+    # residuals in pixels along the photo axes: x across track (columns), y along track (up = -row)
+    assert np.sqrt(np.mean(result.residuals_px[nadir] ** 2, axis=0))[1] >= 0.5
     camera = images[1].camera
-    ap = create_line_ap("wavelet1d:db4", camera.columns, camera.center_col, camera.chip_starts, grid=12)
-    start = data.reference_ecef.copy()
-    intersected = intersections(data, images)
-    tie = np.setdiff1d(np.flatnonzero(~np.isnan(intersected[:, 0])), gcps)
-    start[tie] = intersected[tie]
-    result = adjust_pushbroom(images, data.obs_image, data.obs_point, data.obs_row, data.obs_col, start, gcps,
-                              data.reference_ecef[gcps], data.reference_cov[gcps], sensor_model("M6"),
-                              data.image_sigma_px, line_aps={"N": ap})
-    assert result.converged and 0.85 < result.sigma0 < 1.25
-    seen = data.obs_col[data.obs_image == 1]
+    with_aps = run_case(block, "M6", gcps, (0, 1, 2), sim.dem, "F+N+B",
+                        AdjustOptions(ap="wavelet1d:db4", grid=(12, 12), ap_cameras=("N",)))
+    result = with_aps.result
+    assert result.converged and 0.85 < np.sqrt(result.variance_factor) < 1.25
+    nadir_camera = result.problem.camera_ids.index("N")
+    ap = result.problem.cameras[nadir_camera].ap
+    obs = block.observations
+    seen = obs.pixel[obs.image_index == 1, 0]
     cols = np.linspace(seen.min(), seen.max(), 2000)
     true_line = LineImage.nominal("N", detector_error(camera, **LINE_ERROR_PX["N"]), images[1].trajectory, 0.0, 1)
     truth = (true_line.detector_mm(cols) - images[1].detector_mm(cols)) / camera.pixel_size_mm
-    error = ap.displacement_px(cols, result.line_ap_coefficients["N"]) - truth
+    error = ap.displacement_px(cols, result.state.cameras[nadir_camera][4:]) - truth
     s = (cols - camera.center_col) / camera.columns
     F = np.column_stack([np.ones_like(s), s])
     error -= F @ np.linalg.lstsq(F, error, rcond=None)[0]
@@ -85,7 +85,7 @@ def test_cli_line_aps(tmp_path, capsys):
     assert line[0] == "camera_id,col,d_along_px,d_across_px" and len(line) == 1 + 906
     summary = json.loads((tmp_path / "res" / "summary.json").read_text())
     assert summary["sigma0_px"] < 0.13 and summary["rmse_chk_across_m"] < 1.0
-    assert "N,along_c1k+0," in (tmp_path / "res" / "parameters.csv").read_text()
+    assert "N,along_c1k+0,AP," in (tmp_path / "res" / "parameters.csv").read_text()
     capsys.readouterr()
     assert run_cli("adjust", block, "--out", str(tmp_path / "bad"), "--ap", "wavelet1d:db4") == 2
     assert "--ap-cameras" in capsys.readouterr().err

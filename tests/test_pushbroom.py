@@ -195,13 +195,20 @@ def test_cli_simulate_adjust_and_compare(tmp_path, capsys):
                    "--gcps", "4") == 0
     summary = json.loads((tmp_path / "res" / "summary.json").read_text())
     assert summary["n_gcp_used"] == 4 and summary["n_chk_used"] == 24 and summary["n_obs_rejected"] == 0
+    # the results schema of every sensor (DESIGN.md §4): the common keys, residuals.csv with w and rejected,
+    # points.csv with its role column; the check-point RMSD in east/north/up beside across/along/up
+    assert summary["schema_version"] == 2 and summary["sensors"] == ["pushbroom"]
+    assert np.isclose(summary["rmsd_chk_xy_m"], np.hypot(summary["rmse_chk_across_m"], summary["rmse_chk_along_m"]),
+                      rtol=1e-3) and np.isclose(summary["rmsd_chk_z_m"], summary["rmse_chk_up_m"], rtol=1e-3)
     residuals = (tmp_path / "res" / "residuals.csv").read_text().splitlines()
-    assert residuals[0].startswith("image_id,point_id,v_row_px,v_col_px,w_row,w_col") and len(residuals) == 1 + 4
+    assert residuals[0].startswith("image_id,point_id,vx_px,vy_px,w_test,rejected") and len(residuals) == 1 + 4
+    assert (tmp_path / "res" / "points.csv").read_text().startswith("point_id,role,X,Y,Z,")
     assert summary["rmse_chk_across_m"] < PIXEL_M and summary["rmse_chk_along_m"] < PIXEL_M
     for camera, true in TRUE_FOCAL_MM.items():
         assert abs(summary["calibrated_focal_mm"][camera]["value"] - true) < 0.1
     with open(tmp_path / "res" / "parameters.csv") as handle:
-        estimated = {row["parameter"]: (float(row["value"]), float(row["sigma"])) for row in csv.DictReader(handle)}
+        estimated = {row["parameter"]: (float(row["value"]), float(row["sigma"])) for row in csv.DictReader(handle)
+                     if row["owner"] == "N" and row["active"] == "1"}
     # the nadir scene is centred on the reference time of the simulated attitude error
     truth = {"d_roll0": ATTITUDE_BIAS_RAD[0], "d_pitch0": ATTITUDE_BIAS_RAD[1],
              "d_roll1": ATTITUDE_DRIFT_RAD_S[0], "d_pitch1": ATTITUDE_DRIFT_RAD_S[1]}
@@ -209,15 +216,15 @@ def test_cli_simulate_adjust_and_compare(tmp_path, capsys):
         got, sigma = estimated[name]
         assert abs(got - np.degrees(value)) < 4 * sigma, (name, got, np.degrees(value), sigma)
     html = (tmp_path / "res" / "report.html").read_text()
-    assert "Calibration parameters" in html and html.count("<img") == 3
+    assert "Calibration parameters" in html and 'id="check-points"' in html and html.count("<img") >= 3
     assert run_cli("report", str(tmp_path / "res")) == 0
     # screening through the files: the triplet with M5, the dropped parameters listed in order
     assert run_cli("adjust", block, "--out", str(tmp_path / "scr"), "--sensor-model", "M5", "--gcps", "4",
                    "--screen", "--no-report") == 0
     screening = json.loads((tmp_path / "scr" / "screening.json").read_text())
-    summary = json.loads((tmp_path / "scr" / "summary.json").read_text())
-    kept = (tmp_path / "scr" / "parameters.csv").read_text().splitlines()[1:]
-    assert screening["n_parameters_initial"] == 18 and summary["n_parameters_kept"] == len(kept)
+    with open(tmp_path / "scr" / "parameters.csv") as handle:
+        kept = [row for row in csv.DictReader(handle) if row["active"] == "1"]
+    assert screening["n_parameters_initial"] == 18 and screening["n_parameters_kept"] == len(kept)
     assert len(screening["dropped"]) == 18 - len(kept) > 0
     assert all(d["t"] < 1.96 or d["reason"].startswith("correlated") for d in screening["dropped"])
     capsys.readouterr()

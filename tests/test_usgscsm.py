@@ -6,7 +6,8 @@ import os
 import numpy as np
 import pytest
 
-from selfcal.adjust.pushbroom import adjust_pushbroom, sensor_model
+from selfcal.adjust import AdjustOptions, adjust
+from selfcal.block import Block, Images, Observations, Points, PushbroomCamera
 from selfcal.errors import BlockError
 from selfcal.io.usgscsm import read_usgscsm_isd
 from selfcal.sensors.pushbroom import PARAMETER_NAMES, ground_to_image, photo_coordinates
@@ -102,15 +103,25 @@ def test_isd_camera_jacobians_and_self_calibration():
         fd = (photo_coordinates(image.with_parameters(p), ground, t) - xy) / step
         np.testing.assert_allclose(d_par[:, :, k], fd, rtol=1e-4, atol=1e-9 * np.abs(fd).max())
     noise = rng.normal(0, 0.1, (2, row.size))
-    gcps = np.arange(row.size)
-    cov = np.broadcast_to(np.eye(3) * 0.01, (row.size, 3, 3))
-    result = adjust_pushbroom([image], np.zeros(row.size, int), np.arange(row.size), row + noise[0], col + noise[1],
-                              ground, gcps, ground[gcps], cov, sensor_model("d_roll0,d_roll1,d_pitch0,d_pitch1"),
-                              image_sigma_px=0.1)
-    assert result.converged and 0.7 < result.sigma0 < 1.3
-    for name, value, sigma in zip(result.parameter_names, result.parameter_values, result.parameter_sigma):
-        k = PARAMETER_NAMES.index(name.split(".")[1])
-        assert abs(value - truth[k]) < 4 * sigma, (name, value, truth[k], sigma)
+    n = row.size
+    cam = image.camera
+    camera = PushbroomCamera("NAC", cam.columns, image.rows, cam.center_col, cam.pixel_size_mm, cam.focal_mm,
+                             cam.line_period_s, "", "ECEF")
+    nan3 = np.full((1, 3), np.nan)
+    block = Block("lro-nac", "body-fixed", {"NAC": camera},
+                  Images(np.array(["L"], object), np.array(["NAC"], object), np.array([""], object),
+                         np.array([image.t_first_s]), nan3, nan3, np.array([2])),
+                  Points(np.array([f"p{k}" for k in range(n)], object), np.full(n, "gcp", object), ground,
+                         np.full((n, 3), 0.1), np.arange(n)),
+                  Observations(np.zeros(n, np.int64), np.arange(n), np.column_stack([col + noise[1], row + noise[0]]),
+                               np.full(n, 0.1), np.arange(n)),
+                  0.1, image_models={"L": image})
+    result = adjust(block, AdjustOptions(sensor_model="d_roll0,d_roll1,d_pitch0,d_pitch1"))
+    assert result.converged and 0.7 < np.sqrt(result.variance_factor) < 1.3
+    sigma = result.image_sigma()[0]
+    for k in np.flatnonzero(result.problem.image_free[0]):
+        name, value = PARAMETER_NAMES[k], result.state.image[0, k]
+        assert abs(value - truth[k]) < 4 * sigma[k], (name, value, truth[k], sigma[k])
 
 
 def test_isd_reader_errors_name_the_file_and_key(tmp_path):

@@ -16,6 +16,7 @@ from typing import Callable
 
 import numpy as np
 
+from ..ap import ap_settings
 from ..block import Block
 from ..errors import AdjustmentError
 from .covariance import point_cofactors
@@ -246,7 +247,7 @@ def adjust(block: Block, options: AdjustOptions = AdjustOptions(),
         involved) or cannot be initialised.
     """
     t0 = time.perf_counter()
-    settings = {"grid": options.grid} if options.ap.startswith("wavelet") else {}
+    settings = ap_settings(options.ap, options.grid)
     problem = build_problem(block, options.ap, settings, ap_models=ap_models,
                             gnss_drift=options.gnss_drift, imu_drift=options.imu_drift,
                             lever_arm=options.lever_arm, boresight=options.boresight, options=options)

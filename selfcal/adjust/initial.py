@@ -45,7 +45,7 @@ def intersect(problem: Problem, state: State, use: np.ndarray | None = None) -> 
         o = slot.observations[use[slot.observations]]
         if not o.size:
             continue
-        origin, d = slot.bound.rays(slot.bound.context(state, False), o, problem.obs_image[o])
+        origin, d = slot.bound.rays(slot.bound.context(state, False), problem.obs_image[o], problem.obs_pixel[o])
         proj = np.eye(3)[None] - d[:, :, None] * d[:, None, :]
         np.add.at(A, problem.obs_point[o], proj)
         np.add.at(b, problem.obs_point[o], np.einsum("nij,nj->ni", proj, origin))

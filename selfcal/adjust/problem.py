@@ -35,7 +35,7 @@ import numpy as np
 
 from ..ap import APModel
 from ..block import Block
-from ..errors import BlockError, UsageError
+from ..errors import UsageError
 
 __all__ = ["CameraParameters", "Problem", "State", "SensorSlot", "TrajectoryTerms", "build_problem",
            "trajectory_terms", "CHUNK_OBSERVATIONS"]
@@ -129,6 +129,7 @@ class Problem:
     # the sensors of the images (filled by build_problem after the layout above)
     sensors: list[SensorSlot] = field(default_factory=list)
     obs_sensor: np.ndarray = None   # (n_obs,) index into sensors
+    obs_pixel: np.ndarray = None    # (n_obs, 2) the measured (col, row), px
     obs_value: np.ndarray = None    # (n_obs, 2) observation vector, the sensor's observation units
     obs_sigma: np.ndarray = None    # (n_obs, 2) its a-priori standard deviation
     image_width: int = 6
@@ -464,6 +465,7 @@ def build_problem(block: Block, ap_spec: str = "none", ap_settings: dict | None 
     kinds = list(dict.fromkeys(s.name for s in sensors))
     sensor_index = np.array([kinds.index(s.name) for s in sensors])[image_camera]
     problem.obs_sensor = sensor_index[problem.obs_image]
+    problem.obs_pixel = obs.pixel[order]
     problem.obs_value = np.zeros((len(order), 2))
     problem.obs_sigma = np.ones((len(order), 2))
     widths = set()

@@ -13,14 +13,15 @@ from .ebner import EbnerAP
 from .fourier import FourierAP
 from .gruen import GruenAP
 from .legendre import LegendreAP
+from .line import LineWaveletAP
 from .none import NoAP
 from .wavelet import WaveletAP
 
 __all__ = ["AP_FAMILIES", "APModel", "ImageFrame", "create_ap", "ap_from_dict", "parse_ap_spec", "frame_nodes_mm",
-           "fit_displacement"]
+           "fit_displacement", "ap_settings", "takes_grid"]
 
-#: family name -> model class
-AP_FAMILIES: dict[str, type[APModel]] = {
+#: family name -> model class; a family says its domain (frame or detector line) and the settings it takes
+AP_FAMILIES: dict[str, type] = {
     "none": NoAP,
     "brown": BrownAP,
     "ebner": EbnerAP,
@@ -28,7 +29,19 @@ AP_FAMILIES: dict[str, type[APModel]] = {
     "legendre": LegendreAP,
     "fourier": FourierAP,
     "wavelet": WaveletAP,
+    "wavelet1d": LineWaveletAP,
 }
+
+
+def takes_grid(spec: str) -> bool:
+    """Whether the family of ``spec`` takes a grid (the wavelet APs, over a frame or along a line)."""
+    cls = AP_FAMILIES.get(parse_ap_spec(spec)[0])
+    return cls is not None and "grid" in cls.settings
+
+
+def ap_settings(spec: str, grid) -> dict:
+    """The settings the family of ``spec`` takes, from the options given (``grid``)."""
+    return {"grid": tuple(grid)} if takes_grid(spec) else {}
 
 
 def _family(spec: str) -> tuple[type[APModel], str | None]:
@@ -43,6 +56,9 @@ def _family(spec: str) -> tuple[type[APModel], str | None]:
 def create_ap(spec: str, frame: ImageFrame, observed_xy_mm: np.ndarray | None = None, **settings) -> APModel:
     """Build an AP model from its name, e.g. ``create_ap("wavelet:db4", frame, xy, grid=(9, 6))``."""
     cls, option = _family(spec)
+    if cls.domain != "frame":
+        raise ValueError(f"AP model '{spec}' lives on a {cls.domain}, not on a frame (frame families: "
+                         f"{', '.join(n for n, c in AP_FAMILIES.items() if c.domain == 'frame')})")
     return cls.from_spec(option, frame, observed_xy_mm, **settings)
 
 

@@ -25,7 +25,9 @@ from __future__ import annotations
 import numpy as np
 from numpy.polynomial import polynomial as P
 
-__all__ = ["gram_polynomials", "legendre_polynomials", "PolynomialSet"]
+from .base import APModel, ImageFrame
+
+__all__ = ["gram_polynomials", "legendre_polynomials", "PolynomialSet", "PolynomialAP"]
 
 
 def gram_polynomials(nodes: int) -> list[np.ndarray]:
@@ -84,3 +86,41 @@ class PolynomialSet:
         T = np.stack([Pu[:, i] * Pv[:, j] for i, j in self.terms], axis=1)
         Z = np.zeros_like(T)
         return (np.concatenate([low_x, T, Z], axis=1), np.concatenate([low_y, Z, T], axis=1))
+
+
+class PolynomialAP(APModel):
+    """An AP family of one orthogonal-polynomial set: the subclass gives its univariate polynomials
+    (:meth:`polynomials`), its spec and how an option chooses them."""
+
+    def __init__(self, frame: ImageFrame, option: int | None = None):
+        super().__init__(frame)
+        self.option = option
+        self._set = PolynomialSet(self.polynomials(option), frame.width_mm / 2, frame.height_mm / 2)
+
+    @classmethod
+    def polynomials(cls, option: int | None) -> list[np.ndarray]:
+        raise NotImplementedError
+
+    @property
+    def spec(self) -> str:
+        return self.family if self.option is None else f"{self.family}:{self.option}"
+
+    @property
+    def parameter_names(self) -> list[str]:
+        return self._set.names
+
+    def basis(self, x_mm, y_mm):
+        return self._set.evaluate(x_mm, y_mm)
+
+    def basis_derivatives(self, x_mm, y_mm):
+        bxx, byx = self._set.evaluate(x_mm, y_mm, dx=True)
+        bxy, byy = self._set.evaluate(x_mm, y_mm, dy=True)
+        return bxx, bxy, byx, byy
+
+    @classmethod
+    def parse_option(cls, option: str) -> int:
+        raise ValueError(f"AP model '{cls.family}' takes no option, found '{cls.family}:{option}'")
+
+    @classmethod
+    def from_spec(cls, option, frame, observed_xy_mm=None, **settings):
+        return cls(frame, None if option is None else cls.parse_option(option))

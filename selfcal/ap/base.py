@@ -53,6 +53,10 @@ class APModel(ABC):
     family: str = ""
     #: specs the contract tests build (e.g. ``("legendre", "legendre:3")``)
     examples: tuple[str, ...] = ()
+    #: the settings it takes besides its option (``("grid",)`` for wavelets on a grid)
+    settings: tuple[str, ...] = ()
+    #: where it lives: ``"frame"`` (photo coordinates over an image) or ``"line"`` (a detector line)
+    domain: str = "frame"
 
     def __init__(self, frame: ImageFrame):
         self.frame = frame

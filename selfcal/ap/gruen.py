@@ -12,36 +12,13 @@ structure and count of Grün's set; the parameter naming is ours.
 """
 from __future__ import annotations
 
-from ._polynomial import PolynomialSet, gram_polynomials
-from .base import APModel, ImageFrame
+from ._polynomial import PolynomialAP, gram_polynomials
 
 
-class GruenAP(APModel):
+class GruenAP(PolynomialAP):
     family = "gruen"
     examples = ("gruen",)
 
-    def __init__(self, frame: ImageFrame):
-        super().__init__(frame)
-        self._set = PolynomialSet(gram_polynomials(5), frame.width_mm / 2, frame.height_mm / 2)
-
-    @property
-    def spec(self) -> str:
-        return "gruen"
-
-    @property
-    def parameter_names(self) -> list[str]:
-        return self._set.names
-
-    def basis(self, x_mm, y_mm):
-        return self._set.evaluate(x_mm, y_mm)
-
-    def basis_derivatives(self, x_mm, y_mm):
-        bxx, byx = self._set.evaluate(x_mm, y_mm, dx=True)
-        bxy, byy = self._set.evaluate(x_mm, y_mm, dy=True)
-        return bxx, bxy, byx, byy
-
     @classmethod
-    def from_spec(cls, option, frame, observed_xy_mm=None, **settings):
-        if option is not None:
-            raise ValueError(f"AP model 'gruen' takes no option, found 'gruen:{option}'")
-        return cls(frame)
+    def polynomials(cls, option):
+        return gram_polynomials(5)

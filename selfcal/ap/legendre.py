@@ -12,45 +12,32 @@ rather than Tang's exclusion list.
 """
 from __future__ import annotations
 
-from ._polynomial import PolynomialSet, legendre_polynomials
-from .base import APModel, ImageFrame
+from ._polynomial import PolynomialAP, legendre_polynomials
 
 DEFAULT_DEGREE = 5
 
 
-class LegendreAP(APModel):
+class LegendreAP(PolynomialAP):
     family = "legendre"
     examples = ("legendre", "legendre:3")
 
-    def __init__(self, frame: ImageFrame, degree: int = DEFAULT_DEGREE):
-        super().__init__(frame)
-        self.degree = degree
-        self._set = PolynomialSet(legendre_polynomials(degree), frame.width_mm / 2, frame.height_mm / 2)
+    def __init__(self, frame, option: int | None = None):
+        super().__init__(frame, None if option == DEFAULT_DEGREE else option)
 
     @property
-    def spec(self) -> str:
-        return "legendre" if self.degree == DEFAULT_DEGREE else f"legendre:{self.degree}"
-
-    @property
-    def parameter_names(self) -> list[str]:
-        return self._set.names
-
-    def basis(self, x_mm, y_mm):
-        return self._set.evaluate(x_mm, y_mm)
-
-    def basis_derivatives(self, x_mm, y_mm):
-        bxx, byx = self._set.evaluate(x_mm, y_mm, dx=True)
-        bxy, byy = self._set.evaluate(x_mm, y_mm, dy=True)
-        return bxx, bxy, byx, byy
+    def degree(self) -> int:
+        return DEFAULT_DEGREE if self.option is None else self.option
 
     @classmethod
-    def from_spec(cls, option, frame, observed_xy_mm=None, **settings):
-        degree = DEFAULT_DEGREE
-        if option is not None:
-            try:
-                degree = int(option)
-            except ValueError:
-                raise ValueError(f"legendre degree must be an integer 2..10, found '{option}'") from None
+    def polynomials(cls, option):
+        return legendre_polynomials(DEFAULT_DEGREE if option is None else option)
+
+    @classmethod
+    def parse_option(cls, option: str) -> int:
+        try:
+            degree = int(option)
+        except ValueError:
+            raise ValueError(f"legendre degree must be an integer 2..10, found '{option}'") from None
         if not 2 <= degree <= 10:
             raise ValueError(f"legendre degree must be an integer 2..10, found {degree}")
-        return cls(frame, degree)
+        return degree

@@ -29,7 +29,7 @@ import scipy.linalg
 
 from ..wavelets import get_wavelet
 
-__all__ = ["LineWaveletAP", "LINE_AP_FAMILIES", "create_line_ap", "SAMPLES_PER_CELL", "REPRODUCTION_TOLERANCE"]
+__all__ = ["LineWaveletAP", "create_line_ap", "SAMPLES_PER_CELL", "REPRODUCTION_TOLERANCE"]
 
 #: the line is sampled this densely (per grid cell) for the orthogonalisation
 SAMPLES_PER_CELL = 64
@@ -50,6 +50,9 @@ class LineWaveletAP:
     projection: np.ndarray = field(repr=False)    # (2, n_raw): coefficients of {1, s} taken off each
 
     family = "wavelet1d"
+    settings = ("grid",)
+    domain = "line"
+    examples = ()            # the frame contract tests do not apply; tests/test_line_ap.py tests the line basis
 
     @property
     def spec(self) -> str:
@@ -107,7 +110,7 @@ class LineWaveletAP:
 def create_line_ap(spec: str, columns: int, center_col: float, chip_starts=(), grid: int = 12) -> LineWaveletAP:
     """``wavelet1d:NAME`` for a line of ``columns`` detectors in chips starting at ``chip_starts``."""
     family, _, name = spec.partition(":")
-    if family not in LINE_AP_FAMILIES or not name:
+    if family != LineWaveletAP.family or not name:
         raise ValueError(f"unknown pushbroom AP model '{spec}' (known: wavelet1d:NAME, NAME = dbN, symN, meyer, blN)")
     w = get_wavelet(name)
     edges = [0, *sorted(int(c) for c in chip_starts), int(columns)]
@@ -131,6 +134,3 @@ def create_line_ap(spec: str, columns: int, center_col: float, chip_starts=(), g
     keep = np.sort(pivots[:len(pivots) - n_dependent])
     return LineWaveletAP(name, int(columns), float(center_col), chips, cells, translations, keep, projection)
 
-
-#: pushbroom AP family name -> constructor
-LINE_AP_FAMILIES = {"wavelet1d": create_line_ap}

@@ -148,6 +148,7 @@ def _translations(w, half: float, coords: np.ndarray | None, n_min: int) -> tupl
 
 class WaveletAP(APModel):
     family = "wavelet"
+    settings = ("grid",)
     examples = ("wavelet:db4", "wavelet:sym4", "wavelet:meyer", "wavelet:bl4", "wavelet:sym4+details")
 
     def __init__(self, frame: ImageFrame, wavelet: str, grid: tuple[int, int], ranges: tuple[int, int, int, int],

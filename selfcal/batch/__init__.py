@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 from typing import Callable
 
 from ..adjust import AdjustOptions
-from ..ap import AP_FAMILIES, parse_ap_spec
+from ..ap import AP_FAMILIES, parse_ap_spec, takes_grid
 from ..errors import AdjustmentError
 from ..report import result_files
 from ..stats import ScreeningOptions, SnoopingOptions, VarianceOptions
@@ -111,7 +111,7 @@ def run_matrix(blocks: dict, models: list[str], settings: CellSettings = CellSet
     try:
         shared = {name: client.scatter(block, broadcast=True) for name, block in blocks.items()}
         # the wavelet cells take 3-4 times as long as the others: submitted first, they leave no worker idle at the end
-        first = sorted(range(len(cases)), key=lambda i: not cases[i][1].startswith("wavelet"))
+        first = sorted(range(len(cases)), key=lambda i: not takes_grid(cases[i][1]))
         futures = [None] * len(cases)
         for i in first:
             name, model = cases[i]

@@ -1,23 +1,30 @@
-"""Adjust a block folder and write a results folder."""
+"""Adjust a block folder and write a results folder, whatever the block's sensors."""
 from __future__ import annotations
 
 import argparse
 import sys
 import time
-from dataclasses import replace
 
 from ..adjust import AdjustOptions
 from ..ap import AP_FAMILIES, parse_ap_spec
 from ..batch import ALL_MODELS
 from ..errors import UsageError
 from ..io import read_block
+from ..io.dem import read_dem
 from ..io.results import results_from_files, write_results
 from ..report import model_choice_table, render_report, result_files
 from ..stats import SnoopingOptions, VarianceOptions
-from ..workflows import adjust_with_tests, choose_ap_model, parse_candidate
-from . import pushbroom
+from ..workflows import parse_candidate
+from ..workflows.adjust import AdjustRequest, adjust_block, offers_sensor_models
+from ..workflows.seed001 import ATTITUDE_FREE_SIGMA
 from .options import (ap_option, grid_option, progress_printer, round_printer, screening_options, test_options,
                       trajectory_options)
+
+#: options that only blocks whose sensors offer seed 001's sensor models take (dest -> flag)
+_SEED001_OPTIONS = {"sensor_model": "--sensor-model", "images": "--images", "gcps": "--gcps",
+                    "keep_focal": "--keep-focal", "dem": "--dem", "no_attitude": "--no-attitude"}
+#: options that only frame blocks take
+_FRAME_OPTIONS = {"lever_arm": "--lever-arm", "boresight": "--boresight"}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -30,54 +37,76 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-report", action="store_true",
                         help="do not render report.html and figures/ (selfcal report RESULTS does it later)")
     parser.add_argument("--quiet", action="store_true", help="no progress output")
-    pushbroom.adjust_arguments(parser)
+    group = parser.add_argument_group("pushbroom blocks (seed 001)")
+    group.add_argument("--sensor-model", metavar="MODEL",
+                       help="M1..M7 of seed 001, or parameter names separated by commas (default: M6)")
+    group.add_argument("--images", metavar="ID,ID", help="images to adjust: one (mono) or more (stereo); default all")
+    group.add_argument("--gcps", type=int, metavar="N",
+                       help="use N (3, 4 or 5) of the block's gcp, spread over the scene; the others are checked")
+    group.add_argument("--keep-focal", action="store_true",
+                       help="use block.toml's focal_mm as it is; by default each camera's focal length is first "
+                            "calibrated (M7 on all images, every gcp) and then held, as seed 001 does")
+    group.add_argument("--dem", metavar="GEOTIFF",
+                       help="terrain for mono restitution (EPSG:4326, ellipsoidal heights; default: [terrain] of "
+                            "block.toml)")
+    group.add_argument("--no-attitude", action="store_true",
+                       help="ignore attitude.csv; M6's corrections take the whole attitude (seed 001, Table 5)")
+    parser.add_argument("--ap-cameras", metavar="ID,ID",
+                        help="the cameras that get the APs (default all; required for wavelet1d when more than one "
+                             "pushbroom camera is adjusted)")
+    parser.add_argument("--ap-sigma-px", type=float, metavar="S",
+                        help="a-priori sigma of every AP coefficient in px (default: free)")
 
 
-def run(args: argparse.Namespace) -> int:
-    t0 = time.perf_counter()
-    block = read_block(args.block)
-    if block.is_pushbroom:
-        return pushbroom.run_adjust(block, args)
-    for message in block.dropped.messages[:20]:
-        print(f"warning: {message}", file=sys.stderr)
-    if len(block.dropped.messages) > 20:
-        print(f"warning: ... and {len(block.dropped.messages) - 20} more (see summary.json)", file=sys.stderr)
-    if not args.quiet:
-        print(f"{block.name}: {len(block.images)} images, {len(block.points)} points, "
-              f"{len(block.observations)} image observations; AP model {args.ap}", file=sys.stderr)
-    snooping = SnoopingOptions(critical=args.snoop, mode=args.snoop_mode)
-    screening = screening_options(args) if args.screen else None
-    options = AdjustOptions(ap=args.ap, grid=args.grid, gnss_drift=args.gnss_drift, imu_drift=args.imu_drift,
-                            lever_arm=args.lever_arm, boresight=args.boresight)
-    extra_files = {}
-    if args.ap == "auto" or args.ap.startswith("auto:"):
-        choice = _choose(block, args, options, snooping)
-        options = replace(options, ap=choice.model, grid=choice.grid)
-        extra_files["model_choice.csv"] = model_choice_table(choice)
-    tested = adjust_with_tests(block, options, snooping, screening,
-                               progress=None if args.quiet else progress_printer(block.image_sigma_px),
-                               report=None if args.quiet else round_printer(),
-                               variance=VarianceOptions() if args.variance_components else None)
-    files = result_files(block, tested, {"seconds": time.perf_counter() - t0, "grid": list(args.grid)},
-                         screening) | extra_files
-    if not args.no_report:
-        t_report = time.perf_counter()
-        files |= render_report(results_from_files(files))
-        if not args.quiet:
-            print(f"report rendered in {time.perf_counter() - t_report:.1f} s", file=sys.stderr)
-    write_results(args.out, files)
-    s = files["summary.json"]
-    print(f"sigma0 {s['sigma0_px']:.3f} px, check points RMSD XY {_m(s['rmsd_chk_xy_m'])} Z {_m(s['rmsd_chk_z_m'])}"
-          f" ({s['n_chk_used']} CHK, {s['n_gcp_used']} GCP), {s['n_obs_rejected']} observations rejected, "
-          f"{s['n_ap_significant']}/{s['n_ap_initial']} APs; results in {args.out}", file=sys.stderr)
-    if not tested.result.converged:
-        print(f"selfcal adjust: error: the adjustment did not converge: {tested.result.reason}", file=sys.stderr)
-        return 1
-    return 0
+def _given(args, dest: str) -> bool:
+    value = getattr(args, dest)
+    return value not in (None, False)
 
 
-def _choose(block, args, options, snooping):
-    """``--ap auto`` (the ten default models) or ``--ap auto:MODEL,MODEL@GxXGy,...``: choose by BIC."""
+def _check_options(block, args) -> None:
+    """An option that does not apply to the block's sensors is an error naming it."""
+    seed001 = offers_sensor_models(block)
+    sensors = ", ".join(sorted({c.model for c in block.cameras.values()}))
+    foreign = _FRAME_OPTIONS if seed001 else _SEED001_OPTIONS
+    for dest, flag in foreign.items():
+        if _given(args, dest):
+            raise UsageError(f"{flag} does not apply to this block ({sensors} cameras)")
+    if seed001 and (args.gnss_drift != 1 or args.imu_drift != 1) and not block.has_trajectory:
+        raise UsageError(f"--gnss-drift / --imu-drift do not apply to this block ({sensors} cameras without "
+                         "[gnss] or [imu])")
+    if args.ap_sigma_px is not None and args.ap_sigma_px <= 0:
+        raise UsageError("--ap-sigma-px must be positive")
+
+
+def _ap_cameras(block, args) -> tuple[str, ...] | None:
+    """--ap-cameras, checked; wavelet1d on several pushbroom cameras needs it (DESIGN-NOTES)."""
+    adjusted = args.images.split(",") if args.images else list(block.images.image_id)
+    cameras = list(dict.fromkeys(block.images.camera_id[list(block.images.image_id).index(i)] for i in adjusted
+                                 if i in list(block.images.image_id)))
+    if args.ap_cameras:
+        chosen = tuple(c.strip() for c in args.ap_cameras.split(",") if c.strip())
+        unknown = [c for c in chosen if c not in cameras]
+        if unknown:
+            raise UsageError(f"--ap-cameras: {', '.join(unknown)} not among the cameras adjusted ({', '.join(cameras)})")
+        return chosen
+    if AP_FAMILIES.get(parse_ap_spec(args.ap)[0], AP_FAMILIES["none"]).domain == "line" and len(cameras) > 1:
+        raise UsageError("--ap wavelet1d with several cameras: name the cameras whose detector lines are calibrated "
+                         "with --ap-cameras. Tie points cannot tell an error common to all the lines (one orbit "
+                         "plane) from the ground: the other lines are the reference (their payload calibration), "
+                         "unless many GCPs control the block")
+    return None
+
+
+def _terrain(block, args):
+    if args.dem:
+        return read_dem(args.dem)
+    if block.dem_path:
+        return read_dem(block.dem_path)
+    return block.terrain_height_m
+
+
+def _candidates(args) -> list:
+    """``--ap auto`` (the ten default models) or ``--ap auto:MODEL,MODEL@GxXGy,...``."""
     listed = args.ap.partition(":")[2]
     names = [m for m in listed.split(",") if m.strip()] if listed else list(ALL_MODELS)
     candidates = []
@@ -89,21 +118,84 @@ def _choose(block, args, options, snooping):
         if parse_ap_spec(model)[0] not in AP_FAMILIES:
             raise UsageError(f"unknown AP model '{model}' in --ap {args.ap} (known: {', '.join(AP_FAMILIES)})")
         candidates.append((model, grid_))
-    if not args.quiet:
-        print(f"choosing the AP model among {len(candidates)} candidates by BIC (blunders first, with the "
-              f"richest candidate) ...", file=sys.stderr)
+    return candidates
 
-    def show(score):
-        if args.quiet:
-            return
-        status = f"BIC {score.bic:.1f}, sigma0 {score.sigma0_px:.4f} px" if score.bic is not None else \
-            f"failed: {(score.error or '').splitlines()[0]}"
-        print(f"  {score.label}: {score.n_ap} camera parameters, {status}", file=sys.stderr, flush=True)
-    choice = choose_ap_model(block, candidates, options, snooping, progress=show)
-    label = choice.model + (f"@{choice.grid[0]}x{choice.grid[1]}" if choice.model.startswith("wavelet") else "")
-    print(f"chosen AP model: {label} (smallest BIC; {choice.n_blunders} observations left out as blunders for "
-          f"every candidate; scores in model_choice.csv)", file=sys.stderr)
-    return choice
+
+def run(args: argparse.Namespace) -> int:
+    t0 = time.perf_counter()
+    block = read_block(args.block)
+    _check_options(block, args)
+    for message in block.dropped.messages[:20]:
+        print(f"warning: {message}", file=sys.stderr)
+    if len(block.dropped.messages) > 20:
+        print(f"warning: ... and {len(block.dropped.messages) - 20} more (see summary.json)", file=sys.stderr)
+    if not args.quiet:
+        print(f"{block.name}: {len(block.images)} images, {len(block.points)} points, "
+              f"{len(block.observations)} image observations; AP model {args.ap}", file=sys.stderr)
+    auto = args.ap == "auto" or args.ap.startswith("auto:")
+    seed001 = offers_sensor_models(block)
+    height = _terrain(block, args) if seed001 else None
+    if seed001 and args.images and len(args.images.split(",")) == 1 and height is None:
+        raise UsageError("a mono adjustment restitutes the check points on the terrain: give --dem or "
+                         "[terrain] in block.toml")
+    sensor_model = args.sensor_model or ("M6" if seed001 else None)
+    options = AdjustOptions(ap="none" if auto else args.ap, grid=args.grid, gnss_drift=args.gnss_drift,
+                            imu_drift=args.imu_drift, lever_arm=args.lever_arm, boresight=args.boresight,
+                            sensor_model=sensor_model,
+                            parameter_sigma=ATTITUDE_FREE_SIGMA if args.no_attitude and
+                            (sensor_model or "").upper() == "M6" else None,
+                            ap_cameras=_ap_cameras(block, args), ap_sigma_px=args.ap_sigma_px,
+                            attitude_telemetry=not args.no_attitude)
+    screening = screening_options(args) if args.screen else None
+    request = AdjustRequest(options, SnoopingOptions(critical=args.snoop, mode=args.snoop_mode), screening,
+                            VarianceOptions() if args.variance_components else None,
+                            _candidates(args) if auto else None,
+                            tuple(v.strip() for v in args.images.split(",") if v.strip()) if args.images else None,
+                            args.gcps, args.keep_focal, height)
+    if auto and not args.quiet:
+        print(f"choosing the AP model among {len(request.candidates)} candidates by BIC (blunders first, with the "
+              f"richest candidate) ...", file=sys.stderr)
+    adjusted = adjust_block(block, request, progress=None if args.quiet else progress_printer(block.image_sigma_px),
+                            report=None if args.quiet else round_printer(),
+                            say=lambda text: print(text, file=sys.stderr),
+                            scores=None if args.quiet else _show_score)
+    tested = adjusted.tested
+    if seed001 and not args.quiet:
+        for _, d in tested.screening_log:
+            print(f"screening: dropped {d.camera_id}.{d.name} (t {d.t:.2f}, {d.reason})", file=sys.stderr)
+    extra = {"seconds": time.perf_counter() - t0, "grid": list(args.grid)} | adjusted.summary_extra
+    files = result_files(adjusted.block, tested, extra, screening, adjusted.checks, adjusted.track)
+    if adjusted.choice is not None:
+        files["model_choice.csv"] = model_choice_table(adjusted.choice)
+    if not args.no_report:
+        t_report = time.perf_counter()
+        files |= render_report(results_from_files(files))
+        if not args.quiet:
+            print(f"report rendered in {time.perf_counter() - t_report:.1f} s", file=sys.stderr)
+    write_results(args.out, files)
+    s = files["summary.json"]
+    line = (f"sigma0 {s['sigma0_px']:.3f} px, check points RMSD XY {_m(s['rmsd_chk_xy_m'])} Z {_m(s['rmsd_chk_z_m'])}"
+            f" ({s['n_chk_used']} CHK, {s['n_gcp_used']} GCP), {s['n_obs_rejected']} observations rejected")
+    if seed001 and s.get("rmse_chk_across_m") is not None:
+        line += (f"; across {s['rmse_chk_across_m']:.2f} m, along {s['rmse_chk_along_m']:.2f} m, up "
+                 f"{s['rmse_chk_up_m']:.2f} m")
+    if not seed001:
+        line += f", {s['n_ap_significant']}/{s['n_ap_initial']} APs"
+    print(f"{line}; results in {args.out}", file=sys.stderr)
+    failure = s.get("failure")
+    if failure:
+        print(f"selfcal adjust: error: {failure}", file=sys.stderr)
+        return 1
+    if not tested.result.converged:
+        print(f"selfcal adjust: error: the adjustment did not converge: {tested.result.reason}", file=sys.stderr)
+        return 1
+    return 0
+
+
+def _show_score(score) -> None:
+    status = f"BIC {score.bic:.1f}, sigma0 {score.sigma0_px:.4f} px" if score.bic is not None else \
+        f"failed: {(score.error or '').splitlines()[0]}"
+    print(f"  {score.label}: {score.n_ap} camera parameters, {status}", file=sys.stderr, flush=True)
 
 
 def _m(value) -> str:

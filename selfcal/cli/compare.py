@@ -15,7 +15,7 @@ from ..io.results import results_from_files, write_files
 from ..report import best_cells, render_comparison_report, render_report
 from ..report.compare import comparison_csv, comparison_markdown, comparison_rows
 from ..stats import SnoopingOptions, VarianceOptions
-from . import pushbroom
+from ..workflows.adjust import offers_sensor_models
 from .options import grid_option, screening_options, test_options, trajectory_options
 
 
@@ -34,14 +34,25 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--workers", type=int, default=None, help="worker processes of the local cluster")
     parser.add_argument("--no-report", action="store_true",
                         help="no report.html (the comparison's, and each scenario's best model's)")
-    pushbroom.compare_arguments(parser)
+    group = parser.add_argument_group("pushbroom blocks (seed 001)")
+    group.add_argument("--sensor-models", metavar="MODELS", help="sensor models to compare (default: M1..M7)")
+    group.add_argument("--gcps", metavar="N,N", help="GCP counts (default 3,4,5)")
+    group.add_argument("--dem", metavar="GEOTIFF",
+                       help="terrain for mono restitution (EPSG:4326, ellipsoidal heights; default: [terrain] of "
+                            "block.toml)")
+    group.add_argument("--no-attitude", action="store_true",
+                       help="ignore attitude.csv; M6's corrections take the whole attitude (seed 001, Table 5)")
 
 
 def run(args: argparse.Namespace) -> int:
     if len(args.blocks) == 1:
         block = read_block(args.blocks[0])
-        if block.is_pushbroom:
-            return pushbroom.run_compare(block, args)
+        if offers_sensor_models(block):
+            return _run_study(block, args)
+    for flag, dest in (("--sensor-models", "sensor_models"), ("--gcps", "gcps"), ("--dem", "dem"),
+                       ("--no-attitude", "no_attitude")):
+        if getattr(args, dest):
+            raise UsageError(f"{flag} applies to pushbroom blocks only")
     models = [m.strip() for m in args.ap.split(",") if m.strip()]
     for m in models:
         if parse_ap_spec(m)[0] not in AP_FAMILIES:
@@ -76,6 +87,45 @@ def run(args: argparse.Namespace) -> int:
     print(comparison_markdown(rows))
     print(f"{total} adjustments in {seconds:.1f} s ({args.scheduler}); results in {args.out}", file=sys.stderr)
     return 1 if any(c.error for c in cells) else 0
+
+
+def _run_study(block, args) -> int:
+    """Seed 001's study on a pushbroom block: M1-M7 x GCP counts x image sets (no data snooping: the rows of
+    M1-M4 are there to show the model error that snooping would reject)."""
+    from ..adjust import AdjustOptions
+    from ..batch.seed001 import run_study
+    from ..io.dem import read_dem
+    from ..report.compare import study_csv, study_markdown
+    from ..sensors.pushbroom import SENSOR_MODELS
+    from ..workflows.seed001 import ATTITUDE_FREE_SIGMA
+    t0 = time.perf_counter()
+    dem = read_dem(args.dem) if args.dem else read_dem(block.dem_path) if block.dem_path else block.terrain_height_m
+    if dem is None:
+        raise UsageError("the mono cases restitute the check points on the terrain: give --dem or [terrain] "
+                         "in block.toml")
+    models = [m.strip().upper() for m in (args.sensor_models or ",".join(SENSOR_MODELS)).split(",") if m.strip()]
+    unknown = [m for m in models if m not in SENSOR_MODELS]
+    if unknown:
+        raise UsageError(f"unknown sensor model(s) {', '.join(unknown)} (known: {', '.join(SENSOR_MODELS)})")
+    try:
+        counts = sorted({int(v) for v in (args.gcps or "3,4,5").split(",") if v.strip()})
+    except ValueError:
+        raise UsageError(f"--gcps must be numbers separated by commas, found '{args.gcps}'") from None
+    prior = ATTITUDE_FREE_SIGMA if args.no_attitude else None
+
+    def show(case):
+        status = case.failure.splitlines()[0] if case.rmse_m is None else \
+            "RMSE " + " / ".join(f"{v:.2f}" for v in case.rmse_m) + " m"
+        print(f"{case.images} {case.model} {case.n_gcp} GCP: {status}", file=sys.stderr, flush=True)
+
+    cases, focal, sigma = run_study(block, dem, models, counts, prior_sigma=prior, progress=show,
+                                    options=AdjustOptions(attitude_telemetry=not args.no_attitude))
+    table = study_markdown(cases, focal, sigma)
+    with atomic_folder(args.out) as tmp:
+        write_files(tmp, {"comparison.md": table, "comparison.csv": study_csv(cases)})
+    print(table)
+    print(f"{len(cases)} adjustments in {time.perf_counter() - t0:.1f} s; results in {args.out}", file=sys.stderr)
+    return 0
 
 
 def cell_folder(scenario: str, model: str) -> str:

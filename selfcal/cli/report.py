@@ -7,9 +7,8 @@ import os
 import sys
 import time
 
-from ..io.results import is_pushbroom_results, read_pushbroom_results, read_results, write_files
+from ..io.results import read_results, write_files
 from ..report import render_report
-from ..report.pushbroom import render_pushbroom_report
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -18,10 +17,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
-    if is_pushbroom_results(args.results):
-        files = render_pushbroom_report(read_pushbroom_results(args.results))
-    else:
-        files = render_report(read_results(args.results))
+    files = render_report(read_results(args.results))
     write_files(args.results, files)
     # figures of an earlier rendering that this one did not draw (e.g. fewer cameras) would mislead
     for path in glob.glob(os.path.join(args.results, "figures", "*")):

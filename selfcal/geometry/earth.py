@@ -13,7 +13,7 @@ from datetime import datetime, timezone
 import erfa
 import numpy as np
 
-__all__ = ["horizon_covariance", "WGS84_A_M", "WGS84_F", "utc_two_part", "itrs_from_gcrs", "orbit_frame",
+__all__ = ["horizon_covariance", "geodetic_jacobian", "WGS84_A_M", "WGS84_F", "utc_two_part", "itrs_from_gcrs", "orbit_frame",
            "ecef_from_geodetic", "geodetic_from_ecef", "local_up", "intersect_ellipsoid"]
 
 WGS84_A_M = 6378137.0
@@ -125,3 +125,18 @@ def horizon_covariance(ecef: np.ndarray, sigma_enu: np.ndarray) -> np.ndarray:
     north = np.cross(up, east)
     R = np.stack([east, north, up], -1)                       # columns: east, north, up
     return np.einsum("nij,nj,nkj->nik", R, np.atleast_2d(sigma_enu) ** 2, R)
+
+
+def geodetic_jacobian(xyz: np.ndarray) -> np.ndarray:
+    """d(lat, lon, h)/d(X, Y, Z) (n, 3, 3) at ECEF points (latitude and longitude in radians): the rows are
+    north / (M + h), east / ((N + h) cos lat) and up, with M and N the meridian and prime-vertical radii of
+    curvature of WGS 84 (the unit vectors are orthonormal, so the inverse of dECEF/d(lat, lon, h) is this)."""
+    lat, lon, h = geodetic_from_ecef(np.atleast_2d(xyz))
+    s, c = np.sin(lat), np.cos(lat)
+    w = np.sqrt(1.0 - _E2 * s * s)
+    n = WGS84_A_M / w
+    m = WGS84_A_M * (1.0 - _E2) / w ** 3
+    north = np.stack([-s * np.cos(lon), -s * np.sin(lon), c], -1)
+    east = np.stack([-np.sin(lon), np.cos(lon), np.zeros_like(lon)], -1)
+    up = local_up(lat, lon)
+    return np.stack([north / (m + h)[:, None], east / ((n + h) * c)[:, None], up], axis=1)

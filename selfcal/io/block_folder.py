@@ -15,9 +15,10 @@ import tomllib
 import numpy as np
 
 from ..block import (ROLES, AttitudeSamples, BalCamera, Block, Ephemeris, FrameCamera, Images, InitialAP, Observations,
-                     Points, PushbroomCamera, prune)
+                     Points, PushbroomCamera, RpcCamera, prune)
 from ..errors import BlockError
 from .atomic import atomic_folder, atomic_write
+from .sensor_files import SENSOR_FILE_READERS
 from .table import NUM, OPT_NUM, STR, Column, read_table, write_table
 
 __all__ = ["read_block", "write_block", "IMAGE_COLUMNS", "POINT_COLUMNS", "OBSERVATION_COLUMNS", "EPHEMERIS_COLUMNS",
@@ -28,6 +29,7 @@ IMAGE_COLUMNS = [
     Column("time_s", OPT_NUM),
     Column("X0", OPT_NUM), Column("Y0", OPT_NUM), Column("Z0", OPT_NUM),
     Column("omega_deg", OPT_NUM), Column("phi_deg", OPT_NUM), Column("kappa_deg", OPT_NUM),
+    Column("sensor_file", STR, required=False),
 ]
 POINT_COLUMNS = [
     Column("point_id"), Column("role"),
@@ -84,8 +86,16 @@ _PUSHBROOM_CAMERA_KEYS = {
     "chip_starts": ("intlist", False),
     "chip_offsets_px": ("pairlist", False),
 }
+_RPC_CAMERA_KEYS = {
+    "model": ("str", True),
+    "bias": ("str", False),
+    "width_px": ("int", False),
+    "height_px": ("int", False),
+    "sigma_bias_px": ("pos", False),
+}
 _CAMERA_MODELS = {"frame": (FrameCamera, _FRAME_CAMERA_KEYS), "bal": (BalCamera, _BAL_CAMERA_KEYS),
-                  "pushbroom": (PushbroomCamera, _PUSHBROOM_CAMERA_KEYS)}
+                  "pushbroom": (PushbroomCamera, _PUSHBROOM_CAMERA_KEYS), "rpc": (RpcCamera, _RPC_CAMERA_KEYS)}
+
 _SECTIONS = {
     "terrain": {"dem": ("str", False), "height_m": ("num", False)},
     "observations": {"image_sigma_px": ("pos", True)},
@@ -224,6 +234,9 @@ def _read_settings(folder: str) -> dict:
         values.pop("model")
         if model == "pushbroom":
             _check_pushbroom(path, text, section, values)
+        if model == "rpc" and values.get("bias", "affine") not in ("shift", "affine"):
+            raise BlockError(path, f"bias must be \"shift\" or \"affine\", found {values['bias']!r}",
+                             _key_line(text, section, "bias"), f"{section}.bias")
         if initial is not None:
             values["initial_ap"] = _initial_ap(path, text, f"{section}.initial_ap", initial)
         settings["cameras"][camera_id] = cls(camera_id=camera_id, **values)
@@ -302,8 +315,9 @@ def _unique_ids(table, column: str) -> dict[str, int]:
     return index
 
 
-def _read_images(folder: str, cameras: dict) -> tuple[Images, dict[str, int]]:
+def _read_images(folder: str, cameras: dict) -> tuple[Images, dict[str, int], dict]:
     table = read_table(os.path.join(folder, "images.csv"), IMAGE_COLUMNS)
+    files = _sensor_files(folder, table, cameras)
     index = _unique_ids(table, "image_id")
     for value, line in zip(table["camera_id"], table.line):
         if value not in cameras:
@@ -319,7 +333,27 @@ def _read_images(folder: str, cameras: dict) -> tuple[Images, dict[str, int]]:
         attitude_rad=np.radians(angles),
         line=table.line,
     )
-    return images, index
+    return images, index, files
+
+
+def _sensor_files(folder: str, table, cameras: dict) -> dict:
+    """image id -> (path of its sensor_file, line) for the images whose camera model reads one; a missing or
+    unexpected sensor_file is an error naming its line."""
+    files = {}
+    given = table["sensor_file"] if "sensor_file" in table else np.full(len(table.line), "", dtype=object)
+    for image_id, camera_id, name, line in zip(table["image_id"], table["camera_id"], given, table.line):
+        model = cameras[camera_id].model if camera_id in cameras else None
+        if model in SENSOR_FILE_READERS:
+            if not name:
+                raise BlockError(table.path, f"a {model} image names its sensor description in column sensor_file",
+                                 int(line), "sensor_file")
+            path = name if os.path.isabs(name) else os.path.join(folder, name)
+            if not os.path.isfile(path):
+                raise BlockError(table.path, f"sensor file not found: {path}", int(line), "sensor_file")
+            files[str(image_id)] = (path, int(line))
+        elif name:
+            raise BlockError(table.path, f"a {model} camera takes no sensor_file", int(line), "sensor_file")
+    return files
 
 
 def _read_points(folder: str) -> tuple[Points, dict[str, int]]:
@@ -414,17 +448,21 @@ def read_block(folder: str | os.PathLike, min_gcp: int = 3) -> Block:
         raise BlockError(folder, "block folder not found")
     settings = _read_settings(folder)
     cameras = settings["cameras"]
-    images, image_index = _read_images(folder, cameras)
+    images, image_index, files = _read_images(folder, cameras)
     points, point_index = _read_points(folder)
     image_sigma = settings["observations"]["image_sigma_px"]
     observations = _read_observations(folder, images, image_index, point_index, cameras, image_sigma)
     gnss = settings.get("gnss", {}).get("sigma_m")
     imu = settings.get("imu", {}).get("sigma_deg")
     ephemeris = attitude = None
+    from ..sensors import sensor_of
+    sensors = {c.model: sensor_of(c) for c in cameras.values()}
+    if len({s.object_frame for s in sensors.values()}) > 1:
+        raise BlockError(os.path.join(folder, "block.toml"), "a block's cameras share one object frame: "
+                         f"{', '.join(sensors)} do not mix", None, "cameras")
+    image_models = {image_id: SENSOR_FILE_READERS[cameras[camera_id].model](files[image_id][0])
+                    for image_id, camera_id in zip(images.image_id, images.camera_id) if image_id in files}
     if any(c.model == "pushbroom" for c in cameras.values()):
-        if len({c.model for c in cameras.values()}) > 1:
-            raise BlockError(os.path.join(folder, "block.toml"), "a block has either pushbroom or frame cameras",
-                             None, "cameras")
         ephemeris, attitude = _read_telemetry(folder, cameras)
         missing = np.flatnonzero(np.isnan(images.time_s))
         if missing.size:
@@ -457,11 +495,15 @@ def read_block(folder: str | os.PathLike, min_gcp: int = 3) -> Block:
         attitude=attitude,
         dem_path=dem,
         terrain_height_m=terrain.get("height_m"),
+        image_models=image_models or None,
+        image_files={k: v[0] for k, v in files.items()} or None,
     )
-    # a pushbroom block is used as read: mono restitution needs check points seen in one image
-    block = block if block.is_pushbroom else prune(block)
+    # blocks of seed 001's sensors are used as read: mono restitution needs check points seen in one image
+    if not any(s.sensor_models for s in sensors.values()):
+        block = prune(block, min_points_per_image=min(s.min_points_per_image for s in sensors.values()))
     n_gcp = int(np.sum(block.points.role == "gcp"))
-    if block.datum == "control" and not block.has_trajectory and n_gcp < min_gcp:
+    absolute = all(s.object_frame == "ECEF" for s in sensors.values())     # the images carry the datum
+    if block.datum == "control" and not block.has_trajectory and not absolute and n_gcp < min_gcp:
         raise BlockError(os.path.join(folder, "points.csv"),
                          f"only {n_gcp} usable gcp (observed in at least one image); at least {min_gcp} "
                          f"are needed to fix the datum when block.toml has no [gnss] or [imu] (or set "
@@ -546,11 +588,14 @@ def write_block(block: Block, folder: str | os.PathLike) -> None:
         im = block.images
         deg = np.degrees(im.attitude_rad)
         with atomic_write(os.path.join(tmp, "images.csv")) as handle:
-            write_table(handle, [c.name for c in IMAGE_COLUMNS],
-                        [im.image_id, im.camera_id, im.strip_id, im.time_s,
-                         im.position_m[:, 0], im.position_m[:, 1], im.position_m[:, 2],
-                         deg[:, 0], deg[:, 1], deg[:, 2]],
-                        ["", "", "", ".4f", ".6f", ".6f", ".6f", ".10f", ".10f", ".10f"])
+            columns = [im.image_id, im.camera_id, im.strip_id, im.time_s, im.position_m[:, 0], im.position_m[:, 1],
+                       im.position_m[:, 2], deg[:, 0], deg[:, 1], deg[:, 2]]
+            formats = ["", "", "", ".4f", ".6f", ".6f", ".6f", ".10f", ".10f", ".10f"]
+            if block.image_files:
+                columns.append(np.array([os.path.relpath(block.image_files[i], folder) if i in block.image_files
+                                         else "" for i in im.image_id], dtype=object))
+                formats.append("")
+            write_table(handle, [c.name for c in IMAGE_COLUMNS][:len(columns)], columns, formats)
         pt = block.points
         with atomic_write(os.path.join(tmp, "points.csv")) as handle:
             write_table(handle, [c.name for c in POINT_COLUMNS],

@@ -26,14 +26,18 @@ __all__ = ["write_results", "write_files", "to_jsonable", "ResultsFolder", "read
            "results_from_files",
            "RESULT_TABLES", "OPTIONAL_TABLES"]
 
-#: the CSV tables of a results folder that the report reads (DESIGN.md §4), by short name
+#: the CSV tables of every results folder that the report reads (DESIGN.md §4), by short name
 RESULT_TABLES = {"images": "images.csv", "points": "points.csv", "residuals": "residuals.csv",
-                 "distortion_grid": "distortion_grid.csv", "correlation": "correlation.csv"}
-#: tables that only some results folders have (trajectory.csv: blocks with [gnss] or [imu])
-OPTIONAL_TABLES = {"trajectory": "trajectory.csv"}
+                 "correlation": "correlation.csv"}
+#: tables that only some results folders have: distortion_grid.csv (frame APs), detector_line.csv (line APs),
+#: trajectory.csv ([gnss] or [imu]), check_points.csv (seed 001's across / along / up), parameters.csv
+#: (schema 2 and later)
+OPTIONAL_TABLES = {"parameters": "parameters.csv", "distortion_grid": "distortion_grid.csv",
+                   "detector_line": "detector_line.csv", "trajectory": "trajectory.csv",
+                   "check_points": "check_points.csv"}
 #: columns that hold names, not numbers
 _TEXT_COLUMNS = {"image_id", "camera_id", "strip_id", "point_id", "role", "parameter", "sensor", "term", "axis",
-                 "unit"}
+                 "unit", "owner", "group"}
 
 
 def to_jsonable(value):
@@ -161,25 +165,6 @@ def read_results(folder: str | os.PathLike) -> ResultsFolder:
         tables=tables)
 
 
-#: tables of a pushbroom results folder (selfcal adjust on a pushbroom block), by report name
-PUSHBROOM_TABLES = {"parameters": "parameters.csv", "check_points": "check_points.csv",
-                    "residuals": "residuals.csv", "correlation": "correlation.csv", "rejected": "rejected.csv"}
-
-
-def is_pushbroom_results(folder: str | os.PathLike) -> bool:
-    path = os.path.join(os.fspath(folder), "summary.json")
-    return os.path.isfile(path) and _read_json(path).get("sensor") == "pushbroom"
-
-
-def read_pushbroom_results(folder: str | os.PathLike) -> ResultsFolder:
-    """summary.json and the tables of a pushbroom results folder (absent tables are left out)."""
-    folder = os.fspath(folder)
-    summary = _read_json(os.path.join(folder, "summary.json"))
-    tables = {key: _read_csv(os.path.join(folder, name)) for key, name in PUSHBROOM_TABLES.items()
-              if os.path.isfile(os.path.join(folder, name))}
-    return ResultsFolder(path=folder, summary=summary, camera={}, tables=tables)
-
-
 def read_camera_json(folder: str | os.PathLike) -> dict:
     """camera.json of a results folder (the calibration, for exports); missing or unreadable: BlockError."""
     folder = os.fspath(folder)
@@ -209,5 +194,5 @@ def results_from_files(files: dict, path: str | None = None) -> ResultsFolder:
         summary=to_jsonable(files["summary.json"]),
         camera=to_jsonable(files.get("camera.json", {})),
         screening=to_jsonable(files.get("screening.json", {})),
-        tables={key: table(files[name]) for key, name in (RESULT_TABLES | OPTIONAL_TABLES | PUSHBROOM_TABLES).items()
+        tables={key: table(files[name]) for key, name in (RESULT_TABLES | OPTIONAL_TABLES).items()
                 if name in files})

@@ -10,7 +10,10 @@ from __future__ import annotations
 
 import math
 
-__all__ = ["comparison_rows", "comparison_csv", "comparison_markdown", "COLUMNS"]
+import numpy as np
+
+__all__ = ["comparison_rows", "comparison_csv", "comparison_markdown", "COLUMNS", "study_rows", "study_csv",
+           "study_markdown"]
 
 COLUMNS = [
     ("scenario", "scenario", ""), ("ap_model", "AP model", ""),
@@ -97,3 +100,60 @@ def comparison_markdown(rows: list[dict], title: str = "") -> str:
             continue
         lines.append("| " + " | ".join(_cell(r.get(k), f) for k, _, f in COLUMNS) + " |")
     return "\n".join(lines) + "\n"
+
+
+# --- seed 001: the M1-M7 study of a pushbroom block (selfcal.batch.seed001) ---------------------------
+
+def study_rows(cases) -> list[dict]:
+    return [{"images": c.images, "model": c.model, "n_gcp": c.n_gcp, "n_chk": c.n_check,
+             "rmse_across_m": None if c.rmse_m is None else float(c.rmse_m[0]),
+             "rmse_along_m": None if c.rmse_m is None else float(c.rmse_m[1]),
+             "rmse_up_m": None if c.rmse_m is None else float(c.rmse_m[2]),
+             "sigma0": None if c.result is None else float(c.sigma0),
+             "failure": c.failure} for c in cases]
+
+
+def study_csv(cases):
+    rows = study_rows(cases)
+    keys = list(rows[0]) if rows else []
+    columns = []
+    for k in keys:
+        values = [r[k] for r in rows]
+        columns.append(np.array([np.nan if v is None else v for v in values], dtype=object if k in
+                                ("images", "model", "failure") else float))
+    formats = ["" if k in ("images", "model", "failure") else (".0f" if k.startswith("n_") else ".3f") for k in keys]
+    return keys, columns, formats
+
+
+def study_markdown(cases, focal: dict, focal_sigma: dict, title: str = "selfcal compare (pushbroom)") -> str:
+    """One table per image set: models down, GCP counts across, RMSE X/Y/Z (m) at the check points."""
+    lines = [f"# {title}", ""]
+    if focal:
+        lines += ["Focal lengths calibrated first (M7 on all images, every GCP), then held:", ""]
+        lines += [f"- {k}: {v:.3f} mm (σ {focal_sigma[k]:.3f} mm)" for k, v in focal.items()]
+        lines.append("")
+    lines += ["RMSE at the check points in metres: X across track / Y along track / Z up. "
+              "Mono: restituted on the terrain; stereo: intersected in the adjustment.", ""]
+    sets = list(dict.fromkeys(c.images for c in cases))
+    counts = sorted({c.n_gcp for c in cases})
+    for label in sets:
+        mine = [c for c in cases if c.images == label]
+        lines += [f"## {label}", "", "| model | " + " | ".join(f"{n} GCP" for n in counts) + " |",
+                  "| --- |" + " ---: |" * len(counts)]
+        for model in dict.fromkeys(c.model for c in mine):
+            cells = []
+            for n in counts:
+                case = next((c for c in mine if c.model == model and c.n_gcp == n), None)
+                if case is None:
+                    cells.append("")
+                elif case.rmse_m is None:
+                    cells.append("—")
+                else:
+                    cells.append(" / ".join(f"{v:.2f}" for v in case.rmse_m))
+            lines.append(f"| {model} | " + " | ".join(cells) + " |")
+        lines.append("")
+    failures = [c for c in cases if c.rmse_m is None]
+    if failures:
+        lines += ["—: no solution. " + "; ".join(sorted({f"{c.model} with {c.n_gcp} GCP: {c.failure.splitlines()[0]}"
+                                                        for c in failures}))[:2000], ""]
+    return "\n".join(lines)

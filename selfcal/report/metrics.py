@@ -1,7 +1,11 @@
-"""What an adjustment achieved, as plain tables and a summary dictionary.
+"""What an adjustment achieved, as plain tables and a summary dictionary: one schema for every sensor.
 
 These are the contents of the results folder (DESIGN.md §4). The functions
-compute; :mod:`selfcal.io.results` writes. Conventions:
+compute; :mod:`selfcal.io.results` writes. The common keys and columns are the
+same whatever the sensor (``schema_version`` in summary.json); a sensor adds
+files of its own (``distortion_grid.csv`` for frame APs, ``detector_line.csv``
+for line APs, ``check_points.csv`` across / along / up for seed 001's cases).
+Conventions:
 
 * RMSD(XY) at check points = sqrt(mean(dX^2 + dY^2)), RMSD(Z) = sqrt(mean(dZ^2)),
   with d = adjusted - reference;
@@ -13,56 +17,62 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..ap import frame_nodes_mm
+from ..ap import frame_nodes_mm, takes_grid
 from ..sensors.frame import pixel_from_photo
 from ..stats.accuracy import ce90, le90
 from ..stats.correlation import max_abs_correlation_by_group
 
-__all__ = ["ground_sample_distance", "model_choice_table", "summary", "camera_json", "image_table", "point_table",
-           "residual_table", "screening_json", "correlation_table", "distortion_grid_table", "trajectory_table",
-           "result_files"]
+__all__ = ["SCHEMA_VERSION", "ground_sample_distance", "model_choice_table", "summary", "camera_json", "image_table",
+           "point_table", "residual_table", "screening_json", "correlation_table", "distortion_grid_table",
+           "trajectory_table", "parameter_table", "detector_line_table", "check_point_table", "result_files"]
+
+#: version of the results schema (DESIGN.md §4); 2: one schema for every sensor (parameters.csv, sensors)
+SCHEMA_VERSION = 2
+#: detector_line.csv samples the estimated line APs every this many columns
+DETECTOR_LINE_STEP = 16
 
 
-def ground_sample_distance(block, result) -> float:
-    """Mean ground sample distance of the block in metres."""
-    prob, st = result.problem, result.state
-    heights = np.bincount(prob.obs_image, weights=st.points[prob.obs_point, 2], minlength=prob.n_images)
-    heights /= np.maximum(np.bincount(prob.obs_image, minlength=prob.n_images), 1)
-    gsd = []
-    for i in range(prob.n_images):
-        cam = prob.cameras[prob.image_camera[i]]
-        c = st.cameras[prob.image_camera[i]][0]
-        gsd.append(cam.pixel_size_mm * (st.image[i, 2] - heights[i]) / c)
-    return float(np.mean(np.abs(gsd)))
+def ground_sample_distance(block, result) -> float | None:
+    """Mean ground sample distance of the block in metres (None where the sensors do not say)."""
+    values = [slot.bound.ground_sample_distance(result.state) for slot in result.problem.sensors]
+    values = [v for v in values if v is not None]
+    return float(np.mean(values)) if values else None
 
 
 def _rms(values: np.ndarray) -> float | None:
     return float(np.sqrt(np.mean(values))) if values.size else None
 
 
-def summary(tested, extra: dict | None = None) -> dict:
-    """summary.json of DESIGN.md §4 for a (tested) adjustment."""
+def summary(tested, extra: dict | None = None, checks=None) -> dict:
+    """summary.json of DESIGN.md §4 for a (tested) adjustment. ``checks``: the check points
+    (:mod:`selfcal.workflows.checks`), by default those intersected in the adjustment. Errors and
+    precision are along the object frame's axes, or east, north, up for ECEF."""
+    from ..workflows.checks import intersected, local_axes
     result = tested.result
     block = result.block
     pts = block.points
     st = result.state
-    diff = st.points - pts.xyz_m
-    chk = pts.role == "chk"
+    checks = intersected(result) if checks is None else checks
+    d_chk = checks.errors_m
     gcp = pts.role == "gcp"
     tie = pts.role == "tie"
-    cov = result.point_covariance()
+    axes = local_axes(pts.xyz_m[gcp] if gcp.any() else st.points, _object_frame(result))
+    d_gcp = (st.points[gcp] - pts.xyz_m[gcp]) @ axes.T
+    cov = np.einsum("ij,njk,lk->nil", axes, result.point_covariance(), axes)
     var = np.einsum("nii->ni", cov)
     gsd = ground_sample_distance(block, result)
-    rmsd_xy = _rms(np.sum(diff[chk, :2] ** 2, axis=1))
-    rmsd_z = _rms(diff[chk, 2] ** 2)
+    rmsd_xy = _rms(np.sum(d_chk[:, :2] ** 2, axis=1))
+    rmsd_z = _rms(d_chk[:, 2] ** 2)
     sig_xy = _rms(var[tie, 0] + var[tie, 1])
     sig_z = _rms(var[tie, 2])
     v = result.residuals_px
 
     def gsd_of(x):
-        return None if x is None else x / gsd
+        return None if x is None or not gsd else x / gsd
 
     out = {
+        "schema_version": SCHEMA_VERSION,
+        "sensors": sorted({cam.sensor for cam in result.problem.cameras}),
         "block": block.name,
         "ap_model": result.problem.cameras[0].ap.spec if result.problem.cameras else "none",
         "converged": bool(result.converged),
@@ -78,10 +88,11 @@ def summary(tested, extra: dict | None = None) -> dict:
         "rmsd_chk_z_m": rmsd_z,
         "rmsd_chk_xy_gsd": gsd_of(rmsd_xy),
         "rmsd_chk_z_gsd": gsd_of(rmsd_z),
-        "ce90_chk_m": ce90(diff[chk, :2]),
-        "le90_chk_m": le90(diff[chk, 2]),
-        "rms_gcp_residual_xy_m": _rms(np.sum(diff[gcp, :2] ** 2, axis=1)),
-        "rms_gcp_residual_z_m": _rms(diff[gcp, 2] ** 2),
+        "ce90_chk_m": ce90(d_chk[:, :2]),
+        "le90_chk_m": le90(d_chk[:, 2]),
+        "check_method": checks.method,
+        "rms_gcp_residual_xy_m": _rms(np.sum(d_gcp[:, :2] ** 2, axis=1)),
+        "rms_gcp_residual_z_m": _rms(d_gcp[:, 2] ** 2),
         "rms_sigma_tie_xy_m": sig_xy,
         "rms_sigma_tie_z_m": sig_z,
         "rms_sigma_tie_xy_gsd": gsd_of(sig_xy),
@@ -91,10 +102,11 @@ def summary(tested, extra: dict | None = None) -> dict:
         "n_tie_points": int(tie.sum()),
         "n_image_observations": int(len(block.observations)),
         "n_gcp_used": int(gcp.sum()),
-        "n_chk_used": int(chk.sum()),
+        "n_chk_used": int(len(checks)),
         "n_obs_rejected": int(len(tested.rejected_rows)),
         "n_ap_initial": int(tested.n_ap_initial),
         "n_ap_significant": int(tested.n_ap_significant),
+        "failure": tested.failure or None,
         "mean_redundancy_image": float(np.mean(tested.tests.image_redundancy)),
         "snooping": {"critical": tested.tests.critical, "delta0": tested.tests.delta0,
                      "rounds": [vars(r) for r in tested.rounds]},
@@ -112,51 +124,130 @@ def summary(tested, extra: dict | None = None) -> dict:
     return out
 
 
+def _object_frame(result) -> str:
+    return result.problem.sensors[0].sensor.object_frame if result.problem.sensors else "block"
+
+
+def _sensor(result, camera_index: int):
+    from ..sensors import SENSORS
+    return SENSORS[result.problem.cameras[camera_index].sensor]
+
+
 def camera_json(block, result) -> dict:
-    """camera.json: interior orientation and AP coefficients with sigma."""
+    """camera.json: each camera's sensor parameters and AP coefficients with sigma (files' units)."""
     sigmas = result.camera_sigma()
     cameras = {}
-    for cam, values, sigma in zip(result.problem.cameras, result.state.cameras, sigmas):
+    for k, (cam, values, sigma) in enumerate(zip(result.problem.cameras, result.state.cameras, sigmas)):
         cfg = block.cameras[cam.camera_id]
-        def entry(i):
-            return {"value": float(values[i]), "sigma": None if np.isnan(sigma[i]) else float(sigma[i]),
-                    "estimated": bool(cam.free[i])}
+        entry = {"model": cam.sensor}
+        for key in ("width_px", "height_px", "pixel_size_mm", "columns", "rows"):
+            if hasattr(cfg, key):
+                entry[key] = getattr(cfg, key)
+        for i, parameter in enumerate(_sensor(result, k).camera_parameters):
+            unit, factor = parameter.display
+            entry[parameter.file_key] = {"value": float(values[i]) * factor,
+                                         "sigma": None if np.isnan(sigma[i]) else float(sigma[i]) * factor,
+                                         "estimated": bool(cam.free[i]), "unit": unit}
+        nc = cam.n_core
         coefficients = [
-            {"name": name, "value_px": float(values[3 + k]),
-             "sigma_px": None if np.isnan(sigma[3 + k]) else float(sigma[3 + k]),
-             "active": bool(cam.free[3 + k])}
-            for k, name in enumerate(cam.ap.parameter_names)
+            {"name": name, "value_px": float(values[nc + j]),
+             "sigma_px": None if np.isnan(sigma[nc + j]) else float(sigma[nc + j]),
+             "active": bool(cam.free[nc + j])}
+            for j, name in enumerate(cam.ap.parameter_names)
         ]
-        ap = {**cam.ap.to_dict(), "coefficient_unit": "px", "n_active": int(cam.free[cam.n_core:].sum())}
+        ap = {**cam.ap.to_dict(), "coefficient_unit": "px", "n_active": int(cam.free[nc:].sum())}
         if hasattr(cam.ap, "active_ranges"):
             # the translation ranges that remain after screening (Table 3 of seed 000)
-            ap["active_ranges"] = cam.ap.active_ranges(cam.free[cam.n_core:])
-        cameras[cam.camera_id] = {
-            "model": "frame",
-            "width_px": cfg.width_px,
-            "height_px": cfg.height_px,
-            "pixel_size_mm": cfg.pixel_size_mm,
-            "focal_mm": entry(0),
-            "x0_mm": entry(1),
-            "y0_mm": entry(2),
-            "ap": {**ap, "coefficients": coefficients},
-        }
+            ap["active_ranges"] = cam.ap.active_ranges(cam.free[nc:])
+        entry["ap"] = {**ap, "coefficients": coefficients}
+        cameras[cam.camera_id] = entry
     return {"cameras": cameras}
 
 
+def _image_parameters(result):
+    """The image parameters of the problem's first sensor (those of images.csv)."""
+    return result.problem.sensors[0].sensor.image_parameters if result.problem.sensors else ()
+
+
 def image_table(block, result):
+    """images.csv: each image's parameters (a frame image's exterior orientation) and their sigma, in the
+    files' units (angles in degrees, wrapped to (-180, 180])."""
     im = block.images
-    eop = result.state.image.copy()
-    eop[:, 3:] = (eop[:, 3:] + np.pi) % (2 * np.pi) - np.pi
-    s = result.image_sigma()
-    header = ["image_id", "camera_id", "strip_id", "X0", "Y0", "Z0", "omega_deg", "phi_deg", "kappa_deg",
-              "sigma_X0_m", "sigma_Y0_m", "sigma_Z0_m", "sigma_omega_deg", "sigma_phi_deg", "sigma_kappa_deg",
-              "n_points"]
-    n_points = np.bincount(block.observations.image_index, minlength=len(im))
-    cols = [im.image_id, im.camera_id, im.strip_id, *eop[:, :3].T, *np.degrees(eop[:, 3:]).T,
-            *s[:, :3].T, *np.degrees(s[:, 3:]).T, n_points]
-    fmts = ["", "", ""] + [".4f"] * 3 + [".6f"] * 3 + [".4f"] * 3 + [".6f"] * 3 + ["d"]
+    parameters = _image_parameters(result)
+    values = result.state.image.copy()
+    sigma = result.image_sigma()
+    header = ["image_id", "camera_id", "strip_id"] + [p.file_key for p in parameters] + \
+        [p.sigma_key for p in parameters] + ["n_points"]
+    cols = [im.image_id, im.camera_id, im.strip_id]
+    for k, p in enumerate(parameters):
+        v = values[:, k]
+        if p.unit == "rad":
+            v = (v + np.pi) % (2 * np.pi) - np.pi
+        cols.append(v * p.display[1])
+    cols += [sigma[:, k] * p.display[1] for k, p in enumerate(parameters)]
+    cols.append(np.bincount(block.observations.image_index, minlength=len(im)))
+    fmts = ["", "", ""] + [".4f" if p.unit == "m" else ".6f" if p.unit == "rad" else ".9g" for p in parameters] * 2 + ["d"]
     return header, cols, fmts
+
+
+def parameter_table(result):
+    """parameters.csv: every image and camera parameter with its start value and a-posteriori sigma, in the
+    files' units: ``owner`` (image or camera id), ``parameter``, ``group`` (EOP, IOP, AP), ``value``, ``sigma``
+    (empty where held), ``start``, ``unit``, ``active`` (0: held, by the sensor model or screening)."""
+    problem, state = result.problem, result.state
+    cols = {k: [] for k in ("owner", "parameter", "group", "value", "sigma", "start", "unit", "active")}
+
+    def add(owner, parameter, group, value, sigma, start, unit, active):
+        for key, v in zip(cols, (owner, parameter, group, value, sigma, start, unit, int(active))):
+            cols[key].append(v)
+    image_sigma = result.image_sigma()
+    for slot in problem.sensors:
+        for i in slot.images:
+            for k, p in enumerate(slot.sensor.image_parameters):
+                unit, f = p.display
+                add(problem.image_ids[i], p.name, p.group, state.image[i, k] * f, image_sigma[i, k] * f,
+                    problem.image_prior_value[i, k] * f, unit, problem.image_free[i, k])
+    for k, (cam, values, sigma) in enumerate(zip(problem.cameras, state.cameras, result.camera_sigma())):
+        core = _sensor(result, k).camera_parameters
+        for i in range(cam.size):
+            unit, f = core[i].display if i < cam.n_core else ("px", 1.0)
+            group = core[i].group if i < cam.n_core else "AP"
+            add(cam.camera_id, cam.names[i], group, values[i] * f, sigma[i] * f, cam.prior_value[i] * f, unit,
+                cam.free[i])
+    header = list(cols)
+    columns = [np.array(cols[h], dtype=object) if h in ("owner", "parameter", "group", "unit")
+               else np.array(cols[h], dtype=int if h == "active" else float) for h in header]
+    return header, columns, ["", "", "", ".9g", ".3g", ".9g", "", "d"]
+
+
+def detector_line_table(result):
+    """detector_line.csv: the estimated displacement of the detectors (along, across track, px) of every
+    camera with line APs, every DETECTOR_LINE_STEP columns."""
+    ids, cols, along, across = [], [], [], []
+    for cam, values in zip(result.problem.cameras, result.state.cameras):
+        if getattr(cam.ap, "family", "") != "wavelet1d" or not cam.ap.n_params:
+            continue
+        col = np.arange(0.5, cam.ap.columns, DETECTOR_LINE_STEP)
+        d = cam.ap.displacement_px(col, values[cam.n_core:] * cam.free[cam.n_core:])
+        ids += [cam.camera_id] * len(col)
+        cols.append(col)
+        along.append(d[:, 0])
+        across.append(d[:, 1])
+    if not ids:
+        return None
+    return (["camera_id", "col", "d_along_px", "d_across_px"],
+            [np.array(ids, object), np.concatenate(cols), np.concatenate(along), np.concatenate(across)],
+            ["", ".1f", ".4f", ".4f"])
+
+
+def check_point_table(checks, axes: np.ndarray, centre: np.ndarray):
+    """check_points.csv: each check point's position (km, along ``axes`` from ``centre``) and its error
+    d = estimate - reference along the axes (seed 001: across track, along track, up)."""
+    where = (checks.reference - centre) @ axes.T / 1000.0
+    e = (checks.estimate - checks.reference) @ axes.T
+    return (["point_id", "role", "x_across_km", "y_along_km", "d_across_m", "d_along_m", "d_up_m"],
+            [checks.point_id.astype(object), checks.role.astype(object), where[:, 0], where[:, 1], e[:, 0], e[:, 1],
+             e[:, 2]], ["", "", ".3f", ".3f", ".4f", ".4f", ".4f"])
 
 
 def point_table(block, result, tests=None):
@@ -230,11 +321,15 @@ def residual_table(block_read, tested):
 
 
 def screening_json(tested, options=None) -> dict:
-    """screening.json: which AP coefficient was dropped, in which round, and why."""
+    """screening.json: which parameter was dropped (AP coefficient, calibration parameter, trajectory term),
+    in which round, and why."""
+    n_kept = int(sum(int(v.sum()) for v in tested.ap_free.values()))
     return {
         "options": None if options is None else vars(options),
         "n_ap_initial": int(tested.n_ap_initial),
         "n_ap_significant": int(tested.n_ap_significant),
+        "n_parameters_initial": n_kept + len(tested.screening_log),
+        "n_parameters_kept": n_kept,
         "dropped": [{"round": k, "camera_id": d.camera_id, "name": d.name, "t": d.t, "reason": d.reason}
                     for k, d in tested.screening_log],
         "joint_tests": [{"round": k, "n_dropped": j.n_dropped, "f_statistic": j.f_statistic,
@@ -244,9 +339,15 @@ def screening_json(tested, options=None) -> dict:
 
 
 def correlation_table(result):
-    """correlation.csv: correlation matrix of the interior orientation and the active APs of each camera."""
+    """correlation.csv: correlation matrix of the calibration parameters: the images' parameters that their
+    sensor screens (seed 001's attitude corrections), each camera's core parameters and its active APs."""
     from ..stats.correlation import correlation_matrix
     names, index = [], []
+    problem = result.problem
+    theta = problem.image_theta()
+    for i, k in zip(*np.nonzero(problem.image_screenable & problem.image_free)):
+        names.append(f"{problem.image_ids[i]}:{problem.image_names[i][k]}")
+        index.append(int(theta[i, k]))
     for cam, start in zip(result.problem.cameras, result.problem.d_offset):
         pos = start + np.cumsum(cam.free) - 1
         for i in range(cam.size):
@@ -266,9 +367,13 @@ def distortion_grid_table(block, result, nodes_x: int = 61):
     The grid has ``nodes_x`` nodes across and as many down as keep the cells
     square (41 for a 3:2 frame). ``dcol``, ``drow`` follow the pixel axes.
     """
-    multi = len(result.problem.cameras) > 1
+    framed = [(cam, values) for cam, values in zip(result.problem.cameras, result.state.cameras)
+              if getattr(cam.ap, "frame", None) is not None]
+    if not framed:
+        return None
+    multi = len(framed) > 1
     cols_out = {k: [] for k in ("camera_id", "col", "row", "dcol", "drow")}
-    for cam, values in zip(result.problem.cameras, result.state.cameras):
+    for cam, values in framed:
         cfg = block.cameras[cam.camera_id]
         x, y = frame_nodes_mm(cam.ap.frame, nodes_x)
         col, row = pixel_from_photo(np.column_stack([x, y]), cfg.width_px, cfg.height_px, cfg.pixel_size_mm).T
@@ -284,19 +389,28 @@ def distortion_grid_table(block, result, nodes_x: int = 61):
     return header, cols, fmts
 
 
-def result_files(block_read, tested, summary_extra: dict | None = None, screening_options=None) -> dict:
-    """Every file of the results folder as data: dicts become JSON, tuples CSV."""
+def result_files(block_read, tested, summary_extra: dict | None = None, screening_options=None, checks=None,
+                 track=None) -> dict:
+    """Every file of the results folder as data: dicts become JSON, tuples CSV. ``checks``: the check points
+    (default: intersected in the adjustment); ``track`` = (centre, axes) adds check_points.csv across /
+    along / up (seed 001)."""
     result = tested.result
-    return {
-        "summary.json": summary(tested, summary_extra),
+    files = {
+        "summary.json": summary(tested, summary_extra, checks),
         "camera.json": camera_json(result.block, result),
         "images.csv": image_table(result.block, result),
         "points.csv": point_table(result.block, result, tested.tests),
         "residuals.csv": residual_table(block_read, tested),
-        "distortion_grid.csv": distortion_grid_table(result.block, result),
+        "parameters.csv": parameter_table(result),
         "screening.json": screening_json(tested, screening_options),
         "correlation.csv": correlation_table(result),
-    } | ({"trajectory.csv": trajectory_table(result)} if result.problem.trajectory else {})
+    }
+    optional = {"distortion_grid.csv": distortion_grid_table(result.block, result),
+                "detector_line.csv": detector_line_table(result),
+                "trajectory.csv": trajectory_table(result) if result.problem.trajectory else None}
+    if track is not None and checks is not None and len(checks):
+        optional["check_points.csv"] = check_point_table(checks, track[1], track[0])
+    return files | {k: v for k, v in optional.items() if v is not None}
 
 
 def trajectory_table(result):
@@ -345,7 +459,7 @@ def model_choice_table(choice) -> tuple:
         return np.nan if value is None else value
     rows = choice.candidates
     cols = [np.array([s.model for s in rows], dtype=object),
-            np.array([f"{s.grid[0]}x{s.grid[1]}" if s.model.startswith("wavelet") else "" for s in rows],
+            np.array([f"{s.grid[0]}x{s.grid[1]}" if takes_grid(s.model) else "" for s in rows],
                      dtype=object),
             np.array([s.n_ap for s in rows]), np.array([s.n_observations for s in rows]),
             np.array([s.n_unknowns for s in rows]), np.array([s.omega for s in rows]),

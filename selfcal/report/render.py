@@ -110,7 +110,7 @@ def _grid_of(results, camera: dict) -> tuple[int, int]:
 
 def _image_space_section(page: Page, files: dict, results) -> None:
     s = results.summary
-    dist = results.tables["distortion_grid"]
+    dist = results.tables.get("distortion_grid")
     cameras = results.camera.get("cameras", {})
     of_residual = _residual_cameras(results)
     chosen = _cameras_to_draw(results, of_residual)
@@ -122,14 +122,16 @@ def _image_space_section(page: Page, files: dict, results) -> None:
         width, height = float(cam["width_px"]), float(cam["height_px"])
         suffix = f"-{k + 1}" if len(chosen) > 1 else ""
         label = f"camera {camera_id}" if len(cameras) > 1 else "camera"
-        pick = dist["camera_id"] == camera_id if "camera_id" in dist else np.ones(len(dist["col"]), bool)
         model = cam.get("ap", {}).get("spec", s.get("ap_model", ""))
-        fig = figures.distortion_figure(dist["col"][pick], dist["row"][pick], dist["dcol"][pick],
-                                        dist["drow"][pick], width, height, f"Estimated distortion Δ, {model}")
-        _add_figure(page, files, fig, f"distortion{suffix}",
-                    f"Estimated distortion Δ of the {label} ({model}, active APs only) on a "
-                    f"{int(np.unique(dist['col'][pick]).size)}-column grid: colour |Δ|, arrows on every 4th "
-                    "node, along the pixel axes (column right, row down).")
+        pick = None if dist is None else dist["camera_id"] == camera_id if "camera_id" in dist else \
+            np.ones(len(dist["col"]), bool)
+        if pick is not None and pick.any():
+            fig = figures.distortion_figure(dist["col"][pick], dist["row"][pick], dist["dcol"][pick],
+                                            dist["drow"][pick], width, height, f"Estimated distortion Δ, {model}")
+            _add_figure(page, files, fig, f"distortion{suffix}",
+                        f"Estimated distortion Δ of the {label} ({model}, active APs only) on a "
+                        f"{int(np.unique(dist['col'][pick]).size)}-column grid: colour |Δ|, arrows on every 4th "
+                        "node, along the pixel axes (column right, row down).")
         obs = _camera_rows(results, of_residual, camera_id)
         grid = _grid_of(results, cam)
         fig = figures.residual_grid_figure(obs["col"], obs["row"], obs["vcol"], obs["vrow"], width, height, grid,
@@ -157,7 +159,26 @@ def _point_rows(results):
     return pts, ctl, d, sigma, w
 
 
+def _track_section(page: Page, files: dict, results) -> None:
+    """check_points.csv of seed 001's cases: errors across / along track and up at the scene centre."""
+    t = results.tables["check_points"]
+    xy = np.column_stack([t["x_across_km"], t["y_along_km"]]) * 1000.0
+    d = np.column_stack([t["d_across_m"], t["d_along_m"], t["d_up_m"]])
+    _add_figure(page, files, figures.control_error_figure(xy, d, np.array(["chk"] * len(d), object), list(t["point_id"]),
+                                                          "Errors at the check points (axes: across / along track)"),
+                "check-points", f"Check-point errors ({results.summary.get('check_method', '')}): estimated minus "
+                "reference, across track (X) and along track (Y) at the scene centre, and up (Z).")
+    page.table(["point", "role", "X across [km]", "Y along [km]", "dX [m]", "dY [m]", "dZ [m]"],
+               [[p, r, f"{x:.2f}", f"{y:.2f}", f"{a:.3f}", f"{b:.3f}", f"{c:.3f}"]
+                for p, r, x, y, a, b, c in zip(t["point_id"], t["role"], t["x_across_km"], t["y_along_km"],
+                                               t["d_across_m"], t["d_along_m"], t["d_up_m"])], text_columns=2,
+               ident="check-points")
+
+
 def _control_section(page: Page, files: dict, results) -> None:
+    if "check_points" in results.tables:
+        _track_section(page, files, results)
+        return
     pts, ctl, d, sigma, w = _point_rows(results)
     critical = float((results.summary.get("snooping") or {}).get("critical") or 3.0)
     if not ctl.any():
@@ -229,13 +250,15 @@ def _camera_section(page: Page, results) -> None:
     for entry in (results.screening or {}).get("dropped", []):
         dropped[(entry.get("camera_id"), entry.get("name"))] = entry
     for camera_id, cam in results.camera.get("cameras", {}).items():
-        page.heading(f"Camera {camera_id}", 3)
+        page.heading(f"Camera {camera_id} ({cam.get('model', 'frame')})", 3)
         rows = []
-        for key, label in (("focal_mm", "principal distance c [mm]"), ("x0_mm", "x0 [mm]"), ("y0_mm", "y0 [mm]")):
-            e = cam.get(key) or {}
-            rows.append([label, fmt(e.get("value"), ".5f"), fmt(e.get("sigma"), ".5f"),
-                         "estimated" if e.get("estimated") else "fixed"])
-        page.table(["interior orientation", "value", "σ", ""], rows)
+        for key, e in cam.items():
+            if not isinstance(e, dict) or "value" not in e:
+                continue
+            entry = dropped.get((camera_id, key.rsplit("_", 1)[0])) or dropped.get((camera_id, key))
+            state = "estimated" if e.get("estimated") else (f"dropped in round {entry['round']}" if entry else "fixed")
+            rows.append([key, fmt(e.get("value"), ".6g"), fmt(e.get("sigma"), ".3g"), state])
+        page.table(["camera parameter", "value", "σ", ""], rows)
         ap = cam.get("ap", {})
         coefficients = ap.get("coefficients", [])
         if not coefficients:
@@ -271,17 +294,34 @@ def _trajectory_section(page: Page, results) -> None:
 
 
 def _images_section(page: Page, results) -> None:
+    """images.csv: each image's parameters with their sigma (the columns its sensor writes)."""
     im = results.tables["images"]
-    rows = []
-    for i in range(len(im["image_id"])):
-        rows.append([im["image_id"][i], im["strip_id"][i]] +
-                    [fmt(im[k][i], ".3f") for k in ("X0", "Y0", "Z0")] +
-                    [fmt(im[k][i], ".4f") for k in ("omega_deg", "phi_deg", "kappa_deg")] +
-                    [fmt(im[k][i] * 100, ".2f") for k in ("sigma_X0_m", "sigma_Y0_m", "sigma_Z0_m")] +
-                    [fmt(im[k][i] * 3600, ".1f") for k in ("sigma_omega_deg", "sigma_phi_deg", "sigma_kappa_deg")] +
-                    [int(im["n_points"][i])])
-    page.table(["image", "strip", "X0 [m]", "Y0 [m]", "Z0 [m]", "ω [°]", "φ [°]", "κ [°]", "σX0 [cm]", "σY0 [cm]",
-                "σZ0 [cm]", "σω [″]", "σφ [″]", "σκ [″]", "points"], rows, text_columns=2, ident="images")
+    values = [k for k in im if k not in ("image_id", "camera_id", "strip_id", "n_points") and not k.startswith("sigma_")]
+    sigmas = [k for k in im if k.startswith("sigma_")]
+    rows = [[im["image_id"][i], im["strip_id"][i]] + [fmt(im[k][i], ".6g") for k in values] +
+            [fmt(im[k][i], ".3g") for k in sigmas] + [int(im["n_points"][i])] for i in range(len(im["image_id"]))]
+    page.table(["image", "strip"] + values + sigmas + ["points"], rows, text_columns=2, ident="images")
+
+
+def _parameters_section(page: Page, results) -> None:
+    """parameters.csv: the calibration parameters of the sensors with their start values (up to 20 images)."""
+    t = results.tables.get("parameters")
+    if t is None:
+        return
+    owners = set(results.tables["images"]["image_id"])
+    show = np.array([(g != "AP" and (o not in owners or len(owners) <= 20)) for o, g in zip(t["owner"], t["group"])])
+    if not show.any():
+        return
+    page.heading("Calibration parameters", 3)
+    rows = [[t["owner"][i], t["parameter"][i], fmt(t["value"][i], ".6g"), fmt(t["sigma"][i], ".3g"),
+             fmt(t["start"][i], ".6g"), t["unit"][i],
+             fmt(abs(t["value"][i] - t["start"][i]) / t["sigma"][i], ".1f") if t["active"][i] and t["sigma"][i] > 0
+             else "–", "estimated" if t["active"][i] else "held"]
+            for i in np.flatnonzero(show)]
+    page.paragraph("Every image and camera parameter of the sensors (parameters.csv): value, a-posteriori σ, start "
+                   "value and t = |value − start| / σ; a held parameter keeps its start value.", "note")
+    page.table(["owner", "parameter", "value", "σ", "start", "unit", "t", ""], rows, text_columns={0, 1, 5, 7},
+               ident="parameters")
 
 
 def _rejected_section(page: Page, results) -> None:
@@ -353,6 +393,7 @@ def render_report(results, title: str | None = None) -> dict:
     _correlation_section(page, files, results)
     page.heading("Interior orientation and additional parameters", anchor="camera")
     _camera_section(page, results)
+    _parameters_section(page, results)
     page.heading("Exterior orientation", anchor="images")
     _images_section(page, results)
     _trajectory_section(page, results)

@@ -5,7 +5,7 @@ initial values find it here and never branch on the name. Foreign descriptions t
 pushbroom camera are read by :mod:`selfcal.io` (usgscsm ISD, Pleiades DIMAP) and built by the
 modules :mod:`.usgscsm` and :mod:`.dimap`.
 """
-from . import bal, frame, pushbroom
+from . import bal, frame, pushbroom, rpc
 from .base import BoundSensor, Parameter, Sensor
 
 #: sensor name (``model =`` of a camera in block.toml) -> the sensor
@@ -13,6 +13,7 @@ SENSORS: dict[str, Sensor] = {
     "frame": frame.SENSOR,
     "bal": bal.SENSOR,
     "pushbroom": pushbroom.SENSOR,
+    "rpc": rpc.SENSOR,
 }
 
 
@@ -24,4 +25,4 @@ def sensor_of(camera) -> Sensor:
         raise ValueError(f"camera model {camera.model!r} has no sensor (known: {', '.join(SENSORS)})") from None
 
 
-__all__ = ["SENSORS", "Sensor", "BoundSensor", "Parameter", "sensor_of", "frame", "bal", "pushbroom"]
+__all__ = ["SENSORS", "Sensor", "BoundSensor", "Parameter", "sensor_of", "frame", "bal", "pushbroom", "rpc"]

@@ -207,12 +207,14 @@ class BalBound(BoundSensor):
             return project_with_jacobians_indexed(points, image, core, img, cam)
         return project(points, image[img], core[cam])
 
-    def rays(self, context, o, img):
+    def rays(self, context, img, pixel):
         """Rays of the distortion-free camera: P = s (x/f, y/f, -1) in the camera frame."""
         image, core = context
-        f = core[self.problem.image_camera[img], 0]
+        cam = self.problem.image_camera[img]
+        f = core[cam, 0]
         R = matrix_from_rotation_vector(image[img, :3])
-        d = np.column_stack([self.xy[o] / f[:, None], -np.ones(len(o))])
+        w, h = self.format_px[cam].T
+        d = np.column_stack([photo_from_pixel(pixel, w, h, 1.0) / f[:, None], -np.ones(len(img))])
         origin = -np.einsum("nji,nj->ni", R, image[img, 3:])
         direction = np.einsum("nji,nj->ni", R, d)
         return origin, direction / np.linalg.norm(direction, axis=1, keepdims=True)

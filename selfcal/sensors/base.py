@@ -58,6 +58,26 @@ class Parameter:
     unit: str
     group: str
     screened: bool = False
+    key: str | None = None          # its column / key in the results files (default: name and display unit)
+
+    @property
+    def display(self) -> tuple[str, float]:
+        """The unit it is written in, and the factor from code units."""
+        return display_unit(self.unit)
+
+    @property
+    def file_key(self) -> str:
+        """Column of its value in images.csv, key in camera.json: ``omega_deg``, ``focal_mm``, ``k1``."""
+        return self.key or _with_unit(self.name, self.display[0])
+
+    @property
+    def sigma_key(self) -> str:
+        """Column of its a-posteriori sigma: ``sigma_X0_m``, ``sigma_omega_deg``."""
+        return "sigma_" + _with_unit(self.name, self.display[0])
+
+
+def _with_unit(name: str, unit: str) -> str:
+    return f"{name}_{unit.replace('/', '_')}" if unit else name
 
 
 class BoundSensor(ABC):
@@ -94,13 +114,18 @@ class BoundSensor(ABC):
         raise NotImplementedError(f"{type(self).__name__} takes no additional parameters")
 
     @abstractmethod
-    def rays(self, context, o: np.ndarray, img: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Origins (m, 3) and unit directions (m, 3) of the rays of observations ``o`` (object frame)."""
+    def rays(self, context, img: np.ndarray, pixel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Origins (m, 3) and unit directions (m, 3) of the rays of image points (col, row) in images ``img``
+        (object frame; the additional parameters left out)."""
 
     @abstractmethod
     def pixels(self, context, img: np.ndarray, points: np.ndarray) -> np.ndarray:
         """(col, row) (m, 2) of object points in images ``img``, additional parameters excluded (NaN
         where a point does not image)."""
+
+    def ground_sample_distance(self, state) -> float | None:
+        """Mean ground sample distance (m) of its images at ``state``; None where it has no meaning."""
+        return None
 
     def ground(self, context, img: np.ndarray, pixel: np.ndarray, height) -> np.ndarray:
         """Mono restitution: object points (m, 3) where the rays of image points (col, row) in images ``img``
@@ -128,6 +153,9 @@ class Sensor(ABC):
     object_frame: str = "block"
     #: an image with fewer observed points is left out of an adjustment (selfcal.block.prune)
     min_points_per_image: int = 6
+    #: the named parameter sets it offers (seed 001's M1 ... M7), chosen by AdjustOptions.sensor_model; with
+    #: them come seed 001's workflow steps (focal-length calibration, GCP layouts, mono restitution)
+    sensor_models: tuple[str, ...] = ()
 
     @property
     def image_names(self) -> tuple[str, ...]:

@@ -230,10 +230,11 @@ class FrameBound(BoundSensor):
         bx, by = ap.basis(self.xy_mm[o, 0], self.xy_mm[o, 1])
         return self.pixel_size_mm[o][:, None, None] * np.stack([bx, by], axis=1)
 
-    def rays(self, context, o, img):
+    def rays(self, context, img, pixel):
         image, iop, _, _ = context
         cam = self.problem.image_camera[img]
-        return image[img, :3], rays(self.xy_mm[o], image[img], iop[cam])
+        w, h, p = self.format_px[cam].T
+        return image[img, :3], rays(photo_from_pixel(pixel, w, h, p), image[img], iop[cam])
 
     def pixels(self, context, img, points):
         """Eq. (1) with the additional parameters, Delta evaluated at the predicted position (at the
@@ -252,6 +253,18 @@ class FrameBound(BoundSensor):
         w, h, p = self.format_px[cam].T
         return pixel_from_photo(xy, w, h, p)
 
+    def ground_sample_distance(self, state):
+        """Mean over images of pixel size x (Z0 - mean height of the image's points) / c."""
+        problem = self.problem
+        img, pt = problem.obs_image[self.o], problem.obs_point[self.o]
+        images = np.unique(img)
+        heights = np.bincount(img, weights=state.points[pt, 2], minlength=problem.n_images)[images]
+        heights /= np.bincount(img, minlength=problem.n_images)[images]
+        cam = problem.image_camera[images]
+        c = np.array([state.cameras[k][0] for k in cam])
+        p = self.format_px[cam, 2]
+        return float(np.mean(np.abs(p * (state.image[images, 2] - heights) / c)))
+
     def pixel_residuals(self, o, v):
         p = self.pixel_size_mm[o]
         return np.column_stack([v[:, 0] / p, -v[:, 1] / p])
@@ -262,8 +275,9 @@ class FrameSensor(Sensor):
     additional parameters of :mod:`selfcal.ap` per camera; exterior orientation per image."""
 
     name = "frame"
-    image_parameters = tuple(Parameter(n, u, "EOP") for n, u in zip(EOP_NAMES, ("m", "m", "m", "rad", "rad", "rad")))
-    camera_parameters = tuple(Parameter(n, "mm", "IOP") for n in IOP_NAMES)
+    image_parameters = tuple(Parameter(n, u, "EOP", key=n if u == "m" else None)
+                             for n, u in zip(EOP_NAMES, ("m", "m", "m", "rad", "rad", "rad")))
+    camera_parameters = tuple(Parameter(n, "mm", "IOP", key="focal_mm" if n == "c" else None) for n in IOP_NAMES)
     ap_domain = "frame"
     supports_resection = True
 

@@ -24,6 +24,16 @@ DIMAP, 0 for OSSIM .geom keyword lists), set by the reader, and
 
 Ground-to-image is explicit (:meth:`RpcModel.project`); image-to-ground at a given height
 (:meth:`RpcModel.localize`) solves the forward model for (lon, lat) by Newton's method.
+
+In an adjustment (:class:`RpcSensor`, ``model = "rpc"``) each image's RPC carries the error of its
+telemetry, which over the short arc of one scene is an offset and a small drift in image space
+(Grodecki & Dial 2003): an affine correction of the image coordinates,
+
+    row = row_rpc + a0 + a1 row_rpc + a2 col_rpc,
+    col = col_rpc + b0 + b1 row_rpc + b2 col_rpc,
+
+(``bias = "affine"``, 6 parameters per image) or its shift terms only (``bias = "shift"``: a0, b0; the
+others held at zero). a0, b0 are in px, a1, a2, b1, b2 unitless (px per px). Object points are ECEF.
 """
 from __future__ import annotations
 
@@ -31,8 +41,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..geometry.earth import ecef_from_geodetic, geodetic_from_ecef, geodetic_jacobian
+from .base import BoundSensor, Parameter, Sensor
+
 __all__ = ["RPC00B_TERMS", "RpcModel", "rpc00b_terms", "LOCALIZE_TOLERANCE_PX", "LOCALIZE_STEP_TOLERANCE_DEG",
-           "LOCALIZE_MAX_ITERATIONS"]
+           "LOCALIZE_MAX_ITERATIONS", "BIAS_PARAMETERS", "RpcBias", "bias_design", "RpcSensor", "SENSOR"]
 
 #: the 20 monomials of an RPC00B polynomial, in file order (L = longitude, P = latitude, H = height)
 RPC00B_TERMS = ("1", "L", "P", "H", "LP", "LH", "PH", "L2", "P2", "H2",
@@ -207,3 +220,218 @@ def _ratio(terms, d_terms, num, den):
     value = n / d
     grad = np.stack([(dt @ num - value * (dt @ den)) / d for dt in d_terms], -1)
     return value, grad
+
+
+# --- bias compensation (Grodecki & Dial 2003) ------------------------------------------------------
+
+#: parameter names of each kind, in the order of the parameter vector and the covariance
+BIAS_PARAMETERS = {"shift": ("a0", "b0"), "affine": ("a0", "a1", "a2", "b0", "b1", "b2")}
+
+
+def _check_kind(kind: str) -> None:
+    if kind not in BIAS_PARAMETERS:
+        raise ValueError(f"kind must be one of {sorted(BIAS_PARAMETERS)}, not {kind!r}")
+
+
+@dataclass(frozen=True)
+class RpcBias:
+    """Affine image-space correction of an RPC: row = row_rpc + a0 + a1 row_rpc + a2 col_rpc,
+    col = col_rpc + b0 + b1 row_rpc + b2 col_rpc (a0, b0 in px; the others unitless). The shift-only
+    kind has a1 = a2 = b1 = b2 = 0."""
+
+    a: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    b: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    kind: str = "affine"
+
+    def __post_init__(self):
+        _check_kind(self.kind)
+        object.__setattr__(self, "a", tuple(float(v) for v in self.a))
+        object.__setattr__(self, "b", tuple(float(v) for v in self.b))
+        if len(self.a) != 3 or len(self.b) != 3:
+            raise ValueError("a and b are (offset, row term, col term)")
+        if self.kind == "shift" and any(self.a[1:] + self.b[1:]):
+            raise ValueError("a shift-only bias has a1 = a2 = b1 = b2 = 0")
+
+    @classmethod
+    def from_parameters(cls, kind: str, parameters) -> "RpcBias":
+        """The bias of a parameter vector in the order of ``BIAS_PARAMETERS[kind]``."""
+        _check_kind(kind)
+        x = np.asarray(parameters, float).ravel()
+        if len(x) != len(BIAS_PARAMETERS[kind]):
+            raise ValueError(f"{kind} bias has {len(BIAS_PARAMETERS[kind])} parameters, found {len(x)}")
+        if kind == "shift":
+            return cls((x[0], 0.0, 0.0), (x[1], 0.0, 0.0), "shift")
+        return cls(tuple(x[:3]), tuple(x[3:]), "affine")
+
+    @property
+    def parameters(self) -> np.ndarray:
+        """The parameter vector in the order of ``BIAS_PARAMETERS[kind]``."""
+        if self.kind == "shift":
+            return np.array([self.a[0], self.b[0]])
+        return np.array(self.a + self.b)
+
+    def correction(self, row_rpc_px, col_rpc_px):
+        """(d_row, d_col) in px added to the RPC's image coordinates."""
+        row, col = np.asarray(row_rpc_px, float), np.asarray(col_rpc_px, float)
+        return (self.a[0] + self.a[1] * row + self.a[2] * col,
+                self.b[0] + self.b[1] * row + self.b[2] * col)
+
+    def apply(self, row_rpc_px, col_rpc_px):
+        """Corrected (row, col) in px of the RPC's image coordinates."""
+        d_row, d_col = self.correction(row_rpc_px, col_rpc_px)
+        return np.asarray(row_rpc_px, float) + d_row, np.asarray(col_rpc_px, float) + d_col
+
+    def project(self, model: RpcModel, lon_deg, lat_deg, h_m):
+        """Bias-corrected image coordinates (row, col) in px of ground points."""
+        return self.apply(*model.project(lon_deg, lat_deg, h_m))
+
+
+def bias_design(kind: str, row_rpc_px, col_rpc_px) -> np.ndarray:
+    """Design matrix (n, 2, u): the derivatives of (row, col) of each point with respect to the
+    parameters of ``kind`` (order of ``BIAS_PARAMETERS[kind]``)."""
+    _check_kind(kind)
+    row, col = np.broadcast_arrays(np.atleast_1d(np.asarray(row_rpc_px, float)),
+                                   np.atleast_1d(np.asarray(col_rpc_px, float)))
+    one, zero = np.ones_like(row), np.zeros_like(row)
+    if kind == "shift":
+        return np.stack([np.stack([one, zero], -1), np.stack([zero, one], -1)], -2)
+    return np.stack([np.stack([one, row, col, zero, zero, zero], -1),
+                     np.stack([zero, zero, zero, one, row, col], -1)], -2)
+
+
+# --- the sensor contract (selfcal.sensors.base) --------------------------------------------------
+
+_BIAS_UNITS = {"a0": "px", "a1": "", "a2": "", "b0": "px", "b1": "", "b2": ""}
+
+
+class RpcBound(BoundSensor):
+    """RPC images of a problem: observations are the measured (col, row) in px."""
+
+    def __init__(self, problem, block, o, pixel, sigma_px):
+        from ..errors import BlockError
+        self.problem = problem
+        self.o = np.asarray(o)
+        models = block.image_models or {}
+        self.models = {}
+        for i in np.unique(problem.obs_image[self.o]):
+            image_id = block.images.image_id[i]
+            if image_id not in models:
+                raise BlockError("images.csv", f"image '{image_id}' of an rpc camera has no RPC (its sensor_file)",
+                                 int(block.images.line[i]), "sensor_file")
+            self.models[int(i)] = models[image_id]
+        self.pixel = np.zeros((problem.n_image_observations, 2))
+        self.pixel[self.o] = pixel
+        self.sigma = np.repeat(np.asarray(sigma_px, float)[:, None], 2, axis=1)
+
+    def observations(self):
+        return self.pixel[self.o], self.sigma
+
+    def context(self, state, jacobians: bool = True):
+        return state.image
+
+    def _rpc(self, img, points, jacobians):
+        """(col, row) of the RPC (m, 2) and, with ``jacobians``, d(col, row)/d(X, Y, Z) (m, 2, 3)."""
+        lat, lon, h = geodetic_from_ecef(points)
+        out = np.zeros((len(img), 2))
+        J = np.zeros((len(img), 2, 3)) if jacobians else None
+        geodetic = geodetic_jacobian(points) if jacobians else None          # rows lat, lon (rad), h
+        for i in np.unique(img):
+            sel = np.flatnonzero(img == i)
+            model = self.models[int(i)]
+            if jacobians:
+                row, col, J_llh = model.project(np.degrees(lon[sel]), np.degrees(lat[sel]), h[sel], jacobian=True)
+                # (row, col) per (lon_deg, lat_deg, h) -> per (lat_rad, lon_rad, h) -> per ECEF
+                J_rad = np.stack([J_llh[:, :, 1] * np.degrees(1.0), J_llh[:, :, 0] * np.degrees(1.0),
+                                  J_llh[:, :, 2]], -1)
+                J[sel] = (J_rad @ geodetic[sel])[:, ::-1]
+            else:
+                row, col = model.project(np.degrees(lon[sel]), np.degrees(lat[sel]), h[sel])
+            out[sel] = np.column_stack([col, row])
+        return out, J
+
+    def predict(self, context, o, img, cam, points, jacobians):
+        bias = context[img]                                   # a0, a1, a2, b0, b1, b2
+        rpc, J = self._rpc(img, points, jacobians)
+        col, row = rpc[:, 0], rpc[:, 1]
+        f = np.column_stack([col + bias[:, 3] + bias[:, 4] * row + bias[:, 5] * col,
+                             row + bias[:, 0] + bias[:, 1] * row + bias[:, 2] * col])
+        if not jacobians:
+            return f
+        m = len(img)
+        one, zero = np.ones(m), np.zeros(m)
+        j_e = np.stack([np.stack([zero, zero, zero, one, row, col], -1),
+                        np.stack([one, row, col, zero, zero, zero], -1)], 1)
+        # d f / d(col_rpc, row_rpc): [[1 + b2, b1], [a2, 1 + a1]]
+        D = np.stack([np.stack([1.0 + bias[:, 5], bias[:, 4]], -1), np.stack([bias[:, 2], 1.0 + bias[:, 1]], -1)], 1)
+        return f, j_e, D @ J, np.zeros((m, 2, 0))
+
+    def rays(self, context, img, pixel):
+        """The line through the points of the image point at the top and the bottom of the model's height range."""
+        origin, direction = np.zeros((len(img), 3)), np.zeros((len(img), 3))
+        for i in np.unique(img):
+            sel = np.flatnonzero(img == i)
+            model = self.models[int(i)]
+            row, col = self._unbiased(context[int(i)], pixel[sel])
+            ends = []
+            for h in (model.height_off + model.height_scale, model.height_off - model.height_scale):
+                lon, lat = model.localize(row, col, np.full(sel.size, h))
+                ends.append(ecef_from_geodetic(np.radians(lat), np.radians(lon), np.full(sel.size, h)))
+            d = ends[1] - ends[0]
+            origin[sel], direction[sel] = ends[0], d / np.linalg.norm(d, axis=1, keepdims=True)
+        return origin, direction
+
+    @staticmethod
+    def _unbiased(bias, pixel):
+        """(row_rpc, col_rpc) of measured (col, row) under the bias: the affine map inverted."""
+        A = np.array([[1.0 + bias[1], bias[2]], [bias[4], 1.0 + bias[5]]])
+        rhs = np.column_stack([pixel[:, 1] - bias[0], pixel[:, 0] - bias[3]])
+        rc = np.linalg.solve(A, rhs.T).T
+        return rc[:, 0], rc[:, 1]
+
+    def pixels(self, context, img, points):
+        return self.predict(context, None, img, None, points, False)
+
+    def ground(self, context, img, pixel, height):
+        out = np.full((len(img), 3), np.nan)
+        for i in np.unique(img):
+            sel = np.flatnonzero(img == i)
+            model = self.models[int(i)]
+            row, col = self._unbiased(context[int(i)], pixel[sel])
+            h = np.full(sel.size, model.height_off if callable(height) else 0.0) + \
+                (0.0 if callable(height) else np.asarray(height, float))
+            for _ in range(8 if callable(height) else 1):
+                lon, lat = model.localize(row, col, h)
+                if callable(height):
+                    h = np.asarray(height(lat, lon), float)
+            out[sel] = ecef_from_geodetic(np.radians(lat), np.radians(lon), h)
+        return out
+
+    def pixel_residuals(self, o, v):
+        return v
+
+
+class RpcSensor(Sensor):
+    """A vendor RPC per image with an image-space bias (module docstring)."""
+
+    name = "rpc"
+    image_parameters = tuple(Parameter(n, _BIAS_UNITS[n], "EOP", screened=True) for n in BIAS_PARAMETERS["affine"])
+    object_frame = "ECEF"
+    min_points_per_image = 1
+
+    def bind(self, problem, block, o, pixel, sigma_px, options):
+        return RpcBound(problem, block, o, pixel, sigma_px)
+
+    def image_setup(self, block, image_index, options):
+        """The bias kind of the camera frees its terms; ``sigma_bias_px`` weights the shifts by it and the
+        linear terms by it over the larger image size (the same displacement at the far edge)."""
+        free, sigma = [], []
+        for i in image_index:
+            camera = block.cameras[block.images.camera_id[i]]
+            free.append([name in BIAS_PARAMETERS[camera.bias] for name in BIAS_PARAMETERS["affine"]])
+            s = np.nan if camera.sigma_bias_px is None else float(camera.sigma_bias_px)
+            size = float(max(camera.width_px or 1, camera.height_px or 1))
+            sigma.append([s, s / size, s / size, s, s / size, s / size])
+        return np.array(free, bool).reshape(-1, 6), np.array(sigma).reshape(-1, 6)
+
+
+SENSOR = RpcSensor()

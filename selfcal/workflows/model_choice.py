@@ -28,6 +28,7 @@ from typing import Callable
 import numpy as np
 
 from ..adjust import AdjustOptions, adjust
+from ..ap import ap_settings, takes_grid
 from ..adjust.problem import build_problem
 from ..block import Block, prune
 from ..errors import AdjustmentError
@@ -53,7 +54,7 @@ class CandidateScore:
 
     @property
     def label(self) -> str:
-        return f"{self.model}@{self.grid[0]}x{self.grid[1]}" if self.model.startswith("wavelet") else self.model
+        return f"{self.model}@{self.grid[0]}x{self.grid[1]}" if takes_grid(self.model) else self.model
 
 
 @dataclass(frozen=True)
@@ -98,7 +99,7 @@ def choose_ap_model(block: Block, candidates: list[tuple[str, tuple[int, int]]],
     models, sizes = [], []
     for model, grid in candidates:
         try:
-            problem = build_problem(block, model, {"grid": grid} if model.startswith("wavelet") else {})
+            problem = build_problem(block, model, ap_settings(model, grid))
         except (AdjustmentError, ValueError) as exc:
             models.append(exc)
             sizes.append(-1)

@@ -20,14 +20,15 @@ import numpy as np
 from ..adjust import AdjustOptions
 from ..block import Block
 from ..errors import AdjustmentError, UsageError
-from ..sensors.pushbroom import M6_SIGMA, line_images, track_frame
+from ..sensors.pushbroom import M6_SIGMA, line_images
+from ..sensors.pushbroom import track_frame as line_track_frame
 from ..stats.screening import ScreeningOptions
 from ..stats.snooping import SnoopingOptions
 from . import checks
 from .tested import TestedAdjustment, adjust_with_tests, prune_for
 
 __all__ = ["GCP_LAYOUTS", "ATTITUDE_FREE_SIGMA", "PushbroomCase", "image_sets", "choose_gcps", "case_block",
-           "with_focal", "calibrate_focal", "run_case", "needs_focal_step"]
+           "with_focal", "calibrate_focal", "run_case", "needs_focal_step", "track_frame"]
 
 #: where the GCPs of a case are, as (row, col) fractions of the middle image: spread over the scene
 GCP_LAYOUTS = {
@@ -52,6 +53,8 @@ class PushbroomCase:
     checks: checks.CheckPoints | None
     track_axes: np.ndarray           # (3, 3) rows: across, along, up at the middle image's scene centre
     failure: str = ""
+    block: Block | None = None       # the case's block (images, control and check points of the case)
+    track_centre: np.ndarray | None = None   # the middle image's scene centre (ECEF)
 
     @property
     def result(self):
@@ -164,10 +167,13 @@ def calibrate_focal(block: Block, gcps: np.ndarray | None = None, options: Adjus
     return values, sigma
 
 
-def track_axes(block: Block) -> np.ndarray:
-    """Across, along, up at the scene centre of the block's middle image (rows)."""
+def track_frame(block: Block) -> tuple[np.ndarray, np.ndarray]:
+    """The scene centre of the block's middle image (ECEF) and the across, along, up axes there (rows)."""
     middle = len(block.images) // 2
-    return track_frame(line_images(block, image_index=[middle])[0])[1]
+    given = block.image_models or {}
+    image_id = block.images.image_id[middle]
+    image = given[image_id] if image_id in given else line_images(block, image_index=[middle])[0]
+    return line_track_frame(image)
 
 
 def run_case(block: Block, model: str, gcps: np.ndarray, image_set, height=None, label: str = "",
@@ -181,12 +187,13 @@ def run_case(block: Block, model: str, gcps: np.ndarray, image_set, height=None,
     are screened (:func:`~selfcal.workflows.tested.adjust_with_tests`)."""
     mono = len(image_set) == 1
     options = replace(options or AdjustOptions(), sensor_model=model)
-    axes = track_axes(block)
+    centre, axes = track_frame(block)
     name = model.upper() if model.upper() in ("M1", "M2", "M3", "M4", "M5", "M6", "M7") else model
-    base = dict(model=name, n_gcp=len(gcps), images=label, gcps=np.asarray(gcps), track_axes=axes)
     if mono and height is None:
         raise UsageError("a mono adjustment restitutes the check points on the terrain: give a DEM or a height")
     sub = case_block(block, image_set, gcps, mono)
+    base = dict(model=name, n_gcp=len(gcps), images=label, gcps=np.asarray(gcps), track_axes=axes, block=sub,
+                track_centre=centre)
     try:
         tested = adjust_with_tests(sub, options, snooping, screening, progress=progress, report=report,
                                    variance=variance)

