@@ -167,7 +167,7 @@ class _Parser:
             unit = self.take()[1][1:-1].strip()
         return text, unit
 
-    def array(self, key: str, closing: str):
+    def array(self, key: str, closing: str, key_line: int):
         values, units = [], []
         if self.peek(True)[1] == closing:
             self.take(True)
@@ -181,6 +181,8 @@ class _Parser:
                 kind, text, line = self.take(skip_newlines=True)
                 if text == closing and kind == "punct":
                     break
+                if kind == "eof":
+                    self.fail(f"the array of '{key}' is never closed with '{closing}'", key_line, key)
                 if text != ",":
                     self.fail(f"keyword '{key}': expected ',' or '{closing}' in the array, found {text!r}", line, key)
         if self.peek()[0] == "unit":
@@ -221,7 +223,7 @@ class _Parser:
             nxt = self.peek(True)
             if nxt[0] == "punct" and nxt[1] in "({":
                 self.take(True)
-                values, units = self.array(text, ")" if nxt[1] == "(" else "}")
+                values, units = self.array(text, ")" if nxt[1] == "(" else "}", line)
                 keyword = PvlKeyword(text, values, units, line, is_array=True)
             else:
                 v, u = self.scalar(text)
