@@ -425,7 +425,8 @@ def match_serials(network: ControlNetwork, labels) -> dict[str, CubeLabel]:
     return {s: by_serial[s] for s in sorted(used)}
 
 
-def read_image_folder(folder: str | os.PathLike, sensor_extensions=(".isd", ".json")) -> dict[str, tuple[CubeLabel, str]]:
+def read_image_folder(folder: str | os.PathLike, sensor_extensions=(".isd", ".json")
+                      ) -> dict[str, tuple[CubeLabel, str]]:
     """Serial number -> (label, sensor file) of the ISIS cube labels in a folder: every ``*.pvl`` with an
     ``IsisCube`` object (control networks and PDS labels beside them are passed over), each with the file
     of the same name and one of ``sensor_extensions`` (the usgscsm/ALE ISD). A label without one is an
@@ -441,7 +442,8 @@ def read_image_folder(folder: str | os.PathLike, sensor_extensions=(".isd", ".js
         stem = os.path.splitext(path)[0]
         sensor = next((stem + ext for ext in sensor_extensions if os.path.isfile(stem + ext)), None)
         if sensor is None:
-            raise BlockError(path, f"no sensor file beside the label ({' or '.join(os.path.basename(stem) + e for e in sensor_extensions)})")
+            names = " or ".join(os.path.basename(stem) + ext for ext in sensor_extensions)
+            raise BlockError(path, f"no sensor file beside the label ({names})")
         if label.serial_number in out:
             raise BlockError(path, f"serial number '{label.serial_number}' is also that of "
                                    f"{out[label.serial_number][0].path}")

@@ -109,7 +109,8 @@ def _rotation(isd: dict, name: str, path: str):
     constant = _vector(section.get("constant_rotation", np.eye(3).ravel().tolist()), 9, path,
                        f"{name}.constant_rotation").reshape(3, 3)
     if np.abs(constant @ constant.T - np.eye(3)).max() > 1e-6:
-        raise BlockError(path, f"'{name}.constant_rotation' is not a rotation matrix", column=f"{name}.constant_rotation")
+        raise BlockError(path, f"'{name}.constant_rotation' is not a rotation matrix",
+                         column=f"{name}.constant_rotation")
     return _times(section, len(q), path, name), q, constant
 
 
