@@ -1,0 +1,323 @@
+"""The Apollo Metric frame camera of a usgscsm/ALE frame ISD, as ISIS's ``ApolloMetricCamera`` computes it,
+and the same image as an ordinary selfcal frame image.
+
+The chain from a cube pixel to the body-fixed frame (ISIS ``Camera``: AlphaCube -> ``CameraDetectorMap``
+-> ``CameraFocalPlaneMap`` -> ``ApolloMetricDistortionMap`` -> ``CameraGroundMap``):
+
+1. **pixel -> detector**: selfcal's (col, row) (corner origin) is ISIS's cube (sample, line) = (col + 0.5,
+   row + 0.5); the AlphaCube puts it in the scanned frame, alpha = slope (beta - 0.5) + alpha_start with
+   slope = (alpha_end - alpha_start) / beta_count (4 for the Apollo cubes, 22900 -> 5725), so detector
+   sample = slope col + alpha_start (no summing, first detector 1, as ISIS's default detector map).
+2. **detector -> focal plane** (distorted, mm): centred on ISIS's detector origin (AlphaSamples / 2,
+   AlphaLines / 2) = (11450, 11450) - half a scan pixel from the geometric centre 11450.5, ISIS's choice
+   kept - then x = TRANSX · (1, s, l), y = TRANSY · (1, s, l). For Apollo x = -0.005 s, y = +0.005 l: the
+   focal-plane x grows to the *left* of the image and y *down* it (the photograph is looked at through the
+   film). The inverse uses ITRANSS / ITRANSL, as ISIS does.
+3. **distortion** (``ApolloMetricDistortionMap::SetFocalPlane``): relative to the principal point
+   (x, y) = (xd - xp, yd - yp), r² = x² + y², the undistorted point is
+   u = x (1 + k1 r² + k2 r⁴ + k3 r⁶) - (j1 r² + j2 r⁴) sin t0, v = y (1 + ...) + (j1 r² + j2 r⁴) cos t0
+   (radial ``OD_K``, decentering ``DECENTER`` = (j1, j2, t0 in radians)). The undistorted coordinates are
+   *relative to the principal point*. Distorting is ISIS's fixed-point iteration on the same formula,
+   iterated here to 1e-12 mm instead of ISIS's 1e-6 mm (ISIS stops up to 5e-5 cube pixels early).
+4. **camera -> body**: ISIS's Apollo distortion map flips the focal plane's z: the look vector in the
+   camera frame is (u, v, -f) (``CameraDistortionMap(parent, -1)``), and the camera's +z (the CK frame
+   -915240) points away from the Moon (checked: cos = -1.0000 with the nadir for images 1-5). The camera
+   frame is C = Rc · Rj: Rj = J2000 -> camera from ``instrument_pointing`` (``pointing_constant`` ·
+   R(q)), and body-fixed -> camera is C · B⁻¹ with B = J2000 -> body from ``body_rotation``
+   (``body_constant`` · R(q)); R(q) of a scalar-first quaternion is the active Hamilton matrix
+   (:func:`~selfcal.geometry.rotation.matrix_from_quaternion`, as ``sensors.usgscsm`` documents for the line
+   scanner). The sensor position is the J2000 ``instrument_position`` (km -> m; relative to the body)
+   turned by B.
+5. **time**: the Apollo ISDs hold one sample of each (position, pointing, body rotation), which ISIS and
+   usgscsm's frame model use as they are (at any time). With several samples the position is
+   Hermite-interpolated and the rotations slerped at ``center_ephemeris_time``.
+
+usgscsm's own frame model (``UsgsAstroFrameSensorModel``) would not reproduce ISIS on these ISDs: it looks
+along (x, y, +f) - away from the Moon with this CK frame -, reads the distortion from ``optical_distortion``
+(``radial``, all zero here) and needs a ``detector_center`` (null here), and knows nothing of the 4x reduced
+cube. So this module follows ISIS, the peer of the jigsaw results.
+
+**As a selfcal frame image** (:func:`frame_form`): selfcal's photo coordinates (DESIGN.md §2) are
+x = (col - W/2) p, y = (H/2 - row) p with the cube's size W x H and its pixel p = 0.02 mm (0.005 mm x 4);
+they relate to ISIS's distorted focal plane by a rotation J (photo -> focal, here J = -I: the 180° turn
+between "x left, y down" and "x right, y up") and an offset b (the focal-plane point of the photo origin;
+(-0.0025, +0.0025) mm, ISIS's half-pixel detector origin): photo = Jᵀ (focal - b). With
+M = diag(Jᵀ, 1) · (body -> camera), c = f and (x0, y0) = Jᵀ (pp - b), selfcal's collinearity gives
+``frame.project(X) = (x0, y0) + Jᵀ (u, v)``: ISIS's undistorted focal-plane point, in selfcal's photo axes.
+The camera's distortion is then Δ = observed - ideal = Jᵀ (focal_distorted - pp - (u, v)) in photo mm
+(:func:`ideal_photo_from_pixel` gives the ideal point of a measured pixel).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..geometry.earth import intersect_ellipsoid
+from ..geometry.rotation import matrix_from_quaternion, opk_from_matrix, slerp
+from .usgscsm import hermite
+
+__all__ = ["FrameForm", "sensor_position_m", "body_from_j2000", "camera_from_j2000", "camera_from_body",
+           "isis_angles_deg", "detector_from_pixel", "pixel_from_detector", "focal_plane_from_pixel",
+           "pixel_from_focal_plane", "undistort", "distort", "ground_to_focal_plane", "ground_to_image",
+           "look_directions", "image_to_ground", "frame_form", "photo_from_focal_plane", "focal_plane_from_photo",
+           "ideal_photo_from_pixel", "isis_residuals_px", "DISTORT_TOLERANCE_MM"]
+
+#: the distorting iteration stops when a step moves the point less than this (ISIS: 1e-6 mm)
+DISTORT_TOLERANCE_MM = 1e-12
+_MAX_ITERATIONS = 50
+
+
+# --- position and rotations ------------------------------------------------------------------------
+
+def _rotation_at(times, quaternions, constant, t) -> np.ndarray:
+    q = quaternions[0] if len(quaternions) == 1 else slerp(times, quaternions, t)[0]
+    return constant @ matrix_from_quaternion(q)
+
+
+def body_from_j2000(isd) -> np.ndarray:
+    """B (3, 3): J2000 vectors -> body-fixed vectors at the image time."""
+    return _rotation_at(isd.body_times_s, isd.body_quaternions, isd.body_constant, isd.center_time_s)
+
+
+def camera_from_j2000(isd) -> np.ndarray:
+    """C (3, 3): J2000 vectors -> camera-frame vectors (ISIS's instrument rotation, the CK C-matrix)."""
+    return _rotation_at(isd.pointing_times_s, isd.pointing_quaternions, isd.pointing_constant, isd.center_time_s)
+
+
+def camera_from_body(isd) -> np.ndarray:
+    """R (3, 3): body-fixed vectors -> camera-frame vectors, R = C Bᵀ."""
+    return camera_from_j2000(isd) @ body_from_j2000(isd).T
+
+
+def sensor_position_m(isd) -> np.ndarray:
+    """Perspective centre (3,) in the body-fixed frame, metres."""
+    if len(isd.positions_m) == 1:
+        p = isd.positions_m[0]
+    else:
+        p = hermite(isd.position_times_s, isd.positions_m, isd.velocities_m_s, isd.center_time_s)[0][0]
+    return body_from_j2000(isd) @ p
+
+
+def isis_angles_deg(isd) -> np.ndarray:
+    """(RA, DEC, TWIST) in degrees as jigsaw reports a frame camera's pointing: the z-x-z Euler angles of
+    C (J2000 -> camera), C = R3(TWIST) R1(DEC) R3(RA) with passive elementary rotations (SPICE ``m2eul``
+    with axes 3, 1, 3). RA - 90° and 90° - DEC are right ascension and declination of the camera's +z."""
+    C = camera_from_j2000(isd)
+    dec = np.arccos(np.clip(C[2, 2], -1.0, 1.0))
+    ra = np.arctan2(C[2, 0], -C[2, 1])
+    twist = np.arctan2(C[0, 2], C[1, 2])
+    return np.degrees([ra, dec, twist])
+
+
+# --- pixel <-> detector <-> focal plane ------------------------------------------------------------
+
+def _slopes(isd) -> tuple[float, float]:
+    a = isd.alpha_cube
+    return ((a.alpha_ending_sample - a.alpha_starting_sample) / a.beta_samples,
+            (a.alpha_ending_line - a.alpha_starting_line) / a.beta_lines)
+
+
+def detector_from_pixel(isd, col, row) -> tuple[np.ndarray, np.ndarray]:
+    """ISIS detector (sample, line) of the full frame (1-based, pixel centres) of selfcal cube pixels."""
+    ss, sl = _slopes(isd)
+    a = isd.alpha_cube
+    return (ss * np.asarray(col, float) + a.alpha_starting_sample,
+            sl * np.asarray(row, float) + a.alpha_starting_line)
+
+
+def pixel_from_detector(isd, sample, line) -> tuple[np.ndarray, np.ndarray]:
+    """Inverse of :func:`detector_from_pixel`."""
+    ss, sl = _slopes(isd)
+    a = isd.alpha_cube
+    return ((np.asarray(sample, float) - a.alpha_starting_sample) / ss,
+            (np.asarray(line, float) - a.alpha_starting_line) / sl)
+
+
+def focal_plane_from_pixel(isd, col, row) -> tuple[np.ndarray, np.ndarray]:
+    """ISIS's distorted focal-plane (x, y), mm, of selfcal cube pixels (TRANSX / TRANSY)."""
+    s, l = detector_from_pixel(isd, col, row)
+    cs, cl = s - isd.alpha_cube.alpha_samples / 2.0, l - isd.alpha_cube.alpha_lines / 2.0
+    tx, ty = isd.trans_x, isd.trans_y
+    return tx[0] + tx[1] * cs + tx[2] * cl, ty[0] + ty[1] * cs + ty[2] * cl
+
+
+def pixel_from_focal_plane(isd, x_mm, y_mm) -> tuple[np.ndarray, np.ndarray]:
+    """selfcal cube pixels (col, row) of distorted focal-plane points (ITRANSS / ITRANSL, as ISIS)."""
+    x, y = np.asarray(x_mm, float), np.asarray(y_mm, float)
+    i_s, i_l = isd.itrans_s, isd.itrans_l
+    cs, cl = i_s[0] + i_s[1] * x + i_s[2] * y, i_l[0] + i_l[1] * x + i_l[2] * y
+    return pixel_from_detector(isd, cs + isd.alpha_cube.alpha_samples / 2.0, cl + isd.alpha_cube.alpha_lines / 2.0)
+
+
+# --- distortion ---------------------------------------------------------------------------------------
+
+def _distortion(isd, x, y):
+    """The radial factor minus one and the decentering offsets at centred focal-plane points (x, y)."""
+    k1, k2, k3 = isd.radial_k
+    j1, j2, t0 = isd.decentering
+    rr = x * x + y * y
+    radial = rr * (k1 + rr * (k2 + rr * k3))
+    dt = rr * (j1 + rr * j2)
+    return radial, -dt * np.sin(t0), dt * np.cos(t0)
+
+
+def undistort(isd, x_mm, y_mm) -> tuple[np.ndarray, np.ndarray]:
+    """Undistorted focal-plane (u, v), mm *relative to the principal point*, of distorted (x, y) mm
+    (ISIS ``ApolloMetricDistortionMap::SetFocalPlane``)."""
+    x = np.asarray(x_mm, float) - isd.principal_point_mm[0]
+    y = np.asarray(y_mm, float) - isd.principal_point_mm[1]
+    radial, ex, ey = _distortion(isd, x, y)
+    return x * (1.0 + radial) + ex, y * (1.0 + radial) + ey
+
+
+def distort(isd, u_mm, v_mm, tolerance_mm: float = DISTORT_TOLERANCE_MM) -> tuple[np.ndarray, np.ndarray]:
+    """Distorted focal-plane (x, y), mm, of undistorted (u, v) relative to the principal point: the inverse
+    of :func:`undistort` by ISIS's fixed-point iteration (``SetUndistortedFocalPlane``), to ``tolerance_mm``;
+    NaN where it does not converge in 50 steps (ISIS fails there too)."""
+    u, v = np.broadcast_arrays(np.asarray(u_mm, float), np.asarray(v_mm, float))
+    x, y = u.copy(), v.copy()
+    done = np.zeros(u.shape, bool)
+    for _ in range(_MAX_ITERATIONS):
+        radial, ex, ey = _distortion(isd, x, y)
+        x_new, y_new = u - (x * radial + ex), v - (y * radial + ey)
+        step = np.maximum(np.abs(x_new - x), np.abs(y_new - y))
+        x, y = np.where(done, x, x_new), np.where(done, y, y_new)
+        done |= step <= tolerance_mm
+        if done.all():
+            break
+    x, y = np.where(done, x, np.nan), np.where(done, y, np.nan)
+    return x + isd.principal_point_mm[0], y + isd.principal_point_mm[1]
+
+
+# --- ground <-> image ------------------------------------------------------------------------------
+
+def ground_to_focal_plane(isd, points_m) -> tuple[np.ndarray, np.ndarray]:
+    """ISIS's undistorted focal-plane (u, v), mm relative to the principal point, of body-fixed points (n, 3)
+    (``CameraGroundMap::GetXY``: the look vector in the camera frame scaled to z = -f). NaN for points behind
+    the camera."""
+    d = np.atleast_2d(np.asarray(points_m, float)) - sensor_position_m(isd)
+    look = d @ camera_from_body(isd).T
+    f = isd.focal_length_mm
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u, v = -f * look[:, 0] / look[:, 2], -f * look[:, 1] / look[:, 2]
+    behind = look[:, 2] >= 0
+    return np.where(behind, np.nan, u), np.where(behind, np.nan, v)
+
+
+def ground_to_image(isd, points_m) -> tuple[np.ndarray, np.ndarray]:
+    """selfcal cube pixels (col, row) of body-fixed points (n, 3); NaN behind the camera."""
+    u, v = ground_to_focal_plane(isd, points_m)
+    return pixel_from_focal_plane(isd, *distort(isd, u, v))
+
+
+def look_directions(isd, col, row) -> np.ndarray:
+    """Unit look vectors (n, 3) in the body-fixed frame of selfcal cube pixels."""
+    u, v = undistort(isd, *focal_plane_from_pixel(isd, np.atleast_1d(col), np.atleast_1d(row)))
+    look = np.stack([u, v, np.full_like(u, -isd.focal_length_mm)], axis=-1)
+    d = look @ camera_from_body(isd)                   # Rᵀ look, row-wise
+    return d / np.linalg.norm(d, axis=-1, keepdims=True)
+
+
+def image_to_ground(isd, col, row, radius_m=None) -> np.ndarray:
+    """Body-fixed points (n, 3) where the rays of selfcal cube pixels first meet a sphere of ``radius_m``
+    about the body's centre (a number or one per pixel), or without it the ISD's ellipsoid (the Moon: a
+    sphere of 1737.4 km). NaN where a ray misses."""
+    d = look_directions(isd, col, row)
+    S = np.broadcast_to(sensor_position_m(isd), d.shape)
+    if radius_m is None:
+        return intersect_ellipsoid(S, d, isd.semi_major_m, isd.semi_minor_m)
+    r = np.broadcast_to(np.asarray(radius_m, float), (len(d),))
+    out = np.empty_like(d)
+    for value in np.unique(r):                          # intersect_ellipsoid takes one pair of radii
+        sel = r == value
+        out[sel] = intersect_ellipsoid(S[sel], d[sel], value, value)
+    return out
+
+
+# --- the image as a selfcal frame image ---------------------------------------------------------------
+
+@dataclass(frozen=True)
+class FrameForm:
+    """A frame ISD as a selfcal frame image (module docstring): exterior orientation in the body-fixed
+    frame, interior orientation and the photo axes' relation to ISIS's focal plane."""
+
+    position_m: np.ndarray                  # X0, Y0, Z0 body-fixed
+    opk_rad: np.ndarray                     # omega, phi, kappa of M = R3(kappa) R2(phi) R1(omega)
+    rotation: np.ndarray                    # M (3, 3): body-fixed -> selfcal image axes
+    c_mm: float
+    x0_mm: float
+    y0_mm: float
+    width_px: int                           # of the cube
+    height_px: int
+    pixel_size_mm: float                    # of a cube pixel in the focal plane
+    focal_from_photo: np.ndarray            # J (2, 2): ISIS focal-plane mm per photo mm (a rotation)
+    focal_offset_mm: np.ndarray             # b (2,): ISIS focal-plane point of the photo origin
+
+    @property
+    def eop(self) -> np.ndarray:
+        """(X0, Y0, Z0, omega, phi, kappa) as selfcal's frame functions take them."""
+        return np.concatenate([self.position_m, self.opk_rad])
+
+    @property
+    def iop(self) -> np.ndarray:
+        """(c, x0, y0) in mm."""
+        return np.array([self.c_mm, self.x0_mm, self.y0_mm])
+
+
+def frame_form(isd) -> FrameForm:
+    """The image as a selfcal frame image: ``frame.project(X, eop, iop)`` is ISIS's undistorted focal-plane
+    point of X in selfcal's photo axes, (x0, y0) + Jᵀ (u, v). Raises ValueError when the ISD's TRANSX/
+    TRANSY mirror the image (photo axes then cannot be reached by a rotation)."""
+    ss, sl = _slopes(isd)
+    T = np.array([[isd.trans_x[1], isd.trans_x[2]], [isd.trans_y[1], isd.trans_y[2]]]) * np.array([ss, sl])
+    pixel = float(np.sqrt(abs(np.linalg.det(T))))       # focal-plane mm per cube pixel
+    J = T @ np.diag([1.0 / pixel, -1.0 / pixel])        # d(focal)/d(photo): photo x = col p, y = -row p
+    if np.abs(J.T @ J - np.eye(2)).max() > 1e-9 or np.linalg.det(J) < 0:
+        raise ValueError(f"{isd.path}: TRANSX/TRANSY {isd.trans_x}, {isd.trans_y} are no rotation of selfcal's "
+                         "photo axes (a mirrored or sheared focal plane)")
+    W, H = isd.image_samples, isd.image_lines
+    b = np.array(focal_plane_from_pixel(isd, W / 2.0, H / 2.0), float)
+    Q = np.eye(3)
+    Q[:2, :2] = J.T
+    M = Q @ camera_from_body(isd)
+    x0, y0 = J.T @ (np.asarray(isd.principal_point_mm, float) - b)
+    return FrameForm(position_m=sensor_position_m(isd), opk_rad=opk_from_matrix(M), rotation=M,
+                     c_mm=float(isd.focal_length_mm), x0_mm=float(x0), y0_mm=float(y0), width_px=W, height_px=H,
+                     pixel_size_mm=pixel, focal_from_photo=J, focal_offset_mm=b)
+
+
+def photo_from_focal_plane(form: FrameForm, x_mm, y_mm) -> tuple[np.ndarray, np.ndarray]:
+    """selfcal photo coordinates (mm) of ISIS focal-plane points (absolute, not relative to the principal
+    point): Jᵀ (focal - b)."""
+    dx = np.asarray(x_mm, float) - form.focal_offset_mm[0]
+    dy = np.asarray(y_mm, float) - form.focal_offset_mm[1]
+    J = form.focal_from_photo
+    return J[0, 0] * dx + J[1, 0] * dy, J[0, 1] * dx + J[1, 1] * dy
+
+
+def focal_plane_from_photo(form: FrameForm, x_mm, y_mm) -> tuple[np.ndarray, np.ndarray]:
+    """Inverse of :func:`photo_from_focal_plane`: b + J photo."""
+    x, y = np.asarray(x_mm, float), np.asarray(y_mm, float)
+    J = form.focal_from_photo
+    return form.focal_offset_mm[0] + J[0, 0] * x + J[0, 1] * y, form.focal_offset_mm[1] + J[1, 0] * x + J[1, 1] * y
+
+
+def ideal_photo_from_pixel(isd, form: FrameForm, col, row) -> tuple[np.ndarray, np.ndarray]:
+    """The ideal (undistorted) photo coordinates (mm) of measured cube pixels: what ``frame.project`` of the
+    imaged point gives with :func:`frame_form`'s orientation. The observed photo coordinates are selfcal's
+    x = (col - W/2) p, y = (H/2 - row) p; their difference is the camera's Δ (observed - ideal)."""
+    u, v = undistort(isd, *focal_plane_from_pixel(isd, col, row))
+    pp = np.asarray(isd.principal_point_mm, float)
+    return photo_from_focal_plane(form, u + pp[0], v + pp[1])
+
+
+def isis_residuals_px(isd, col, row, points_m) -> tuple[np.ndarray, np.ndarray]:
+    """(sample, line) residuals, measured - computed, of measured cube pixels against body-fixed points as
+    ISIS jigsaw reports them (``ControlPoint::ComputeResiduals`` for framing cameras): both undistorted
+    focal-plane points taken to the detector by ITRANSS/ITRANSL, so the unit is a *detector* pixel of the
+    full scanned frame (0.005 mm for Apollo Metric, 4 cube pixels), not a cube pixel."""
+    um, vm = undistort(isd, *focal_plane_from_pixel(isd, col, row))
+    uc, vc = ground_to_focal_plane(isd, points_m)
+    du, dv = um - uc, vm - vc
+    return isd.itrans_s[1] * du + isd.itrans_s[2] * dv, isd.itrans_l[1] * du + isd.itrans_l[2] * dv
