@@ -313,7 +313,8 @@ def test_rpc_txt_in_geoeye_layout_is_read(tmp_path):
 
 def test_geotiff_rpc_tags_round_trip_and_gdal_pixel_convention(tmp_path):
     """A GeoTIFF written by rasterio with rpcs= and read back: every number to 15 significant digits (GDAL
-    hands the tag's doubles on as "%.15g" text, RPCInfoV2ToMD; measured 2.7e-15 relative); and GDAL's own RPC transformer (corner-based pixels, which are selfcal's) gives our
+    hands the tag's doubles on as "%.15g" text, RPCInfoV2ToMD; measured 2.7e-15 relative); and GDAL's own RPC
+    transformer (corner-based pixels, which are selfcal's) gives our
     (row, col) to 1e-9 px: pixel_origin 0 is GDAL's convention."""
     from rasterio.transform import RPCTransformer
     model = _random_model(seed=7)
@@ -418,3 +419,26 @@ def test_tlc_list_with_two_line_rates():
     r, c = ground_to_image(cam, S + 6e5 * d)
     np.testing.assert_allclose(r, rows, atol=1e-6)
     np.testing.assert_allclose(c, 17000.5, atol=1e-6)
+
+
+def test_camera_attitude_and_perspective_centre_enter_once():
+    """GEO/CAMERA_ATTITUDE (camera -> body) and PERSPECTIVE_CENTER (body frame): a file whose body quaternions
+    are turned by QCS^-1 and whose camera is mounted with QCS sees exactly what the original sees; a
+    perspective centre offset c moves every camera position by R(q) c."""
+    from dataclasses import replace
+    from selfcal.geometry.rotation import matrix_from_quaternion, quaternion_from_matrix
+    s = sensor("dg_example1.xml")
+    qcs = np.array([0.02, -0.01, 0.03, 1.0])
+    qcs /= np.linalg.norm(qcs)
+    R_qcs = matrix_from_quaternion(qcs, scalar_first=False)
+    R_body = matrix_from_quaternion(s.quaternions, scalar_first=False) @ R_qcs.T
+    mounted = replace(s, camera_attitude=tuple(qcs), quaternions=quaternion_from_matrix(R_body, scalar_first=False),
+                      perspective_center_m=(1.0, -2.0, 0.5))
+    rows, cols = np.array([0.5, 12000.5, 23700.5]), np.array([0.5, 17000.5, 35000.5])
+    S0, d0 = line_of_sight(image("dg_example1.xml"), rows, cols)
+    S1, d1 = line_of_sight(line_image_from_dg(mounted), rows, cols)
+    np.testing.assert_allclose(d1, d0, atol=1e-12)
+    plain = image("dg_example1.xml", ())
+    R_camera = plain.trajectory.attitude.rotation(plain.time_of_row(rows))        # camera -> ECF, uncorrected
+    expected = np.einsum("nij,j->ni", R_camera @ R_qcs.T, np.array([1.0, -2.0, 0.5]))
+    np.testing.assert_allclose(S1 - S0, expected, atol=1e-6)

@@ -112,7 +112,8 @@ def test_look_angles_reproduced_and_round_trip():
     assert misfit < 1e-10
     img = line_image_from_spot5(s)
     assert img.camera.view_pitch_deg == pytest.approx(np.degrees(np.arctan(np.tan(s.psi_x_rad[150]))), abs=1e-3)
-    row, col = (a.ravel() for a in np.meshgrid(np.linspace(0.5, s.rows - 0.5, 25), np.linspace(0.5, s.columns - 0.5, 7)))
+    row, col = (a.ravel() for a in np.meshgrid(np.linspace(0.5, s.rows - 0.5, 25),
+                                                np.linspace(0.5, s.columns - 0.5, 7)))
     X = image_to_ground(img, row, col, 500.0)
     r, c = ground_to_image(img, X)
     assert np.max(np.abs(r - row)) < 1e-6 and np.max(np.abs(c - col)) < 1e-6

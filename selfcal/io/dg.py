@@ -29,7 +29,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import BlockError
 from .xmldoc import XmlDocument, iso_utc, seconds_between
 
 __all__ = ["DgSensor", "read_dg", "is_dg_xml"]

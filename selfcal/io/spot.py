@@ -111,7 +111,8 @@ def read_spot5(path: str | os.PathLike) -> Spot5Sensor:
     stamp = doc.node(configuration, "Time_Stamp")
     period = doc.number(stamp, "LINE_PERIOD")
     if period <= 0:
-        raise doc.error(doc.node(stamp, "LINE_PERIOD"), "LINE_PERIOD must be positive", doc.name(stamp) + "/LINE_PERIOD")
+        raise doc.error(doc.node(stamp, "LINE_PERIOD"), "LINE_PERIOD must be positive",
+                        doc.name(stamp) + "/LINE_PERIOD")
     looks = doc.node(configuration, "Instrument_Look_Angles_List/Instrument_Look_Angles/Look_Angles_List")
     table = np.array([[doc.number(item, key) for key in ("DETECTOR_ID", "PSI_X", "PSI_Y")]
                       for item in doc.children(looks, "Look_Angles")])

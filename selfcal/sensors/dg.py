@@ -120,12 +120,10 @@ def _same_hemisphere(q: np.ndarray) -> np.ndarray:
 
 def _build(sensor, image_id: str, quaternions: LagrangeSeries, line_times: LineTimes, camera: LineCamera,
            position: LagrangeSeries, velocity: LagrangeSeries) -> LineImage:
-    """The LineImage of camera -> ECF quaternion samples (x, y, z, w)."""
-    R_cam_T = matrix_from_quaternion(np.asarray(sensor.camera_attitude, float), scalar_first=False) \
-        @ R_CAMERA_FROM_TELESCOPE
+    """The LineImage of camera -> ECF quaternion samples (x, y, z, w; the camera attitude QCS included)."""
 
     def rotation(t):                      # telescope -> ECF at true times t
-        return matrix_from_quaternion(quaternions(t), scalar_first=False) @ R_cam_T
+        return matrix_from_quaternion(quaternions(t), scalar_first=False) @ R_CAMERA_FROM_TELESCOPE
 
     tau0 = float(line_times.time(0.0))
     if line_times.linear:
