@@ -17,6 +17,9 @@ Formats, found by :func:`read_rpc` from the content:
   ``height_off:``, the same ``_scale`` keys, ``line_num_coeff_00`` .. ``_19``, ``line_den_coeff_*``,
   ``samp_num_coeff_*``, ``samp_den_coeff_*``; ``polynomial_format`` must be ``B`` (RPC00B) when
   given. OSSIM's image coordinates are 0-based at pixel centres: ``pixel_origin`` 0.
+* **GDAL's formats** (:mod:`selfcal.io.rpc_gdal`): a DigitalGlobe / GDAL ``.RPB``, the ``RPB`` block of a
+  DigitalGlobe / Maxar XML (root ``isd``), a ``_RPC.TXT`` and a GeoTIFF's RPC tags (through rasterio). All four
+  are 0-based at pixel centres: ``pixel_origin`` 0.
 
 Errors are :class:`~selfcal.errors.BlockError` naming the file and the missing or invalid key.
 """
@@ -42,18 +45,29 @@ _NORMALISATION = ("line_off", "line_scale", "samp_off", "samp_scale", "lat_off",
 
 
 def read_rpc(path: str | os.PathLike) -> RpcModel:
-    """The RPC of a DIMAP XML file (v2 ``RPC_*.XML`` or v1 ``PHRDIMAP_*.XML``) or an OSSIM ``.geom``."""
+    """The RPC of a DIMAP XML file (v2 ``RPC_*.XML`` or v1 ``PHRDIMAP_*.XML``), an OSSIM ``.geom``, a ``.RPB``,
+    a DigitalGlobe XML's RPB block, a ``_RPC.TXT`` or a GeoTIFF's RPC tags, found from the content."""
+    from . import rpc_gdal
     path = str(path)
     try:
         with open(path, "rb") as handle:
             head = handle.read(512).removeprefix(b"\xef\xbb\xbf").lstrip()
     except OSError as exc:
         raise BlockError(path, f"cannot read the RPC file: {exc.strerror}") from None
+    if rpc_gdal.is_tiff(head):
+        return rpc_gdal.read_geotiff_rpc(path)
     if head.startswith(b"<"):
+        if b"<isd>" in head or b"<isd " in head:
+            return rpc_gdal.read_dg_xml_rpc(path)
         return read_dimap_rpc(path)
+    if rpc_gdal.is_rpb(path, head):
+        return rpc_gdal.read_rpb(path)
+    if rpc_gdal.is_rpc_txt(path, head):
+        return rpc_gdal.read_rpc_txt(path)
     if path.lower().endswith(".geom") or b":" in head.split(b"\n", 1)[0]:
         return read_ossim_geom_rpc(path)
-    raise BlockError(path, "not an RPC file: neither DIMAP XML nor an OSSIM .geom keyword list")
+    raise BlockError(path, "not an RPC file: neither DIMAP XML, DigitalGlobe XML, .RPB, _RPC.TXT, GeoTIFF nor an "
+                           "OSSIM .geom keyword list")
 
 
 # --- DIMAP -----------------------------------------------------------------------------------------
