@@ -40,6 +40,7 @@ bench: install
 	$(PY) benchmarks/bench_engine.py
 	$(PY) benchmarks/bench_scaling.py
 	$(PY) benchmarks/bench_workflow.py
+	$(PY) benchmarks/bench_pushbroom.py
 	$(PY) benchmarks/study_trajectory.py
 
 clean:

@@ -8,6 +8,7 @@ x_o = y_o x z_o (about along track).
 """
 from __future__ import annotations
 
+import functools
 from datetime import datetime, timezone
 
 import erfa
@@ -33,13 +34,39 @@ def utc_two_part(epoch_utc: str) -> tuple[float, float]:
     return erfa.dtf2d("UTC", moment.year, moment.month, moment.day, moment.hour, moment.minute, seconds)
 
 
-def itrs_from_gcrs(epoch_utc: str, time_s, dut1_s: float = 0.0, polar_motion_rad=(0.0, 0.0)) -> np.ndarray:
+#: GCRS -> ITRS is computed at whole multiples of this (s) and interpolated between them (slerp): within a
+#: second the rotation is the Earth's about a fixed axis at a constant rate, which slerp reproduces, and
+#: precession-nutation moves by ~1e-11 rad (tests/test_geometry.py: 1e-12 rad against the direct value)
+NODE_SPACING_S = 1.0
+
+
+def itrs_from_gcrs(epoch_utc: str, time_s, dut1_s: float = 0.0, polar_motion_rad=(0.0, 0.0),
+                   exact: bool = False) -> np.ndarray:
     """Rotation matrices (n, 3, 3) taking GCRS (ECI) vectors to the ITRS (ECEF) at ``epoch_utc + time_s``.
 
-    IAU 2006/2000A, CIO based (``erfa.c2t06a``); UT1 = UTC + ``dut1_s``.
+    IAU 2006/2000A, CIO based (``erfa.c2t06a``); UT1 = UTC + ``dut1_s``. Many instants (the lines of a
+    pushbroom image) are interpolated between whole seconds (:data:`NODE_SPACING_S`); ``exact`` evaluates
+    every instant.
     """
-    u1, u2 = utc_two_part(epoch_utc)
     t = np.atleast_1d(np.asarray(time_s, float))
+    if exact or t.size <= 16 or not np.all(np.isfinite(t)):
+        return _itrs_from_gcrs(epoch_utc, t, dut1_s, tuple(polar_motion_rad))
+    from .rotation import matrix_from_quaternion, slerp
+    first = int(np.floor(t.min() / NODE_SPACING_S)) - 1
+    last = int(np.ceil(t.max() / NODE_SPACING_S)) + 1
+    nodes, q = _itrs_nodes(epoch_utc, first, last, float(dut1_s), tuple(polar_motion_rad))
+    return matrix_from_quaternion(slerp(nodes, q, t))
+
+
+@functools.lru_cache(maxsize=128)
+def _itrs_nodes(epoch_utc: str, first: int, last: int, dut1_s: float, polar_motion_rad: tuple):
+    from .rotation import quaternion_from_matrix
+    nodes = np.arange(first, last + 1) * NODE_SPACING_S
+    return nodes, quaternion_from_matrix(_itrs_from_gcrs(epoch_utc, nodes, dut1_s, polar_motion_rad))
+
+
+def _itrs_from_gcrs(epoch_utc: str, t: np.ndarray, dut1_s: float, polar_motion_rad: tuple) -> np.ndarray:
+    u1, u2 = utc_two_part(epoch_utc)
     utc2 = u2 + t / SECONDS_PER_DAY
     tai1, tai2 = erfa.utctai(u1, utc2)
     tt1, tt2 = erfa.taitt(tai1, tai2)

@@ -47,7 +47,7 @@ def summary(tested, extra: dict | None = None, checks=None) -> dict:
     """summary.json of DESIGN.md §4 for a (tested) adjustment. ``checks``: the check points
     (:mod:`selfcal.workflows.checks`), by default those intersected in the adjustment. Errors and
     precision are along the object frame's axes, or east, north, up for ECEF."""
-    from ..workflows.checks import intersected, local_axes
+    from ..stats.checks import intersected, local_axes
     result = tested.result
     block = result.block
     pts = block.points
@@ -129,8 +129,10 @@ def _object_frame(result) -> str:
 
 
 def _sensor(result, camera_index: int):
-    from ..sensors import SENSORS
-    return SENSORS[result.problem.cameras[camera_index].sensor]
+    """The sensor of a camera of the adjustment (through the images that use it)."""
+    problem = result.problem
+    return next(slot.sensor for slot in problem.sensors
+                if np.any(problem.image_camera[slot.images] == camera_index))
 
 
 def camera_json(block, result) -> dict:

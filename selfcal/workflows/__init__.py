@@ -3,7 +3,7 @@
 A workflow composes the layers below it (adjust, stats, sensors) into what a user asks for: the
 tested adjustment (adjust, snoop, screen, variance components: :mod:`.tested`), the choice of an
 AP model (:mod:`.model_choice`), seed 001's focal-length step and GCP layouts (:mod:`.seed001`),
-check points by 3-D intersection or mono restitution (:mod:`.checks`). It reads no files and
+check points by 3-D intersection or mono restitution (:mod:`selfcal.stats.checks`). It reads no files and
 prints nothing; the CLI wires it to files, :mod:`selfcal.batch` runs matrices of it.
 """
 from .model_choice import CandidateScore, ModelChoice, choose_ap_model, parse_candidate

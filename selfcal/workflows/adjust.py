@@ -22,7 +22,7 @@ from ..sensors import sensor_of
 from ..stats.screening import ScreeningOptions
 from ..stats.snooping import SnoopingOptions
 from ..stats.variance import VarianceOptions
-from . import checks as check_points
+from ..stats import checks as check_points
 from . import seed001
 from .frames import object_frame_block
 from .model_choice import ModelChoice, choose_ap_model
@@ -70,7 +70,7 @@ def adjust_block(block: Block, request: AdjustRequest, progress: Callable | None
     say = say or (lambda text: None)
     block = object_frame_block(block)
     if offers_sensor_models(block):
-        return _seed001(block, request, progress, report, say)
+        return _seed001(block, request, progress, report, say, scores)
     options, choice = request.options, None
     if request.candidates:
         choice = choose_ap_model(block, request.candidates, options, request.snooping, progress=scores)
@@ -84,7 +84,7 @@ def adjust_block(block: Block, request: AdjustRequest, progress: Callable | None
     return Adjusted(tested, block, check_points.intersected(tested.result), {}, choice=choice)
 
 
-def _seed001(block: Block, request: AdjustRequest, progress, report, say) -> Adjusted:
+def _seed001(block: Block, request: AdjustRequest, progress, report, say, scores) -> Adjusted:
     options = request.options
     model = options.sensor_model or "M6"
     extra: dict = {"sensor_model": model}
@@ -102,6 +102,13 @@ def _seed001(block: Block, request: AdjustRequest, progress, report, say) -> Adj
     image_set = tuple(ids.index(i) for i in chosen)
     gcps = seed001.choose_gcps(block, request.n_gcp)
     say(f"{block.name}: images {', '.join(chosen)}, {len(gcps)} GCP, sensor model {model}")
+    choice = None
+    if request.candidates:
+        sub = seed001.case_block(block, image_set, gcps)
+        choice = choose_ap_model(sub, request.candidates, replace(options, sensor_model=model), request.snooping,
+                                 progress=scores)
+        options = replace(options, ap=choice.model, grid=choice.grid)
+        say(f"chosen AP model: {choice.model} (smallest BIC; scores in model_choice.csv)")
     case = seed001.run_case(block, model, gcps, image_set, request.height, "+".join(chosen), options,
                             request.snooping, request.screening, progress, report, request.variance)
     if case.tested is None:
@@ -121,4 +128,4 @@ def _seed001(block: Block, request: AdjustRequest, progress, report, say) -> Adj
         extra["trajectory_fit_rms"] = {img.image_id: {k: np.asarray(v).tolist() for k, v in img.trajectory.fit_rms.items()}
                                        for img in images}
     found = case.checks if case.checks is not None else check_points.intersected(case.tested.result)
-    return Adjusted(case.tested, case.block, found, extra, (case.track_centre, case.track_axes))
+    return Adjusted(case.tested, case.block, found, extra, (case.track_centre, case.track_axes), choice)

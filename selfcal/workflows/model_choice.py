@@ -30,10 +30,11 @@ import numpy as np
 from ..adjust import AdjustOptions, adjust
 from ..ap import ap_settings, takes_grid
 from ..adjust.problem import build_problem
-from ..block import Block, prune
+from ..block import Block
 from ..errors import AdjustmentError
 from ..stats.snooping import SnoopingOptions
-from .tested import adjust_with_tests
+from ..stats.checks import intersected
+from .tested import adjust_with_tests, prune_for
 
 __all__ = ["CandidateScore", "ModelChoice", "parse_candidate", "choose_ap_model"]
 
@@ -78,12 +79,8 @@ def parse_candidate(text: str, grid: tuple[int, int]) -> tuple[str, tuple[int, i
 
 
 def _rmsd_chk(result) -> tuple[float | None, float | None]:
-    pts = result.block.points
-    chk = pts.role == "chk"
-    if not chk.any():
-        return None, None
-    d = result.state.points[chk] - pts.xyz_m[chk]
-    return float(np.sqrt(np.mean(np.sum(d[:, :2] ** 2, axis=1)))), float(np.sqrt(np.mean(d[:, 2] ** 2)))
+    found = intersected(result)
+    return found.rmsd_xy_m(), found.rmsd_z_m()
 
 
 def choose_ap_model(block: Block, candidates: list[tuple[str, tuple[int, int]]],
@@ -99,7 +96,7 @@ def choose_ap_model(block: Block, candidates: list[tuple[str, tuple[int, int]]],
     models, sizes = [], []
     for model, grid in candidates:
         try:
-            problem = build_problem(block, model, ap_settings(model, grid))
+            problem = build_problem(block, model, ap_settings(model, grid), options=options)
         except (AdjustmentError, ValueError) as exc:
             models.append(exc)
             sizes.append(-1)
@@ -114,7 +111,7 @@ def choose_ap_model(block: Block, candidates: list[tuple[str, tuple[int, int]]],
         tested = adjust_with_tests(block, replace(options, ap=model, grid=grid), snooping, ap_models=models[richest])
         n_blunders = len(tested.rejected_rows)
         keep = np.flatnonzero(~np.isin(block.observations.row, tested.rejected_rows))
-        data = prune(replace(block, observations=block.observations.take(keep)))
+        data = prune_for(replace(block, observations=block.observations.take(keep)))
     scores = []
     for (model, grid), ap_models in zip(candidates, models):
         try:

@@ -24,7 +24,7 @@ from ..sensors.pushbroom import M6_SIGMA, line_images
 from ..sensors.pushbroom import track_frame as line_track_frame
 from ..stats.screening import ScreeningOptions
 from ..stats.snooping import SnoopingOptions
-from . import checks
+from ..stats import checks
 from .tested import TestedAdjustment, adjust_with_tests, prune_for
 
 __all__ = ["GCP_LAYOUTS", "ATTITUDE_FREE_SIGMA", "PushbroomCase", "image_sets", "choose_gcps", "case_block",

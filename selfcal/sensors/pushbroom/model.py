@@ -38,12 +38,14 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from numba import njit
+
 from ...geometry.earth import ecef_from_geodetic, geodetic_from_ecef, itrs_from_gcrs, local_up, orbit_frame
 
 __all__ = ["PARAMETER_NAMES", "PARAMETER_UNITS", "LineCamera", "fit_focal_plane", "Polynomial", "fit_polynomial", "Trajectory",
            "fit_trajectory", "LineImage", "rotation_x", "rotation_y", "rotation_z", "angles_from_body_to_orbit",
            "photo_coordinates", "image_scales", "image_residuals", "ground_to_image", "line_of_sight", "image_to_ground", "intersect",
-           "track_frame", "ecef_of",
+           "track_frame", "ecef_of", "Track", "track",
            "TIME_TOLERANCE_LINES"]
 
 #: calibration parameters of a pushbroom image, in the order of :attr:`LineImage.parameters`
@@ -363,45 +365,144 @@ def _frames(image: LineImage, t: np.ndarray):
     return S, R_FE, R_FO, R_OB, d_OB, R_BT, d_BT
 
 
-def photo_coordinates(image: LineImage, points_ecef: np.ndarray, t: np.ndarray, jacobians: bool = False):
+@dataclass(frozen=True)
+class Track:
+    """An image's telemetry at given times: what the calibration parameters do not change (an adjustment
+    evaluates it once per observation, :func:`track`)."""
+
+    t: np.ndarray                 # (n,) s
+    position: np.ndarray          # (n, 3) S in the ephemeris frame F
+    orbit_frame: np.ndarray       # (n, 3, 3) R_FO
+    frame_to_ecef: np.ndarray     # (n, 3, 3) R_EF; (0, 3, 3) when F is Earth-fixed
+    attitude: np.ndarray          # (n, 3) fitted roll, pitch, yaw (before the corrections of Eq. 6)
+
+    def take(self, index) -> "Track":
+        earth = self.frame_to_ecef if not len(self.frame_to_ecef) else self.frame_to_ecef[index]
+        return Track(self.t[index], self.position[index], self.orbit_frame[index], earth, self.attitude[index])
+
+
+def track(image: LineImage, t) -> Track:
+    """The telemetry of ``image`` at times ``t``."""
+    traj = image.trajectory
+    t = np.atleast_1d(np.asarray(t, float))
+    S = np.ascontiguousarray(np.atleast_2d(traj.position(t)), dtype=float)
+    R_FO = np.ascontiguousarray(orbit_frame(S, np.atleast_2d(traj.velocity(t))))
+    R_EF = np.zeros((0, 3, 3)) if traj.frame == "ECEF" else np.ascontiguousarray(traj.frame_to_ecef(t))
+    return Track(t, S, R_FO, R_EF, np.ascontiguousarray(np.atleast_2d(traj.attitude(t)), dtype=float))
+
+
+def photo_coordinates(image: LineImage, points_ecef: np.ndarray, t: np.ndarray, jacobians: bool = False,
+                      telemetry: Track | None = None):
     """Photo coordinates (x, y) in mm (n, 2) of ground points at the times ``t`` of their lines.
 
     x = f w_x / w_z is 0 for a point on the line recorded at t; y = f w_y / w_z is its ys.
     With ``jacobians`` also d(x, y)/d(parameters) (n, 2, 10) and d(x, y)/d(point) (n, 2, 3).
+    ``telemetry``: :func:`track` of the image at ``t``, when the caller keeps it.
     """
     P = np.atleast_2d(np.asarray(points_ecef, float))
     t = np.broadcast_to(np.asarray(t, float), (len(P),))
-    S, R_FE, R_FO, R_OB, d_OB, R_BT, d_BT = _frames(image, t)
-    P_F = np.einsum("nij,nj->ni", R_FE, P)
-    D_O = np.einsum("nji,nj->ni", R_FO, P_F - S)              # R_FO^T (P_F - S)
-    D_B = np.einsum("nji,nj->ni", R_OB, D_O)                  # R_OB^T D_O
-    w = np.einsum("ji,nj->ni", R_BT, D_B) if R_BT.ndim == 2 else np.einsum("...ji,nj->ni", R_BT, D_B)
-    f = image.parameters[6]
-    xy = f * w[:, :2] / w[:, 2:3]
-    if not jacobians:
-        return xy
-    n = len(P)
-    # d(x, y)/dw
-    dxy_dw = np.zeros((n, 2, 3))
-    dxy_dw[:, 0, 0] = f / w[:, 2]
-    dxy_dw[:, 1, 1] = f / w[:, 2]
-    dxy_dw[:, :, 2] = -f * w[:, :2] / w[:, 2:3] ** 2
-    R_TB = np.swapaxes(R_BT, -1, -2)
-    d_params = np.zeros((n, 2, len(PARAMETER_NAMES)))
+    telemetry = track(image, t) if telemetry is None else telemetry
+    a = image.parameters
     tau = t - image.t_ref
-    for k, dR in enumerate(d_OB):                              # roll, pitch, yaw of R_OB
-        dw = np.einsum("ij,nj->ni", R_TB, np.einsum("nji,nj->ni", dR, D_O))
-        g = np.einsum("nij,nj->ni", dxy_dw, dw)
-        d_params[:, :, 2 * k] = g
-        d_params[:, :, 2 * k + 1] = g * tau[:, None]
-    d_params[:, :, 6] = xy / f
-    for k, dR in enumerate(d_BT):                              # boresight roll, pitch, yaw
-        dw = np.einsum("ji,nj->ni", dR, D_B)
-        d_params[:, :, 7 + k] = np.einsum("nij,nj->ni", dxy_dw, dw)
-    # dw/dP = R_TB R_OB^T R_FO^T R_FE
-    M = np.einsum("ij,nkj,nlk,nlm->nim", R_TB, R_OB, R_FO, R_FE)
-    d_point = dxy_dw @ M
-    return xy, d_params, d_point
+    angles = telemetry.attitude + np.stack([a[0] + a[1] * tau, a[2] + a[3] * tau, a[4] + a[5] * tau], -1)
+    R_BT, d_BT = _chain(np.radians(image.camera.view_pitch_deg) + a[8], a[7], a[9])
+    earth_fixed = not len(telemetry.frame_to_ecef)
+    return _collinearity(np.ascontiguousarray(P), telemetry.position, telemetry.frame_to_ecef,
+                         telemetry.orbit_frame, np.ascontiguousarray(angles), np.ascontiguousarray(tau), R_BT,
+                         np.ascontiguousarray(np.stack(d_BT)), float(a[6]), earth_fixed, jacobians)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _tmul(A, v, out):
+    """out = A^T v (3x3, 3)."""
+    x, y, z = v[0], v[1], v[2]
+    out[0] = A[0, 0] * x + A[1, 0] * y + A[2, 0] * z
+    out[1] = A[0, 1] * x + A[1, 1] * y + A[2, 1] * z
+    out[2] = A[0, 2] * x + A[1, 2] * y + A[2, 2] * z
+
+
+@njit(cache=True, nogil=True)
+def _collinearity_kernel(P, S, R_EF, R_FO, angles, tau, R_BT, d_BT, f, earth_fixed, jacobians):
+    """The loop of :func:`photo_coordinates` (one observation at a time, no temporaries):
+
+    D_O = R_FO^T (R_FE P - S), D_B = R_OB^T D_O, w = R_BT^T D_B, (x, y) = f (w_x, w_y) / w_z, with
+    R_OB = Ry(pitch) Rx(roll) Rz(yaw) (Eq. 4). Its derivatives: dR_OB/droll = Ry Rx Gx Rz, /dpitch =
+    Ry Gy Rx Rz, /dyaw = R_OB Gz (G the generators), applied to D_O from the right as transposes."""
+    n = P.shape[0]
+    xy = np.empty((n, 2))
+    d_par = np.zeros((n, 2, 10)) if jacobians else np.zeros((0, 2, 10))
+    d_pt = np.zeros((n, 2, 3)) if jacobians else np.zeros((0, 2, 3))
+    Rx, Ry, Rz = np.zeros((3, 3)), np.zeros((3, 3)), np.zeros((3, 3))
+    P_F, D_O, u, v, D_B, w, dw, e, m = (np.empty(3), np.empty(3), np.empty(3), np.empty(3), np.empty(3),
+                                        np.empty(3), np.empty(3), np.empty(3), np.empty(3))
+    Rx[0, 0] = Ry[1, 1] = Rz[2, 2] = 1.0
+    for o in range(n):
+        if earth_fixed:
+            for i in range(3):
+                P_F[i] = P[o, i] - S[o, i]
+        else:
+            for i in range(3):      # R_FE = R_EF^T
+                P_F[i] = R_EF[o, 0, i] * P[o, 0] + R_EF[o, 1, i] * P[o, 1] + R_EF[o, 2, i] * P[o, 2] - S[o, i]
+        _tmul(R_FO[o], P_F, D_O)
+        c, s = np.cos(angles[o, 0]), np.sin(angles[o, 0])
+        Rx[1, 1], Rx[1, 2], Rx[2, 1], Rx[2, 2] = c, -s, s, c
+        c, s = np.cos(angles[o, 1]), np.sin(angles[o, 1])
+        Ry[0, 0], Ry[0, 2], Ry[2, 0], Ry[2, 2] = c, s, -s, c
+        c, s = np.cos(angles[o, 2]), np.sin(angles[o, 2])
+        Rz[0, 0], Rz[0, 1], Rz[1, 0], Rz[1, 1] = c, -s, s, c
+        _tmul(Ry, D_O, u)                   # Ry^T D_O
+        _tmul(Rx, u, v)                     # Rx^T Ry^T D_O
+        _tmul(Rz, v, D_B)                   # D_B = R_OB^T D_O
+        _tmul(R_BT, D_B, w)
+        iz = 1.0 / w[2]
+        xy[o, 0] = f * w[0] * iz
+        xy[o, 1] = f * w[1] * iz
+        if not jacobians:
+            continue
+        # d(x, y)/dw = [[a0, 0, a2], [0, a0, b2]]
+        a0, a2, b2 = f * iz, -f * w[0] * iz * iz, -f * w[1] * iz * iz
+        for k in range(3):                  # roll, pitch, yaw of R_OB: dR^T D_O
+            if k == 0:                      # Rz^T Gx^T (Rx^T Ry^T D_O), Gx^T x = (0, x2, -x1)
+                e[0], e[1], e[2] = 0.0, v[2], -v[1]
+                _tmul(Rz, e, m)
+            elif k == 1:                    # Rz^T Rx^T Gy^T (Ry^T D_O), Gy^T x = (-x2, 0, x0)
+                e[0], e[1], e[2] = -u[2], 0.0, u[0]
+                _tmul(Rx, e, dw)
+                _tmul(Rz, dw, m)
+            else:                           # Gz^T D_B, Gz^T x = (x1, -x0, 0)
+                m[0], m[1], m[2] = D_B[1], -D_B[0], 0.0
+            _tmul(R_BT, m, dw)
+            gx = a0 * dw[0] + a2 * dw[2]
+            gy = a0 * dw[1] + b2 * dw[2]
+            d_par[o, 0, 2 * k], d_par[o, 1, 2 * k] = gx, gy
+            d_par[o, 0, 2 * k + 1], d_par[o, 1, 2 * k + 1] = gx * tau[o], gy * tau[o]
+        d_par[o, 0, 6], d_par[o, 1, 6] = w[0] * iz, w[1] * iz
+        for k in range(3):                  # boresight roll, pitch, yaw
+            _tmul(d_BT[k], D_B, dw)
+            d_par[o, 0, 7 + k] = a0 * dw[0] + a2 * dw[2]
+            d_par[o, 1, 7 + k] = a0 * dw[1] + b2 * dw[2]
+        # dw/dP = R_BT^T R_OB^T R_FO^T R_FE, column by column
+        for j in range(3):
+            if earth_fixed:
+                e[0] = e[1] = e[2] = 0.0
+                e[j] = 1.0
+            else:
+                for i in range(3):
+                    e[i] = R_EF[o, j, i]
+            _tmul(R_FO[o], e, m)
+            _tmul(Ry, m, dw)
+            _tmul(Rx, dw, m)
+            _tmul(Rz, m, dw)
+            _tmul(R_BT, dw, m)
+            d_pt[o, 0, j] = a0 * m[0] + a2 * m[2]
+            d_pt[o, 1, j] = a0 * m[1] + b2 * m[2]
+    return xy, d_par, d_pt
+
+
+def _collinearity(P, S, R_EF, R_FO, angles, tau, R_BT, d_BT, f, earth_fixed, jacobians):
+    xy, d_par, d_pt = _collinearity_kernel(P, S, R_EF, np.ascontiguousarray(R_FO), angles, tau,
+                                           np.ascontiguousarray(R_BT, dtype=float), d_BT, f, earth_fixed, jacobians)
+    return (xy, d_par, d_pt) if jacobians else xy
 
 
 def image_scales(image: LineImage, points_ecef: np.ndarray, row, col) -> np.ndarray:
@@ -478,10 +579,9 @@ def line_of_sight(image: LineImage, row, col) -> tuple[np.ndarray, np.ndarray]:
     detector = image.detector_mm(col)
     u = np.stack([detector[:, 0], detector[:, 1], np.full_like(t, image.parameters[6])], -1)
     u /= np.linalg.norm(u, axis=1, keepdims=True)
-    d_F = np.einsum("nij,njk,kl,nl->ni", R_FO, R_OB, R_BT, u) if R_BT.ndim == 2 else \
-        np.einsum("nij,njk,nkl,nl->ni", R_FO, R_OB, R_BT, u)
+    d_F = (R_FO @ (R_OB @ (R_BT @ u[:, :, None])))[:, :, 0]
     R_EF = np.swapaxes(R_FE, 1, 2)
-    return np.einsum("nij,nj->ni", R_EF, S), np.einsum("nij,nj->ni", R_EF, d_F)
+    return (R_EF @ S[:, :, None])[:, :, 0], (R_EF @ d_F[:, :, None])[:, :, 0]
 
 
 def image_to_ground(image: LineImage, row, col, height, tolerance_m: float = 1e-4, max_iterations: int = 30

@@ -24,7 +24,7 @@ import numpy as np
 from ...errors import BlockError, UsageError
 from ..base import BoundSensor, Parameter, Sensor
 from .model import (PARAMETER_NAMES, LineCamera, LineImage, fit_trajectory, ground_to_image, image_scales,
-                    image_to_ground, line_of_sight, photo_coordinates)
+                    image_to_ground, line_of_sight, photo_coordinates, track)
 
 __all__ = ["SENSOR_MODELS", "M6_SIGMA", "SensorModel", "sensor_model", "PushbroomSensor", "PushbroomBound",
            "SENSOR", "line_images", "FIT_ORDERS", "TELEMETRY_MARGIN_S", "IMAGE_PARAMETERS", "CAMERA_PARAMETERS"]
@@ -168,6 +168,11 @@ class PushbroomBound(BoundSensor):
             self.t[sel] = image.time_of_row(self.row[sel])
             self.scale[sel] = image.camera.pixel_size_mm
         self._by_image = {i: self.o[problem.obs_image[self.o] == i] for i in self.images}
+        # the telemetry at every observation's time: what the calibration parameters leave unchanged
+        self._track = {i: track(self.images[i], self.t[o]) for i, o in self._by_image.items()}
+        self._track_row = np.zeros(n, np.int64)
+        for o in self._by_image.values():
+            self._track_row[o] = np.arange(len(o))
 
     def observations(self):
         return self.detector[self.o], np.abs(self.scale[self.o]) * self.sigma_px[:, None]
@@ -193,7 +198,8 @@ class PushbroomBound(BoundSensor):
             j_e, j_p, j_c = np.zeros((m, 2, 6)), np.zeros((m, 2, 3)), np.zeros((m, 2, 4))
         for i in np.unique(img):
             sel = np.flatnonzero(img == i)
-            out = photo_coordinates(context[int(i)], points[sel], self.t[o[sel]], jacobians=jacobians)
+            telemetry = self._track[int(i)].take(self._track_row[o[sel]])
+            out = photo_coordinates(context[int(i)], points[sel], self.t[o[sel]], jacobians, telemetry)
             if not jacobians:
                 f[sel] = out
                 continue
