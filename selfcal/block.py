@@ -21,7 +21,6 @@ __all__ = [
     "FrameCamera",
     "BalCamera",
     "PushbroomCamera",
-    "RpcCamera",
     "Ephemeris",
     "AttitudeSamples",
     "Images",
@@ -149,22 +148,6 @@ class PushbroomCamera:
     @property
     def height_px(self) -> int:
         return self.rows
-
-
-@dataclass(frozen=True)
-class RpcCamera:
-    """Images with vendor RPCs (``model = "rpc"``, DESIGN.md §3a): each image's RPC is its ``sensor_file``;
-    the adjustment estimates an image-space ``bias`` per image, ``"shift"`` (a0, b0) or ``"affine"`` (six
-    terms), weighted by ``sigma_bias_px`` when given (px; the linear terms by it over the larger image size)."""
-
-    camera_id: str
-    bias: str = "affine"
-    width_px: int | None = None
-    height_px: int | None = None
-    sigma_bias_px: float | None = None
-
-    model = "rpc"
-    pixel_size_mm = 1.0
 
 
 @dataclass(frozen=True)
@@ -318,10 +301,6 @@ class Block:
     image_models: dict | None = None
     #: image id -> the path of its sensor_file (for writing the block again)
     image_files: dict | None = None
-
-    @property
-    def is_pushbroom(self) -> bool:
-        return any(c.model == "pushbroom" for c in self.cameras.values())
 
     @property
     def has_trajectory(self) -> bool:

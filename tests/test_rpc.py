@@ -18,11 +18,11 @@ from scipy.stats import chi2
 from dataclasses import dataclass
 
 from selfcal.adjust import adjust
-from selfcal.block import Block, Images, Observations, Points, RpcCamera
+from selfcal.block import Block, Images, Observations, Points
 from selfcal.errors import AdjustmentError, BlockError
 from selfcal.geometry.earth import ecef_from_geodetic
 from selfcal.io.rpc import read_rpc
-from selfcal.sensors.rpc import BIAS_PARAMETERS, RpcBias, RpcModel, rpc00b_terms
+from selfcal.sensors.rpc import BIAS_PARAMETERS, RpcBias, RpcCamera, RpcModel, rpc00b_terms
 from selfcal.stats import observation_tests
 
 from conftest import SHARED_DATA

@@ -37,7 +37,8 @@ def _pushbroom():
 
 def _rpc():
     """One Pleiades RPC image and 12 ground points on it (ECEF)."""
-    from selfcal.block import Block, Images, Observations, Points, RpcCamera
+    from selfcal.block import Block, Images, Observations, Points
+    from selfcal.sensors.rpc import RpcCamera
     from selfcal.geometry.earth import ecef_from_geodetic
     from selfcal.io.rpc import read_rpc
     model = read_rpc(os.path.join(SHARED_DATA, "pushbroom", "pleiades", "rpc",

@@ -14,10 +14,10 @@ import tomllib
 
 import numpy as np
 
-from ..block import (ROLES, AttitudeSamples, BalCamera, Block, Ephemeris, FrameCamera, Images, InitialAP, Observations,
-                     Points, PushbroomCamera, RpcCamera, prune)
+from ..block import ROLES, AttitudeSamples, Block, Ephemeris, Images, InitialAP, Observations, Points, prune
 from ..errors import BlockError
 from .atomic import atomic_folder, atomic_write
+from ..sensors import SENSORS
 from .sensor_files import SENSOR_FILE_READERS
 from .table import NUM, OPT_NUM, STR, Column, read_table, write_table
 
@@ -51,51 +51,8 @@ OBSERVATION_COLUMNS = [
 # block.toml schema: key -> (type, required). Types: "str", "int", "pos" (> 0),
 # "num", "nonneg" (>= 0), "vec3pos" (three numbers > 0), "vec3" (three finite numbers).
 _TOP_KEYS = {"name": ("str", False), "crs": ("str", False), "datum": ("str", False)}
-_FRAME_CAMERA_KEYS = {
-    "model": ("str", True),
-    "width_px": ("int", True),
-    "height_px": ("int", True),
-    "pixel_size_mm": ("pos", True),
-    "focal_mm": ("pos", True),
-    "x0_mm": ("num", False),
-    "y0_mm": ("num", False),
-    "sigma_focal_mm": ("nonneg", False),
-    "sigma_x0_mm": ("nonneg", False),
-    "sigma_y0_mm": ("nonneg", False),
-}
-_BAL_CAMERA_KEYS = {
-    "model": ("str", True),
-    "width_px": ("int", True),
-    "height_px": ("int", True),
-    "focal_px": ("pos", True),
-    "k1": ("num", False),
-    "k2": ("num", False),
-}
-_PUSHBROOM_CAMERA_KEYS = {
-    "model": ("str", True),
-    "columns": ("int", True),
-    "rows": ("int", True),
-    "center_col": ("num", True),
-    "pixel_size_mm": ("pos", True),
-    "focal_mm": ("pos", True),
-    "line_period_s": ("pos", True),
-    "epoch_utc": ("str", True),
-    "frame": ("str", False),
-    "view_pitch_deg": ("num", False),
-    "t0_s": ("num", False),
-    "chip_starts": ("intlist", False),
-    "chip_offsets_px": ("pairlist", False),
-}
-_RPC_CAMERA_KEYS = {
-    "model": ("str", True),
-    "bias": ("str", False),
-    "width_px": ("int", False),
-    "height_px": ("int", False),
-    "sigma_bias_px": ("pos", False),
-}
-_CAMERA_MODELS = {"frame": (FrameCamera, _FRAME_CAMERA_KEYS), "bal": (BalCamera, _BAL_CAMERA_KEYS),
-                  "pushbroom": (PushbroomCamera, _PUSHBROOM_CAMERA_KEYS), "rpc": (RpcCamera, _RPC_CAMERA_KEYS)}
-
+#: a camera's block.toml keys come from its sensor (selfcal.sensors: Sensor.camera_type, Sensor.camera_keys)
+_CAMERA_MODELS = {name: (sensor.camera_type, sensor.camera_keys) for name, sensor in SENSORS.items()}
 _SECTIONS = {
     "terrain": {"dem": ("str", False), "height_m": ("num", False)},
     "observations": {"image_sigma_px": ("pos", True)},
@@ -228,15 +185,13 @@ def _read_settings(folder: str) -> dict:
                                    f"{', '.join(repr(m) for m in _CAMERA_MODELS)})",
                              _key_line(text, section, "model"), f"{section}.model")
         cls, keys = _CAMERA_MODELS[model]
-        initial = table.get("initial_ap") if model == "frame" else None     # a sub-table of frame cameras
-        plain = {k: v for k, v in table.items() if not (k == "initial_ap" and model == "frame")}
+        sensor = SENSORS[model]
+        initial = table.get("initial_ap") if "initial_ap" in sensor.camera_tables else None
+        plain = {k: v for k, v in table.items() if not (k == "initial_ap" and initial is not None)}
         values = _check_table(path, text, section, plain, keys)
         values.pop("model")
-        if model == "pushbroom":
-            _check_pushbroom(path, text, section, values)
-        if model == "rpc" and values.get("bias", "affine") not in ("shift", "affine"):
-            raise BlockError(path, f"bias must be \"shift\" or \"affine\", found {values['bias']!r}",
-                             _key_line(text, section, "bias"), f"{section}.bias")
+        for key, reason in sensor.check_camera(values):
+            raise BlockError(path, reason, _key_line(text, section, key.split(".")[0]), f"{section}.{key}")
         if initial is not None:
             values["initial_ap"] = _initial_ap(path, text, f"{section}.initial_ap", initial)
         settings["cameras"][camera_id] = cls(camera_id=camera_id, **values)
@@ -250,31 +205,10 @@ def _read_settings(folder: str) -> dict:
     return settings
 
 
-def _check_pushbroom(path, text, section, values) -> None:
-    from datetime import datetime
-    starts, offsets = values.get("chip_starts"), values.get("chip_offsets_px")
-    if (starts is None) != (offsets is None) or (offsets is not None and len(offsets) != len(starts) + 1):
-        raise BlockError(path, "chip_starts (first column of every chip after the first) and chip_offsets_px "
-                               "(one [along, across] pair per chip) go together", _key_line(text, section, None),
-                         f"{section}.chip_offsets_px")
-    if starts and starts[-1] >= values["columns"]:
-        raise BlockError(path, f"chip start {starts[-1]} is beyond the {values['columns']} columns",
-                         _key_line(text, section, "chip_starts"), f"{section}.chip_starts")
-    if values.get("frame", "ECI") not in ("ECI", "ECEF"):
-        raise BlockError(path, f"frame must be \"ECI\" or \"ECEF\", found {values['frame']!r}",
-                         _key_line(text, section, "frame"), f"{section}.frame")
-    try:
-        datetime.fromisoformat(values["epoch_utc"].replace("Z", "+00:00"))
-    except ValueError:
-        raise BlockError(path, f"epoch_utc must be an ISO 8601 instant (e.g. 2007-05-12T01:45:00Z), found "
-                               f"{values['epoch_utc']!r}", _key_line(text, section, "epoch_utc"),
-                         f"{section}.epoch_utc") from None
-
-
 def _read_telemetry(folder: str, cameras: dict) -> tuple[Ephemeris, AttitudeSamples]:
     """ephemeris.csv and attitude.csv of the pushbroom cameras: known cameras, times increasing,
     enough samples per camera, unit quaternions."""
-    pushbroom = [c for c, cam in cameras.items() if cam.model == "pushbroom"]
+    pushbroom = [c for c, cam in cameras.items() if SENSORS[cam.model].needs_telemetry]
     out = []
     for name, columns in (("ephemeris.csv", EPHEMERIS_COLUMNS), ("attitude.csv", ATTITUDE_COLUMNS)):
         table = read_table(os.path.join(folder, name), columns)
@@ -455,14 +389,13 @@ def read_block(folder: str | os.PathLike, min_gcp: int = 3) -> Block:
     gnss = settings.get("gnss", {}).get("sigma_m")
     imu = settings.get("imu", {}).get("sigma_deg")
     ephemeris = attitude = None
-    from ..sensors import sensor_of
-    sensors = {c.model: sensor_of(c) for c in cameras.values()}
+    sensors = {c.model: SENSORS[c.model] for c in cameras.values()}
     if len({s.object_frame for s in sensors.values()}) > 1:
         raise BlockError(os.path.join(folder, "block.toml"), "a block's cameras share one object frame: "
                          f"{', '.join(sensors)} do not mix", None, "cameras")
     image_models = {image_id: SENSOR_FILE_READERS[cameras[camera_id].model](files[image_id][0])
                     for image_id, camera_id in zip(images.image_id, images.camera_id) if image_id in files}
-    if any(c.model == "pushbroom" for c in cameras.values()):
+    if any(s.needs_telemetry for s in sensors.values()):
         ephemeris, attitude = _read_telemetry(folder, cameras)
         missing = np.flatnonzero(np.isnan(images.time_s))
         if missing.size:

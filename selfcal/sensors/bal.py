@@ -21,6 +21,7 @@ import numpy as np
 from numba import njit
 
 from ..geometry.rotation import matrix_from_opk, matrix_from_rotation_vector, opk_from_matrix
+from ..block import BalCamera
 from .base import BoundSensor, Parameter, Sensor
 from .frame import photo_from_pixel, pixel_from_photo
 
@@ -237,6 +238,15 @@ class BalSensor(Sensor):
     given_points_only = True
     image_parameters = tuple(Parameter(n, "rad" if n[0] == "r" else "m", "EOP") for n in IMAGE_NAMES)
     camera_parameters = (Parameter("f", "px", "IOP"), Parameter("k1", "", "IOP"), Parameter("k2", "", "IOP"))
+    camera_type = BalCamera
+    camera_keys = {
+    "model": ("str", True),
+    "width_px": ("int", True),
+    "height_px": ("int", True),
+    "focal_px": ("pos", True),
+    "k1": ("num", False),
+    "k2": ("num", False),
+}
 
     def bind(self, problem, block, o, pixel, sigma_px, options):
         return BalBound(problem, block, o, pixel, sigma_px)

@@ -153,6 +153,14 @@ class Sensor(ABC):
     object_frame: str = "block"
     #: an image with fewer observed points is left out of an adjustment (selfcal.block.prune)
     min_points_per_image: int = 6
+    #: its camera in a block (a plain dataclass) and the block.toml keys of ``[cameras.ID]``: key -> (type,
+    #: required), types as selfcal.io.block_folder checks them ("str", "int", "pos", "num", "nonneg", ...)
+    camera_type: type = None
+    camera_keys: dict = {}
+    #: sub-tables ``[cameras.ID.NAME]`` its cameras take (a frame camera's ``initial_ap``)
+    camera_tables: tuple[str, ...] = ()
+    #: whether its images need the block's telemetry (ephemeris.csv, attitude.csv)
+    needs_telemetry: bool = False
     #: the named parameter sets it offers (seed 001's M1 ... M7), chosen by AdjustOptions.sensor_model; with
     #: them come seed 001's workflow steps (focal-length calibration, GCP layouts, mono restitution)
     sensor_models: tuple[str, ...] = ()
@@ -170,6 +178,10 @@ class Sensor(ABC):
              options) -> BoundSensor:
         """Bind the images ``image_index`` of ``block`` (with their observations ``observation_index``,
         positions in the problem's sorted order) to ``problem``."""
+
+    def check_camera(self, values: dict) -> list[tuple[str, str]]:
+        """Defects of a camera's block.toml values that the key types do not catch: (key, reason) each."""
+        return []
 
     def initial_images(self, bound: BoundSensor, block, image_index: np.ndarray) -> np.ndarray:
         """Start values (n, width) of the image parameters; NaN where the sensor cannot give one (a

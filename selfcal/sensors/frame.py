@@ -19,6 +19,7 @@ import numpy as np
 from numba import njit
 
 from ..geometry.rotation import matrix_from_opk, matrix_from_opk_with_derivatives
+from ..block import FrameCamera
 from .base import BoundSensor, Parameter, Sensor
 
 __all__ = [
@@ -280,6 +281,20 @@ class FrameSensor(Sensor):
     camera_parameters = tuple(Parameter(n, "mm", "IOP", key="focal_mm" if n == "c" else None) for n in IOP_NAMES)
     ap_domain = "frame"
     supports_resection = True
+    camera_type = FrameCamera
+    camera_tables = ("initial_ap",)
+    camera_keys = {
+    "model": ("str", True),
+    "width_px": ("int", True),
+    "height_px": ("int", True),
+    "pixel_size_mm": ("pos", True),
+    "focal_mm": ("pos", True),
+    "x0_mm": ("num", False),
+    "y0_mm": ("num", False),
+    "sigma_focal_mm": ("nonneg", False),
+    "sigma_x0_mm": ("nonneg", False),
+    "sigma_y0_mm": ("nonneg", False),
+}
 
     def bind(self, problem, block, o, pixel, sigma_px, options):
         return FrameBound(problem, block, o, pixel, sigma_px)

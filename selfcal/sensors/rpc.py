@@ -45,7 +45,7 @@ from ..geometry.earth import ecef_from_geodetic, geodetic_from_ecef, geodetic_ja
 from .base import BoundSensor, Parameter, Sensor
 
 __all__ = ["RPC00B_TERMS", "RpcModel", "rpc00b_terms", "LOCALIZE_TOLERANCE_PX", "LOCALIZE_STEP_TOLERANCE_DEG",
-           "LOCALIZE_MAX_ITERATIONS", "BIAS_PARAMETERS", "RpcBias", "bias_design", "RpcSensor", "SENSOR"]
+           "LOCALIZE_MAX_ITERATIONS", "BIAS_PARAMETERS", "RpcBias", "RpcCamera", "bias_design", "RpcSensor", "SENSOR"]
 
 #: the 20 monomials of an RPC00B polynomial, in file order (L = longitude, P = latitude, H = height)
 RPC00B_TERMS = ("1", "L", "P", "H", "LP", "LH", "PH", "L2", "P2", "H2",
@@ -410,6 +410,22 @@ class RpcBound(BoundSensor):
         return v
 
 
+@dataclass(frozen=True)
+class RpcCamera:
+    """Images with vendor RPCs (``model = "rpc"``, DESIGN.md §3a): each image's RPC is its ``sensor_file``;
+    the adjustment estimates an image-space ``bias`` per image, ``"shift"`` (a0, b0) or ``"affine"`` (six
+    terms), weighted by ``sigma_bias_px`` when given (px; the linear terms by it over the larger image size)."""
+
+    camera_id: str
+    bias: str = "affine"
+    width_px: int | None = None
+    height_px: int | None = None
+    sigma_bias_px: float | None = None
+
+    model = "rpc"
+    pixel_size_mm = 1.0
+
+
 class RpcSensor(Sensor):
     """A vendor RPC per image with an image-space bias (module docstring)."""
 
@@ -417,9 +433,21 @@ class RpcSensor(Sensor):
     image_parameters = tuple(Parameter(n, _BIAS_UNITS[n], "EOP", screened=True) for n in BIAS_PARAMETERS["affine"])
     object_frame = "ECEF"
     min_points_per_image = 1
+    camera_type = RpcCamera
+    camera_keys = {
+    "model": ("str", True),
+    "bias": ("str", False),
+    "width_px": ("int", False),
+    "height_px": ("int", False),
+    "sigma_bias_px": ("pos", False),
+}
 
     def bind(self, problem, block, o, pixel, sigma_px, options):
         return RpcBound(problem, block, o, pixel, sigma_px)
+
+    def check_camera(self, values):
+        bias = values.get("bias", "affine")
+        return [] if bias in BIAS_PARAMETERS else [("bias", f"bias must be \"shift\" or \"affine\", found {bias!r}")]
 
     def image_setup(self, block, image_index, options):
         """The bias kind of the camera frees its terms; ``sigma_bias_px`` weights the shifts by it and the

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ...block import PushbroomCamera
 from ...errors import BlockError, UsageError
 from ..base import BoundSensor, Parameter, Sensor
 from .model import (PARAMETER_NAMES, LineCamera, LineImage, fit_trajectory, ground_to_image, image_scales,
@@ -267,9 +268,43 @@ class PushbroomSensor(Sensor):
     #: an image is oriented by its telemetry: a mono image with three weighted GCPs adjusts (M6)
     min_points_per_image = 1
     sensor_models = tuple(SENSOR_MODELS)
+    camera_type = PushbroomCamera
+    needs_telemetry = True
+    camera_keys = {
+    "model": ("str", True),
+    "columns": ("int", True),
+    "rows": ("int", True),
+    "center_col": ("num", True),
+    "pixel_size_mm": ("pos", True),
+    "focal_mm": ("pos", True),
+    "line_period_s": ("pos", True),
+    "epoch_utc": ("str", True),
+    "frame": ("str", False),
+    "view_pitch_deg": ("num", False),
+    "t0_s": ("num", False),
+    "chip_starts": ("intlist", False),
+    "chip_offsets_px": ("pairlist", False),
+}
 
     def bind(self, problem, block, o, pixel, sigma_px, options):
         return PushbroomBound(problem, block, o, pixel, sigma_px, options)
+
+    def check_camera(self, values):
+        from datetime import datetime
+        starts, offsets = values.get("chip_starts"), values.get("chip_offsets_px")
+        if (starts is None) != (offsets is None) or (offsets is not None and len(offsets) != len(starts) + 1):
+            return [("chip_offsets_px", "chip_starts (first column of every chip after the first) and "
+                                        "chip_offsets_px (one [along, across] pair per chip) go together")]
+        if starts and starts[-1] >= values["columns"]:
+            return [("chip_starts", f"chip start {starts[-1]} is beyond the {values['columns']} columns")]
+        if values.get("frame", "ECI") not in ("ECI", "ECEF"):
+            return [("frame", f"frame must be \"ECI\" or \"ECEF\", found {values['frame']!r}")]
+        try:
+            datetime.fromisoformat(values["epoch_utc"].replace("Z", "+00:00"))
+        except ValueError:
+            return [("epoch_utc", f"epoch_utc must be an ISO 8601 instant (e.g. 2007-05-12T01:45:00Z), found "
+                                  f"{values['epoch_utc']!r}")]
+        return []
 
     def image_setup(self, block, image_index, options):
         model = _model_of(options)
