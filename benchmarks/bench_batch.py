@@ -29,7 +29,7 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
 
     from selfcal.batch import PAPER_MODELS, CellSettings, available_models, run_matrix
-    from selfcal.batch.allocator import keep_freed_memory
+    from selfcal.allocator import keep_freed_memory
     from selfcal.block import prune
     from selfcal.simulate import SCENARIOS, simulate_uav
 

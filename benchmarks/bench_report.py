@@ -29,7 +29,7 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
 
     from selfcal.adjust import AdjustOptions
-    from selfcal.batch.allocator import keep_freed_memory
+    from selfcal.allocator import keep_freed_memory
     from selfcal.block import prune
     from selfcal.io.results import read_results, results_from_files, write_results
     from selfcal.report import render_report, result_files

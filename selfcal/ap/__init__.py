@@ -18,7 +18,11 @@ from .none import NoAP
 from .wavelet import WaveletAP
 
 __all__ = ["AP_FAMILIES", "APModel", "ImageFrame", "create_ap", "ap_from_dict", "parse_ap_spec", "frame_nodes_mm",
-           "fit_displacement", "ap_settings", "takes_grid"]
+           "fit_displacement", "ap_settings", "takes_grid", "ALL_MODELS"]
+
+#: the ten frame AP models of seed 000's comparison (``selfcal compare``, ``--ap auto``)
+ALL_MODELS = ("none", "brown", "ebner", "gruen", "legendre", "fourier",
+              "wavelet:db4", "wavelet:sym4", "wavelet:meyer", "wavelet:bl4")
 
 #: family name -> model class; a family says its domain (frame or detector line) and the settings it takes
 AP_FAMILIES: dict[str, type] = {

@@ -16,12 +16,12 @@ from dataclasses import dataclass, field
 from typing import Callable
 
 from ..adjust import AdjustOptions
-from ..ap import AP_FAMILIES, parse_ap_spec, takes_grid
+from ..ap import ALL_MODELS, AP_FAMILIES, parse_ap_spec, takes_grid
 from ..errors import AdjustmentError
 from ..report import result_files
 from ..stats import ScreeningOptions, SnoopingOptions, VarianceOptions
 from ..workflows import adjust_with_tests
-from .allocator import keep_freed_memory
+from ..allocator import keep_freed_memory
 
 __all__ = ["Cell", "CellSettings", "run_cell", "run_matrix", "available_models", "PAPER_MODELS", "ALL_MODELS"]
 
@@ -29,8 +29,6 @@ __all__ = ["Cell", "CellSettings", "run_cell", "run_matrix", "available_models",
 #: orthogonal polynomials) stands for BINGO's polynomial AP set (BINGO is commercial)
 PAPER_MODELS = ("none", "gruen", "wavelet:db4", "wavelet:bl4", "wavelet:sym4", "wavelet:meyer")
 #: every family, with its default settings
-ALL_MODELS = ("none", "brown", "ebner", "gruen", "legendre", "fourier",
-              "wavelet:db4", "wavelet:sym4", "wavelet:meyer", "wavelet:bl4")
 
 
 def available_models(models) -> list[str]:

@@ -6,8 +6,7 @@ import sys
 import time
 
 from ..adjust import AdjustOptions
-from ..ap import AP_FAMILIES, parse_ap_spec
-from ..batch import ALL_MODELS
+from ..ap import ALL_MODELS, AP_FAMILIES, parse_ap_spec
 from ..errors import UsageError
 from ..io import read_block
 from ..io.dem import read_dem

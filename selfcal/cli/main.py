@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from ..batch.allocator import keep_freed_memory
+from ..allocator import keep_freed_memory
 from ..errors import SelfcalError
 from . import adjust, compare, demo, export, import_, report, simulate, undistort
 
