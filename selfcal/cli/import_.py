@@ -6,6 +6,7 @@ import os
 import sys
 
 from ..convert import bal_behind_camera, block_from_bal, block_from_colmap
+from ..errors import UsageError
 from ..io.bal import read_bal
 from ..io.block_folder import write_block
 from ..io.colmap import read_colmap
@@ -13,9 +14,10 @@ from ..io.odm import read_gcp_list
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("format", choices=["colmap", "bal"],
+    parser.add_argument("format", choices=["colmap", "bal", "isis"],
                         help="colmap: a COLMAP sparse model folder (text or binary); bal: a Bundle Adjustment in "
-                             "the Large problem file")
+                             "the Large problem file; isis: an ISIS PVL control network (--images: the folder of "
+                             "the cube labels and their usgscsm/ALE ISDs)")
     parser.add_argument("source", metavar="SRC", help="the model to import")
     parser.add_argument("--out", required=True, metavar="BLOCK", help="block folder to write (replaced)")
     parser.add_argument("--gcp", metavar="FILE", help="OpenDroneMap gcp_list.txt with the ground control")
@@ -28,6 +30,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--gcp-sigma-xy", type=float, default=3.0,
                         help="a-priori sigma of the control coordinates in plan (default 3 m: hand-held GPS)")
     parser.add_argument("--gcp-sigma-z", type=float, default=5.0, help="a-priori sigma of the control heights (default 5 m)")
+    isis = parser.add_argument_group("isis")
+    isis.add_argument("--images", metavar="DIR", help="folder of the ISIS cube labels (*.pvl) and their ISDs")
+    isis.add_argument("--sigma-position-m", type=float, metavar="M",
+                      help="a-priori sigma of each image's position (jigsaw's spacecraft_position_sigma)")
+    isis.add_argument("--sigma-attitude-deg", type=float, metavar="DEG",
+                      help="a-priori sigma of each image's attitude angles (jigsaw's camera_angles_sigma)")
+    isis.add_argument("--measure-sigma-px", type=float, default=None, metavar="PX",
+                      help="a-priori sigma of a measure in cube pixels (default: jigsaw's 1.4 detector pixels)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -35,6 +45,8 @@ def run(args: argparse.Namespace) -> int:
                         ("--gcp-sigma-xy", args.gcp_sigma_xy), ("--gcp-sigma-z", args.gcp_sigma_z)):
         if not value > 0:
             raise SystemExit(f"selfcal import: error: {name} must be positive, found {value}")
+    if args.format == "isis":
+        return _import_isis(args)
     if args.format == "bal":
         problem = read_bal(args.source)
         block = block_from_bal(problem, args.image_sigma_px, name=os.path.basename(os.path.normpath(args.out)))
@@ -59,4 +71,35 @@ def run(args: argparse.Namespace) -> int:
     write_block(block, args.out)
     print(f"imported {len(block.images)} images, {len(block.points)} points, {len(block.observations)} "
           f"observations into {args.out}", file=sys.stderr)
+    return 0
+
+
+def _import_isis(args: argparse.Namespace) -> int:
+    from ..convert import block_from_isis
+    from ..io.isis import read_control_network, read_image_folder
+    from ..io.sensor_files import read_usgscsm
+    if not args.images:
+        raise UsageError("selfcal import isis needs --images DIR (the cube labels and their ISDs)")
+    for flag, value in (("--sigma-position-m", args.sigma_position_m), ("--sigma-attitude-deg", args.sigma_attitude_deg),
+                        ("--measure-sigma-px", args.measure_sigma_px)):
+        if value is not None and not value > 0:
+            raise UsageError(f"{flag} must be positive, found {value}")
+    network = read_control_network(args.source)
+    images = read_image_folder(args.images)
+    sigma_px = args.measure_sigma_px
+    if sigma_px is None:                  # jigsaw: 1.4 detector pixels, in the pixels of the cubes
+        first = read_usgscsm(next(iter(images.values()))[1])
+        detector_px = getattr(first, "alpha_cube", None)
+        scale = 1.0 if detector_px is None else (detector_px.alpha_ending_sample - detector_px.alpha_starting_sample) \
+            / detector_px.beta_samples
+        sigma_px = 1.4 / scale
+    settings = {k: v for k, v in (("sigma_position_m", args.sigma_position_m),
+                                  ("sigma_attitude_deg", args.sigma_attitude_deg)) if v is not None}
+    block, counts = block_from_isis(network, images, sigma_px, os.path.basename(os.path.normpath(args.out)), settings)
+    write_block(block, args.out)
+    roles = {r: int((block.points.role == r).sum()) for r in ("gcp", "tie")}
+    print(f"imported {len(block.images)} images, {len(block.points)} points ({roles['gcp']} gcp, {roles['tie']} tie), "
+          f"{len(block.observations)} measures (sigma {sigma_px:.3g} px) into {args.out}; left out: "
+          f"{counts['ignored_points']} ignored points, {counts['ignored_measures']} ignored measures, "
+          f"{counts['measures_without_image']} measures of images not in {args.images}", file=sys.stderr)
     return 0

@@ -17,7 +17,7 @@ import numpy as np
 from ..block import ROLES, AttitudeSamples, Block, Ephemeris, Images, InitialAP, Observations, Points, prune
 from ..errors import BlockError
 from .atomic import atomic_folder, atomic_write
-from ..sensors import SENSORS
+from ..sensors import SENSORS, sensor_of
 from .sensor_files import SENSOR_FILE_READERS
 from .table import NUM, OPT_NUM, STR, Column, read_table, write_table
 
@@ -385,16 +385,23 @@ def read_block(folder: str | os.PathLike, min_gcp: int = 3) -> Block:
     images, image_index, files = _read_images(folder, cameras)
     points, point_index = _read_points(folder)
     image_sigma = settings["observations"]["image_sigma_px"]
+    image_models = {image_id: SENSOR_FILE_READERS[cameras[camera_id].model](files[image_id][0])
+                    for image_id, camera_id in zip(images.image_id, images.camera_id) if image_id in files}
+    for camera_id, camera in list(cameras.items()):
+        mine = [image_models[i] for i, c in zip(images.image_id, images.camera_id) if c == camera_id and i in image_models]
+        try:
+            cameras[camera_id] = SENSORS[camera.model].configure_camera(camera, mine)
+        except ValueError as exc:
+            raise BlockError(os.path.join(folder, "images.csv"), f"camera '{camera_id}': {exc}", None,
+                             "sensor_file") from None
     observations = _read_observations(folder, images, image_index, point_index, cameras, image_sigma)
     gnss = settings.get("gnss", {}).get("sigma_m")
     imu = settings.get("imu", {}).get("sigma_deg")
     ephemeris = attitude = None
-    sensors = {c.model: SENSORS[c.model] for c in cameras.values()}
+    sensors = {c.model: sensor_of(c) for c in cameras.values()}
     if len({s.object_frame for s in sensors.values()}) > 1:
         raise BlockError(os.path.join(folder, "block.toml"), "a block's cameras share one object frame: "
                          f"{', '.join(sensors)} do not mix", None, "cameras")
-    image_models = {image_id: SENSOR_FILE_READERS[cameras[camera_id].model](files[image_id][0])
-                    for image_id, camera_id in zip(images.image_id, images.camera_id) if image_id in files}
     if any(s.needs_telemetry for s in sensors.values()):
         ephemeris, attitude = _read_telemetry(folder, cameras)
         missing = np.flatnonzero(np.isnan(images.time_s))

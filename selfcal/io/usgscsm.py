@@ -150,7 +150,7 @@ def read_usgscsm_isd(path: str | os.PathLike) -> LineScanIsd:
         focal2pixel_samples=np.asarray(_need(isd, "focal2pixel_samples", path), float),
         focal_length_mm=float(_need(isd, "focal_length_model", path)["focal_length"]),
         distortion_model=str(distortion_model),
-        distortion_coefficients=np.asarray(parameters.get("coefficients", []), float),
+        distortion_coefficients=np.atleast_1d(np.asarray(parameters.get("coefficients", []), float)),
         semi_major_m=float(radii["semimajor"]) * radius_unit, semi_minor_m=float(radii["semiminor"]) * radius_unit,
         position_times_s=position_times - center, positions_m=positions * unit, velocities_m_s=velocities * unit,
         pointing_times_s=pointing[0] - center, pointing_quaternions=pointing[1], pointing_constant=pointing[2],

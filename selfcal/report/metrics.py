@@ -412,6 +412,8 @@ def result_files(block_read, tested, summary_extra: dict | None = None, screenin
                 "trajectory.csv": trajectory_table(result) if result.problem.trajectory else None}
     if track is not None and checks is not None and len(checks):
         optional["check_points.csv"] = check_point_table(checks, track[1], track[0])
+    for slot in result.problem.sensors:
+        optional |= slot.sensor.result_files(result, slot)
     return files | {k: v for k, v in optional.items() if v is not None}
 
 

@@ -5,7 +5,7 @@ initial values find it here and never branch on the name. Foreign descriptions t
 pushbroom camera are read by :mod:`selfcal.io` (usgscsm ISD, Pleiades DIMAP) and built by the
 modules :mod:`.usgscsm` and :mod:`.dimap`.
 """
-from . import bal, frame, pushbroom, rpc
+from . import bal, frame, pushbroom, rpc, usgscsm_frame
 from .base import BoundSensor, Parameter, Sensor
 
 #: sensor name (``model =`` of a camera in block.toml) -> the sensor
@@ -14,13 +14,15 @@ SENSORS: dict[str, Sensor] = {
     "bal": bal.SENSOR,
     "pushbroom": pushbroom.SENSOR,
     "rpc": rpc.SENSOR,
+    "usgscsm": usgscsm_frame.SENSOR,
 }
 
 
 def sensor_of(camera) -> Sensor:
-    """The sensor of a block camera (its ``model``)."""
+    """The sensor of a block camera: its ``model``, or the sensor its images need where one model covers
+    several (a usgscsm camera of frame or line-scan ISDs: ``camera.sensor``)."""
     try:
-        return SENSORS[camera.model]
+        return SENSORS[getattr(camera, "sensor", camera.model)]
     except KeyError:
         raise ValueError(f"camera model {camera.model!r} has no sensor (known: {', '.join(SENSORS)})") from None
 

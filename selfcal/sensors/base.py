@@ -179,6 +179,15 @@ class Sensor(ABC):
         """Bind the images ``image_index`` of ``block`` (with their observations ``observation_index``,
         positions in the problem's sorted order) to ``problem``."""
 
+    def result_files(self, result, slot) -> dict:
+        """Files of its own for the results folder (DESIGN.md §4: a sensor adds, never renames): name -> a dict
+        (JSON) or a (header, columns, formats) table, from the adjustment ``result`` of the images ``slot``."""
+        return {}
+
+    def configure_camera(self, camera, image_models: list):
+        """The camera completed from its images' sensor descriptions (sensor_file), as read."""
+        return camera
+
     def check_camera(self, values: dict) -> list[tuple[str, str]]:
         """Defects of a camera's block.toml values that the key types do not catch: (key, reason) each."""
         return []

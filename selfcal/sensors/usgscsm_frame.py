@@ -54,10 +54,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..geometry.earth import intersect_ellipsoid
+from ..geometry.rotation import matrix_from_opk, matrix_from_opk_with_derivatives
+from .base import Parameter
+from .frame import FrameBound, FrameSensor
 from ..geometry.rotation import matrix_from_quaternion, opk_from_matrix, slerp
 from .usgscsm import hermite
 
-__all__ = ["FrameForm", "sensor_position_m", "body_from_j2000", "camera_from_j2000", "camera_from_body",
+__all__ = ["UsgscsmCamera", "UsgscsmFrameSensor", "SENSOR", "FrameForm", "sensor_position_m", "body_from_j2000", "camera_from_j2000", "camera_from_body",
            "isis_angles_deg", "detector_from_pixel", "pixel_from_detector", "focal_plane_from_pixel",
            "pixel_from_focal_plane", "undistort", "distort", "ground_to_focal_plane", "ground_to_image",
            "look_directions", "image_to_ground", "frame_form", "photo_from_focal_plane", "focal_plane_from_photo",
@@ -321,3 +324,320 @@ def isis_residuals_px(isd, col, row, points_m) -> tuple[np.ndarray, np.ndarray]:
     uc, vc = ground_to_focal_plane(isd, points_m)
     du, dv = um - uc, vm - vc
     return isd.itrans_s[1] * du + isd.itrans_s[2] * dv, isd.itrans_l[1] * du + isd.itrans_l[2] * dv
+
+
+# --- the sensor contract: usgscsm frame images in a block (model = "usgscsm") ---------------------------
+
+@dataclass(frozen=True)
+class UsgscsmCamera:
+    """Images whose geometry is a usgscsm / ALE image support data file each (``model = "usgscsm"``, the ISD
+    named by images.csv ``sensor_file``; DESIGN.md §3a). ``kind`` ("frame" or "line") is the ISD's sensor
+    model, found when the block is read; ``focal_mm``, ``x0_mm``, ``y0_mm``, ``width_px``, ``height_px`` and
+    ``pixel_size_mm`` come from the first ISD (the camera's start values). A-priori sigmas per image:
+    ``sigma_position_m`` (X0, Y0, Z0) and ``sigma_attitude_deg`` (omega, phi, kappa; absent: free);
+    ``sigma_focal_mm``, ``sigma_x0_mm``, ``sigma_y0_mm`` as for a frame camera, but absent means held (the
+    mission's calibration) and a positive value weights it; ``attitude_degree`` (line scanners: 0 a bias, 1 a
+    drift, up to 3)."""
+
+    camera_id: str
+    kind: str = ""
+    sigma_position_m: float | None = None
+    sigma_attitude_deg: float | None = None
+    sigma_focal_mm: float | None = 0.0
+    sigma_x0_mm: float | None = 0.0
+    sigma_y0_mm: float | None = 0.0
+    attitude_degree: int = 1
+    focal_mm: float = float("nan")
+    x0_mm: float = 0.0
+    y0_mm: float = 0.0
+    width_px: int = 0
+    height_px: int = 0
+    pixel_size_mm: float = float("nan")
+    initial_ap = None
+
+    model = "usgscsm"
+
+    @property
+    def sensor(self) -> str:
+        """The registered sensor of its images: the frame or the line-scan usgscsm sensor."""
+        return "usgscsm-line" if self.kind == "line" else "usgscsm"
+
+    @property
+    def width_mm(self) -> float:
+        return self.width_px * self.pixel_size_mm
+
+    @property
+    def height_mm(self) -> float:
+        return self.height_px * self.pixel_size_mm
+
+
+def _r1(a):
+    c, s = np.cos(a), np.sin(a)
+    z, o = np.zeros_like(a), np.ones_like(a)
+    return np.stack([np.stack([o, z, z], -1), np.stack([z, c, s], -1), np.stack([z, -s, c], -1)], -2)
+
+
+def _r3(a):
+    c, s = np.cos(a), np.sin(a)
+    z, o = np.zeros_like(a), np.ones_like(a)
+    return np.stack([np.stack([c, s, z], -1), np.stack([-s, c, z], -1), np.stack([z, z, o], -1)], -2)
+
+
+def _dr1(a):
+    c, s = np.cos(a), np.sin(a)
+    z = np.zeros_like(a)
+    return np.stack([np.stack([z, z, z], -1), np.stack([z, -s, c], -1), np.stack([z, -c, -s], -1)], -2)
+
+
+def _dr3(a):
+    c, s = np.cos(a), np.sin(a)
+    z = np.zeros_like(a)
+    return np.stack([np.stack([-s, c, z], -1), np.stack([-c, -s, z], -1), np.stack([z, z, z], -1)], -2)
+
+
+def pointing_matrix(angles_rad: np.ndarray, derivatives: bool = False):
+    """C = R3(TWIST) R1(DEC) R3(RA) (..., 3, 3) of jigsaw's camera angles (radians; passive rotations, SPICE's
+    z-x-z), the inverse of :func:`isis_pointing_deg`; with ``derivatives`` also dC/d(RA, DEC, TWIST)
+    (..., 3, 3, 3), the angle last."""
+    a = np.asarray(angles_rad, float)
+    ra, dec, tw = a[..., 0], a[..., 1], a[..., 2]
+    R_ra, R_dec, R_tw = _r3(ra), _r1(dec), _r3(tw)
+    C = R_tw @ R_dec @ R_ra
+    if not derivatives:
+        return C
+    d = np.stack([R_tw @ R_dec @ _dr3(ra), R_tw @ _dr1(dec) @ R_ra, _dr3(tw) @ R_dec @ R_ra], -1)
+    return C, d
+
+
+class UsgscsmFrameBound(FrameBound):
+    """Frame ISD images. Each image's parameters are jigsaw's: the J2000 position of the camera relative to the
+    body (m) and its pointing RA, DEC, TWIST (C = R3(TWIST) R1(DEC) R3(RA), J2000 -> camera); the prediction is
+    :mod:`selfcal.sensors.frame`'s collinearity of the body-fixed orientation they make (X0 = B X, M =
+    diag(Jᵀ, 1) C Bᵀ with B the body rotation at the image's time and J the photo axes in ISIS's focal plane),
+    its Jacobians by the chain rule. The measured pixels become ideal photo coordinates through each ISD's
+    pixel -> focal-plane affine and lens distortion (:func:`ideal_photo_from_pixel`), once."""
+
+    def __init__(self, problem, block, o, pixel, sigma_px):
+        super().__init__(problem, block, o, pixel, sigma_px)
+        self.isds, self.forms = {}, {}
+        n = problem.n_images
+        self.body = np.tile(np.eye(3), (n, 1, 1))           # B: J2000 -> body-fixed
+        self.axes = np.tile(np.eye(3), (n, 1, 1))           # diag(Jᵀ, 1): ISIS camera -> selfcal image axes
+        img = problem.obs_image[self.o]
+        for i in np.unique(img):
+            isd = block.image_models[block.images.image_id[i]]
+            form = frame_form(isd)
+            self.isds[int(i)], self.forms[int(i)] = isd, form
+            self.body[i] = body_from_j2000(isd)
+            self.axes[i, :2, :2] = form.focal_from_photo.T
+            sel = np.flatnonzero(img == i)
+            self.xy_mm[self.o[sel]] = np.column_stack(ideal_photo_from_pixel(isd, form, pixel[sel, 0], pixel[sel, 1]))
+
+    def eop(self, image: np.ndarray, derivatives: bool = False):
+        """The body-fixed exterior orientation (n, 6) of jigsaw's parameters (n, 6); with ``derivatives``
+        also d(X0, Y0, Z0)/d(X, Y, Z) = B (n, 3, 3) and d(omega, phi, kappa)/d(RA, DEC, TWIST) (n, 3, 3)."""
+        from ..geometry.rotation import opk_from_matrix_with_derivatives
+        position = np.einsum("nij,nj->ni", self.body, image[:, :3])
+        C, dC = pointing_matrix(image[:, 3:], derivatives=True)
+        Bt = np.swapaxes(self.body, 1, 2)
+        M = self.axes @ C @ Bt
+        opk, d_opk = opk_from_matrix_with_derivatives(M)
+        eop = np.column_stack([position, opk])
+        if not derivatives:
+            return eop
+        dM = np.einsum("nij,njkc,nkl->nilc", self.axes, dC, Bt)            # (n, 3, 3, angle)
+        return eop, self.body, np.einsum("nkij,nijc->nkc", d_opk, dM)
+
+    def context(self, state, jacobians: bool = True):
+        iop = np.array([c[:3] if len(c) >= 3 else np.zeros(3) for c in state.cameras]).reshape(-1, 3)
+        if jacobians:
+            eop, d_position, d_angles = self.eop(state.image, derivatives=True)
+            rotation = matrix_from_opk_with_derivatives(eop[:, 3:])
+        else:
+            eop, d_position, d_angles = self.eop(state.image), None, None
+            rotation = matrix_from_opk(eop[:, 3:])
+        return eop, iop, rotation, state.cameras, d_position, d_angles
+
+    def predict(self, context, o, img, cam, points, jacobians):
+        eop, iop, rotation, _, d_position, d_angles = context
+        out = super().predict((eop, iop, rotation, None), o, img, cam, points, jacobians)
+        if not jacobians:
+            return out
+        f, j_e, j_p, j_c = out
+        j_e = np.concatenate([j_e[:, :, :3] @ d_position[img], j_e[:, :, 3:] @ d_angles[img]], axis=2)
+        return f, j_e, j_p, j_c
+
+    def _ideal(self, img, pixel):
+        out = np.zeros((len(img), 2))
+        for i in np.unique(img):
+            sel = np.flatnonzero(img == i)
+            out[sel] = np.column_stack(ideal_photo_from_pixel(self.isds[int(i)], self.forms[int(i)],
+                                                              pixel[sel, 0], pixel[sel, 1]))
+        return out
+
+    def rays(self, context, img, pixel):
+        from .frame import rays
+        eop, iop = context[0], context[1]
+        cam = self.problem.image_camera[img]
+        return eop[img, :3], rays(self._ideal(img, pixel), eop[img], iop[cam])
+
+    def pixels(self, context, img, points):
+        """Ideal photo coordinates (with the camera's APs), through the lens distortion to cube pixels."""
+        from .frame import project
+        eop, iop, rotation, values = context[:4]
+        cam = self.problem.image_camera[img]
+        M = rotation[0] if isinstance(rotation, tuple) else rotation
+        xy = project(points, eop[img], iop[cam], M[img])
+        for k, camera in enumerate(self.problem.cameras):
+            sel = np.flatnonzero(cam == k)
+            if sel.size and camera.ap.n_params:
+                dx, dy = camera.ap.displacement_px(xy[sel, 0], xy[sel, 1], values[k][camera.n_core:] *
+                                                   camera.free[camera.n_core:])
+                xy[sel, 0] += camera.pixel_size_mm * dx
+                xy[sel, 1] += camera.pixel_size_mm * dy
+        out = np.zeros((len(img), 2))
+        for i in np.unique(img):
+            sel = np.flatnonzero(img == i)
+            isd, form = self.isds[int(i)], self.forms[int(i)]
+            pp = np.asarray(isd.principal_point_mm, float)
+            fx, fy = focal_plane_from_photo(form, xy[sel, 0], xy[sel, 1])
+            dx, dy = distort(isd, fx - pp[0], fy - pp[1])
+            out[sel] = np.column_stack(pixel_from_focal_plane(isd, dx + pp[0], dy + pp[1]))
+        return out
+
+    def ground_sample_distance(self, state):
+        """Mean over the observations of the range times the pixel size over the principal distance."""
+        img, pt = self.problem.obs_image[self.o], self.problem.obs_point[self.o]
+        position = self.eop(state.image)[:, :3]
+        distance = np.linalg.norm(state.points[pt] - position[img], axis=1)
+        c = np.array([state.cameras[k][0] for k in self.problem.image_camera[img]])
+        return float(np.mean(distance * self.pixel_size_mm[self.o] / c))
+
+
+class UsgscsmFrameSensor(FrameSensor):
+    """usgscsm / ALE frame ISDs (the Apollo Metric camera as ISIS computes it): a frame camera in the body-fixed
+    frame whose measurements are corrected for the mission's lens model once; the exterior orientation starts
+    at the ISD's and may be weighted (``sigma_position_m``, ``sigma_attitude_deg``), the interior orientation
+    is held unless weighted, and the frame APs self-calibrate what remains."""
+
+    name = "usgscsm"
+    image_parameters = (Parameter("X", "m", "EOP"), Parameter("Y", "m", "EOP"), Parameter("Z", "m", "EOP"),
+                        Parameter("RA", "rad", "EOP"), Parameter("DEC", "rad", "EOP"), Parameter("TWIST", "rad", "EOP"))
+    object_frame = "ECEF"
+    camera_type = UsgscsmCamera
+    camera_keys = {"model": ("str", True), "sigma_position_m": ("pos", False), "sigma_attitude_deg": ("pos", False),
+                   "sigma_focal_mm": ("nonneg", False), "sigma_x0_mm": ("nonneg", False),
+                   "sigma_y0_mm": ("nonneg", False), "attitude_degree": ("int", False)}
+    camera_tables = ()
+    supports_resection = False
+    min_points_per_image = 1
+
+    def bind(self, problem, block, o, pixel, sigma_px, options):
+        return UsgscsmFrameBound(problem, block, o, pixel, sigma_px)
+
+    def configure_camera(self, camera, image_models):
+        """The kind of its ISDs (all frame or all line scanner) and its start values from the first."""
+        from dataclasses import replace
+        if not image_models:
+            return camera
+        kinds = {"frame" if hasattr(m, "trans_x") else "line" for m in image_models}
+        if len(kinds) > 1:
+            raise ValueError("a usgscsm camera's ISDs are all frame or all line-scan sensor models")
+        first = image_models[0]
+        if kinds == {"line"}:
+            return replace(camera, kind="line", focal_mm=float(first.focal_length_mm), width_px=first.image_samples,
+                           height_px=first.image_lines)
+        form = frame_form(first)
+        return replace(camera, kind="frame", focal_mm=form.c_mm, x0_mm=form.x0_mm, y0_mm=form.y0_mm,
+                       width_px=form.width_px, height_px=form.height_px, pixel_size_mm=form.pixel_size_mm)
+
+    def result_files(self, result, slot):
+        """isis_images.csv and isis_points.csv: the adjustment in the quantities of jigsaw's bundleout files."""
+        return {"isis_images.csv": isis_image_table(result, slot), "isis_points.csv": isis_point_table(result)}
+
+    def check_camera(self, values):
+        degree = values.get("attitude_degree", 1)
+        return [] if 0 <= degree <= 3 else [("attitude_degree", f"attitude_degree must be 0..3, found {degree}")]
+
+    def initial_images(self, bound, block, image_index):
+        """The ISD's J2000 position (relative to the body) and jigsaw's RA, DEC, TWIST of its pointing."""
+        out = []
+        for i in image_index:
+            isd = block.image_models[block.images.image_id[i]]
+            position = isd.positions_m[0] if len(isd.positions_m) == 1 else \
+                body_from_j2000(isd).T @ sensor_position_m(isd)
+            out.append(np.concatenate([position, np.radians(isis_angles_deg(isd))]))
+        return np.array(out).reshape(-1, 6)
+
+    def image_setup(self, block, image_index, options):
+        free = np.ones((len(image_index), 6), bool)
+        sigma = np.full((len(image_index), 6), np.nan)
+        for row, i in enumerate(image_index):
+            camera = block.cameras[block.images.camera_id[i]]
+            if camera.sigma_position_m is not None:
+                sigma[row, :3] = camera.sigma_position_m
+            if camera.sigma_attitude_deg is not None:
+                sigma[row, 3:] = np.radians(camera.sigma_attitude_deg)
+        return free, sigma
+
+
+SENSOR = UsgscsmFrameSensor()
+
+
+# --- the adjustment as ISIS jigsaw reports it (isis_images.csv, isis_points.csv) ---------------------------
+
+def isis_pointing_deg(rotation: np.ndarray) -> np.ndarray:
+    """(RA, DEC, TWIST) in degrees of J2000 -> camera rotations C (..., 3, 3), as :func:`isis_angles_deg`."""
+    C = np.asarray(rotation, float)
+    dec = np.arccos(np.clip(C[..., 2, 2], -1.0, 1.0))
+    ra = np.arctan2(C[..., 2, 0], -C[..., 2, 1])
+    twist = np.arctan2(C[..., 0, 2], C[..., 1, 2])
+    return np.degrees(np.stack([ra, dec, twist], -1))
+
+
+def isis_image_table(result, slot) -> tuple:
+    """Per image, jigsaw's bundleout_images quantities: J2000 position (km) and RA/DEC/TWIST (deg) with their
+    correction from the ISD and a-posteriori sigma (the image's own parameters), and the residual RMS of its
+    measures in detector pixels (sample, line, both; jigsaw's unit: the full scanned frame's pixel)."""
+    problem, state, bound = result.problem, result.state, slot.bound
+    sigma = result.image_sigma()
+    v = result.residuals_px                                    # cube px, photo axes (x: sample, y: -line)
+    img_of_obs = result.block.observations.image_index
+    cols = {k: [] for k in ("image_id", "X_km", "dX_km", "sigma_X_km", "Y_km", "dY_km", "sigma_Y_km", "Z_km",
+                             "dZ_km", "sigma_Z_km", "RA_deg", "dRA_deg", "sigma_RA_deg", "DEC_deg", "dDEC_deg",
+                             "sigma_DEC_deg", "TWIST_deg", "dTWIST_deg", "sigma_TWIST_deg", "rms_sample_px",
+                             "rms_line_px", "rms_px", "n_measures")}
+    for i in slot.images:
+        isd, form = bound.isds[int(i)], bound.forms[int(i)]
+        scale = np.array([1e-3] * 3 + [np.degrees(1.0)] * 3)
+        final = state.image[i] * scale
+        correction = (state.image[i] - problem.image_prior_value[i]) * scale
+        correction[3:] = (correction[3:] + 180.0) % 360.0 - 180.0
+        s = sigma[i] * scale
+        detector = form.pixel_size_mm / isd.pixel_pitch_mm        # detector pixels per cube pixel
+        mine = (img_of_obs == i) & np.isfinite(v).all(axis=1)
+        r = v[mine] * detector
+        values = [result.block.images.image_id[i]]
+        for k in range(6):
+            values += [final[k], correction[k], s[k]]
+        values += [float(np.sqrt(np.mean(r[:, 0] ** 2))), float(np.sqrt(np.mean(r[:, 1] ** 2))),
+                   float(np.sqrt(np.mean(r ** 2))), int(mine.sum())]
+        for key, value in zip(cols, values):
+            cols[key].append(value)
+    header = list(cols)
+    columns = [np.array(cols[h], dtype=object if h == "image_id" else int if h == "n_measures" else float)
+               for h in header]
+    return header, columns, [""] + [".9g"] * (len(header) - 2) + ["d"]
+
+
+def isis_point_table(result) -> tuple:
+    """Per point, jigsaw's bundleout_points quantities: planetocentric latitude, longitude (deg), radius (km) and
+    the a-posteriori sigmas of latitude, longitude and radius in metres (north, east, radial)."""
+    from ..geometry.body import latlon_radius_from_xyz, sigmas_from_covariance
+    pts = result.block.points
+    xyz = result.state.points
+    lat, lon, radius = latlon_radius_from_xyz(xyz)
+    sigma = sigmas_from_covariance(xyz, result.point_covariance())
+    return (["point_id", "role", "lat_deg", "lon_deg", "radius_km", "sigma_lat_m", "sigma_lon_m", "sigma_radius_m"],
+            [pts.point_id.astype(object), pts.role.astype(object), np.degrees(lat), np.degrees(lon) % 360.0,
+             radius / 1000.0, sigma[:, 0], sigma[:, 1], sigma[:, 2]], ["", "", ".9f", ".9f", ".9f", ".6f", ".6f", ".6f"])
