@@ -60,7 +60,22 @@ def _rpc():
     return block, AdjustOptions()
 
 
-EXAMPLES = {"frame": _frame, "bal": _bal, "pushbroom": _pushbroom, "rpc": _rpc}
+def _usgscsm():
+    """The Apollo 15 Metric network (frame ISDs) through selfcal import isis and the block folder."""
+    import tempfile
+    from selfcal.convert import block_from_isis
+    from selfcal.io import read_block
+    from selfcal.io.block_folder import write_block
+    from selfcal.io.isis import read_control_network, read_image_folder
+    folder = os.path.join(SHARED_DATA, "isis", "apollo15_metric")
+    block, _ = block_from_isis(read_control_network(os.path.join(folder, "apolloNet.pvl")), read_image_folder(folder),
+                               camera_settings={"sigma_position_m": 1000.0, "sigma_attitude_deg": 2.0})
+    out = os.path.join(tempfile.mkdtemp(), "apollo")
+    write_block(block, out)
+    return read_block(out), AdjustOptions()
+
+
+EXAMPLES = {"frame": _frame, "bal": _bal, "pushbroom": _pushbroom, "rpc": _rpc, "usgscsm": _usgscsm}
 
 
 def test_every_registered_sensor_has_an_example():

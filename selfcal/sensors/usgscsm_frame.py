@@ -500,9 +500,8 @@ class UsgscsmFrameBound(FrameBound):
             sel = np.flatnonzero(img == i)
             isd, form = self.isds[int(i)], self.forms[int(i)]
             pp = np.asarray(isd.principal_point_mm, float)
-            fx, fy = focal_plane_from_photo(form, xy[sel, 0], xy[sel, 1])
-            dx, dy = distort(isd, fx - pp[0], fy - pp[1])
-            out[sel] = np.column_stack(pixel_from_focal_plane(isd, dx + pp[0], dy + pp[1]))
+            fx, fy = focal_plane_from_photo(form, xy[sel, 0], xy[sel, 1])        # undistorted, absolute
+            out[sel] = np.column_stack(pixel_from_focal_plane(isd, *distort(isd, fx - pp[0], fy - pp[1])))
         return out
 
     def ground_sample_distance(self, state):
