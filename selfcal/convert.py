@@ -321,8 +321,13 @@ def block_from_bal(problem, image_sigma_px: float = 1.0, name: str = "bal") -> B
                  observations=observations, image_sigma_px=image_sigma_px, datum="free")
 
 
+#: a control coordinate with this sigma (m) is as good as free: jigsaw's radius=no holds a Free point's radius only
+FREE_SIGMA_M = 1.0e6
+
+
 def block_from_isis(network, images: dict, image_sigma_px: float = 0.35, name: str = "isis",
-                    camera_settings: dict | None = None, fixed_sigma_m: float = 0.001) -> tuple[Block, dict]:
+                    camera_settings: dict | None = None, fixed_sigma_m: float = 0.001,
+                    hold_radii_m: float | None = None) -> tuple[Block, dict]:
     """A block from an ISIS control network (:func:`selfcal.io.isis.read_control_network`) and the images of
     its measures (``images``: serial number -> (cube label, sensor file), :func:`selfcal.io.isis.read_image_folder`).
 
@@ -331,7 +336,9 @@ def block_from_isis(network, images: dict, image_sigma_px: float = 0.35, name: s
     a-priori sigmas: the mean of latitude and longitude sigma in plan, the radius sigma in height, ISIS's
     body-fixed covariance turned into north, east, radial), Free points ``tie`` with their a-priori XYZ as
     start values. Ignored points and measures, and measures of images not in ``images``, are left out and
-    counted (the second return value). Points are body-fixed metres (``crs = "body-fixed"``).
+    counted (the second return value). Points are body-fixed metres (``crs = "body-fixed"``). With
+    ``hold_radii_m`` Free points with a-priori coordinates keep their radius within that sigma, latitude and
+    longitude free (sigma :data:`FREE_SIGMA_M`): jigsaw's ``radius=no``; they are then ``gcp`` of the block.
     ``image_sigma_px`` (cube pixels): jigsaw's default weight of a measure is 1.4 detector pixels, 0.35
     pixels of the Apollo cubes reduced 4x. ``camera_settings``: block.toml keys of the cameras (sigmas)."""
     from .geometry.body import sigmas_from_covariance
@@ -378,6 +385,9 @@ def block_from_isis(network, images: dict, image_sigma_px: float = 0.35, name: s
             s_lat, s_lon, s_rad = sigmas_from_covariance(start, point.apriori_covariance_m2)
             s_xy = float(np.sqrt((s_lat ** 2 + s_lon ** 2) / 2))
             sigma.append([s_xy, s_xy, s_rad])
+        elif hold_radii_m is not None and point.apriori_xyz_m is not None:
+            roles.append("gcp")
+            sigma.append([FREE_SIGMA_M, FREE_SIGMA_M, hold_radii_m])
         else:
             roles.append("tie")
             sigma.append([np.nan] * 3)

@@ -75,7 +75,25 @@ def _usgscsm():
     return read_block(out), AdjustOptions()
 
 
-EXAMPLES = {"frame": _frame, "bal": _bal, "pushbroom": _pushbroom, "rpc": _rpc, "usgscsm": _usgscsm}
+def _usgscsm_line():
+    """The LRO NAC pair (line-scan ISDs) through selfcal import isis and the block folder, attitude of degree 3."""
+    import tempfile
+    from selfcal.convert import block_from_isis
+    from selfcal.io import read_block
+    from selfcal.io.block_folder import write_block
+    from selfcal.io.isis import read_control_network, read_image_folder
+    from selfcal.workflows.isis import hold_radii
+    folder = os.path.join(SHARED_DATA, "isis", "lro_nac_pair")
+    block, _ = block_from_isis(read_control_network(os.path.join(folder, "observationPair.net")),
+                               read_image_folder(folder), 0.5,
+                               camera_settings={"sigma_attitude_deg": 1.0, "attitude_degree": 3})
+    out = os.path.join(tempfile.mkdtemp(), "lro")
+    write_block(block, out)
+    return hold_radii(read_block(out), 1.0), AdjustOptions()
+
+
+EXAMPLES = {"frame": _frame, "bal": _bal, "pushbroom": _pushbroom, "rpc": _rpc, "usgscsm": _usgscsm,
+            "usgscsm-line": _usgscsm_line}
 
 
 def test_every_registered_sensor_has_an_example():

@@ -142,6 +142,31 @@ def _hold(problem: Problem, state: State) -> None:
         values[:] = np.where(cam.free, values, cam.reference)
 
 
+def _ground_the_rest(problem: Problem, state: State, points: np.ndarray, notes: list[str]) -> None:
+    """Points whose rays do not meet at a useful angle (a stereo pair from one orbit, side-by-side cameras) start
+    where the ray of their first observation meets the median height of the points that have coordinates,
+    where their sensor can say (:meth:`~selfcal.sensors.base.BoundSensor.ground`)."""
+    known = np.isfinite(state.points).all(axis=1)
+    first = problem.point_start[points]
+    placed = 0
+    for slot in problem.sensors:
+        o = first[np.isin(first, slot.observations)]
+        mine = np.isin(problem.obs_point[slot.observations], np.flatnonzero(known))
+        if not o.size or not mine.any():
+            continue
+        try:
+            height = float(np.median(slot.bound.height(state.points[problem.obs_point[slot.observations[mine]]])))
+            context = slot.bound.context(state, False)
+            ground = slot.bound.ground(context, problem.obs_image[o], problem.obs_pixel[o], height)
+        except NotImplementedError:
+            continue
+        state.points[problem.obs_point[o]] = ground
+        placed += int(np.isfinite(ground).all(axis=1).sum())
+    if placed:
+        notes.append(f"{placed} point(s) whose rays meet at too small an angle start on the median height of the "
+                     f"points with coordinates")
+
+
 def initial_state(problem: Problem, block, start=None) -> tuple[State, list[str]]:
     """Initial values of all unknowns, and notes on what was resected.
 
@@ -223,6 +248,9 @@ def initial_state(problem: Problem, block, start=None) -> tuple[State, list[str]
                               f"fewer than 4 points with coordinates for a space resection")
     ok = intersect_ties() if unknown.any() else np.ones(len(points), bool)
     bad = ~ok & ~np.isfinite(state.points).all(axis=1)
+    if bad.any():
+        _ground_the_rest(problem, state, np.flatnonzero(bad), notes)
+        bad = ~np.isfinite(state.points).all(axis=1)
     if bad.any():
         raise AdjustmentError(f"{int(bad.sum())} point(s) cannot be intersected (rays do not meet at a useful "
                               f"angle), e.g. '{points.point_id[np.flatnonzero(bad)[0]]}'")

@@ -391,14 +391,25 @@ def _chunks(point_start: np.ndarray, target: int) -> list[tuple[int, int]]:
 
 
 def _control_weights(block: Block, control: np.ndarray, object_frame: str) -> np.ndarray:
-    """W (n, 3, 3) with W^T W the inverse covariance of each control point: diagonal in the block's
-    axes, or, for points in ECEF, from sigmas along east, north and up at the point."""
+    """W (n, 3, 3) with W^T W the inverse covariance of each control point: diagonal in the block's axes, or,
+    for points in an Earth- or body-fixed frame, diag(1 / sigma) times the local east, north and up (the WGS 84
+    normal on the Earth, the radial direction of a body: ``crs = "body-fixed"``) at the point, so that a
+    coordinate held loosely (sigma 1e6 m) and one held tightly do not meet in one inverted covariance."""
     sigma = block.points.sigma_m[control]
     if object_frame != "ECEF":
         return np.einsum("ni,ij->nij", 1.0 / sigma, np.eye(3))
-    from ..geometry.earth import horizon_covariance
-    covariance = horizon_covariance(block.points.xyz_m[control], sigma)
-    return np.linalg.inv(np.linalg.cholesky(covariance))
+    xyz = block.points.xyz_m[control]
+    if block.crs == "body-fixed":
+        from ..geometry.body import latlon_radius_from_xyz, north_east_radial
+        lat, lon, _ = latlon_radius_from_xyz(xyz)
+        frame = north_east_radial(lat, lon)[:, :, [1, 0, 2]]          # columns east, north, radial
+    else:
+        from ..geometry.earth import geodetic_from_ecef, local_up
+        lat, lon, _ = geodetic_from_ecef(xyz)
+        up = local_up(lat, lon)
+        east = np.stack([-np.sin(lon), np.cos(lon), np.zeros_like(lon)], -1)
+        frame = np.stack([east, np.cross(up, east), up], -1)
+    return np.einsum("ni,nki->nik", 1.0 / sigma, frame)
 
 
 def build_problem(block: Block, ap_spec: str = "none", ap_settings: dict | None = None,

@@ -6,6 +6,7 @@ import sys
 import time
 
 from ..adjust import AdjustOptions
+from ..adjust.solver import SolverOptions
 from ..ap import ALL_MODELS, AP_FAMILIES, parse_ap_spec
 from ..errors import UsageError
 from ..io import read_block
@@ -36,6 +37,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-report", action="store_true",
                         help="do not render report.html and figures/ (selfcal report RESULTS does it later)")
     parser.add_argument("--quiet", action="store_true", help="no progress output")
+    parser.add_argument("--max-iterations", type=int, default=SolverOptions.max_iterations, metavar="N",
+                        help=f"Gauss-Newton / Levenberg-Marquardt iterations at most (default "
+                             f"{SolverOptions.max_iterations}); a weakly determined block may need more")
     group = parser.add_argument_group("pushbroom blocks (seed 001)")
     group.add_argument("--sensor-model", metavar="MODEL",
                        help="M1..M7 of seed 001, or parameter names separated by commas (default: M6)")
@@ -122,6 +126,8 @@ def _candidates(args) -> list:
 
 def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
+    if args.max_iterations < 1:
+        raise UsageError(f"--max-iterations must be at least 1, found {args.max_iterations}")
     block = read_block(args.block)
     _check_options(block, args)
     for message in block.dropped.messages[:20]:
@@ -144,7 +150,8 @@ def run(args: argparse.Namespace) -> int:
                             parameter_sigma=ATTITUDE_FREE_SIGMA if args.no_attitude and
                             (sensor_model or "").upper() == "M6" else None,
                             ap_cameras=_ap_cameras(block, args), ap_sigma_px=args.ap_sigma_px,
-                            attitude_telemetry=not args.no_attitude)
+                            attitude_telemetry=not args.no_attitude,
+                            solver=SolverOptions(max_iterations=args.max_iterations))
     screening = screening_options(args) if args.screen else None
     request = AdjustRequest(options, SnoopingOptions(critical=args.snoop, mode=args.snoop_mode), screening,
                             VarianceOptions() if args.variance_components else None,

@@ -36,6 +36,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                       help="a-priori sigma of each image's position (jigsaw's spacecraft_position_sigma)")
     isis.add_argument("--sigma-attitude-deg", type=float, metavar="DEG",
                       help="a-priori sigma of each image's attitude angles (jigsaw's camera_angles_sigma)")
+    isis.add_argument("--attitude-degree", type=int, metavar="N",
+                      help="line scanners: degree 0..3 of the attitude corrections (jigsaw's cksolvedegree)")
+    isis.add_argument("--no-twist", action="store_true",
+                      help="line scanners: no correction of the rotation about the line of sight (jigsaw twist=no)")
+    isis.add_argument("--hold-radii", type=float, metavar="M",
+                      help="Free points keep their a-priori radius within this sigma (m), latitude and longitude "
+                           "free: jigsaw's radius=no, which holds them on the DEM the a-priori points came from")
     isis.add_argument("--measure-sigma-px", type=float, default=None, metavar="PX",
                       help="a-priori sigma of a measure in cube pixels (default: jigsaw's 1.4 detector pixels)")
 
@@ -94,9 +101,22 @@ def _import_isis(args: argparse.Namespace) -> int:
             / detector_px.beta_samples
         sigma_px = 1.4 / scale
     settings = {k: v for k, v in (("sigma_position_m", args.sigma_position_m),
-                                  ("sigma_attitude_deg", args.sigma_attitude_deg)) if v is not None}
-    block, counts = block_from_isis(network, images, sigma_px, os.path.basename(os.path.normpath(args.out)), settings)
+                                  ("sigma_attitude_deg", args.sigma_attitude_deg),
+                                  ("attitude_degree", args.attitude_degree)) if v is not None}
+    if args.no_twist:
+        settings["twist"] = False
+    if args.attitude_degree is not None and not 0 <= args.attitude_degree <= 3:
+        raise UsageError(f"--attitude-degree must be 0..3, found {args.attitude_degree}")
+    if args.hold_radii is not None and not args.hold_radii > 0:
+        raise UsageError(f"--hold-radii must be positive, found {args.hold_radii}")
+    block, counts = block_from_isis(network, images, sigma_px, os.path.basename(os.path.normpath(args.out)), settings,
+                                    hold_radii_m=args.hold_radii)
     write_block(block, args.out)
+    if args.hold_radii is not None and (block.points.role == "tie").any():
+        from ..io import read_block
+        from ..workflows.isis import hold_radii
+        block = hold_radii(read_block(args.out), args.hold_radii)
+        write_block(block, args.out)
     roles = {r: int((block.points.role == r).sum()) for r in ("gcp", "tie")}
     print(f"imported {len(block.images)} images, {len(block.points)} points ({roles['gcp']} gcp, {roles['tie']} tie), "
           f"{len(block.observations)} measures (sigma {sigma_px:.3g} px) into {args.out}; left out: "

@@ -49,7 +49,8 @@ OBSERVATION_COLUMNS = [
 ]
 
 # block.toml schema: key -> (type, required). Types: "str", "int", "pos" (> 0),
-# "num", "nonneg" (>= 0), "vec3pos" (three numbers > 0), "vec3" (three finite numbers).
+# "num", "nonneg" (>= 0), "count" (an integer >= 0), "bool", "vec3pos" (three numbers > 0), "vec3" (three finite
+# numbers), "intlist", "pairlist".
 _TOP_KEYS = {"name": ("str", False), "crs": ("str", False), "datum": ("str", False)}
 #: a camera's block.toml keys come from its sensor (selfcal.sensors: Sensor.camera_type, Sensor.camera_keys)
 _CAMERA_MODELS = {name: (sensor.camera_type, sensor.camera_keys) for name, sensor in SENSORS.items()}
@@ -89,6 +90,14 @@ def _check_value(path, text, section, key, value, kind):
     if kind == "int":
         if not isinstance(value, int) or isinstance(value, bool) or value <= 0:
             fail(f"must be a positive integer, found {value!r}")
+        return value
+    if kind == "count":
+        if not isinstance(value, int) or isinstance(value, bool) or value < 0:
+            fail(f"must be an integer 0 or more, found {value!r}")
+        return value
+    if kind == "bool":
+        if not isinstance(value, bool):
+            fail(f"must be true or false, found {value!r}")
         return value
     if kind == "intlist":
         if not isinstance(value, list) or not all(isinstance(v, int) and not isinstance(v, bool) and v > 0
@@ -465,6 +474,8 @@ def _require_trajectory(folder, images, names, values, section):
 # ---------------------------------------------------------------------------- writing
 
 def _fmt_toml_value(value) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
     if isinstance(value, str):
         return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
     if isinstance(value, (tuple, list)):

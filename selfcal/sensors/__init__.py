@@ -5,7 +5,7 @@ initial values find it here and never branch on the name. Foreign descriptions t
 pushbroom camera are read by :mod:`selfcal.io` (usgscsm ISD, Pleiades DIMAP) and built by the
 modules :mod:`.usgscsm` and :mod:`.dimap`.
 """
-from . import bal, frame, pushbroom, rpc, usgscsm_frame
+from . import bal, frame, pushbroom, rpc, usgscsm, usgscsm_frame
 from .base import BoundSensor, Parameter, Sensor
 
 #: sensor name (``model =`` of a camera in block.toml) -> the sensor
@@ -15,6 +15,7 @@ SENSORS: dict[str, Sensor] = {
     "pushbroom": pushbroom.SENSOR,
     "rpc": rpc.SENSOR,
     "usgscsm": usgscsm_frame.SENSOR,
+    "usgscsm-line": usgscsm.SENSOR,
 }
 
 

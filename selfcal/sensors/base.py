@@ -127,6 +127,10 @@ class BoundSensor(ABC):
         """Mean ground sample distance (m) of its images at ``state``; None where it has no meaning."""
         return None
 
+    def height(self, points: np.ndarray) -> np.ndarray:
+        """Heights (m) of object points above the reference surface :meth:`ground` takes heights on."""
+        raise NotImplementedError(f"{type(self).__name__} has no reference surface")
+
     def ground(self, context, img: np.ndarray, pixel: np.ndarray, height) -> np.ndarray:
         """Mono restitution: object points (m, 3) where the rays of image points (col, row) in images ``img``
         meet ``height`` (metres above the ellipsoid, or a callable ``height(lat_deg, lon_deg)``: a DEM)."""

@@ -391,6 +391,10 @@ class RpcBound(BoundSensor):
     def pixels(self, context, img, points):
         return self.predict(context, None, img, None, points, False)
 
+    def height(self, points):
+        """Ellipsoidal heights (WGS 84) of ECEF points."""
+        return geodetic_from_ecef(points)[2]
+
     def ground(self, context, img, pixel, height):
         out = np.full((len(img), 3), np.nan)
         for i in np.unique(img):

@@ -41,7 +41,7 @@ from ..geometry.rotation import matrix_from_quaternion, quaternion_from_matrix, 
 from .pushbroom import (LineCamera, LineImage, Trajectory, angles_from_body_to_orbit, fit_focal_plane, ground_to_image,
                         line_of_sight, rotation_x)
 
-__all__ = ["LineScan", "line_scan_from_isd", "undistort", "LagrangeSeries", "hermite", "usgscsm_ellipsoid_point",
+__all__ = ["UsgscsmLineSensor", "SENSOR", "IMAGE_PARAMETERS", "LineScan", "line_scan_from_isd", "undistort", "LagrangeSeries", "hermite", "usgscsm_ellipsoid_point",
            "FOCAL_PLANE_TOLERANCE_MM", "DISTORTION_MODELS", "MIN_EPHEMERIS_NODES"]
 
 #: the focal-plane polynomial reproduces the undistorted detector positions to this (mm)
@@ -151,17 +151,18 @@ def _focal_plane(isd, samples: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 # --- the model ------------------------------------------------------------------------------------
 
-def usgscsm_ellipsoid_point(origins: np.ndarray, directions: np.ndarray, semi_major_m: float,
-                            semi_minor_m: float) -> np.ndarray:
+def usgscsm_ellipsoid_point(origins: np.ndarray, directions: np.ndarray, semi_major_m,
+                            semi_minor_m) -> np.ndarray:
     """usgscsm's ``losEllipsoidIntersect``: of the two points where the *line* S + s d meets the
     ellipsoid, the one with the smaller |s| (it may lie behind the sensor); a line that misses gives
-    s = -b / 2a, its point nearest the ellipsoid in the scaled metric."""
+    s = -b / 2a, its point nearest the ellipsoid in the scaled metric. The semi-axes (m) may be one per line."""
     S, d = np.atleast_2d(origins), np.atleast_2d(directions)
-    k = (semi_major_m / semi_minor_m) ** 2
-    w = np.array([1.0, 1.0, k])
-    a = np.einsum("ni,ni,i->n", d, d, w)
-    b = 2.0 * np.einsum("ni,ni,i->n", d, S, w)
-    c = np.einsum("ni,ni,i->n", S, S, w) - semi_major_m ** 2
+    semi_major_m = np.asarray(semi_major_m, float)
+    k = (semi_major_m / np.asarray(semi_minor_m, float)) ** 2
+    w = np.stack(np.broadcast_arrays(np.ones_like(k), np.ones_like(k), k), -1)
+    a = np.sum(d * d * w, -1)
+    b = 2.0 * np.sum(d * S * w, -1)
+    c = np.sum(S * S * w, -1) - semi_major_m ** 2
     root = np.sqrt(np.maximum(b * b - 4 * a * c, 0.0))
     s1, s2 = -b - root, -b + root
     s = np.where(np.abs(s2) < np.abs(s1), s2, s1) / (2 * a)
@@ -242,3 +243,120 @@ def line_scan_from_isd(isd, image_id: str | None = None) -> LineScan:
     trajectory = Trajectory("ECEF", "", position, velocity, _OrbitAttitude(position, velocity, quaternions))
     image = LineImage.nominal(image_id or camera.camera_id, camera, trajectory, t_first, isd.image_lines)
     return LineScan(image, isd.semi_major_m, isd.semi_minor_m, misfit)
+
+
+# --- the sensor contract: usgscsm line-scan images in a block (model = "usgscsm", line-scan ISDs) -------------
+
+from .base import Parameter  # noqa: E402
+from .pushbroom.sensor import PushbroomBound, PushbroomSensor  # noqa: E402
+
+#: the attitude corrections of a line-scan ISD image: roll, pitch, yaw (orbit frame) as polynomials of degree
+#: up to 3 in s = (t - t_ref) / half the image's duration, coefficients in rad (jigsaw's CKDEGREE)
+ATTITUDE_DEGREE_MAX = 3
+_AXES = ("roll", "pitch", "yaw")
+IMAGE_PARAMETERS = tuple(Parameter(f"{a}_{k}", "rad", "EOP", screened=True)
+                         for a in _AXES for k in range(ATTITUDE_DEGREE_MAX + 1))
+
+
+class UsgscsmLineBound(PushbroomBound):
+    """Line-scan ISD images (:func:`line_scan_from_isd`) with attitude corrections of degree up to 3."""
+
+    def line_images(self, block, images, options):
+        scans = {int(k): line_scan_from_isd(block.image_models[block.images.image_id[k]], str(block.images.image_id[k]))
+                 for k in images}
+        self.radii = {k: (scan.semi_major_m, scan.semi_minor_m) for k, scan in scans.items()}
+        return {k: scan.image for k, scan in scans.items()}
+
+    def height(self, points):
+        """Heights above the body's ellipsoid of the ISDs (the Moon: radius - 1737.4 km; a sphere, as usgscsm)."""
+        a, b = next(iter(self.radii.values()))
+        lat = np.arctan2(points[:, 2], np.hypot(points[:, 0], points[:, 1]))
+        surface = a * b / np.hypot(b * np.cos(lat), a * np.sin(lat))        # geocentric radius of the ellipsoid
+        return np.linalg.norm(points, axis=1) - surface
+
+    def ground(self, context, img, pixel, height):
+        """usgscsm's imageToGround at heights above the ellipsoid (a + h, b + h): one, one per point, or a DEM
+        ``height(lat_deg, lon_deg)`` (planetocentric; the ray is intersected again at the DEM's height until
+        it moves less than 1 mm)."""
+        out = np.full((len(img), 3), np.nan)
+        for i in np.unique(img):
+            sel = np.flatnonzero(img == i)
+            a, b = self.radii[int(i)]
+            S, d = line_of_sight(context[int(i)], pixel[sel, 1], pixel[sel, 0])
+            if not callable(height):
+                h = np.broadcast_to(np.asarray(height, float), img.shape)[sel]
+                out[sel] = usgscsm_ellipsoid_point(S, d, a + h, b + h)
+                continue
+            h = np.zeros(sel.size)
+            for _ in range(20):
+                point = usgscsm_ellipsoid_point(S, d, a + h, b + h)
+                lat = np.degrees(np.arctan2(point[:, 2], np.hypot(point[:, 0], point[:, 1])))
+                h_new = np.asarray(height(lat, np.degrees(np.arctan2(point[:, 1], point[:, 0]))), float)
+                done = np.all(np.abs(h_new - h) < 1e-3)
+                h = h_new
+                if done:
+                    break
+            out[sel] = usgscsm_ellipsoid_point(S, d, a + h, b + h)
+        return out
+
+    def _image(self, state, i: int) -> LineImage:
+        """The image with its polynomial coefficients: c0 and c1 / half-duration are Eq. 6's d_0 and d_1 (per
+        second); c2, c3 are the higher terms."""
+        k = self.problem.image_camera[i]
+        image = self.images[i]
+        c = state.image[i].reshape(3, ATTITUDE_DEGREE_MAX + 1)
+        T = image.half_duration_s
+        standard = np.array([c[0, 0], c[0, 1] / T, c[1, 0], c[1, 1] / T, c[2, 0], c[2, 1] / T])
+        return image.with_parameters(np.concatenate([standard, state.cameras[k][:4]]), c[:, 2:])
+
+    def predict(self, context, o, img, cam, points, jacobians):
+        out = super().predict(context, o, img, cam, points, jacobians)
+        if not jacobians:
+            return out
+        f, j_e, j_p, j_c = out
+        s = np.zeros(len(img))
+        for i in np.unique(img):
+            sel = np.flatnonzero(img == i)
+            image = self.images[int(i)]
+            s[sel] = (self.t[o[sel]] - image.t_ref) / image.half_duration_s
+        powers = s[:, None] ** np.arange(ATTITUDE_DEGREE_MAX + 1)[None, :]          # (m, degree + 1)
+        j = np.einsum("mra,mk->mrak", j_e[:, :, [0, 2, 4]], powers).reshape(len(img), 2, -1)
+        return f, j, j_p, j_c
+
+
+class UsgscsmLineSensor(PushbroomSensor):
+    """usgscsm / ALE line-scan ISDs (LRO NAC, MRO CTX, ...): the ISD's own trajectory and pointing as usgscsm
+    interpolates them (:func:`line_scan_from_isd`), attitude corrections of the camera's ``attitude_degree``
+    (roll and pitch; yaw, the twist about the line of sight, unless ``twist = false``) and the focal length and
+    boresight held unless weighted (``sigma_focal_mm``)."""
+
+    name = "usgscsm-line"
+    image_parameters = IMAGE_PARAMETERS
+    sensor_models = ()
+    needs_telemetry = False
+
+    def bind(self, problem, block, o, pixel, sigma_px, options):
+        return UsgscsmLineBound(problem, block, o, pixel, sigma_px, options)
+
+    def image_setup(self, block, image_index, options):
+        free = np.zeros((len(image_index), len(IMAGE_PARAMETERS)), bool)
+        sigma = np.full(free.shape, np.nan)
+        for row, i in enumerate(image_index):
+            camera = block.cameras[block.images.camera_id[i]]
+            axes = _AXES if camera.twist else _AXES[:2]
+            for a, axis in enumerate(_AXES):
+                if axis in axes:
+                    free[row, a * 4:a * 4 + camera.attitude_degree + 1] = True
+                    if camera.sigma_attitude_deg is not None:
+                        sigma[row, a * 4] = np.radians(camera.sigma_attitude_deg)
+        return free, sigma
+
+    def camera_setup(self, camera, options):
+        held = np.zeros(4, bool)
+        sigma = np.full(4, np.nan)
+        if camera.sigma_focal_mm:
+            held[0], sigma[0] = True, camera.sigma_focal_mm
+        return np.array([camera.focal_mm, 0.0, 0.0, 0.0]), held, sigma
+
+
+SENSOR = UsgscsmLineSensor()

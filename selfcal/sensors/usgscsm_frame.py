@@ -336,8 +336,8 @@ class UsgscsmCamera:
     ``pixel_size_mm`` come from the first ISD (the camera's start values). A-priori sigmas per image:
     ``sigma_position_m`` (X0, Y0, Z0) and ``sigma_attitude_deg`` (omega, phi, kappa; absent: free);
     ``sigma_focal_mm``, ``sigma_x0_mm``, ``sigma_y0_mm`` as for a frame camera, but absent means held (the
-    mission's calibration) and a positive value weights it; ``attitude_degree`` (line scanners: 0 a bias, 1 a
-    drift, up to 3)."""
+    mission's calibration) and a positive value weights it; line scanners: ``attitude_degree`` (0 a bias, 1 a
+    drift, up to 3: the degree of the roll, pitch, yaw corrections) and ``twist`` (false: no yaw correction)."""
 
     camera_id: str
     kind: str = ""
@@ -347,6 +347,7 @@ class UsgscsmCamera:
     sigma_x0_mm: float | None = 0.0
     sigma_y0_mm: float | None = 0.0
     attitude_degree: int = 1
+    twist: bool = True
     focal_mm: float = float("nan")
     x0_mm: float = 0.0
     y0_mm: float = 0.0
@@ -526,7 +527,7 @@ class UsgscsmFrameSensor(FrameSensor):
     camera_type = UsgscsmCamera
     camera_keys = {"model": ("str", True), "sigma_position_m": ("pos", False), "sigma_attitude_deg": ("pos", False),
                    "sigma_focal_mm": ("nonneg", False), "sigma_x0_mm": ("nonneg", False),
-                   "sigma_y0_mm": ("nonneg", False), "attitude_degree": ("int", False)}
+                   "sigma_y0_mm": ("nonneg", False), "attitude_degree": ("count", False), "twist": ("bool", False)}
     camera_tables = ()
     supports_resection = False
     min_points_per_image = 1

@@ -277,6 +277,9 @@ class LineImage:
     t_first_s: float
     rows: int
     parameters: np.ndarray        # (10,) in the order of PARAMETER_NAMES; focal in mm
+    #: higher-order attitude corrections (3, m): roll, pitch, yaw coefficients (rad) of s^2 .. s^(m+1) with
+    #: s = (t - t_ref) / half_duration_s, beyond Eq. 6's constant and linear terms (ISIS jigsaw's CKDEGREE 3)
+    attitude_terms: np.ndarray | None = None
 
     @classmethod
     def nominal(cls, image_id: str, camera: LineCamera, trajectory: Trajectory, t_first_s: float, rows: int):
@@ -289,8 +292,25 @@ class LineImage:
         """Scene-centre time: the origin of the linear attitude corrections (Eq. 6)."""
         return self.t_first_s + 0.5 * self.rows * self.camera.line_period_s
 
-    def with_parameters(self, parameters: np.ndarray) -> "LineImage":
-        return replace(self, parameters=np.asarray(parameters, float).copy())
+    @property
+    def half_duration_s(self) -> float:
+        """Half the time of the image's lines: the unit of the higher-order attitude terms' time."""
+        return 0.5 * self.rows * abs(self.camera.line_period_s)
+
+    def with_parameters(self, parameters: np.ndarray, attitude_terms: np.ndarray | None = None) -> "LineImage":
+        return replace(self, parameters=np.asarray(parameters, float).copy(),
+                       attitude_terms=self.attitude_terms if attitude_terms is None else attitude_terms)
+
+    def attitude_correction(self, t) -> np.ndarray:
+        """The corrections (n, 3) of roll, pitch, yaw at times t: Eq. 6 and the higher-order terms."""
+        a = self.parameters
+        tau = np.atleast_1d(np.asarray(t, float)) - self.t_ref
+        out = np.stack([a[0] + a[1] * tau, a[2] + a[3] * tau, a[4] + a[5] * tau], -1)
+        if self.attitude_terms is not None and np.size(self.attitude_terms):
+            s = tau / self.half_duration_s
+            powers = s[:, None] ** (2 + np.arange(self.attitude_terms.shape[1]))[None, :]
+            out = out + powers @ np.asarray(self.attitude_terms, float).T
+        return out
 
     def time_of_row(self, row) -> np.ndarray:
         return self.t_first_s + np.asarray(row, float) * self.camera.line_period_s
@@ -343,10 +363,8 @@ class LineImage:
 
 def _attitude(image: LineImage, t: np.ndarray):
     """Corrected roll, pitch, yaw (n, 3) at times t."""
-    a = image.parameters
-    tau = t - image.t_ref
     fitted = np.atleast_2d(image.trajectory.attitude(t))
-    return fitted + np.stack([a[0] + a[1] * tau, a[2] + a[3] * tau, a[4] + a[5] * tau], -1)
+    return fitted + image.attitude_correction(t)
 
 
 def _frames(image: LineImage, t: np.ndarray):
@@ -404,7 +422,7 @@ def photo_coordinates(image: LineImage, points_ecef: np.ndarray, t: np.ndarray, 
     telemetry = track(image, t) if telemetry is None else telemetry
     a = image.parameters
     tau = t - image.t_ref
-    angles = telemetry.attitude + np.stack([a[0] + a[1] * tau, a[2] + a[3] * tau, a[4] + a[5] * tau], -1)
+    angles = telemetry.attitude + image.attitude_correction(t)
     R_BT, d_BT = _chain(np.radians(image.camera.view_pitch_deg) + a[8], a[7], a[9])
     earth_fixed = not len(telemetry.frame_to_ecef)
     return _collinearity(np.ascontiguousarray(P), telemetry.position, telemetry.frame_to_ecef,

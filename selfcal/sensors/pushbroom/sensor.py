@@ -150,12 +150,7 @@ class PushbroomBound(BoundSensor):
         self.o = np.asarray(o)
         n = problem.n_image_observations
         mine = np.unique(problem.obs_image[self.o])
-        given = block.image_models or {}
-        fitted = [k for k in mine if block.images.image_id[k] not in given]
-        images = dict(zip(fitted, line_images(block, getattr(options, "attitude_telemetry", True), image_index=fitted)))
-        images.update({k: given[block.images.image_id[k]] for k in mine if k not in images})
-        images = [images[k] for k in mine]
-        self.images: dict[int, LineImage] = dict(zip(mine.tolist(), images))
+        self.images: dict[int, LineImage] = self.line_images(block, mine, options)
         self.row = np.full(n, np.nan)
         self.col = np.full(n, np.nan)
         self.row[self.o], self.col[self.o] = pixel[:, 1], pixel[:, 0]
@@ -174,6 +169,15 @@ class PushbroomBound(BoundSensor):
         self._track_row = np.zeros(n, np.int64)
         for o in self._by_image.values():
             self._track_row[o] = np.arange(len(o))
+
+    def line_images(self, block, images: np.ndarray, options) -> dict[int, LineImage]:
+        """The nominal line image of each of ``images``: given in the block (its sensor_file), or fitted to the
+        block's telemetry."""
+        given = block.image_models or {}
+        fitted = [k for k in images if block.images.image_id[k] not in given]
+        out = dict(zip(fitted, line_images(block, getattr(options, "attitude_telemetry", True), image_index=fitted)))
+        out.update({k: given[block.images.image_id[k]] for k in images if k not in out})
+        return {int(k): out[k] for k in images}
 
     def observations(self):
         return self.detector[self.o], np.abs(self.scale[self.o]) * self.sigma_px[:, None]
@@ -243,6 +247,11 @@ class PushbroomBound(BoundSensor):
             distance = np.linalg.norm(state.points[self.problem.obs_point[o]] - S, axis=1)
             gsd.append(distance * np.abs(self.scale[o, 1]) / context[i].parameters[6])
         return float(np.mean(np.concatenate(gsd))) if gsd else None
+
+    def height(self, points):
+        """Ellipsoidal heights (WGS 84) of ECEF points."""
+        from ...geometry.earth import geodetic_from_ecef
+        return geodetic_from_ecef(points)[2]
 
     def ground(self, context, img, pixel, height):
         out = np.full((len(img), 3), np.nan)

@@ -1,0 +1,84 @@
+"""Side by side with ISIS jigsaw: the LRO NAC pair of ISIS's tests (../../../shared/data/isis/lro_nac_pair).
+
+Prints, for every LRO value of EXPECTED_VALUES.txt, jigsaw's number, selfcal's and their ratio: the mean and
+largest residual (px; the magnitude of each measure's residual, ISIS's AverageResidual and
+GetMaximumResidual) and the mean, standard deviation, minimum and maximum of the adjusted points' X, Y, Z
+(km, body-fixed), for each run of ``run.sh`` (``no_yaw``: jigsaw's options read literally; ``yaw``: with the
+rotation about the line of sight free; ``degree1``: bias and drift only).
+
+Run: ``python compare.py [RESULTS]`` after ``run.sh`` (RESULTS defaults to results/ beside this file).
+"""
+from __future__ import annotations
+
+import csv
+import math
+import os
+import re
+import statistics
+import sys
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+EXPECTED = os.path.join(HERE, "..", "..", "..", "shared", "data", "isis", "EXPECTED_VALUES.txt")
+RUNS = {"no_yaw": "jigsaw's options (roll, pitch of degree 3, no yaw)",
+        "yaw": "roll, pitch and yaw of degree 3",
+        "degree1": "roll and pitch of degree 1 (bias and drift)"}
+STATISTICS = ("mean", "sd", "min", "max")
+
+
+def read_jigsaw(path: str = EXPECTED) -> dict:
+    """jigsaw's LRO NAC results of EXPECTED_VALUES.txt: ``mean_residual_px``, ``max_residual_px`` and
+    ``points``: axis -> {mean, sd, min, max} (km)."""
+    with open(path, encoding="utf-8") as handle:
+        text = handle.read()
+    section = text[text.index("LRO NAC pair: jigsaw"):]
+    found = re.search(r"mean residual ([0-9.]+) px, maximum residual ([0-9.]+) px", section)
+    out = {"mean_residual_px": float(found.group(1)), "max_residual_px": float(found.group(2)), "points": {}}
+    for axis, values in re.findall(r"\b([XYZ]) (mean [-0-9.e]+ sd [-0-9.e]+ min [-0-9.e]+ max [-0-9.e]+)", section):
+        words = values.split()
+        out["points"][axis] = {words[k]: float(words[k + 1]) for k in range(0, 8, 2)}
+    return out
+
+
+def read_selfcal(results: str) -> dict:
+    """The same values from a selfcal results folder (residuals.csv, points.csv)."""
+    with open(os.path.join(results, "residuals.csv"), newline="", encoding="utf-8") as handle:
+        magnitude = [math.hypot(float(r["vx_px"]), float(r["vy_px"])) for r in csv.DictReader(handle)
+                     if r["rejected"] == "0"]
+    with open(os.path.join(results, "points.csv"), newline="", encoding="utf-8") as handle:
+        points = list(csv.DictReader(handle))
+    out = {"mean_residual_px": statistics.fmean(magnitude), "max_residual_px": max(magnitude), "points": {}}
+    for axis in "XYZ":
+        km = [float(p[axis]) / 1000.0 for p in points]
+        out["points"][axis] = {"mean": statistics.fmean(km), "sd": statistics.stdev(km), "min": min(km),
+                               "max": max(km)}
+    return out
+
+
+def rows(results: str, jigsaw: dict | None = None) -> list[tuple[str, float, float]]:
+    """(quantity, jigsaw, selfcal) of every LRO value of EXPECTED_VALUES.txt."""
+    jigsaw = jigsaw or read_jigsaw()
+    ours = read_selfcal(results)
+    out = [("mean residual [px]", jigsaw["mean_residual_px"], ours["mean_residual_px"]),
+           ("maximum residual [px]", jigsaw["max_residual_px"], ours["max_residual_px"])]
+    for axis in "XYZ":
+        for stat in STATISTICS:
+            out.append((f"points {axis} {stat} [km]", jigsaw["points"][axis][stat], ours["points"][axis][stat]))
+    return out
+
+
+def main(argv: list[str]) -> int:
+    results = argv[1] if len(argv) > 1 else os.path.join(HERE, "results")
+    jigsaw = read_jigsaw()
+    for run, title in RUNS.items():
+        folder = os.path.join(results, run)
+        if not os.path.isdir(folder):
+            continue
+        print(f"\n{run}: {title}")
+        print(f"{'quantity':28s} {'jigsaw':>14s} {'selfcal':>14s} {'ratio':>8s} {'difference':>11s}")
+        for name, theirs, ours in rows(folder, jigsaw):
+            print(f"{name:28s} {theirs:14.6f} {ours:14.6f} {ours / theirs:8.4f} {ours - theirs:11.4f}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv))
