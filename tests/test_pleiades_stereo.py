@@ -67,6 +67,7 @@ from selfcal.adjust import adjust
 from selfcal.geometry.earth import geodetic_from_ecef
 from selfcal.io import read_block
 from selfcal.io.rpc import read_rpc
+from selfcal.sensors.rpc import BIAS_PARAMETERS
 from selfcal.workflows.adjust import AdjustRequest, adjust_block
 from selfcal.workflows.frames import object_frame_block
 
@@ -169,7 +170,7 @@ def rms_px(result) -> float:
 
 def held(block):
     """``block`` adjusted with every bias term held at zero: the tie points intersected through the vendor RPCs."""
-    width = 6
+    width = len(BIAS_PARAMETERS["affine"])
     return adjust(object_frame_block(block), free={("image", i): np.zeros(width, bool) for i in block.images.image_id})
 
 
@@ -193,7 +194,7 @@ def across_epipolar_shift(result):
     n = result.problem.n_images * result.problem.image_width
     Q = (result.variance_factor * result.Q_theta[:n, :n])[np.ix_([0, 3, 6, 9], [0, 3, 6, 9])]   # a0, b0 of both
     vector = np.linalg.eigh(Q)[1][:, 0]
-    across = vector[:2] / np.linalg.norm(vector[:2])
+    across = vector[:2] / np.linalg.norm(vector[:2]) * np.sign(vector[1])     # pointing to growing columns
     d = np.concatenate([across, -across])
     shift = result.state.image[:, [0, 3]]
     return across, float(across @ (shift[0] - shift[1])), float(np.sqrt(d @ Q @ d))
