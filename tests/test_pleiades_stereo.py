@@ -1,0 +1,309 @@
+"""A real Pleiades stereo pair with vendor RPCs and tie points only (issue 21, "Pleiades stereo").
+
+Data: ``../shared/data/pushbroom/pleiades/phr_ventoux`` (CNES shareloc's test data, Apache-2.0): two crops of
+one along-track stereo acquisition over the Mont Ventoux foothills (Pleiades 1B, 2013-08-05, images
+690908101-001 at 10:42:19 and -002 at 10:42:52), each crop a GeoTIFF without a CRS, and each full image's RPC as
+an OSSIM ``.geom`` (the left one also as the vendor's DIMAP ``RPC_*.XML``).
+
+Pixel coordinates (how the crops sit in the full images):
+
+* The RPCs are those of the **full images** (``.geom`` rect 0 0 39181 41800, 41801 lines x 39182 samples; the
+  XML's LINE_OFF 21110.5 is the .geom's line_off 21109.5 + 1: DIMAP 1-based, OSSIM 0-based, both at pixel
+  centres, and the readers put both in selfcal's corner convention: the two files agree to 1e-8 px).
+* Each crop's GeoTIFF transform is a pure translation with unit pixels, ``(1, 0, c, 0, 1, f)``: left
+  (c, f) = (5000, 5000), right (4915, 5162). It maps the crop's pixel-corner coordinates to the full image's:
+  full (col, row) = transform * (col, row) of the crop, both with (0, 0) at the upper-left corner of the
+  upper-left pixel (DESIGN.md section 2). This is shareloc's ``Image.transform_index_to_physical_point``
+  (rasterio ``xy(..., offset="center")``: the centre of crop pixel index (i, j) is at f + i + 0.5, c + j + 0.5)
+  with shareloc's default RPC convention (first pixel centre at 0.5, selfcal's). Checked below against
+  shareloc's own test (tests/geofunctions/test_localization.py ``test_localize_direct_rpc``: the centre of the
+  left crop's first pixel, localised on SRTM + EGM96, is lon 5.193406151946084, lat 44.20805807814395,
+  h 503.51202179 m): it projects to (5000.5, 5000.5) within 0.01 px. (CARS's test of the same crop,
+  tests/core/geometry/test_shareloc_geometry.py ``test_dir_loc_rpc``, lands its pixel (0, 0) at (5001.0, 5001.0),
+  half a pixel further; a common shift of both images is a pure ground shift that a tie-only adjustment cannot
+  see, so nothing below depends on that half pixel.)
+* So the **measurements are converted, the RPCs left as they are**: an OpenCV keypoint (x, y) (pixel centres at
+  integers) of a crop becomes full-image (col, row) = (x + 0.5 + c, y + 0.5 + f), and observations.csv holds
+  full-image coordinates with the images' own ``.geom`` as ``sensor_file``.
+
+The tie-only block: SIFT on the two crops (8-bit stretch of the 12-bit data between the 1st and 99th percentile),
+Lowe's ratio test 0.75, duplicates removed (SIFT lists a keypoint of two orientations twice), a fundamental matrix
+by RANSAC (1 px; it fits its own epipolar geometry to the matches and knows nothing of the RPCs, so their bias
+cannot reject true ties), then a neighbourhood filter: a match's displacement within 10 px of the median of its 8
+nearest neighbours'. That last one is needed: a mismatch *along* its epipolar line passes RANSAC, and a two-ray tie
+point has no redundancy along it, so no adjustment can flag it -- it becomes a wrong height (here one match, 250 m
+below its neighbours). Every match left is a two-ray tie point.
+``rpc`` camera, ``bias = "shift"`` or ``"affine"``, ``sigma_bias_px = 10`` (Pleiades' absolute location without
+control, 8.5 m CE90, is about 4 m = 8 px per axis at 0.5 m GSD), image sigma 0.3 px (sigma0 comes out at
+0.23 px), data snooping as ``selfcal adjust`` does it (critical |w| 3).
+
+Uncorrected RPCs: the same block adjusted with every bias term held at zero (``adjust(..., free=...)``): each
+tie point is then the image-space least-squares intersection of its two rays through the vendor RPCs.
+RMS = sqrt(mean |v|^2) over the image points (summary.json ``rms_image_residual_px``).
+
+Datum: with ties only, the bias prior holds what the ties cannot see (summary.json has no ``datum`` key to say
+so). Measured (shift): the ties determine one combination of the four shifts, the relative shift across the
+epipolar lines (left - right 4.81 +- 0.05 px along (row, col) = (0.26, 0.97), 15 degrees from the column axis),
+while the common row and column shift and the relative shift *along* the epipolar lines (which only moves the
+heights) stay at their prior 0 +- 10 px: the cofactor of the shifts, scaled by the prior, has eigenvalues 2e-6,
+1, 1, 1. The points therefore lie where the vendor RPCs put them, the correction split evenly between the two
+images. With the affine bias on a 500 x 500 px crop, 1 of the 12 directions is determined, 2 partly (0.22 and
+0.66 of the prior variance), 9 held by the prior.
+
+Measured (OpenCV 5.0.0, this machine): 549 ratio-test matches, 494 unique, 435 RANSAC inliers, 434 tie points
+after the neighbourhood filter; 2 (shift) and 3 (affine) observations rejected by snooping, |w| 3.2-3.4; RMS
+2.41 px uncorrected -> 0.163 px with the shift bias (14.8x) and 0.158 px affine (15.2x); ellipsoidal heights
+508 / 537 / 571 m (min / median / max), moved by less than 0.1 m by the bias; shareloc's SRTM height at the
+crop's first pixel is 503.5 m. About 5 s.
+"""
+import functools
+import os
+import time
+
+import numpy as np
+import pytest
+
+from selfcal.adjust import adjust
+from selfcal.geometry.earth import geodetic_from_ecef
+from selfcal.io import read_block
+from selfcal.io.rpc import read_rpc
+from selfcal.sensors.rpc import BIAS_PARAMETERS
+from selfcal.workflows.adjust import AdjustRequest, adjust_block
+from selfcal.workflows.frames import object_frame_block
+
+from conftest import SHARED_DATA
+
+DATA = os.path.join(SHARED_DATA, "pushbroom", "pleiades", "phr_ventoux")
+CROPS = ("left", "right")
+SIGMA_BIAS_PX = 10.0
+IMAGE_SIGMA_PX = 0.3
+RATIO = 0.75                    # Lowe's ratio test
+RANSAC_PX = 1.0                 # fundamental-matrix RANSAC threshold
+LOCAL_PX = 10.0                 # largest departure of a match's displacement from its neighbours' median
+#: shareloc test_localize_direct_rpc: the centre of the left crop's first pixel on SRTM + EGM96 (ellipsoidal h)
+SHARELOC_FIRST_PIXEL = (5.193406151946084, 44.20805807814395, 503.51202179)
+
+
+def setup_module():
+    assert os.path.isdir(DATA), f"shared test data missing: {DATA}"
+
+
+def _crop(name: str):
+    """The crop as 8-bit (1st-99th percentile stretch) and its offset (c, f) in the full image (px)."""
+    import rasterio
+    with rasterio.open(os.path.join(DATA, f"{name}_image.tif")) as dataset:
+        data = dataset.read(1).astype(float)
+        t = dataset.transform
+    assert (t.a, t.b, t.d, t.e) == (1.0, 0.0, 0.0, 1.0), f"{name}: the crop transform is not a translation: {t}"
+    lo, hi = np.percentile(data[data > 0], [1, 99])
+    return np.clip((data - lo) / (hi - lo) * 255.0, 0, 255).astype(np.uint8), np.array([t.c, t.f])
+
+
+def _once(points) -> np.ndarray:
+    """Whether each position occurs once among ``points`` (to 0.01 px)."""
+    _, inverse, counts = np.unique(np.round(points, 2), axis=0, return_inverse=True, return_counts=True)
+    return counts[inverse.ravel()] == 1
+
+
+@functools.lru_cache(maxsize=None)
+def sift_ties():
+    """(counts after each filter, full-image (col, row) of the tie points in the left and in the right image)."""
+    import cv2
+    from scipy.spatial import cKDTree
+    (left, off_left), (right, off_right) = (_crop(n) for n in CROPS)
+    sift = cv2.SIFT_create()
+    k1, d1 = sift.detectAndCompute(left, None)
+    k2, d2 = sift.detectAndCompute(right, None)
+    pairs = cv2.BFMatcher(cv2.NORM_L2).knnMatch(d1, d2, k=2)
+    good = [m for m, n in (p for p in pairs if len(p) == 2) if m.distance < RATIO * n.distance]
+    counts = {"ratio_test": len(good)}
+    p1 = np.float64([k1[m.queryIdx].pt for m in good])
+    p2 = np.float64([k2[m.trainIdx].pt for m in good])
+    # SIFT gives a keypoint with two dominant orientations twice: one tie point per pair of positions, and none
+    # where a position is paired with two different ones
+    _, first = np.unique(np.round(np.hstack([p1, p2]), 2), axis=0, return_index=True)
+    p1, p2 = p1[np.sort(first)], p2[np.sort(first)]
+    keep = _once(p1) & _once(p2)
+    p1, p2 = p1[keep], p2[keep]
+    counts["unique"] = len(p1)
+    _, inlier = cv2.findFundamentalMat(p1, p2, cv2.FM_RANSAC, RANSAC_PX, 0.999)
+    inlier = inlier.ravel().astype(bool)
+    p1, p2 = p1[inlier], p2[inlier]
+    counts["ransac"] = len(p1)
+    # a mismatch along its epipolar line passes RANSAC, and with two rays the adjustment cannot see it either (it
+    # becomes a wrong height): keep the matches whose displacement is within LOCAL_PX of the median displacement
+    # of their 8 nearest neighbours (10 px: about 15 m of height at this pair's base-to-height ratio of 0.34)
+    d = p2 - p1
+    _, near = cKDTree(p1).query(p1, k=9)
+    keep = np.linalg.norm(d - np.median(d[near[:, 1:]], axis=1), axis=1) <= LOCAL_PX
+    p1, p2 = p1[keep], p2[keep]
+    counts["local"] = len(p1)
+    # OpenCV puts pixel centres at integers: + 0.5 to selfcal's corner convention, + the crop's offset
+    return counts, p1 + 0.5 + off_left, p2 + 0.5 + off_right
+
+
+def write_block(folder, bias: str, left, right) -> None:
+    """A block folder: one rpc camera, the two images with their .geom, tie points without coordinates."""
+    os.makedirs(folder, exist_ok=True)
+    with open(os.path.join(folder, "block.toml"), "w") as f:
+        f.write(f'name = "ventoux"\ncrs = "EPSG:4979"\n\n[cameras.phr]\nmodel = "rpc"\nbias = "{bias}"\n'
+                f"width_px = 39182\nheight_px = 41801\nsigma_bias_px = {SIGMA_BIAS_PX}\n\n"
+                f"[observations]\nimage_sigma_px = {IMAGE_SIGMA_PX}\n")
+    with open(os.path.join(folder, "images.csv"), "w") as f:
+        f.write("image_id,camera_id,strip_id,time_s,X0,Y0,Z0,omega_deg,phi_deg,kappa_deg,sensor_file\n")
+        for name in CROPS:
+            f.write(f"{name},phr,pair,,,,,,,,{os.path.abspath(os.path.join(DATA, name + '_image.geom'))}\n")
+    with open(os.path.join(folder, "points.csv"), "w") as f:
+        f.write("point_id,role,X,Y,Z,sigma_xy_m,sigma_z_m\n")
+        f.writelines(f"t{k},tie,,,,,\n" for k in range(len(left)))
+    with open(os.path.join(folder, "observations.csv"), "w") as f:
+        f.write("image_id,point_id,col_px,row_px\n")
+        for k, (a, b) in enumerate(zip(left, right)):
+            f.write(f"left,t{k},{a[0]:.4f},{a[1]:.4f}\nright,t{k},{b[0]:.4f},{b[1]:.4f}\n")
+
+
+def rms_px(result) -> float:
+    """RMS of the image residual vectors (summary.json rms_image_residual_px)."""
+    v = result.residuals_px
+    return float(np.sqrt(np.mean(np.sum(v * v, axis=1))))
+
+
+def held(block):
+    """``block`` adjusted with every bias term held at zero: the tie points intersected through the vendor RPCs."""
+    width = len(BIAS_PARAMETERS["affine"])
+    return adjust(object_frame_block(block), free={("image", i): np.zeros(width, bool) for i in block.images.image_id})
+
+
+def heights_m(result) -> np.ndarray:
+    return geodetic_from_ecef(result.state.points)[2]
+
+
+def prior_scaled_eigenvalues(result) -> np.ndarray:
+    """Eigenvalues of the bias cofactor divided by the prior (1: held by the prior alone; 0: fixed by the ties)."""
+    p = result.problem
+    n = p.n_images * p.image_width
+    free = p.image_free.ravel()
+    Q = result.Q_theta[:n, :n][np.ix_(free, free)]
+    s = p.image_prior_sigma.ravel()[free]
+    return np.linalg.eigvalsh(Q / np.outer(s, s))
+
+
+def across_epipolar_shift(result):
+    """The relative shift the ties determine (shift bias): the unit image direction (row, col) of the
+    best-determined eigenvector of the shift cofactor, the relative shift left - right along it and its sigma (px)."""
+    n = result.problem.n_images * result.problem.image_width
+    Q = (result.variance_factor * result.Q_theta[:n, :n])[np.ix_([0, 3, 6, 9], [0, 3, 6, 9])]   # a0, b0 of both
+    vector = np.linalg.eigh(Q)[1][:, 0]
+    across = vector[:2] / np.linalg.norm(vector[:2]) * np.sign(vector[1])     # pointing to growing columns
+    d = np.concatenate([across, -across])
+    shift = result.state.image[:, [0, 3]]
+    return across, float(across @ (shift[0] - shift[1])), float(np.sqrt(d @ Q @ d))
+
+
+@pytest.fixture(scope="module")
+def stereo(tmp_path_factory):
+    t0 = time.perf_counter()
+    counts, left, right = sift_ties()
+    out = {"counts": counts, "n_ties": len(left)}
+    for bias in ("shift", "affine"):
+        folder = tmp_path_factory.mktemp(f"ventoux_{bias}")
+        write_block(folder, bias, left, right)
+        block = read_block(folder)
+        tested = adjust_block(block, AdjustRequest()).tested
+        out[bias] = tested
+        if bias == "shift":
+            out["block"] = block
+            out["before_all"] = held(block)                  # every matched observation
+            out["before"] = held(tested.result.block)        # the observations snooping kept
+    out["seconds"] = time.perf_counter() - t0
+    return out
+
+
+def test_the_crop_offset_puts_sharelocs_first_pixel_centre_at_its_place():
+    """The convention of the module docstring: shareloc's localisation of the centre of the left crop's first
+    pixel projects through the full image's RPC (.geom and DIMAP XML) onto transform * (0.5, 0.5) =
+    (5000.5, 5000.5), within 0.01 px (measured 0.006 px in rows, 0.002 px in columns)."""
+    _, (c, f) = _crop("left")
+    for name in ("left_image.geom", "RPC_PHR1B_P_201308051042194_SEN_690908101-001.XML"):
+        row, col = read_rpc(os.path.join(DATA, name)).project(*SHARELOC_FIRST_PIXEL)
+        assert abs(row - (f + 0.5)) < 0.01 and abs(col - (c + 0.5)) < 0.01, (name, row, col)
+
+
+def test_sift_finds_tie_points_between_the_crops(stereo):
+    """Measured: 549 matches pass the ratio test, 494 are unique, 435 pass RANSAC and 434 the neighbourhood
+    filter (OpenCV 5.0.0; the one it removes lies 154 px from its neighbours' displacement, a mismatch along the
+    epipolar line that would have been a tie point 250 m below the others); the floor leaves room
+    for other OpenCV versions."""
+    c = stereo["counts"]
+    print(f"\nSIFT: {c['ratio_test']} ratio-test matches, {c['unique']} unique, {c['ransac']} RANSAC inliers, "
+          f"{c['local']} tie points consistent with their neighbours")
+    assert c["local"] >= 200
+    assert c["unique"] >= 0.8 * c["ratio_test"] and c["ransac"] >= 0.8 * c["unique"]
+    assert c["local"] >= c["ransac"] - 3                     # the local filter takes out gross mismatches only
+
+
+def test_bias_brings_the_residuals_down_threefold_to_below_half_a_pixel(stereo):
+    """RMS with the uncorrected RPCs (bias held at zero) against the shift and the affine bias, on the same
+    observations (those snooping kept); measured 2.41 -> 0.163 (shift) and 0.158 px (affine), 15x."""
+    before, before_all = rms_px(stereo["before"]), rms_px(stereo["before_all"])
+    shift, affine = (rms_px(stereo[k].result) for k in ("shift", "affine"))
+    rejected = {k: len(stereo[k].rejected_rows) for k in ("shift", "affine")}
+    print(f"\nimage residual RMS: uncorrected RPCs {before:.3f} px ({before_all:.3f} px with all "
+          f"{len(stereo['block'].observations)} observations), shift bias {shift:.3f} px, affine bias "
+          f"{affine:.3f} px ({before / shift:.1f}x, {before / affine:.1f}x); rejected by snooping {rejected}; "
+          f"sigma0 {stereo['shift'].result.sigma0_px:.3f} / {stereo['affine'].result.sigma0_px:.3f} px; "
+          f"{stereo['seconds']:.1f} s")
+    assert before >= 1.0
+    for after in (shift, affine):
+        assert after <= 0.5
+        assert before / after >= 3.0
+    # snooping takes out a few mismatches, not the data
+    assert max(rejected.values()) <= 0.02 * len(stereo["block"].observations)
+    for k in ("shift", "affine"):
+        assert stereo[k].result.converged
+        assert 0.1 < stereo[k].result.sigma0_px < 0.5
+
+
+def test_tie_point_heights_fit_the_terrain(stereo):
+    """Ellipsoidal heights of the tie points (measured 508 / 537 / 571 m) inside the Mont Ventoux range and,
+    for the median, within 100 m of shareloc's SRTM height at the crop's first pixel (503.5 m; the crop
+    covers 250 x 250 m); the bias moves them by less than 1 m (measured 0.08 m: the prior holds the height datum)."""
+    before = stereo["before"]
+    h0 = dict(zip(before.block.points.point_id, heights_m(before)))
+    for k in ("shift", "affine"):
+        h = heights_m(stereo[k].result)
+        moved = h - [h0.get(i, np.nan) for i in stereo[k].result.block.points.point_id]
+        lo, med, hi = np.percentile(h, [0, 50, 100])
+        print(f"\n{k}: tie point heights min {lo:.1f} m, median {med:.1f} m, max {hi:.1f} m (ellipsoidal, WGS 84)")
+        assert 300.0 < lo and hi < 1900.0
+        assert abs(med - SHARELOC_FIRST_PIXEL[2]) < 100.0
+        print(f"{k}: heights moved by the bias: median |dh| {np.nanmedian(np.abs(moved)):.3f} m, "
+              f"max {np.nanmax(np.abs(moved)):.3f} m")
+        assert np.nanmedian(np.abs(moved)) < 1.0
+
+
+def test_the_bias_prior_is_the_datum(stereo):
+    """What the ties determine and what the prior holds (module docstring): with the shift bias one direction
+    of the four shifts has its variance cut to below 1e-3 of the prior (the relative shift across the epipolar
+    lines, measured 2e-6), the other three keep it (0.99-1); the mean shift of the two images stays at the
+    prior's zero (within 0.1 px) while their difference across the epipolar lines is several pixels, known to
+    0.05 px (measured 4.81 +- 0.047 px)."""
+    result = stereo["shift"].result
+    ev = prior_scaled_eigenvalues(result)
+    bias, sigma = result.state.image[:, [0, 3]], result.image_sigma()[:, [0, 3]]     # a0 (rows), b0 (columns)
+    for image_id, b, s in zip(result.block.images.image_id, bias, sigma):
+        print(f"\n{image_id}: a0 {b[0]:+.3f} +- {s[0]:.3f} px, b0 {b[1]:+.3f} +- {s[1]:.3f} px")
+    print(f"prior-scaled eigenvalues of the shift cofactor: {np.array2string(ev, precision=5)}")
+    # the determined direction: a relative shift (left - right) across the epipolar lines
+    across, size, sigma_across = across_epipolar_shift(result)
+    angle = np.degrees(np.arctan2(across[0], across[1]))
+    print(f"relative shift left - right across the epipolar lines (unit vector row {across[0]:+.3f}, col "
+          f"{across[1]:+.3f}: {angle:+.1f} deg from the columns): {size:+.3f} +- {sigma_across:.4f} px")
+    assert abs(size) > 2.0 and sigma_across < 0.05
+    assert ev[0] < 1e-3 and np.all(ev[1:] > 0.9)
+    assert np.all(np.abs(bias.mean(axis=0)) < 0.1)
+    assert np.abs(bias[0] - bias[1]).max() > 2.0
+    affine = prior_scaled_eigenvalues(stereo["affine"].result)
+    print(f"affine: {np.sum(affine < 1e-3)} of {len(affine)} directions fixed by the ties, "
+          f"{np.sum(affine > 0.9)} held by the prior: {np.array2string(affine, precision=3)}")
+    assert np.sum(affine < 1e-3) >= 1 and np.sum(affine > 0.9) >= 6
