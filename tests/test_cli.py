@@ -11,7 +11,7 @@ from conftest import run_cli
 SUMMARY_KEYS = ["ap_model", "converged", "iterations", "sigma0_px", "variance_factor", "rmsd_chk_xy_m",
                 "rmsd_chk_z_m", "rmsd_chk_xy_gsd", "rmsd_chk_z_gsd", "rms_sigma_tie_xy_m", "rms_sigma_tie_z_m",
                 "n_gcp_used", "n_chk_used", "n_obs_rejected", "n_ap_initial", "n_ap_significant",
-                "max_abs_corr", "seconds", "ce90_chk_m", "le90_chk_m"]
+                "max_abs_corr", "seconds", "ce90_chk_m", "le90_chk_m", "datum", "datum_detail"]
 RESULT_FILES = ["summary.json", "camera.json", "images.csv", "points.csv", "residuals.csv", "distortion_grid.csv",
                 "screening.json", "correlation.csv"]
 
@@ -48,6 +48,7 @@ def test_adjust_writes_the_results_contract(simulated, tmp_path, capsys):
     for key in SUMMARY_KEYS:
         assert key in summary
     assert summary["converged"] and summary["n_gcp_used"] == 27 and summary["n_chk_used"] == 12
+    assert summary["datum"] == "control" and summary["datum_detail"].startswith("27 control points")
     assert summary["sigma0_px"] == pytest.approx(0.5, rel=0.02)
     assert summary["rmsd_chk_xy_gsd"] < 1 and summary["rmsd_chk_z_gsd"] < 1
     grid = _read(out / "distortion_grid.csv").split("\n")

@@ -67,6 +67,7 @@ from selfcal.adjust import adjust
 from selfcal.geometry.earth import geodetic_from_ecef
 from selfcal.io import read_block
 from selfcal.io.rpc import read_rpc
+from selfcal.report import metrics
 from selfcal.sensors.rpc import BIAS_PARAMETERS
 from selfcal.workflows.adjust import AdjustRequest, adjust_block
 from selfcal.workflows.frames import object_frame_block
@@ -142,12 +143,14 @@ def sift_ties():
     return counts, p1 + 0.5 + off_left, p2 + 0.5 + off_right
 
 
-def write_block(folder, bias: str, left, right) -> None:
-    """A block folder: one rpc camera, the two images with their .geom, tie points without coordinates."""
+def write_block(folder, bias: str, left, right, size: bool = True) -> None:
+    """A block folder: one rpc camera, the two images with their .geom, tie points without coordinates
+    (``size``: block.toml states the image size, else the RPC's scales give it)."""
     os.makedirs(folder, exist_ok=True)
     with open(os.path.join(folder, "block.toml"), "w") as f:
         f.write(f'name = "ventoux"\ncrs = "EPSG:4979"\n\n[cameras.phr]\nmodel = "rpc"\nbias = "{bias}"\n'
-                f"width_px = 39182\nheight_px = 41801\nsigma_bias_px = {SIGMA_BIAS_PX}\n\n"
+                + ("width_px = 39182\nheight_px = 41801\n" if size else "")
+                + f"sigma_bias_px = {SIGMA_BIAS_PX}\n\n"
                 f"[observations]\nimage_sigma_px = {IMAGE_SIGMA_PX}\n")
     with open(os.path.join(folder, "images.csv"), "w") as f:
         f.write("image_id,camera_id,strip_id,time_s,X0,Y0,Z0,omega_deg,phi_deg,kappa_deg,sensor_file\n")
@@ -204,7 +207,7 @@ def across_epipolar_shift(result):
 def stereo(tmp_path_factory):
     t0 = time.perf_counter()
     counts, left, right = sift_ties()
-    out = {"counts": counts, "n_ties": len(left)}
+    out = {"counts": counts, "n_ties": len(left), "ties": (left, right)}
     for bias in ("shift", "affine"):
         folder = tmp_path_factory.mktemp(f"ventoux_{bias}")
         write_block(folder, bias, left, right)
@@ -307,3 +310,32 @@ def test_the_bias_prior_is_the_datum(stereo):
     print(f"affine: {np.sum(affine < 1e-3)} of {len(affine)} directions fixed by the ties, "
           f"{np.sum(affine > 0.9)} held by the prior: {np.array2string(affine, precision=3)}")
     assert np.sum(affine < 1e-3) >= 1 and np.sum(affine > 0.9) >= 6
+    # and summary.json says so (DESIGN.md §3a)
+    summary = metrics.summary(stereo["shift"])
+    print(f"summary.json datum: {summary['datum']}: {summary['datum_detail']}")
+    assert summary["datum"] == "a-priori" and "a0, b0" in summary["datum_detail"]
+    # Pleiades' 0.5 m product pixel, from the RPCs (one pixel step on the ground at the ties' height)
+    assert 0.45 < summary["gsd_m"] < 0.55, summary["gsd_m"]
+
+
+def test_the_affine_bias_without_the_image_size_takes_it_from_the_rpc(stereo, tmp_path):
+    """block.toml without width_px / height_px: the linear terms' prior comes from the RPC's scales (twice the
+    larger: 42275 and 42003 px for the 41801 rows) and the adjustment is the one with the size stated: priors
+    within 2 %, sigma0 within 0.1 %."""
+    left, right = stereo["ties"]
+    write_block(tmp_path / "nosize", "affine", left, right, size=False)
+    tested = adjust_block(read_block(tmp_path / "nosize"), AdjustRequest()).tested
+    assert tested.result.converged
+    sized = stereo["affine"].result
+    np.testing.assert_allclose(tested.result.problem.image_prior_sigma, sized.problem.image_prior_sigma, rtol=0.02)
+    assert tested.result.sigma0_px == pytest.approx(sized.sigma0_px, rel=1e-3)
+
+
+def test_bias_none_intersects_through_the_vendor_rpcs(stereo, tmp_path):
+    """``bias = "none"``: nothing of the images is estimated; the tie points' residuals are those with every
+    bias term held at zero (measured 2.41 px RMS)."""
+    left, right = stereo["ties"]
+    write_block(tmp_path / "none", "none", left, right)
+    result = adjust_block(read_block(tmp_path / "none"), AdjustRequest(snooping=None)).tested.result
+    assert result.converged and not result.problem.image_free.any()
+    assert rms_px(result) == pytest.approx(rms_px(stereo["before_all"]), rel=1e-6)

@@ -1,6 +1,6 @@
 """Write a tie-only ``rpc`` block folder of the Pleiades stereo crops over Mont Ventoux.
 
-    python examples/ventoux/make_block.py OUT [--bias shift|affine] [--sigma-bias-px 10] [--data DIR]
+    python examples/ventoux/make_block.py OUT [--bias shift|affine|none] [--sigma-bias-px 10] [--data DIR]
 
 DIR (default ``../shared/data/pushbroom/pleiades/phr_ventoux``) holds ``left_image.tif`` / ``right_image.tif``
 (crops of the full images; the GeoTIFF transform ``(1, 0, c, 0, 1, f)`` is the crop's offset) and each full
@@ -103,7 +103,7 @@ def write_block(out: str, data: str, bias: str, sigma_bias_px: float, image_sigm
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("out")
-    parser.add_argument("--bias", choices=("shift", "affine"), default="shift")
+    parser.add_argument("--bias", choices=("shift", "affine", "none"), default="shift")
     parser.add_argument("--sigma-bias-px", type=float, default=10.0,
                         help="a-priori sigma of each bias shift (px; the linear terms by it over 41801 px)")
     parser.add_argument("--image-sigma-px", type=float, default=0.3)

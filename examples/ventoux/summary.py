@@ -37,7 +37,7 @@ def main() -> None:
             if p["active"] == "1":
                 print(f"{'':<14}{p['owner']:<6} {p['parameter']}: {float(p['value']):+.4g} +- {float(p['sigma']):.3g} "
                       f"{p['unit']}")
-        print(f"{'':<14}datum: {s.get('datum', 'not stated in summary.json (the bias prior sigma_bias_px holds it)')}")
+        print(f"{'':<14}datum: {s.get('datum')}: {s.get('datum_detail')}")
     if len(names) > 1:
         first = names[0]
         for name in names[1:]:

@@ -43,6 +43,29 @@ def _rms(values: np.ndarray) -> float | None:
     return float(np.sqrt(np.mean(values))) if values.size else None
 
 
+def datum(block, problem, n_gcp: int) -> tuple[str, str]:
+    """What fixes the block in its object frame: ``control`` (control points), ``trajectory`` (GNSS/IMU
+    observations of the images), ``free`` (a free network, precision in the minimum-trace datum) or ``a-priori``
+    (no control: the images' given geometry, weighted by the a-priori sigmas of their parameters, e.g. an RPC
+    block of tie points and ``sigma_bias_px``); and a sentence that says it with the numbers."""
+    if block.datum == "free":
+        return "free", "free network: no control; precision in the minimum-trace datum (relative)"
+    telemetry = " and GNSS/IMU observations" if block.has_trajectory else ""
+    if n_gcp:
+        return "control", f"{n_gcp} control points{telemetry}"
+    if block.has_trajectory:
+        return "trajectory", "GNSS/IMU observations of the images (no control point)"
+    names = sorted({name for slot in problem.sensors for name, k in
+                    ((p.name, k) for k, p in enumerate(slot.sensor.image_parameters))
+                    if np.any(np.isfinite(problem.image_prior_sigma[slot.images, k])
+                              & problem.image_free[slot.images, k])})
+    names += sorted({name for c in problem.cameras for name, free, sigma in
+                     zip(c.names[:c.n_core], c.free[:c.n_core], c.prior_sigma[:c.n_core])
+                     if free and np.isfinite(sigma)})
+    weighted = f"weighted by the a-priori sigmas of {', '.join(names)}" if names else "held"
+    return "a-priori", f"no control point: the images' given geometry, {weighted}"
+
+
 def summary(tested, extra: dict | None = None, checks=None) -> dict:
     """summary.json of DESIGN.md §4 for a (tested) adjustment. ``checks``: the check points
     (:mod:`selfcal.workflows.checks`), by default those intersected in the adjustment. Errors and
@@ -102,6 +125,8 @@ def summary(tested, extra: dict | None = None, checks=None) -> dict:
         "n_tie_points": int(tie.sum()),
         "n_image_observations": int(len(block.observations)),
         "n_gcp_used": int(gcp.sum()),
+        "datum": datum(block, result.problem, int(gcp.sum()))[0],
+        "datum_detail": datum(block, result.problem, int(gcp.sum()))[1],
         "n_chk_used": int(len(checks)),
         "n_obs_rejected": int(len(tested.rejected_rows)),
         "n_ap_initial": int(tested.n_ap_initial),

@@ -34,6 +34,7 @@ _SUMMARY_ROWS = [
     ("observations / unknowns / redundancy", [("n_observations", ""), ("n_unknowns", ""), ("redundancy", "")]),
     ("RMS image residual [px]", [("rms_image_residual_px", ".4f")]),
     ("ground sample distance [m]", [("gsd_m", ".4f")]),
+    ("datum", [("datum_detail", "")]),
     ("control points used (GCP)", [("n_gcp_used", "")]), ("check points used (CHK)", [("n_chk_used", "")]),
     ("RMSD XY at check points [m]", [("rmsd_chk_xy_m", ".4f")]),
     ("RMSD Z at check points [m]", [("rmsd_chk_z_m", ".4f")]),

@@ -395,14 +395,28 @@ class RpcBound(BoundSensor):
         """Ellipsoidal heights (WGS 84) of ECEF points."""
         return geodetic_from_ecef(points)[2]
 
+    def ground_sample_distance(self, state):
+        """Mean over images of the ground distance (m) of one pixel step along rows and columns at the centre of
+        the image's observations, on the median height of their points."""
+        img, pt = self.problem.obs_image[self.o], self.problem.obs_point[self.o]
+        pixel = self.pixel[self.o]
+        values = []
+        for i in np.unique(img):
+            sel = img == i
+            height = float(np.nanmedian(self.height(state.points[pt[sel]])))
+            centre = pixel[sel].mean(axis=0)
+            ground = self.ground(state.image, np.full(3, i), centre + np.array([[0, 0], [1, 0], [0, 1]]), height)
+            values.append(0.5 * (np.linalg.norm(ground[1] - ground[0]) + np.linalg.norm(ground[2] - ground[0])))
+        return float(np.mean(values)) if values else None
+
     def ground(self, context, img, pixel, height):
         out = np.full((len(img), 3), np.nan)
         for i in np.unique(img):
             sel = np.flatnonzero(img == i)
             model = self.models[int(i)]
             row, col = self._unbiased(context[int(i)], pixel[sel])
-            h = np.full(sel.size, model.height_off if callable(height) else 0.0) + \
-                (0.0 if callable(height) else np.asarray(height, float))
+            h = np.full(sel.size, float(model.height_off)) if callable(height) else \
+                np.broadcast_to(np.asarray(height, float), img.shape)[sel].copy()
             for _ in range(8 if callable(height) else 1):
                 lon, lat = model.localize(row, col, h)
                 if callable(height):
@@ -418,7 +432,9 @@ class RpcBound(BoundSensor):
 class RpcCamera:
     """Images with vendor RPCs (``model = "rpc"``, DESIGN.md §3a): each image's RPC is its ``sensor_file``;
     the adjustment estimates an image-space ``bias`` per image, ``"shift"`` (a0, b0) or ``"affine"`` (six
-    terms), weighted by ``sigma_bias_px`` when given (px; the linear terms by it over the larger image size)."""
+    terms), or none (``"none"``: the tie points intersected through the RPCs as they are), weighted by
+    ``sigma_bias_px`` when given (px; the linear terms by it over the larger image size: ``width_px``,
+    ``height_px``, or where not given twice the larger scale of the image's RPC)."""
 
     camera_id: str
     bias: str = "affine"
@@ -451,7 +467,8 @@ class RpcSensor(Sensor):
 
     def check_camera(self, values):
         bias = values.get("bias", "affine")
-        return [] if bias in BIAS_PARAMETERS else [("bias", f"bias must be \"shift\" or \"affine\", found {bias!r}")]
+        return [] if bias in BIAS_PARAMETERS or bias == "none" else \
+            [("bias", f"bias must be \"shift\", \"affine\" or \"none\", found {bias!r}")]
 
     def image_setup(self, block, image_index, options):
         """The bias kind of the camera frees its terms; ``sigma_bias_px`` weights the shifts by it and the
@@ -459,9 +476,14 @@ class RpcSensor(Sensor):
         free, sigma = [], []
         for i in image_index:
             camera = block.cameras[block.images.camera_id[i]]
-            free.append([name in BIAS_PARAMETERS[camera.bias] for name in BIAS_PARAMETERS["affine"]])
+            free.append([name in BIAS_PARAMETERS.get(camera.bias, ()) for name in BIAS_PARAMETERS["affine"]])
             s = np.nan if camera.sigma_bias_px is None else float(camera.sigma_bias_px)
-            size = float(max(camera.width_px or 1, camera.height_px or 1))
+            size = float(max(camera.width_px or 0, camera.height_px or 0))
+            model = (block.image_models or {}).get(block.images.image_id[i])
+            if not size and model is not None:
+                # an RPC's scales are half its image's extent (line = r * line_scale + line_off, |r| <= 1)
+                size = 2.0 * max(abs(model.line_scale), abs(model.samp_scale))
+            size = max(size, 1.0)
             sigma.append([s, s / size, s / size, s, s / size, s / size])
         return np.array(free, bool).reshape(-1, 6), np.array(sigma).reshape(-1, 6)
 
