@@ -92,7 +92,46 @@ def _usgscsm_line():
     return hold_radii(read_block(out), 1.0), AdjustOptions()
 
 
-EXAMPLES = {"frame": _frame, "bal": _bal, "pushbroom": _pushbroom, "rpc": _rpc, "usgscsm": _usgscsm,
+def _vendor(model, files):
+    """Vendor line images (their metadata files as sensor_file) through a block folder, 15 ground points each."""
+    import tempfile
+    from selfcal.io import read_block
+    from selfcal.sensors.pushbroom import ground_to_image, image_to_ground
+    from selfcal.sensors.vendor import line_image_from_file
+    folder = tempfile.mkdtemp()
+    rng = np.random.default_rng(2)
+    first = line_image_from_file(files[0], "a")
+    ground = image_to_ground(first, rng.uniform(0.1, 0.9, 15) * first.rows,
+                             rng.uniform(0.1, 0.9, 15) * first.camera.columns, rng.uniform(0, 300, 15))
+    rows = []
+    for k, path in enumerate(files):
+        row, col = ground_to_image(line_image_from_file(path, f"i{k}"), ground)
+        rows += [f"i{k},p{j},{col[j]:.3f},{row[j]:.3f}\n" for j in np.flatnonzero(np.isfinite(row))]
+    with open(os.path.join(folder, "block.toml"), "w") as f:
+        f.write(f'name = "v"\ncrs = "EPSG:4978"\n[cameras.c]\nmodel = "{model}"\n[observations]\nimage_sigma_px = 0.5\n')
+    with open(os.path.join(folder, "images.csv"), "w") as f:
+        f.write("image_id,camera_id,strip_id,time_s,X0,Y0,Z0,omega_deg,phi_deg,kappa_deg,sensor_file\n")
+        f.writelines(f"i{k},c,,,,,,,,,{path}\n" for k, path in enumerate(files))
+    with open(os.path.join(folder, "points.csv"), "w") as f:
+        f.write("point_id,role,X,Y,Z,sigma_xy_m,sigma_z_m\n")
+        f.writelines(f"p{j},gcp,{x:.3f},{y:.3f},{z:.3f},0.5,0.5\n" for j, (x, y, z) in enumerate(ground))
+    with open(os.path.join(folder, "observations.csv"), "w") as f:
+        f.write("image_id,point_id,col_px,row_px\n")
+        f.writelines(rows)
+    return read_block(folder), AdjustOptions(sensor_model="M7")
+
+
+def _dimap():
+    return _vendor("dimap", [os.path.join(SHARED_DATA, "pushbroom", "pleiades", "rpc",
+                                          "PHRDIMAP_P1BP--2017030824934340CP.XML")])
+
+
+def _dg():
+    folder = os.path.join(SHARED_DATA, "pushbroom", "asp_dg_spot")
+    return _vendor("dg", [os.path.join(folder, "dg_example1.xml"), os.path.join(folder, "dg_example2.xml")])
+
+
+EXAMPLES = {"dimap": _dimap, "dg": _dg, "frame": _frame, "bal": _bal, "pushbroom": _pushbroom, "rpc": _rpc, "usgscsm": _usgscsm,
             "usgscsm-line": _usgscsm_line}
 
 

@@ -9,7 +9,7 @@ import os
 from ..errors import BlockError
 from .rpc import read_rpc
 
-__all__ = ["SENSOR_FILE_READERS", "read_usgscsm"]
+__all__ = ["SENSOR_FILE_READERS", "read_usgscsm", "read_vendor_line"]
 
 
 def read_usgscsm(path: str):
@@ -35,8 +35,56 @@ def read_usgscsm(path: str):
                      "name_model")
 
 
+def _sniff(path: str) -> str:
+    """The vendor format of a line camera's metadata file from its first 4 kB: "dg", "dimap" (Pleiades) or "spot5"."""
+    try:
+        with open(path, "rb") as handle:
+            head = handle.read(4096)
+    except OSError as exc:
+        raise BlockError(path, f"cannot read the sensor file: {exc.strerror}") from None
+    if b"<isd>" in head or b"<isd " in head:
+        return "dg"
+    if b"PHR_Dimap_Document" in head:
+        return "dimap"
+    if b"Dimap_Document" in head:
+        return "spot5"
+    raise BlockError(path, "not a vendor sensor file: neither DigitalGlobe/Maxar XML (root isd) nor DIMAP "
+                           "(PHR_Dimap_Document or SPOT Dimap_Document)")
+
+
+def read_vendor_line(path: str):
+    """The physical model of a vendor line camera, the format found from the content: a DigitalGlobe / Maxar XML
+    (:class:`~selfcal.io.dg.DgSensor`), a Pleiades DIMAP (:class:`~selfcal.io.dimap.DimapSensor`) or a SPOT 5
+    DIMAP (:class:`~selfcal.io.spot.Spot5Sensor`)."""
+    kind = _sniff(str(path))
+    if kind == "dg":
+        from .dg import read_dg
+        return read_dg(path)
+    if kind == "dimap":
+        from .dimap import read_dimap_sensor
+        return read_dimap_sensor(path)
+    from .spot import read_spot5
+    return read_spot5(path)
+
+
+_NAMES = {"dg": 'a DigitalGlobe/Maxar XML (model = "dg")', "dimap": 'a Pleiades DIMAP (model = "dimap")',
+          "spot5": 'a SPOT 5 DIMAP (model = "dimap")'}
+
+
+def _read_as(expected: tuple[str, ...], model: str, hint: str):
+    def read(path: str):
+        kind = _sniff(str(path))
+        if kind not in expected:
+            raise BlockError(path, f"a {model} camera's sensor_file is {hint}; this is {_NAMES[kind]}")
+        return read_vendor_line(path)
+    read.__doc__ = f"{hint} (:func:`read_vendor_line`); another vendor's file is an error naming its model."
+    return read
+
+
 #: camera model -> reader of an image's sensor_file
 SENSOR_FILE_READERS = {
     "rpc": read_rpc,
     "usgscsm": read_usgscsm,
+    "dimap": _read_as(("dimap", "spot5"), "dimap", "a Pleiades or SPOT 5 DIMAP file"),
+    "dg": _read_as(("dg",), "dg", "a DigitalGlobe / Maxar XML file"),
 }

@@ -2,10 +2,10 @@
 
 A camera's ``model`` in block.toml names its sensor; the engine, the block reader and the
 initial values find it here and never branch on the name. Foreign descriptions that become a
-pushbroom camera are read by :mod:`selfcal.io` (usgscsm ISD, Pleiades DIMAP) and built by the
-modules :mod:`.usgscsm` and :mod:`.dimap`.
+pushbroom camera are read by :mod:`selfcal.io` (usgscsm ISD; Pleiades and SPOT 5 DIMAP, DigitalGlobe XML) and
+built by the modules :mod:`.usgscsm` and :mod:`.vendor` (:mod:`.dimap`, :mod:`.spot`, :mod:`.dg`).
 """
-from . import bal, frame, pushbroom, rpc, usgscsm, usgscsm_frame
+from . import bal, frame, pushbroom, rpc, usgscsm, usgscsm_frame, vendor
 from .base import BoundSensor, Parameter, Sensor
 
 #: sensor name (``model =`` of a camera in block.toml) -> the sensor
@@ -16,6 +16,8 @@ SENSORS: dict[str, Sensor] = {
     "rpc": rpc.SENSOR,
     "usgscsm": usgscsm_frame.SENSOR,
     "usgscsm-line": usgscsm.SENSOR,
+    "dimap": vendor.DIMAP_SENSOR,
+    "dg": vendor.DG_SENSOR,
 }
 
 

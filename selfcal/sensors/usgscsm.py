@@ -258,12 +258,15 @@ IMAGE_PARAMETERS = tuple(Parameter(f"{a}_{k}", "rad", "EOP", screened=True)
                          for a in _AXES for k in range(ATTITUDE_DEGREE_MAX + 1))
 
 
+def _scan(block, k: int) -> LineScan:
+    return line_scan_from_isd(block.image_models[block.images.image_id[k]], str(block.images.image_id[k]))
+
+
 class UsgscsmLineBound(PushbroomBound):
     """Line-scan ISD images (:func:`line_scan_from_isd`) with attitude corrections of degree up to 3."""
 
     def line_images(self, block, images, options):
-        scans = {int(k): line_scan_from_isd(block.image_models[block.images.image_id[k]], str(block.images.image_id[k]))
-                 for k in images}
+        scans = {int(k): _scan(block, k) for k in images}
         self.radii = {k: (scan.semi_major_m, scan.semi_minor_m) for k, scan in scans.items()}
         return {k: scan.image for k, scan in scans.items()}
 
@@ -337,6 +340,10 @@ class UsgscsmLineSensor(PushbroomSensor):
 
     def bind(self, problem, block, o, pixel, sigma_px, options):
         return UsgscsmLineBound(problem, block, o, pixel, sigma_px, options)
+
+    def line_image(self, block, k, given_attitude=True):
+        """The line image of image ``k``'s ISD, as usgscsm interpolates it."""
+        return _scan(block, k).image
 
     def image_setup(self, block, image_index, options):
         free = np.zeros((len(image_index), len(IMAGE_PARAMETERS)), bool)

@@ -22,7 +22,8 @@ import numpy as np
 from ..geometry.earth import orbit_frame
 from .pushbroom import angles_from_body_to_orbit
 
-__all__ = ["LineTimes", "OnLineTime", "OrbitAttitude", "line_image_from_file"]
+__all__ = ["LineTimes", "OnLineTime", "OrbitAttitude", "line_image_from_file", "line_image_from_record", "DimapCamera",
+           "DgCamera", "VendorLineSensor", "DIMAP_SENSOR", "DG_SENSOR"]
 
 
 @dataclass(frozen=True)
@@ -90,28 +91,122 @@ class OrbitAttitude:
         return angles_from_body_to_orbit(np.swapaxes(R_FO, -1, -2) @ self.rotation(t))
 
 
+def line_image_from_record(record, image_id: str | None = None):
+    """The selfcal line camera of a vendor's physical model as read (:func:`selfcal.io.sensor_files.read_vendor_line`:
+    a DigitalGlobe / Maxar, Pleiades DIMAP or SPOT 5 DIMAP record)."""
+    from ..io.dg import DgSensor
+    from ..io.dimap import DimapSensor
+    if isinstance(record, DgSensor):
+        from .dg import line_image_from_dg
+        return line_image_from_dg(record, image_id)
+    if isinstance(record, DimapSensor):
+        from .dimap import line_image_from_dimap
+        return line_image_from_dimap(record, image_id or "PHR")
+    from .spot import line_image_from_spot5
+    return line_image_from_spot5(record, image_id)
+
+
 def line_image_from_file(path: str | os.PathLike, image_id: str | None = None):
     """The selfcal line camera of a vendor sensor file, the format found from the content: a DigitalGlobe /
     Maxar XML (root ``isd``), a SPOT 5 DIMAP (root ``Dimap_Document`` with ``Data_Strip``) or a Pleiades DIMAP
     (root ``PHR_Dimap_Document``). Reader errors are :class:`~selfcal.errors.BlockError`."""
-    from ..errors import BlockError
-    path = str(path)
-    try:
-        with open(path, "rb") as handle:
-            head = handle.read(4096)
-    except OSError as exc:
-        raise BlockError(path, f"cannot read the sensor file: {exc.strerror}") from None
-    if b"<isd>" in head or b"<isd " in head:
-        from ..io.dg import read_dg
-        from .dg import line_image_from_dg
-        return line_image_from_dg(read_dg(path), image_id)
-    if b"PHR_Dimap_Document" in head:
-        from ..io.dimap import read_dimap_sensor
-        from .dimap import line_image_from_dimap
-        return line_image_from_dimap(read_dimap_sensor(path), image_id or "PHR")
-    if b"Dimap_Document" in head:
-        from ..io.spot import read_spot5
-        from .spot import line_image_from_spot5
-        return line_image_from_spot5(read_spot5(path), image_id)
-    raise BlockError(path, "not a vendor sensor file: neither DigitalGlobe/Maxar XML (root isd) nor DIMAP "
-                           "(PHR_Dimap_Document or SPOT Dimap_Document)")
+    from ..io.sensor_files import read_vendor_line
+    return line_image_from_record(read_vendor_line(str(path)), image_id)
+
+
+# --- the sensor contract: vendor line cameras in a block (model = "dimap" or "dg") ----------------------------
+
+from .pushbroom.sensor import PushbroomBound, PushbroomSensor  # noqa: E402
+
+#: line images built from their records, by (record, image): snooping and screening bind the same images again
+_BUILT: dict = {}
+
+
+def _line_image(record, image_id: str):
+    key = (id(record), image_id)
+    hit = _BUILT.get(key)
+    if hit is None or hit[0] is not record:
+        if len(_BUILT) > 256:
+            _BUILT.clear()
+        hit = _BUILT[key] = (record, line_image_from_record(record, image_id))
+    return hit[1]
+
+
+@dataclass(frozen=True)
+class DimapCamera:
+    """Line images whose physical model is their vendor's metadata, each image's file its ``sensor_file``
+    (DESIGN.md §3a): ``model = "dimap"`` a Pleiades or SPOT 5 DIMAP, ``model = "dg"`` (:class:`DgCamera`) a
+    DigitalGlobe / Maxar XML. The vendor's ephemeris, attitude and lines of sight are the nominal geometry;
+    the adjustment estimates seed 001's corrections (``selfcal adjust --sensor-model M1 .. M7``, default M6).
+    ``focal_mm``, ``pixel_size_mm``, ``columns`` and ``center_col`` come from the first image's file (the
+    images of one camera share its focal length: the calibration parameter ``focal`` scales them together),
+    ``width_px`` and ``height_px`` bound the image coordinates of all its images."""
+
+    camera_id: str
+    focal_mm: float = float("nan")
+    pixel_size_mm: float = float("nan")
+    columns: int = 0
+    center_col: float = 0.0
+    chip_starts: tuple = ()
+    width_px: int = 0
+    height_px: int = 0
+    initial_ap = None
+
+    model = "dimap"
+
+
+@dataclass(frozen=True)
+class DgCamera(DimapCamera):
+    model = "dg"
+
+
+class VendorLineBound(PushbroomBound):
+    """Vendor line images: the nominal line camera of each image's record (no telemetry fit)."""
+
+    def line_images(self, block, images, options):
+        return {int(k): _line_image(block.image_models[str(block.images.image_id[k])], str(block.images.image_id[k]))
+                for k in images}
+
+
+class VendorLineSensor(PushbroomSensor):
+    """Seed 001's pushbroom corrections on the vendor's physical model (:class:`DimapCamera`)."""
+
+    needs_telemetry = False
+    camera_keys = {"model": ("str", True)}
+
+    def __init__(self, name: str, camera_type):
+        self.name = name
+        self.camera_type = camera_type
+
+    def bind(self, problem, block, o, pixel, sigma_px, options):
+        return VendorLineBound(problem, block, o, pixel, sigma_px, options)
+
+    def line_image(self, block, k, given_attitude=True):
+        """The vendor's line camera of image ``k`` (its sensor_file as read)."""
+        image_id = str(block.images.image_id[k])
+        return _line_image(block.image_models[image_id], image_id)
+
+    def check_camera(self, values):
+        return []
+
+    def configure_camera(self, camera, image_models):
+        """The focal length, pixel size and detector line of the first image; every image of the camera has to
+        share the focal length (a different one is another camera)."""
+        from dataclasses import replace
+        if not image_models:
+            return camera
+        lines = [line_image_from_record(m) for m in image_models]
+        cams = [image.camera for image in lines]
+        first = cams[0]
+        other = [c.focal_mm for c in cams if abs(c.focal_mm - first.focal_mm) > 1e-9 * first.focal_mm]
+        if other:
+            raise ValueError(f"its images' sensor files differ in focal length ({first.focal_mm} and {other[0]} mm): "
+                             f"give each its own camera")
+        return replace(camera, focal_mm=float(first.focal_mm), pixel_size_mm=float(first.pixel_size_mm),
+                       columns=int(first.columns), center_col=float(first.center_col),
+                       chip_starts=tuple(first.chip_starts or ()), width_px=max(c.columns for c in cams),
+                       height_px=max(image.rows for image in lines))
+
+
+DIMAP_SENSOR = VendorLineSensor("dimap", DimapCamera)
+DG_SENSOR = VendorLineSensor("dg", DgCamera)

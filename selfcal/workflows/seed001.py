@@ -20,7 +20,8 @@ import numpy as np
 from ..adjust import AdjustOptions
 from ..block import Block
 from ..errors import AdjustmentError, UsageError
-from ..sensors.pushbroom import M6_SIGMA, line_images
+from ..sensors import sensor_of
+from ..sensors.pushbroom import M6_SIGMA
 from ..sensors.pushbroom import track_frame as line_track_frame
 from ..stats.screening import ScreeningOptions
 from ..stats.snooping import SnoopingOptions
@@ -170,10 +171,8 @@ def calibrate_focal(block: Block, gcps: np.ndarray | None = None, options: Adjus
 def track_frame(block: Block) -> tuple[np.ndarray, np.ndarray]:
     """The scene centre of the block's middle image (ECEF) and the across, along, up axes there (rows)."""
     middle = len(block.images) // 2
-    given = block.image_models or {}
-    image_id = block.images.image_id[middle]
-    image = given[image_id] if image_id in given else line_images(block, image_index=[middle])[0]
-    return line_track_frame(image)
+    sensor = sensor_of(block.cameras[block.images.camera_id[middle]])
+    return line_track_frame(sensor.line_image(block, middle))
 
 
 def run_case(block: Block, model: str, gcps: np.ndarray, image_set, height=None, label: str = "",
@@ -189,8 +188,11 @@ def run_case(block: Block, model: str, gcps: np.ndarray, image_set, height=None,
     options = replace(options or AdjustOptions(), sensor_model=model)
     centre, axes = track_frame(block)
     name = model.upper() if model.upper() in ("M1", "M2", "M3", "M4", "M5", "M6", "M7") else model
-    if mono and height is None:
-        raise UsageError("a mono adjustment restitutes the check points on the terrain: give a DEM or a height")
+    known = np.flatnonzero(~np.isnan(block.points.xyz_m).any(axis=1))
+    others = np.setdiff1d(known, gcps)
+    if mono and height is None and others.size:
+        raise UsageError(f"a mono adjustment restitutes the check points ({others.size}) on the terrain: give a DEM "
+                         f"or a height")
     sub = case_block(block, image_set, gcps, mono)
     base = dict(model=name, n_gcp=len(gcps), images=label, gcps=np.asarray(gcps), track_axes=axes, block=sub,
                 track_centre=centre)
@@ -206,8 +208,6 @@ def run_case(block: Block, model: str, gcps: np.ndarray, image_set, height=None,
         return PushbroomCase(tested=tested, checks=None, failure=f"no convergence in {result.iterations} iterations",
                              **base)
     if mono:
-        known = np.flatnonzero(~np.isnan(block.points.xyz_m).any(axis=1))
-        others = np.setdiff1d(known, gcps)
         image_id = str(block.images.image_id[image_set[0]])
         found = checks.restituted(result, block, image_id, others, height)
     else:

@@ -298,6 +298,13 @@ class PushbroomSensor(Sensor):
     def bind(self, problem, block, o, pixel, sigma_px, options):
         return PushbroomBound(problem, block, o, pixel, sigma_px, options)
 
+    def line_image(self, block, k: int, given_attitude: bool = True) -> LineImage:
+        """The nominal line image of image ``k`` of ``block`` (no corrections): given in the block, or fitted to its
+        camera's telemetry."""
+        image_id = block.images.image_id[k]
+        given = block.image_models or {}
+        return given[image_id] if image_id in given else line_images(block, given_attitude, image_index=[k])[0]
+
     def check_camera(self, values):
         from datetime import datetime
         starts, offsets = values.get("chip_starts"), values.get("chip_offsets_px")
