@@ -26,7 +26,7 @@ Pixel coordinates (how the crops sit in the full images):
   integers) of a crop becomes full-image (col, row) = (x + 0.5 + c, y + 0.5 + f), and observations.csv holds
   full-image coordinates with the images' own ``.geom`` as ``sensor_file``.
 
-The tie-only block: SIFT on the two crops (8-bit stretch of the 12-bit data between the 1st and 99th percentile),
+The tie-only block (examples/ventoux/make_block.py, used here as it is): SIFT on the two crops (8-bit stretch of the 12-bit data between the 1st and 99th percentile),
 Lowe's ratio test 0.75, duplicates removed (SIFT lists a keypoint of two orientations twice), a fundamental matrix
 by RANSAC (1 px; it fits its own epipolar geometry to the matches and knows nothing of the RPCs, so their bias
 cannot reject true ties), then a neighbourhood filter: a match's displacement within 10 px of the median of its 8
@@ -57,6 +57,7 @@ after the neighbourhood filter; 2 (shift) and 3 (affine) observations rejected b
 crop's first pixel is 503.5 m. About 5 s.
 """
 import functools
+import importlib.util
 import os
 import time
 
@@ -75,12 +76,8 @@ from selfcal.workflows.frames import object_frame_block
 from conftest import SHARED_DATA
 
 DATA = os.path.join(SHARED_DATA, "pushbroom", "pleiades", "phr_ventoux")
-CROPS = ("left", "right")
 SIGMA_BIAS_PX = 10.0
 IMAGE_SIGMA_PX = 0.3
-RATIO = 0.75                    # Lowe's ratio test
-RANSAC_PX = 1.0                 # fundamental-matrix RANSAC threshold
-LOCAL_PX = 10.0                 # largest departure of a match's displacement from its neighbours' median
 #: shareloc test_localize_direct_rpc: the centre of the left crop's first pixel on SRTM + EGM96 (ellipsoidal h)
 SHARELOC_FIRST_PIXEL = (5.193406151946084, 44.20805807814395, 503.51202179)
 
@@ -89,80 +86,28 @@ def setup_module():
     assert os.path.isdir(DATA), f"shared test data missing: {DATA}"
 
 
-def _crop(name: str):
-    """The crop as 8-bit (1st-99th percentile stretch) and its offset (c, f) in the full image (px)."""
-    import rasterio
-    with rasterio.open(os.path.join(DATA, f"{name}_image.tif")) as dataset:
-        data = dataset.read(1).astype(float)
-        t = dataset.transform
-    assert (t.a, t.b, t.d, t.e) == (1.0, 0.0, 0.0, 1.0), f"{name}: the crop transform is not a translation: {t}"
-    lo, hi = np.percentile(data[data > 0], [1, 99])
-    return np.clip((data - lo) / (hi - lo) * 255.0, 0, 255).astype(np.uint8), np.array([t.c, t.f])
+def _make_block():
+    """examples/ventoux/make_block.py: the crops, the SIFT ties and the block folder are the example's own."""
+    spec = importlib.util.spec_from_file_location(
+        "ventoux_make_block", os.path.join(os.path.dirname(__file__), "..", "examples", "ventoux", "make_block.py"))
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 
-def _once(points) -> np.ndarray:
-    """Whether each position occurs once among ``points`` (to 0.01 px)."""
-    _, inverse, counts = np.unique(np.round(points, 2), axis=0, return_inverse=True, return_counts=True)
-    return counts[inverse.ravel()] == 1
+MAKE_BLOCK = _make_block()
 
 
 @functools.lru_cache(maxsize=None)
 def sift_ties():
     """(counts after each filter, full-image (col, row) of the tie points in the left and in the right image)."""
-    import cv2
-    from scipy.spatial import cKDTree
-    (left, off_left), (right, off_right) = (_crop(n) for n in CROPS)
-    sift = cv2.SIFT_create()
-    k1, d1 = sift.detectAndCompute(left, None)
-    k2, d2 = sift.detectAndCompute(right, None)
-    pairs = cv2.BFMatcher(cv2.NORM_L2).knnMatch(d1, d2, k=2)
-    good = [m for m, n in (p for p in pairs if len(p) == 2) if m.distance < RATIO * n.distance]
-    counts = {"ratio_test": len(good)}
-    p1 = np.float64([k1[m.queryIdx].pt for m in good])
-    p2 = np.float64([k2[m.trainIdx].pt for m in good])
-    # SIFT gives a keypoint with two dominant orientations twice: one tie point per pair of positions, and none
-    # where a position is paired with two different ones
-    _, first = np.unique(np.round(np.hstack([p1, p2]), 2), axis=0, return_index=True)
-    p1, p2 = p1[np.sort(first)], p2[np.sort(first)]
-    keep = _once(p1) & _once(p2)
-    p1, p2 = p1[keep], p2[keep]
-    counts["unique"] = len(p1)
-    _, inlier = cv2.findFundamentalMat(p1, p2, cv2.FM_RANSAC, RANSAC_PX, 0.999)
-    inlier = inlier.ravel().astype(bool)
-    p1, p2 = p1[inlier], p2[inlier]
-    counts["ransac"] = len(p1)
-    # a mismatch along its epipolar line passes RANSAC, and with two rays the adjustment cannot see it either (it
-    # becomes a wrong height): keep the matches whose displacement is within LOCAL_PX of the median displacement
-    # of their 8 nearest neighbours (10 px: about 15 m of height at this pair's base-to-height ratio of 0.34)
-    d = p2 - p1
-    _, near = cKDTree(p1).query(p1, k=9)
-    keep = np.linalg.norm(d - np.median(d[near[:, 1:]], axis=1), axis=1) <= LOCAL_PX
-    p1, p2 = p1[keep], p2[keep]
-    counts["local"] = len(p1)
-    # OpenCV puts pixel centres at integers: + 0.5 to selfcal's corner convention, + the crop's offset
-    return counts, p1 + 0.5 + off_left, p2 + 0.5 + off_right
+    return MAKE_BLOCK.tie_points(DATA)
 
 
 def write_block(folder, bias: str, left, right, size: bool = True) -> None:
     """A block folder: one rpc camera, the two images with their .geom, tie points without coordinates
     (``size``: block.toml states the image size, else the RPC's scales give it)."""
-    os.makedirs(folder, exist_ok=True)
-    with open(os.path.join(folder, "block.toml"), "w") as f:
-        f.write(f'name = "ventoux"\ncrs = "EPSG:4979"\n\n[cameras.phr]\nmodel = "rpc"\nbias = "{bias}"\n'
-                + ("width_px = 39182\nheight_px = 41801\n" if size else "")
-                + f"sigma_bias_px = {SIGMA_BIAS_PX}\n\n"
-                f"[observations]\nimage_sigma_px = {IMAGE_SIGMA_PX}\n")
-    with open(os.path.join(folder, "images.csv"), "w") as f:
-        f.write("image_id,camera_id,strip_id,time_s,X0,Y0,Z0,omega_deg,phi_deg,kappa_deg,sensor_file\n")
-        for name in CROPS:
-            f.write(f"{name},phr,pair,,,,,,,,{os.path.abspath(os.path.join(DATA, name + '_image.geom'))}\n")
-    with open(os.path.join(folder, "points.csv"), "w") as f:
-        f.write("point_id,role,X,Y,Z,sigma_xy_m,sigma_z_m\n")
-        f.writelines(f"t{k},tie,,,,,\n" for k in range(len(left)))
-    with open(os.path.join(folder, "observations.csv"), "w") as f:
-        f.write("image_id,point_id,col_px,row_px\n")
-        for k, (a, b) in enumerate(zip(left, right)):
-            f.write(f"left,t{k},{a[0]:.4f},{a[1]:.4f}\nright,t{k},{b[0]:.4f},{b[1]:.4f}\n")
+    MAKE_BLOCK.write_block(str(folder), DATA, bias, SIGMA_BIAS_PX, IMAGE_SIGMA_PX, left, right, size)
 
 
 def rms_px(result) -> float:
@@ -226,7 +171,7 @@ def test_the_crop_offset_puts_sharelocs_first_pixel_centre_at_its_place():
     """The convention of the module docstring: shareloc's localisation of the centre of the left crop's first
     pixel projects through the full image's RPC (.geom and DIMAP XML) onto transform * (0.5, 0.5) =
     (5000.5, 5000.5), within 0.01 px (measured 0.006 px in rows, 0.002 px in columns)."""
-    _, (c, f) = _crop("left")
+    _, (c, f) = MAKE_BLOCK.crop(DATA, "left")
     for name in ("left_image.geom", "RPC_PHR1B_P_201308051042194_SEN_690908101-001.XML"):
         row, col = read_rpc(os.path.join(DATA, name)).project(*SHARELOC_FIRST_PIXEL)
         assert abs(row - (f + 0.5)) < 0.01 and abs(col - (c + 0.5)) < 0.01, (name, row, col)

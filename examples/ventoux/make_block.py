@@ -78,15 +78,18 @@ def tie_points(data: str, ratio: float = 0.75, ransac_px: float = 1.0, local_px:
     return counts, p1 + 0.5 + off_left, p2 + 0.5 + off_right
 
 
-def write_block(out: str, data: str, bias: str, sigma_bias_px: float, image_sigma_px: float, left, right) -> None:
+def write_block(out: str, data: str, bias: str, sigma_bias_px: float, image_sigma_px: float, left, right,
+                size: bool = True) -> None:
+    """The block folder (``size``: block.toml states the full images' size; without it the RPCs' scales give it)."""
     os.makedirs(out, exist_ok=True)
     for name in CROPS:
         shutil.copyfile(os.path.join(data, f"{name}_image.geom"), os.path.join(out, f"{name}_image.geom"))
     with open(os.path.join(out, "block.toml"), "w") as f:
         f.write(f'name = "ventoux"\n'
                 f'crs = "EPSG:4979"                 # points: longitude, latitude (deg), ellipsoidal height (m)\n\n'
-                f'[cameras.phr]\nmodel = "rpc"\nbias = "{bias}"\nwidth_px = 39182\nheight_px = 41801\n'
-                f"sigma_bias_px = {sigma_bias_px!r}       # the datum of this tie-only block\n\n"
+                f'[cameras.phr]\nmodel = "rpc"\nbias = "{bias}"\n'
+                + ("width_px = 39182\nheight_px = 41801\n" if size else "")
+                + f"sigma_bias_px = {sigma_bias_px!r}       # the datum of this tie-only block\n\n"
                 f"[observations]\nimage_sigma_px = {image_sigma_px!r}\n")
     with open(os.path.join(out, "images.csv"), "w") as f:
         f.write("image_id,camera_id,strip_id,time_s,X0,Y0,Z0,omega_deg,phi_deg,kappa_deg,sensor_file\n")
