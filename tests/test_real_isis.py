@@ -22,9 +22,10 @@ FOLDER = os.path.join(SHARED_DATA, "isis", "apollo15_metric")
 HERE = os.path.dirname(os.path.abspath(__file__))
 
 
-def _compare_module():
-    spec = importlib.util.spec_from_file_location("apollo15_compare",
-                                                  os.path.join(HERE, "..", "examples", "apollo15", "compare.py"))
+def _compare_module(example: str = "apollo15"):
+    """examples/EXAMPLE/compare.py: the side-by-side table is the example's own."""
+    spec = importlib.util.spec_from_file_location(f"{example}_compare",
+                                                  os.path.join(HERE, "..", "examples", example, "compare.py"))
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
@@ -100,14 +101,6 @@ def test_data_snooping_finds_cube7s_inconsistent_measures(jigsaw_run):
 LRO = os.path.join(SHARED_DATA, "isis", "lro_nac_pair")
 
 
-def _lro_compare_module():
-    spec = importlib.util.spec_from_file_location("lro_compare",
-                                                  os.path.join(HERE, "..", "examples", "lro_nac", "compare.py"))
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
 @pytest.fixture(scope="module")
 def lro_runs(tmp_path_factory):
     """The three runs of examples/lro_nac/run.sh: name -> (results folder, adjusted)."""
@@ -132,7 +125,7 @@ def lro_runs(tmp_path_factory):
 
 
 def _lro_values(folder):
-    return {name: (theirs, ours) for name, theirs, ours in _lro_compare_module().rows(str(folder))}
+    return {name: (theirs, ours) for name, theirs, ours in _compare_module("lro_nac").rows(str(folder))}
 
 
 def test_lro_pair_is_imported_with_its_two_fixed_points(lro_runs):
