@@ -111,7 +111,7 @@ def lro_runs(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("lro")
     network, images = read_control_network(os.path.join(LRO, "observationPair.net")), read_image_folder(LRO)
     runs = {}
-    for name, settings in (("no_yaw", {"attitude_degree": 3, "twist": False}), ("yaw", {"attitude_degree": 3}),
+    for name, settings in (("no_twist", {"attitude_degree": 3, "twist": False}), ("twist", {"attitude_degree": 3}),
                            ("degree1", {"attitude_degree": 1, "twist": False})):
         block, counts = block_from_isis(network, images, 1.4, name, settings)
         assert counts == {"ignored_points": 0, "ignored_measures": 0, "measures_without_image": 0}
@@ -129,31 +129,33 @@ def _lro_values(folder):
 
 
 def test_lro_pair_is_imported_with_its_two_fixed_points(lro_runs):
-    _, adjusted = lro_runs["no_yaw"]
+    _, adjusted = lro_runs["no_twist"]
     block = adjusted.block
     assert len(block.images) == 2 and len(block.points) == 46 and len(block.observations) == 92
     assert int((block.points.sigma_m.max(axis=1) < 0.01).sum()) == 2 and adjusted.tested.result.converged
 
 
 def test_lro_pair_with_jigsaws_options_leaves_degrees_2_and_3_undetermined(lro_runs):
-    """jigsaw's options read literally (roll, pitch of degree 3, no prior): the two Fixed points and the tie points
-    of the narrow overlap anchor the bias and the drift only; the engine converges and says so: every
-    coefficient of degree 2 and 3 has a sigma above 0.1 deg (measured 0.75 - 1.6 deg), and the residuals are
-    larger than jigsaw's (measured: mean 0.176 px = 1.43 x, maximum 0.466 px = 1.22 x)."""
-    _, adjusted = lro_runs["no_yaw"]
+    """jigsaw's options (RA, DEC of degree 3, no twist, no prior): the two Fixed points and the tie points of the
+    narrow overlap anchor the bias and the drift only; the engine converges and says so: every coefficient of
+    degree 2 and 3 has a sigma above 0.1 deg (measured 0.42 - 0.91 deg). The residuals are larger than jigsaw's
+    (measured: mean 0.186 px = 1.51 x, maximum 0.421 px = 1.10 x; the issue asked for 10 % and 15 %: not met, see
+    examples/lro_nac/README.md)."""
+    _, adjusted = lro_runs["no_twist"]
     result = adjusted.tested.result
     sigma_deg = np.degrees(result.image_sigma())
     assert result.converged and np.all(sigma_deg[:, [2, 3, 6, 7]] > 0.1)
-    values = _lro_values(lro_runs["no_yaw"][0])
+    values = _lro_values(lro_runs["no_twist"][0])
     theirs, ours = values["mean residual [px]"]
-    assert 1.0 < ours / theirs < 1.6
+    assert 1.0 < ours / theirs < 1.8
+    theirs, ours = values["maximum residual [px]"]
+    assert abs(ours / theirs - 1) < 0.15, (ours, theirs)
 
 
-def test_lro_pair_with_yaw_reaches_jigsaws_residuals(lro_runs):
-    """With the yaw polynomial free as well (jigsaw's RA turns about J2000 Z, 105 deg from the line of sight,
-    so its two angles reach rotations about the line of sight): mean residual within 3 % of jigsaw's, maximum
-    within 10 % (measured 0.1244 vs 0.1231 px, 0.362 vs 0.381 px)."""
-    values = _lro_values(lro_runs["yaw"][0])
+def test_lro_pair_with_twist_reaches_jigsaws_residuals(lro_runs):
+    """With the twist polynomial free as well: mean residual within 3 % of jigsaw's, maximum within 10 %
+    (measured 0.1244 vs 0.1231 px, 0.362 vs 0.381 px)."""
+    values = _lro_values(lro_runs["twist"][0])
     theirs, ours = values["mean residual [px]"]
     assert abs(ours / theirs - 1) < 0.03, (ours, theirs)
     theirs, ours = values["maximum residual [px]"]
@@ -161,17 +163,17 @@ def test_lro_pair_with_yaw_reaches_jigsaws_residuals(lro_runs):
 
 
 def test_lro_pair_bias_and_drift_are_determined_and_points_land_where_jigsaws_do(lro_runs):
-    """Roll and pitch of degree 1: every coefficient determined to 1 arcsec (measured 0.3"), pitch bias about
-    0.66 deg (the two Fixed points sit 1.7 km from where the ISDs put them); the adjusted points' mean X, Y, Z
-    within 1 km of jigsaw's (measured 0.15, 0.13, 0.73 km) and their spread in X and Z within 10 %
-    (measured -5.6 %, +3.8 %)."""
+    """RA and DEC of degree 1: every coefficient determined to 1 arcsec (measured 0.3"), biases RA 0.31 deg and
+    DEC 0.57 deg alike in L and R (the two Fixed points sit 1.7 km from where the ISDs put them); the adjusted
+    points' mean X, Y, Z within 1 km of jigsaw's (measured 0.15, 0.13, 0.73 km) and their spread in X and Z within
+    10 % (measured -5.6 %, +3.8 %)."""
     folder, adjusted = lro_runs["degree1"]
     result = adjusted.tested.result
     sigma_arcsec = np.degrees(result.image_sigma()) * 3600
     active = result.problem.image_free
     assert result.converged and np.all(sigma_arcsec[active] < 1.0)
-    pitch_bias_deg = np.degrees(result.state.image[:, 4])
-    assert np.all(np.abs(pitch_bias_deg - 0.66) < 0.05), pitch_bias_deg
+    ra_deg, dec_deg = np.degrees(result.state.image[:, 0]), np.degrees(result.state.image[:, 4])
+    assert np.all(np.abs(ra_deg - 0.31) < 0.03) and np.all(np.abs(dec_deg - 0.575) < 0.03), (ra_deg, dec_deg)
     values = _lro_values(folder)
     for axis in "XYZ":
         theirs, ours = values[f"points {axis} mean [km]"]
@@ -179,3 +181,29 @@ def test_lro_pair_bias_and_drift_are_determined_and_points_land_where_jigsaws_do
     for axis in "XZ":
         theirs, ours = values[f"points {axis} sd [km]"]
         assert abs(ours / theirs - 1) < 0.10, (axis, ours, theirs)
+
+
+def test_lro_pair_with_the_radii_free(tmp_path):
+    """jigsaw held the radii on a DEM that the shared data lack: with the radii free, bias and drift adjust (mean
+    residual 0.094 px, below jigsaw's 0.123 with three more unknowns per point; points' mean X, Y, Z within 1 km of
+    jigsaw's, measured 0.46, 0.02, 0.55 km; tie points' sigma 78 m in plan, 310 m in height), and degree 3 is
+    singular: the engine stops and names RA/DEC coefficients instead of returning a solution."""
+    from selfcal.errors import AdjustmentError
+    network, images = read_control_network(os.path.join(LRO, "observationPair.net")), read_image_folder(LRO)
+    for degree in (1, 3):
+        block, _ = block_from_isis(network, images, 1.4, "free", {"attitude_degree": degree, "twist": False})
+        write_block(block, tmp_path / f"d{degree}")
+        block = read_block(tmp_path / f"d{degree}")
+        if degree == 3:
+            with pytest.raises(AdjustmentError, match=r"(ra|dec)_[0-3]"):
+                adjust_block(block, AdjustRequest(snooping=None))
+            continue
+        adjusted = adjust_block(block, AdjustRequest(snooping=None))
+        assert adjusted.tested.result.converged
+        write_results(tmp_path / "res", result_files(adjusted.block, adjusted.tested, {}, None, adjusted.checks))
+        values = _lro_values(tmp_path / "res")
+        theirs, ours = values["mean residual [px]"]
+        assert 0.6 < ours / theirs < 1.0, (ours, theirs)
+        for axis in "XYZ":
+            theirs, ours = values[f"points {axis} mean [km]"]
+            assert abs(ours - theirs) < 1.0, (axis, ours, theirs)

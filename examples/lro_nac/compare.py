@@ -3,8 +3,9 @@
 Prints, for every LRO value of EXPECTED_VALUES.txt, jigsaw's number, selfcal's and their ratio: the mean and
 largest residual (px; the magnitude of each measure's residual, ISIS's AverageResidual and
 GetMaximumResidual) and the mean, standard deviation, minimum and maximum of the adjusted points' X, Y, Z
-(km, body-fixed), for each run of ``run.sh`` (``no_yaw``: jigsaw's options read literally; ``yaw``: with the
-rotation about the line of sight free; ``degree1``: bias and drift only).
+(km, body-fixed), for each run of ``run.sh`` (``no_twist``: jigsaw's options; ``twist``: with the rotation about
+the sensor's Z free as well; ``degree1``: bias and drift only; ``radii_free``: bias and
+drift, the points free in 3-D).
 
 Run: ``python compare.py [RESULTS]`` after ``run.sh`` (RESULTS defaults to results/ beside this file).
 """
@@ -19,9 +20,10 @@ import sys
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 EXPECTED = os.path.join(HERE, "..", "..", "..", "shared", "data", "isis", "EXPECTED_VALUES.txt")
-RUNS = {"no_yaw": "jigsaw's options (roll, pitch of degree 3, no yaw)",
-        "yaw": "roll, pitch and yaw of degree 3",
-        "degree1": "roll and pitch of degree 1 (bias and drift)"}
+RUNS = {"no_twist": "jigsaw's options (RA, DEC of degree 3, no twist)",
+        "twist": "RA, DEC and TWIST of degree 3",
+        "degree1": "RA and DEC of degree 1 (bias and drift)",
+        "radii_free": "RA and DEC of degree 1, the points' radii free"}
 STATISTICS = ("mean", "sd", "min", "max")
 
 

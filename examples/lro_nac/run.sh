@@ -12,19 +12,22 @@ out=$here/results
 rm -rf "$out"
 mkdir -p "$out"
 start=$(date +%s.%N)
-# jigsaw's options read literally: attitude of degree 3, no twist, no prior, radii held (radius=no), no rejection
-$selfcal import isis "$data/observationPair.net" --images "$data" --out "$out/block_no_yaw" --attitude-degree 3 \
+# jigsaw's options: RA and DEC of degree 3, no twist, no prior, radii held (radius=no), no rejection
+$selfcal import isis "$data/observationPair.net" --images "$data" --out "$out/block_no_twist" --attitude-degree 3 \
     --no-twist --hold-radii 0.001
-$selfcal adjust "$out/block_no_yaw" --out "$out/no_yaw" --snoop 0 --max-iterations 200
-# the same with the yaw polynomial free: jigsaw's RA turns about J2000 Z, 105 deg from the NAC's line of sight,
-# so its two angles reach a rotation about the line of sight that roll and pitch alone do not (README.md)
+$selfcal adjust "$out/block_no_twist" --out "$out/no_twist" --snoop 0 --max-iterations 200
+# the same with the twist polynomial free as well
 $selfcal import isis "$data/observationPair.net" --images "$data" --out "$out/block" --attitude-degree 3 \
     --hold-radii 0.001
-$selfcal adjust "$out/block" --out "$out/yaw" --snoop 0 --max-iterations 200
-# what the pair determines: bias and drift of roll and pitch (the two Fixed points anchor no higher degree)
+$selfcal adjust "$out/block" --out "$out/twist" --snoop 0 --max-iterations 200
+# what the pair determines: bias and drift of RA and DEC (the two Fixed points anchor no higher degree)
 $selfcal import isis "$data/observationPair.net" --images "$data" --out "$out/block_degree1" --attitude-degree 1 \
     --no-twist --hold-radii 0.001
 $selfcal adjust "$out/block_degree1" --out "$out/degree1" --snoop 0
+# the radii free (no DEM here): degree 1 adjusts; degree 3 is singular and the engine names the coefficients
+$selfcal import isis "$data/observationPair.net" --images "$data" --out "$out/block_radii_free" --attitude-degree 1 \
+    --no-twist
+$selfcal adjust "$out/block_radii_free" --out "$out/radii_free" --snoop 0
 end=$(date +%s.%N)
-echo "three imports and three adjustments with reports in $(echo "$end - $start" | bc) s" >&2
+echo "four imports and four adjustments with reports in $(echo "$end - $start" | bc) s" >&2
 $python "$here/compare.py" "$out"

@@ -177,6 +177,9 @@ class LineScan:
     semi_major_m: float
     semi_minor_m: float
     focal_plane_misfit_mm: float           # largest misfit of the focal-plane polynomial
+    #: (3, 3): columns the roll, pitch, yaw increments (orbit frame) of a unit rotation of the sensor's pointing
+    #: about J2000 Z, the node line and the sensor's Z at the image centre: jigsaw's RA, DEC, TWIST increments
+    jigsaw_axes: np.ndarray | None = None
 
     def image_to_ground(self, line, sample, height_m=0.0) -> np.ndarray:
         """Body-fixed points (n, 3) of image points at ``height_m`` above the ellipsoid, as usgscsm's
@@ -242,7 +245,38 @@ def line_scan_from_isd(isd, image_id: str | None = None) -> LineScan:
                                  _pointing_to_body(isd, quat_nodes))
     trajectory = Trajectory("ECEF", "", position, velocity, _OrbitAttitude(position, velocity, quaternions))
     image = LineImage.nominal(image_id or camera.camera_id, camera, trajectory, t_first, isd.image_lines)
-    return LineScan(image, isd.semi_major_m, isd.semi_minor_m, misfit)
+    axes = _jigsaw_axes(isd, trajectory.attitude, float(image.t_ref))
+    return LineScan(image, isd.semi_major_m, isd.semi_minor_m, misfit, axes)
+
+
+def _rotation(axis: np.ndarray, angle: float) -> np.ndarray:
+    """The active rotation by ``angle`` about the unit vector ``axis`` (Rodrigues)."""
+    K = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+    return np.eye(3) + np.sin(angle) * K + (1.0 - np.cos(angle)) * K @ K
+
+
+def _jigsaw_axes(isd, attitude: "_OrbitAttitude", t: float, step_rad: float = 1e-6) -> np.ndarray:
+    """The roll, pitch, yaw increments (columns, per rad) that turn the sensor's lines of sight about jigsaw's
+    three axes at time t: ISIS writes the J2000 -> sensor rotation C = R3(TWIST) R1(DEC) R3(RA), so an increment
+    of RA turns the lines of sight (in J2000) about J2000 Z, one of DEC about the node line N = Z x Z_C / |.|,
+    one of TWIST about the sensor's Z_C. Central differences of the orbit-frame angles of the turned pointing."""
+    R_bj = _body_from_j2000(isd, np.array([t]))[0]
+    R_sj = isd.pointing_constant @ matrix_from_quaternion(slerp(isd.pointing_times_s, isd.pointing_quaternions,
+                                                                np.array([t])))[0]
+    z_j = R_bj @ np.array([0.0, 0.0, 1.0])
+    z_c = R_bj @ R_sj.T @ np.array([0.0, 0.0, 1.0])
+    node = np.cross(z_j, z_c)
+    if np.linalg.norm(node) < 1e-9:             # Z_C along J2000 Z: RA and TWIST turn about one axis (as in ISIS)
+        node = np.cross(R_bj @ np.array([1.0, 0.0, 0.0]), z_c)
+    node /= np.linalg.norm(node)
+    q = attitude.quaternions(np.array([t]))
+    R_FT = matrix_from_quaternion(q, scalar_first=False)[0] @ rotation_x(np.pi)
+    R_FO = orbit_frame(attitude.position(np.array([t])), attitude.velocity(np.array([t])))[0]
+    out = np.zeros((3, 3))
+    for k, axis in enumerate((z_j, node, z_c)):
+        turned = [angles_from_body_to_orbit(R_FO.T @ _rotation(axis, sign * step_rad) @ R_FT) for sign in (1, -1)]
+        out[:, k] = (np.ravel(turned[0]) - np.ravel(turned[1])) / (2 * step_rad)
+    return out
 
 
 # --- the sensor contract: usgscsm line-scan images in a block (model = "usgscsm", line-scan ISDs) -------------
@@ -250,10 +284,11 @@ def line_scan_from_isd(isd, image_id: str | None = None) -> LineScan:
 from .base import Parameter  # noqa: E402
 from .pushbroom.sensor import PushbroomBound, PushbroomSensor  # noqa: E402
 
-#: the attitude corrections of a line-scan ISD image: roll, pitch, yaw (orbit frame) as polynomials of degree
-#: up to 3 in s = (t - t_ref) / half the image's duration, coefficients in rad (jigsaw's CKDEGREE)
+#: the attitude corrections of a line-scan ISD image: jigsaw's RA, DEC, TWIST increments (rotations of the
+#: pointing about J2000 Z, the node line and the sensor's Z, :func:`_jigsaw_axes`) as polynomials of degree up to
+#: 3 in s = (t - t_ref) / half the image's duration, coefficients in rad (jigsaw's CKDEGREE)
 ATTITUDE_DEGREE_MAX = 3
-_AXES = ("roll", "pitch", "yaw")
+_AXES = ("ra", "dec", "twist")
 IMAGE_PARAMETERS = tuple(Parameter(f"{a}_{k}", "rad", "EOP", screened=True)
                          for a in _AXES for k in range(ATTITUDE_DEGREE_MAX + 1))
 
@@ -268,6 +303,7 @@ class UsgscsmLineBound(PushbroomBound):
     def line_images(self, block, images, options):
         scans = {int(k): _scan(block, k) for k in images}
         self.radii = {k: (scan.semi_major_m, scan.semi_minor_m) for k, scan in scans.items()}
+        self.axes = {k: scan.jigsaw_axes for k, scan in scans.items()}
         return {k: scan.image for k, scan in scans.items()}
 
     def height(self, points):
@@ -303,11 +339,11 @@ class UsgscsmLineBound(PushbroomBound):
         return out
 
     def _image(self, state, i: int) -> LineImage:
-        """The image with its polynomial coefficients: c0 and c1 / half-duration are Eq. 6's d_0 and d_1 (per
-        second); c2, c3 are the higher terms."""
+        """The image with its polynomial coefficients as roll, pitch, yaw (the RA, DEC, TWIST coefficients through
+        the image's axes): c0 and c1 / half-duration are Eq. 6's d_0 and d_1 (per second); c2, c3 the higher terms."""
         k = self.problem.image_camera[i]
         image = self.images[i]
-        c = state.image[i].reshape(3, ATTITUDE_DEGREE_MAX + 1)
+        c = self.axes[i] @ state.image[i].reshape(3, ATTITUDE_DEGREE_MAX + 1)
         T = image.half_duration_s
         standard = np.array([c[0, 0], c[0, 1] / T, c[1, 0], c[1, 1] / T, c[2, 0], c[2, 1] / T])
         return image.with_parameters(np.concatenate([standard, state.cameras[k][:4]]), c[:, 2:])
@@ -318,20 +354,22 @@ class UsgscsmLineBound(PushbroomBound):
             return out
         f, j_e, j_p, j_c = out
         s = np.zeros(len(img))
+        j_axes = np.zeros((len(img), 2, 3))
         for i in np.unique(img):
             sel = np.flatnonzero(img == i)
             image = self.images[int(i)]
             s[sel] = (self.t[o[sel]] - image.t_ref) / image.half_duration_s
+            j_axes[sel] = j_e[sel][:, :, [0, 2, 4]] @ self.axes[int(i)]                 # d/d(RA, DEC, TWIST)
         powers = s[:, None] ** np.arange(ATTITUDE_DEGREE_MAX + 1)[None, :]          # (m, degree + 1)
-        j = np.einsum("mra,mk->mrak", j_e[:, :, [0, 2, 4]], powers).reshape(len(img), 2, -1)
+        j = np.einsum("mra,mk->mrak", j_axes, powers).reshape(len(img), 2, -1)
         return f, j, j_p, j_c
 
 
 class UsgscsmLineSensor(PushbroomSensor):
     """usgscsm / ALE line-scan ISDs (LRO NAC, MRO CTX, ...): the ISD's own trajectory and pointing as usgscsm
-    interpolates them (:func:`line_scan_from_isd`), attitude corrections of the camera's ``attitude_degree``
-    (roll and pitch; yaw, the twist about the line of sight, unless ``twist = false``) and the focal length and
-    boresight held unless weighted (``sigma_focal_mm``)."""
+    interpolates them (:func:`line_scan_from_isd`), attitude corrections of the camera's ``attitude_degree`` as
+    jigsaw parametrises them (RA and DEC; TWIST, the rotation about the sensor's Z, unless ``twist = false``) and
+    the focal length and boresight held unless weighted (``sigma_focal_mm``)."""
 
     name = "usgscsm-line"
     image_parameters = IMAGE_PARAMETERS
