@@ -174,6 +174,23 @@ def test_lro_pair_bias_and_drift_are_determined_and_points_land_where_jigsaws_do
     assert result.converged and np.all(sigma_arcsec[active] < 1.0)
     ra_deg, dec_deg = np.degrees(result.state.image[:, 0]), np.degrees(result.state.image[:, 4])
     assert np.all(np.abs(ra_deg - 0.31) < 0.03) and np.all(np.abs(dec_deg - 0.575) < 0.03), (ra_deg, dec_deg)
+    # attitude_corrections.csv: at the image centre (s = 0) the corrections are the constant terms, and so are
+    # their sigmas; the report draws them
+    from selfcal.io.results import read_results
+    from selfcal.report import render_report
+    results = read_results(folder)
+    table = results.tables["attitude_corrections"]
+    sigma = result.image_sigma()
+    for i, image_id in enumerate(result.block.images.image_id):
+        mine = np.flatnonzero(table["image_id"] == image_id)
+        centre = mine[np.argmin(np.abs(table["time_s"][mine]))]
+        assert abs(table["time_s"][centre]) < 1e-9
+        np.testing.assert_allclose([table["ra_urad"][centre], table["dec_urad"][centre]],
+                                   result.state.image[i, [0, 4]] * 1e6, rtol=1e-6)
+        np.testing.assert_allclose([table["sigma_ra_urad"][centre], table["sigma_dec_urad"][centre]],
+                                   sigma[i, [0, 4]] * 1e6, rtol=1e-3)
+        assert np.all(table["twist_urad"][mine] == 0) and np.all(table["sigma_twist_urad"][mine] == 0)
+    assert "figures/attitude-corrections.png" in render_report(results)
     values = _lro_values(folder)
     for axis in "XYZ":
         theirs, ours = values[f"points {axis} mean [km]"]

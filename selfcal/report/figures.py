@@ -273,3 +273,23 @@ def comparison_figure(scenarios: list[str], models: list[str], values: dict[str,
     fig.legend(handles, labels, fontsize=7, ncols=min(len(models), 6), loc="outside lower center")
     fig.suptitle(title, x=0.01, ha="left", fontsize=10)
     return fig
+
+
+def attitude_correction_figure(series: list[tuple[str, np.ndarray, np.ndarray, np.ndarray]], axes: list[str],
+                               title: str) -> Figure:
+    """The attitude corrections along the images: one panel per axis, one curve per image (``series``: image id,
+    lines, values (n, axes) and sigmas (n, axes) in urad) with its +/- sigma band."""
+    fig = Figure(figsize=(_WIDTH_IN, 1.9 * len(axes) + 0.5), layout="constrained")
+    panels = fig.subplots(len(axes), 1, sharex=True, squeeze=False)[:, 0]
+    for a, (ax, name) in enumerate(zip(panels, axes)):
+        for k, (image_id, lines, values, sigmas) in enumerate(series):
+            ax.plot(lines, values[:, a], color=f"C{k % 10}", lw=1.2, label=image_id)
+            ax.fill_between(lines, values[:, a] - sigmas[:, a], values[:, a] + sigmas[:, a], color=f"C{k % 10}",
+                            alpha=0.2, lw=0)
+        ax.set_ylabel(f"{name} [µrad]")
+        ax.axhline(0.0, color="0.6", lw=0.6)
+    panels[-1].set_xlabel("line")
+    panels[0].legend(fontsize=8, loc="best")
+    panels[0].set_title(title, loc="left", fontsize=10)
+    return fig
+

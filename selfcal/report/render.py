@@ -294,6 +294,39 @@ def _trajectory_section(page: Page, results) -> None:
                ident="trajectory")
 
 
+#: images drawn in the attitude-correction figure at most (all are in attitude_corrections.csv)
+MAX_ATTITUDE_IMAGES = 8
+
+
+def _attitude_section(page: Page, files: dict, results) -> None:
+    """attitude_corrections.csv of line scanners: the corrections along each image with their sigma."""
+    t = results.tables.get("attitude_corrections")
+    if t is None or not len(t["image_id"]):
+        return
+    # the axes the adjustment corrected (a held one is zero with sigma zero everywhere)
+    axes = [k[:-5] for k in t if k.endswith("_urad") and not k.startswith("sigma_")
+            and (np.any(t[k] != 0) or np.any(t[f"sigma_{k}"] != 0))]
+    if not axes:
+        return
+    series = []
+    for image_id in list(dict.fromkeys(t["image_id"]))[:MAX_ATTITUDE_IMAGES]:
+        mine = t["image_id"] == image_id
+        series.append((image_id, t["line"][mine], np.column_stack([t[f"{a}_urad"][mine] for a in axes]),
+                       np.column_stack([t[f"sigma_{a}_urad"][mine] for a in axes])))
+    page.heading("Attitude corrections along the images", 3)
+    _add_figure(page, files, figures.attitude_correction_figure(series, axes, "Attitude corrections"),
+                "attitude-corrections",
+                f"The estimated corrections of {', '.join(axes)} along each image (line), with ±σ (the "
+                "coefficients' covariance carried through). Also in attitude_corrections.csv.")
+    rows = []
+    for image_id, lines, values, sigmas in series:
+        worst = np.argmax(sigmas, axis=0)
+        rows += [[image_id, a, fmt(values[0, k], ".2f"), fmt(values[len(lines) // 2, k], ".2f"),
+                  fmt(values[-1, k], ".2f"), fmt(sigmas[worst[k], k], ".2f")] for k, a in enumerate(axes)]
+    page.table(["image", "axis", "first line [µrad]", "centre [µrad]", "last line [µrad]", "largest σ [µrad]"],
+               rows, text_columns={0, 1}, ident="attitude")
+
+
 def _images_section(page: Page, results) -> None:
     """images.csv: each image's parameters with their sigma (the columns its sensor writes)."""
     im = results.tables["images"]
@@ -397,6 +430,7 @@ def render_report(results, title: str | None = None) -> dict:
     _parameters_section(page, results)
     page.heading("Exterior orientation", anchor="images")
     _images_section(page, results)
+    _attitude_section(page, files, results)
     _trajectory_section(page, results)
     page.heading("Rejected observations", anchor="rejected")
     _rejected_section(page, results)

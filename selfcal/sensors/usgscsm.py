@@ -338,6 +338,18 @@ class UsgscsmLineBound(PushbroomBound):
             out[sel] = usgscsm_ellipsoid_point(S, d, a + h, b + h)
         return out
 
+    attitude_axes = _AXES
+
+    def attitude_design(self, i, rows):
+        """d(RA, DEC, TWIST increments)/d(coefficients) at ``rows``: the powers of s."""
+        image = self.images[i]
+        s = (image.time_of_row(rows) - image.t_ref) / image.half_duration_s
+        powers = s[:, None] ** np.arange(ATTITUDE_DEGREE_MAX + 1)[None, :]
+        out = np.zeros((len(rows), 3, 3 * (ATTITUDE_DEGREE_MAX + 1)))
+        for a in range(3):
+            out[:, a, a * (ATTITUDE_DEGREE_MAX + 1):(a + 1) * (ATTITUDE_DEGREE_MAX + 1)] = powers
+        return out
+
     def _image(self, state, i: int) -> LineImage:
         """The image with its polynomial coefficients as roll, pitch, yaw (the RA, DEC, TWIST coefficients through
         the image's axes): c0 and c1 / half-duration are Eq. 6's d_0 and d_1 (per second); c2, c3 the higher terms."""

@@ -27,7 +27,7 @@ from ..base import BoundSensor, Parameter, Sensor
 from .model import (PARAMETER_NAMES, LineCamera, LineImage, fit_trajectory, ground_to_image, image_scales,
                     image_to_ground, line_of_sight, photo_coordinates, track)
 
-__all__ = ["SENSOR_MODELS", "M6_SIGMA", "SensorModel", "sensor_model", "PushbroomSensor", "PushbroomBound",
+__all__ = ["SENSOR_MODELS", "M6_SIGMA", "SensorModel", "sensor_model", "PushbroomSensor", "PushbroomBound", "attitude_table",
            "SENSOR", "line_images", "FIT_ORDERS", "TELEMETRY_MARGIN_S", "IMAGE_PARAMETERS", "CAMERA_PARAMETERS"]
 
 _P = {name: k for k, name in enumerate(PARAMETER_NAMES)}
@@ -260,6 +260,19 @@ class PushbroomBound(BoundSensor):
             out[sel] = image_to_ground(context[int(i)], pixel[sel, 1], pixel[sel, 0], height)
         return out
 
+    #: names of the attitude corrections that :meth:`attitude_design` maps the image parameters to
+    attitude_axes = ("roll", "pitch", "yaw")
+
+    def attitude_design(self, i: int, rows: np.ndarray) -> np.ndarray:
+        """(n, 3, width): d(correction of each of :attr:`attitude_axes`, rad)/d(image parameters) at ``rows`` of
+        image ``i``: Eq. 6, d_0 + d_1 (t - t_ref)."""
+        tau = self.images[i].time_of_row(rows) - self.images[i].t_ref
+        out = np.zeros((len(rows), 3, self.problem.image_width))
+        for a in range(3):
+            out[:, a, 2 * a] = 1.0
+            out[:, a, 2 * a + 1] = tau
+        return out
+
     def pixel_residuals(self, o, v):
         """v = f - l in mm: across track over the detector spacing is the column, along track over the
         (signed) image motion per line the negative row (a later line images the point further back)."""
@@ -329,6 +342,10 @@ class PushbroomSensor(Sensor):
         return (np.broadcast_to(model.mask()[:6], shape).copy(),
                 np.broadcast_to(np.where(np.isfinite(sigma), sigma, np.nan), shape).copy())
 
+    def result_files(self, result, slot):
+        """attitude_corrections.csv: the estimated attitude corrections along each image with their sigma."""
+        return {"attitude_corrections.csv": attitude_table(result, slot)}
+
     def camera_setup(self, camera, options):
         model = _model_of(options)
         sigma = model.sigmas()[6:]
@@ -353,6 +370,41 @@ class PushbroomSensor(Sensor):
         except ValueError as exc:
             raise UsageError(f"--ap {spec}: {exc}") from None
         return ap, np.zeros(ap.n_params)
+
+
+#: attitude_corrections.csv samples every image at this many lines
+ATTITUDE_SAMPLES = 41
+
+
+def attitude_table(result, slot, samples: int = ATTITUDE_SAMPLES) -> tuple:
+    """attitude_corrections.csv: per image, at ``samples`` lines from the first to the last, the time from the
+    image centre and each attitude correction of its sensor (``{axis}_urad``) with its a-posteriori sigma, the
+    coefficients' covariance carried through (held coefficients contribute nothing)."""
+    problem, bound = result.problem, slot.bound
+    width = problem.image_width
+    Q = result.variance_factor * result.Q_theta
+    cols: dict = {"image_id": [], "line": [], "time_s": []}
+    axes = bound.attitude_axes
+    for a in axes:
+        cols[f"{a}_urad"], cols[f"sigma_{a}_urad"] = [], []
+    for i in slot.images:
+        i = int(i)
+        image = bound.images[i]
+        rows = np.linspace(0.0, image.rows, samples)
+        G = bound.attitude_design(i, rows)                                  # (n, 3, width)
+        free = problem.image_free[i]
+        Qi = Q[i * width:(i + 1) * width, i * width:(i + 1) * width] * np.outer(free, free)
+        value = G @ result.state.image[i]
+        sigma = np.sqrt(np.maximum(np.einsum("nak,kl,nal->na", G, Qi, G), 0.0))
+        cols["image_id"] += [str(result.block.images.image_id[i])] * samples
+        cols["line"] += list(rows)
+        cols["time_s"] += list(image.time_of_row(rows) - image.t_ref)
+        for a, name in enumerate(axes):
+            cols[f"{name}_urad"] += list(value[:, a] * 1e6)
+            cols[f"sigma_{name}_urad"] += list(sigma[:, a] * 1e6)
+    header = list(cols)
+    columns = [np.array(cols[h], dtype=object if h == "image_id" else float) for h in header]
+    return header, columns, [""] + [".1f", ".4f"] + [".4f"] * (len(header) - 3)
 
 
 SENSOR = PushbroomSensor()
