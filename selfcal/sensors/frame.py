@@ -237,10 +237,10 @@ class FrameBound(BoundSensor):
         w, h, p = self.format_px[cam].T
         return image[img, :3], rays(photo_from_pixel(pixel, w, h, p), image[img], iop[cam])
 
-    def pixels(self, context, img, points):
-        """Eq. (1) with the additional parameters, Delta evaluated at the predicted position (at the
+    def photo_coordinates(self, context, img, points) -> np.ndarray:
+        """Eq. (1) with the additional parameters (mm), Delta evaluated at the predicted position (at the
         measured one, where the adjustment takes it, it differs by a second-order term)."""
-        image, iop, rotation, values = context
+        image, iop, rotation, values = context[:4]
         cam = self.problem.image_camera[img]
         M = rotation[0] if isinstance(rotation, tuple) else rotation
         xy = project(points, image[img], iop[cam], M[img])
@@ -251,6 +251,12 @@ class FrameBound(BoundSensor):
                 dx, dy = camera.ap.displacement_px(xy[sel, 0], xy[sel, 1], a)
                 xy[sel, 0] += camera.pixel_size_mm * dx
                 xy[sel, 1] += camera.pixel_size_mm * dy
+        return xy
+
+    def pixels(self, context, img, points):
+        """:meth:`photo_coordinates` in pixels."""
+        xy = self.photo_coordinates(context, img, points)
+        cam = self.problem.image_camera[img]
         w, h, p = self.format_px[cam].T
         return pixel_from_photo(xy, w, h, p)
 

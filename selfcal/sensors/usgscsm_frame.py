@@ -484,18 +484,7 @@ class UsgscsmFrameBound(FrameBound):
 
     def pixels(self, context, img, points):
         """Ideal photo coordinates (with the camera's APs), through the lens distortion to cube pixels."""
-        from .frame import project
-        eop, iop, rotation, values = context[:4]
-        cam = self.problem.image_camera[img]
-        M = rotation[0] if isinstance(rotation, tuple) else rotation
-        xy = project(points, eop[img], iop[cam], M[img])
-        for k, camera in enumerate(self.problem.cameras):
-            sel = np.flatnonzero(cam == k)
-            if sel.size and camera.ap.n_params:
-                dx, dy = camera.ap.displacement_px(xy[sel, 0], xy[sel, 1], values[k][camera.n_core:] *
-                                                   camera.free[camera.n_core:])
-                xy[sel, 0] += camera.pixel_size_mm * dx
-                xy[sel, 1] += camera.pixel_size_mm * dy
+        xy = self.photo_coordinates(context, img, points)
         out = np.zeros((len(img), 2))
         for i in np.unique(img):
             sel = np.flatnonzero(img == i)
