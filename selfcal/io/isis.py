@@ -221,15 +221,20 @@ def _integer(block: PvlBlock, key: str, path: str) -> int:
 
 # --- control network ------------------------------------------------------------------------------
 
+def _kind(block: PvlBlock, key: str, table: dict, known, what: str, path: str) -> str:
+    """The type keyword ``key`` of a point or measure, read through ``table``; missing or unknown: an error."""
+    kind = block.keyword(key)
+    if kind is None:
+        raise BlockError(path, f"{what} has no '{key}'", block.line, key)
+    value = table.get(kind.value.lower())
+    if value is None:
+        raise BlockError(path, f"unknown {key} {kind.value!r} (known: {', '.join(known)})", kind.line, key)
+    return value
+
+
 def _measure(group: PvlBlock, point_id: str, path: str) -> ControlMeasure:
     serial = _text(group, "SerialNumber", path)
-    kind = group.keyword("MeasureType")
-    if kind is None:
-        raise BlockError(path, f"measure of point '{point_id}' has no 'MeasureType'", group.line, "MeasureType")
-    measure_type = _MEASURE_TYPE.get(kind.value.lower())
-    if measure_type is None:
-        raise BlockError(path, f"unknown MeasureType {kind.value!r} (known: {', '.join(MEASURE_TYPES)})", kind.line,
-                         "MeasureType")
+    measure_type = _kind(group, "MeasureType", _MEASURE_TYPE, MEASURE_TYPES, f"measure of point '{point_id}'", path)
     coords = []
     for key in ("Sample", "Line"):
         k = group.keyword(key)
@@ -278,13 +283,7 @@ def _covariance(block: PvlBlock, key: str, path: str) -> np.ndarray | None:
 
 def _point(obj: PvlBlock, path: str) -> ControlPoint:
     point_id = _text(obj, "PointId", path)
-    kind = obj.keyword("PointType")
-    if kind is None:
-        raise BlockError(path, f"point '{point_id}' has no 'PointType'", obj.line, "PointType")
-    point_type = _POINT_TYPE.get(kind.value.lower())
-    if point_type is None:
-        raise BlockError(path, f"unknown PointType {kind.value!r} (known: {', '.join(POINT_TYPES)})", kind.line,
-                         "PointType")
+    point_type = _kind(obj, "PointType", _POINT_TYPE, POINT_TYPES, f"point '{point_id}'", path)
     for block in obj.blocks:
         if block.kind != "Group" or block.name.lower() != "controlmeasure":
             raise BlockError(path, f"point '{point_id}' holds {block.kind} '{block.name}'; only ControlMeasure groups "
