@@ -138,13 +138,19 @@ def test_lro_pair_is_imported_with_its_two_fixed_points(lro_runs):
 def test_lro_pair_with_jigsaws_options_leaves_degrees_2_and_3_undetermined(lro_runs):
     """jigsaw's options (RA, DEC of degree 3, no twist, no prior): the two Fixed points and the tie points of the
     narrow overlap anchor the bias and the drift only; the engine converges and says so: every coefficient of
-    degree 2 and 3 has a sigma above 0.1 deg (measured 0.42 - 0.91 deg). The residuals are larger than jigsaw's
+    degree 2 and 3 has a sigma above 0.1 deg (measured 0.42 - 0.91 deg), and a note (and `selfcal adjust`'s
+    warning) names them as weakly determined. The residuals are larger than jigsaw's
     (measured: mean 0.186 px = 1.51 x, maximum 0.421 px = 1.10 x; the issue asked for 10 % and 15 %: not met, see
     examples/lro_nac/README.md)."""
     _, adjusted = lro_runs["no_twist"]
     result = adjusted.tested.result
     sigma_deg = np.degrees(result.image_sigma())
     assert result.converged and np.all(sigma_deg[:, [2, 3, 6, 7]] > 0.1)
+    # and the engine says it: the 16 coefficients' sigmas are inflated > 1000x by their correlation (measured
+    # 2.4e4 - 2.6e4x); bias and drift alone are not (2.5x)
+    weak = [n for n in result.notes if n.startswith("weakly determined: 16 parameters")]
+    assert weak and "dec_0" in weak[0], result.notes
+    assert not any(n.startswith("weakly") for n in lro_runs["degree1"][1].tested.result.notes)
     values = _lro_values(lro_runs["no_twist"][0])
     theirs, ours = values["mean residual [px]"]
     assert 1.0 < ours / theirs < 1.8
