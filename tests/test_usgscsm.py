@@ -143,11 +143,10 @@ def test_isd_reader_errors_name_the_file_and_key(tmp_path):
         read_usgscsm_isd(path)
 
 
-def test_line_scan_isd_attitude_polynomials_of_degree_3_are_recovered(tmp_path):
-    """Truth for the usgscsm-line sensor of block folders: the LRO NAC pair's ISDs (ISIS's tests), roll, pitch
-    and yaw corrections of degree 3 put into both images (truth, up to 30 urad, some 3 px at the ends), 60
-    GCPs per image (0.01 m) observed with 0.1 px noise: every coefficient within 4 sigma of its true value,
-    sigma0 within 30 % of 1 (measured: every coefficient within 1.9 sigma)."""
+def _lro_truth(tmp_path, settings, truth_of, seed=7, heights_m=500.0):
+    """The LRO NAC pair's ISDs (ISIS's tests) with known image parameters (``truth_of(rng, shape)``, the held
+    entries zero), 60 GCPs per image (0.01 m, heights within +/- ``heights_m``) where the true cameras see
+    random pixels, observed with 0.1 px noise, adjusted: (truth, result)."""
     from dataclasses import replace
 
     from selfcal.adjust.initial import initial_state
@@ -159,14 +158,13 @@ def test_line_scan_isd_attitude_polynomials_of_degree_3_are_recovered(tmp_path):
 
     folder = os.path.join(SHARED_DATA, "isis", "lro_nac_pair")
     block, _ = block_from_isis(read_control_network(os.path.join(folder, "observationPair.net")),
-                               read_image_folder(folder), 0.1, "lro", {"attitude_degree": 3})
+                               read_image_folder(folder), 0.1, "lro", settings)
     write_block(block, tmp_path / "lro")
     block = read_block(tmp_path / "lro")
     problem = build_problem(block)
     state, _ = initial_state(problem, block)
-    rng = np.random.default_rng(7)
-    truth = rng.uniform(-3e-5, 3e-5, state.image.shape)
-    assert problem.image_free.all() and truth.shape == (2, 12)
+    rng = np.random.default_rng(seed)
+    truth = truth_of(rng, state.image.shape) * problem.image_free
     state.image[:] = truth
     (slot,) = problem.sensors
     context = slot.bound.context(state, False)
@@ -174,7 +172,7 @@ def test_line_scan_isd_attitude_polynomials_of_degree_3_are_recovered(tmp_path):
     img = np.repeat([0, 1], n)
     rows = np.concatenate([rng.uniform(100, 52124, n) for _ in range(2)])
     cols = rng.uniform(20, 5044, 2 * n)
-    ground = slot.bound.ground(context, img, np.column_stack([cols, rows]), rng.uniform(-500, 500, 2 * n))
+    ground = slot.bound.ground(context, img, np.column_stack([cols, rows]), rng.uniform(-heights_m, heights_m, 2 * n))
     pixel = slot.bound.pixels(context, img, ground) + rng.normal(0, 0.1, (2 * n, 2))
     points = replace(block.points, point_id=np.array([f"g{k}" for k in range(2 * n)], object),
                      role=np.full(2 * n, "gcp", object), xyz_m=ground, sigma_m=np.full((2 * n, 3), 0.01),
@@ -183,9 +181,38 @@ def test_line_scan_isd_attitude_polynomials_of_degree_3_are_recovered(tmp_path):
                            sigma_px=np.full(2 * n, 0.1), line=np.arange(2 * n), row=None)
     result = adjust(replace(block, points=points, observations=observations))
     assert result.converged and 0.7 < np.sqrt(result.variance_factor) < 1.3
-    sigma = result.image_sigma()
-    error = np.abs(result.state.image - truth) / sigma
+    return truth, result
+
+
+def test_line_scan_isd_attitude_polynomials_of_degree_3_are_recovered(tmp_path):
+    """Truth for the usgscsm-line sensor of block folders: RA, DEC and TWIST corrections of degree 3 put into both
+    LRO NAC images (truth, up to 30 urad, some 3 px at the ends): every coefficient within 4 sigma of its true
+    value, sigma0 within 30 % of 1 (measured: every coefficient within 1.9 sigma)."""
+    truth, result = _lro_truth(tmp_path, {"attitude_degree": 3},
+                               lambda rng, shape: rng.uniform(-3e-5, 3e-5, shape))
+    assert np.all(result.problem.image_free[:, :12]) and not result.problem.image_free[:, 12:].any()
+    sigma = result.image_sigma()[:, :12]
+    error = np.abs(result.state.image[:, :12] - truth[:, :12]) / sigma
     assert np.all(error < 4), (error.max(), np.unravel_index(error.argmax(), error.shape))
-    # determined, not just consistent: roll and pitch to 1 urad (0.1 px); yaw, the twist about the line of sight,
-    # moves the ends of the 5064-px line by 2500 px x angle, so 0.1 px leaves it some 10 urad (measured 12 - 71)
+    # determined, not just consistent: RA and DEC to 1 urad (0.1 px); TWIST, about the line of sight, moves the
+    # ends of the 5064-px line by 2500 px x angle, so 0.1 px leaves it some 10 urad (measured 12 - 71)
     assert np.all(sigma[:, :8] < 1e-6) and np.all(sigma[:, 8:] < 1e-4)
+
+
+def test_line_scan_isd_position_offsets_are_recovered(tmp_path):
+    """position_offsets = true (jigsaw's spsolve=position): a J2000 offset of each image's trajectory (truth up to
+    100 m) besides RA/DEC/TWIST biases; the GCPs' heights (+/- 2 km) tell an offset from a turn of the pointing
+    (the same ground shift at another height differs by h / range): every offset within 4 sigma of its truth,
+    determined to better than 10 m (measured: within 0.7 sigma, sigma 1.5 - 1.8 m)."""
+    def truth_of(rng, shape):
+        out = np.zeros(shape)
+        out[:, [0, 4, 8]] = rng.uniform(-3e-5, 3e-5, (shape[0], 3))
+        out[:, 12:] = rng.uniform(-100, 100, (shape[0], 3))
+        return out
+    truth, result = _lro_truth(tmp_path, {"attitude_degree": 0, "position_offsets": True}, truth_of, 3, 2000.0)
+    assert result.problem.image_free[:, 12:].all()
+    sigma = result.image_sigma()
+    free = result.problem.image_free
+    error = np.abs(result.state.image - truth)[free] / sigma[free]
+    assert np.all(error < 4), error
+    assert np.all(sigma[:, 12:] < 10.0)

@@ -40,6 +40,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                       help="line scanners: degree 0..3 of the attitude corrections (jigsaw's cksolvedegree)")
     isis.add_argument("--no-twist", action="store_true",
                       help="line scanners: no correction of the rotation about the line of sight (jigsaw twist=no)")
+    isis.add_argument("--solve-position", action="store_true",
+                      help="line scanners: a constant J2000 offset of each image's trajectory, weighted by "
+                           "--sigma-position-m (jigsaw spsolve=position; frame images always have theirs)")
     isis.add_argument("--hold-radii", type=float, metavar="M",
                       help="Free points keep their a-priori radius within this sigma (m), latitude and longitude "
                            "free: jigsaw's radius=no, which holds them on the DEM the a-priori points came from")
@@ -105,6 +108,8 @@ def _import_isis(args: argparse.Namespace) -> int:
                                   ("attitude_degree", args.attitude_degree)) if v is not None}
     if args.no_twist:
         settings["twist"] = False
+    if args.solve_position:
+        settings["position_offsets"] = True
     if args.attitude_degree is not None and not 0 <= args.attitude_degree <= 3:
         raise UsageError(f"--attitude-degree must be 0..3, found {args.attitude_degree}")
     if args.hold_radii is not None and not args.hold_radii > 0:

@@ -180,6 +180,8 @@ class LineScan:
     #: (3, 3): columns the roll, pitch, yaw increments (orbit frame) of a unit rotation of the sensor's pointing
     #: about J2000 Z, the node line and the sensor's Z at the image centre: jigsaw's RA, DEC, TWIST increments
     jigsaw_axes: np.ndarray | None = None
+    #: (3, 3) J2000 -> body-fixed at the image centre: a J2000 position offset in the body frame
+    body_from_j2000: np.ndarray | None = None
 
     def image_to_ground(self, line, sample, height_m=0.0) -> np.ndarray:
         """Body-fixed points (n, 3) of image points at ``height_m`` above the ellipsoid, as usgscsm's
@@ -246,7 +248,8 @@ def line_scan_from_isd(isd, image_id: str | None = None) -> LineScan:
     trajectory = Trajectory("ECEF", "", position, velocity, _OrbitAttitude(position, velocity, quaternions))
     image = LineImage.nominal(image_id or camera.camera_id, camera, trajectory, t_first, isd.image_lines)
     axes = _jigsaw_axes(isd, trajectory.attitude, float(image.t_ref))
-    return LineScan(image, isd.semi_major_m, isd.semi_minor_m, misfit, axes)
+    body = _body_from_j2000(isd, np.array([float(image.t_ref)]))[0]
+    return LineScan(image, isd.semi_major_m, isd.semi_minor_m, misfit, axes, body)
 
 
 def _rotation(axis: np.ndarray, angle: float) -> np.ndarray:
@@ -289,8 +292,17 @@ from .pushbroom.sensor import PushbroomBound, PushbroomSensor  # noqa: E402
 #: 3 in s = (t - t_ref) / half the image's duration, coefficients in rad (jigsaw's CKDEGREE)
 ATTITUDE_DEGREE_MAX = 3
 _AXES = ("ra", "dec", "twist")
+#: then a constant offset of the trajectory, J2000 X, Y, Z in m (jigsaw's spsolve=position)
+_ATTITUDE_WIDTH = 3 * (ATTITUDE_DEGREE_MAX + 1)
 IMAGE_PARAMETERS = tuple(Parameter(f"{a}_{k}", "rad", "EOP", screened=True)
-                         for a in _AXES for k in range(ATTITUDE_DEGREE_MAX + 1))
+                         for a in _AXES for k in range(ATTITUDE_DEGREE_MAX + 1)) + \
+    tuple(Parameter(f"d{axis}", "m", "EOP", screened=True) for axis in "XYZ")
+
+
+class _Context(dict):
+    """Line images by image index, and each image's trajectory offset in the body frame (m)."""
+
+    offsets: dict
 
 
 def _scan(block, k: int) -> LineScan:
@@ -304,7 +316,27 @@ class UsgscsmLineBound(PushbroomBound):
         scans = {int(k): _scan(block, k) for k in images}
         self.radii = {k: (scan.semi_major_m, scan.semi_minor_m) for k, scan in scans.items()}
         self.axes = {k: scan.jigsaw_axes for k, scan in scans.items()}
+        self.body_from_j2000 = {k: scan.body_from_j2000 for k, scan in scans.items()}
         return {k: scan.image for k, scan in scans.items()}
+
+    def context(self, state, jacobians: bool = True):
+        out = _Context(super().context(state, jacobians))
+        out.offsets = {i: self.body_from_j2000[i] @ state.image[i, _ATTITUDE_WIDTH:] for i in self.images}
+        return out
+
+    def _shift(self, context, img):
+        """The trajectory offsets (m, 3) of the images ``img``."""
+        out = np.zeros((len(img), 3))
+        for i in np.unique(img):
+            out[img == i] = context.offsets[int(i)]
+        return out
+
+    def pixels(self, context, img, points):
+        return super().pixels(context, img, points - self._shift(context, img))
+
+    def rays(self, context, img, pixel):
+        origin, direction = super().rays(context, img, pixel)
+        return origin + self._shift(context, img), direction
 
     def height(self, points):
         """Heights above the body's ellipsoid of the ISDs (the Moon: radius - 1737.4 km; a sphere, as usgscsm)."""
@@ -322,6 +354,7 @@ class UsgscsmLineBound(PushbroomBound):
             sel = np.flatnonzero(img == i)
             a, b = self.radii[int(i)]
             S, d = line_of_sight(context[int(i)], pixel[sel, 1], pixel[sel, 0])
+            S = S + context.offsets[int(i)]
             if not callable(height):
                 h = np.broadcast_to(np.asarray(height, float), img.shape)[sel]
                 out[sel] = usgscsm_ellipsoid_point(S, d, a + h, b + h)
@@ -345,7 +378,7 @@ class UsgscsmLineBound(PushbroomBound):
         image = self.images[i]
         s = (image.time_of_row(rows) - image.t_ref) / image.half_duration_s
         powers = s[:, None] ** np.arange(ATTITUDE_DEGREE_MAX + 1)[None, :]
-        out = np.zeros((len(rows), 3, 3 * (ATTITUDE_DEGREE_MAX + 1)))
+        out = np.zeros((len(rows), 3, len(IMAGE_PARAMETERS)))
         for a in range(3):
             out[:, a, a * (ATTITUDE_DEGREE_MAX + 1):(a + 1) * (ATTITUDE_DEGREE_MAX + 1)] = powers
         return out
@@ -355,13 +388,13 @@ class UsgscsmLineBound(PushbroomBound):
         the image's axes): c0 and c1 / half-duration are Eq. 6's d_0 and d_1 (per second); c2, c3 the higher terms."""
         k = self.problem.image_camera[i]
         image = self.images[i]
-        c = self.axes[i] @ state.image[i].reshape(3, ATTITUDE_DEGREE_MAX + 1)
+        c = self.axes[i] @ state.image[i, :_ATTITUDE_WIDTH].reshape(3, ATTITUDE_DEGREE_MAX + 1)
         T = image.half_duration_s
         standard = np.array([c[0, 0], c[0, 1] / T, c[1, 0], c[1, 1] / T, c[2, 0], c[2, 1] / T])
         return image.with_parameters(np.concatenate([standard, state.cameras[k][:4]]), c[:, 2:])
 
     def predict(self, context, o, img, cam, points, jacobians):
-        out = super().predict(context, o, img, cam, points, jacobians)
+        out = super().predict(context, o, img, cam, points - self._shift(context, img), jacobians)
         if not jacobians:
             return out
         f, j_e, j_p, j_c = out
@@ -374,7 +407,11 @@ class UsgscsmLineBound(PushbroomBound):
             j_axes[sel] = j_e[sel][:, :, [0, 2, 4]] @ self.axes[int(i)]                 # d/d(RA, DEC, TWIST)
         powers = s[:, None] ** np.arange(ATTITUDE_DEGREE_MAX + 1)[None, :]          # (m, degree + 1)
         j = np.einsum("mra,mk->mrak", j_axes, powers).reshape(len(img), 2, -1)
-        return f, j, j_p, j_c
+        j_offset = np.zeros((len(img), 2, 3))                      # the photo coordinates see P - S - offset
+        for i in np.unique(img):
+            sel = img == i
+            j_offset[sel] = -j_p[sel] @ self.body_from_j2000[int(i)]
+        return f, np.concatenate([j, j_offset], axis=2), j_p, j_c
 
 
 class UsgscsmLineSensor(PushbroomSensor):
@@ -406,6 +443,10 @@ class UsgscsmLineSensor(PushbroomSensor):
                     free[row, a * 4:a * 4 + camera.attitude_degree + 1] = True
                     if camera.sigma_attitude_deg is not None:
                         sigma[row, a * 4] = np.radians(camera.sigma_attitude_deg)
+            if camera.position_offsets:
+                free[row, _ATTITUDE_WIDTH:] = True
+                if camera.sigma_position_m is not None:
+                    sigma[row, _ATTITUDE_WIDTH:] = camera.sigma_position_m
         return free, sigma
 
     def camera_setup(self, camera, options):

@@ -337,7 +337,9 @@ class UsgscsmCamera:
     ``sigma_position_m`` (X0, Y0, Z0) and ``sigma_attitude_deg`` (omega, phi, kappa; absent: free);
     ``sigma_focal_mm``, ``sigma_x0_mm``, ``sigma_y0_mm`` as for a frame camera, but absent means held (the
     mission's calibration) and a positive value weights it; line scanners: ``attitude_degree`` (0 a bias, 1 a
-    drift, up to 3: the degree of the roll, pitch, yaw corrections) and ``twist`` (false: no yaw correction)."""
+    drift, up to 3: the degree of the RA, DEC, TWIST corrections), ``twist`` (false: no TWIST correction) and
+    ``position_offsets`` (true: a constant J2000 offset of the ISD's trajectory, weighted by ``sigma_position_m``;
+    jigsaw's spsolve=position; default false, jigsaw's spsolve=none)."""
 
     camera_id: str
     kind: str = ""
@@ -348,6 +350,7 @@ class UsgscsmCamera:
     sigma_y0_mm: float | None = 0.0
     attitude_degree: int = 1
     twist: bool = True
+    position_offsets: bool = False
     focal_mm: float = float("nan")
     x0_mm: float = 0.0
     y0_mm: float = 0.0
@@ -516,7 +519,8 @@ class UsgscsmFrameSensor(FrameSensor):
     camera_type = UsgscsmCamera
     camera_keys = {"model": ("str", True), "sigma_position_m": ("pos", False), "sigma_attitude_deg": ("pos", False),
                    "sigma_focal_mm": ("nonneg", False), "sigma_x0_mm": ("nonneg", False),
-                   "sigma_y0_mm": ("nonneg", False), "attitude_degree": ("count", False), "twist": ("bool", False)}
+                   "sigma_y0_mm": ("nonneg", False), "attitude_degree": ("count", False), "twist": ("bool", False),
+                   "position_offsets": ("bool", False)}
     camera_tables = ()
     supports_resection = False
     min_points_per_image = 1
