@@ -230,3 +230,20 @@ def test_lro_pair_with_the_radii_free(tmp_path):
         for axis in "XYZ":
             theirs, ours = values[f"points {axis} mean [km]"]
             assert abs(ours - theirs) < 1.0, (axis, ours, theirs)
+
+
+def test_import_isis_from_the_command_line(tmp_path):
+    """selfcal import isis with jigsaw's LRO options writes a block folder that says them (attitude_degree 3,
+    twist false, the Free points held at their radius); a line-scan option on frame ISDs is an error (exit 2)
+    that writes nothing."""
+    from conftest import run_cli
+    out = tmp_path / "lro"
+    assert run_cli("import", "isis", os.path.join(LRO, "observationPair.net"), "--images", LRO, "--out", str(out),
+                   "--attitude-degree", "3", "--no-twist", "--hold-radii", "0.001") == 0
+    text = (out / "block.toml").read_text()
+    assert "attitude_degree = 3" in text and "twist = false" in text and "position_offsets = false" in text
+    block = read_block(out)
+    assert (block.points.role == "gcp").all() and np.allclose(block.points.sigma_m[:, 2], 0.001, atol=1e-9)
+    assert run_cli("import", "isis", os.path.join(FOLDER, "apolloNet.pvl"), "--images", FOLDER, "--out",
+                   str(tmp_path / "apollo"), "--no-twist") == 2
+    assert not os.path.exists(tmp_path / "apollo")

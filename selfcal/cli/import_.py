@@ -96,9 +96,16 @@ def _import_isis(args: argparse.Namespace) -> int:
             raise UsageError(f"{flag} must be positive, found {value}")
     network = read_control_network(args.source)
     images = read_image_folder(args.images)
+    first = read_usgscsm(next(iter(images.values()))[1])
+    line_only = [flag for flag, given in (("--attitude-degree", args.attitude_degree is not None),
+                                          ("--no-twist", args.no_twist), ("--solve-position", args.solve_position))
+                 if given]
+    if line_only and hasattr(first, "trans_x"):
+        raise UsageError(f"{', '.join(line_only)} {'applies' if len(line_only) == 1 else 'apply'} to line-scan ISDs "
+                         f"only; the images in {args.images} are frame ISDs (their positions and RA/DEC/TWIST are "
+                         f"always estimated)")
     sigma_px = args.measure_sigma_px
     if sigma_px is None:                  # jigsaw: 1.4 detector pixels, in the pixels of the cubes
-        first = read_usgscsm(next(iter(images.values()))[1])
         detector_px = getattr(first, "alpha_cube", None)
         scale = 1.0 if detector_px is None else (detector_px.alpha_ending_sample - detector_px.alpha_starting_sample) \
             / detector_px.beta_samples
