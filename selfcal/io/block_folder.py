@@ -531,46 +531,65 @@ def block_toml_text(block: Block) -> str:
     return "\n".join(lines)
 
 
-def write_block(block: Block, folder: str | os.PathLike) -> None:
-    """Write a block folder (atomically: the folder appears complete or not at all)."""
+def write_block(block: Block, folder: str | os.PathLike, source: str | None = None) -> None:
+    """Write a block folder (atomically: the folder appears complete or not at all).
+
+    With ``source`` (the file or folder an importer read), the folder is read back with :func:`read_block` before
+    it appears: a block the reader would refuse is never written, and the BlockError names ``source``.
+    """
     with atomic_folder(folder) as tmp:
-        with atomic_write(os.path.join(tmp, "block.toml")) as handle:
-            handle.write(block_toml_text(block))
-        im = block.images
-        deg = np.degrees(im.attitude_rad)
-        with atomic_write(os.path.join(tmp, "images.csv")) as handle:
-            columns = [im.image_id, im.camera_id, im.strip_id, im.time_s, im.position_m[:, 0], im.position_m[:, 1],
-                       im.position_m[:, 2], deg[:, 0], deg[:, 1], deg[:, 2]]
-            formats = ["", "", "", ".4f", ".6f", ".6f", ".6f", ".10f", ".10f", ".10f"]
-            if block.image_files:
-                columns.append(np.array([os.path.relpath(block.image_files[i], folder) if i in block.image_files
-                                         else "" for i in im.image_id], dtype=object))
-                formats.append("")
-            write_table(handle, [c.name for c in IMAGE_COLUMNS][:len(columns)], columns, formats)
-        pt = block.points
-        with atomic_write(os.path.join(tmp, "points.csv")) as handle:
-            write_table(handle, [c.name for c in POINT_COLUMNS],
-                        [pt.point_id, pt.role, pt.xyz_m[:, 0], pt.xyz_m[:, 1], pt.xyz_m[:, 2],
-                         pt.sigma_m[:, 0], pt.sigma_m[:, 2]],
-                        ["", "", ".6f", ".6f", ".6f", ".4f", ".4f"])
-        ob = block.observations
-        with atomic_write(os.path.join(tmp, "observations.csv")) as handle:
-            columns = [im.image_id[ob.image_index], pt.point_id[ob.point_index], ob.pixel[:, 0], ob.pixel[:, 1]]
-            header = ["image_id", "point_id", "col_px", "row_px"]
-            formats = ["", "", ".5f", ".5f"]
-            if np.any(ob.sigma_px != block.image_sigma_px):
-                columns.append(ob.sigma_px)
-                header.append("sigma_px")
-                formats.append(".4f")
-            write_table(handle, header, columns, formats)
-        if block.ephemeris is not None:
-            e = block.ephemeris
-            with atomic_write(os.path.join(tmp, "ephemeris.csv")) as handle:
-                write_table(handle, [c.name for c in EPHEMERIS_COLUMNS],
-                            [e.camera_id, e.time_s, *e.position_m.T, *e.velocity_m_s.T],
-                            ["", ".6f", ".4f", ".4f", ".4f", ".6f", ".6f", ".6f"])
-        if block.attitude is not None:
-            a = block.attitude
-            with atomic_write(os.path.join(tmp, "attitude.csv")) as handle:
-                write_table(handle, [c.name for c in ATTITUDE_COLUMNS], [a.camera_id, a.time_s, *a.quaternion.T],
-                            ["", ".6f", ".15f", ".15f", ".15f", ".15f"])
+        _write_block_files(block, tmp, os.path.abspath(folder))
+        if source is not None:
+            try:
+                read_block(tmp)
+            except BlockError as exc:
+                name = os.path.relpath(exc.path, tmp) if os.path.abspath(exc.path).startswith(tmp) else exc.path
+                where = name + (f", line {exc.line}" if exc.line is not None else "") + \
+                    (f", column '{exc.column}'" if exc.column is not None else "")
+                raise BlockError(source, f"cannot be imported: the block's {where} would be refused "
+                                         f"({exc.reason})") from None
+
+
+def _write_block_files(block: Block, tmp: str, folder: str) -> None:
+    """The files of the block folder ``folder``, written into the existing folder ``tmp`` (sensor files are named
+    relative to ``folder``)."""
+    with atomic_write(os.path.join(tmp, "block.toml")) as handle:
+        handle.write(block_toml_text(block))
+    im = block.images
+    deg = np.degrees(im.attitude_rad)
+    with atomic_write(os.path.join(tmp, "images.csv")) as handle:
+        columns = [im.image_id, im.camera_id, im.strip_id, im.time_s, im.position_m[:, 0], im.position_m[:, 1],
+                   im.position_m[:, 2], deg[:, 0], deg[:, 1], deg[:, 2]]
+        formats = ["", "", "", ".4f", ".6f", ".6f", ".6f", ".10f", ".10f", ".10f"]
+        if block.image_files:
+            columns.append(np.array([os.path.relpath(block.image_files[i], folder) if i in block.image_files
+                                     else "" for i in im.image_id], dtype=object))
+            formats.append("")
+        write_table(handle, [c.name for c in IMAGE_COLUMNS][:len(columns)], columns, formats)
+    pt = block.points
+    with atomic_write(os.path.join(tmp, "points.csv")) as handle:
+        write_table(handle, [c.name for c in POINT_COLUMNS],
+                    [pt.point_id, pt.role, pt.xyz_m[:, 0], pt.xyz_m[:, 1], pt.xyz_m[:, 2],
+                     pt.sigma_m[:, 0], pt.sigma_m[:, 2]],
+                    ["", "", ".6f", ".6f", ".6f", ".4f", ".4f"])
+    ob = block.observations
+    with atomic_write(os.path.join(tmp, "observations.csv")) as handle:
+        columns = [im.image_id[ob.image_index], pt.point_id[ob.point_index], ob.pixel[:, 0], ob.pixel[:, 1]]
+        header = ["image_id", "point_id", "col_px", "row_px"]
+        formats = ["", "", ".5f", ".5f"]
+        if np.any(ob.sigma_px != block.image_sigma_px):
+            columns.append(ob.sigma_px)
+            header.append("sigma_px")
+            formats.append(".4f")
+        write_table(handle, header, columns, formats)
+    if block.ephemeris is not None:
+        e = block.ephemeris
+        with atomic_write(os.path.join(tmp, "ephemeris.csv")) as handle:
+            write_table(handle, [c.name for c in EPHEMERIS_COLUMNS],
+                        [e.camera_id, e.time_s, *e.position_m.T, *e.velocity_m_s.T],
+                        ["", ".6f", ".4f", ".4f", ".4f", ".6f", ".6f", ".6f"])
+    if block.attitude is not None:
+        a = block.attitude
+        with atomic_write(os.path.join(tmp, "attitude.csv")) as handle:
+            write_table(handle, [c.name for c in ATTITUDE_COLUMNS], [a.camera_id, a.time_s, *a.quaternion.T],
+                        ["", ".6f", ".15f", ".15f", ".15f", ".15f"])
