@@ -8,12 +8,14 @@ number per line (whitespace of any kind is accepted).
 """
 from __future__ import annotations
 
+import io
 import os
 from dataclasses import dataclass
 
 import numpy as np
 
 from ..errors import BlockError
+from .text import read_text
 
 __all__ = ["BalProblem", "read_bal"]
 
@@ -32,7 +34,7 @@ def read_bal(path: str | os.PathLike) -> BalProblem:
     path = str(path)
     if not os.path.isfile(path):
         raise BlockError(path, "file not found")
-    with open(path, encoding="ascii", errors="replace") as handle:
+    with io.StringIO(read_text(path, "BAL problem")) as handle:
         header = handle.readline()
         try:
             n_cam, n_pt, n_obs = (int(v) for v in header.split())

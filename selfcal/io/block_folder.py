@@ -19,6 +19,7 @@ from ..errors import BlockError
 from .atomic import atomic_folder, atomic_write
 from ..sensors import SENSORS, sensor_of
 from .sensor_files import SENSOR_FILE_READERS
+from .text import read_text
 from .table import NUM, OPT_NUM, STR, Column, read_table, write_table
 
 __all__ = ["read_block", "write_block", "IMAGE_COLUMNS", "POINT_COLUMNS", "OBSERVATION_COLUMNS", "EPHEMERIS_COLUMNS",
@@ -163,8 +164,7 @@ def _read_settings(folder: str) -> dict:
     path = os.path.join(folder, "block.toml")
     if not os.path.isfile(path):
         raise BlockError(path, "file not found")
-    with open(path, encoding="utf-8") as handle:
-        text = handle.read()
+    text = read_text(path)
     try:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import BlockError
+from .text import read_text
 from .atomic import atomic_write
 
 __all__ = ["ColmapCamera", "ColmapModel", "read_colmap", "write_cameras_txt", "CAMERA_MODELS",
@@ -80,11 +81,10 @@ def _find(folder: str, stem: str) -> tuple[str, str]:
 
 
 def _data_lines(path: str):
-    with open(path, encoding="utf-8") as handle:
-        for number, line in enumerate(handle, start=1):
-            text = line.strip()
-            if text and not text.startswith("#"):
-                yield number, text
+    for number, line in enumerate(read_text(path).splitlines(), start=1):
+        text = line.strip()
+        if text and not text.startswith("#"):
+            yield number, text
 
 
 def _numbers(path, number, fields, kinds):
@@ -116,8 +116,7 @@ def _images_txt(path):
     """Two lines per image (the second, the 2-D points, may be empty); comments start with #."""
     ids, names, cams, q, t = [], [], [], [], []
     oi, oxy, op = [], [], []
-    with open(path, encoding="utf-8") as handle:
-        raw = [(n, line.rstrip("\n")) for n, line in enumerate(handle, start=1)]
+    raw = list(enumerate(read_text(path).split("\n"), start=1))
     raw = [(n, line) for n, line in raw if not line.lstrip().startswith("#")]
     k = 0
     while k < len(raw):

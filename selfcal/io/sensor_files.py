@@ -7,6 +7,7 @@ import json
 import os
 
 from ..errors import BlockError
+from .text import read_text
 from .rpc import read_rpc
 
 __all__ = ["SENSOR_FILE_READERS", "read_usgscsm", "read_vendor_line"]
@@ -18,10 +19,11 @@ def read_usgscsm(path: str):
     from .usgscsm import LINE_SCANNER_MODEL, read_usgscsm_isd
     from .usgscsm_frame import FRAME_MODEL, read_frame_isd
     try:
-        with open(path, encoding="utf-8") as handle:
-            model = json.load(handle).get("name_model")
-    except (OSError, json.JSONDecodeError, AttributeError) as exc:
-        raise BlockError(path, f"not a usgscsm ISD: {exc}") from None
+        model = json.loads(read_text(path, "ISD")).get("name_model")
+    except json.JSONDecodeError as exc:
+        raise BlockError(path, f"not a usgscsm ISD: not JSON ({exc.msg})", exc.lineno) from None
+    except AttributeError:
+        raise BlockError(path, "not a usgscsm ISD (a JSON object is expected)") from None
     if model == LINE_SCANNER_MODEL:
         return read_usgscsm_isd(path)
     if model == FRAME_MODEL:

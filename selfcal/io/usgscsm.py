@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import BlockError
+from .text import read_text
 
 __all__ = ["LineScanIsd", "read_usgscsm_isd", "LINE_SCANNER_MODEL"]
 
@@ -107,8 +108,7 @@ def read_usgscsm_isd(path: str | os.PathLike) -> LineScanIsd:
     """Read a usgscsm line-scan ISD (see the module docstring); errors name the file and the key."""
     path = str(path)
     try:
-        with open(path, encoding="utf-8") as handle:
-            isd = json.load(handle)
+        isd = json.loads(read_text(path, "ISD"))
     except json.JSONDecodeError as exc:
         raise BlockError(path, f"not JSON: {exc.msg}", exc.lineno) from None
     model = _need(isd, "name_model", path)

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import BlockError
+from .text import read_text
 from .isis import AlphaCube
 
 __all__ = ["FrameIsd", "read_frame_isd", "FRAME_MODEL", "APOLLO_METRIC_CODES"]
@@ -120,10 +121,7 @@ def read_frame_isd(path: str | os.PathLike, alpha_cube: AlphaCube | None = None)
     ISD's image."""
     path = str(path)
     try:
-        with open(path, encoding="utf-8") as handle:
-            isd = json.load(handle)
-    except OSError as exc:
-        raise BlockError(path, f"cannot read: {exc.strerror}") from None
+        isd = json.loads(read_text(path, "ISD"))
     except json.JSONDecodeError as exc:
         raise BlockError(path, f"not JSON: {exc.msg}", exc.lineno) from None
     if not isinstance(isd, dict):
