@@ -14,7 +14,7 @@ import tomllib
 
 import numpy as np
 
-from ..block import ROLES, AttitudeSamples, Block, Ephemeris, Images, InitialAP, Observations, Points, prune
+from ..block import ROLES, AttitudeSamples, Block, Dropped, Ephemeris, Images, InitialAP, Observations, Points, prune
 from ..errors import BlockError
 from .atomic import atomic_folder, atomic_write
 from ..sensors import SENSORS, sensor_of
@@ -359,13 +359,25 @@ def _read_observations(folder, images, image_index, point_index, cameras, defaul
     col, row = table["col_px"], table["row_px"]
     width = np.array([cameras[c].width_px for c in images.camera_id], float)[img]
     height = np.array([cameras[c].height_px for c in images.camera_id], float)[img]
-    for values, limit, name in ((col, width, "col_px"), (row, height, "row_px")):
-        outside = np.flatnonzero((values < -0.5) | (values > limit + 0.5))
-        if outside.size:
-            i = outside[0]
-            raise BlockError(table.path,
-                             f"{values[i]:g} px is outside the image (0 .. {limit[i]:g} px): "
-                             f"are the units pixels?", int(table.line[i]), name)
+    outside_col = (col < -0.5) | (col > width + 0.5)
+    outside = outside_col | (row < -0.5) | (row > height + 0.5)
+    per_image = np.bincount(img, minlength=len(images.image_id))
+    outside_per_image = np.bincount(img, weights=outside, minlength=len(images.image_id))
+    unit_mistake = np.flatnonzero(outside_per_image > 0.5 * per_image)
+    messages = []
+    if unit_mistake.size:
+        # most of an image's observations outside its frame: a unit mistake (mm, normalised), not blunders
+        first = np.flatnonzero(outside & (img == unit_mistake[0]))[0]
+        name, values, limit = ("col_px", col, width) if outside_col[first] else ("row_px", row, height)
+        raise BlockError(table.path,
+                         f"{values[first]:g} px is outside the image (0 .. {limit[first]:g} px), and so are "
+                         f"{int(outside_per_image[unit_mistake[0]])} of the {per_image[unit_mistake[0]]} observations "
+                         f"of image '{images.image_id[unit_mistake[0]]}': are the units pixels?",
+                         int(table.line[first]), name)
+    for i in np.flatnonzero(outside):
+        messages.append(f"dropped observation of point '{table['point_id'][i]}' in image '{table['image_id'][i]}' "
+                        f"(observations.csv line {table.line[i]}): ({col[i]:g}, {row[i]:g}) px is outside the "
+                        f"{width[i]:g} x {height[i]:g} px frame")
     sigma = np.full(n, default_sigma)
     if "sigma_px" in table:
         given = table["sigma_px"]
@@ -374,8 +386,10 @@ def _read_observations(folder, images, image_index, point_index, cameras, defaul
             raise BlockError(table.path, f"sigma must be positive, found {given[bad[0]]}",
                              int(table.line[bad[0]]), "sigma_px")
         sigma = np.where(np.isnan(given), default_sigma, given)
-    return Observations(image_index=img, point_index=pt, pixel=np.column_stack([col, row]),
-                        sigma_px=sigma, line=table.line)
+    keep = ~outside
+    observations = Observations(image_index=img[keep], point_index=pt[keep], pixel=np.column_stack([col, row])[keep],
+                                sigma_px=sigma[keep], line=table.line[keep])
+    return observations, Dropped(observations_outside_frame=len(messages), messages=tuple(messages))
 
 
 def read_block(folder: str | os.PathLike, min_gcp: int = 3) -> Block:
@@ -403,7 +417,7 @@ def read_block(folder: str | os.PathLike, min_gcp: int = 3) -> Block:
         except ValueError as exc:
             raise BlockError(os.path.join(folder, "images.csv"), f"camera '{camera_id}': {exc}", None,
                              "sensor_file") from None
-    observations = _read_observations(folder, images, image_index, point_index, cameras, image_sigma)
+    observations, dropped = _read_observations(folder, images, image_index, point_index, cameras, image_sigma)
     gnss = settings.get("gnss", {}).get("sigma_m")
     imu = settings.get("imu", {}).get("sigma_deg")
     ephemeris = attitude = None
@@ -446,6 +460,7 @@ def read_block(folder: str | os.PathLike, min_gcp: int = 3) -> Block:
         terrain_height_m=terrain.get("height_m"),
         image_models=image_models or None,
         image_files={k: v[0] for k, v in files.items()} or None,
+        dropped=dropped,
     )
     # blocks of seed 001's sensors are used as read: mono restitution needs check points seen in one image
     if not any(s.sensor_models for s in sensors.values()):
