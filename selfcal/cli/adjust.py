@@ -194,10 +194,10 @@ def run(args: argparse.Namespace) -> int:
     if not seed001:
         line += f", {s['n_ap_significant']}/{s['n_ap_initial']} APs"
     print(f"{line}; results in {args.out}", file=sys.stderr)
-    for note in s.get("notes", []):
-        if note.startswith("weakly determined"):
-            print(f"warning: {note}", file=sys.stderr)
     failure = s.get("failure")
+    for note in s.get("notes", []):
+        if note.startswith(("weakly determined", "object points not determined")) and note != failure:
+            print(f"warning: {note}", file=sys.stderr)
     if failure:
         print(f"selfcal adjust: error: {failure}", file=sys.stderr)
         return 1
