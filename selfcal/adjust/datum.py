@@ -14,12 +14,42 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["control_on_a_line", "undetermined_points", "LINE_FRACTION", "POINT_SIGMA_RATIO"]
+__all__ = ["control_on_a_line", "control_far_away", "undetermined_points", "LINE_FRACTION", "POINT_SIGMA_RATIO",
+           "FAR_FACTOR"]
 
 #: control whose RMS distance from its best-fitting line is below this share of the block's extent is on a line
 LINE_FRACTION = 0.01
 #: a point whose sigma exceeds the median of the block's points by this factor is not determined
 POINT_SIGMA_RATIO = 1000.0
+#: control farther from the block's centre than this many times the block's median radius is a mistake
+FAR_FACTOR = 100.0
+
+
+def _centre_and_radius(block_xyz_m: np.ndarray) -> tuple[np.ndarray, float]:
+    """Median centre and median distance from it of the finite rows (robust to a few wild coordinates)."""
+    span = np.asarray(block_xyz_m, float)
+    span = span[np.all(np.isfinite(span), axis=1)]
+    if not len(span):
+        return np.zeros(3), 0.0
+    centre = np.median(span, axis=0)
+    return centre, float(np.median(np.linalg.norm(span - centre, axis=1)))
+
+
+def control_far_away(point_ids, control_xyz_m: np.ndarray, block_xyz_m: np.ndarray, lines=None,
+                     factor: float = FAR_FACTOR) -> str | None:
+    """A reason naming the control points farther than ``factor`` times the block's median radius from its
+    median centre (a coordinate typed in other units, an exponent too many); else None."""
+    centre, radius = _centre_and_radius(block_xyz_m)
+    distance = np.linalg.norm(np.asarray(control_xyz_m, float) - centre, axis=1)
+    bad = np.flatnonzero(distance > factor * max(radius, 1e-9))
+    if not bad.size:
+        return None
+    k = bad[np.argmax(distance[bad])]
+    where = f" (points.csv line {lines[k]})" if lines is not None else ""
+    return (f"control point '{point_ids[k]}'{where} lies {distance[k]:.3g} m from the block's centre, "
+            f"{distance[k] / max(radius, 1e-9):.3g} times the block's median radius ({radius:.4g} m)"
+            + (f", and so do {bad.size - 1} more" if bad.size > 1 else "")
+            + ": a coordinate in other units or mistyped?")
 
 
 def control_on_a_line(point_ids, control_xyz_m: np.ndarray, control_sigma_m: np.ndarray,
@@ -28,7 +58,7 @@ def control_on_a_line(point_ids, control_xyz_m: np.ndarray, control_sigma_m: np.
     three, or all within max(3 sigma, LINE_FRACTION x the block's extent) of one line; else None.
 
     ``block_xyz_m`` are coordinates spanning the block (its points with coordinates, its image positions; NaN
-    rows are ignored): its extent is twice the RMS distance from their centroid.
+    rows are ignored): its extent is twice their median distance from their median centre.
     """
     xyz = np.asarray(control_xyz_m, float)
     ids = [str(p) for p in point_ids]
@@ -39,9 +69,7 @@ def control_on_a_line(point_ids, control_xyz_m: np.ndarray, control_sigma_m: np.
     _, s, vt = np.linalg.svd(centred, full_matrices=False)
     off_line = centred - np.outer(centred @ vt[0], vt[0])
     distance = float(np.sqrt(np.mean(np.sum(off_line**2, axis=1))))
-    span = np.asarray(block_xyz_m, float)
-    span = span[np.all(np.isfinite(span), axis=1)]
-    extent = 2.0 * float(np.sqrt(np.mean(np.sum((span - span.mean(axis=0))**2, axis=1)))) if len(span) else 0.0
+    extent = 2.0 * _centre_and_radius(block_xyz_m)[1]
     sigma = float(np.median(np.asarray(control_sigma_m, float)))
     limit = max(3.0 * sigma, LINE_FRACTION * extent)
     if distance > limit:

@@ -15,7 +15,7 @@ from typing import Callable
 import numpy as np
 
 from ..adjust import AdjustOptions
-from ..adjust.datum import control_on_a_line, undetermined_points
+from ..adjust.datum import control_far_away, control_on_a_line, undetermined_points
 from ..ap import takes_grid
 from ..block import Block
 from ..errors import AdjustmentError, UsageError
@@ -94,7 +94,8 @@ def _check_control(block: Block) -> None:
         return
     gcp = np.flatnonzero(block.points.role == "gcp")
     span = np.vstack([block.points.xyz_m, block.images.position_m])
-    reason = control_on_a_line(block.points.point_id[gcp], block.points.xyz_m[gcp], block.points.sigma_m[gcp], span)
+    reason = control_far_away(block.points.point_id[gcp], block.points.xyz_m[gcp], span, block.points.line[gcp]) or \
+        control_on_a_line(block.points.point_id[gcp], block.points.xyz_m[gcp], block.points.sigma_m[gcp], span)
     if reason:
         raise AdjustmentError(reason)
 
