@@ -43,7 +43,9 @@ def test_case(ws, case):
     assert outcome.exit in case.expected, outcome.stderr
     assert outcome.input_untouched, f"an input changed: {outcome.stderr}"
     assert not outcome.strays, outcome.strays
-    if outcome.exit != 0:
+    if outcome.exit == 130:
+        assert "interrupted" in outcome.message and "was there: removed" not in outcome.output_left
+    elif outcome.exit != 0:
         assert outcome.error_lines == 1, outcome.stderr
         assert case.names is None or case.names in outcome.message, outcome.message
         assert "was there: removed" not in outcome.output_left

@@ -59,6 +59,8 @@ def read_bal(path: str | os.PathLike) -> BalProblem:
                 obs[k] = [float(f) for f in fields]
             except ValueError:
                 raise BlockError(path, f"not a number in '{line.strip()[:60]}'", number) from None
+            if not np.all(np.isfinite(obs[k])):
+                raise BlockError(path, f"NaN or infinite value in '{line.strip()[:60]}'", number)
             obs_line[k] = number
             k += 1
         rest = handle.read().split()
@@ -71,8 +73,10 @@ def read_bal(path: str | os.PathLike) -> BalProblem:
     except ValueError:
         bad = next(v for v in rest if not _is_number(v))
         raise BlockError(path, f"'{bad}' is not a number (in the parameter block)") from None
-    if not np.all(np.isfinite(values)) or not np.all(np.isfinite(obs)):
-        raise BlockError(path, "NaN or infinite value")
+    if not np.all(np.isfinite(values)):
+        k = int(np.flatnonzero(~np.isfinite(values))[0])
+        raise BlockError(path, f"NaN or infinite value '{rest[k]}' (parameter {k + 1} after the observations, "
+                               f"{'camera ' + str(k // 9) if k < 9 * n_cam else 'point ' + str((k - 9 * n_cam) // 3)})")
     cam, pt = obs[:, 0].astype(np.int64), obs[:, 1].astype(np.int64)
     if np.any(obs[:, 0] != cam) or np.any(obs[:, 1] != pt):
         raise BlockError(path, "camera and point indices must be integers",

@@ -13,6 +13,7 @@ M = R3(kappa) R2(phi) R1(omega) with the camera looking along -z, y up).
 """
 from __future__ import annotations
 
+import math
 import os
 import struct
 from dataclasses import dataclass
@@ -89,9 +90,12 @@ def _data_lines(path: str):
 
 def _numbers(path, number, fields, kinds):
     try:
-        return [kind(f) for kind, f in zip(kinds, fields)]
+        values = [kind(f) for kind, f in zip(kinds, fields)]
     except ValueError:
         raise BlockError(path, f"malformed line: expected numbers, found '{' '.join(fields)[:80]}'", number) from None
+    if not all(math.isfinite(v) for v in values):
+        raise BlockError(path, f"NaN or infinite number in '{' '.join(fields)[:80]}'", number)
+    return values
 
 
 def _cameras_txt(path):
@@ -147,6 +151,8 @@ def _images_txt(path):
         except ValueError:
             raise BlockError(path, "malformed POINTS2D line (expected X Y POINT3D_ID triples)",
                              points_line[0]) from None
+        if not np.all(np.isfinite(xy)):
+            raise BlockError(path, "NaN or infinite image coordinate in the POINTS2D line", points_line[0])
         keep = pid != -1
         oi.append(np.full(int(keep.sum()), values[0]))
         oxy.append(xy[keep])
@@ -270,6 +276,13 @@ def read_colmap(folder: str | os.PathLike) -> ColmapModel:
     images = _images_txt(img_path) if img_path.endswith(".txt") else _images_bin(img_path)
     points = _points_txt(pts_path) if pts_path.endswith(".txt") else _points_bin(pts_path)
     ids, names, cams, q, t, oi, oxy, op = images
+    for path, values, what in ((cam_path, [v for c in cameras.values() for v in c.params.values()], "camera parameter"),
+                               (img_path, np.concatenate([q.ravel(), t.ravel(), oxy.ravel()]), "image pose or 2-D point"),
+                               (pts_path, np.concatenate([points[1].ravel(), points[2].ravel()]), "3-D point")):
+        values = np.asarray(values, float)
+        if not np.all(np.isfinite(values)):
+            raise BlockError(path, f"NaN or infinite {what} (value {int(np.flatnonzero(~np.isfinite(values))[0])} "
+                                   f"of its kind in the file)")
     for cid in set(cams.tolist()) - set(cameras):
         raise BlockError(img_path, f"image refers to camera {cid}, which {os.path.basename(cam_path)} lacks")
     missing = np.setdiff1d(np.unique(op), points[0])

@@ -10,7 +10,7 @@ import os
 
 from ..errors import BlockError
 
-__all__ = ["read_text", "decode_text", "UTF8_BOM"]
+__all__ = ["read_text", "read_json", "decode_text", "UTF8_BOM"]
 
 UTF8_BOM = b"\xef\xbb\xbf"
 
@@ -46,3 +46,39 @@ def read_text(path: str | os.PathLike, what: str = "file") -> str:
     except OSError as exc:
         raise BlockError(path, f"cannot read the {what}: {exc.strerror}") from None
     return decode_text(data, path)
+
+
+class _NotFinite(ValueError):
+    def __init__(self, token: str):
+        self.token = token
+        super().__init__(token)
+
+
+def _finite_float(token: str) -> float:
+    value = float(token)
+    if value != value or value in (float("inf"), float("-inf")):
+        raise _NotFinite(token)
+    return value
+
+
+def _constant(token: str):
+    raise _NotFinite(token)
+
+
+def read_json(path: str | os.PathLike, what: str = "file"):
+    """A JSON file (UTF-8, see :func:`read_text`) whose numbers are all finite: NaN, Infinity and numbers beyond
+    the double range (1e400) are a BlockError naming the line, and so is text that is not JSON."""
+    import json
+    import re
+    path = os.fspath(path)
+    text = read_text(path, what)
+    try:
+        return json.loads(text, parse_float=_finite_float, parse_constant=_constant)
+    except _NotFinite as exc:
+        match = re.search(rf"(?<![\w.\"]){re.escape(exc.token)}(?![\w.])", text)
+        line = text.count("\n", 0, match.start()) + 1 if match else None
+        raise BlockError(path, f"{exc.token} is not a finite number", line) from None
+    except json.JSONDecodeError as exc:
+        raise BlockError(path, f"not JSON: {exc.msg}", exc.lineno) from None
+    except RecursionError:
+        raise BlockError(path, "not JSON: nested too deeply") from None
