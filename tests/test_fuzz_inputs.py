@@ -184,6 +184,11 @@ READERS = {
 }
 
 
+def _bytes(path: str) -> bytes:
+    with open(path, "rb") as handle:
+        return handle.read()
+
+
 @pytest.mark.parametrize("name", list(READERS))
 def test_mutated_files_are_read_or_refused_with_their_name(ws, name):
     read, source_of, members = READERS[name]
@@ -192,11 +197,11 @@ def test_mutated_files_are_read_or_refused_with_their_name(ws, name):
     if members is None:
         folder = work
         path = shutil.copy(source, os.path.join(folder, os.path.basename(source)))
-        originals = {os.path.basename(source): open(source, "rb").read()}
+        originals = {os.path.basename(source): _bytes(source)}
     else:
         folder = os.path.join(work, "copy")
         shutil.copytree(source, folder)
-        originals = {m: open(os.path.join(folder, m), "rb").read() for m in members}
+        originals = {m: _bytes(os.path.join(folder, m)) for m in members}
     names = sorted(originals)
 
     @settings(max_examples=EXAMPLES, derandomize=True, deadline=None, database=None,

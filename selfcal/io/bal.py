@@ -77,10 +77,11 @@ def read_bal(path: str | os.PathLike) -> BalProblem:
         k = int(np.flatnonzero(~np.isfinite(values))[0])
         raise BlockError(path, f"NaN or infinite value '{rest[k]}' (parameter {k + 1} after the observations, "
                                f"{'camera ' + str(k // 9) if k < 9 * n_cam else 'point ' + str((k - 9 * n_cam) // 3)})")
+    index = obs[:, :2]
+    wrong = np.any((index != np.round(index)) | (np.abs(index) > 2**53), axis=1)
+    if wrong.any():
+        raise BlockError(path, "camera and point indices must be integers", int(obs_line[np.argmax(wrong)]))
     cam, pt = obs[:, 0].astype(np.int64), obs[:, 1].astype(np.int64)
-    if np.any(obs[:, 0] != cam) or np.any(obs[:, 1] != pt):
-        raise BlockError(path, "camera and point indices must be integers",
-                         int(obs_line[np.argmax((obs[:, 0] != cam) | (obs[:, 1] != pt))]))
     bad = np.flatnonzero((cam < 0) | (cam >= n_cam) | (pt < 0) | (pt >= n_pt))
     if bad.size:
         raise BlockError(path, f"observation refers to camera {cam[bad[0]]} / point {pt[bad[0]]} outside the "

@@ -192,6 +192,15 @@ class _Reader:
         self.pos += size
         return values
 
+    def count(self, record_bytes: int, what: str) -> int:
+        """A uint64 count of records of at least ``record_bytes`` each, checked against the bytes left."""
+        at = self.pos
+        (n,) = self.read("Q")
+        if n * record_bytes > len(self.data) - self.pos:
+            raise BlockError(self.path, f"{n} {what} announced at byte {at}, but only {len(self.data) - self.pos} "
+                                        f"bytes follow: truncated or not a COLMAP file")
+        return n
+
     def array(self, dtype, count):
         dtype = np.dtype(dtype).newbyteorder("<")
         size = dtype.itemsize * count
@@ -205,14 +214,17 @@ class _Reader:
         end = self.data.find(b"\0", self.pos)
         if end < 0:
             raise BlockError(self.path, f"truncated binary file at byte {self.pos}")
-        text = self.data[self.pos:end].decode("utf-8")
+        try:
+            text = self.data[self.pos:end].decode("utf-8")
+        except UnicodeDecodeError:
+            raise BlockError(self.path, f"the image name at byte {self.pos} is not UTF-8 text") from None
         self.pos = end + 1
         return text
 
 
 def _cameras_bin(path):
     r = _Reader(path)
-    (n,) = r.read("Q")
+    n = r.count(24, "cameras")
     cams = {}
     for _ in range(n):
         cid, model_id, width, height = r.read("iiQQ")
@@ -226,7 +238,7 @@ def _cameras_bin(path):
 
 def _images_bin(path):
     r = _Reader(path)
-    (n,) = r.read("Q")
+    n = r.count(73, "images")
     ids, names, cams, q, t = [], [], [], [], []
     oi, oxy, op = [], [], []
     record = np.dtype([("x", "<f8"), ("y", "<f8"), ("id", "<i8")])
@@ -237,8 +249,7 @@ def _images_bin(path):
         t.append(values[5:8])
         cams.append(values[8])
         names.append(r.string())
-        (count,) = r.read("Q")
-        pts = r.array(record, count)
+        pts = r.array(record, r.count(24, "2-D points"))
         keep = pts["id"] != -1
         oi.append(np.full(int(keep.sum()), values[0]))
         oxy.append(np.column_stack([pts["x"][keep], pts["y"][keep]]))
@@ -252,7 +263,7 @@ def _images_bin(path):
 
 def _points_bin(path):
     r = _Reader(path)
-    (n,) = r.read("Q")
+    n = r.count(43, "3-D points")
     ids, xyz, err = np.empty(n, np.int64), np.empty((n, 3)), np.empty(n)
     for k in range(n):
         pid, x, y, z, _, _, _, e, length = r.read("Q3d3BdQ")

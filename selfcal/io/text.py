@@ -54,9 +54,13 @@ class _NotFinite(ValueError):
         super().__init__(token)
 
 
+#: no quantity of a sensor model comes near this; a number beyond it is a corrupt file (and overflows on squaring)
+LARGEST_PLAUSIBLE = 1e100
+
+
 def _finite_float(token: str) -> float:
     value = float(token)
-    if value != value or value in (float("inf"), float("-inf")):
+    if not abs(value) <= LARGEST_PLAUSIBLE:             # NaN fails this too
         raise _NotFinite(token)
     return value
 
@@ -77,7 +81,7 @@ def read_json(path: str | os.PathLike, what: str = "file"):
     except _NotFinite as exc:
         match = re.search(rf"(?<![\w.\"]){re.escape(exc.token)}(?![\w.])", text)
         line = text.count("\n", 0, match.start()) + 1 if match else None
-        raise BlockError(path, f"{exc.token} is not a finite number", line) from None
+        raise BlockError(path, f"{exc.token} is not a finite number of plausible size", line) from None
     except json.JSONDecodeError as exc:
         raise BlockError(path, f"not JSON: {exc.msg}", exc.lineno) from None
     except RecursionError:
