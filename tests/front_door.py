@@ -82,7 +82,8 @@ class Outcome:
     @property
     def ok(self) -> bool:
         named = self.names is None or self.names in self.message
-        one_line = self.exit in (0, None) or self.error_lines == 1
+        one_line = (self.exit in (0, None) or self.error_lines == 1
+                    or (self.exit == 130 and "interrupted" in self.message and self.error_lines == 0))
         return (self.exit in self.expected and not self.traceback and self.input_untouched and not self.strays
                 and named and one_line)
 
