@@ -80,6 +80,7 @@ def test_ctrl_c_leaves_nothing_behind(tmp_path):
             proc.send_signal(signal.SIGINT)
             break
     rest = proc.stderr.read()
+    proc.stderr.close()
     assert proc.wait(timeout=60) == 130, "".join(lines) + rest
     assert "Traceback" not in rest and "interrupted" in rest
     assert not out.exists() and not strays(str(tmp_path)) and digest(str(block)) == before

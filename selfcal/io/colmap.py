@@ -93,7 +93,7 @@ def _numbers(path, number, fields, kinds):
         values = [kind(f) for kind, f in zip(kinds, fields)]
     except ValueError:
         raise BlockError(path, f"malformed line: expected numbers, found '{' '.join(fields)[:80]}'", number) from None
-    if not all(math.isfinite(v) for v in values):
+    if not all(math.isfinite(v) and abs(v) < 2**63 for v in values):
         raise BlockError(path, f"NaN or infinite number in '{' '.join(fields)[:80]}'", number)
     return values
 
@@ -148,7 +148,7 @@ def _images_txt(path):
         try:
             xy = arr[:, :2].astype(float)
             pid = arr[:, 2].astype(np.int64)
-        except ValueError:
+        except (ValueError, OverflowError):
             raise BlockError(path, "malformed POINTS2D line (expected X Y POINT3D_ID triples)",
                              points_line[0]) from None
         if not np.all(np.isfinite(xy)):
