@@ -204,11 +204,13 @@ def test_mutated_files_are_read_or_refused_with_their_name(ws, name):
         shutil.copytree(source, folder)
         originals = {m: _bytes(os.path.join(folder, m)) for m in members}
     names = sorted(originals)
+    examples = []
 
     @settings(max_examples=EXAMPLES, derandomize=True, deadline=None, database=None,
               suppress_health_check=list(HealthCheck))
     @given(member=st.sampled_from(names), mutation=_MUTATIONS)
     def check(member, mutation):
+        examples.append(1)
         for m, data in originals.items():                  # the valid files, then one of them mutated
             with open(os.path.join(folder, m), "wb") as handle:
                 handle.write(data)
@@ -228,4 +230,5 @@ def test_mutated_files_are_read_or_refused_with_their_name(ws, name):
         assert sorted(os.listdir(folder)) == sorted(set(os.listdir(folder)) | set()) and not strays(work)
 
     check()
+    assert len(examples) >= EXAMPLES          # Hypothesis ran them all (it stops early only on a failure)
     shutil.rmtree(work)
