@@ -259,6 +259,8 @@ class Dropped:
     control_points_unobserved: int = 0
     check_points_one_image: int = 0
     images_too_few_points: int = 0
+    #: image observations outside their image's frame (beyond half a pixel), left out when read
+    observations_outside_frame: int = 0
     messages: tuple[str, ...] = ()
 
     def as_dict(self) -> dict:
@@ -267,6 +269,7 @@ class Dropped:
             "control_points_unobserved": self.control_points_unobserved,
             "check_points_one_image": self.check_points_one_image,
             "images_too_few_points": self.images_too_few_points,
+            "observations_outside_frame": self.observations_outside_frame,
         }
 
 
@@ -373,6 +376,7 @@ def prune(block: Block, min_points_per_image: int = MIN_POINTS_PER_IMAGE) -> Blo
         control_points_unobserved=block.dropped.control_points_unobserved + counts["gcp"],
         check_points_one_image=block.dropped.check_points_one_image + counts["chk"],
         images_too_few_points=block.dropped.images_too_few_points + counts["img"],
+        observations_outside_frame=block.dropped.observations_outside_frame,
         messages=tuple(messages),
     )
     return replace(

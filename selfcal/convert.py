@@ -271,8 +271,14 @@ def block_from_colmap(model, control=None, pixel_size_mm: float = 0.005, image_s
     observations = Observations(o_img[first], o_pt[first], o_pix[first], np.full(m, image_sigma_px),
                                 np.arange(1, m + 1))
     crs = control.crs if control is not None else "local"
+    # without ground control the model is a relative network (its datum is COLMAP's arbitrary frame)
+    n_gcp = int(np.sum(points.role == "gcp"))
     block = Block(name=name, crs=crs, cameras=cameras, images=images, points=points,
-                  observations=observations, image_sigma_px=image_sigma_px)
+                  observations=observations, image_sigma_px=image_sigma_px,
+                  datum="control" if n_gcp >= 3 else "free")
+    if n_gcp < 3:
+        notes.append(f"{n_gcp} ground control points: the block is a free network (datum = \"free\"); give --gcp "
+                     f"with at least 3 points to georeference it")
     return block, notes
 
 

@@ -139,12 +139,34 @@ def test_observation_of_unknown_point(block, tmp_path):
     expect_error(block, "observations.csv", 12, "point_id", "unknown point 'NOPE'", tmp_path)
 
 
-def test_observation_outside_image_names_units(block, tmp_path):
+def test_observation_outside_image_is_dropped_and_counted(block):
+    """One observation outside the frame (a blunder, a border measurement) is left out with a warning."""
+    n = len(read_block(block).observations)
     line = _read(block / "observations.csv").split("\n")[4]
     fields = line.split(",")
-    fields[3] = "40123.0"
+    fields[3] = "4004.8"                                       # 4.8 px below a 4000-px-high frame
     edit(block / "observations.csv", 5, line, ",".join(fields))
-    expect_error(block, "observations.csv", 5, "row_px", "outside the image", tmp_path)
+    read = read_block(block)
+    assert len(read.observations) == n - 1
+    assert read.dropped.observations_outside_frame == 1
+    assert read.dropped.as_dict()["observations_outside_frame"] == 1
+    assert any("line 5" in m and "outside" in m and fields[1] in m for m in read.dropped.messages)
+
+
+def test_most_observations_of_an_image_outside_names_units(block, tmp_path):
+    """Most of an image's observations outside its frame is a unit mistake: an error naming the image."""
+    lines = _read(block / "observations.csv").split("\n")
+    image = lines[1].split(",")[0]
+    first = None
+    for k, line in enumerate(lines[1:], start=2):
+        fields = line.split(",")
+        if fields[0] == image:
+            fields[3] = str(float(fields[3]) * 1000.0 + 5000.0)   # "row in mm x 1000", all outside
+            lines[k - 1] = ",".join(fields)
+            first = first or k
+    _write(block / "observations.csv", "\n".join(lines))
+    err = expect_error(block, "observations.csv", first, "row_px", "outside the image", tmp_path)
+    assert f"image '{image}'" in err.reason and "are the units pixels?" in err.reason
 
 
 def test_wrong_field_count(block, tmp_path):

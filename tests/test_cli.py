@@ -29,7 +29,7 @@ def simulated(tmp_path_factory):
 
 
 def test_simulate_writes_four_scenarios_and_truth(simulated):
-    assert sorted(os.listdir(simulated)) == ["truth", "type1", "type2", "type3", "type4"]
+    assert sorted(os.listdir(simulated)) == [".selfcal-output", "truth", "type1", "type2", "type3", "type4"]
     for scenario, gcp, chk in (("type1", 15, 24), ("type3", 27, 12)):
         roles = [line.split(",")[1] for line in _read(simulated / scenario / "points.csv").split("\n")[1:] if line]
         assert roles.count("gcp") == gcp and roles.count("chk") == chk

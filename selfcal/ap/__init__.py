@@ -18,7 +18,7 @@ from .none import NoAP
 from .wavelet import WaveletAP
 
 __all__ = ["AP_FAMILIES", "APModel", "ImageFrame", "create_ap", "ap_from_dict", "parse_ap_spec", "frame_nodes_mm",
-           "fit_displacement", "ap_settings", "takes_grid", "ALL_MODELS"]
+           "fit_displacement", "ap_settings", "takes_grid", "ALL_MODELS", "check_ap_spec"]
 
 #: the ten frame AP models of seed 000's comparison (``selfcal compare``, ``--ap auto``)
 ALL_MODELS = ("none", "brown", "ebner", "gruen", "legendre", "fourier",
@@ -55,6 +55,15 @@ def _family(spec: str) -> tuple[type[APModel], str | None]:
     except KeyError:
         known = ", ".join(AP_FAMILIES)
         raise ValueError(f"unknown AP model '{spec}' (known families: {known})") from None
+
+
+def check_ap_spec(spec: str) -> str:
+    """``spec`` if it names a family with a valid option (``legendre:3``, ``wavelet:db4``); else ValueError saying
+    what is wrong. The model is built once on a nominal frame (or detector line), so every check its family makes
+    is made here, before any work."""
+    cls, option = _family(spec)
+    cls.check_option(option)
+    return spec.strip()
 
 
 def create_ap(spec: str, frame: ImageFrame, observed_xy_mm: np.ndarray | None = None, **settings) -> APModel:

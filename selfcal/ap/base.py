@@ -108,6 +108,12 @@ class APModel(ABC):
         """Build the model named ``family:option`` for a frame (and its observations, for adaptive bases)."""
 
     @classmethod
+    def check_option(cls, option: str | None) -> None:
+        """ValueError unless ``family:option`` names a model; by default it is built on a nominal frame (families
+        whose basis takes long to build check their option without building it)."""
+        cls.from_spec(option, ImageFrame(36.0, 24.0, 0.006))
+
+    @classmethod
     def from_dict(cls, data: dict, frame: ImageFrame) -> "APModel":
         _, option = parse_ap_spec(data["spec"])
         return cls.from_spec(option, frame)

@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.linalg
 
-from ..wavelets import get_wavelet
+from ..wavelets import check_wavelet_name, get_wavelet
 
 __all__ = ["LineWaveletAP", "create_line_ap", "SAMPLES_PER_CELL", "REPRODUCTION_TOLERANCE"]
 
@@ -52,6 +52,14 @@ class LineWaveletAP:
     family = "wavelet1d"
     settings = ("grid",)
     domain = "line"
+
+    @classmethod
+    def check_option(cls, option) -> None:
+        """ValueError unless ``wavelet1d:option`` names a wavelet (checked without building the basis)."""
+        if not option:
+            raise ValueError("unknown pushbroom AP model 'wavelet1d' (known: wavelet1d:NAME, NAME = dbN, symN, "
+                             "meyer, blN)")
+        check_wavelet_name(option)
     examples = ()            # the frame contract tests do not apply; tests/test_line_ap.py tests the line basis
 
     @property

@@ -65,7 +65,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.linalg
 
-from ..wavelets import get_wavelet
+from ..wavelets import check_wavelet_name, get_wavelet
 from .base import APModel, ImageFrame
 
 __all__ = ["WaveletAP", "MIN_OBSERVATIONS"]
@@ -306,6 +306,16 @@ class WaveletAP(APModel):
     def from_dict(cls, data: dict, frame: ImageFrame) -> "WaveletAP":
         return cls(frame, data["wavelet"], tuple(data["grid"]), tuple(data["ranges"]),
                    data.get("formulation", "scaling"))
+
+    @classmethod
+    def check_option(cls, option) -> None:
+        if not option:
+            raise ValueError("a wavelet AP model needs a wavelet: wavelet:db4, wavelet:sym4, wavelet:meyer, "
+                             "wavelet:bl4 (any order of db, sym, bl)")
+        name, _, form = option.partition("+")
+        if form not in ("", "details"):
+            raise ValueError(f"unknown WAP formulation '+{form}' (known: +details)")
+        check_wavelet_name(name)
 
     @classmethod
     def from_spec(cls, option, frame: ImageFrame, observed_xy_mm=None, grid=(9, 6), **settings):

@@ -11,14 +11,15 @@ from ..ap import ALL_MODELS, AP_FAMILIES, parse_ap_spec
 from ..errors import UsageError
 from ..io import read_block
 from ..io.dem import read_dem
+from ..io.output import check_inputs, output_folder
 from ..io.results import results_from_files, write_results
 from ..report import model_choice_table, render_report, result_files
 from ..stats import SnoopingOptions, VarianceOptions
 from ..workflows import parse_candidate
 from ..workflows.adjust import AdjustRequest, adjust_block, offers_sensor_models
 from ..workflows.seed001 import ATTITUDE_FREE_SIGMA
-from .options import (ap_option, grid_option, progress_printer, round_printer, screening_options, test_options,
-                      trajectory_options)
+from .options import (ap_option, count, force_option, grid_option, number, progress_printer, round_printer,
+                      screening_options, test_options, trajectory_options)
 
 #: options that only blocks whose sensors offer seed 001's sensor models take (dest -> flag)
 _SEED001_OPTIONS = {"sensor_model": "--sensor-model", "images": "--images", "gcps": "--gcps",
@@ -29,7 +30,10 @@ _FRAME_OPTIONS = {"lever_arm": "--lever-arm", "boresight": "--boresight"}
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("block", metavar="BLOCK", help="block folder (DESIGN.md §3)")
-    parser.add_argument("--out", required=True, metavar="RESULTS", help="results folder to write (replaced)")
+    parser.add_argument("--out", required=True, metavar="RESULTS",
+                        help="results folder to write (replaced if selfcal wrote it; never the block or a folder "
+                             "that holds it)")
+    force_option(parser)
     ap_option(parser)
     grid_option(parser)
     test_options(parser)
@@ -37,14 +41,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-report", action="store_true",
                         help="do not render report.html and figures/ (selfcal report RESULTS does it later)")
     parser.add_argument("--quiet", action="store_true", help="no progress output")
-    parser.add_argument("--max-iterations", type=int, default=SolverOptions.max_iterations, metavar="N",
+    parser.add_argument("--max-iterations", type=count(1), default=SolverOptions.max_iterations, metavar="N",
                         help=f"Gauss-Newton / Levenberg-Marquardt iterations at most (default "
                              f"{SolverOptions.max_iterations}); a weakly determined block may need more")
     group = parser.add_argument_group("pushbroom blocks (seed 001)")
     group.add_argument("--sensor-model", metavar="MODEL",
                        help="M1..M7 of seed 001, or parameter names separated by commas (default: M6)")
     group.add_argument("--images", metavar="ID,ID", help="images to adjust: one (mono) or more (stereo); default all")
-    group.add_argument("--gcps", type=int, metavar="N",
+    group.add_argument("--gcps", type=count(1), metavar="N",
                        help="use N (3, 4 or 5) of the block's gcp, spread over the scene; the others are checked")
     group.add_argument("--keep-focal", action="store_true",
                        help="use block.toml's focal_mm as it is; by default each camera's focal length is first "
@@ -57,7 +61,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--ap-cameras", metavar="ID,ID",
                         help="the cameras that get the APs (default all; required for wavelet1d when more than one "
                              "pushbroom camera is adjusted)")
-    parser.add_argument("--ap-sigma-px", type=float, metavar="S",
+    parser.add_argument("--ap-sigma-px", type=number(0.0, low_open=True), metavar="S",
                         help="a-priori sigma of every AP coefficient in px (default: free)")
 
 
@@ -128,7 +132,9 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     if args.max_iterations < 1:
         raise UsageError(f"--max-iterations must be at least 1, found {args.max_iterations}")
+    out = output_folder(args.out, (args.block, args.dem), args.force)
     block = read_block(args.block)
+    check_inputs(out, [*(block.image_files or {}).values(), block.dem_path])
     _check_options(block, args)
     for message in block.dropped.messages[:20]:
         print(f"warning: {message}", file=sys.stderr)
@@ -178,7 +184,7 @@ def run(args: argparse.Namespace) -> int:
         files |= render_report(results_from_files(files))
         if not args.quiet:
             print(f"report rendered in {time.perf_counter() - t_report:.1f} s", file=sys.stderr)
-    write_results(args.out, files)
+    write_results(out, files)
     s = files["summary.json"]
     line = (f"sigma0 {s['sigma0_px']:.3f} px, check points RMSD XY {_m(s['rmsd_chk_xy_m'])} Z {_m(s['rmsd_chk_z_m'])}"
             f" ({s['n_chk_used']} CHK, {s['n_gcp_used']} GCP), {s['n_obs_rejected']} observations rejected")
@@ -188,10 +194,10 @@ def run(args: argparse.Namespace) -> int:
     if not seed001:
         line += f", {s['n_ap_significant']}/{s['n_ap_initial']} APs"
     print(f"{line}; results in {args.out}", file=sys.stderr)
-    for note in s.get("notes", []):
-        if note.startswith("weakly determined"):
-            print(f"warning: {note}", file=sys.stderr)
     failure = s.get("failure")
+    for note in s.get("notes", []):
+        if note.startswith(("weakly determined", "object points not determined")) and note != failure:
+            print(f"warning: {note}", file=sys.stderr)
     if failure:
         print(f"selfcal adjust: error: {failure}", file=sys.stderr)
         return 1

@@ -11,19 +11,22 @@ from ..batch import ALL_MODELS, CellSettings, run_matrix
 from ..errors import BlockError, UsageError
 from ..io import read_block
 from ..io.atomic import atomic_folder
+from ..io.output import check_inputs, output_folder
 from ..io.results import results_from_files, write_files
 from ..report import best_cells, render_comparison_report, render_report
 from ..report.compare import comparison_csv, comparison_markdown, comparison_rows
 from ..stats import SnoopingOptions, VarianceOptions
 from ..workflows.adjust import offers_sensor_models
-from .options import grid_option, screening_options, test_options, trajectory_options
+from .options import ap_list, count, force_option, grid_option, screening_options, test_options, trajectory_options
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("blocks", nargs="+", metavar="BLOCK", help="block folders (one scenario each)")
-    parser.add_argument("--ap", default=",".join(ALL_MODELS), metavar="MODELS",
+    parser.add_argument("--ap", default=",".join(ALL_MODELS), metavar="MODELS", type=ap_list,
                         help="comma-separated AP models (default: all ten)")
-    parser.add_argument("--out", required=True, metavar="DIR", help="folder for the results and the table")
+    parser.add_argument("--out", required=True, metavar="DIR",
+                        help="folder for the results and the table (replaced if selfcal wrote it)")
+    force_option(parser)
     grid_option(parser)
     test_options(parser)
     trajectory_options(parser)
@@ -31,7 +34,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--scheduler", default="local", metavar="ADDRESS",
                         help="Dask scheduler: 'local' (a cluster on this machine, default), 'serial' "
                              "(no Dask), or the address of a running scheduler (tcp://host:8786)")
-    parser.add_argument("--workers", type=int, default=None, help="worker processes of the local cluster")
+    parser.add_argument("--workers", type=count(1), default=None, help="worker processes of the local cluster")
     parser.add_argument("--no-report", action="store_true",
                         help="no report.html (the comparison's, and each scenario's best model's)")
     group = parser.add_argument_group("pushbroom blocks (seed 001)")
@@ -45,8 +48,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    args.out = output_folder(args.out, (*args.blocks, args.dem), args.force)
     if len(args.blocks) == 1:
         block = read_block(args.blocks[0])
+        check_inputs(args.out, [*(block.image_files or {}).values(), block.dem_path])
         if offers_sensor_models(block):
             return _run_study(block, args)
     for flag, dest in (("--sensor-models", "sensor_models"), ("--gcps", "gcps"), ("--dem", "dem"),
@@ -63,6 +68,7 @@ def run(args: argparse.Namespace) -> int:
         if name in blocks:
             raise BlockError(folder, f"two blocks are named '{name}'; give each scenario its own folder name")
         blocks[name] = read_block(folder)
+        check_inputs(args.out, (blocks[name].image_files or {}).values())
     settings = CellSettings(
         grid=args.grid, gnss_drift=args.gnss_drift, imu_drift=args.imu_drift, lever_arm=args.lever_arm,
         boresight=args.boresight,

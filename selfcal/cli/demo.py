@@ -10,19 +10,22 @@ from ..batch import PAPER_MODELS, CellSettings, available_models, run_matrix
 from ..block import prune
 from ..io.atomic import atomic_folder
 from ..io.block_folder import write_block
+from ..io.output import output_folder
 from ..io.results import write_files
 from ..report.compare import comparison_markdown, comparison_rows
 from ..simulate import SCENARIOS, simulate_uav, truth_files
 from .compare import write_matrix
+from .options import count, force_option, number
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", default="demo-results", metavar="DIR",
                         help="folder for the simulated blocks, the results and the table (default: demo-results)")
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--blunder-rate", type=float, default=0.003,
+    parser.add_argument("--seed", type=count(0, 2**32 - 1), default=0)
+    force_option(parser)
+    parser.add_argument("--blunder-rate", type=number(0.0, 0.5, high_open=True), default=0.003,
                         help="share of image observations with a 4-15 px blunder (default 0.003)")
-    parser.add_argument("--distortion-scale", type=float, default=4.0, metavar="S",
+    parser.add_argument("--distortion-scale", type=number(0.0, 100.0), default=4.0, metavar="S",
                         help="strength of the simulated local + Brown field (default 4: -44 px of radial distortion "
                              "in the corners, 1.2 %% of the half-diagonal, and local bumps of 5-10 px, an uncorrected "
                              "wide-angle lens as in seed 000, where no APs left several GSD at the check points)")
@@ -32,6 +35,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
+    args.out = output_folder(args.out, (), args.force)
     print("simulating the seed-000 UAV block (28 images, local + Brown distortion, blunders) ...", file=sys.stderr)
     sim = simulate_uav(seed=args.seed, distortion="local+brown", blunder_rate=args.blunder_rate,
                        distortion_scale=args.distortion_scale)

@@ -9,7 +9,9 @@ from ..calibration import COLMAP_MODELS, OPENCV_MODELS, Calibration, colmap_para
 from ..errors import BlockError, UsageError
 from ..io.colmap import write_cameras_txt
 from ..io.opencv import write_opencv_yaml, write_undistortion_maps
+from ..io.output import output_file
 from ..io.results import read_camera_json
+from .options import number as _number
 
 FORMATS = ("opencv", "colmap", "undistort-map")
 
@@ -20,13 +22,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "cameras.txt (OPENCV or FULL_OPENCV); undistort-map: .npz with map_x, map_y for "
                              "cv2.remap and the ideal camera matrix")
     parser.add_argument("results", metavar="RESULTS", help="results folder written by selfcal adjust")
-    parser.add_argument("--out", required=True, metavar="FILE", help="file to write (replaced)")
+    parser.add_argument("--out", required=True, metavar="FILE",
+                        help="file to write (replaced; never inside RESULTS; missing folders are created)")
     parser.add_argument("--camera", metavar="ID", help="camera to export (needed when the block has several; "
                                                        "colmap exports all)")
     parser.add_argument("--opencv-model", default="auto", metavar="MODEL",
                         help=f"OpenCV distortion model: auto (the first of {', '.join(OPENCV_MODELS)} within "
                              f"--tolerance-px, else the closest) or one of them")
-    parser.add_argument("--tolerance-px", type=float, default=0.01,
+    parser.add_argument("--tolerance-px", type=_number(0.0, low_open=True), default=0.01,
                         help="largest misfit of the OpenCV model accepted by 'auto' (default 0.01 px)")
 
 
@@ -81,8 +84,7 @@ def _report(camera_id, fitted, tolerance_px) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    if not args.tolerance_px > 0:
-        raise UsageError(f"--tolerance-px must be positive, found {args.tolerance_px}")
+    args.out = output_file(args.out, (args.results,))
     cameras = calibrations(args.results)
     if args.format == "opencv":
         cal = pick_camera(cameras, args.camera)

@@ -11,6 +11,8 @@ from ..io.bal import read_bal
 from ..io.block_folder import write_block
 from ..io.colmap import read_colmap
 from ..io.odm import read_gcp_list
+from ..io.output import output_folder
+from .options import count, force_option, number
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -19,42 +21,41 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "the Large problem file; isis: an ISIS PVL control network (--images: the folder of "
                              "the cube labels and their usgscsm/ALE ISDs)")
     parser.add_argument("source", metavar="SRC", help="the model to import")
-    parser.add_argument("--out", required=True, metavar="BLOCK", help="block folder to write (replaced)")
+    parser.add_argument("--out", required=True, metavar="BLOCK",
+                        help="block folder to write (replaced if selfcal wrote it; never the source)")
+    force_option(parser)
     parser.add_argument("--gcp", metavar="FILE", help="OpenDroneMap gcp_list.txt with the ground control")
     parser.add_argument("--check", default="", metavar="NAMES",
                         help="comma-separated control points to use as check points")
-    parser.add_argument("--pixel-size-mm", type=float, default=0.005,
+    parser.add_argument("--pixel-size-mm", type=number(0.0, low_open=True), default=0.005,
                         help="physical pixel size of the camera (default 0.005 mm)")
-    parser.add_argument("--image-sigma-px", type=float, default=1.0,
+    parser.add_argument("--image-sigma-px", type=number(0.0, low_open=True), default=1.0,
                         help="a-priori sigma of an image measurement (default 1.0 px)")
-    parser.add_argument("--gcp-sigma-xy", type=float, default=3.0,
+    parser.add_argument("--gcp-sigma-xy", type=number(0.0, low_open=True), default=3.0,
                         help="a-priori sigma of the control coordinates in plan (default 3 m: hand-held GPS)")
-    parser.add_argument("--gcp-sigma-z", type=float, default=5.0, help="a-priori sigma of the control heights (default 5 m)")
+    parser.add_argument("--gcp-sigma-z", type=number(0.0, low_open=True), default=5.0, help="a-priori sigma of the control heights (default 5 m)")
     isis = parser.add_argument_group("isis")
     isis.add_argument("--images", metavar="DIR", help="folder of the ISIS cube labels (*.pvl) and their ISDs")
-    isis.add_argument("--sigma-position-m", type=float, metavar="M",
+    isis.add_argument("--sigma-position-m", type=number(0.0, low_open=True), metavar="M",
                       help="a-priori sigma of each image's position (jigsaw's spacecraft_position_sigma)")
-    isis.add_argument("--sigma-attitude-deg", type=float, metavar="DEG",
+    isis.add_argument("--sigma-attitude-deg", type=number(0.0, low_open=True), metavar="DEG",
                       help="a-priori sigma of each image's attitude angles (jigsaw's camera_angles_sigma)")
-    isis.add_argument("--attitude-degree", type=int, metavar="N",
+    isis.add_argument("--attitude-degree", type=count(0, 3), metavar="N",
                       help="line scanners: degree 0..3 of the attitude corrections (jigsaw's cksolvedegree)")
     isis.add_argument("--no-twist", action="store_true",
                       help="line scanners: no correction of the rotation about the line of sight (jigsaw twist=no)")
     isis.add_argument("--solve-position", action="store_true",
                       help="line scanners: a constant J2000 offset of each image's trajectory, weighted by "
                            "--sigma-position-m (jigsaw spsolve=position; frame images always have theirs)")
-    isis.add_argument("--hold-radii", type=float, metavar="M",
+    isis.add_argument("--hold-radii", type=number(0.0, low_open=True), metavar="M",
                       help="Free points keep their a-priori radius within this sigma (m), latitude and longitude "
                            "free: jigsaw's radius=no, which holds them on the DEM the a-priori points came from")
-    isis.add_argument("--measure-sigma-px", type=float, default=None, metavar="PX",
+    isis.add_argument("--measure-sigma-px", type=number(0.0, low_open=True), default=None, metavar="PX",
                       help="a-priori sigma of a measure in cube pixels (default: jigsaw's 1.4 detector pixels)")
 
 
 def run(args: argparse.Namespace) -> int:
-    for name, value in (("--pixel-size-mm", args.pixel_size_mm), ("--image-sigma-px", args.image_sigma_px),
-                        ("--gcp-sigma-xy", args.gcp_sigma_xy), ("--gcp-sigma-z", args.gcp_sigma_z)):
-        if not value > 0:
-            raise SystemExit(f"selfcal import: error: {name} must be positive, found {value}")
+    args.out = output_folder(args.out, (args.source, args.gcp, args.images), args.force)
     if args.format == "isis":
         return _import_isis(args)
     if args.format == "bal":
@@ -65,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"warning: {int(behind.sum())} observations of {len(set(problem.obs_point[behind]))} points lie "
                   f"behind their camera; BAL's formula still gives them a residual (COLMAP would ignore them)",
                   file=sys.stderr)
-        write_block(block, args.out)
+        write_block(block, args.out, source=args.source)
         print(f"imported {len(block.images)} images (one BAL camera each), {len(block.points)} points, "
               f"{len(block.observations)} observations into {args.out}; BAL has no datum: adjust it with "
               f"ground control, or use it as a relative problem", file=sys.stderr)
@@ -78,7 +79,7 @@ def run(args: argparse.Namespace) -> int:
                                      name=os.path.basename(os.path.normpath(args.out)))
     for note in notes:
         print(note, file=sys.stderr)
-    write_block(block, args.out)
+    write_block(block, args.out, source=args.source)
     print(f"imported {len(block.images)} images, {len(block.points)} points, {len(block.observations)} "
           f"observations into {args.out}", file=sys.stderr)
     return 0
@@ -123,7 +124,7 @@ def _import_isis(args: argparse.Namespace) -> int:
         raise UsageError(f"--hold-radii must be positive, found {args.hold_radii}")
     block, counts = block_from_isis(network, images, sigma_px, os.path.basename(os.path.normpath(args.out)), settings,
                                     hold_radii_m=args.hold_radii)
-    write_block(block, args.out)
+    write_block(block, args.out, source=args.source)
     if args.hold_radii is not None and (block.points.role == "tie").any():
         from ..io import read_block
         from ..workflows.isis import hold_radii

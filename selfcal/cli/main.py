@@ -10,7 +10,7 @@ import argparse
 import sys
 
 from ..allocator import keep_freed_memory
-from ..errors import SelfcalError
+from ..errors import SelfcalError, UsageError
 from . import adjust, compare, demo, export, import_, report, simulate, undistort
 
 #: verb -> module with ``add_arguments(parser)`` and ``run(args) -> int``
@@ -26,8 +26,21 @@ COMMANDS = {
 }
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse whose usage errors are UsageError (one line, exit 2, through main's handler)."""
+
+    def error(self, message: str):
+        raise _ArgumentError(self.prog, message)
+
+
+class _ArgumentError(UsageError):
+    def __init__(self, prog: str, message: str):
+        self.prog = prog
+        super().__init__(f"{message} (see {prog} --help)")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="selfcal",
         description="Self-calibrating bundle adjustment of frame and pushbroom sensors.")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
@@ -39,7 +52,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    try:
+        args = build_parser().parse_args(argv)
+    except _ArgumentError as exc:
+        print(f"{exc.prog}: error: {exc}", file=sys.stderr)
+        return exc.exit_code
     keep_freed_memory()
     try:
         return int(COMMANDS[args.command].run(args) or 0)
@@ -49,6 +66,10 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"selfcal {args.command}: interrupted; nothing was written", file=sys.stderr)
         return 130
+    except OSError as exc:             # a disk that fills up, a folder removed under the run: no traceback
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"selfcal {args.command}: error: {where}{exc.strerror or exc}", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":  # pragma: no cover

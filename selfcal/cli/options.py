@@ -2,10 +2,78 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 
 __all__ = ["grid", "ap_option", "grid_option", "progress_printer", "test_options", "round_printer",
-           "trajectory_options", "drift_order", "screening_options"]
+           "trajectory_options", "drift_order", "screening_options", "number", "count", "ap_spec", "ap_list",
+           "force_option"]
+
+
+def _range_text(low, high, low_open, high_open) -> str:
+    if low is not None and high is not None:
+        return f"in {'(' if low_open else '['}{low:g}, {high:g}{')' if high_open else ']'}"
+    if low is not None:
+        return f"{'>' if low_open else '>='} {low:g}"
+    return f"{'<' if high_open else '<='} {high:g}"
+
+
+def number(low: float | None = None, high: float | None = None, low_open: bool = False, high_open: bool = False):
+    """An argparse type: a finite number within [low, high] (open ends as asked); NaN and infinity are refused."""
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"'{text}' is not a number") from None
+        if not math.isfinite(value):
+            raise argparse.ArgumentTypeError(f"must be a finite number, found '{text}'")
+        if ((low is not None and (value < low or (low_open and value == low)))
+                or (high is not None and (value > high or (high_open and value == high)))):
+            raise argparse.ArgumentTypeError(f"must be {_range_text(low, high, low_open, high_open)}, found {text}")
+        return value
+    return parse
+
+
+def count(low: int = 0, high: int | None = None):
+    """An argparse type: an integer within [low, high]."""
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"'{text}' is not an integer") from None
+        if value < low or (high is not None and value > high):
+            raise argparse.ArgumentTypeError(f"must be an integer {_range_text(low, high, False, False)}, "
+                                             f"found {text}")
+        return value
+    return parse
+
+
+def ap_spec(text: str) -> str:
+    """An argparse type: an AP model that exists with its option (``legendre:3``, ``wavelet:db4``), or ``auto``
+    / ``auto:MODEL,...`` (checked when the candidates are built)."""
+    from ..ap import check_ap_spec
+    if text == "auto" or text.startswith("auto:"):
+        return text
+    try:
+        return check_ap_spec(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def ap_list(text: str) -> str:
+    """An argparse type: AP models separated by commas, each checked as :func:`ap_spec`."""
+    models = [m.strip() for m in text.split(",") if m.strip()]
+    if not models:
+        raise argparse.ArgumentTypeError("name at least one AP model")
+    for model in models:
+        ap_spec(model)
+    return ",".join(models)
+
+
+def force_option(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--force", action="store_true",
+                        help="replace --out even when it is an existing folder that selfcal did not write "
+                             "(a folder selfcal wrote holds a .selfcal-output file and is replaced without it)")
 
 
 def grid(text: str) -> tuple[int, int]:
@@ -13,6 +81,8 @@ def grid(text: str) -> tuple[int, int]:
     try:
         parts = [int(v) for v in text.lower().split("x")]
         gx, gy = parts if len(parts) == 2 else (parts[0], parts[0]) if len(parts) == 1 else (None, None)
+        if gx is not None and max(gx, gy) > 1000:
+            raise argparse.ArgumentTypeError(f"grid sizes of at most 1000 cells, found '{text}'")
         if gx is None:
             raise ValueError
     except ValueError:
@@ -23,7 +93,7 @@ def grid(text: str) -> tuple[int, int]:
 
 
 def ap_option(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--ap", default="none", metavar="MODEL",
+    parser.add_argument("--ap", default="none", metavar="MODEL", type=ap_spec,
                         help="additional-parameter model: none, brown, ebner, gruen, legendre[:deg], "
                              "fourier[:order], wavelet:db4 | sym4 | meyer | bl4 (default: none); pushbroom blocks: "
                              "wavelet1d:db4 | sym4 | meyer | bl4 along the detector line")
@@ -46,7 +116,7 @@ def progress_printer(image_sigma_px: float, prefix: str = ""):
 
 def test_options(parser: argparse.ArgumentParser) -> None:
     """Data snooping and AP screening (selfcal.stats)."""
-    parser.add_argument("--snoop", type=float, default=3.0, metavar="K",
+    parser.add_argument("--snoop", type=number(0.0), default=3.0, metavar="K",
                         help="Baarda data snooping: reject image observations with |w| > K (default 3.0, "
                              "as in seed 000; 0 disables)")
     parser.add_argument("--snoop-mode", choices=["batch", "single"], default="batch",
@@ -54,11 +124,11 @@ def test_options(parser: argparse.ArgumentParser) -> None:
                              "single: one observation per round")
     parser.add_argument("--screen", action="store_true",
                         help="screen the APs: drop insignificant and highly correlated coefficients")
-    parser.add_argument("--significance", type=float, default=1.96, metavar="T",
+    parser.add_argument("--significance", type=number(0.0, low_open=True), default=1.96, metavar="T",
                         help="screening: drop an AP with |a|/sigma < T (default 1.96)")
-    parser.add_argument("--max-correlation", type=float, default=0.9, metavar="R",
+    parser.add_argument("--max-correlation", type=number(0.0, 1.0, low_open=True), default=0.9, metavar="R",
                         help="screening: drop the less significant AP of a pair with |rho| > R (default 0.9)")
-    parser.add_argument("--joint-alpha", type=float, default=0.05, metavar="A",
+    parser.add_argument("--joint-alpha", type=number(0.0, 1.0, high_open=True), default=0.05, metavar="A",
                         help="screening: the APs dropped in a round must pass their joint F-test at level A "
                              "(default 0.05; 0 switches the guard off)")
     parser.add_argument("--variance-components", action="store_true",
@@ -82,7 +152,10 @@ def round_printer():
 
 
 def drift_order(text: str) -> int:
-    value = -1 if text.lower() == "none" else int(text)
+    try:
+        value = -1 if text.lower() == "none" else int(text)
+    except ValueError:
+        value = None
     if value not in (-1, 0, 1, 2):
         raise argparse.ArgumentTypeError(f"drift order must be none, 0, 1 or 2, found '{text}'")
     return value

@@ -7,6 +7,7 @@ import os
 import sys
 import time
 
+from ..io.output import update_folder
 from ..io.results import read_results, write_files
 from ..report import render_report
 
@@ -17,7 +18,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
-    files = render_report(read_results(args.results))
+    results = read_results(update_folder(args.results))
+    files = render_report(results)
     write_files(args.results, files)
     # figures of an earlier rendering that this one did not draw (e.g. fewer cameras) would mislead
     for path in glob.glob(os.path.join(args.results, "figures", "*")):

@@ -8,8 +8,10 @@ import sys
 from ..errors import UsageError
 from ..io.atomic import atomic_folder
 from ..io.block_folder import write_block
+from ..io.output import output_folder
 from ..io.results import write_files
 from ..simulate import DISTORTIONS, SCENARIOS, simulate_uav, truth_files
+from .options import count, force_option, number
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -18,18 +20,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "forward/nadir/backward triplet of seed 001)")
     parser.add_argument("--out", required=True, metavar="DIR",
                         help="folder to write: the block folders (uav: one per scenario; prism: triplet/) and truth/")
-    parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    force_option(parser)
+    parser.add_argument("--seed", type=count(0, 2**32 - 1), default=0, help="random seed (default 0)")
     parser.add_argument("--scenario", choices=SCENARIOS, action="append",
                         help="control scenario to write (repeatable; default: all four)")
     parser.add_argument("--distortion", choices=DISTORTIONS, default="local+brown",
                         help="true distortion field of the camera (default: local+brown)")
-    parser.add_argument("--distortion-scale", type=float, default=1.0, metavar="S",
+    parser.add_argument("--distortion-scale", type=number(0.0, 100.0), default=1.0, metavar="S",
                         help="multiply the field (1: -11 px radial in the corners, bumps of 2-3 px; "
                              "selfcal demo uses 4)")
-    parser.add_argument("--noise-px", type=float, default=0.5, help="image measurement noise sigma (default 0.5)")
-    parser.add_argument("--blunder-rate", type=float, default=0.0,
+    parser.add_argument("--noise-px", type=number(0.0, 100.0, low_open=True), default=0.5, help="image measurement noise sigma (default 0.5)")
+    parser.add_argument("--blunder-rate", type=number(0.0, 0.5, high_open=True), default=0.0,
                         help="share of image observations with a 4-15 px blunder (default 0)")
-    parser.add_argument("--points", type=int, default=28, metavar="N",
+    parser.add_argument("--points", type=count(7, 100000), default=28, metavar="N",
                         help="prism: ground points measured in the triplet (default 28, as seed 001)")
     parser.add_argument("--line-error", action="store_true",
                         help="prism: give the nadir camera a chip-wise error of its detector line that the block "
@@ -37,6 +40,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    args.out = output_folder(args.out, (), args.force)
     if args.kind == "prism":
         return _prism(args)
     if not 0.0 <= args.blunder_rate < 0.5:

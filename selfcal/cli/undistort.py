@@ -11,6 +11,8 @@ from ..calibration import OpenCVCamera, undistort_image
 from ..errors import BlockError
 from ..io.atomic import atomic_folder
 from ..io.opencv import read_image, write_image, write_opencv_yaml
+from ..io.output import output_folder
+from .options import force_option
 from .export import calibrations, maps_of, pick_camera
 
 
@@ -18,11 +20,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("results", metavar="RESULTS", help="results folder written by selfcal adjust")
     parser.add_argument("images", nargs="+", metavar="IMAGE", help="images taken with the camera")
     parser.add_argument("--out", required=True, metavar="DIR",
-                        help="folder for the undistorted images (same names) and ideal_camera.yaml (replaced)")
+                        help="folder for the undistorted images (same names) and ideal_camera.yaml (replaced if "
+                             "selfcal wrote it)")
+    force_option(parser)
     parser.add_argument("--camera", metavar="ID", help="camera of the images (needed when the block has several)")
 
 
 def run(args: argparse.Namespace) -> int:
+    args.out = output_folder(args.out, (args.results, *args.images), args.force)
     cal = pick_camera(calibrations(args.results), args.camera)
     names = [os.path.basename(p) for p in args.images]
     if len(set(names)) < len(names):

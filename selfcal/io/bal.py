@@ -8,12 +8,14 @@ number per line (whitespace of any kind is accepted).
 """
 from __future__ import annotations
 
+import io
 import os
 from dataclasses import dataclass
 
 import numpy as np
 
 from ..errors import BlockError
+from .text import read_text
 
 __all__ = ["BalProblem", "read_bal"]
 
@@ -32,7 +34,7 @@ def read_bal(path: str | os.PathLike) -> BalProblem:
     path = str(path)
     if not os.path.isfile(path):
         raise BlockError(path, "file not found")
-    with open(path, encoding="ascii", errors="replace") as handle:
+    with io.StringIO(read_text(path, "BAL problem")) as handle:
         header = handle.readline()
         try:
             n_cam, n_pt, n_obs = (int(v) for v in header.split())
@@ -57,6 +59,8 @@ def read_bal(path: str | os.PathLike) -> BalProblem:
                 obs[k] = [float(f) for f in fields]
             except ValueError:
                 raise BlockError(path, f"not a number in '{line.strip()[:60]}'", number) from None
+            if not np.all(np.isfinite(obs[k])):
+                raise BlockError(path, f"NaN or infinite value in '{line.strip()[:60]}'", number)
             obs_line[k] = number
             k += 1
         rest = handle.read().split()
@@ -69,12 +73,15 @@ def read_bal(path: str | os.PathLike) -> BalProblem:
     except ValueError:
         bad = next(v for v in rest if not _is_number(v))
         raise BlockError(path, f"'{bad}' is not a number (in the parameter block)") from None
-    if not np.all(np.isfinite(values)) or not np.all(np.isfinite(obs)):
-        raise BlockError(path, "NaN or infinite value")
+    if not np.all(np.isfinite(values)):
+        k = int(np.flatnonzero(~np.isfinite(values))[0])
+        raise BlockError(path, f"NaN or infinite value '{rest[k]}' (parameter {k + 1} after the observations, "
+                               f"{'camera ' + str(k // 9) if k < 9 * n_cam else 'point ' + str((k - 9 * n_cam) // 3)})")
+    index = obs[:, :2]
+    wrong = np.any((index != np.round(index)) | (np.abs(index) > 2**53), axis=1)
+    if wrong.any():
+        raise BlockError(path, "camera and point indices must be integers", int(obs_line[np.argmax(wrong)]))
     cam, pt = obs[:, 0].astype(np.int64), obs[:, 1].astype(np.int64)
-    if np.any(obs[:, 0] != cam) or np.any(obs[:, 1] != pt):
-        raise BlockError(path, "camera and point indices must be integers",
-                         int(obs_line[np.argmax((obs[:, 0] != cam) | (obs[:, 1] != pt))]))
     bad = np.flatnonzero((cam < 0) | (cam >= n_cam) | (pt < 0) | (pt >= n_pt))
     if bad.size:
         raise BlockError(path, f"observation refers to camera {cam[bad[0]]} / point {pt[bad[0]]} outside the "

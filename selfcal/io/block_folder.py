@@ -14,11 +14,12 @@ import tomllib
 
 import numpy as np
 
-from ..block import ROLES, AttitudeSamples, Block, Ephemeris, Images, InitialAP, Observations, Points, prune
+from ..block import ROLES, AttitudeSamples, Block, Dropped, Ephemeris, Images, InitialAP, Observations, Points, prune
 from ..errors import BlockError
 from .atomic import atomic_folder, atomic_write
 from ..sensors import SENSORS, sensor_of
 from .sensor_files import SENSOR_FILE_READERS
+from .text import read_text
 from .table import NUM, OPT_NUM, STR, Column, read_table, write_table
 
 __all__ = ["read_block", "write_block", "IMAGE_COLUMNS", "POINT_COLUMNS", "OBSERVATION_COLUMNS", "EPHEMERIS_COLUMNS",
@@ -163,8 +164,7 @@ def _read_settings(folder: str) -> dict:
     path = os.path.join(folder, "block.toml")
     if not os.path.isfile(path):
         raise BlockError(path, "file not found")
-    with open(path, encoding="utf-8") as handle:
-        text = handle.read()
+    text = read_text(path)
     try:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
@@ -359,13 +359,25 @@ def _read_observations(folder, images, image_index, point_index, cameras, defaul
     col, row = table["col_px"], table["row_px"]
     width = np.array([cameras[c].width_px for c in images.camera_id], float)[img]
     height = np.array([cameras[c].height_px for c in images.camera_id], float)[img]
-    for values, limit, name in ((col, width, "col_px"), (row, height, "row_px")):
-        outside = np.flatnonzero((values < -0.5) | (values > limit + 0.5))
-        if outside.size:
-            i = outside[0]
-            raise BlockError(table.path,
-                             f"{values[i]:g} px is outside the image (0 .. {limit[i]:g} px): "
-                             f"are the units pixels?", int(table.line[i]), name)
+    outside_col = (col < -0.5) | (col > width + 0.5)
+    outside = outside_col | (row < -0.5) | (row > height + 0.5)
+    per_image = np.bincount(img, minlength=len(images.image_id))
+    outside_per_image = np.bincount(img, weights=outside, minlength=len(images.image_id))
+    unit_mistake = np.flatnonzero(outside_per_image > 0.5 * per_image)
+    messages = []
+    if unit_mistake.size:
+        # most of an image's observations outside its frame: a unit mistake (mm, normalised), not blunders
+        first = np.flatnonzero(outside & (img == unit_mistake[0]))[0]
+        name, values, limit = ("col_px", col, width) if outside_col[first] else ("row_px", row, height)
+        raise BlockError(table.path,
+                         f"{values[first]:g} px is outside the image (0 .. {limit[first]:g} px), and so are "
+                         f"{int(outside_per_image[unit_mistake[0]])} of the {per_image[unit_mistake[0]]} observations "
+                         f"of image '{images.image_id[unit_mistake[0]]}': are the units pixels?",
+                         int(table.line[first]), name)
+    for i in np.flatnonzero(outside):
+        messages.append(f"dropped observation of point '{table['point_id'][i]}' in image '{table['image_id'][i]}' "
+                        f"(observations.csv line {table.line[i]}): ({col[i]:g}, {row[i]:g}) px is outside the "
+                        f"{width[i]:g} x {height[i]:g} px frame")
     sigma = np.full(n, default_sigma)
     if "sigma_px" in table:
         given = table["sigma_px"]
@@ -374,8 +386,10 @@ def _read_observations(folder, images, image_index, point_index, cameras, defaul
             raise BlockError(table.path, f"sigma must be positive, found {given[bad[0]]}",
                              int(table.line[bad[0]]), "sigma_px")
         sigma = np.where(np.isnan(given), default_sigma, given)
-    return Observations(image_index=img, point_index=pt, pixel=np.column_stack([col, row]),
-                        sigma_px=sigma, line=table.line)
+    keep = ~outside
+    observations = Observations(image_index=img[keep], point_index=pt[keep], pixel=np.column_stack([col, row])[keep],
+                                sigma_px=sigma[keep], line=table.line[keep])
+    return observations, Dropped(observations_outside_frame=len(messages), messages=tuple(messages))
 
 
 def read_block(folder: str | os.PathLike, min_gcp: int = 3) -> Block:
@@ -403,7 +417,7 @@ def read_block(folder: str | os.PathLike, min_gcp: int = 3) -> Block:
         except ValueError as exc:
             raise BlockError(os.path.join(folder, "images.csv"), f"camera '{camera_id}': {exc}", None,
                              "sensor_file") from None
-    observations = _read_observations(folder, images, image_index, point_index, cameras, image_sigma)
+    observations, dropped = _read_observations(folder, images, image_index, point_index, cameras, image_sigma)
     gnss = settings.get("gnss", {}).get("sigma_m")
     imu = settings.get("imu", {}).get("sigma_deg")
     ephemeris = attitude = None
@@ -446,6 +460,7 @@ def read_block(folder: str | os.PathLike, min_gcp: int = 3) -> Block:
         terrain_height_m=terrain.get("height_m"),
         image_models=image_models or None,
         image_files={k: v[0] for k, v in files.items()} or None,
+        dropped=dropped,
     )
     # blocks of seed 001's sensors are used as read: mono restitution needs check points seen in one image
     if not any(s.sensor_models for s in sensors.values()):
@@ -531,46 +546,65 @@ def block_toml_text(block: Block) -> str:
     return "\n".join(lines)
 
 
-def write_block(block: Block, folder: str | os.PathLike) -> None:
-    """Write a block folder (atomically: the folder appears complete or not at all)."""
+def write_block(block: Block, folder: str | os.PathLike, source: str | None = None) -> None:
+    """Write a block folder (atomically: the folder appears complete or not at all).
+
+    With ``source`` (the file or folder an importer read), the folder is read back with :func:`read_block` before
+    it appears: a block the reader would refuse is never written, and the BlockError names ``source``.
+    """
     with atomic_folder(folder) as tmp:
-        with atomic_write(os.path.join(tmp, "block.toml")) as handle:
-            handle.write(block_toml_text(block))
-        im = block.images
-        deg = np.degrees(im.attitude_rad)
-        with atomic_write(os.path.join(tmp, "images.csv")) as handle:
-            columns = [im.image_id, im.camera_id, im.strip_id, im.time_s, im.position_m[:, 0], im.position_m[:, 1],
-                       im.position_m[:, 2], deg[:, 0], deg[:, 1], deg[:, 2]]
-            formats = ["", "", "", ".4f", ".6f", ".6f", ".6f", ".10f", ".10f", ".10f"]
-            if block.image_files:
-                columns.append(np.array([os.path.relpath(block.image_files[i], folder) if i in block.image_files
-                                         else "" for i in im.image_id], dtype=object))
-                formats.append("")
-            write_table(handle, [c.name for c in IMAGE_COLUMNS][:len(columns)], columns, formats)
-        pt = block.points
-        with atomic_write(os.path.join(tmp, "points.csv")) as handle:
-            write_table(handle, [c.name for c in POINT_COLUMNS],
-                        [pt.point_id, pt.role, pt.xyz_m[:, 0], pt.xyz_m[:, 1], pt.xyz_m[:, 2],
-                         pt.sigma_m[:, 0], pt.sigma_m[:, 2]],
-                        ["", "", ".6f", ".6f", ".6f", ".4f", ".4f"])
-        ob = block.observations
-        with atomic_write(os.path.join(tmp, "observations.csv")) as handle:
-            columns = [im.image_id[ob.image_index], pt.point_id[ob.point_index], ob.pixel[:, 0], ob.pixel[:, 1]]
-            header = ["image_id", "point_id", "col_px", "row_px"]
-            formats = ["", "", ".5f", ".5f"]
-            if np.any(ob.sigma_px != block.image_sigma_px):
-                columns.append(ob.sigma_px)
-                header.append("sigma_px")
-                formats.append(".4f")
-            write_table(handle, header, columns, formats)
-        if block.ephemeris is not None:
-            e = block.ephemeris
-            with atomic_write(os.path.join(tmp, "ephemeris.csv")) as handle:
-                write_table(handle, [c.name for c in EPHEMERIS_COLUMNS],
-                            [e.camera_id, e.time_s, *e.position_m.T, *e.velocity_m_s.T],
-                            ["", ".6f", ".4f", ".4f", ".4f", ".6f", ".6f", ".6f"])
-        if block.attitude is not None:
-            a = block.attitude
-            with atomic_write(os.path.join(tmp, "attitude.csv")) as handle:
-                write_table(handle, [c.name for c in ATTITUDE_COLUMNS], [a.camera_id, a.time_s, *a.quaternion.T],
-                            ["", ".6f", ".15f", ".15f", ".15f", ".15f"])
+        _write_block_files(block, tmp, os.path.abspath(folder))
+        if source is not None:
+            try:
+                read_block(tmp)
+            except BlockError as exc:
+                name = os.path.relpath(exc.path, tmp) if os.path.abspath(exc.path).startswith(tmp) else exc.path
+                where = name + (f", line {exc.line}" if exc.line is not None else "") + \
+                    (f", column '{exc.column}'" if exc.column is not None else "")
+                raise BlockError(source, f"cannot be imported: the block's {where} would be refused "
+                                         f"({exc.reason})") from None
+
+
+def _write_block_files(block: Block, tmp: str, folder: str) -> None:
+    """The files of the block folder ``folder``, written into the existing folder ``tmp`` (sensor files are named
+    relative to ``folder``)."""
+    with atomic_write(os.path.join(tmp, "block.toml")) as handle:
+        handle.write(block_toml_text(block))
+    im = block.images
+    deg = np.degrees(im.attitude_rad)
+    with atomic_write(os.path.join(tmp, "images.csv")) as handle:
+        columns = [im.image_id, im.camera_id, im.strip_id, im.time_s, im.position_m[:, 0], im.position_m[:, 1],
+                   im.position_m[:, 2], deg[:, 0], deg[:, 1], deg[:, 2]]
+        formats = ["", "", "", ".4f", ".6f", ".6f", ".6f", ".10f", ".10f", ".10f"]
+        if block.image_files:
+            columns.append(np.array([os.path.relpath(block.image_files[i], folder) if i in block.image_files
+                                     else "" for i in im.image_id], dtype=object))
+            formats.append("")
+        write_table(handle, [c.name for c in IMAGE_COLUMNS][:len(columns)], columns, formats)
+    pt = block.points
+    with atomic_write(os.path.join(tmp, "points.csv")) as handle:
+        write_table(handle, [c.name for c in POINT_COLUMNS],
+                    [pt.point_id, pt.role, pt.xyz_m[:, 0], pt.xyz_m[:, 1], pt.xyz_m[:, 2],
+                     pt.sigma_m[:, 0], pt.sigma_m[:, 2]],
+                    ["", "", ".6f", ".6f", ".6f", ".4f", ".4f"])
+    ob = block.observations
+    with atomic_write(os.path.join(tmp, "observations.csv")) as handle:
+        columns = [im.image_id[ob.image_index], pt.point_id[ob.point_index], ob.pixel[:, 0], ob.pixel[:, 1]]
+        header = ["image_id", "point_id", "col_px", "row_px"]
+        formats = ["", "", ".5f", ".5f"]
+        if np.any(ob.sigma_px != block.image_sigma_px):
+            columns.append(ob.sigma_px)
+            header.append("sigma_px")
+            formats.append(".4f")
+        write_table(handle, header, columns, formats)
+    if block.ephemeris is not None:
+        e = block.ephemeris
+        with atomic_write(os.path.join(tmp, "ephemeris.csv")) as handle:
+            write_table(handle, [c.name for c in EPHEMERIS_COLUMNS],
+                        [e.camera_id, e.time_s, *e.position_m.T, *e.velocity_m_s.T],
+                        ["", ".6f", ".4f", ".4f", ".4f", ".6f", ".6f", ".6f"])
+    if block.attitude is not None:
+        a = block.attitude
+        with atomic_write(os.path.join(tmp, "attitude.csv")) as handle:
+            write_table(handle, [c.name for c in ATTITUDE_COLUMNS], [a.camera_id, a.time_s, *a.quaternion.T],
+                        ["", ".6f", ".15f", ".15f", ".15f", ".15f"])

@@ -13,6 +13,7 @@ M = R3(kappa) R2(phi) R1(omega) with the camera looking along -z, y up).
 """
 from __future__ import annotations
 
+import math
 import os
 import struct
 from dataclasses import dataclass
@@ -20,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import BlockError
+from .text import read_text
 from .atomic import atomic_write
 
 __all__ = ["ColmapCamera", "ColmapModel", "read_colmap", "write_cameras_txt", "CAMERA_MODELS",
@@ -80,18 +82,20 @@ def _find(folder: str, stem: str) -> tuple[str, str]:
 
 
 def _data_lines(path: str):
-    with open(path, encoding="utf-8") as handle:
-        for number, line in enumerate(handle, start=1):
-            text = line.strip()
-            if text and not text.startswith("#"):
-                yield number, text
+    for number, line in enumerate(read_text(path).splitlines(), start=1):
+        text = line.strip()
+        if text and not text.startswith("#"):
+            yield number, text
 
 
 def _numbers(path, number, fields, kinds):
     try:
-        return [kind(f) for kind, f in zip(kinds, fields)]
+        values = [kind(f) for kind, f in zip(kinds, fields)]
     except ValueError:
         raise BlockError(path, f"malformed line: expected numbers, found '{' '.join(fields)[:80]}'", number) from None
+    if not all(math.isfinite(v) and abs(v) < 2**63 for v in values):
+        raise BlockError(path, f"NaN or infinite number in '{' '.join(fields)[:80]}'", number)
+    return values
 
 
 def _cameras_txt(path):
@@ -116,8 +120,7 @@ def _images_txt(path):
     """Two lines per image (the second, the 2-D points, may be empty); comments start with #."""
     ids, names, cams, q, t = [], [], [], [], []
     oi, oxy, op = [], [], []
-    with open(path, encoding="utf-8") as handle:
-        raw = [(n, line.rstrip("\n")) for n, line in enumerate(handle, start=1)]
+    raw = list(enumerate(read_text(path).split("\n"), start=1))
     raw = [(n, line) for n, line in raw if not line.lstrip().startswith("#")]
     k = 0
     while k < len(raw):
@@ -145,9 +148,11 @@ def _images_txt(path):
         try:
             xy = arr[:, :2].astype(float)
             pid = arr[:, 2].astype(np.int64)
-        except ValueError:
+        except (ValueError, OverflowError):
             raise BlockError(path, "malformed POINTS2D line (expected X Y POINT3D_ID triples)",
                              points_line[0]) from None
+        if not np.all(np.isfinite(xy)):
+            raise BlockError(path, "NaN or infinite image coordinate in the POINTS2D line", points_line[0])
         keep = pid != -1
         oi.append(np.full(int(keep.sum()), values[0]))
         oxy.append(xy[keep])
@@ -187,6 +192,15 @@ class _Reader:
         self.pos += size
         return values
 
+    def count(self, record_bytes: int, what: str) -> int:
+        """A uint64 count of records of at least ``record_bytes`` each, checked against the bytes left."""
+        at = self.pos
+        (n,) = self.read("Q")
+        if n * record_bytes > len(self.data) - self.pos:
+            raise BlockError(self.path, f"{n} {what} announced at byte {at}, but only {len(self.data) - self.pos} "
+                                        f"bytes follow: truncated or not a COLMAP file")
+        return n
+
     def array(self, dtype, count):
         dtype = np.dtype(dtype).newbyteorder("<")
         size = dtype.itemsize * count
@@ -200,14 +214,17 @@ class _Reader:
         end = self.data.find(b"\0", self.pos)
         if end < 0:
             raise BlockError(self.path, f"truncated binary file at byte {self.pos}")
-        text = self.data[self.pos:end].decode("utf-8")
+        try:
+            text = self.data[self.pos:end].decode("utf-8")
+        except UnicodeDecodeError:
+            raise BlockError(self.path, f"the image name at byte {self.pos} is not UTF-8 text") from None
         self.pos = end + 1
         return text
 
 
 def _cameras_bin(path):
     r = _Reader(path)
-    (n,) = r.read("Q")
+    n = r.count(24, "cameras")
     cams = {}
     for _ in range(n):
         cid, model_id, width, height = r.read("iiQQ")
@@ -221,7 +238,7 @@ def _cameras_bin(path):
 
 def _images_bin(path):
     r = _Reader(path)
-    (n,) = r.read("Q")
+    n = r.count(73, "images")
     ids, names, cams, q, t = [], [], [], [], []
     oi, oxy, op = [], [], []
     record = np.dtype([("x", "<f8"), ("y", "<f8"), ("id", "<i8")])
@@ -232,8 +249,7 @@ def _images_bin(path):
         t.append(values[5:8])
         cams.append(values[8])
         names.append(r.string())
-        (count,) = r.read("Q")
-        pts = r.array(record, count)
+        pts = r.array(record, r.count(24, "2-D points"))
         keep = pts["id"] != -1
         oi.append(np.full(int(keep.sum()), values[0]))
         oxy.append(np.column_stack([pts["x"][keep], pts["y"][keep]]))
@@ -247,7 +263,7 @@ def _images_bin(path):
 
 def _points_bin(path):
     r = _Reader(path)
-    (n,) = r.read("Q")
+    n = r.count(43, "3-D points")
     ids, xyz, err = np.empty(n, np.int64), np.empty((n, 3)), np.empty(n)
     for k in range(n):
         pid, x, y, z, _, _, _, e, length = r.read("Q3d3BdQ")
@@ -271,6 +287,13 @@ def read_colmap(folder: str | os.PathLike) -> ColmapModel:
     images = _images_txt(img_path) if img_path.endswith(".txt") else _images_bin(img_path)
     points = _points_txt(pts_path) if pts_path.endswith(".txt") else _points_bin(pts_path)
     ids, names, cams, q, t, oi, oxy, op = images
+    for path, values, what in ((cam_path, [v for c in cameras.values() for v in c.params.values()], "camera parameter"),
+                               (img_path, np.concatenate([q.ravel(), t.ravel(), oxy.ravel()]), "image pose or 2-D point"),
+                               (pts_path, np.concatenate([points[1].ravel(), points[2].ravel()]), "3-D point")):
+        values = np.asarray(values, float)
+        if not np.all(np.isfinite(values)):
+            raise BlockError(path, f"NaN or infinite {what} (value {int(np.flatnonzero(~np.isfinite(values))[0])} "
+                                   f"of its kind in the file)")
     for cid in set(cams.tolist()) - set(cameras):
         raise BlockError(img_path, f"image refers to camera {cid}, which {os.path.basename(cam_path)} lacks")
     missing = np.setdiff1d(np.unique(op), points[0])

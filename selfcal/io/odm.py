@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import BlockError
+from .text import read_text
 
 __all__ = ["GroundControl", "read_gcp_list"]
 
@@ -62,8 +63,7 @@ def read_gcp_list(path: str | os.PathLike) -> GroundControl:
     path = str(path)
     if not os.path.isfile(path):
         raise BlockError(path, "file not found")
-    with open(path, encoding="utf-8") as handle:
-        lines = handle.read().splitlines()
+    lines = read_text(path, "gcp list").splitlines()
     header = next(((n, line) for n, line in enumerate(lines, start=1) if line.strip()), None)
     if header is None:
         raise BlockError(path, "empty file: the first line must name the CRS", 1)

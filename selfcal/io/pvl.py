@@ -27,6 +27,7 @@ import re
 from dataclasses import dataclass, field
 
 from ..errors import BlockError
+from .text import decode_text
 
 __all__ = ["PvlKeyword", "PvlBlock", "parse_pvl", "read_pvl"]
 
@@ -255,9 +256,5 @@ def read_pvl(path: str | os.PathLike) -> PvlBlock:
         raise BlockError(path, f"cannot read: {exc.strerror}") from None
     end = re.search(rb"^\s*End\s*$", raw, re.MULTILINE | re.IGNORECASE)
     head = raw[:end.end()] if end else raw
-    try:
-        text = head.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        line = head[:exc.start].count(b"\n") + 1
-        raise BlockError(path, "not a PVL text file (binary data before 'End')", line) from None
+    text = decode_text(head, path)
     return parse_pvl(text, path)

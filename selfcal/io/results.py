@@ -11,6 +11,7 @@ at all (:func:`selfcal.io.atomic.atomic_folder`).
 from __future__ import annotations
 
 import csv
+import io
 import json
 import math
 import os
@@ -21,6 +22,7 @@ import numpy as np
 from ..errors import BlockError
 from .atomic import atomic_folder, atomic_write
 from .table import write_table
+from .text import read_text
 
 __all__ = ["write_results", "write_files", "to_jsonable", "ResultsFolder", "read_results", "read_camera_json",
            "results_from_files",
@@ -123,8 +125,10 @@ def _is_number(text: str) -> bool:
 
 
 def _read_csv(path: str) -> dict[str, np.ndarray]:
-    with open(path, newline="", encoding="utf-8") as handle:
-        lines = list(csv.reader(handle))
+    try:
+        lines = list(csv.reader(io.StringIO(read_text(path), newline="")))
+    except csv.Error as exc:
+        raise BlockError(path, f"not a CSV table: {exc}") from None
     if not lines:
         raise BlockError(path, "the file is empty; expected a header line")
     header, rows = lines[0], lines[1:]
@@ -136,8 +140,7 @@ def _read_csv(path: str) -> dict[str, np.ndarray]:
 
 def _read_json(path: str) -> dict:
     try:
-        with open(path, encoding="utf-8") as handle:
-            return json.load(handle)
+        return json.loads(read_text(path))
     except json.JSONDecodeError as exc:
         raise BlockError(path, f"not valid JSON: {exc.msg}", exc.lineno) from None
 

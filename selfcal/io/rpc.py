@@ -30,6 +30,7 @@ import os
 import numpy as np
 
 from ..errors import BlockError
+from .text import read_text
 from ..sensors.rpc import RpcModel
 from .xmlfile import xml_root
 
@@ -157,11 +158,7 @@ def _dimap_pixel_origin(path: str, root) -> float:
 def read_ossim_geom_rpc(path: str | os.PathLike) -> RpcModel:
     """The RPC of an OSSIM keyword list (``key:  value`` lines, as ossim writes ``*.geom``)."""
     path = str(path)
-    try:
-        with open(path, encoding="utf-8") as handle:
-            lines = handle.read().splitlines()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise BlockError(path, f"cannot read the keyword list: {exc}") from None
+    lines = read_text(path, "keyword list").splitlines()
     entries: dict[str, tuple[str, int]] = {}
     for number, line in enumerate(lines, start=1):
         if not line.strip() or line.lstrip().startswith("//"):

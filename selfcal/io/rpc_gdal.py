@@ -30,6 +30,7 @@ import re
 import numpy as np
 
 from ..errors import BlockError
+from .text import read_text
 from ..sensors.rpc import RpcModel
 
 __all__ = ["GDAL_PIXEL_ORIGIN", "read_rpb", "read_dg_xml_rpc", "read_rpc_txt", "read_geotiff_rpc", "write_rpb",
@@ -65,12 +66,7 @@ def _model(path: str, fields: dict, spec: str | None = None) -> RpcModel:
 
 
 def _read_text(path: str, what: str) -> str:
-    try:
-        with open(path, encoding="utf-8-sig") as handle:
-            return handle.read()
-    except (OSError, UnicodeDecodeError) as exc:
-        reason = exc.strerror if isinstance(exc, OSError) else str(exc)
-        raise BlockError(path, f"cannot read the {what}: {reason}") from None
+    return read_text(path, what)
 
 
 def _float(path: str, text: str, key: str, line: int | None) -> float:

@@ -3,10 +3,10 @@ camera model: one line per format family; the reader returns what the model's se
 image support data file)."""
 from __future__ import annotations
 
-import json
 import os
 
 from ..errors import BlockError
+from .text import read_json
 from .rpc import read_rpc
 
 __all__ = ["SENSOR_FILE_READERS", "read_usgscsm", "read_vendor_line"]
@@ -17,11 +17,10 @@ def read_usgscsm(path: str):
     takes the cube's AlphaCube from the ISIS label beside it (same name, ``.pvl``), as ISIS pairs them."""
     from .usgscsm import LINE_SCANNER_MODEL, read_usgscsm_isd
     from .usgscsm_frame import FRAME_MODEL, read_frame_isd
-    try:
-        with open(path, encoding="utf-8") as handle:
-            model = json.load(handle).get("name_model")
-    except (OSError, json.JSONDecodeError, AttributeError) as exc:
-        raise BlockError(path, f"not a usgscsm ISD: {exc}") from None
+    isd = read_json(path, "ISD")
+    if not isinstance(isd, dict):
+        raise BlockError(path, "not a usgscsm ISD (a JSON object is expected)")
+    model = isd.get("name_model")
     if model == LINE_SCANNER_MODEL:
         return read_usgscsm_isd(path)
     if model == FRAME_MODEL:

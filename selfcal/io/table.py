@@ -9,6 +9,7 @@ or infinite numbers written out, wrong field counts and duplicate headers.
 from __future__ import annotations
 
 import csv
+import io
 import math
 import os
 from dataclasses import dataclass
@@ -16,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import BlockError
+from .text import read_text
 
 __all__ = ["Column", "Table", "read_table", "write_table"]
 
@@ -75,8 +77,13 @@ def read_table(path: str | os.PathLike, columns: list[Column]) -> Table:
     if not os.path.isfile(path):
         raise BlockError(path, "file not found")
     spec = {c.name: c for c in columns}
-    with open(path, newline="", encoding="utf-8") as handle:
-        rows = list(enumerate(csv.reader(handle), start=1))
+    reader = csv.reader(io.StringIO(read_text(path), newline=""))
+    rows = []
+    try:
+        for fields in reader:
+            rows.append((reader.line_num, fields))
+    except csv.Error as exc:
+        raise BlockError(path, f"not a CSV line: {exc}", reader.line_num + 1) from None
     rows = [(n, r) for n, r in rows if r and any(f.strip() for f in r) and not r[0].lstrip().startswith("#")]
     if not rows:
         raise BlockError(path, "empty file: a header line is required", 1)

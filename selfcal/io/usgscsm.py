@@ -11,13 +11,13 @@ Image coordinates are usgscsm's (line, sample) with the centre of the first pixe
 """
 from __future__ import annotations
 
-import json
 import os
 from dataclasses import dataclass
 
 import numpy as np
 
 from ..errors import BlockError
+from .text import read_json
 
 __all__ = ["LineScanIsd", "read_usgscsm_isd", "LINE_SCANNER_MODEL"]
 
@@ -106,11 +106,9 @@ def _rotation(isd: dict, section: str, path: str) -> tuple[np.ndarray, np.ndarra
 def read_usgscsm_isd(path: str | os.PathLike) -> LineScanIsd:
     """Read a usgscsm line-scan ISD (see the module docstring); errors name the file and the key."""
     path = str(path)
-    try:
-        with open(path, encoding="utf-8") as handle:
-            isd = json.load(handle)
-    except json.JSONDecodeError as exc:
-        raise BlockError(path, f"not JSON: {exc.msg}", exc.lineno) from None
+    isd = read_json(path, "ISD")
+    if not isinstance(isd, dict):
+        raise BlockError(path, "not an ISD (a JSON object is expected)")
     model = _need(isd, "name_model", path)
     if model != LINE_SCANNER_MODEL:
         raise BlockError(path, f"name_model is '{model}'; only {LINE_SCANNER_MODEL} is read", column="name_model")

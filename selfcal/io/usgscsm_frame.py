@@ -16,13 +16,13 @@ taken as the full detector). The geometry is :mod:`selfcal.sensors.usgscsm_frame
 """
 from __future__ import annotations
 
-import json
 import os
 from dataclasses import dataclass
 
 import numpy as np
 
 from ..errors import BlockError
+from .text import read_json
 from .isis import AlphaCube
 
 __all__ = ["FrameIsd", "read_frame_isd", "FRAME_MODEL", "APOLLO_METRIC_CODES"]
@@ -119,13 +119,7 @@ def read_frame_isd(path: str | os.PathLike, alpha_cube: AlphaCube | None = None)
     (from the image's ISIS label) places the ISD's cube in the full detector; it must be as large as the
     ISD's image."""
     path = str(path)
-    try:
-        with open(path, encoding="utf-8") as handle:
-            isd = json.load(handle)
-    except OSError as exc:
-        raise BlockError(path, f"cannot read: {exc.strerror}") from None
-    except json.JSONDecodeError as exc:
-        raise BlockError(path, f"not JSON: {exc.msg}", exc.lineno) from None
+    isd = read_json(path, "ISD")
     if not isinstance(isd, dict):
         raise BlockError(path, "not an ISD (a JSON object is expected)")
     model = _need(isd, "name_model", path)

@@ -42,6 +42,8 @@ class XmlDocument:
                 parser.ParseFile(handle)
         except expat.ExpatError as exc:
             raise BlockError(self.path, f"not XML: {expat.errors.messages[exc.code]}", line=exc.lineno) from None
+        except (LookupError, ValueError) as exc:        # an unknown encoding declared, a broken character reference
+            raise BlockError(self.path, f"not XML: {exc}", line=parser.CurrentLineNumber) from None
         except OSError as exc:
             raise BlockError(self.path, f"cannot read the {what}: {exc.strerror}") from None
         self.root = builder.close()

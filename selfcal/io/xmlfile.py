@@ -13,6 +13,8 @@ def xml_root(path: str, what: str) -> ElementTree.Element:
     try:
         return ElementTree.parse(path).getroot()
     except ElementTree.ParseError as exc:
+        raise BlockError(path, f"not XML: {exc}", exc.position[0] if exc.position else None) from None
+    except (LookupError, ValueError) as exc:        # an unknown encoding declared, a broken character reference
         raise BlockError(path, f"not XML: {exc}") from None
     except OSError as exc:
         raise BlockError(path, f"cannot read the {what}: {exc.strerror}") from None

@@ -45,7 +45,7 @@ import numpy as np
 
 from ._tables import LEVEL, battle_lemarie_tables, daubechies_tables, meyer_tables
 
-__all__ = ["OrthogonalWavelet", "get_wavelet", "FAMILIES", "TRUNCATION"]
+__all__ = ["OrthogonalWavelet", "get_wavelet", "check_wavelet_name", "FAMILIES", "TRUNCATION"]
 
 #: per family, |phi| below this share of its maximum is negligible (effective support, truncation)
 TRUNCATION = {"daubechies": 0.01, "symlet": 0.02, "meyer": 0.10, "battle-lemarie": 0.10}
@@ -92,6 +92,19 @@ def _parse(name: str) -> tuple[str, int | None]:
     if match.group(3):
         return "meyer", None
     return match.group(1), int(match.group(2))
+
+
+def check_wavelet_name(name: str) -> str:
+    """``name`` if :func:`get_wavelet` can build it (without building its tables); else ValueError."""
+    kind, order = _parse(name)
+    if kind in ("db", "sym"):
+        import pywt
+
+        if f"{kind}{order}" not in pywt.wavelist(kind):
+            raise ValueError(f"PyWavelets has no '{kind}{order}' (available: {', '.join(pywt.wavelist(kind))})")
+    elif kind == "bl" and not 1 <= order <= 12:
+        raise ValueError(f"Battle-Lemarié order must be 1..12, found {order}")
+    return name
 
 
 @functools.lru_cache(maxsize=None)

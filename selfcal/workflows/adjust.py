@@ -15,9 +15,10 @@ from typing import Callable
 import numpy as np
 
 from ..adjust import AdjustOptions
+from ..adjust.datum import control_far_away, control_on_a_line, undetermined_points
 from ..ap import takes_grid
 from ..block import Block
-from ..errors import UsageError
+from ..errors import AdjustmentError, UsageError
 from ..sensors import sensor_of
 from ..stats.screening import ScreeningOptions
 from ..stats.snooping import SnoopingOptions
@@ -79,9 +80,40 @@ def adjust_block(block: Block, request: AdjustRequest, progress: Callable | None
                                                   takes_grid(choice.model) else "") +
             f" (smallest BIC; {choice.n_blunders} observations left out as blunders for every candidate; scores in "
             "model_choice.csv)")
+    _check_control(block)
     tested = adjust_with_tests(block, options, request.snooping, request.screening, progress=progress,
                                report=report, variance=request.variance)
-    return Adjusted(tested, block, check_points.intersected(tested.result), {}, choice=choice)
+    return Adjusted(tested, block, check_points.intersected(tested.result), _check_points_determined(block, tested),
+                    choice=choice)
+
+
+def _check_control(block: Block) -> None:
+    """AdjustmentError (exit 1, before any work) when the control that is to fix the datum lies on one line."""
+    sensors = [sensor_of(c) for c in block.cameras.values()]
+    if block.datum != "control" or block.has_trajectory or all(s.object_frame == "ECEF" for s in sensors):
+        return
+    gcp = np.flatnonzero(block.points.role == "gcp")
+    span = np.vstack([block.points.xyz_m, block.images.position_m])
+    reason = control_far_away(block.points.point_id[gcp], block.points.xyz_m[gcp], span, block.points.line[gcp]) or \
+        control_on_a_line(block.points.point_id[gcp], block.points.xyz_m[gcp], block.points.sigma_m[gcp], span)
+    if reason:
+        raise AdjustmentError(reason)
+
+
+def _check_points_determined(block: Block, tested: TestedAdjustment) -> dict:
+    """Object points whose sigma is orders of magnitude above the block's median: a failure of a block whose
+    datum is fixed (summary.json failure, exit 1), a warning counted in summary.json for a free network."""
+    result = tested.result
+    sigma = np.sqrt(np.trace(result.point_covariance(), axis1=1, axis2=2))
+    found = undetermined_points(result.block.points.point_id, sigma)
+    if found is None:
+        return {}
+    bad, reason = found
+    result.notes.append(reason)
+    extra = {"n_points_undetermined": int(bad.size)}
+    if block.datum != "free" and not tested.failure:
+        extra["failure"] = reason
+    return extra
 
 
 def _seed001(block: Block, request: AdjustRequest, progress, report, say, scores) -> Adjusted:

@@ -1,0 +1,98 @@
+"""Geometry that cannot be determined: found and named, so that it is a failure rather than a result.
+
+* :func:`control_on_a_line` — the ground control that is to fix a block's datum lies on one line (or at
+  one point): a rotation about that line is then fixed by nothing but noise. Found before the adjustment,
+  from the coordinates alone.
+* :func:`undetermined_points` — after the adjustment, object points whose a-posteriori sigma is orders of
+  magnitude above the block's median (rays nearly parallel, a point far outside the block).
+
+The weakly determined *parameters* are :func:`selfcal.adjust.weakly_determined`'s, and exactly singular
+directions :func:`selfcal.adjust.linalg.null_directions`'; these two add what the normal equations hide when
+priors or noise keep them positive definite.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["control_on_a_line", "control_far_away", "undetermined_points", "LINE_FRACTION", "POINT_SIGMA_RATIO",
+           "FAR_FACTOR"]
+
+#: control whose RMS distance from its best-fitting line is below this share of the block's extent is on a line
+LINE_FRACTION = 0.01
+#: a point whose sigma exceeds the median of the block's points by this factor is not determined
+POINT_SIGMA_RATIO = 1000.0
+#: control farther from the block's centre than this many times the block's median radius is a mistake
+FAR_FACTOR = 100.0
+
+
+def _centre_and_radius(block_xyz_m: np.ndarray) -> tuple[np.ndarray, float]:
+    """Median centre and median distance from it of the finite rows (robust to a few wild coordinates)."""
+    span = np.asarray(block_xyz_m, float)
+    span = span[np.all(np.isfinite(span), axis=1)]
+    if not len(span):
+        return np.zeros(3), 0.0
+    centre = np.median(span, axis=0)
+    return centre, float(np.median(np.linalg.norm(span - centre, axis=1)))
+
+
+def control_far_away(point_ids, control_xyz_m: np.ndarray, block_xyz_m: np.ndarray, lines=None,
+                     factor: float = FAR_FACTOR) -> str | None:
+    """A reason naming the control points farther than ``factor`` times the block's median radius from its
+    median centre (a coordinate typed in other units, an exponent too many); else None."""
+    centre, radius = _centre_and_radius(block_xyz_m)
+    distance = np.linalg.norm(np.asarray(control_xyz_m, float) - centre, axis=1)
+    bad = np.flatnonzero(distance > factor * max(radius, 1e-9))
+    if not bad.size:
+        return None
+    k = bad[np.argmax(distance[bad])]
+    where = f" (points.csv line {lines[k]})" if lines is not None else ""
+    return (f"control point '{point_ids[k]}'{where} lies {distance[k]:.3g} m from the block's centre, "
+            f"{distance[k] / max(radius, 1e-9):.3g} times the block's median radius ({radius:.4g} m)"
+            + (f", and so do {bad.size - 1} more" if bad.size > 1 else "")
+            + ": a coordinate in other units or mistyped?")
+
+
+def control_on_a_line(point_ids, control_xyz_m: np.ndarray, control_sigma_m: np.ndarray,
+                      block_xyz_m: np.ndarray) -> str | None:
+    """A reason, naming the points, if the control points ``control_xyz_m`` (n, 3) cannot fix a datum: fewer than
+    three, or all within max(3 sigma, LINE_FRACTION x the block's extent) of one line; else None.
+
+    ``block_xyz_m`` are coordinates spanning the block (its points with coordinates, its image positions; NaN
+    rows are ignored): its extent is twice their median distance from their median centre.
+    """
+    xyz = np.asarray(control_xyz_m, float)
+    ids = [str(p) for p in point_ids]
+    listed = ", ".join(ids[:8]) + (", ..." if len(ids) > 8 else "")
+    if len(xyz) < 3:
+        return None                      # too few control is the reader's error (min_gcp), not this one
+    centred = xyz - xyz.mean(axis=0)
+    _, s, vt = np.linalg.svd(centred, full_matrices=False)
+    off_line = centred - np.outer(centred @ vt[0], vt[0])
+    distance = float(np.sqrt(np.mean(np.sum(off_line**2, axis=1))))
+    extent = 2.0 * _centre_and_radius(block_xyz_m)[1]
+    sigma = float(np.median(np.asarray(control_sigma_m, float)))
+    limit = max(3.0 * sigma, LINE_FRACTION * extent)
+    if distance > limit:
+        return None
+    return (f"the {len(ids)} control points ({listed}) lie on one line: {distance:.3g} m RMS off it, where the block "
+            f"spans {extent:.4g} m, so a rotation of the block about that line is not determined (it would be "
+            f"fixed by noise alone). Add control off the line, or [gnss] / [imu], or set datum = \"free\"")
+
+
+def undetermined_points(point_ids, sigma_m: np.ndarray, ratio: float = POINT_SIGMA_RATIO, top: int = 5
+                        ) -> tuple[np.ndarray, str] | None:
+    """(indices, reason) of the points whose sigma ``sigma_m`` (n,) (e.g. sqrt of the covariance trace) is more
+    than ``ratio`` times the median; None if there are none."""
+    sigma = np.asarray(sigma_m, float)
+    finite = np.isfinite(sigma)
+    if finite.sum() < 3:
+        return None
+    median = float(np.median(sigma[finite]))
+    bad = np.flatnonzero(~finite | (sigma > ratio * median))
+    if not bad.size:
+        return None
+    worst = bad[np.argsort(-np.nan_to_num(sigma[bad], nan=np.inf))][:top]
+    listed = ", ".join(f"'{point_ids[k]}' ({sigma[k]:.3g} m)" for k in worst)
+    return bad, (f"object points not determined: {bad.size} point(s) have a sigma above {ratio:g}x the block's median "
+                 f"({median:.3g} m): {listed}{', ...' if bad.size > top else ''}. Their rays are nearly parallel or "
+                 f"they lie far outside the block: check their observations or remove them")
