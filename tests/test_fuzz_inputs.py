@@ -72,7 +72,9 @@ def test_ctrl_c_leaves_nothing_behind(tmp_path):
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([os.path.dirname(os.path.dirname(front_door.__file__)),
                                                        os.environ.get("PYTHONPATH", "")]))
     proc = subprocess.Popen([sys.executable, "-m", "selfcal.cli.main", "adjust", str(block), "--out", str(out),
-                             "--ap", "brown", "--no-report"], stderr=subprocess.PIPE, text=True, env=env)
+                             "--ap", "brown", "--no-report"], stderr=subprocess.PIPE, text=True, env=env,
+                            # a pytest-xdist worker ignores SIGINT and a child inherits that: give it Python's default
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     lines = []
     for line in proc.stderr:                 # interrupt once the iterations run
         lines.append(line)
