@@ -105,6 +105,9 @@ def _line_aps(args, images) -> dict | None:
 
 def run_adjust(block, args) -> int:
     t0 = time.perf_counter()
+    if getattr(args, "trajectory_significance", None) is not None:
+        raise UsageError("--trajectory-significance screens GNSS/IMU shift/drift terms of frame blocks; a pushbroom "
+                         "block has none")
     data = pushbroom_block(block, given_attitude=not args.no_attitude)
     image_set, labels = _image_set(data, args.images)
     dem = _terrain(block, args)
