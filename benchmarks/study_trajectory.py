@@ -1,66 +1,187 @@
-"""How much do GNSS/IMU trajectory data improve the check points? A Monte-Carlo study.
+"""Do GNSS/IMU trajectory data ever make the block worse? A paired Monte-Carlo study (issue 25).
 
-Seed 000 reports that adding GNSS/IMU with strip-wise shift and drift (Type 1 -> 2,
-Type 3 -> 4) improves the check-point RMSD. On one simulated block the gain (a few
-per cent) is smaller than the spread of an RMSD over 12 check points, so this study
-adjusts all four Types of many simulated blocks (brown distortion, 1 tie point per
-mm^2, GNSS shifts 0.2 m and drifts 5 mm/s per strip, IMU shifts 0.05 deg) and
-compares the Types of each seed with each other (paired: same images, same noise).
+Seed 000 adds strip-wise GNSS/IMU observations with shift and drift (Eq. 12) to its
+Types 1 and 3 and calls them Types 2 and 4. This study simulates the seed-000 block
+(28 images in 4 strips of 12 s, mixed lens field local+brown, wavelet APs db4 on the
+9x6 grid) with trajectory errors drawn *independently of the adjustment's
+parametrisation* (selfcal.simulate.trajectory.TrajectoryErrors):
 
-Printed per Type: the RMSD pooled over seeds (3-D, metres, against the simulated
-truth) and the RMS of the a-posteriori sigmas the adjustment predicts for the same
-points; per pair: the mean paired change of the mean squared error, its standard
-error and t.
+* GNSS shifts 0.1-0.45 m and drifts up to 0.02 m/s, IMU shifts up to 0.13 deg and drifts up
+  to 0.005 deg/s, independent per strip and axis; half of the (sensor, strip) pairs drift
+  at all (their drift terms are truly zero);
+* noise GNSS 3/3/5 cm declared 5/5/10 cm, IMU 0.005/0.005/0.01 deg declared 0.01/0.01/0.02 deg;
+* the seeds cycle through 8 variants: drift counted from the strip's first exposure or
+  from its middle, IMU error added to omega-phi-kappa or applied as a small rotation of
+  the body frame, GNSS antenna at the perspective centre or at a lever arm (declared in
+  block.toml).
 
-Run: ``python benchmarks/study_trajectory.py [--seeds 96]`` (about 1 s per seed).
+Every seed is adjusted as Types 1-4, with data snooping, without and with screening
+(``--screen``). Printed: the tie-point RMS against the simulated truth in XY and Z
+(mean over seeds), the paired change 1 -> 2 and 3 -> 4 (mean, worst seed, paired t), and
+for the screened runs every dropped trajectory term against its truth in the
+adjustment's own parametrisation (selfcal.simulate.trajectory.noise_free_terms): how
+many dropped terms were really larger than 3 sigma of their estimate, and what share
+of the truly zero terms was dropped.
+
+Run: ``python benchmarks/study_trajectory.py [--seeds 32] [--processes 2] [--points 3.5]``
+(about 1 min per seed and process with 3.5 points/mm^2).
 """
 from __future__ import annotations
 
 import argparse
+import itertools
 import time
+from multiprocessing import Pool
 
 import numpy as np
 
 TYPES = ("type1", "type2", "type3", "type4")
+PAIRS = (("type1", "type2"), ("type3", "type4"))
+VARIANTS = list(itertools.product(("first", "middle"), ("opk", "rotation"), (False, True)))
+LEVER_ARM_M = (0.12, -0.08, 0.35)
 
 
-def one_seed(seed: int) -> tuple[np.ndarray, np.ndarray]:
-    """Mean squared 3-D check-point error and mean predicted variance (m^2) of each Type."""
-    from selfcal.adjust import AdjustOptions, adjust
-    from selfcal.block import prune
+def simulate(seed: int, points_per_mm2: float = 3.5, variant: int | None = None):
+    """The simulation of a seed: the variant (drift origin, IMU composition, lever arm) cycles with it."""
     from selfcal.simulate import simulate_uav
+    from selfcal.simulate.trajectory import TrajectoryErrors
+    origin, composition, lever = VARIANTS[(seed if variant is None else variant) % len(VARIANTS)]
+    errors = TrajectoryErrors(drift_origin=origin, imu_composition=composition)
+    return simulate_uav(seed=seed, distortion="local+brown", points_per_mm2=points_per_mm2,
+                        gnss_sigma_m=(0.05, 0.05, 0.10), imu_sigma_deg=(0.01, 0.01, 0.02),
+                        trajectory_errors=errors, exposure_interval_s=2.0,
+                        lever_arm_m=LEVER_ARM_M if lever else (0.0, 0.0, 0.0), declare_mounting=lever)
 
-    sim = simulate_uav(seed=seed, distortion="brown", points_per_mm2=1.0)
+
+def tie_point_rms(sim, result) -> tuple[float, float]:
+    """RMS of the tie-point errors against the truth, XY and Z (m)."""
     lookup = {p: i for i, p in enumerate(sim.truth.point_id)}
-    error, predicted = [], []
-    for scenario in TYPES:
-        result = adjust(prune(sim.blocks[scenario]), AdjustOptions(ap="brown", gnss_drift=1, imu_drift=0))
-        chk = np.flatnonzero(result.block.points.role == "chk")
-        d = result.state.points[chk] - sim.truth.xyz[[lookup[p] for p in result.block.points.point_id[chk]]]
-        error.append(np.mean(np.sum(d * d, axis=1)))
-        predicted.append(result.variance_factor * np.mean(np.einsum("nii->n", result.Q_points[chk])))
-    return np.array(error), np.array(predicted)
+    points = result.block.points
+    tie = np.flatnonzero(points.role == "tie")
+    d = result.state.points[tie] - sim.truth.xyz[[lookup[p] for p in points.point_id[tie]]]
+    return float(np.sqrt(np.mean(d[:, 0] ** 2 + d[:, 1] ** 2))), float(np.sqrt(np.mean(d[:, 2] ** 2)))
+
+
+def true_terms(sim, result) -> dict[str, tuple[float, bool]]:
+    """name -> (true value in the adjustment's parametrisation, truly zero) of every shift/drift term.
+
+    The true value is the per-strip least-squares fit, by the model's powers of its dt, of what the
+    observations carry besides noise against the model's P0 at the true orientation, turned by the
+    camera-fixed rotation that the attitudes take from the lens field
+    (selfcal.simulate.trajectory.true_terms, camera_rotation_of_field)."""
+    from selfcal.simulate.trajectory import camera_rotation_of_field, true_terms as model_terms
+    truth = sim.truth
+    camera = result.problem.cameras[0]
+    rotation = camera_rotation_of_field(truth.distortion, truth.camera,
+                                        camera.ap.basis if camera.ap.n_params else None)
+    lookup = {i: k for k, i in enumerate(truth.image_id)}
+    strip_index = {s: k for k, s in enumerate(truth.strip_id)}
+    out = {}
+    for t in result.problem.trajectory:
+        if t.order < 0:
+            continue
+        rows = np.array([lookup[i] for i in result.block.images.image_id[t.index]])
+        terms = model_terms(truth, t, rows, t.mounting, rotation)
+        drift = truth.trajectory.gnss_drift_m_s if t.offset == 0 else truth.trajectory.imu_drift_rad_s
+        for i, name in enumerate(t.names[:t.n_strip_params]):
+            s, rest = divmod(i, 3 * (t.order + 1))
+            k, a = divmod(rest, 3)
+            out[name] = (float(terms[s, k, a]), bool(k >= 1 and np.all(drift[strip_index[t.strips[s]]] == 0)))
+    return out
+
+
+def one_seed(args) -> dict:
+    """Tie-point RMS of every Type without and with screening, and the screening's trajectory decisions
+    against the truth: (scenario, name, true value, sigma in the unscreened adjustment, value and sigma at
+    the drop, t at the drop)."""
+    seed, points_per_mm2 = args
+    from selfcal.adjust import AdjustOptions
+    from selfcal.block import prune
+    from selfcal.stats.screening import ScreeningOptions
+    from selfcal.workflows.tested import adjust_with_tests
+    sim = simulate(seed, points_per_mm2)
+    options = AdjustOptions(ap="wavelet:db4", grid=(9, 6), gnss_drift=1, imu_drift=1)
+    out = {"seed": seed, "variant": VARIANTS[seed % len(VARIANTS)], "rms": {}, "dropped": [], "zero": [0, 0]}
+    unscreened = {}
+    for screen in (False, True):
+        for scenario in TYPES:
+            tested = adjust_with_tests(prune(sim.blocks[scenario]), options,
+                                       screening=ScreeningOptions() if screen else None)
+            out["rms"][(scenario, screen)] = tie_point_rms(sim, tested.result)
+            if scenario not in ("type2", "type4"):
+                continue
+            if not screen:
+                r = tested.result
+                unscreened[scenario] = (true_terms(sim, r), dict(zip(r.theta_names, np.sqrt(
+                    r.variance_factor * np.diag(r.Q_theta)))))
+                continue
+            truth, sigma = unscreened[scenario]
+            dropped = {d.name: d for _, d in tested.screening_log if d.camera_id in ("GNSS", "IMU")}
+            for name, d in dropped.items():
+                out["dropped"].append((scenario, name, truth[name][0], sigma[name], getattr(d, "value", np.nan),
+                                       getattr(d, "sigma", np.nan), d.t))
+            zero = [name for name, (_, is_zero) in truth.items() if is_zero]
+            out["zero"][0] += len(zero)
+            out["zero"][1] += sum(name in dropped for name in zero)
+    return out
+
+
+def paired(before: np.ndarray, after: np.ndarray) -> tuple[float, float, float]:
+    """Mean relative change (%), worst seed (%), paired t of after - before."""
+    change = after - before
+    t = change.mean() / (change.std(ddof=1) / np.sqrt(len(change)))
+    relative = 100 * (after / before - 1)
+    return float(100 * (after.mean() / before.mean() - 1)), float(relative.max()), float(t)
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--seeds", type=int, default=96, help="number of simulated blocks (default 96)")
+    parser.add_argument("--seeds", type=int, default=32, help="number of simulated blocks (default 32)")
+    parser.add_argument("--first-seed", type=int, default=1)
+    parser.add_argument("--processes", type=int, default=1)
+    parser.add_argument("--points", type=float, default=3.5, help="image points per mm^2 (default 3.5)")
     args = parser.parse_args()
     start = time.perf_counter()
-    runs = [one_seed(seed) for seed in range(1, args.seeds + 1)]
-    error = np.array([r[0] for r in runs])
-    predicted = np.array([r[1] for r in runs])
-    print(f"{args.seeds} simulated blocks, 12 check points each, {time.perf_counter() - start:.0f} s")
-    print(f"{'type':<6} {'RMSD 3-D [mm]':>14} {'predicted [mm]':>15}")
-    for k, name in enumerate(TYPES):
-        print(f"{name:<6} {1000 * np.sqrt(error[:, k].mean()):>14.2f} {1000 * np.sqrt(predicted[:, k].mean()):>15.2f}")
-    print(f"{'pair':<14} {'RMSD change':>12} {'paired MSE change [mm^2]':>26} {'t':>6}")
-    for a, b in ((0, 1), (2, 3)):
-        change = error[:, b] - error[:, a]
-        se = change.std(ddof=1) / np.sqrt(len(change))
-        ratio = np.sqrt(error[:, b].mean() / error[:, a].mean()) - 1
-        print(f"{TYPES[a]} -> {TYPES[b]:<5} {100 * ratio:>11.1f}% {1e6 * change.mean():>16.1f} +- {1e6 * se:<6.1f}"
-              f" {change.mean() / se:>6.1f}")
+    seeds = [(s, args.points) for s in range(args.first_seed, args.first_seed + args.seeds)]
+    if args.processes > 1:
+        with Pool(args.processes) as pool:
+            runs = pool.map(one_seed, seeds, chunksize=1)
+    else:
+        runs = [one_seed(s) for s in seeds]
+    print(f"{args.seeds} simulated blocks (seeds {args.first_seed}-{args.first_seed + args.seeds - 1}), "
+          f"{args.points:g} points/mm^2, wavelet:db4 9x6, snooping on; {time.perf_counter() - start:.0f} s")
+    print("tie-point RMS against the truth, mean over seeds [mm]")
+    print(f"{'':10}" + "".join(f"{s + (' screened' if sc else ''):>17}" for sc in (False, True) for s in TYPES))
+    rms = {key: np.array([r["rms"][key] for r in runs]) for key in runs[0]["rms"]}
+    for j, axis in enumerate(("XY", "Z")):
+        print(f"{axis:10}" + "".join(f"{1000 * rms[(s, sc)][:, j].mean():>17.2f}" for sc in (False, True) for s in TYPES))
+    print(f"{'pair':<22}{'axis':>5}{'mean change':>13}{'worst seed':>12}{'paired t':>10}")
+    for screen in (False, True):
+        for a, b in PAIRS:
+            for j, axis in enumerate(("XY", "Z")):
+                mean, worst, t = paired(rms[(a, screen)][:, j], rms[(b, screen)][:, j])
+                label = f"{a} -> {b}" + (" screened" if screen else "")
+                print(f"{label:<22}{axis:>5}{mean:>12.2f}%{worst:>11.2f}%{t:>10.2f}")
+    dropped = [d for r in runs for d in r["dropped"]]
+    large = [(r["seed"],) + d for r in runs for d in r["dropped"] if abs(d[2]) > 3 * d[3]]
+    large_at_drop = [(r["seed"],) + d for r in runs for d in r["dropped"] if abs(d[2]) > 3 * d[5]]
+    zero = np.sum([r["zero"] for r in runs], axis=0)
+    print(f"screening: {len(dropped)} trajectory terms dropped; with |true| > 3 sigma of the unscreened estimate: "
+          f"{len(large)}, > 3 sigma at the drop: {len(large_at_drop)}; truly zero terms dropped: {zero[1]} of "
+          f"{zero[0]} ({100 * zero[1] / max(zero[0], 1):.0f} %)")
+    for seed, scenario, name, true, sigma, value, sigma_drop, t in sorted(set(large) | set(large_at_drop)):
+        print(f"  seed {seed} {scenario} {name}: true {true:.4g}, sigma {sigma:.3g} (at the drop {sigma_drop:.3g}, "
+              f"estimate {value:.4g}, t {t:.2f})")
+    ratio = np.array([abs(d[2]) / d[3] for d in dropped])
+    if ratio.size:
+        print(f"  |true| / sigma of the dropped terms: median {np.median(ratio):.2f}, 95th percentile "
+              f"{np.percentile(ratio, 95):.2f}, largest {ratio.max():.2f}")
+    print("per variant (drift origin, IMU error, lever arm): worst XY change 1 -> 2, 3 -> 4 screened")
+    for v in VARIANTS:
+        mine = [r for r in runs if tuple(r["variant"]) == v]
+        if mine:
+            worst = [max(100 * (r["rms"][(b, True)][0] / r["rms"][(a, True)][0] - 1) for r in mine) for a, b in PAIRS]
+            print(f"  {str(v):<32} seeds {len(mine):>3}  {worst[0]:+6.2f}%  {worst[1]:+6.2f}%")
 
 
 if __name__ == "__main__":

@@ -81,6 +81,9 @@ def _check_options(block, args) -> None:
     if seed001 and (args.gnss_drift != 1 or args.imu_drift != 1) and not block.has_trajectory:
         raise UsageError(f"--gnss-drift / --imu-drift do not apply to this block ({sensors} cameras without "
                          "[gnss] or [imu])")
+    if getattr(args, "trajectory_significance", None) is not None and not block.has_trajectory:
+        raise UsageError(f"--trajectory-significance screens GNSS/IMU shift/drift terms; this block has no [gnss] "
+                         f"or [imu] ({sensors} cameras)")
     if args.ap_sigma_px is not None and args.ap_sigma_px <= 0:
         raise UsageError("--ap-sigma-px must be positive")
 

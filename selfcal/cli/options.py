@@ -130,7 +130,11 @@ def test_options(parser: argparse.ArgumentParser) -> None:
                         help="screening: drop the less significant AP of a pair with |rho| > R (default 0.9)")
     parser.add_argument("--joint-alpha", type=number(0.0, 1.0, high_open=True), default=0.05, metavar="A",
                         help="screening: the APs dropped in a round must pass their joint F-test at level A "
-                             "(default 0.05; 0 switches the guard off)")
+                             "(default 0.05; 0 switches the guard off); with GNSS/IMU per group (APs, GNSS, "
+                             "IMU, each sensor's strip)")
+    parser.add_argument("--trajectory-significance", type=number(0.0), default=None, metavar="T",
+                        help="screening: drop a GNSS/IMU shift/drift term only with t < T before the screening "
+                             "and at the drop (default 1.355 = 3 - z(0.95): shown smaller than 3 sigma)")
     parser.add_argument("--variance-components", action="store_true",
                         help="estimate a variance factor per observation group (image, GCP, GNSS, IMU) and "
                              "report the a-posteriori sigmas next to the a-priori ones")
@@ -139,8 +143,9 @@ def test_options(parser: argparse.ArgumentParser) -> None:
 def screening_options(args: argparse.Namespace):
     """ScreeningOptions from the command line (the thresholds apply wherever screening is on)."""
     from ..stats import ScreeningOptions
+    extra = {} if args.trajectory_significance is None else {"trajectory_significance": args.trajectory_significance}
     return ScreeningOptions(args.significance, args.max_correlation,
-                            joint_alpha=args.joint_alpha if args.joint_alpha > 0 else None)
+                            joint_alpha=args.joint_alpha if args.joint_alpha > 0 else None, **extra)
 
 
 def round_printer():

@@ -360,7 +360,10 @@ def screening_json(tested, options=None) -> dict:
         "dropped": [{"round": k, "camera_id": d.camera_id, "name": d.name, "t": d.t, "reason": d.reason}
                     for k, d in tested.screening_log],
         "joint_tests": [{"round": k, "n_dropped": j.n_dropped, "f_statistic": j.f_statistic,
-                         "f_critical": j.f_critical, "jointly_significant": j.jointly_significant}
+                         "f_critical": j.f_critical, "jointly_significant": j.jointly_significant,
+                         **({"groups": [{"group": g.group, "n_dropped": g.n_dropped, "f_statistic": g.f_statistic,
+                                         "f_critical": g.f_critical, "jointly_significant": g.jointly_significant}
+                                        for g in j.groups]} if j.groups else {})}
                         for k, j in tested.screening_rounds],
     }
 

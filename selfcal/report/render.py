@@ -288,7 +288,7 @@ def _trajectory_section(page: Page, results) -> None:
              "estimated" if traj["active"][i] == 1 else "dropped by screening"]
             for i in range(len(traj["sensor"]))]
     page.paragraph("GNSS positions and IMU attitudes observed as P0 + D0 + D1·Δt + D2·Δt² per strip (Eq. 12 of "
-                   "seed 000), Δt from the strip's first exposure; a lever arm (camera frame) or boresight angles "
+                   "seed 000), Δt from the strip's middle; a lever arm (camera frame) or boresight angles "
                    "when estimated. Also in trajectory.csv.", "note")
     page.table(["sensor", "strip", "term", "axis", "value", "σ", "unit", ""], rows, text_columns={0, 1, 2, 3, 6, 7},
                ident="trajectory")

@@ -33,6 +33,7 @@ import numpy as np
 from ..block import Block, Dropped, FrameCamera, Images, Observations, Points
 from ..geometry.rotation import matrix_from_opk, opk_from_matrix
 from ..sensors.frame import pixel_from_photo, project
+from .trajectory import TrajectoryErrors, TrajectoryTruth, draw_trajectory_errors
 
 __all__ = ["TrueDistortion", "UAVTruth", "UAVSimulation", "simulate_uav", "truth_files", "SCENARIOS", "DISTORTIONS"]
 
@@ -97,6 +98,8 @@ class UAVTruth:
     boresight_rad: np.ndarray           # (3,) IMU boresight angles
     image_sigma_px: float
     gsd_m: float
+    #: the trajectory errors as applied (per image without noise; drift origin; IMU drift)
+    trajectory: TrajectoryTruth | None = None
 
 
 @dataclass
@@ -132,7 +135,9 @@ def simulate_uav(seed: int = 0, distortion: str = "local+brown", image_sigma_px:
                  gnss_sigma_m=(0.05, 0.05, 0.10), imu_sigma_deg=(0.02, 0.02, 0.05),
                  gnss_shift_m: float = 0.2, gnss_drift_mm_s: float = 5.0, imu_shift_deg: float = 0.05,
                  distortion_scale: float = 1.0, lever_arm_m=(0.0, 0.0, 0.0),
-                 boresight_deg=(0.0, 0.0, 0.0), n_strips: int = 4, images_per_strip: int = 7) -> UAVSimulation:
+                 boresight_deg=(0.0, 0.0, 0.0), n_strips: int = 4, images_per_strip: int = 7,
+                 trajectory_errors: TrajectoryErrors | None = None, exposure_interval_s: float | None = None,
+                 declare_mounting: bool = False) -> UAVSimulation:
     """Simulate the seed-000 block; returns the four scenario blocks and the truth.
 
     Parameters
@@ -157,7 +162,18 @@ def simulate_uav(seed: int = 0, distortion: str = "local+brown", image_sigma_px:
     lever_arm_m, boresight_deg : 3 floats
         Mounting of the GNSS antenna (camera frame) and of the IMU: the GNSS observes
         X0 + M^T a, the IMU the angles of B(b)^T M (selfcal.adjust.normal._mounted_sensor).
-        The blocks do not give them (block.toml has no lever_arm_m / boresight_deg).
+        The blocks do not give them (block.toml has no lever_arm_m / boresight_deg) unless
+        ``declare_mounting``.
+    trajectory_errors : TrajectoryErrors, optional
+        Draw the GNSS/IMU errors independently of the adjustment's shift/drift model
+        (:mod:`selfcal.simulate.trajectory`: magnitude ranges, drift origin, rotation composition,
+        strips without drift, true noise of their own); ``gnss_sigma_m`` and ``imu_sigma_deg`` are
+        then only the sigmas the blocks declare. Default: Eq. (12) as the adjustment models it, with
+        ``gnss_shift_m``, ``gnss_drift_mm_s``, ``imu_shift_deg`` and noise as declared. The images,
+        points and measurements of a seed are the same either way (the trajectory is drawn last).
+    exposure_interval_s : float, optional
+        Time between exposures along a strip (default: the 75 % base at 8 m/s, 11.35 s; 2 s gives
+        strips of 12 s).
     """
     rng = np.random.default_rng(seed)
     width_px, height_px, pixel = 6000, 4000, 0.0059
@@ -172,6 +188,7 @@ def simulate_uav(seed: int = 0, distortion: str = "local+brown", image_sigma_px:
     if n_strips < 2 or per_strip < 3:
         raise ValueError(f"a block needs at least 2 strips of 3 images, asked for {n_strips} x {per_strip}")
     speed = 8.0
+    interval = base / speed if exposure_interval_s is None else float(exposure_interval_s)
 
     # --- exterior orientation (true)
     image_id, strip_of, times, eop = [], [], [], []
@@ -186,7 +203,7 @@ def simulate_uav(seed: int = 0, distortion: str = "local+brown", image_sigma_px:
             eop.append([x, y, z, np.radians(rng.normal(0, 1.2)), np.radians(rng.normal(0, 1.2)), kappa])
             image_id.append(f"S{s + 1}_{k + 1:02d}")
             strip_of.append(s)
-            times.append(s * max(150.0, per_strip * base / speed + 60.0) + k * base / speed)
+            times.append(s * max(150.0, per_strip * interval + 60.0) + k * interval)
     eop = np.array(eop)
     eop[:, 5] = (eop[:, 5] + np.pi) % (2 * np.pi) - np.pi
     times = np.array(times)
@@ -277,19 +294,27 @@ def simulate_uav(seed: int = 0, distortion: str = "local+brown", image_sigma_px:
     # --- trajectory observations: per-strip shift + drift (Eq. 12) + noise
     gnss_sigma = np.array(gnss_sigma_m, float)
     imu_sigma = np.radians(np.array(imu_sigma_deg, float))
-    shift = rng.normal(0, gnss_shift_m, (n_strips, 3))
-    drift = rng.normal(0, gnss_drift_mm_s / 1000.0, (n_strips, 3))
-    imu_shift = np.radians(rng.normal(0, imu_shift_deg, (n_strips, 3)))
-    t_strip0 = np.array([times[strip_of == s].min() for s in range(n_strips)])
-    dt = times - t_strip0[strip_of]
     lever_arm = np.array(lever_arm_m, float)
     boresight = np.radians(np.array(boresight_deg, float))
     M = matrix_from_opk(eop[:, 3:])
     antenna = eop[:, :3] + np.einsum("nji,j->ni", M, lever_arm)
     body = opk_from_matrix(np.einsum("ji,njk->nik", matrix_from_opk(boresight), M)) if boresight.any() else eop[:, 3:]
-    gnss = antenna + shift[strip_of] + drift[strip_of] * dt[:, None] + rng.normal(0, 1, (n_img, 3)) * gnss_sigma
-    imu = body + imu_shift[strip_of] + rng.normal(0, 1, (n_img, 3)) * imu_sigma
-    imu = (imu + np.pi) % (2 * np.pi) - np.pi
+    if trajectory_errors is None:
+        shift = rng.normal(0, gnss_shift_m, (n_strips, 3))
+        drift = rng.normal(0, gnss_drift_mm_s / 1000.0, (n_strips, 3))
+        imu_shift = np.radians(rng.normal(0, imu_shift_deg, (n_strips, 3)))
+        t_strip0 = np.array([times[strip_of == s].min() for s in range(n_strips)])
+        dt = times - t_strip0[strip_of]
+        gnss_clean = antenna + shift[strip_of] + drift[strip_of] * dt[:, None]
+        gnss = gnss_clean + rng.normal(0, 1, (n_img, 3)) * gnss_sigma
+        imu_clean = body + imu_shift[strip_of]
+        imu = imu_clean + rng.normal(0, 1, (n_img, 3)) * imu_sigma
+        imu = (imu + np.pi) % (2 * np.pi) - np.pi
+        trajectory = TrajectoryTruth(t_strip0, shift, drift, imu_shift, np.zeros((n_strips, 3)), "opk",
+                                     gnss_clean, (imu_clean + np.pi) % (2 * np.pi) - np.pi)
+    else:
+        gnss, imu, trajectory = draw_trajectory_errors(trajectory_errors, rng, times, strip_of, antenna, body)
+        shift, drift, imu_shift = trajectory.gnss_shift_m, trajectory.gnss_drift_m_s, trajectory.imu_shift_rad
 
     strip_names = np.array([f"S{s + 1}" for s in range(n_strips)], dtype=object)
     images = Images(
@@ -327,6 +352,8 @@ def simulate_uav(seed: int = 0, distortion: str = "local+brown", image_sigma_px:
             image_sigma_px=image_sigma_px,
             gnss_sigma_m=tuple(gnss_sigma) if with_traj else None,
             imu_sigma_deg=tuple(np.degrees(imu_sigma)) if with_traj else None,
+            gnss_lever_arm_m=tuple(lever_arm) if with_traj and declare_mounting else None,
+            imu_boresight_deg=tuple(np.degrees(boresight)) if with_traj and declare_mounting else None,
             dropped=Dropped(),
         )
     truth = UAVTruth(
@@ -334,6 +361,7 @@ def simulate_uav(seed: int = 0, distortion: str = "local+brown", image_sigma_px:
         point_id=point_id, xyz=xyz_true, blunder_obs=blunder_obs, blunder_px=blunder_px,
         strip_id=strip_names, gnss_shift_m=shift, gnss_drift_m_s=drift, imu_shift_rad=imu_shift,
         lever_arm_m=lever_arm, boresight_rad=boresight, image_sigma_px=image_sigma_px, gsd_m=pixel * agl / true_cam.focal_mm,
+        trajectory=trajectory,
     )
     info = {"n_images": n_img, "n_points": len(xyz_true), "n_observations": n_obs,
             "points_per_image": n_obs / n_img, "n_marks": n_marks, "seed": seed, "distortion": distortion}

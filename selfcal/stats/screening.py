@@ -42,6 +42,14 @@ insignificant WAPs jointly carry part of the field. With it, the share of
 WAPs removed on the simulated Type 3 block is close to Table 2 of seed 000
 (16-30 % here, 19-37 % there).
 
+With GNSS/IMU trajectory terms the guard is applied per group: the APs, each
+sensor and each sensor's strip have their own joint test, and a trajectory term
+has further guards (selfcal.stats.trajectory_screening): a stricter t (1.355,
+before the screening and at the drop), no drop of a term mostly explained by
+the interior orientation, and no drop that makes the residuals of its strip's
+observations significant. Tested on 30 blocks simulated with trajectory errors
+drawn independently of the model (benchmarks/study_trajectory.py).
+
 Seed 000 takes its thresholds from the BINGO manual (Kruck 2021), which is not
 public; the defaults above are ours and can be set on the command line.
 """
@@ -53,6 +61,7 @@ import numpy as np
 from scipy.stats import f as f_distribution
 
 from .correlation import parameter_groups
+from .trajectory_screening import TRAJECTORY_SIGNIFICANCE, GroupGuards
 
 __all__ = ["ScreeningOptions", "ScreeningDecision", "ScreeningRound", "screen_once", "screening_masks"]
 
@@ -63,6 +72,12 @@ class ScreeningOptions:
     max_correlation: float = 0.9
     max_rounds: int = 20
     joint_alpha: float | None = 0.05
+    #: t below which a GNSS/IMU shift/drift term may be dropped, before the screening and when dropped (None:
+    #: ``significance``); the default 3 - z(0.95) = 1.355 drops a term only when its estimate shows it smaller
+    #: than 3 sigma at 95 % (selfcal.stats.trajectory_screening)
+    trajectory_significance: float | None = TRAJECTORY_SIGNIFICANCE
+    #: w above which a strip's GNSS/IMU observation after a drop refuses it
+    trajectory_w_critical: float = 3.0
 
     def __post_init__(self):
         if self.significance < 0:
@@ -77,6 +92,8 @@ class ScreeningDecision:
     name: str
     t: float                # |a| / sigma(a) when dropped (after the earlier drops of its round)
     reason: str
+    value: float = float("nan")     # the estimate when dropped (unit of the parameter: px, m, rad, ...)
+    sigma: float = float("nan")     # its a-posteriori sigma then
 
 
 @dataclass(frozen=True)
@@ -90,6 +107,12 @@ class ScreeningRound:
     n_dropped: int
     increase: float
     f_critical: float       # quantile 1 - alpha of F(n_dropped, redundancy)
+    group: str = "all"      # what was dropped: "all", or a guarded group ("AP", "GNSS", "IMU", "GNSS S1", ...)
+    #: the guarded groups' own joint tests (blocks with trajectory terms: APs, each sensor, each sensor's strip)
+    groups: tuple["ScreeningRound", ...] = ()
+    #: (name, value, sigma) of every trajectory term in the adjustment before any screening (kept for the later
+    #: rounds: a term significant there is never dropped, see selfcal.stats.trajectory_screening)
+    reference: tuple[tuple[str, float, float], ...] = ()
 
     @property
     def f_statistic(self) -> float:
@@ -199,9 +222,9 @@ def screen_once(result, options: ScreeningOptions, before: ScreeningRound | None
     is_ap[[k for k, o in owner.items() if o[4]]] = True
     orientation = np.concatenate([groups["IOP"], groups["EOP"]]).astype(np.int64)
     orientation = orientation[~is_ap[orientation] & _active(problem)[orientation]]
-    vf0 = result.variance_factor
     state = _Elimination(problem.pack(result.state) - reference, result.Q_theta,
                          result.variance_factor * result.redundancy, result.redundancy)
+    guards = GroupGuards(result, state, options, before, owner)
     active = np.array(sorted(owner), dtype=np.int64)
     decisions: list[ScreeningDecision] = []
 
@@ -209,33 +232,63 @@ def screen_once(result, options: ScreeningOptions, before: ScreeningRound | None
         nonlocal active
         key, position, name, label, _ = owner[index]
         free[key][position] = False
-        decisions.append(ScreeningDecision(label, name, t, reason))
+        sigma = float(np.sqrt(state.variance_factor * state.Q[index, index]))
+        decisions.append(ScreeningDecision(label, name, t, reason, float(state.theta[index]), sigma))
+        guards.record(index)
         state.drop(index)
         active = active[active != index]
 
     n_before = before.n_dropped if before else 0
     increase_before = before.increase if before else 0.0
     alpha = options.joint_alpha if options.joint_alpha is not None else 0.05   # for the report when unguarded
+    trajectory_limit = options.significance if options.trajectory_significance is None \
+        else options.trajectory_significance
+    protected: set[int] = set()          # trajectory terms a guard keeps (this round)
 
     def increase() -> float:
-        return increase_before + (state.omega - state.omega0) / vf0
+        return increase_before + (state.omega - state.omega0) / result.variance_factor
 
-    def jointly_insignificant(index: np.ndarray) -> np.ndarray:
-        """Per candidate: would the dropped set, with it added, still pass its joint F-test?"""
-        if options.joint_alpha is None:
-            return np.ones(index.size, bool)
-        k = n_before + len(decisions) + 1
-        chi2 = increase() + state.theta[index] ** 2 / np.diag(state.Q)[index] / vf0
-        return chi2 / k <= f_distribution.ppf(1 - alpha, k, result.redundancy)
+    def significance_step() -> bool:
+        """Drop the least significant parameter its guards allow; False when there is none.
+
+        APs are guarded by the joint test of the AP group: when the least significant AP fails it, no AP is
+        dropped for significance (the correlation step may still drop one). A trajectory term that one of its
+        guards keeps is protected for the rest of the round, and the next one is tried.
+        """
+        t = state.t(active)
+        ap_closed = False
+        for k in np.argsort(t, kind="stable"):
+            index = int(active[k])
+            if ap_closed and not guards.grouped:
+                break
+            if is_ap[index]:
+                if ap_closed or t[k] >= options.significance:
+                    ap_closed = True
+                    continue
+                if guards.ap_jointly_insignificant(active[k:k + 1])[0]:
+                    drop(index, float(t[k]), f"insignificant (t = {t[k]:.2f} < {options.significance:g})")
+                    return True
+                ap_closed = True
+                continue
+            if t[k] >= trajectory_limit:
+                if ap_closed or t[k] >= options.significance:
+                    break
+                continue
+            if index in protected:
+                continue
+            allowed, why = guards.trajectory_allows(index, trajectory_limit)
+            if allowed:
+                drop(index, float(t[k]), f"insignificant (t = {t[k]:.2f} < {trajectory_limit:g})")
+                return True
+            protected.add(index)
+        return False
 
     while active.size:
-        t = state.t(active)
-        k = int(np.argmin(t))
-        if t[k] < options.significance and jointly_insignificant(active[k:k + 1])[0]:
-            drop(int(active[k]), float(t[k]), f"insignificant (t = {t[k]:.2f} < {options.significance:g})")
+        if significance_step():
             continue
         ap = active[is_ap[active]]
-        pick = _most_correlated(state.Q, ap, orientation, options.max_correlation, state.t(ap), jointly_insignificant(ap))
+        pick = _most_correlated(state.Q, ap, orientation, options.max_correlation, state.t(ap),
+                                guards.ap_jointly_insignificant(ap))
         if pick is None:
             break
         a, other, rho = pick
@@ -249,7 +302,8 @@ def screen_once(result, options: ScreeningOptions, before: ScreeningRound | None
     if not decisions:
         return free, [], None
     n = n_before + len(decisions)
-    joint = ScreeningRound(n, float(increase()), float(f_distribution.ppf(1 - alpha, n, result.redundancy)))
+    joint = ScreeningRound(n, float(increase()), float(f_distribution.ppf(1 - alpha, n, result.redundancy)),
+                           groups=guards.records() if guards.grouped else (), reference=guards.reference)
     return free, decisions, joint
 
 
