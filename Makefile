@@ -41,7 +41,7 @@ bench: install
 	$(PY) benchmarks/bench_scaling.py
 	$(PY) benchmarks/bench_workflow.py
 	$(PY) benchmarks/bench_pushbroom.py
-	$(PY) benchmarks/study_trajectory.py
+	$(PY) benchmarks/study_trajectory.py --processes 2
 
 clean:
 	rm -rf $(VENV) demo-results .pytest_cache

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import argparse
 import itertools
+import json
 import time
 from multiprocessing import Pool
 
@@ -109,14 +110,17 @@ def one_seed(args) -> dict:
                                        screening=ScreeningOptions() if screen else None)
             out["rms"][(scenario, screen)] = tie_point_rms(sim, tested.result)
             if scenario not in ("type2", "type4"):
+                del tested                  # one tested adjustment in memory at a time (~2.5 GB each)
                 continue
             if not screen:
                 r = tested.result
                 unscreened[scenario] = (true_terms(sim, r), dict(zip(r.theta_names, np.sqrt(
                     r.variance_factor * np.diag(r.Q_theta)))))
+                del tested, r
                 continue
             truth, sigma = unscreened[scenario]
             dropped = {d.name: d for _, d in tested.screening_log if d.camera_id in ("GNSS", "IMU")}
+            del tested
             for name, d in dropped.items():
                 out["dropped"].append((scenario, name, truth[name][0], sigma[name], getattr(d, "value", np.nan),
                                        getattr(d, "sigma", np.nan), d.t))
@@ -140,14 +144,19 @@ def main() -> None:
     parser.add_argument("--first-seed", type=int, default=1)
     parser.add_argument("--processes", type=int, default=1)
     parser.add_argument("--points", type=float, default=3.5, help="image points per mm^2 (default 3.5)")
+    parser.add_argument("--save", metavar="JSON", help="also write every seed's numbers to this file")
     args = parser.parse_args()
     start = time.perf_counter()
     seeds = [(s, args.points) for s in range(args.first_seed, args.first_seed + args.seeds)]
     if args.processes > 1:
-        with Pool(args.processes) as pool:
+        with Pool(args.processes, maxtasksperchild=1) as pool:    # a fresh process per seed: memory back
             runs = pool.map(one_seed, seeds, chunksize=1)
     else:
         runs = [one_seed(s) for s in seeds]
+    if args.save:
+        with open(args.save, "w", encoding="utf-8") as f:
+            json.dump([{**r, "rms": {f"{s}{' screened' if sc else ''}": v for (s, sc), v in r["rms"].items()}}
+                       for r in runs], f)
     print(f"{args.seeds} simulated blocks (seeds {args.first_seed}-{args.first_seed + args.seeds - 1}), "
           f"{args.points:g} points/mm^2, wavelet:db4 9x6, snooping on; {time.perf_counter() - start:.0f} s")
     print("tie-point RMS against the truth, mean over seeds [mm]")
