@@ -102,7 +102,7 @@ def one_seed(args) -> dict:
     from selfcal.workflows.tested import adjust_with_tests
     sim = simulate(seed, points_per_mm2)
     options = AdjustOptions(ap="wavelet:db4", grid=(9, 6), gnss_drift=1, imu_drift=1)
-    out = {"seed": seed, "variant": VARIANTS[seed % len(VARIANTS)], "rms": {}, "dropped": [], "zero": [0, 0]}
+    out = {"seed": seed, "variant": VARIANTS[seed % len(VARIANTS)], "rms": {}, "dropped": [], "zero": [0, 0], "z": []}
     unscreened = {}
     for screen in (False, True):
         for scenario in TYPES:
@@ -116,6 +116,10 @@ def one_seed(args) -> dict:
                 r = tested.result
                 unscreened[scenario] = (true_terms(sim, r), dict(zip(r.theta_names, np.sqrt(
                     r.variance_factor * np.diag(r.Q_theta)))))
+                estimate = dict(zip(r.theta_names, r.problem.pack(r.state)))
+                truth, sigma = unscreened[scenario]
+                out["z"] += [(scenario, name, (estimate[name] - value) / sigma[name])
+                             for name, (value, _) in truth.items()]
                 del tested, r
                 continue
             truth, sigma = unscreened[scenario]
@@ -171,6 +175,14 @@ def main() -> None:
                 mean, worst, t = paired(rms[(a, screen)][:, j], rms[(b, screen)][:, j])
                 label = f"{a} -> {b}" + (" screened" if screen else "")
                 print(f"{label:<22}{axis:>5}{mean:>12.2f}%{worst:>11.2f}%{t:>10.2f}")
+    print("unscreened shift/drift terms against their truth, z = (estimate - true) / sigma, all seeds")
+    z = [(name.split()[0], name.split()[2], value) for r in runs for _, name, value in r["z"]]
+    for sensor in ("GNSS", "IMU"):
+        for term in ("D0", "D1"):
+            zs = np.array([v for s, t, v in z if s == sensor and t == term])
+            if zs.size:
+                print(f"  {sensor} {term}: {zs.size} terms, mean z {zs.mean():+.2f}, rms z {np.sqrt(np.mean(zs ** 2)):.2f}, "
+                      f"max |z| {np.abs(zs).max():.2f}")
     dropped = [d for r in runs for d in r["dropped"]]
     large = [(r["seed"],) + d for r in runs for d in r["dropped"] if abs(d[2]) > 3 * d[3]]
     large_at_drop = [(r["seed"],) + d for r in runs for d in r["dropped"] if abs(d[2]) > 3 * d[5]]
