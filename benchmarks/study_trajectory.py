@@ -63,34 +63,6 @@ def tie_point_rms(sim, result) -> tuple[float, float]:
     return float(np.sqrt(np.mean(d[:, 0] ** 2 + d[:, 1] ** 2))), float(np.sqrt(np.mean(d[:, 2] ** 2)))
 
 
-def true_terms(sim, result) -> dict[str, tuple[float, bool]]:
-    """name -> (true value in the adjustment's parametrisation, truly zero) of every shift/drift term.
-
-    The true value is the per-strip least-squares fit, by the model's powers of its dt, of what the
-    observations carry besides noise against the model's P0 at the true orientation, turned by the
-    camera-fixed rotation that the attitudes take from the lens field
-    (selfcal.simulate.trajectory.true_terms, camera_rotation_of_field)."""
-    from selfcal.simulate.trajectory import camera_rotation_of_field, true_terms as model_terms
-    truth = sim.truth
-    camera = result.problem.cameras[0]
-    rotation = camera_rotation_of_field(truth.distortion, truth.camera,
-                                        camera.ap.basis if camera.ap.n_params else None)
-    lookup = {i: k for k, i in enumerate(truth.image_id)}
-    strip_index = {s: k for k, s in enumerate(truth.strip_id)}
-    out = {}
-    for t in result.problem.trajectory:
-        if t.order < 0:
-            continue
-        rows = np.array([lookup[i] for i in result.block.images.image_id[t.index]])
-        terms = model_terms(truth, t, rows, t.mounting, rotation)
-        drift = truth.trajectory.gnss_drift_m_s if t.offset == 0 else truth.trajectory.imu_drift_rad_s
-        for i, name in enumerate(t.names[:t.n_strip_params]):
-            s, rest = divmod(i, 3 * (t.order + 1))
-            k, a = divmod(rest, 3)
-            out[name] = (float(terms[s, k, a]), bool(k >= 1 and np.all(drift[strip_index[t.strips[s]]] == 0)))
-    return out
-
-
 def one_seed(args) -> dict:
     """Tie-point RMS of every Type without and with screening, and the screening's trajectory decisions
     against the truth: (scenario, name, true value, sigma in the unscreened adjustment, value and sigma at
@@ -99,6 +71,7 @@ def one_seed(args) -> dict:
     from selfcal.adjust import AdjustOptions
     from selfcal.block import prune
     from selfcal.stats.screening import ScreeningOptions
+    from selfcal.simulate.trajectory import true_terms_by_name
     from selfcal.workflows.tested import adjust_with_tests
     sim = simulate(seed, points_per_mm2)
     options = AdjustOptions(ap="wavelet:db4", grid=(9, 6), gnss_drift=1, imu_drift=1)
@@ -114,7 +87,7 @@ def one_seed(args) -> dict:
                 continue
             if not screen:
                 r = tested.result
-                unscreened[scenario] = (true_terms(sim, r), dict(zip(r.theta_names, np.sqrt(
+                unscreened[scenario] = (true_terms_by_name(sim.truth, r), dict(zip(r.theta_names, np.sqrt(
                     r.variance_factor * np.diag(r.Q_theta)))))
                 estimate = dict(zip(r.theta_names, r.problem.pack(r.state)))
                 truth, sigma = unscreened[scenario]

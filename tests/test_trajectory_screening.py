@@ -7,7 +7,7 @@ from selfcal.adjust import AdjustOptions, adjust
 from selfcal.adjust.normal import _wrap
 from selfcal.geometry.rotation import matrix_from_opk, matrix_from_rotation_vector, opk_from_matrix
 from selfcal.simulate import simulate_uav
-from selfcal.simulate.trajectory import TrajectoryErrors, camera_rotation_of_field, true_terms as model_terms
+from selfcal.simulate.trajectory import TrajectoryErrors, true_terms_by_name
 from selfcal.stats.screening import ScreeningOptions
 from selfcal.workflows.tested import adjust_with_tests
 
@@ -24,24 +24,6 @@ def independent(seed: int, origin: str = "first", composition: str = "opk", leve
                         gnss_sigma_m=GNSS_DECLARED_M, imu_sigma_deg=IMU_DECLARED_DEG,
                         trajectory_errors=TrajectoryErrors(drift_origin=origin, imu_composition=composition),
                         exposure_interval_s=2.0, lever_arm_m=lever_arm_m, declare_mounting=any(lever_arm_m))
-
-
-def true_terms(sim, result) -> dict[str, tuple[float, bool]]:
-    """name -> (true value in the adjustment's own parametrisation, truly zero) of every shift/drift term."""
-    truth = sim.truth
-    camera = result.problem.cameras[0]
-    rotation = camera_rotation_of_field(truth.distortion, truth.camera, camera.ap.basis if camera.ap.n_params else None)
-    lookup = {i: k for k, i in enumerate(truth.image_id)}
-    out = {}
-    for t in result.problem.trajectory:
-        rows = np.array([lookup[i] for i in result.block.images.image_id[t.index]])
-        terms = model_terms(truth, t, rows, t.mounting, rotation)
-        drift = truth.trajectory.gnss_drift_m_s if t.offset == 0 else truth.trajectory.imu_drift_rad_s
-        for i, name in enumerate(t.names[:t.n_strip_params]):
-            s, rest = divmod(i, 3 * (t.order + 1))
-            k, a = divmod(rest, 3)
-            out[name] = (float(terms[s, k, a]), bool(k >= 1 and np.all(drift[int(t.strips[s][1:]) - 1] == 0)))
-    return out
 
 
 def tie_point_rms_xy(sim, result) -> float:
@@ -189,7 +171,7 @@ def test_screening_drops_no_real_trajectory_term():
                           composition="rotation" if seed > 2 else "opk")
         for with_trajectory, without in (("type2", "type1"), ("type4", "type3")):
             full, tested = screened(sim, with_trajectory)
-            truth = true_terms(sim, full)
+            truth = true_terms_by_name(sim.truth, full)
             sigma = dict(zip(full.theta_names, np.sqrt(full.variance_factor * np.diag(full.Q_theta))))
             dropped = dropped_trajectory_terms(tested)
             large += [(seed, name, truth[name][0] / sigma[name]) for name in dropped

@@ -39,7 +39,7 @@ import numpy as np
 from ..geometry.rotation import matrix_from_opk, matrix_from_rotation_vector, opk_from_matrix
 from ..sensors.frame import project
 
-__all__ = ["TrajectoryErrors", "TrajectoryTruth", "draw_trajectory_errors", "noise_free_terms",
+__all__ = ["TrajectoryErrors", "TrajectoryTruth", "draw_trajectory_errors", "noise_free_terms", "true_terms_by_name",
            "camera_rotation_of_field", "true_terms"]
 
 ORIGINS = ("first", "middle")
@@ -205,3 +205,28 @@ def true_terms(truth, terms, image_rows: np.ndarray, mounting=None, rotation=Non
         p0 = opk_from_matrix(np.einsum("ji,njk->nik", matrix_from_opk(mounting), M))
         systematic = (truth.trajectory.imu_noise_free_rad[image_rows] - p0 + np.pi) % (2 * np.pi) - np.pi
     return noise_free_terms(systematic, terms.strip_of, terms.dt, terms.order)
+
+
+def true_terms_by_name(truth, result) -> dict[str, tuple[float, bool]]:
+    """name -> (true value in the adjustment's own parametrisation, truly zero) of every shift/drift term of
+    ``result`` (an adjustment of a block simulated with ``truth``).
+
+    The true value is :func:`true_terms` with the camera-fixed rotation that the attitudes take from the lens
+    field under the adjustment's AP basis (:func:`camera_rotation_of_field`); a drift term is truly zero when its
+    sensor does not drift in that strip."""
+    camera = result.problem.cameras[0]
+    rotation = camera_rotation_of_field(truth.distortion, truth.camera, camera.ap.basis if camera.ap.n_params else None)
+    lookup = {i: k for k, i in enumerate(truth.image_id)}
+    strip_index = {s: k for k, s in enumerate(truth.strip_id)}
+    out = {}
+    for t in result.problem.trajectory:
+        if t.order < 0:
+            continue
+        rows = np.array([lookup[i] for i in result.block.images.image_id[t.index]])
+        terms = true_terms(truth, t, rows, t.mounting, rotation)
+        drift = truth.trajectory.gnss_drift_m_s if t.offset == 0 else truth.trajectory.imu_drift_rad_s
+        for i, name in enumerate(t.names[:t.n_strip_params]):
+            s, rest = divmod(i, 3 * (t.order + 1))
+            k, a = divmod(rest, 3)
+            out[name] = (float(terms[s, k, a]), bool(k >= 1 and np.all(drift[strip_index[t.strips[s]]] == 0)))
+    return out
