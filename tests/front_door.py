@@ -615,6 +615,8 @@ for _command, _options, _names in [
         ("adjust", ("--gnss-drift", "x"), "--gnss-drift"),
         ("adjust", ("--gcps", "0"), "--gcps"),
         ("adjust", ("--sensor-model", "M6"), "does not apply"),
+        ("adjust", ("--trajectory-significance", "nan"), "--trajectory-significance"),
+        ("adjust", ("--trajectory-significance", "1.0"), "has no [gnss]"),
         ("adjust", ("--no-such-option",), "unrecognized"),
         ("compare", ("--ap", "brown,nope"), "nope"),
         ("compare", ("--workers", "0"), "--workers"),
