@@ -123,6 +123,12 @@ def test_adjust_with_screening_and_variance_components(simulated, tmp_path):
     owners = {d["camera_id"] for d in screening["dropped"]}
     assert owners <= {"GNSS", "IMU"} and "IMU" in owners          # no APs here; the absent IMU drifts go
     assert screening["joint_tests"] and not screening["joint_tests"][-1]["jointly_significant"]
+    groups = {g["group"] for g in screening["joint_tests"][-1]["groups"]}
+    assert "IMU" in groups and any(g.startswith("IMU S") for g in groups)       # per sensor and per strip
+    report = _read(out / "report.html")
+    assert 'id="joint-tests"' in report and report.count("passes") >= len(groups)
+    first = next(d for d in screening["dropped"] if d["camera_id"] == "IMU")
+    assert f"dropped in round {first['round']} (t = {first['t']:.2f})" in report
 
 
 def test_adjust_auto_chooses_the_model_and_logs_the_candidates(simulated, tmp_path, capsys):

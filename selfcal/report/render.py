@@ -283,15 +283,39 @@ def _trajectory_section(page: Page, results) -> None:
     if traj is None or not len(traj["sensor"]):
         return
     page.heading("Trajectory: strip-wise shift and drift, mounting", 3)
+    dropped = {entry.get("name"): entry for entry in (results.screening or {}).get("dropped", [])}
+
+    def state(i: int) -> str:
+        if traj["active"][i] == 1:
+            return "estimated"
+        entry = dropped.get(f"{traj['sensor'][i]} {traj['strip_id'][i]} {traj['term'][i]} {traj['axis'][i]}")
+        return f"dropped in round {entry['round']} (t = {entry['t']:.2f})" if entry else "dropped by screening"
+
     rows = [[traj["sensor"][i], traj["strip_id"][i], traj["term"][i], traj["axis"][i],
-             fmt(traj["value"][i], ".5f"), fmt(traj["sigma"][i], ".5f"), traj["unit"][i],
-             "estimated" if traj["active"][i] == 1 else "dropped by screening"]
+             fmt(traj["value"][i], ".5f"), fmt(traj["sigma"][i], ".5f"), traj["unit"][i], state(i)]
             for i in range(len(traj["sensor"]))]
     page.paragraph("GNSS positions and IMU attitudes observed as P0 + D0 + D1·Δt + D2·Δt² per strip (Eq. 12 of "
                    "seed 000), Δt from the strip's middle; a lever arm (camera frame) or boresight angles "
                    "when estimated. Also in trajectory.csv.", "note")
     page.table(["sensor", "strip", "term", "axis", "value", "σ", "unit", ""], rows, text_columns={0, 1, 2, 3, 6, 7},
                ident="trajectory")
+
+
+def _joint_tests_section(page: Page, results) -> None:
+    """The joint F-test of everything screening dropped, after its last round: per group (APs, GNSS, IMU, each
+    sensor's strip) when the block has GNSS/IMU, else of the dropped set as a whole."""
+    tests = (results.screening or {}).get("joint_tests", [])
+    if not tests:
+        return
+    last = tests[-1]
+    groups = last.get("groups") or [dict(last, group="all dropped")]
+    page.heading("Screening: joint tests of the dropped parameters", 3)
+    page.paragraph(f"After round {last['round']}: F = (increase of the weighted sum of squared residuals / σ̂0²) / "
+                   "n dropped against its 1 − α quantile; a significant group would mean that parameters dropped "
+                   "one at a time are jointly there. Every decision is in screening.json.", "note")
+    rows = [[g["group"], str(g["n_dropped"]), fmt(g["f_statistic"], ".3f"), fmt(g["f_critical"], ".3f"),
+             "significant" if g["jointly_significant"] else "passes"] for g in groups]
+    page.table(["group", "dropped", "F", "F critical", ""], rows, text_columns={0, 4}, ident="joint-tests")
 
 
 #: images drawn in the attitude-correction figure at most (all are in attitude_corrections.csv)
@@ -432,6 +456,7 @@ def render_report(results, title: str | None = None) -> dict:
     _images_section(page, results)
     _attitude_section(page, files, results)
     _trajectory_section(page, results)
+    _joint_tests_section(page, results)
     page.heading("Rejected observations", anchor="rejected")
     _rejected_section(page, results)
     _notes_section(page, s)
