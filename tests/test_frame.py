@@ -1,6 +1,5 @@
 """Frame collinearity (Eq. 1 of seed 000): conventions and analytic Jacobians."""
 import numpy as np
-import pytest
 
 from selfcal.sensors.frame import photo_from_pixel, pixel_from_photo, project, project_with_jacobians, rays
 

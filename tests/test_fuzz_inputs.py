@@ -199,7 +199,7 @@ def test_mutated_files_are_read_or_refused_with_their_name(ws, name):
     work = tempfile.mkdtemp(prefix="fuzz-", dir=ws.root)
     if members is None:
         folder = work
-        path = shutil.copy(source, os.path.join(folder, os.path.basename(source)))
+        shutil.copy(source, os.path.join(folder, os.path.basename(source)))
         originals = {os.path.basename(source): _bytes(source)}
     else:
         folder = os.path.join(work, "copy")
