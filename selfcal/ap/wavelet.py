@@ -319,12 +319,8 @@ class WaveletAP(APModel):
 
     @classmethod
     def from_spec(cls, option, frame: ImageFrame, observed_xy_mm=None, grid=(9, 6), **settings):
-        if not option:
-            raise ValueError("a wavelet AP model needs a wavelet: wavelet:db4, wavelet:sym4, wavelet:meyer, "
-                             "wavelet:bl4 (any order of db, sym, bl)")
+        cls.check_option(option)
         name, _, form = option.partition("+")
-        if form not in ("", "details"):
-            raise ValueError(f"unknown WAP formulation '+{form}' (known: +details)")
         w = get_wavelet(name)
         gx, gy = int(grid[0]), int(grid[1])
         if gx < 1 or gy < 1:
