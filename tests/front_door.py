@@ -324,6 +324,8 @@ def _option(command: str, *options, needs=None):
             argv, inputs = ["simulate", "prism", "--out", out], []
         elif command == "import":
             argv, inputs = ["import", "bal", ws.bal, "--out", out], [ws.bal]
+        elif command == "import colmap":
+            argv, inputs = ["import", "colmap", ws.colmap_text, "--out", out], [ws.colmap_text]
         elif command == "import isis":
             argv = ["import", "isis", os.path.join(ws.isis, "observationPair.net"), "--images", ws.isis, "--out", out]
             inputs = [ws.isis]
@@ -625,7 +627,7 @@ for _command, _options, _names in [
         ("simulate", ("--blunder-rate", "0.9"), "--blunder-rate"),
         ("simulate", ("--seed", "-1"), "--seed"),
         ("simulate prism", ("--points", "3"), "--points"),
-        ("import", ("--pixel-size-mm", "-1"), "--pixel-size-mm"),
+        ("import colmap", ("--pixel-size-mm", "-1"), "--pixel-size-mm"),
         ("import", ("--image-sigma-px", "nan"), "--image-sigma-px"),
         ("import isis", ("--attitude-degree", "9"), "--attitude-degree"),
         ("export", ("--tolerance-px", "0"), "--tolerance-px"),

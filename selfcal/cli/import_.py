@@ -1,138 +1,23 @@
-"""Import a model from another program as a block folder (COLMAP; ground control from ODM's gcp_list.txt)."""
+"""Import a model from another program as a block folder (COLMAP, BAL, ISIS; ground control from ODM)."""
 from __future__ import annotations
 
 import argparse
-import os
-import sys
 
-from ..convert import bal_behind_camera, block_from_bal, block_from_colmap
-from ..errors import UsageError
-from ..io.bal import read_bal
-from ..io.block_folder import write_block
-from ..io.colmap import read_colmap
-from ..io.odm import read_gcp_list
-from ..io.output import output_folder
-from .options import count, force_option, number
+from .importers import IMPORTERS
+from .options import force_option
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("format", choices=["colmap", "bal", "isis"],
-                        help="colmap: a COLMAP sparse model folder (text or binary); bal: a Bundle Adjustment in "
-                             "the Large problem file; isis: an ISIS PVL control network (--images: the folder of "
-                             "the cube labels and their usgscsm/ALE ISDs)")
-    parser.add_argument("source", metavar="SRC", help="the model to import")
-    parser.add_argument("--out", required=True, metavar="BLOCK",
-                        help="block folder to write (replaced if selfcal wrote it; never the source)")
-    force_option(parser)
-    parser.add_argument("--gcp", metavar="FILE", help="OpenDroneMap gcp_list.txt with the ground control")
-    parser.add_argument("--check", default="", metavar="NAMES",
-                        help="comma-separated control points to use as check points")
-    parser.add_argument("--pixel-size-mm", type=number(0.0, low_open=True), default=0.005,
-                        help="physical pixel size of the camera (default 0.005 mm)")
-    parser.add_argument("--image-sigma-px", type=number(0.0, low_open=True), default=1.0,
-                        help="a-priori sigma of an image measurement (default 1.0 px)")
-    parser.add_argument("--gcp-sigma-xy", type=number(0.0, low_open=True), default=3.0,
-                        help="a-priori sigma of the control coordinates in plan (default 3 m: hand-held GPS)")
-    parser.add_argument("--gcp-sigma-z", type=number(0.0, low_open=True), default=5.0, help="a-priori sigma of the control heights (default 5 m)")
-    isis = parser.add_argument_group("isis")
-    isis.add_argument("--images", metavar="DIR", help="folder of the ISIS cube labels (*.pvl) and their ISDs")
-    isis.add_argument("--sigma-position-m", type=number(0.0, low_open=True), metavar="M",
-                      help="a-priori sigma of each image's position (jigsaw's spacecraft_position_sigma)")
-    isis.add_argument("--sigma-attitude-deg", type=number(0.0, low_open=True), metavar="DEG",
-                      help="a-priori sigma of each image's attitude angles (jigsaw's camera_angles_sigma)")
-    isis.add_argument("--attitude-degree", type=count(0, 3), metavar="N",
-                      help="line scanners: degree 0..3 of the attitude corrections (jigsaw's cksolvedegree)")
-    isis.add_argument("--no-twist", action="store_true",
-                      help="line scanners: no correction of the rotation about the line of sight (jigsaw twist=no)")
-    isis.add_argument("--solve-position", action="store_true",
-                      help="line scanners: a constant J2000 offset of each image's trajectory, weighted by "
-                           "--sigma-position-m (jigsaw spsolve=position; frame images always have theirs)")
-    isis.add_argument("--hold-radii", type=number(0.0, low_open=True), metavar="M",
-                      help="Free points keep their a-priori radius within this sigma (m), latitude and longitude "
-                           "free: jigsaw's radius=no, which holds them on the DEM the a-priori points came from")
-    isis.add_argument("--measure-sigma-px", type=number(0.0, low_open=True), default=None, metavar="PX",
-                      help="a-priori sigma of a measure in cube pixels (default: jigsaw's 1.4 detector pixels)")
+    formats = parser.add_subparsers(dest="format", required=True, metavar="FORMAT",
+                                    help=", ".join(IMPORTERS))
+    for name, module in IMPORTERS.items():
+        sub = formats.add_parser(name, help=module.HELP, description=module.HELP)
+        sub.add_argument("source", metavar="SRC", help="the model to import")
+        sub.add_argument("--out", required=True, metavar="BLOCK",
+                         help="block folder to write (replaced if selfcal wrote it; never the source)")
+        force_option(sub)
+        module.add_arguments(sub)
 
 
 def run(args: argparse.Namespace) -> int:
-    args.out = output_folder(args.out, (args.source, args.gcp, args.images), args.force)
-    if args.format == "isis":
-        return _import_isis(args)
-    if args.format == "bal":
-        problem = read_bal(args.source)
-        block = block_from_bal(problem, args.image_sigma_px, name=os.path.basename(os.path.normpath(args.out)))
-        behind = bal_behind_camera(problem)
-        if behind.any():
-            print(f"warning: {int(behind.sum())} observations of {len(set(problem.obs_point[behind]))} points lie "
-                  f"behind their camera; BAL's formula still gives them a residual (COLMAP would ignore them)",
-                  file=sys.stderr)
-        write_block(block, args.out, source=args.source)
-        print(f"imported {len(block.images)} images (one BAL camera each), {len(block.points)} points, "
-              f"{len(block.observations)} observations into {args.out}; BAL has no datum: adjust it with "
-              f"ground control, or use it as a relative problem", file=sys.stderr)
-        return 0
-    model = read_colmap(args.source)
-    control = read_gcp_list(args.gcp) if args.gcp else None
-    checks = [c.strip() for c in args.check.split(",") if c.strip()]
-    block, notes = block_from_colmap(model, control, args.pixel_size_mm, args.image_sigma_px,
-                                     (args.gcp_sigma_xy, args.gcp_sigma_z), checks,
-                                     name=os.path.basename(os.path.normpath(args.out)))
-    for note in notes:
-        print(note, file=sys.stderr)
-    write_block(block, args.out, source=args.source)
-    print(f"imported {len(block.images)} images, {len(block.points)} points, {len(block.observations)} "
-          f"observations into {args.out}", file=sys.stderr)
-    return 0
-
-
-def _import_isis(args: argparse.Namespace) -> int:
-    from ..convert import block_from_isis
-    from ..io.isis import read_control_network, read_image_folder
-    from ..io.sensor_files import read_usgscsm
-    if not args.images:
-        raise UsageError("selfcal import isis needs --images DIR (the cube labels and their ISDs)")
-    for flag, value in (("--sigma-position-m", args.sigma_position_m), ("--sigma-attitude-deg", args.sigma_attitude_deg),
-                        ("--measure-sigma-px", args.measure_sigma_px)):
-        if value is not None and not value > 0:
-            raise UsageError(f"{flag} must be positive, found {value}")
-    network = read_control_network(args.source)
-    images = read_image_folder(args.images)
-    first = read_usgscsm(next(iter(images.values()))[1])
-    line_only = [flag for flag, given in (("--attitude-degree", args.attitude_degree is not None),
-                                          ("--no-twist", args.no_twist), ("--solve-position", args.solve_position))
-                 if given]
-    if line_only and hasattr(first, "trans_x"):
-        raise UsageError(f"{', '.join(line_only)} {'applies' if len(line_only) == 1 else 'apply'} to line-scan ISDs "
-                         f"only; the images in {args.images} are frame ISDs (their positions and RA/DEC/TWIST are "
-                         f"always estimated)")
-    sigma_px = args.measure_sigma_px
-    if sigma_px is None:                  # jigsaw: 1.4 detector pixels, in the pixels of the cubes
-        detector_px = getattr(first, "alpha_cube", None)
-        scale = 1.0 if detector_px is None else (detector_px.alpha_ending_sample - detector_px.alpha_starting_sample) \
-            / detector_px.beta_samples
-        sigma_px = 1.4 / scale
-    settings = {k: v for k, v in (("sigma_position_m", args.sigma_position_m),
-                                  ("sigma_attitude_deg", args.sigma_attitude_deg),
-                                  ("attitude_degree", args.attitude_degree)) if v is not None}
-    if args.no_twist:
-        settings["twist"] = False
-    if args.solve_position:
-        settings["position_offsets"] = True
-    if args.attitude_degree is not None and not 0 <= args.attitude_degree <= 3:
-        raise UsageError(f"--attitude-degree must be 0..3, found {args.attitude_degree}")
-    if args.hold_radii is not None and not args.hold_radii > 0:
-        raise UsageError(f"--hold-radii must be positive, found {args.hold_radii}")
-    block, counts = block_from_isis(network, images, sigma_px, os.path.basename(os.path.normpath(args.out)), settings,
-                                    hold_radii_m=args.hold_radii)
-    write_block(block, args.out, source=args.source)
-    if args.hold_radii is not None and (block.points.role == "tie").any():
-        from ..io import read_block
-        from ..workflows.isis import hold_radii
-        block = hold_radii(read_block(args.out), args.hold_radii)
-        write_block(block, args.out)
-    roles = {r: int((block.points.role == r).sum()) for r in ("gcp", "tie")}
-    print(f"imported {len(block.images)} images, {len(block.points)} points ({roles['gcp']} gcp, {roles['tie']} tie), "
-          f"{len(block.observations)} measures (sigma {sigma_px:.3g} px) into {args.out}; left out: "
-          f"{counts['ignored_points']} ignored points, {counts['ignored_measures']} ignored measures, "
-          f"{counts['measures_without_image']} measures of images not in {args.images}", file=sys.stderr)
-    return 0
+    return IMPORTERS[args.format].run(args)

@@ -13,7 +13,7 @@ from ..io.atomic import atomic_folder
 from ..io.opencv import read_image, write_image, write_opencv_yaml
 from ..io.output import output_folder
 from .options import force_option
-from .export import calibrations, maps_of, pick_camera
+from .calibrations import calibrations, maps_of, pick_camera
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -1,0 +1,73 @@
+"""The frame calibrations of a results folder, for the verbs that hand them to other programs (export,
+undistort): read, pick one, fit an OpenCV model and say its misfit."""
+from __future__ import annotations
+
+import os
+import sys
+
+from ..calibration import OPENCV_MODELS, Calibration, undistortion_maps
+from ..errors import BlockError, UsageError
+from ..io.results import read_camera_json
+from .options import number
+
+__all__ = ["calibrations", "pick_camera", "maps_of", "models", "report_fit", "camera_options"]
+
+
+def camera_options(parser) -> None:
+    """--camera, --opencv-model, --tolerance-px: the options of every export that fits an OpenCV model."""
+    parser.add_argument("--camera", metavar="ID", help="camera to export (needed when the block has several)")
+    parser.add_argument("--opencv-model", default="auto", metavar="MODEL",
+                        help=f"OpenCV distortion model: auto (the first of {', '.join(OPENCV_MODELS)} within "
+                             f"--tolerance-px, else the closest) or one of them")
+    parser.add_argument("--tolerance-px", type=number(0.0, low_open=True), default=0.01,
+                        help="largest misfit of the OpenCV model accepted by 'auto' (default 0.01 px)")
+
+
+def calibrations(results: str) -> dict[str, Calibration]:
+    """The frame cameras of a results folder's camera.json, by id."""
+    cameras = read_camera_json(results).get("cameras", {})
+    path = os.path.join(results, "camera.json")
+    out = {}
+    for camera_id, entry in cameras.items():
+        if entry.get("model") != "frame":
+            continue
+        try:
+            out[camera_id] = Calibration.from_camera_json(camera_id, entry)
+        except (KeyError, TypeError, ValueError) as exc:
+            raise BlockError(path, f"camera {camera_id}: cannot read its calibration ({exc})") from None
+    if not out:
+        raise BlockError(path, "no frame camera to export")
+    return out
+
+
+def pick_camera(cameras: dict[str, Calibration], camera_id: str | None) -> Calibration:
+    if camera_id is None:
+        if len(cameras) > 1:
+            raise UsageError(f"the block has {len(cameras)} cameras ({', '.join(cameras)}): choose one with --camera")
+        return next(iter(cameras.values()))
+    if camera_id not in cameras:
+        raise UsageError(f"--camera {camera_id}: no such camera (the block has: {', '.join(cameras)})")
+    return cameras[camera_id]
+
+
+def maps_of(cal: Calibration):
+    """:func:`undistortion_maps`, saying that it is under way (half a minute for WAPs on 12 MP)."""
+    print(f"camera {cal.camera_id}: inverting its {cal.ap.spec} distortion on nodes every 4 px "
+          f"(about half a minute for a WAP model on a 12-megapixel frame) ...", file=sys.stderr)
+    return undistortion_maps(cal)
+
+
+def models(option: str, allowed) -> tuple[str, ...]:
+    if option == "auto":
+        return tuple(allowed)
+    if option not in allowed:
+        raise UsageError(f"--opencv-model {option}: not one of auto, {', '.join(allowed)}")
+    return (option,)
+
+
+def report_fit(camera_id, fitted, tolerance_px) -> None:
+    print(f"camera {camera_id}: OpenCV {fitted.model}, misfit to selfcal's model {fitted.misfit_rms_px:.4f} px "
+          f"rms, {fitted.misfit_max_px:.4f} px max over the image", file=sys.stderr)
+    if fitted.misfit_max_px > tolerance_px:
+        print(f"warning: camera {camera_id}: no OpenCV model reproduces selfcal's within {tolerance_px:g} px; "
+              f"'selfcal export undistort-map' or 'selfcal undistort' are exact", file=sys.stderr)

@@ -1,0 +1,10 @@
+"""``selfcal export FORMAT``: one module per format, each with ``HELP``, ``add_arguments(parser)`` and
+``run(args) -> int``. A new format is one module and one line here."""
+from . import colmap, opencv, undistort_map
+
+#: format -> module
+EXPORTERS = {
+    "opencv": opencv,
+    "colmap": colmap,
+    "undistort-map": undistort_map,
+}

@@ -1,0 +1,34 @@
+"""``selfcal export colmap``: the cameras as COLMAP's cameras.txt (OPENCV or FULL_OPENCV)."""
+from __future__ import annotations
+
+import argparse
+import sys
+
+from ...calibration import COLMAP_MODELS, colmap_parameters, fit_opencv
+from ...io.colmap import write_cameras_txt
+from ...io.output import output_file
+from ..calibrations import calibrations, camera_options, models, pick_camera, report_fit
+
+HELP = "cameras.txt of COLMAP (OPENCV or FULL_OPENCV); all cameras unless --camera"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--out", required=True, metavar="FILE",
+                        help="file to write (replaced; never inside RESULTS; missing folders are created)")
+    camera_options(parser)
+
+
+def run(args: argparse.Namespace) -> int:
+    args.out = output_file(args.out, (args.results,))
+    cameras = calibrations(args.results)
+    chosen = cameras if args.camera is None else {args.camera: pick_camera(cameras, args.camera)}
+    rows = []
+    for number, (camera_id, cal) in enumerate(chosen.items(), start=1):
+        fitted = fit_opencv(cal, models(args.opencv_model, COLMAP_MODELS), args.tolerance_px)
+        report_fit(camera_id, fitted, args.tolerance_px)
+        model, params = colmap_parameters(fitted)
+        rows.append((number, model, cal.width_px, cal.height_px, params))
+        print(f"camera {camera_id} is COLMAP camera {number} ({model})", file=sys.stderr)
+    write_cameras_txt(args.out, rows)
+    print(f"wrote {args.out}", file=sys.stderr)
+    return 0
