@@ -214,3 +214,32 @@ def test_real_block_conditions_are_warnings_counted_in_summary(block, tmp_path):
     assert any(single in w for w in summary["warnings"])
     assert any(gcp in w for w in summary["warnings"]), role
     assert summary["n_images"] == 27
+
+
+def test_ids_with_spaces_quotes_and_commas_round_trip(template, tmp_path):
+    """block.toml is written by tomli-w and the CSVs quote: a camera called ``Canon "EOS" 450D`` (issue 23),
+    image and point ids with commas, quotes and brackets come back exactly."""
+    import dataclasses
+    original = read_block(template)
+    (old_camera,) = original.cameras
+    new_camera = 'Canon "EOS" 450D, [x]'
+    camera = dataclasses.replace(original.cameras[old_camera], camera_id=new_camera)
+    images = dataclasses.replace(original.images, camera_id=np.array([new_camera] * len(original.images.image_id),
+                                                                       dtype=object),
+                                 image_id=np.array([f'IMG "{i}", left' for i in original.images.image_id],
+                                                   dtype=object))
+    points = dataclasses.replace(original.points,
+                                 point_id=np.array([f"p'{p}\"" for p in original.points.point_id], dtype=object))
+    renamed = dataclasses.replace(original, name='block "α", v2', cameras={new_camera: camera}, images=images,
+                                  points=points)
+    folder = tmp_path / "renamed"
+    write_block(renamed, folder)
+    back = read_block(folder)
+    assert back.name == renamed.name
+    assert list(back.cameras) == [new_camera] and back.cameras[new_camera].focal_mm == camera.focal_mm
+    assert list(back.images.image_id) == list(images.image_id)
+    assert list(back.points.point_id) == list(points.point_id)
+    np.testing.assert_array_equal(back.observations.pixel, original.observations.pixel)
+    # and the CLI adjusts it
+    assert run_cli("adjust", str(folder), "--out", str(tmp_path / "res"), "--quiet", "--no-report",
+                   "--snoop", "0") == 0

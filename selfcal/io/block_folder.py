@@ -13,6 +13,7 @@ import re
 import tomllib
 
 import numpy as np
+import tomli_w
 
 from ..block import ROLES, AttitudeSamples, Block, Dropped, Ephemeris, Images, InitialAP, Observations, Points, prune
 from ..errors import BlockError
@@ -488,62 +489,56 @@ def _require_trajectory(folder, images, names, values, section):
 
 # ---------------------------------------------------------------------------- writing
 
-def _fmt_toml_value(value) -> str:
-    if isinstance(value, bool):
-        return "true" if value else "false"
+def _toml_value(value):
+    """Plain TOML data: NumPy scalars as Python numbers, tuples as lists."""
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
     if isinstance(value, str):
-        return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
-    if isinstance(value, (tuple, list)):
-        return "[" + ", ".join(_fmt_toml_value(v) for v in value) + "]"
-    if isinstance(value, int):
-        return str(value)
-    return repr(float(value))
+        return value
+    if isinstance(value, (tuple, list, np.ndarray)):
+        return [_toml_value(v) for v in value]
+    if isinstance(value, (int, np.integer)):
+        return int(value)
+    return float(value)
 
 
-def _toml_key(name: str) -> str:
-    """A bare key when TOML allows one, else a quoted key (WAP names such as ``ax[-4,-2]``)."""
-    return name if re.fullmatch(r"[A-Za-z0-9_-]+", name) else _fmt_toml_value(name)
+def block_toml_document(block: Block) -> dict:
+    """block.toml as a dict, in the order of DESIGN.md §3."""
+    doc = {"name": block.name, "crs": block.crs}
+    if block.datum != "control":
+        doc["datum"] = block.datum
+    cameras = doc["cameras"] = {}
+    for camera in block.cameras.values():
+        entry = cameras[camera.camera_id] = {"model": camera.model}
+        for key in _CAMERA_MODELS[camera.model][1]:
+            value = getattr(camera, key, None) if key != "model" else None
+            if value is not None:
+                entry[key] = _toml_value(value)
+        initial = getattr(camera, "initial_ap", None)
+        if initial is not None:
+            entry["initial_ap"] = {"model": initial.spec,
+                                   **{n: _toml_value(v) for n, v in zip(initial.names, initial.values_px)}}
+    doc["observations"] = {"image_sigma_px": _toml_value(block.image_sigma_px)}
+    if block.dem_path is not None or block.terrain_height_m is not None:
+        terrain = doc["terrain"] = {}
+        if block.dem_path is not None:
+            terrain["dem"] = os.path.basename(block.dem_path)
+        if block.terrain_height_m is not None:
+            terrain["height_m"] = _toml_value(block.terrain_height_m)
+    if block.gnss_sigma_m is not None:
+        gnss = doc["gnss"] = {"sigma_m": _toml_value(block.gnss_sigma_m)}
+        if block.gnss_lever_arm_m is not None:
+            gnss["lever_arm_m"] = _toml_value(block.gnss_lever_arm_m)
+    if block.imu_sigma_deg is not None:
+        imu = doc["imu"] = {"sigma_deg": _toml_value(block.imu_sigma_deg)}
+        if block.imu_boresight_deg is not None:
+            imu["boresight_deg"] = _toml_value(block.imu_boresight_deg)
+    return doc
 
 
 def block_toml_text(block: Block) -> str:
-    lines = [f"name = {_fmt_toml_value(block.name)}", f"crs = {_fmt_toml_value(block.crs)}"]
-    if block.datum != "control":
-        lines.append(f"datum = {_fmt_toml_value(block.datum)}")
-    lines.append("")
-    for camera in block.cameras.values():
-        lines.append(f"[cameras.{camera.camera_id}]")
-        lines.append(f'model = "{camera.model}"')
-        for key in _CAMERA_MODELS[camera.model][1]:
-            if key == "model":
-                continue
-            value = getattr(camera, key)
-            if value is not None:
-                lines.append(f"{key} = {_fmt_toml_value(value)}")
-        lines.append("")
-        initial = getattr(camera, "initial_ap", None)
-        if initial is not None:
-            lines += [f"[cameras.{camera.camera_id}.initial_ap]", f"model = {_fmt_toml_value(initial.spec)}"]
-            lines += [f"{_toml_key(n)} = {_fmt_toml_value(v)}" for n, v in zip(initial.names, initial.values_px)]
-            lines.append("")
-    lines += ["[observations]", f"image_sigma_px = {_fmt_toml_value(block.image_sigma_px)}", ""]
-    if block.dem_path is not None or block.terrain_height_m is not None:
-        lines.append("[terrain]")
-        if block.dem_path is not None:
-            lines.append(f"dem = {_fmt_toml_value(os.path.basename(block.dem_path))}")
-        if block.terrain_height_m is not None:
-            lines.append(f"height_m = {_fmt_toml_value(block.terrain_height_m)}")
-        lines.append("")
-    if block.gnss_sigma_m is not None:
-        lines += ["[gnss]", f"sigma_m = {_fmt_toml_value(block.gnss_sigma_m)}"]
-        if block.gnss_lever_arm_m is not None:
-            lines.append(f"lever_arm_m = {_fmt_toml_value(block.gnss_lever_arm_m)}")
-        lines.append("")
-    if block.imu_sigma_deg is not None:
-        lines += ["[imu]", f"sigma_deg = {_fmt_toml_value(block.imu_sigma_deg)}"]
-        if block.imu_boresight_deg is not None:
-            lines.append(f"boresight_deg = {_fmt_toml_value(block.imu_boresight_deg)}")
-        lines.append("")
-    return "\n".join(lines)
+    """block.toml written by tomli-w: any camera id or AP name (spaces, quotes, brackets) round-trips."""
+    return tomli_w.dumps(block_toml_document(block))
 
 
 def write_block(block: Block, folder: str | os.PathLike, source: str | None = None) -> None:
