@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from .. import __version__
 from ..allocator import keep_freed_memory
 from ..errors import SelfcalError, UsageError
 from . import adjust, compare, demo, export, import_, report, simulate, undistort
@@ -43,6 +44,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(
         prog="selfcal",
         description="Self-calibrating bundle adjustment of frame and pushbroom sensors.")
+    parser.add_argument("--version", action="version", version=f"selfcal {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name, module in COMMANDS.items():
         doc = (module.__doc__ or "").strip().splitlines()[0]

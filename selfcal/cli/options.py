@@ -5,6 +5,8 @@ import argparse
 import math
 import sys
 
+from ..workflows.progress import LOG, iteration_line, round_line
+
 __all__ = ["grid", "ap_option", "grid_option", "progress_printer", "test_options", "round_printer",
            "trajectory_options", "drift_order", "screening_options", "number", "count", "ap_spec", "ap_list",
            "force_option"]
@@ -106,11 +108,11 @@ def grid_option(parser: argparse.ArgumentParser) -> None:
 
 
 def progress_printer(image_sigma_px: float, prefix: str = ""):
-    """A callback printing one line per iteration to stderr."""
+    """A callback printing one line per iteration to stderr (and logging it: selfcal.workflows.progress)."""
     def show(record) -> None:
-        status = "" if record.accepted else "  (step rejected, more damping)"
-        print(f"{prefix}iteration {record.iteration:2d}: sigma0 {record.sigma0 * image_sigma_px:.4f} px, "
-              f"largest correction {record.max_step_sigma:.3g} sigma{status}", file=sys.stderr, flush=True)
+        line = iteration_line(record, image_sigma_px, prefix)
+        LOG.info(line)
+        print(line, file=sys.stderr, flush=True)
     return show
 
 
@@ -149,10 +151,11 @@ def screening_options(args: argparse.Namespace):
 
 
 def round_printer():
-    """A callback printing one line per snooping/screening round to stderr."""
+    """A callback printing one line per snooping/screening round to stderr (and logging it)."""
     def show(record) -> None:
-        print(f"tests round {record.round}: rejected {record.rejected} observations (largest |w| "
-              f"{record.largest_w:.1f}), dropped {record.dropped_aps} APs; re-adjusting", file=sys.stderr, flush=True)
+        line = round_line(record)
+        LOG.info(line)
+        print(line, file=sys.stderr, flush=True)
     return show
 
 

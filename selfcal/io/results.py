@@ -21,12 +21,12 @@ import numpy as np
 
 from ..errors import BlockError
 from .atomic import atomic_folder, atomic_write
+from .ply import ply_bytes
 from .table import write_table
 from .text import read_text
 
-__all__ = ["write_results", "write_files", "to_jsonable", "ResultsFolder", "read_results", "read_camera_json",
-           "results_from_files",
-           "RESULT_TABLES", "OPTIONAL_TABLES"]
+__all__ = ["summary_schema", "write_results", "write_files", "to_jsonable", "ResultsFolder", "read_results",
+           "read_camera_json", "results_from_files", "RESULT_TABLES", "OPTIONAL_TABLES"]
 
 #: the CSV tables of every results folder that the report reads (DESIGN.md §4), by short name
 RESULT_TABLES = {"images": "images.csv", "points": "points.csv", "residuals": "residuals.csv",
@@ -60,7 +60,9 @@ def to_jsonable(value):
 
 
 def write_files(folder: str, files: dict) -> None:
-    """Write files into a folder (created with any sub-folders a name holds), each atomically."""
+    """Write files into a folder (created with any sub-folders a name holds), each atomically: bytes and str as
+    they are, a dict as JSON (``.ply``: ``{"vertices": structured array, "comments": [...]}`` as PLY), a
+    ``(header, columns, formats)`` tuple as CSV."""
     for name, content in files.items():
         path = os.path.join(folder, name)
         os.makedirs(os.path.dirname(path), exist_ok=True)
@@ -70,6 +72,9 @@ def write_files(folder: str, files: dict) -> None:
         elif isinstance(content, str):
             with atomic_write(path) as handle:
                 handle.write(content)
+        elif isinstance(content, dict) and name.endswith(".ply"):
+            with atomic_write(path, "wb") as handle:
+                handle.write(ply_bytes(content["vertices"], content.get("comments", ())))
         elif isinstance(content, dict):
             with atomic_write(path) as handle:
                 json.dump(to_jsonable(content), handle, indent=2)
@@ -78,6 +83,13 @@ def write_files(folder: str, files: dict) -> None:
             header, columns, formats = content
             with atomic_write(path) as handle:
                 write_table(handle, header, columns, formats)
+
+
+def summary_schema() -> dict:
+    """The JSON Schema (draft 2020-12) of summary.json, shipped with selfcal (``selfcal/schemas``)."""
+    path = os.path.join(os.path.dirname(os.path.dirname(__file__)), "schemas", "summary.schema.json")
+    with open(path, encoding="utf-8") as handle:
+        return json.load(handle)
 
 
 def write_results(folder: str | os.PathLike, files: dict) -> None:

@@ -17,10 +17,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from .. import __version__
 from ..ap import frame_nodes_mm, takes_grid
 from ..sensors.frame import pixel_from_photo
 from ..stats.accuracy import ce90, le90
+from ..stats.checks import intersected
 from ..stats.correlation import max_abs_correlation_by_group
+from .exchange import check_points_geojson, object_points_ply
 
 __all__ = ["SCHEMA_VERSION", "ground_sample_distance", "model_choice_table", "summary", "camera_json", "image_table",
            "point_table", "residual_table", "screening_json", "correlation_table", "distortion_grid_table",
@@ -95,6 +98,8 @@ def summary(tested, extra: dict | None = None, checks=None) -> dict:
 
     out = {
         "schema_version": SCHEMA_VERSION,
+        "selfcal_version": __version__,
+        "crs": block.crs,
         "sensors": sorted({cam.sensor for cam in result.problem.cameras}),
         "block": block.name,
         "ap_model": result.problem.cameras[0].ap.spec if result.problem.cameras else "none",
@@ -435,7 +440,11 @@ def result_files(block_read, tested, summary_extra: dict | None = None, screenin
         "screening.json": screening_json(tested, screening_options),
         "correlation.csv": correlation_table(result),
     }
-    optional = {"distortion_grid.csv": distortion_grid_table(result.block, result),
+    files["points.ply"] = object_points_ply(result)
+    optional = {"check_points.geojson": check_points_geojson(
+                    intersected(result) if checks is None else checks, result.block.crs,
+                    _object_frame(result) == "ECEF"),
+                "distortion_grid.csv": distortion_grid_table(result.block, result),
                 "detector_line.csv": detector_line_table(result),
                 "trajectory.csv": trajectory_table(result) if result.problem.trajectory else None}
     if track is not None and checks is not None and len(checks):

@@ -1,0 +1,46 @@
+"""selfcal: self-calibrating bundle adjustment of frame cameras, pushbroom and RPC satellites and planetary
+line scanners, with wavelet additional parameters, data snooping, screening and check-point evaluation.
+
+The Python API (the same steps as ``selfcal adjust``)::
+
+    import selfcal
+
+    block = selfcal.read_block("block/")                 # a block folder (DESIGN.md §3)
+    outcome = selfcal.bundle_adjust(block, ap="wavelet:db4", screen=True)
+    print(outcome.summary["sigma0_px"], outcome.summary["rmsd_chk_xy_m"])
+    outcome.write("results/")                            # the results folder (DESIGN.md §4), report included
+    results = selfcal.read_results("results/")           # a results folder as plain data
+
+Progress goes to ``logging.getLogger("selfcal")`` (INFO), beside the lines ``selfcal adjust`` prints.
+Everything else is reached through its package (``selfcal.io``, ``selfcal.adjust``, ``selfcal.sensors``...).
+"""
+from __future__ import annotations
+
+from importlib import import_module
+from importlib.metadata import PackageNotFoundError, version
+
+try:
+    __version__ = version("selfcal")
+except PackageNotFoundError:          # pragma: no cover - running from a tree that was never installed
+    __version__ = "0+unknown"
+
+#: public name -> module that defines it (imported on first use: ``import selfcal`` stays light)
+_API = {
+    "read_block": "selfcal.io.block_folder",
+    "write_block": "selfcal.io.block_folder",
+    "read_results": "selfcal.io.results",
+    "bundle_adjust": "selfcal.workflows.api",
+    "Outcome": "selfcal.workflows.api",
+}
+
+__all__ = ["__version__", *_API]
+
+
+def __getattr__(name: str):
+    if name in _API:
+        return getattr(import_module(_API[name]), name)
+    raise AttributeError(f"module 'selfcal' has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(list(globals()) + list(_API))

@@ -1,0 +1,32 @@
+"""The progress lines of an adjustment, as text: the CLI prints them, and every one also goes to
+``logging.getLogger("selfcal")`` at INFO, so a program that calls selfcal sees them in its own log."""
+from __future__ import annotations
+
+import logging
+
+__all__ = ["LOG", "iteration_line", "round_line", "logging_progress", "logging_rounds"]
+
+LOG = logging.getLogger("selfcal")
+
+
+def iteration_line(record, image_sigma_px: float, prefix: str = "") -> str:
+    """One iteration of the solver (a :class:`selfcal.adjust.solver` iteration record)."""
+    status = "" if record.accepted else "  (step rejected, more damping)"
+    return (f"{prefix}iteration {record.iteration:2d}: sigma0 {record.sigma0 * image_sigma_px:.4f} px, "
+            f"largest correction {record.max_step_sigma:.3g} sigma{status}")
+
+
+def round_line(record) -> str:
+    """One round of data snooping and screening."""
+    return (f"tests round {record.round}: rejected {record.rejected} observations (largest |w| "
+            f"{record.largest_w:.1f}), dropped {record.dropped_aps} APs; re-adjusting")
+
+
+def logging_progress(image_sigma_px: float):
+    """A solver callback logging :func:`iteration_line` at INFO."""
+    return lambda record: LOG.info(iteration_line(record, image_sigma_px))
+
+
+def logging_rounds():
+    """A tests callback logging :func:`round_line` at INFO."""
+    return lambda record: LOG.info(round_line(record))
