@@ -31,4 +31,5 @@ def ply_bytes(vertices: np.ndarray, comments=()) -> bytes:
         little.append((name, dtype.newbyteorder("<")))
     lines.append("end_header")
     body = np.ascontiguousarray(vertices.astype(np.dtype(little))).tobytes()
-    return ("\n".join(lines) + "\n").encode("ascii") + body
+    # the header is ASCII: other characters of a comment (a block name) are written as \u escapes
+    return ("\n".join(lines) + "\n").encode("ascii", "backslashreplace") + body
