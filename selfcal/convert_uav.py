@@ -302,7 +302,8 @@ def block_with_markers(block: Block, markers, reference=None, *, marker_sigma_px
     """``block`` with Metashape markers added: their image measurements (:class:`selfcal.io.metashape.Markers`,
     pixels as selfcal's) and their coordinates from ``reference`` (a :class:`selfcal.io.patb.ControlPoints`
     read from the reference CSV; markers not in it take the XML's reference, if any). A marker with coordinates
-    is a ``gcp`` (``chk`` when disabled in the file or named in ``check_points``); without, a tie point.
+    is a ``gcp`` (``chk`` when its XML reference is disabled, Metashape's check point, or when named in
+    ``check_points``); without, a tie point.
     Measurements of cameras the block does not have are a BlockError naming the file and the camera.
     """
     notes: list[str] = []
@@ -333,8 +334,9 @@ def block_with_markers(block: Block, markers, reference=None, *, marker_sigma_px
         if unknown:
             notes.append(f"{len(unknown)} point(s) of {reference.path} have no marker measurement: "
                          f"{', '.join(unknown[:5])}" + (" ..." if len(unknown) > 5 else ""))
-        for k, label in enumerate(reference.point_id):
-            coords[label] = (reference.xyz_m[k], reference.sigma_m[k], reference.enabled[k])
+        for k, label in enumerate(reference.point_id):      # the file's coordinates, the project's check state
+            enabled = coords[label][2] if label in coords else reference.enabled[k]
+            coords[label] = (reference.xyz_m[k], reference.sigma_m[k], enabled)
     checks = set(check_points)
     unknown = checks - set(coords)
     if unknown:

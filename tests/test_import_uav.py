@@ -309,3 +309,200 @@ def test_bad_input_names_file_line_and_reason(tmp_path, sim, capsys, fmt, name, 
     if line is not None:
         assert f"line {line}" in err, err
     assert not os.path.exists(tmp_path / "out")
+
+
+# -------------------------------------------------------------------------------------------------- Pix4D
+
+def write_pix4d(folder, sim, project="proj"):
+    """A Pix4D params folder as Pix4D documents it: the BINGO file ("What is the bingo file": mm from the image
+    centre, one block per image closed by -99), the .cam (F, Px, Py in mm, Px/Py from the sensor's upper-left
+    corner, the sensor size in the comment), the external parameters (imageName X Y Z Omega Phi Kappa, degrees,
+    PATB convention) and the calibrated camera parameters (fileName imageWidth imageHeight, K, ...), and a GCP
+    file in PIX4D's import format (label, X, Y, Z, horizontal accuracy, vertical accuracy)."""
+    block, cam = sim.blocks["type1"], sim.truth.camera
+    p, w, h = cam.pixel_size_mm, cam.width_px, cam.height_px
+    params = os.path.join(folder, "1_initial", "params")
+    os.makedirs(params)
+    ob = block.observations
+    with open(os.path.join(params, f"{project}_tp_bingo.txt"), "w") as f:
+        for i, image in enumerate(block.images.image_id):
+            f.write(f"{image} ilce7m3_20.96_35.4\n")
+            for k in np.flatnonzero(ob.image_index == i):
+                col, row = ob.pixel[k]
+                f.write(f"{block.points.point_id[ob.point_index[k]]} {(col - w / 2) * p:.10f} {(h / 2 - row) * p:.10f}\n")
+            f.write("-99\n\n")
+    with open(os.path.join(params, f"{project}_pix4d_calibrated_internal_camera_parameters.cam"), "w") as f:
+        f.write(f"Pix4D camera calibration file 0\n#Focal Length mm assuming a sensor width of {w * p:g}x{h * p:g}mm\n"
+                f"F {cam.focal_mm}\n#Principal Point mm\nPx {w * p / 2 + cam.x0_mm}\nPy {h * p / 2 - cam.y0_mm}\n"
+                "#Symmetrical Lens Distortion Coeffs\nK1 0\nK2 0\nK3 0\n#Tangential Lens Distortion Coeffs\n"
+                "T1 0\nT2 0\n")
+    with open(os.path.join(params, f"{project}_calibrated_external_camera_parameters.txt"), "w") as f:
+        f.write("imageName X Y Z Omega Phi Kappa\n")
+        for image, eop in zip(sim.truth.image_id, sim.truth.eop):
+            f.write(f"{image} {eop[0]:.8f} {eop[1]:.8f} {eop[2]:.8f} " + " ".join(f"{np.degrees(a):.12f}" for a in eop[3:])
+                    + "\n")
+    with open(os.path.join(params, f"{project}_calibrated_camera_parameters.txt"), "w") as f:
+        f.write("fileName imageWidth imageHeight\ncamera matrix K [3x3]\nradial distortion [3x1]\n"
+                "tangential distortion [2x1]\ncamera position t [3x1]\ncamera rotation R [3x3]\n"
+                "camera model m = K [R|-Rt] X\n\n")
+        fpx = cam.focal_mm / p
+        for image, eop in zip(sim.truth.image_id, sim.truth.eop):
+            r = patb_rotation(*eop[3:]).T
+            f.write(f"{image} {w} {h}\n{fpx} 0 {w / 2 + cam.x0_mm / p}\n0 {fpx} {h / 2 - cam.y0_mm / p}\n0 0 1\n"
+                    f"0 0 0\n0 0\n{eop[0]} {eop[1]} {eop[2]}\n" + "\n".join(" ".join(map(str, row)) for row in r) + "\n")
+    marks = np.flatnonzero(block.points.role != "tie")
+    coords = np.round(block.points.xyz_m[marks], 3)
+    gcp = os.path.join(folder, "gcp.csv")
+    with open(gcp, "w") as f:
+        for k, xyz in zip(marks, coords):
+            f.write(f"{block.points.point_id[k]},{xyz[0]:.3f},{xyz[1]:.3f},{xyz[2]:.3f},0.0167,0.0289\n")
+    return dict(zip(block.points.point_id[marks], coords)), gcp
+
+
+def test_pix4d_import_recovers_the_block(tmp_path, sim):
+    control, gcp = write_pix4d(str(tmp_path / "project"), sim)
+    out = str(tmp_path / "block")
+    assert run_cli("import", "pix4d", str(tmp_path / "project"), "--gcp", gcp, "--check", "M07", "--out", out) == 0
+    block = read_block(out)
+    assert_same_measurements(block, sim.blocks["type1"])
+    assert_same_orientations(block, sim)
+    cam = block.cameras["pix4d"]
+    np.testing.assert_allclose([cam.focal_mm, cam.x0_mm, cam.y0_mm, cam.pixel_size_mm], [20.962, 0.034, -0.021, 0.0059],
+                               rtol=0, atol=1e-12)
+    index = {p: k for k, p in enumerate(block.points.point_id)}
+    for name, xyz in control.items():
+        k = index[name]
+        assert np.array_equal(block.points.xyz_m[k], xyz)
+        assert tuple(block.points.sigma_m[k]) == (0.0167, 0.0167, 0.0289)
+        assert block.points.role[k] == ("chk" if name == "M07" else "gcp")
+
+
+# ------------------------------------------------------------------------------------------ Metashape markers
+
+def write_markers(folder, sim, disabled="M03"):
+    """Metashape's markers XML (chunk layout: <cameras>, <markers> with <reference>, and the projections in
+    <frames><frame><markers><marker marker_id><location camera_id x y/>, pixels with the image centre at
+    (w/2, h/2)) and a reference CSV (label, X, Y, Z, X/Y/Z accuracy)."""
+    block = sim.blocks["type1"]
+    ob = block.observations
+    marks = np.flatnonzero(block.points.role != "tie")
+    lines = ['<?xml version="1.0" encoding="UTF-8"?>', '<document version="1.2.0">', '  <chunk label="Chunk 1">',
+             "    <cameras>"]
+    lines += [f'      <camera id="{i}" sensor_id="0" label="{image}"/>' for i, image in enumerate(block.images.image_id)]
+    lines += ["    </cameras>", "    <markers>"]
+    coords = np.round(block.points.xyz_m[marks], 3)
+    for j, (k, xyz) in enumerate(zip(marks, coords)):
+        label = block.points.point_id[k]
+        enabled = "false" if label == disabled else "true"
+        lines += [f'      <marker id="{j}" label="{label}">',
+                  f'        <reference x="{xyz[0]:.3f}" y="{xyz[1]:.3f}" z="{xyz[2]:.3f}" enabled="{enabled}"/>',
+                  "      </marker>"]
+    lines += ["    </markers>", "    <frames>", '      <frame id="0">', "        <markers>"]
+    for j, k in enumerate(marks):
+        lines.append(f'          <marker marker_id="{j}">')
+        for o in np.flatnonzero(ob.point_index == k):
+            x, y = ob.pixel[o]
+            lines.append(f'            <location camera_id="{ob.image_index[o]}" pinned="true" x="{float(x)!r}" '
+                         f'y="{float(y)!r}"/>')
+        lines.append("          </marker>")
+    lines += ["        </markers>", "      </frame>", "    </frames>", "  </chunk>", "</document>", ""]
+    xml = os.path.join(folder, "markers.xml")
+    with open(xml, "w") as f:
+        f.write("\n".join(lines))
+    ref = os.path.join(folder, "reference.csv")
+    with open(ref, "w") as f:
+        f.write("# Label,X,Y,Z,X_acc,Y_acc,Z_acc\n")
+        for k, xyz in zip(marks[:20], coords[:20]):        # the others keep the XML's reference
+            f.write(f"{block.points.point_id[k]},{xyz[0]:.3f},{xyz[1]:.3f},{xyz[2]:.3f},0.012,0.012,0.025\n")
+    return dict(zip(block.points.point_id[marks], coords)), xml, ref, set(block.points.point_id[marks[:20]])
+
+
+@pytest.fixture
+def tie_block(tmp_path, sim):
+    """The simulated block without its marks (a free network of tie points)."""
+    from dataclasses import replace
+    from selfcal.block import Observations
+    from selfcal.io.block_folder import write_block
+    block = sim.blocks["type1"]
+    ties = np.flatnonzero(block.points.role == "tie")
+    new_index = np.full(len(block.points), -1)
+    new_index[ties] = np.arange(len(ties))
+    keep = new_index[block.observations.point_index] >= 0
+    ob = block.observations
+    obs = Observations(ob.image_index[keep], new_index[ob.point_index[keep]], ob.pixel[keep], ob.sigma_px[keep],
+                       np.arange(1, keep.sum() + 1))
+    folder = str(tmp_path / "ties")
+    write_block(replace(block, points=block.points.take(ties), observations=obs, datum="free"), folder)
+    return folder
+
+
+def test_metashape_markers_add_control_to_a_block(tmp_path, sim, tie_block):
+    control, xml, ref, in_csv = write_markers(str(tmp_path), sim)
+    out = str(tmp_path / "with_markers")
+    assert run_cli("import", "metashape-markers", xml, "--block", tie_block, "--reference", ref, "--check", "M10",
+                   "--gcp-sigma-xy", "0.0167", "--gcp-sigma-z", "0.0289", "--out", out) == 0
+    block = read_block(out)
+    assert_same_measurements(block, sim.blocks["type1"])           # tie points as before, markers to 1e-6 px
+    index = {p: k for k, p in enumerate(block.points.point_id)}
+    for name, xyz in control.items():
+        k = index[name]
+        assert np.array_equal(block.points.xyz_m[k], xyz)
+        want = (0.012, 0.012, 0.025) if name in in_csv else (0.0167, 0.0167, 0.0289)
+        assert tuple(block.points.sigma_m[k]) == want, name
+        assert block.points.role[k] == ("chk" if name in ("M03", "M10") else "gcp"), name
+    assert block.datum == "control"
+    assert not os.path.exists(os.path.join(tie_block, "points.csv.tmp"))
+
+
+@pytest.mark.parametrize("edit, snippet, reason", [
+    (lambda t: t.replace('label="S1_02"', 'label="OTHER"'), '<location camera_id="1"',
+     "camera 'OTHER' is not an image of the block"),
+    (lambda t: t.replace('camera_id="1" pinned', 'camera_id="77" pinned', 1), 'camera_id="77"',
+     "camera id 77 is not among"),
+    (lambda t: t.replace(' x="', ' x="abc', 1), ' x="abc', "'abc"),
+])
+def test_metashape_markers_bad_input(tmp_path, sim, tie_block, capsys, edit, snippet, reason):
+    """The error names the file, the line of the offending element and the reason."""
+    import re
+    _, xml, ref, _ = write_markers(str(tmp_path), sim)
+    with open(xml) as f:
+        text = edit(f.read())
+    with open(xml, "w") as f:
+        f.write(text)
+    out = str(tmp_path / "out")
+    assert run_cli("import", "metashape-markers", xml, "--block", tie_block, "--reference", ref, "--out", out) == 2
+    err = capsys.readouterr().err
+    assert "markers.xml" in err and reason in err, err
+    line = int(re.search(r"line (\d+)", err).group(1))
+    assert snippet in text.splitlines()[line - 1], (line, err)
+    assert not os.path.exists(out)
+
+
+def test_metashape_markers_need_a_block(tmp_path, sim, capsys):
+    _, xml, ref, _ = write_markers(str(tmp_path), sim)
+    assert run_cli("import", "metashape-markers", xml, "--out", str(tmp_path / "out")) == 2
+    assert "--block" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("name, edit, line, reason", [
+    ("proj_tp_bingo.txt", lambda t: t[:t.rindex("-99")], None, "not closed by -99"),
+    ("proj_calibrated_external_camera_parameters.txt", lambda t: t.replace("S2_01 ", "S9_99 ", 1), 5,
+     "photo 'S9_99' has no image measurements"),
+    ("proj_calibrated_external_camera_parameters.txt", lambda t: t.replace("\nS1_01 ", "\nS1_01 x", 1), 2, "X: 'x"),
+    ("proj_pix4d_calibrated_internal_camera_parameters.cam", lambda t: t.replace("F 20.962", "F twenty"), 3,
+     "F: 'twenty' is not a number"),
+])
+def test_pix4d_bad_input(tmp_path, sim, capsys, name, edit, line, reason):
+    write_pix4d(str(tmp_path / "project"), sim)
+    path = os.path.join(tmp_path, "project", "1_initial", "params", name)
+    with open(path) as f:
+        text = f.read()
+    with open(path, "w") as f:
+        f.write(edit(text))
+    out = str(tmp_path / "out")
+    assert run_cli("import", "pix4d", str(tmp_path / "project" / "1_initial" / "params"), "--out", out) == 2
+    err = capsys.readouterr().err
+    assert name in err and reason in err, err
+    if line is not None:
+        assert f"line {line}" in err, err
+    assert not os.path.exists(out)

@@ -1,6 +1,6 @@
 """``selfcal import FORMAT``: one module per format, each with ``HELP``, ``add_arguments(parser)`` and
 ``run(args) -> int``. A new format is one module and one line here."""
-from . import bal, colmap, isis, opensfm, patb
+from . import bal, colmap, isis, metashape_markers, opensfm, patb, pix4d
 
 #: format -> module
 IMPORTERS = {
@@ -9,4 +9,6 @@ IMPORTERS = {
     "isis": isis,
     "patb": patb,
     "opensfm": opensfm,
+    "pix4d": pix4d,
+    "metashape-markers": metashape_markers,
 }

@@ -36,7 +36,7 @@ def pair(text: str) -> tuple[float, float]:
     return parse(parts[0]), parse(parts[1])
 
 
-def control_arguments(parser: argparse.ArgumentParser) -> None:
+def control_arguments(parser: argparse.ArgumentParser, crs: bool = True) -> None:
     """Options of the control of an import (shared by patb, pix4d and metashape-markers)."""
     parser.add_argument("--check", default="", metavar="NAMES",
                         help="comma-separated control points to use as check points")
@@ -45,7 +45,8 @@ def control_arguments(parser: argparse.ArgumentParser) -> None:
                              "(default 0.01 m)")
     parser.add_argument("--gcp-sigma-z", type=number(0.0, low_open=True), default=0.02, metavar="M",
                         help="a-priori sigma of the control heights where the file gives none (default 0.02 m)")
-    parser.add_argument("--crs", default="local", help="CRS of the coordinates (e.g. EPSG:32632; default local)")
+    if crs:
+        parser.add_argument("--crs", default="local", help="CRS of the coordinates (e.g. EPSG:32632; default local)")
 
 
 def checks(args) -> list[str]:
