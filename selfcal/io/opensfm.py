@@ -37,6 +37,14 @@ CAMERA_PARAMETERS = {
 }
 
 
+#: fields of a tracks.csv line by version (OpenSfM's io: v1 added the feature scale, v2 segmentation and instance)
+TRACK_FIELDS = {
+    "v0": ("image", "track_id", "feature_id", "x", "y", "r", "g", "b"),
+    "v1": ("image", "track_id", "feature_id", "x", "y", "scale", "r", "g", "b"),
+    "v2": ("image", "track_id", "feature_id", "x", "y", "scale", "r", "g", "b", "segmentation", "instance"),
+}
+
+
 @dataclass(frozen=True)
 class OpenSfmCamera:
     camera_id: str
@@ -140,23 +148,32 @@ def read_reconstruction(path: str | os.PathLike) -> OpenSfmReconstruction:
 def read_tracks(path: str | os.PathLike) -> OpenSfmTracks:
     """An OpenSfM ``tracks.csv`` (v0, v1 or v2; tab separated)."""
     path = os.fspath(path)
-    lines = read_text(path, "OpenSfM tracks file").splitlines()
-    first = 0
+    text = read_text(path, "OpenSfM tracks file")
+    lines = text.splitlines()
+    first, version = 0, "v0"
     if lines and lines[0].startswith("OPENSFM_TRACKS_VERSION"):
-        first = 1
+        first, version = 1, lines[0].rsplit("_", 1)[-1].strip()
+    if version not in TRACK_FIELDS:
+        raise BlockError(path, f"unknown tracks version '{lines[0].strip()}' (known: "
+                               f"{', '.join('OPENSFM_TRACKS_VERSION_' + v for v in TRACK_FIELDS)})", 1)
+    names = TRACK_FIELDS[version]
+    if text and not text.endswith("\n"):
+        raise BlockError(path, "the last line has no line end: a truncated file?", len(lines))
     image, track, xy, numbers_ = [], [], [], []
     for number, line in enumerate(lines[first:], start=first + 1):
         if not line.strip():
             continue
         fields = line.split("\t")
-        if len(fields) < 5:
-            raise BlockError(path, f"expected image, track id, feature id, x, y, ... separated by tabs; found "
-                                   f"{len(fields)} field(s)", number)
-        try:
-            x, y = float(fields[3]), float(fields[4])
-        except ValueError:
-            bad = next(f for f in fields[3:5] if not _is_number(f))
-            raise BlockError(path, f"'{bad}' is not a number", number, "x" if bad == fields[3] else "y") from None
+        if len(fields) != len(names):
+            raise BlockError(path, f"expected the {len(names)} tab-separated fields of tracks {version} "
+                                   f"({', '.join(names)}), found {len(fields)}", number)
+        values = []
+        for name, field in zip(names[2:], fields[2:]):
+            try:
+                values.append(float(field))
+            except ValueError:
+                raise BlockError(path, f"'{field}' is not a number", number, name) from None
+        x, y = values[1], values[2]
         if not (math.isfinite(x) and math.isfinite(y)):
             raise BlockError(path, "NaN or infinite feature coordinate", number)
         image.append(fields[0])
@@ -167,11 +184,3 @@ def read_tracks(path: str | os.PathLike) -> OpenSfmTracks:
         raise BlockError(path, "no feature in the tracks file")
     return OpenSfmTracks(path, np.array(image, object), np.array(track, object), np.array(xy, float),
                          np.array(numbers_, np.int64))
-
-
-def _is_number(text: str) -> bool:
-    try:
-        float(text)
-        return True
-    except ValueError:
-        return False
