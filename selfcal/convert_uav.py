@@ -186,7 +186,8 @@ def block_from_pix4d(params, control=None, *, image_sigma_px: float = 1.0, contr
 
     BINGO image coordinates (mm from the image centre, y up) become pixels with the pixel size of the
     calibrated camera (sensor width / image width); the calibrated internal parameters give focal length and
-    principal point, the calibrated external ones the images' positions and omega, phi, kappa. Control
+    principal point, and their radial distortion initial values of the ``brown`` APs; the calibrated external
+    ones the images' positions and omega, phi, kappa. Control
     (``control``: a :class:`selfcal.io.patb.ControlPoints`, e.g. from a GCP file) matches BINGO point ids.
     """
     notes: list[str] = []
@@ -199,9 +200,25 @@ def block_from_pix4d(params, control=None, *, image_sigma_px: float = 1.0, contr
     camera = FrameCamera("pix4d", cam.width_px, cam.height_px, p, cam.focal_mm,
                          cam.principal_point_mm[0] - cam.width_px * p / 2.0,
                          cam.height_px * p / 2.0 - cam.principal_point_mm[1])
-    if any(v != 0.0 for v in cam.distortion.values()):
-        notes.append("Pix4D's distortion coefficients are not carried over: estimate APs in the adjustment "
-                     f"({', '.join(f'{k} {v:g}' for k, v in cam.distortion.items())})")
+    radial = {k: cam.distortion[name] for k, name in (("k1", "K1"), ("k2", "K2"), ("k3", "K3"))
+              if cam.distortion[name] != 0.0}
+    if radial:
+        # Pix4D's radial model is OpenCV's (x_d = x_h (1 + R1 r^2 + R2 r^4 + R3 r^6) on the homogeneous point):
+        # fitted as initial brown APs the way a COLMAP camera's distortion is
+        from .convert import colmap_distortion_as_brown
+        from .io.colmap import ColmapCamera
+        f_px = cam.focal_mm / p
+        colmap = ColmapCamera(0, "PIX4D", cam.width_px, cam.height_px,
+                              {"fx": f_px, "fy": f_px, "cx": cam.principal_point_mm[0] / p,
+                               "cy": cam.principal_point_mm[1] / p, **radial})
+        initial, misfit_px = colmap_distortion_as_brown(colmap, camera)
+        camera = replace(camera, initial_ap=initial)
+        notes.append(f"Pix4D's radial distortion (R1..R3) is the initial value of the brown APs (largest misfit of "
+                     f"the conversion {misfit_px:.3f} px)")
+    if cam.distortion["T1"] != 0.0 or cam.distortion["T2"] != 0.0:
+        notes.append(f"Pix4D's tangential distortion (T1 {cam.distortion['T1']:g}, T2 {cam.distortion['T2']:g}) is "
+                     f"not carried over (the direction of Pix4D's y axis in its formula is not documented): the "
+                     f"adjustment estimates it")
     measurements = params.bingo
     photos = list(measurements.photos)
     image_index = {ph: i for i, ph in enumerate(photos)}

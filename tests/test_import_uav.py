@@ -506,3 +506,43 @@ def test_pix4d_bad_input(tmp_path, sim, capsys, name, edit, line, reason):
     if line is not None:
         assert f"line {line}" in err, err
     assert not os.path.exists(out)
+
+
+def test_pix4d_radial_distortion_becomes_initial_brown_values(tmp_path, sim):
+    """R1..R3 of the .cam: the initial brown APs reproduce Pix4D's documented radial model (x_d = x_h (1 + R1 r^2
+    + R2 r^4 + R3 r^6) on the homogeneous point, pixel = f x_d + c) within 0.05 px over the image."""
+    write_pix4d(str(tmp_path / "project"), sim)
+    cam_file = os.path.join(tmp_path, "project", "1_initial", "params",
+                            "proj_pix4d_calibrated_internal_camera_parameters.cam")
+    radial = {"K1": -0.012, "K2": 0.003, "K3": -0.0004}
+    with open(cam_file) as f:
+        text = f.read()
+    for key, value in radial.items():
+        text = text.replace(f"{key} 0\n", f"{key} {value}\n")
+    with open(cam_file, "w") as f:
+        f.write(text)
+    out = str(tmp_path / "block")
+    assert run_cli("import", "pix4d", str(tmp_path / "project"), "--out", out) == 0
+    cam = read_block(out).cameras["pix4d"]
+    assert cam.initial_ap is not None and cam.initial_ap.spec == "brown"
+    from selfcal.ap import ImageFrame, create_ap
+    truth = sim.truth.camera
+    p, w, h = truth.pixel_size_mm, truth.width_px, truth.height_px
+    f_px, cx, cy = truth.focal_mm / p, w / 2 + truth.x0_mm / p, h / 2 - truth.y0_mm / p
+    col, row = np.meshgrid(np.linspace(100, w - 100, 25), np.linspace(100, h - 100, 17))
+    xh, yh = (col.ravel() - cx) / f_px, (row.ravel() - cy) / f_px          # ideal positions, homogeneous
+    r2 = xh**2 + yh**2
+    d = 1 + radial["K1"] * r2 + radial["K2"] * r2**2 + radial["K3"] * r2**3
+    want = np.column_stack([f_px * xh * d + cx, f_px * yh * d + cy])     # Pix4D's distorted pixels
+    ideal_mm = np.column_stack([(col.ravel() - w / 2) * p, (h / 2 - row.ravel()) * p])
+    ap = create_ap("brown", ImageFrame(cam.width_mm, cam.height_mm, cam.pixel_size_mm))
+    values = np.array([cam.initial_ap.values_px[cam.initial_ap.names.index(n)] for n in ap.parameter_names])
+    measured = ideal_mm.copy()
+    for _ in range(30):
+        bx, by = ap.basis(measured[:, 0], measured[:, 1])
+        measured = ideal_mm + np.column_stack([bx @ values, by @ values]) * p
+    got = np.column_stack([measured[:, 0] / p + w / 2, h / 2 - measured[:, 1] / p])
+    err = np.hypot(*(got - want).T)
+    print(f"largest difference to Pix4D's radial model: {np.max(err):.4f} px (distortion up to "
+          f"{np.max(np.hypot(*(want - np.column_stack([col.ravel(), row.ravel()])).T)):.1f} px)")
+    assert np.max(err) < 0.05
