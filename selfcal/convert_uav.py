@@ -134,6 +134,7 @@ def _orientations(orientations, photos, image_index, notes, angles=False):
 
 def block_from_patb(measurements, control=None, orientations=None, *, width_px: int, height_px: int,
                     pixel_size_mm: float, focal_mm: float | None = None, principal_point_mm=(0.0, 0.0),
+                    image_unit_mm: float = 1.0,
                     image_sigma_px: float = 1.0, control_sigma_m=(0.01, 0.02), check_points=(),
                     crs: str = "local", name: str = "patb") -> tuple[Block, list[str]]:
     """A block from PAT-B files (:mod:`selfcal.io.patb`): one frame camera, the photos of the ``.im``.
@@ -142,7 +143,8 @@ def block_from_patb(measurements, control=None, orientations=None, *, width_px: 
     PAT-B's image coordinates are relative to it. ``focal_mm``: the camera constant; by default the one the
     ``.im`` headers give (all alike). Control points come from the ``.con`` (``gcp``, or ``chk`` when named in
     ``check_points``) with ``control_sigma_m`` = (plan, height); other points are tie points without initial
-    coordinates. Returns the block and notes of what was done.
+    coordinates. ``image_unit_mm``: the length of the ``.im`` coordinates' unit in mm (0.001 for microns, as
+    the export's ``.pro`` may state). Returns the block and notes of what was done.
     """
     notes: list[str] = []
     if focal_mm is None:
@@ -167,9 +169,9 @@ def block_from_patb(measurements, control=None, orientations=None, *, width_px: 
     photos = list(measurements.photos)
     image_index = {p: i for i, p in enumerate(photos)}
 
-    def to_pixel(xy_mm, img):
-        col = width_px / 2.0 + (xy_mm[:, 0] + x0) / pixel_size_mm
-        row = height_px / 2.0 - (xy_mm[:, 1] + y0) / pixel_size_mm
+    def to_pixel(xy, img):
+        col = width_px / 2.0 + (xy[:, 0] * image_unit_mm + x0) / pixel_size_mm
+        row = height_px / 2.0 - (xy[:, 1] * image_unit_mm + y0) / pixel_size_mm
         return np.column_stack([col, row])
 
     ids, roles, xyz, sigma, obs_img, obs_pt, pixel = _points_and_observations(

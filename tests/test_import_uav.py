@@ -63,7 +63,7 @@ def assert_same_orientations(imported, sim):
 
 # ------------------------------------------------------------------------------------------------- PAT-B
 
-def write_patb(folder, sim, stem="block", marks_rounded=True):
+def write_patb(folder, sim, stem="block", unit_mm=1.0):
     """PAT-B as Metashape exports it (Agisoft's "Export cameras in PAT-B format": x right, y up, mm; PCI's
     "Using Pat-B in OrthoEngine" for the .ori records): .im photo blocks closed by -99, .con closed by -99,
     .ori with three records per photo (centre; a11 a12 a13 a21 a22; a23 a31 a32 a33)."""
@@ -77,7 +77,7 @@ def write_patb(folder, sim, stem="block", marks_rounded=True):
                 col, row = ob.pixel[k]
                 x = (col - w / 2) * p - cam.x0_mm          # from the principal point, y up
                 y = (h / 2 - row) * p - cam.y0_mm
-                f.write(f"{block.points.point_id[ob.point_index[k]]:>10} {x:16.10f} {y:16.10f}\n")
+                f.write(f"{block.points.point_id[ob.point_index[k]]:>10} {x / unit_mm:16.10f} {y / unit_mm:16.10f}\n")
             f.write("       -99\n")
     marks = np.flatnonzero(block.points.role != "tie")
     coords = np.round(block.points.xyz_m[marks], 3)
@@ -119,6 +119,15 @@ def test_patb_import_recovers_the_block(tmp_path, sim):
         assert block.points.role[k] == ("chk" if name in checks else "gcp")
         assert tuple(block.points.sigma_m[k]) == (0.0167, 0.0167, 0.0289)
     assert block.datum == "control"
+
+
+def test_patb_in_microns(tmp_path, sim):
+    src = tmp_path / "src"
+    src.mkdir()
+    write_patb(str(src), sim, unit_mm=0.001)
+    out = str(tmp_path / "block")
+    assert run_cli(*patb_argv(str(src), out, "--image-units", "um")) == 0
+    assert_same_measurements(read_block(out), sim.blocks["type1"])
 
 
 def test_patb_adjustment_recovers_the_truth(tmp_path, sim):

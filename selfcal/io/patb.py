@@ -6,7 +6,8 @@ PAT-B (the Stuttgart block adjustment program) exchanges free-format text record
   camera label when "Use item labels" is on) and optionally the camera constant, then one record per
   measured point ``point_id x y``, the block closed by a record ``-99``. Metashape's export writes x to
   the right and y up ("the direction of the X-axes is to the right, Y-up", Agisoft's article "Export cameras
-  in PAT-B format"), in millimetres (the unit the ``.pro`` file states) relative to the principal point.
+  in PAT-B format"), in the unit the export's ``.pro`` file states (millimetres or microns), relative to the
+  principal point.
   BINGO's tie-point file (Pix4D's ``*_tp_bingo.txt``, :mod:`selfcal.io.pix4d`) has the same layout.
 * ``.con`` control points: ``point_id X Y Z`` per record, the file closed by ``-99``.
 * ``.ori`` exterior orientations (PAT-B's output), three records per photo: ``photo_id X0 Y0 Z0``, then the
@@ -37,12 +38,13 @@ END = "-99"
 
 @dataclass(frozen=True)
 class PhotoMeasurements:
-    """Image coordinates of a ``.im`` or BINGO file, as written (mm)."""
+    """Image coordinates of a ``.im`` or BINGO file, as written (in the file's unit: mm, or microns for a
+    PAT-B export that says so)."""
 
     path: str
     image: np.ndarray            # (m,) photo id of each measurement
     point: np.ndarray            # (m,) point id
-    xy_mm: np.ndarray            # (m, 2) x right, y up
+    xy_mm: np.ndarray            # (m, 2) x right, y up (the file's unit)
     line: np.ndarray             # (m,) line of the file
     photos: tuple[str, ...]      # photo ids in the file's order
     header: dict                 # photo id -> the header record's other tokens (camera constant, camera name)

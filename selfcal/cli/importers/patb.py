@@ -62,6 +62,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="principal distance (default: the camera constant of the .im headers)")
     parser.add_argument("--principal-point-mm", type=pair, default=(0.0, 0.0), metavar="X0,Y0",
                         help="principal point from the image centre, mm, x right, y up (default 0,0)")
+    parser.add_argument("--image-units", choices=("mm", "um"), default="mm",
+                        help="unit of the .im coordinates, as the export's .pro states it (default mm)")
     parser.add_argument("--image-sigma-px", type=number(0.0, low_open=True), default=1.0,
                         help="a-priori sigma of an image measurement (default 1.0 px)")
     control_arguments(parser)
@@ -78,7 +80,9 @@ def run(args: argparse.Namespace) -> int:
     w, h = args.image_size
     block, notes = block_from_patb(measurements, control, orientations, width_px=w, height_px=h,
                                    pixel_size_mm=args.pixel_size_mm, focal_mm=args.focal_mm,
-                                   principal_point_mm=args.principal_point_mm, image_sigma_px=args.image_sigma_px,
+                                   principal_point_mm=args.principal_point_mm,
+                                   image_unit_mm=0.001 if args.image_units == "um" else 1.0,
+                                   image_sigma_px=args.image_sigma_px,
                                    control_sigma_m=(args.gcp_sigma_xy, args.gcp_sigma_z), check_points=checks(args),
                                    crs=args.crs, name=os.path.basename(os.path.normpath(args.out)))
     for note in notes:
