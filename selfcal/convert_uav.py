@@ -18,6 +18,7 @@ image, the camera looking along -z):
 """
 from __future__ import annotations
 
+import os
 import re
 from dataclasses import replace
 
@@ -108,6 +109,12 @@ def _rotation_from_image_to_object(orientations, k) -> np.ndarray:
     return a
 
 
+def _stem(name: str) -> str:
+    """An image name without its file extension."""
+    base, ext = os.path.splitext(str(name))
+    return base if ext else str(name)
+
+
 def _orientations(orientations, photos, image_index, notes, angles=False):
     """Perspective centres and angles (rad) of ``photos`` (NaN where the file has none)."""
     n = len(photos)
@@ -115,11 +122,13 @@ def _orientations(orientations, photos, image_index, notes, angles=False):
     if orientations is None:
         notes.append("no exterior orientations: the adjustment computes initial values")
         return position, opk
+    stems = {_stem(p): i for p, i in image_index.items()}
     for k, image in enumerate(orientations.image):
-        if image not in image_index:
+        # Pix4D's BINGO names an image without its extension (P1060498), the external parameters with it
+        i = image_index.get(image, stems.get(_stem(image)))
+        if i is None:
             raise BlockError(orientations.path, f"photo '{image}' has no image measurements (it is not in "
                                                 f"{', '.join(sorted(set(photos)))[:200]})", int(orientations.line[k]))
-        i = image_index[image]
         position[i] = orientations.position_m[k]
         if angles:
             opk[i] = np.radians(orientations.opk_deg[k])
@@ -334,10 +343,10 @@ def block_with_markers(block: Block, markers, reference=None, *, marker_sigma_px
         raise BlockError(markers.path, f"marker(s) {', '.join(clash[:5])} have the name of a point the block "
                                        f"already has", markers.marker_line.get(clash[0]))
     image_index = {str(i): k for k, i in enumerate(block.images.image_id)}
-    stem_index = {str(i).rsplit(".", 1)[0]: k for k, i in enumerate(block.images.image_id)}
+    stem_index = {_stem(i): k for k, i in enumerate(block.images.image_id)}
     obs_img = []
     for camera, line in zip(markers.camera, markers.line):
-        k = image_index.get(camera, stem_index.get(str(camera).rsplit(".", 1)[0]))
+        k = image_index.get(camera, stem_index.get(_stem(camera)))
         if k is None:
             raise BlockError(markers.path, f"camera '{camera}' is not an image of the block "
                                            f"({len(block.images)} images, e.g. {block.images.image_id[0]})",

@@ -348,7 +348,8 @@ def write_pix4d(folder, sim, project="proj"):
     with open(os.path.join(params, f"{project}_calibrated_external_camera_parameters.txt"), "w") as f:
         f.write("imageName X Y Z Omega Phi Kappa\n")
         for image, eop in zip(sim.truth.image_id, sim.truth.eop):
-            f.write(f"{image} {eop[0]:.8f} {eop[1]:.8f} {eop[2]:.8f} " + " ".join(f"{np.degrees(a):.12f}" for a in eop[3:])
+            f.write(f"{image}.JPG {eop[0]:.8f} {eop[1]:.8f} {eop[2]:.8f} "      # BINGO: without the extension
+                    + " ".join(f"{np.degrees(a):.12f}" for a in eop[3:])
                     + "\n")
     with open(os.path.join(params, f"{project}_calibrated_camera_parameters.txt"), "w") as f:
         f.write("fileName imageWidth imageHeight\ncamera matrix K [3x3]\nradial distortion [3x1]\n"
@@ -357,7 +358,7 @@ def write_pix4d(folder, sim, project="proj"):
         fpx = cam.focal_mm / p
         for image, eop in zip(sim.truth.image_id, sim.truth.eop):
             r = patb_rotation(*eop[3:]).T
-            f.write(f"{image} {w} {h}\n{fpx} 0 {w / 2 + cam.x0_mm / p}\n0 {fpx} {h / 2 - cam.y0_mm / p}\n0 0 1\n"
+            f.write(f"{image}.JPG {w} {h}\n{fpx} 0 {w / 2 + cam.x0_mm / p}\n0 {fpx} {h / 2 - cam.y0_mm / p}\n0 0 1\n"
                     f"0 0 0\n0 0\n{eop[0]} {eop[1]} {eop[2]}\n" + "\n".join(" ".join(map(str, row)) for row in r) + "\n")
     marks = np.flatnonzero(block.points.role != "tie")
     coords = np.round(block.points.xyz_m[marks], 3)
@@ -495,9 +496,10 @@ def test_metashape_markers_need_a_block(tmp_path, sim, capsys):
 
 @pytest.mark.parametrize("name, edit, line, reason", [
     ("proj_tp_bingo.txt", lambda t: t[:t.rindex("-99")], None, "not closed by -99"),
-    ("proj_calibrated_external_camera_parameters.txt", lambda t: t.replace("S2_01 ", "S9_99 ", 1), 5,
-     "photo 'S9_99' has no image measurements"),
-    ("proj_calibrated_external_camera_parameters.txt", lambda t: t.replace("\nS1_01 ", "\nS1_01 x", 1), 2, "X: 'x"),
+    ("proj_calibrated_external_camera_parameters.txt", lambda t: t.replace("S2_01.JPG ", "S9_99.JPG ", 1), 5,
+     "photo 'S9_99.JPG' has no image measurements"),
+    ("proj_calibrated_external_camera_parameters.txt", lambda t: t.replace("\nS1_01.JPG ", "\nS1_01.JPG x", 1), 2,
+     "X: 'x"),
     ("proj_pix4d_calibrated_internal_camera_parameters.cam", lambda t: t.replace("F 20.962", "F twenty"), 3,
      "F: 'twenty' is not a number"),
 ])
