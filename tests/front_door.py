@@ -148,6 +148,16 @@ class Workspace:
         return self._once("lro_nac_pair", lambda p: shutil.copytree(
             os.path.join(SHARED_DATA, "isis", "lro_nac_pair"), p, copy_function=_copy_writable))
 
+    @property
+    def patb(self) -> str:
+        """PAT-B files (block.im, block.con, block.ori) of :attr:`block`'s simulation."""
+        return self._once("patb", lambda p: write_patb(p, self.simulation()))
+
+    @property
+    def opensfm(self) -> str:
+        """An OpenSfM reconstruction.json and tracks.csv of :attr:`block`'s simulation."""
+        return self._once("opensfm", lambda p: write_opensfm(p, self.simulation()))
+
     def copy(self, source: str, work: str, name: str | None = None) -> str:
         """A writable copy of ``source`` (file or folder) inside ``work``."""
         target = os.path.join(work, name or os.path.basename(os.path.normpath(source)))
@@ -212,6 +222,61 @@ def write_colmap(folder: str, binary: bool) -> None:
             h.write(struct.pack("<Q", len(centres)))
             for i in range(len(centres)):
                 h.write(struct.pack("<ii", i + 1, j))
+
+
+def write_patb(folder: str, sim) -> None:
+    """The simulation's type3 block as PAT-B (.im in mm from the image centre, y up; .con; .ori with A = M^T)."""
+    from selfcal.geometry.rotation import matrix_from_opk
+    block = sim.blocks["type3"]
+    cam = block.cameras["ilce7m3"]
+    p, w, h = cam.pixel_size_mm, cam.width_px, cam.height_px
+    os.makedirs(folder)
+    ob = block.observations
+    with open(os.path.join(folder, "block.im"), "w") as f:
+        for i, image in enumerate(block.images.image_id):
+            f.write(f"{image} {cam.focal_mm}\n")
+            for k in np.flatnonzero(ob.image_index == i):
+                col, row = ob.pixel[k]
+                f.write(f"{block.points.point_id[ob.point_index[k]]} {(col - w / 2) * p:.6f} {(h / 2 - row) * p:.6f}\n")
+            f.write("-99\n")
+    marks = np.flatnonzero(block.points.role != "tie")
+    with open(os.path.join(folder, "block.con"), "w") as f:
+        for k in marks:
+            f.write(f"{block.points.point_id[k]} " + " ".join(f"{v:.3f}" for v in block.points.xyz_m[k]) + "\n")
+        f.write("-99\n")
+    with open(os.path.join(folder, "block.ori"), "w") as f:
+        for image, eop in zip(sim.truth.image_id, sim.truth.eop):
+            a = matrix_from_opk(eop[3:]).T.ravel()
+            f.write(f"{image} {eop[0]:.4f} {eop[1]:.4f} {eop[2]:.4f}\n" + " ".join(f"{v:.12f}" for v in a[:5]) + "\n"
+                    + " ".join(f"{v:.12f}" for v in a[5:]) + "\n")
+
+
+def write_opensfm(folder: str, sim) -> None:
+    """The simulation's block as OpenSfM's reconstruction.json and tracks.csv (a perspective camera)."""
+    import json
+    from selfcal.geometry.rotation import matrix_from_opk
+    from scipy.spatial.transform import Rotation
+    block = sim.blocks["type3"]
+    cam = block.cameras["ilce7m3"]
+    w, h, s = cam.width_px, cam.height_px, max(cam.width_px, cam.height_px)
+    os.makedirs(folder)
+    shots = {}
+    for image, eop in zip(sim.truth.image_id, sim.truth.eop):
+        r = np.diag([1.0, -1.0, -1.0]) @ matrix_from_opk(eop[3:])
+        shots[str(image)] = {"rotation": [float(v) for v in Rotation.from_matrix(r).as_rotvec()],
+                             "translation": [float(v) for v in -r @ eop[:3]], "camera": "cam"}
+    points = {str(i): {"coordinates": [float(v) for v in x]} for i, x in zip(sim.truth.point_id, sim.truth.xyz)}
+    camera = {"projection_type": "perspective", "width": w, "height": h, "focal": cam.focal_mm / cam.pixel_size_mm / s,
+              "k1": 0.0, "k2": 0.0}
+    with open(os.path.join(folder, "reconstruction.json"), "w") as f:
+        json.dump([{"cameras": {"cam": camera}, "shots": shots, "points": points}], f, indent=1)
+    ob = block.observations
+    with open(os.path.join(folder, "tracks.csv"), "w") as f:
+        f.write("OPENSFM_TRACKS_VERSION_v2\n")
+        for k in range(len(ob)):
+            x, y = (ob.pixel[k] - [w / 2, h / 2]) / s
+            f.write(f"{block.images.image_id[ob.image_index[k]]}\t{block.points.point_id[ob.point_index[k]]}\t{k}\t"
+                    f"{x:.9f}\t{y:.9f}\t0.004\t1\t2\t3\t-1\t-1\n")
 
 
 # ------------------------------------------------------------------------------------------ editing
@@ -872,6 +937,59 @@ case("isis: NaN in an ISD", names="observationImageL.isd")(
           "observationImageL.isd"))
 case("isis: cube label truncated", names="observationImageR.pvl")(
     _isis(lambda f: truncate(os.path.join(f, "observationImageR.pvl"), 0.3), "observationImageR.pvl"))
+
+
+# --- the UAV tools' files (issue 23): PAT-B, OpenSfM, Pix4D, Metashape markers ----------------------------
+PATB_SIZE = ["--image-size", "6000x4000", "--pixel-size-mm", "0.0059"]
+
+
+def _patb(change, extra=()):
+    def setup(ws, work):
+        folder = ws.copy(ws.patb, work)
+        change(folder)
+        out = os.path.join(work, "imported")
+        return ["import", "patb", os.path.join(folder, "block.im"), *PATB_SIZE, *extra, "--out", out], [folder], out
+    return setup
+
+
+def _opensfm(change):
+    def setup(ws, work):
+        folder = ws.copy(ws.opensfm, work)
+        change(folder)
+        out = os.path.join(work, "imported")
+        return ["import", "opensfm", folder, "--out", out], [folder], out
+    return setup
+
+
+case("import patb IM --out NEW (works)", exit=0)(_patb(lambda f: None))
+case("import opensfm DIR --out NEW (works)", exit=0)(_opensfm(lambda f: None))
+case("patb: .im truncated", names="block.im")(_patb(lambda f: truncate(os.path.join(f, "block.im"), 0.5)))
+case("patb: text in .con", names="block.con, line 2")(
+    _patb(lambda f: _odm_token(os.path.join(f, "block.con"), 1, 2, b"12x")))
+case("patb: .ori of a photo not in .im", names="block.ori, line 1")(
+    _patb(lambda f: replace_bytes(os.path.join(f, "block.ori"), b"S1_01 ", b"S7_01 ")))
+case("patb: Latin-1 byte in .im", names="block.im, line 1")(_patb(lambda f: prepend(os.path.join(f, "block.im"), b"\xe9")))
+case("patb: --check of a point not in .con", names="--check")(_patb(lambda f: None, ("--check", "NOPE")))
+case("patb: no --image-size", names="--image-size")(
+    lambda ws, work: (["import", "patb", os.path.join(ws.patb, "block.im"), "--pixel-size-mm", "0.0059", "--out",
+                       os.path.join(work, "out")], [ws.patb], os.path.join(work, "out")))
+case("patb: --out IM_FOLDER", names="holds the input")(
+    lambda ws, work: (["import", "patb", os.path.join(ws.patb, "block.im"), *PATB_SIZE, "--out", ws.patb], [ws.patb],
+                      ws.patb))
+case("opensfm: NaN in reconstruction.json", names="reconstruction.json")(
+    _opensfm(lambda f: replace_bytes(os.path.join(f, "reconstruction.json"), b'"focal": ', b'"focal": NaN, "x": ')))
+case("opensfm: tracks.csv truncated mid-line", names="tracks.csv")(
+    _opensfm(lambda f: truncate(os.path.join(f, "tracks.csv"), 0.5)))
+case("opensfm: no tracks.csv", names="tracks.csv")(_opensfm(lambda f: os.remove(os.path.join(f, "tracks.csv"))))
+case("pix4d: not a params folder", names="params folder")(
+    lambda ws, work: (["import", "pix4d", ws.patb, "--out", os.path.join(work, "out")], [ws.patb],
+                      os.path.join(work, "out")))
+case("metashape-markers without --block", names="--block")(
+    lambda ws, work: (["import", "metashape-markers", os.path.join(ws.patb, "block.im"), "--out",
+                       os.path.join(work, "out")], [ws.patb], os.path.join(work, "out")))
+case("metashape-markers: not XML", names="block.im")(
+    lambda ws, work: (["import", "metashape-markers", os.path.join(ws.patb, "block.im"), "--block", ws.block, "--out",
+                       os.path.join(work, "out")], [ws.patb, ws.block], os.path.join(work, "out")))
 
 
 def _patch(path, offset, data):

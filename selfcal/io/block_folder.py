@@ -586,7 +586,7 @@ def _write_block_files(block: Block, tmp: str, folder: str) -> None:
     with atomic_write(os.path.join(tmp, "observations.csv")) as handle:
         columns = [im.image_id[ob.image_index], pt.point_id[ob.point_index], ob.pixel[:, 0], ob.pixel[:, 1]]
         header = ["image_id", "point_id", "col_px", "row_px"]
-        formats = ["", "", ".5f", ".5f"]
+        formats = ["", "", ".6f", ".6f"]
         if np.any(ob.sigma_px != block.image_sigma_px):
             columns.append(ob.sigma_px)
             header.append("sigma_px")

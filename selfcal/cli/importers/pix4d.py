@@ -1,0 +1,46 @@
+"""``selfcal import pix4d``: Pix4D's params folder (BINGO tie points, calibrated internal and external parameters)."""
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+
+from ...convert_uav import block_from_pix4d
+from ...errors import UsageError
+from ...io.block_folder import write_block
+from ...io.metashape import read_reference_csv
+from ...io.output import output_folder
+from ...io.pix4d import params_folder, read_pix4d_params
+from ..options import number
+from .patb import checks, control_arguments, image_size
+
+HELP = ("Pix4D's params folder (SRC: PROJECT/1_initial/params or the project): the BINGO tie points "
+        "(*_tp_bingo.txt), calibrated internal (.cam) and external parameters; ground control from --gcp")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--gcp", metavar="FILE",
+                        help="ground control: label, X, Y, Z[, accuracy XY, accuracy Z] (Pix4D's GCP file)")
+    parser.add_argument("--image-size", type=image_size, metavar="WxH",
+                        help="image size in pixels (default: from *_calibrated_camera_parameters.txt)")
+    parser.add_argument("--image-sigma-px", type=number(0.0, low_open=True), default=1.0,
+                        help="a-priori sigma of an image measurement (default 1.0 px)")
+    control_arguments(parser)
+
+
+def run(args: argparse.Namespace) -> int:
+    args.out = output_folder(args.out, (args.source, args.gcp), args.force)
+    if not args.crs.strip():
+        raise UsageError("--crs is empty")
+    params = read_pix4d_params(args.source, args.image_size)
+    control = read_reference_csv(args.gcp) if args.gcp else None
+    block, notes = block_from_pix4d(params, control, image_sigma_px=args.image_sigma_px,
+                                    control_sigma_m=(args.gcp_sigma_xy, args.gcp_sigma_z), check_points=checks(args),
+                                    crs=args.crs, name=os.path.basename(os.path.normpath(args.out)))
+    for note in notes:
+        print(note, file=sys.stderr)
+    write_block(block, args.out, source=params_folder(args.source))
+    roles = {r: int((block.points.role == r).sum()) for r in ("gcp", "chk", "tie")}
+    print(f"imported {len(block.images)} images, {len(block.points)} points ({roles['gcp']} gcp, {roles['chk']} "
+          f"chk, {roles['tie']} tie), {len(block.observations)} observations into {args.out}", file=sys.stderr)
+    return 0
