@@ -82,3 +82,137 @@ def test_per_image_sigma_needs_its_section_and_a_positive_value(uav, tmp_path):
     with pytest.raises(BlockError) as info:
         read_block(tmp_path / "t2")
     assert info.value.line == 3 and info.value.column == "sigma_gnss_Z_m" and "positive" in info.value.reason
+
+
+# ---------------------------------------------------------------------------- JPEGs with EXIF GPS and DJI XMP
+
+from fractions import Fraction                                      # noqa: E402
+
+from PIL import Image                                               # noqa: E402
+from PIL.TiffImagePlugin import IFDRational                          # noqa: E402
+
+from selfcal.simulate.trajectory import TrajectoryErrors            # noqa: E402
+
+CRS = "EPSG:32632"                        # UTM 32N: the simulated block's local frame moved to ORIGIN
+ORIGIN = np.array([500_000.0, 5_200_000.0, 0.0])
+XMP_STRIPS = ("S2", "S3")                 # images of these strips carry a DJI XMP packet with RtkStd sigmas
+RTK_SIGMA = (0.03, 0.03, 0.05)            # the simulated GNSS noise, written as RtkStdLon, RtkStdLat, RtkStdHgt
+GPS_DAY = 1_714_953_600.0                 # 2024-05-06 00:00:00 UTC
+
+
+def _utm_block(block):
+    """``block`` in UTM 32N: every coordinate moved by ORIGIN."""
+    images = replace(block.images, position_m=block.images.position_m + ORIGIN)
+    points = replace(block.points, xyz_m=block.points.xyz_m + ORIGIN)
+    return replace(block, crs=CRS, images=images, points=points)
+
+
+def _dms(value: float, den: int = 10 ** 7) -> tuple:
+    """Degrees as EXIF's three rationals (EXIF 2.32, GPSLatitude: degrees, minutes, seconds)."""
+    value = abs(value)
+    d = int(value)
+    m = int((value - d) * 60)
+    s = Fraction(round(((value - d) * 60 - m) * 60 * den), den)
+    return IFDRational(d, 1), IFDRational(m, 1), IFDRational(s.numerator, s.denominator)
+
+
+def _xmp(lon: float, lat: float, h: float, sigma) -> bytes:
+    """A DJI XMP packet as DJI's manuals list its drone-dji fields (attributes of rdf:Description)."""
+    return (
+        '<?xpacket begin="\ufeff" id="W5M0MpCehiHzreSzNTczkc9d"?>'
+        '<x:xmpmeta xmlns:x="adobe:ns:meta/"><rdf:RDF xmlns:rdf="http://www.w3.org/1999/02/22-rdf-syntax-ns#">'
+        '<rdf:Description rdf:about="DJI Meta Data" xmlns:drone-dji="http://www.dji.com/drone-dji/1.0/" '
+        f'drone-dji:GpsLatitude="{lat:+.10f}" drone-dji:GpsLongitude="{lon:+.10f}" '
+        f'drone-dji:AbsoluteAltitude="{h:+.4f}" drone-dji:RtkFlag="50" drone-dji:RtkStdLon="{sigma[0]:.5f}" '
+        f'drone-dji:RtkStdLat="{sigma[1]:.5f}" drone-dji:RtkStdHgt="{sigma[2]:.5f}"/>'
+        '</rdf:RDF></x:xmpmeta><?xpacket end="w"?>').encode("utf-8")
+
+
+def write_jpeg(path, lon: float, lat: float, h: float, time_s: float | None, xmp: bytes | None = None) -> None:
+    """A tiny JPEG with EXIF GPS tags (Pillow), optionally a DJI XMP packet."""
+    exif = Image.Exif()
+    gps = exif.get_ifd(0x8825)
+    gps[1], gps[2] = ("N" if lat >= 0 else "S"), _dms(lat)
+    gps[3], gps[4] = ("E" if lon >= 0 else "W"), _dms(lon)
+    gps[5], gps[6] = (b"\x01", IFDRational(round(-h * 10 ** 4), 10 ** 4)) if h < 0 else \
+        (b"\x00", IFDRational(round(h * 10 ** 4), 10 ** 4))
+    if time_s is not None:
+        day = time_s % 86400
+        gps[7] = (IFDRational(int(day // 3600), 1), IFDRational(int(day % 3600 // 60), 1),
+                  IFDRational(round(day % 60 * 1000), 1000))
+        gps[29] = "2024:05:06"
+    Image.new("RGB", (16, 12), (90, 120, 60)).save(path, exif=exif, **({"xmp": xmp} if xmp else {}))
+
+
+def geodetic(xyz_utm: np.ndarray) -> np.ndarray:
+    """(n, 3) longitude, latitude, ellipsoidal height of UTM 32N positions (pyproj, the other tool)."""
+    from pyproj import Transformer
+    t = Transformer.from_crs(CRS, "EPSG:4979", always_xy=True)
+    return np.column_stack(t.transform(*xyz_utm.T))
+
+
+@pytest.fixture(scope="module")
+def drone(tmp_path_factory):
+    """A simulated block with strip-wise GNSS errors drawn independently of Eq. 12, in UTM; one JPEG per image
+    with its simulated GNSS position; the block handed to the import has no [gnss] and true positions."""
+    from selfcal.simulate import simulate_uav
+    sim = simulate_uav(seed=11, distortion="none", points_per_mm2=0.6, gnss_sigma_m=RTK_SIGMA,
+                       trajectory_errors=TrajectoryErrors(gnss_noise_m=RTK_SIGMA, drift_share=0.75))
+    root = tmp_path_factory.mktemp("drone")
+    truth_block = _utm_block(sim.blocks["type1"])           # sparse control, no trajectory observations
+    gnss_utm = truth_block.images.position_m.copy()           # the simulated GNSS observations, in UTM
+    given = replace(truth_block, images=replace(truth_block.images, position_m=sim.truth.eop[:, :3] + ORIGIN,
+                                                strip_id=np.full(len(gnss_utm), "", dtype=object),
+                                                time_s=np.full(len(gnss_utm), np.nan)))
+    write_block(given, root / "block")
+    geo = geodetic(gnss_utm)
+    images = root / "images"
+    images.mkdir()
+    strips = sim.blocks["type1"].images.strip_id
+    for k, image_id in enumerate(truth_block.images.image_id):
+        lon, lat, h = geo[k]
+        xmp = None
+        if strips[k] in XMP_STRIPS:
+            xmp = _xmp(lon, lat, h, RTK_SIGMA)
+            lon, lat, h = lon + 2e-5, lat - 2e-5, h + 1.0       # EXIF off by metres: the XMP must win
+        write_jpeg(images / f"{image_id}.JPG", lon, lat, h, GPS_DAY + 36000.0 + truth_block.images.time_s[k], xmp)
+    return sim, root, gnss_utm
+
+
+def test_exif_and_xmp_positions_sigmas_times_and_strips(drone, cli):
+    sim, root, gnss_utm = drone
+    assert cli("import", "gnss", str(root / "images"), "--block", str(root / "block"), "--out", str(root / "gnss"),
+               "--sigma-m", "0.03,0.03,0.05") == 0
+    block = read_block(root / "gnss")
+    assert block.crs == CRS and block.gnss_sigma_m == RTK_SIGMA
+    np.testing.assert_allclose(block.images.position_m, gnss_utm, atol=1e-3, rtol=0)
+    xmp = np.isin(sim.blocks["type1"].images.strip_id, XMP_STRIPS)
+    np.testing.assert_allclose(block.images.gnss_sigma_m[xmp], np.tile(RTK_SIGMA, (xmp.sum(), 1)), rtol=1e-9)
+    assert np.isnan(block.images.gnss_sigma_m[~xmp]).all()
+    np.testing.assert_array_equal(block.images.strip_id, sim.blocks["type1"].images.strip_id)
+    np.testing.assert_allclose(block.images.time_s, sim.blocks["type1"].images.time_s, atol=1e-3)
+
+
+def test_adjustment_recovers_the_strip_shifts_and_drifts(drone, cli):
+    """Eq. 12 of seed 000 on the imported block: every simulated GNSS shift and drift recovered within 3 sigma."""
+    from selfcal.adjust import AdjustOptions, adjust
+    from selfcal.simulate.trajectory import true_terms_by_name
+    sim, root, _ = drone
+    if not (root / "gnss").exists():
+        assert cli("import", "gnss", str(root / "images"), "--block", str(root / "block"), "--out",
+                   str(root / "gnss"), "--sigma-m", "0.03,0.03,0.05") == 0
+    result = adjust(read_block(root / "gnss"), AdjustOptions(ap="none", gnss_drift=1))
+    assert result.converged
+    truth = true_terms_by_name(sim.truth, result)
+    names = list(result.theta_names)
+    value = dict(zip(names, result.problem.pack(result.state)))
+    sigma = dict(zip(names, np.sqrt(result.variance_factor * np.diag(result.Q_theta))))
+    terms = [n for n in names if n.startswith("GNSS ")]
+    assert len(terms) == 4 * 2 * 3
+    z = np.array([(value[n] - truth[n][0]) / sigma[n] for n in terms])
+    size = np.array([truth[n][0] / sigma[n] for n in terms if " D0 " in n])
+    print("GNSS terms: max |est - true| / sigma", np.abs(z).max(), "RMS", np.sqrt(np.mean(z ** 2)),
+          "RMS of true shift / sigma", np.sqrt(np.mean(size ** 2)))
+    assert np.all(np.abs(z) < 3), dict(zip(terms, z.round(2)))
+    assert np.sqrt(np.mean(z ** 2)) < 1.5                # sigmas not pessimistic
+    assert np.sqrt(np.mean(size ** 2)) > 5               # shifts far beyond their sigma: the test can fail
