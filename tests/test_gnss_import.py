@@ -216,3 +216,83 @@ def test_adjustment_recovers_the_strip_shifts_and_drifts(drone, cli):
     assert np.all(np.abs(z) < 3), dict(zip(terms, z.round(2)))
     assert np.sqrt(np.mean(z ** 2)) < 1.5                # sigmas not pessimistic
     assert np.sqrt(np.mean(size ** 2)) > 5               # shifts far beyond their sigma: the test can fail
+
+
+# ---------------------------------------------------------------------------- ODM geo.txt
+
+def test_geo_txt_in_longitude_latitude_with_accuracies(drone, cli, tmp_path):
+    """ODM's "Image Geolocation Files": EPSG:4326 with the longitude first, the height, yaw pitch roll (0: not
+    available) and the horizontal/vertical accuracy on some lines; no times (the strips come from the headings
+    in the block's image order)."""
+    sim, root, gnss_utm = drone
+    block = read_block(root / "block")
+    geo = geodetic(gnss_utm)
+    lines = ["EPSG:4326"]
+    for k, image_id in enumerate(block.images.image_id):
+        lon, lat, h = geo[k]
+        extra = " 0 0 0 0.02 0.04 label" if k % 3 == 0 else ""
+        lines.append(f"{image_id}.JPG {lon:.11f} {lat:.11f} {h:.5f}{extra}")
+    (tmp_path / "geo.txt").write_text("\n".join(lines) + "\n")
+    assert cli("import", "gnss", str(tmp_path / "geo.txt"), "--block", str(root / "block"),
+               "--out", str(tmp_path / "out")) == 0
+    out = read_block(tmp_path / "out")
+    np.testing.assert_allclose(out.images.position_m, gnss_utm, atol=1e-3, rtol=0)
+    every3 = np.arange(len(geo)) % 3 == 0
+    np.testing.assert_allclose(out.images.gnss_sigma_m[every3], np.tile([0.02, 0.02, 0.04], (every3.sum(), 1)))
+    assert np.isnan(out.images.gnss_sigma_m[~every3]).all() and out.gnss_sigma_m == (3.0, 3.0, 5.0)
+    np.testing.assert_array_equal(out.images.strip_id, sim.blocks["type1"].images.strip_id)
+
+
+def test_geo_txt_in_the_block_crs_with_orthometric_heights(drone, cli, tmp_path):
+    """A geo.txt already in UTM: --heights orthometric keeps the heights, the plan position is the same."""
+    sim, root, gnss_utm = drone
+    block = read_block(root / "block")
+    lines = ["WGS84 UTM 32N"] + [f"{i} {x:.4f} {y:.4f} {z:.4f}" for i, (x, y, z) in
+                                 zip(block.images.image_id, gnss_utm + [0, 0, -47.5])]
+    (tmp_path / "geo.txt").write_text("\n".join(lines) + "\n")
+    assert cli("import", "gnss", str(tmp_path / "geo.txt"), "--block", str(root / "block"), "--heights",
+               "orthometric", "--out", str(tmp_path / "out")) == 0
+    np.testing.assert_allclose(read_block(tmp_path / "out").images.position_m, gnss_utm + [0, 0, -47.5], atol=1e-4)
+
+
+# ---------------------------------------------------------------------------- bad input
+
+def test_jpeg_without_gps_and_jpeg_not_in_the_block_are_counted_warnings(drone, cli, capsys, tmp_path):
+    sim, root, gnss_utm = drone
+    images = tmp_path / "images"
+    images.mkdir()
+    names = sorted(os.listdir(root / "images"))
+    for name in names[1:]:
+        (images / name).write_bytes((root / "images" / name).read_bytes())
+    Image.new("RGB", (8, 8)).save(images / names[0])                 # no EXIF at all
+    (images / "DJI_9999.JPG").write_bytes((root / "images" / names[3]).read_bytes())
+    assert cli("import", "gnss", str(images), "--block", str(root / "block"), "--out", str(tmp_path / "o")) == 0
+    err = capsys.readouterr().err
+    assert f"{images / names[0]}: no GPS position" in err
+    assert "DJI_9999.JPG' is not in the block" in err
+    assert "(3 warnings)" in err                       # the two above and the block image left without GNSS
+    out = read_block(tmp_path / "o")
+    assert np.isnan(out.images.position_m[0]).all()
+    np.testing.assert_allclose(out.images.position_m[1:], gnss_utm[1:], atol=1e-3)
+
+
+def test_bad_input_exits_2_naming_the_file_and_line(drone, cli, capsys, tmp_path):
+    sim, root, gnss_utm = drone
+    bad = tmp_path / "geo.txt"
+    bad.write_text("EPSG:4326\nS1_01.JPG 9.1 45.2 300\nS1_02.JPG 9.1 north 300\n")
+    assert cli("import", "gnss", str(bad), "--block", str(root / "block"), "--out", str(tmp_path / "o")) == 2
+    err = capsys.readouterr().err
+    assert str(bad) in err and "line 3" in err and "geo_y" in err and "'north' is not a number" in err
+    bad.write_text("EPSG:4326\nS1_01.JPG 45.2 109.1 300\n")          # latitude first: not ODM's order
+    assert cli("import", "gnss", str(bad), "--block", str(root / "block"), "--out", str(tmp_path / "o")) == 2
+    assert "geo_x is the longitude" in capsys.readouterr().err
+    empty = tmp_path / "nogps"
+    empty.mkdir()
+    Image.new("RGB", (8, 8)).save(empty / "S1_01.JPG")
+    assert cli("import", "gnss", str(empty), "--block", str(root / "block"), "--out", str(tmp_path / "o")) == 2
+    assert "none of the 1 JPEGs has a GPS position" in capsys.readouterr().err
+    write_block(replace(read_block(root / "block"), crs="local"), tmp_path / "local")
+    assert cli("import", "gnss", str(root / "images"), "--block", str(tmp_path / "local"), "--out",
+               str(tmp_path / "o")) == 2
+    assert "crs is \"local\"" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
