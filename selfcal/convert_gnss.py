@@ -14,7 +14,8 @@ import numpy as np
 from .block import Block
 from .geometry.gnss import STRIP_GAP_FACTOR, STRIP_TURN_DEG, check_block_crs, detect_strips, positions_in_crs
 
-__all__ = ["CameraPositions", "positions_from_images", "positions_from_geo", "block_with_gnss", "GnssImport"]
+__all__ = ["CameraPositions", "positions_from_images", "positions_from_geo", "block_with_gnss", "GnssImport",
+           "projected_control", "utm_crs"]
 
 
 @dataclass(frozen=True)
@@ -163,3 +164,25 @@ def block_with_gnss(block: Block, positions: CameraPositions, sigma_m=None, heig
     new = replace(block, images=images, gnss_sigma_m=tuple(float(s) for s in sigma_m), datum="control")
     return GnssImport(new, int(has.sum()), int(np.isfinite(own[has]).all(axis=1).sum()), int(number.max()) + 1,
                       tuple(warnings))
+
+
+def utm_crs(lon_deg: float, lat_deg: float) -> str:
+    """The WGS 84 / UTM zone of a position (``EPSG:326zz`` north, ``EPSG:327zz`` south), as ODM picks it."""
+    zone = int(np.floor((lon_deg + 180.0) / 6.0)) % 60 + 1
+    return f"EPSG:{(32600 if lat_deg >= 0 else 32700) + zone}"
+
+
+def projected_control(control) -> tuple[object, str]:
+    """Ground control (:class:`selfcal.io.odm.GroundControl`) in a projected CRS: one in a geographic CRS
+    (longitude, latitude, height) is converted into the UTM zone of its mean position (heights kept: a UTM
+    CRS has no vertical datum); a NaN height stays NaN. Returns the control and a note ("" when unchanged)."""
+    from pyproj import CRS
+    if not CRS.from_user_input(control.crs).is_geographic:
+        return control, ""
+    lon, lat = np.mean(control.xyz[:, 0]), np.mean(control.xyz[:, 1])
+    target = utm_crs(float(lon), float(lat))
+    xyz = positions_in_crs(control.xyz, control.crs, target, "ellipsoidal")
+    xyz[:, 2] = control.xyz[:, 2]
+    name = CRS.from_user_input(target).name
+    return replace(control, crs=target, crs_name=name, xyz=xyz), \
+        f"ground control converted from {control.crs_name} (longitude, latitude) into {name}"

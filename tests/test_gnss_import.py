@@ -296,3 +296,70 @@ def test_bad_input_exits_2_naming_the_file_and_line(drone, cli, capsys, tmp_path
                str(tmp_path / "o")) == 2
     assert "crs is \"local\"" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
+
+
+# ---------------------------------------------------------------------------- ODM gcp_list.txt: longitude/latitude, NaN heights
+
+COPR = os.path.join(os.path.dirname(__file__), "..", "..", "shared", "data", "copr")
+
+
+def test_geographic_gcp_list_with_a_plan_only_point(tmp_path):
+    """ODM's gcp_list.txt in EPSG:4326 (geo_x the longitude, as ODM reads it) becomes the UTM zone of its points,
+    the same plan coordinates as the projected list (pyproj, within 1 mm); a NaN elevation is a plan-only gcp:
+    left out of the 3-D georeference and held at its intersected height with a loose sigma."""
+    from pyproj import Transformer
+    from selfcal.convert import PLAN_ONLY_SIGMA_Z_M, block_from_colmap
+    from selfcal.io.colmap import read_colmap
+    from selfcal.io.odm import read_gcp_list
+    assert os.path.isdir(COPR), "shared test data missing: ../shared/data/copr"
+    model = read_colmap(os.path.join(COPR, "sparse"))
+    projected = read_gcp_list(os.path.join(COPR, "gcp_list.txt"))
+    to_geo = Transformer.from_crs(projected.crs, "EPSG:4326", always_xy=True)
+    with open(os.path.join(COPR, "gcp_list.txt")) as handle:
+        lines = handle.read().splitlines()
+    out = ["EPSG:4326"]
+    for line in lines[1:]:
+        f = line.split()
+        if len(f) < 6:
+            continue
+        lon, lat = to_geo.transform(float(f[0]), float(f[1]))
+        z = "NaN" if f[6:7] == ["gcp07"] else f[2]
+        out.append(" ".join([f"{lon:.10f}", f"{lat:.10f}", z] + f[3:]))
+    (tmp_path / "gcp_geo.txt").write_text("\n".join(out) + "\n")
+    geographic = read_gcp_list(tmp_path / "gcp_geo.txt")
+    assert geographic.crs == "EPSG:4326" and np.isnan(geographic.xyz[list(geographic.point_names).index("gcp07"), 2])
+    a, notes_a = block_from_colmap(model, projected, pixel_size_mm=0.0052)
+    b, notes_b = block_from_colmap(model, geographic, pixel_size_mm=0.0052)
+    assert b.crs == projected.crs == "EPSG:32611"
+    assert any("converted from WGS 84" in n for n in notes_b) and any("gcp07" in n and "plan" in n for n in notes_b)
+    gcp = b.points.role == "gcp"
+    np.testing.assert_array_equal(a.points.point_id[:gcp.sum()], b.points.point_id[:gcp.sum()])
+    np.testing.assert_allclose(b.points.xyz_m[gcp, :2], a.points.xyz_m[gcp, :2], atol=1e-3, rtol=0)
+    k = list(b.points.point_id).index("gcp07")
+    assert b.points.sigma_m[k, 2] == PLAN_ONLY_SIGMA_Z_M and b.points.sigma_m[k, 0] == a.points.sigma_m[k, 0]
+    others = gcp & (b.points.point_id != "gcp07")
+    np.testing.assert_allclose(b.points.xyz_m[others, 2], a.points.xyz_m[others, 2], atol=1e-9)
+    # its height is where its rays meet, near the others' (a beach at about 0 m), not the surveyed one
+    assert abs(b.points.xyz_m[k, 2] - a.points.xyz_m[k, 2]) < 3.0
+
+
+def test_a_plan_only_control_point_leaves_the_adjustment_alone(uav):
+    """The engine weights control per axis: a gcp whose height is 40 m wrong but held with the plan-only sigma
+    (1e6 m) moves no check point by more than 0.1 mm against the same point with its right height, and its
+    adjusted height is the true one."""
+    from selfcal.adjust import AdjustOptions, adjust
+    from selfcal.convert import PLAN_ONLY_SIGMA_Z_M
+    block = prune(uav.blocks["type1"])
+    k = int(np.flatnonzero(block.points.role == "gcp")[4])
+    sigma = block.points.sigma_m.copy()
+    sigma[k, 2] = PLAN_ONLY_SIGMA_Z_M
+    xyz = block.points.xyz_m.copy()
+    xyz[k, 2] += 40.0
+    plan = replace(block, points=replace(block.points, xyz_m=xyz, sigma_m=sigma))
+    free = replace(block, points=replace(block.points, sigma_m=sigma))
+    a, b = (adjust(x, AdjustOptions(ap="none")) for x in (plan, free))
+    assert a.converged and b.converged
+    i = list(uav.truth.point_id).index(block.points.point_id[k])
+    assert abs(a.state.points[k, 2] - uav.truth.xyz[i, 2]) < 0.2
+    chk = block.points.role == "chk"
+    assert np.abs(a.state.points[chk] - b.state.points[chk]).max() < 1e-4
