@@ -23,7 +23,9 @@ class CameraPositions:
     """Positions of images in ``crs`` (x, y, z; geographic: longitude, latitude in degrees, height in metres).
 
     ``sigma_enu_m`` (n, 3) each position's own sigma east, north, up (NaN: none given); ``time_s`` (n,) the
-    exposure times (NaN: none); ``where`` (n,) the file (and line) of each, for messages."""
+    exposure times (NaN: none); ``where`` (n,) the file (and line) of each, for messages; ``gimbal_ypr_deg``
+    (n, 3) the camera's yaw, pitch, roll in the gimbal convention of
+    :func:`selfcal.geometry.gnss.opk_from_yaw_pitch_roll` (NaN: not given)."""
 
     names: np.ndarray
     xyz: np.ndarray
@@ -31,6 +33,7 @@ class CameraPositions:
     sigma_enu_m: np.ndarray
     time_s: np.ndarray
     where: np.ndarray
+    gimbal_ypr_deg: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -42,6 +45,7 @@ class GnssImport:
     n_own_sigma: int
     n_strips: int
     warnings: tuple[str, ...]
+    n_with_attitude: int = 0
 
 
 def positions_from_images(records) -> tuple[CameraPositions, list[str]]:
@@ -74,7 +78,8 @@ def positions_from_images(records) -> tuple[CameraPositions, list[str]]:
         crs="EPSG:4326",
         sigma_enu_m=np.array([r.sigma_enu_m for r in kept], float).reshape(-1, 3),
         time_s=time,
-        where=np.array([r.path for r in kept], dtype=object))
+        where=np.array([r.path for r in kept], dtype=object),
+        gimbal_ypr_deg=np.array([r.gimbal_ypr_deg for r in kept], float).reshape(-1, 3))
     return positions, warnings
 
 
@@ -98,7 +103,8 @@ def _match(block_ids: np.ndarray, names: np.ndarray) -> tuple[np.ndarray, list[i
 
 
 def block_with_gnss(block: Block, positions: CameraPositions, sigma_m=None, heights: str = "ellipsoidal",
-                    turn_deg: float = STRIP_TURN_DEG, gap_factor: float = STRIP_GAP_FACTOR) -> GnssImport:
+                    turn_deg: float = STRIP_TURN_DEG, gap_factor: float = STRIP_GAP_FACTOR,
+                    imu_sigma_deg=None) -> GnssImport:
     """``block`` with the camera positions as its GNSS observations.
 
     * positions converted into the block's CRS (:func:`selfcal.geometry.gnss.positions_in_crs`, ``heights``);
@@ -106,7 +112,11 @@ def block_with_gnss(block: Block, positions: CameraPositions, sigma_m=None, heig
       degrees, turns an error ellipse that is not a circle; RTK's is nearly one) in images.csv, the block-wide
       ``sigma_m`` (default: the block's ``[gnss]``, else 3, 3, 5 m of a consumer receiver) for the others;
     * time_s the seconds since the first exposure (where the positions have times; else the block's);
-    * strips found from time and heading, named ``S1``, ``S2``, ... in time order.
+    * strips found from time and heading, named ``S1``, ``S2``, ... in time order;
+    * with ``imu_sigma_deg`` (three sigmas, degrees) and gimbal angles in the positions: the images' omega, phi,
+      kappa in the block's grid (:func:`selfcal.geometry.gnss.opk_from_yaw_pitch_roll`) as ``[imu]``
+      observations; the images without angles get none (NaN, oriented by resection). Without, the block's
+      attitudes (its initial values) and its ``[imu]`` stay as they were.
 
     An image of the block without a position gets none (NaN, oriented by resection); a position of an image not
     in the block is left out. Both are warnings. Raises ValueError (the CLI's exit 2) when the block's CRS cannot
@@ -162,8 +172,36 @@ def block_with_gnss(block: Block, positions: CameraPositions, sigma_m=None, heig
     images = replace(block.images, position_m=position, time_s=time, strip_id=strips,
                      gnss_sigma_m=own if np.isfinite(own).any() else None)
     new = replace(block, images=images, gnss_sigma_m=tuple(float(s) for s in sigma_m), datum="control")
+    n_attitude = 0
+    if imu_sigma_deg is not None:
+        new, n_attitude = _with_attitude(new, positions, index, ok, imu_sigma_deg, warnings)
     return GnssImport(new, int(has.sum()), int(np.isfinite(own[has]).all(axis=1).sum()), int(number.max()) + 1,
-                      tuple(warnings))
+                      tuple(warnings), n_attitude)
+
+
+def _with_attitude(block: Block, positions: CameraPositions, index, ok, imu_sigma_deg, warnings):
+    """``block`` with the gimbal angles of ``positions`` as its IMU observations (see :func:`block_with_gnss`)."""
+    from pyproj import CRS
+
+    from .geometry.gnss import grid_bearing_of_north, opk_from_yaw_pitch_roll
+    ypr = positions.gimbal_ypr_deg
+    if ypr is None or not np.isfinite(ypr[ok]).all(axis=1).any():
+        raise ValueError("--imu-sigma-deg asks for attitudes, but no image gives its gimbal's yaw, pitch and roll")
+    if not CRS.from_user_input(positions.crs).is_geographic:
+        raise ValueError("attitudes are read only with geographic positions (the images' own tags)")
+    given = ok & np.isfinite(ypr).all(axis=1)
+    crs = CRS.from_user_input(block.crs)
+    horizontal = crs.sub_crs_list[0] if crs.is_compound else crs
+    beta = grid_bearing_of_north(positions.xyz[given, 0], positions.xyz[given, 1], horizontal.to_string())
+    opk = opk_from_yaw_pitch_roll(*np.radians(ypr[given].T), beta)
+    attitude = np.full((len(block.images), 3), np.nan)
+    attitude[index[given]] = opk
+    for i in np.setdiff1d(np.arange(len(block.images)), index[given]):
+        warnings.append(f"image '{block.images.image_id[i]}' has no gimbal angles; no IMU observation (it is "
+                        f"oriented by resection)")
+    images = replace(block.images, attitude_rad=attitude, imu_sigma_rad=None)
+    return replace(block, images=images, imu_sigma_deg=tuple(float(s) for s in imu_sigma_deg),
+                   imu_boresight_deg=None), int(given.sum())
 
 
 def utm_crs(lon_deg: float, lat_deg: float) -> str:

@@ -116,16 +116,46 @@ def _dms(value: float, den: int = 10 ** 7) -> tuple:
     return IFDRational(d, 1), IFDRational(m, 1), IFDRational(s.numerator, s.denominator)
 
 
-def _xmp(lon: float, lat: float, h: float, sigma) -> bytes:
-    """A DJI XMP packet as DJI's manuals list its drone-dji fields (attributes of rdf:Description)."""
-    return (
-        '<?xpacket begin="\ufeff" id="W5M0MpCehiHzreSzNTczkc9d"?>'
-        '<x:xmpmeta xmlns:x="adobe:ns:meta/"><rdf:RDF xmlns:rdf="http://www.w3.org/1999/02/22-rdf-syntax-ns#">'
-        '<rdf:Description rdf:about="DJI Meta Data" xmlns:drone-dji="http://www.dji.com/drone-dji/1.0/" '
-        f'drone-dji:GpsLatitude="{lat:+.10f}" drone-dji:GpsLongitude="{lon:+.10f}" '
-        f'drone-dji:AbsoluteAltitude="{h:+.4f}" drone-dji:RtkFlag="50" drone-dji:RtkStdLon="{sigma[0]:.5f}" '
-        f'drone-dji:RtkStdLat="{sigma[1]:.5f}" drone-dji:RtkStdHgt="{sigma[2]:.5f}"/>'
-        '</rdf:RDF></x:xmpmeta><?xpacket end="w"?>').encode("utf-8")
+def _xmp(gimbal_ypr_deg, position=None, sigma=None) -> bytes:
+    """A DJI XMP packet as DJI's manuals list its drone-dji fields (attributes of rdf:Description): the gimbal's
+    angles, and where given the position and its RTK standard deviations."""
+    fields = [f'drone-dji:Gimbal{a}Degree="{v:+.9f}"' for a, v in zip(("Yaw", "Pitch", "Roll"), gimbal_ypr_deg)]
+    fields += ['drone-dji:FlightYawDegree="+12.3"', 'drone-dji:FlightPitchDegree="+1.5"',
+               'drone-dji:FlightRollDegree="-0.7"']
+    if position is not None:
+        lon, lat, h = position
+        fields += [f'drone-dji:GpsLatitude="{lat:+.10f}"', f'drone-dji:GpsLongitude="{lon:+.10f}"',
+                   f'drone-dji:AbsoluteAltitude="{h:+.4f}"', 'drone-dji:RtkFlag="50"']
+    if sigma is not None:
+        fields += [f'drone-dji:RtkStd{a}="{v:.5f}"' for a, v in zip(("Lon", "Lat", "Hgt"), sigma)]
+    return ('<?xpacket begin="\ufeff" id="W5M0MpCehiHzreSzNTczkc9d"?>'
+            '<x:xmpmeta xmlns:x="adobe:ns:meta/"><rdf:RDF xmlns:rdf="http://www.w3.org/1999/02/22-rdf-syntax-ns#">'
+            '<rdf:Description rdf:about="DJI Meta Data" xmlns:drone-dji="http://www.dji.com/drone-dji/1.0/" '
+            + " ".join(fields) + '/></rdf:RDF></x:xmpmeta><?xpacket end="w"?>').encode("utf-8")
+
+
+def gimbal_angles(opk_grid: np.ndarray, lon: np.ndarray, lat: np.ndarray) -> np.ndarray:
+    """(n, 3) DJI gimbal yaw, pitch, roll (degrees) of cameras with omega, phi, kappa in the UTM grid.
+
+    Written independently of selfcal's conversion: the camera's body axes (x along the view, y to the image's
+    right, z to its bottom) from the rows of M, turned from the grid to true north by pyproj's own meridian
+    convergence (PROJ's factors: the grid azimuth of true north is minus the convergence), then the aerospace
+    yaw-pitch-roll (Z-Y-X) angles of the body in north-east-down."""
+    from pyproj import Proj
+    from selfcal.geometry.rotation import matrix_from_opk
+    M = matrix_from_opk(opk_grid)
+    body = np.stack([-M[:, 2], M[:, 0], -M[:, 1]], -1)             # columns x, y, z in grid east-north-up
+    gamma = np.radians(Proj(CRS).get_factors(lon, lat).meridian_convergence)
+    beta = -gamma
+    c, s = np.cos(beta), np.sin(beta)
+    e, n, u = body[:, 0], body[:, 1], body[:, 2]
+    true_e = c[:, None] * e - s[:, None] * n
+    true_n = s[:, None] * e + c[:, None] * n
+    R = np.stack([true_n, true_e, -u], 1)                           # rows north, east, down; columns x, y, z
+    yaw = np.arctan2(R[:, 1, 0], R[:, 0, 0])
+    pitch = np.arctan2(-R[:, 2, 0], np.hypot(R[:, 0, 0], R[:, 1, 0]))
+    roll = np.arctan2(R[:, 2, 1], R[:, 2, 2])
+    return np.degrees(np.column_stack([yaw, pitch, roll]))
 
 
 def write_jpeg(path, lon: float, lat: float, h: float, time_s: float | None, xmp: bytes | None = None) -> None:
@@ -166,15 +196,18 @@ def drone(tmp_path_factory):
                                                 time_s=np.full(len(gnss_utm), np.nan)))
     write_block(given, root / "block")
     geo = geodetic(gnss_utm)
+    imu = truth_block.images.attitude_rad                     # the simulated IMU observations (grid)
+    gimbal = gimbal_angles(imu, geo[:, 0], geo[:, 1])
     images = root / "images"
     images.mkdir()
     strips = sim.blocks["type1"].images.strip_id
     for k, image_id in enumerate(truth_block.images.image_id):
         lon, lat, h = geo[k]
-        xmp = None
         if strips[k] in XMP_STRIPS:
-            xmp = _xmp(lon, lat, h, RTK_SIGMA)
+            xmp = _xmp(gimbal[k], geo[k], RTK_SIGMA)
             lon, lat, h = lon + 2e-5, lat - 2e-5, h + 1.0       # EXIF off by metres: the XMP must win
+        else:
+            xmp = _xmp(gimbal[k])
         write_jpeg(images / f"{image_id}.JPG", lon, lat, h, GPS_DAY + 36000.0 + truth_block.images.time_s[k], xmp)
     return sim, root, gnss_utm
 
@@ -193,29 +226,54 @@ def test_exif_and_xmp_positions_sigmas_times_and_strips(drone, cli):
     np.testing.assert_allclose(block.images.time_s, sim.blocks["type1"].images.time_s, atol=1e-3)
 
 
+def test_gimbal_angles_become_the_imu_observations(drone, cli):
+    """DJI's gimbal yaw, pitch, roll (written from the simulated IMU observations through pyproj's meridian
+    convergence) come back as the block's omega, phi, kappa in the UTM grid within 1e-7 degrees."""
+    sim, root, gnss_utm = drone
+    assert cli("import", "gnss", str(root / "images"), "--block", str(root / "block"), "--out",
+               str(root / "gnss_imu"), "--sigma-m", "0.03,0.03,0.05", "--imu-sigma-deg", "0.005,0.005,0.01") == 0
+    block = read_block(root / "gnss_imu")
+    assert block.imu_sigma_deg == (0.005, 0.005, 0.01)
+    diff = (block.images.attitude_rad - sim.blocks["type1"].images.attitude_rad + np.pi) % (2 * np.pi) - np.pi
+    assert np.degrees(np.abs(diff)).max() < 1e-7
+    np.testing.assert_allclose(block.images.position_m, gnss_utm, atol=1e-3, rtol=0)
+
+
 def test_adjustment_recovers_the_strip_shifts_and_drifts(drone, cli):
-    """Eq. 12 of seed 000 on the imported block: every simulated GNSS shift and drift recovered within 3 sigma."""
+    """Eq. 12 of seed 000 on the imported block: every simulated GNSS and IMU shift and drift recovered within
+    3 sigma (errors drawn independently of the model: TrajectoryErrors)."""
     from selfcal.adjust import AdjustOptions, adjust
     from selfcal.simulate.trajectory import true_terms_by_name
     sim, root, _ = drone
-    if not (root / "gnss").exists():
+    if not (root / "gnss_imu").exists():
         assert cli("import", "gnss", str(root / "images"), "--block", str(root / "block"), "--out",
-                   str(root / "gnss"), "--sigma-m", "0.03,0.03,0.05") == 0
-    result = adjust(read_block(root / "gnss"), AdjustOptions(ap="none", gnss_drift=1))
+                   str(root / "gnss_imu"), "--sigma-m", "0.03,0.03,0.05", "--imu-sigma-deg", "0.005,0.005,0.01") == 0
+    result = adjust(read_block(root / "gnss_imu"), AdjustOptions(ap="none", gnss_drift=1, imu_drift=1))
     assert result.converged
     truth = true_terms_by_name(sim.truth, result)
     names = list(result.theta_names)
     value = dict(zip(names, result.problem.pack(result.state)))
     sigma = dict(zip(names, np.sqrt(result.variance_factor * np.diag(result.Q_theta))))
-    terms = [n for n in names if n.startswith("GNSS ")]
-    assert len(terms) == 4 * 2 * 3
-    z = np.array([(value[n] - truth[n][0]) / sigma[n] for n in terms])
-    size = np.array([truth[n][0] / sigma[n] for n in terms if " D0 " in n])
-    print("GNSS terms: max |est - true| / sigma", np.abs(z).max(), "RMS", np.sqrt(np.mean(z ** 2)),
-          "RMS of true shift / sigma", np.sqrt(np.mean(size ** 2)))
-    assert np.all(np.abs(z) < 3), dict(zip(terms, z.round(2)))
-    assert np.sqrt(np.mean(z ** 2)) < 1.5                # sigmas not pessimistic
-    assert np.sqrt(np.mean(size ** 2)) > 5               # shifts far beyond their sigma: the test can fail
+    for sensor in ("GNSS", "IMU"):
+        terms = [n for n in names if n.startswith(sensor + " ")]
+        assert len(terms) == 4 * 2 * 3
+        z = np.array([(value[n] - truth[n][0]) / sigma[n] for n in terms])
+        size = np.array([truth[n][0] / sigma[n] for n in terms if " D0 " in n])
+        print(sensor, "terms: max |est - true| / sigma", np.abs(z).max(), "RMS", np.sqrt(np.mean(z ** 2)),
+              "RMS of true shift / sigma", np.sqrt(np.mean(size ** 2)))
+        assert np.all(np.abs(z) < 3), dict(zip(terms, z.round(2)))
+        assert np.sqrt(np.mean(z ** 2)) < 1.5                # sigmas not pessimistic
+        assert np.sqrt(np.mean(size ** 2)) > 5               # shifts far beyond their sigma: the test can fail
+
+
+def test_grid_bearing_of_north_is_minus_the_meridian_convergence():
+    """selfcal's numerical grid bearing of true north against PROJ's own meridian convergence (its factors)."""
+    from pyproj import Proj
+    from selfcal.geometry.gnss import grid_bearing_of_north
+    lon, lat = np.array([6.2, 9.0, 11.7, 7.5]), np.array([46.0, 47.1, 45.3, -33.0])
+    gamma = np.radians(Proj(CRS).get_factors(lon, lat).meridian_convergence)
+    np.testing.assert_allclose(grid_bearing_of_north(lon, lat, CRS), -gamma, atol=1e-7)
+    assert np.degrees(np.abs(gamma)).max() > 1.5                 # 3 degrees from the central meridian
 
 
 # ---------------------------------------------------------------------------- ODM geo.txt

@@ -12,7 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["HEIGHTS", "check_block_crs", "positions_in_crs", "detect_strips", "STRIP_TURN_DEG", "STRIP_GAP_FACTOR"]
+__all__ = ["HEIGHTS", "check_block_crs", "positions_in_crs", "detect_strips", "STRIP_TURN_DEG", "STRIP_GAP_FACTOR",
+           "grid_bearing_of_north", "opk_from_yaw_pitch_roll"]
 
 HEIGHTS = ("ellipsoidal", "orthometric")
 #: a change of the direction of flight by more than this starts a new strip (degrees)
@@ -133,3 +134,46 @@ def detect_strips(time_s: np.ndarray, xy_m: np.ndarray, turn_deg: float = STRIP_
             course = None
         strip[b] = current
     return strip
+
+
+def grid_bearing_of_north(lon_deg: np.ndarray, lat_deg: np.ndarray, crs: str) -> np.ndarray:
+    """(n,) the direction of true north in the grid of the projected ``crs`` at each position: the grid azimuth
+    (radians, clockwise from grid north) of a step to the north (minus the meridian convergence, by whichever sign
+    convention: computed here from two projected points, 1e-6 degrees apart)."""
+    from pyproj import Transformer
+    t = Transformer.from_crs("EPSG:4326", crs, always_xy=True)
+    lon, lat = np.asarray(lon_deg, float), np.asarray(lat_deg, float)
+    e0, n0 = t.transform(lon, lat)
+    e1, n1 = t.transform(lon, lat + 1e-6)
+    return np.arctan2(np.asarray(e1) - e0, np.asarray(n1) - n0)
+
+
+def opk_from_yaw_pitch_roll(yaw_rad, pitch_rad, roll_rad, north_bearing_rad=0.0) -> np.ndarray:
+    """omega, phi, kappa (n, 3; radians) of a camera whose attitude is given as a gimbal's yaw, pitch and roll.
+
+    The gimbal's convention (DJI's GimbalYawDegree, GimbalPitchDegree, GimbalRollDegree): the camera's body axes
+    are x forward along the optical axis, y to the right of the image, z down (to the image's bottom); its
+    attitude in north-east-down is R = Rz(yaw) Ry(pitch) Rx(roll) (aerospace order), so that yaw is the true
+    azimuth of the view (clockwise from north), pitch 0 looks at the horizon and -90 straight down (the top of
+    the image then towards the yaw), roll turns about the optical axis. The image axes of DESIGN.md §2 are
+    x_image = y_body, y_image = -z_body, z_image = -x_body; turned from true north-east-up into the grid
+    (``north_bearing_rad``, :func:`grid_bearing_of_north`) they are the rows of M (object -> image).
+    A nadir image with yaw psi has kappa = -psi.
+    """
+    from .rotation import opk_from_matrix
+    y, p, r = (np.atleast_1d(np.asarray(a, float)) for a in (yaw_rad, pitch_rad, roll_rad))
+    beta = np.broadcast_to(np.asarray(north_bearing_rad, float), y.shape)
+    cy, sy, cp, sp, cr, sr = np.cos(y), np.sin(y), np.cos(p), np.sin(p), np.cos(r), np.sin(r)
+    # columns: body x, y, z in north-east-down
+    R = np.stack([np.stack([cy * cp, sy * cp, -sp], -1),
+                  np.stack([cy * sp * sr - sy * cr, sy * sp * sr + cy * cr, cp * sr], -1),
+                  np.stack([cy * sp * cr + sy * sr, sy * sp * cr - cy * sr, cp * cr], -1)], -1)
+    enu_from_ned = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+    cb, sb = np.cos(beta), np.sin(beta)
+    zero, one = np.zeros_like(beta), np.ones_like(beta)
+    # a true azimuth a becomes the grid azimuth a + beta: a turn by -beta about up
+    grid_from_enu = np.stack([np.stack([cb, sb, zero], -1), np.stack([-sb, cb, zero], -1),
+                              np.stack([zero, zero, one], -1)], -2)
+    body = grid_from_enu @ enu_from_ned @ R                 # columns: body axes in the grid (east, north, up)
+    M = np.stack([body[..., :, 1], -body[..., :, 2], -body[..., :, 0]], -2)
+    return opk_from_matrix(M)

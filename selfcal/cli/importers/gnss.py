@@ -17,7 +17,7 @@ def _three(text: str) -> tuple[float, float, float]:
     parse = number(0.0, low_open=True)
     parts = text.split(",")
     if len(parts) != 3:
-        raise argparse.ArgumentTypeError(f"give three sigmas X,Y,Z in metres, found '{text}'")
+        raise argparse.ArgumentTypeError(f"give three positive sigmas separated by commas, found '{text}'")
     return tuple(parse(p) for p in parts)
 
 
@@ -31,6 +31,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--sigma-m", type=_three, metavar="SX,SY,SZ",
                         help="a-priori sigma of a GNSS position without its own (default: the block's [gnss] "
                              "sigma_m, else 3,3,5 m)")
+    parser.add_argument("--imu-sigma-deg", type=_three, metavar="SO,SP,SK",
+                        help="also import the camera attitudes (DJI XMP GimbalYaw/Pitch/RollDegree) as [imu] "
+                             "observations with these sigmas of omega, phi, kappa (degrees)")
     parser.add_argument("--strip-turn-deg", type=number(0.0, 180.0, low_open=True), default=30.0, metavar="DEG",
                         help="a change of the direction of flight by more than this starts a strip (default 30)")
     parser.add_argument("--strip-gap", type=number(1.0, low_open=True), default=3.0, metavar="K",
@@ -61,7 +64,8 @@ def run(args: argparse.Namespace) -> int:
     else:
         raise UsageError(f"{args.source} is neither a folder of JPEGs nor a geo.txt file")
     try:
-        result = block_with_gnss(block, positions, args.sigma_m, args.heights, args.strip_turn_deg, args.strip_gap)
+        result = block_with_gnss(block, positions, args.sigma_m, args.heights, args.strip_turn_deg, args.strip_gap,
+                                 args.imu_sigma_deg)
     except ValueError as exc:
         raise BlockError(args.source, str(exc)) from None
     write_block(result.block, args.out, source=args.source)
@@ -69,6 +73,7 @@ def run(args: argparse.Namespace) -> int:
     for note in warnings:
         print(f"warning: {note}", file=sys.stderr)
     print(f"imported the GNSS positions of {result.n_with_gnss} of {len(result.block.images)} images "
-          f"({result.n_own_sigma} with their own sigma) in {result.n_strips} strips into {args.out} "
+          f"({result.n_own_sigma} with their own sigma) in {result.n_strips} strips"
+          + (f", the attitudes of {result.n_with_attitude}" if args.imu_sigma_deg else "") + f" into {args.out} "
           f"({len(warnings)} warning{'s' if len(warnings) != 1 else ''})", file=sys.stderr)
     return 0
