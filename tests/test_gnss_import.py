@@ -63,6 +63,11 @@ def test_per_image_sigma_overrides_the_block_sigma_in_the_engine(uav, tmp_path):
     mask = np.ones((2, n), bool)
     mask[0, 3] = mask[1, 7] = False
     np.testing.assert_allclose(ratio[mask], 1.0, rtol=1e-12)
+    # variance components scale an image's own sigma with its group's
+    from selfcal.stats.variance import reweighted
+    scaled = reweighted(read, {"GNSS": 2.0, "IMU": 0.5})
+    np.testing.assert_allclose(scaled.images.gnss_sigma_m[3], [1.0, 1.0, 2.0])
+    np.testing.assert_allclose(np.degrees(scaled.images.imu_sigma_rad[7]), [0.1, 0.1, 0.25])
 
 
 def test_per_image_sigma_needs_its_section_and_a_positive_value(uav, tmp_path):
@@ -421,3 +426,33 @@ def test_a_plan_only_control_point_leaves_the_adjustment_alone(uav):
     assert abs(a.state.points[k, 2] - uav.truth.xyz[i, 2]) < 0.2
     chk = block.points.role == "chk"
     assert np.abs(a.state.points[chk] - b.state.points[chk]).max() < 1e-4
+
+
+def test_exif_reader_details(tmp_path):
+    """South/west references, an altitude below the reference (GPSAltitudeRef 1), the camera clock with its
+    sub-seconds and UTC offset where there is no GPS time, DJI tags as XMP elements; a broken XMP packet and a
+    file that is no image name the file."""
+    from selfcal.io.exif import read_image_gnss
+    path = tmp_path / "a.jpg"
+    exif = Image.Exif()
+    gps = exif.get_ifd(0x8825)
+    gps[1], gps[2], gps[3], gps[4] = "S", _dms(33.5), "W", _dms(70.25)
+    gps[5], gps[6] = b"\x01", IFDRational(125, 10)
+    camera = exif.get_ifd(0x8769)
+    camera[0x9003], camera[0x9291], camera[0x9011] = "2024:05:06 12:00:01", "25", "+02:00"
+    xmp = ('<x:xmpmeta xmlns:x="adobe:ns:meta/"><rdf:RDF xmlns:rdf="http://www.w3.org/1999/02/22-rdf-syntax-ns#">'
+           '<rdf:Description xmlns:drone-dji="http://www.dji.com/drone-dji/1.0/"><drone-dji:RtkStdLon>0.011'
+           '</drone-dji:RtkStdLon><drone-dji:RtkStdLat>0.012</drone-dji:RtkStdLat><drone-dji:RtkStdHgt>0.025'
+           '</drone-dji:RtkStdHgt></rdf:Description></rdf:RDF></x:xmpmeta>').encode()
+    Image.new("RGB", (8, 8)).save(path, exif=exif, xmp=xmp)
+    r = read_image_gnss(path)
+    assert (r.latitude_deg, r.longitude_deg, r.height_m) == (-33.5, -70.25, -12.5)
+    assert r.time_source == "camera" and r.time_s == GPS_DAY + 10 * 3600 + 1.25
+    assert r.sigma_enu_m == (0.011, 0.012, 0.025)
+    Image.new("RGB", (8, 8)).save(path, exif=exif, xmp=xmp.replace(b"</rdf:RDF>", b""))
+    with pytest.raises(BlockError, match="XMP packet is not well-formed") as info:
+        read_image_gnss(path)
+    assert info.value.path == str(path)
+    path.write_bytes(b"not a jpeg")
+    with pytest.raises(BlockError, match="not an image"):
+        read_image_gnss(path)
