@@ -456,3 +456,24 @@ def test_exif_reader_details(tmp_path):
     path.write_bytes(b"not a jpeg")
     with pytest.raises(BlockError, match="not an image"):
         read_image_gnss(path)
+
+
+def test_ellipsoidal_heights_into_a_vertical_datum_need_its_geoid():
+    """A block in UTM + EGM96 heights: the ellipsoidal height goes through the geoid (about 49 m here) or, with
+    the grid not installed, is refused rather than passed through by PROJ's ballpark fallback; orthometric
+    heights are kept."""
+    from pyproj import CRS as ProjCRS
+    from pyproj.transformer import TransformerGroup
+    from selfcal.geometry.gnss import positions_in_crs
+    target = "EPSG:32632+5773"
+    lonlath = np.array([[9.0, 46.9, 500.0]])
+    np.testing.assert_allclose(positions_in_crs(lonlath, "EPSG:4326", target, "orthometric")[0, 2], 500.0)
+    import warnings
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)               # pyproj's note that the grid is missing
+        grid_here = TransformerGroup(ProjCRS("EPSG:4979"), ProjCRS(target)).best_available
+    if grid_here:
+        assert 40.0 < 500.0 - positions_in_crs(lonlath, "EPSG:4326", target)[0, 2] < 60.0
+    else:
+        with pytest.raises(ValueError, match="needs a grid that is not installed"):
+            positions_in_crs(lonlath, "EPSG:4326", target)

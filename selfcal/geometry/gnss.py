@@ -4,7 +4,7 @@ from the exposure times and the direction of flight.
 Heights. A GNSS receiver gives the height above the WGS 84 ellipsoid (h); a block's ``Z`` is whatever its CRS
 says: a compound CRS with a vertical datum (``EPSG:32632+5773``, UTM with EGM96 heights) has orthometric heights,
 and pyproj converts h to them through the geoid model (its grid must be installed: without it the conversion
-fails rather than passing h through, see :func:`positions_in_crs`); a plain projected CRS (``EPSG:32632``) has no
+fails rather than passing h through as PROJ's "ballpark" fallback does, see :func:`positions_in_crs`); a plain projected CRS (``EPSG:32632``) has no
 vertical datum, and the heights are taken over as given. Heights already orthometric (``heights="orthometric"``)
 are never converted: only the plan position is.
 """
@@ -46,8 +46,8 @@ def positions_in_crs(xyz: np.ndarray, source_crs: str, target_crs: str, heights:
     A geographic source is read in the traditional GIS order: x the longitude, y the latitude (degrees).
     ``heights="ellipsoidal"``: the third coordinate is the ellipsoidal height of a geographic source (a 2-D
     geographic CRS such as EPSG:4326 is taken as its 3-D form, EPSG:4979) and converted along with the plan
-    position by the most accurate transformation PROJ has (``only_best``: a missing geoid grid is an error,
-    never a silent shortcut). ``heights="orthometric"``: the plan position is converted and the height kept.
+    position by the most accurate transformation PROJ has (a missing geoid grid is an error, never PROJ's
+    "ballpark" fallback, which passes h through as if it were an orthometric height). ``heights="orthometric"``: the plan position is converted and the height kept.
 
     Raises
     ------
@@ -68,6 +68,7 @@ def positions_in_crs(xyz: np.ndarray, source_crs: str, target_crs: str, heights:
         if heights == "ellipsoidal":
             if source.is_geographic and len(source.axis_info) == 2:
                 source = source.to_3d()
+            _require_best(source, target)
             transformer = Transformer.from_crs(source, target, always_xy=True, only_best=True)
             z = xyz[plan, 2]
             has_z = np.isfinite(z)
@@ -77,6 +78,7 @@ def positions_in_crs(xyz: np.ndarray, source_crs: str, target_crs: str, heights:
         else:
             horizontal = target.sub_crs_list[0] if target.is_compound else target
             src2d = source.sub_crs_list[0] if source.is_compound else source
+            _require_best(src2d, horizontal)
             transformer = Transformer.from_crs(src2d, horizontal, always_xy=True, only_best=True)
             e, n = transformer.transform(xyz[plan, 0], xyz[plan, 1], errcheck=True)
             done = np.column_stack([e, n, xyz[plan, 2]])
@@ -86,6 +88,22 @@ def positions_in_crs(xyz: np.ndarray, source_crs: str, target_crs: str, heights:
         raise ValueError(f"pyproj gave no position in {target.name} for some of the points (outside its area?)")
     out[plan] = done
     return out
+
+
+def _require_best(source, target) -> None:
+    """Refuse when PROJ's best transformation is not available here (a geoid grid not installed): pyproj would
+    fall back to a "ballpark" one that passes the ellipsoidal height through as an orthometric one."""
+    import warnings
+
+    from pyproj.transformer import TransformerGroup
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        group = TransformerGroup(source, target, always_xy=True)
+    if not group.best_available:
+        missing = "; ".join(op.name for op in group.unavailable_operations[:2])
+        raise ValueError(f"the best transformation from {source.name} to {target.name} needs a grid that is not "
+                         f"installed ({missing}): install it (projsync, or PROJ_NETWORK=ON), or give heights already "
+                         f"in the block's vertical datum with --heights orthometric")
 
 
 def detect_strips(time_s: np.ndarray, xy_m: np.ndarray, turn_deg: float = STRIP_TURN_DEG,
