@@ -184,6 +184,12 @@ class Images:
         omega, phi, kappa of M = R3(kappa) R2(phi) R1(omega) (NaN when not given).
     line : ndarray of int, shape (n,)
         Line of images.csv each image came from (for messages).
+    gnss_sigma_m : ndarray, shape (n, 3), optional
+        A-priori sigma of each image's GNSS observation of X0, Y0, Z0 (images.csv ``sigma_gnss_X_m``...);
+        NaN (or None for all) where block.toml's ``[gnss] sigma_m`` applies.
+    imu_sigma_rad : ndarray, shape (n, 3), optional
+        A-priori sigma of each image's IMU observation of omega, phi, kappa (``sigma_imu_omega_deg``...);
+        NaN (or None for all) where ``[imu] sigma_deg`` applies.
     """
 
     image_id: np.ndarray
@@ -193,12 +199,22 @@ class Images:
     position_m: np.ndarray
     attitude_rad: np.ndarray
     line: np.ndarray
+    gnss_sigma_m: np.ndarray | None = None
+    imu_sigma_rad: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.image_id)
 
     def take(self, index: np.ndarray) -> "Images":
-        return Images(*(getattr(self, f)[index] for f in self.__dataclass_fields__))
+        return Images(*(None if getattr(self, f) is None else getattr(self, f)[index]
+                        for f in self.__dataclass_fields__))
+
+    def trajectory_sigma(self, sensor: str, default) -> np.ndarray:
+        """(n, 3) a-priori sigma of each image's ``"GNSS"`` (m) or ``"IMU"`` (rad) observation: the image's own
+        where given, else ``default`` (block.toml's, in the same units)."""
+        own = self.gnss_sigma_m if sensor == "GNSS" else self.imu_sigma_rad
+        default = np.broadcast_to(np.asarray(default, float), (len(self), 3))
+        return default.copy() if own is None else np.where(np.isnan(own), default, own)
 
 
 @dataclass(frozen=True)

@@ -126,6 +126,11 @@ def _robust_similarity(local, target, ok, names, notes, factor: float = 3.0):
     return sim, ok
 
 
+#: a-priori sigma of the height of a control point known in plan only (gcp_list.txt geo_z NaN): held at a height
+#: that only starts it, so loosely that the height is free (the engine weights a control point per axis)
+PLAN_ONLY_SIGMA_Z_M = 1.0e6
+
+
 def block_from_colmap(model, control=None, pixel_size_mm: float = 0.005, image_sigma_px: float = 1.0,
                       control_sigma_m: tuple[float, float] = (3.0, 5.0), check_points=(),
                       name: str = "colmap") -> tuple[Block, list[str]]:
@@ -147,6 +152,11 @@ def block_from_colmap(model, control=None, pixel_size_mm: float = 0.005, image_s
     from .io.colmap import PERSPECTIVE_MODELS
 
     notes: list[str] = []
+    if control is not None:
+        from .convert_gnss import projected_control
+        control, note = projected_control(control)
+        if note:
+            notes.append(note)
     cameras = {}
     for cid, cam in model.cameras.items():
         if cam.model not in PERSPECTIVE_MODELS:
@@ -198,11 +208,20 @@ def block_from_colmap(model, control=None, pixel_size_mm: float = 0.005, image_s
                 ok[k] = False
                 notes.append(f"gcp '{control.point_names[k]}': its image measurements do not intersect (rays miss "
                              f"by up to {worst:.1f} deg); not used for the georeference")
-        sim, used = _robust_similarity(local, control.xyz, ok, control.point_names, notes)
+        plan_only = ~np.isfinite(control.xyz[:, 2])
+        for k in np.flatnonzero(plan_only & ok):
+            notes.append(f"gcp '{control.point_names[k]}' has no height (NaN): plan control only, not used for the "
+                         f"3-D georeference")
+        sim, used = _robust_similarity(local, control.xyz, ok & ~plan_only, control.point_names, notes)
         centres = sim.apply(centres)
         xyz = sim.apply(xyz)
         M = M @ sim.rotation.T
-        gcp_xyz = control.xyz
+        gcp_xyz = control.xyz.copy()
+        if plan_only.any():
+            # a plan-only point is held at its intersected height (else the others' median) with a loose sigma
+            ground = sim.apply(np.where(np.isfinite(local), local, 0.0))[:, 2]
+            gcp_xyz[plan_only, 2] = np.where(ok[plan_only], ground[plan_only],
+                                             np.median(control.xyz[~plan_only, 2]))
         # a measurement whose ray misses its surveyed point by far more than the point's sigma allows is a
         # misidentified target: left out (the adjustment would not converge with it)
         focal_px = np.array([np.mean(_intrinsics(model.cameras[int(model.image_camera[i])])[:2]) for i in img])
@@ -241,7 +260,11 @@ def block_from_colmap(model, control=None, pixel_size_mm: float = 0.005, image_s
             names.append(str(pname))
             roles.append("chk" if pname in checks else "gcp")
             coords.append(gcp_xyz[k])
-            sigmas.append([control_sigma_m[0], control_sigma_m[0], control_sigma_m[1]])
+            plan = not np.isfinite(control.xyz[k, 2])
+            if plan and pname in checks:
+                raise BlockError("gcp_list.txt", f"check point '{pname}' has no height (NaN): a check point needs "
+                                                 f"all three coordinates")
+            sigmas.append([control_sigma_m[0], control_sigma_m[0], PLAN_ONLY_SIGMA_Z_M if plan else control_sigma_m[1]])
     n_ctl = len(names)
     tie_names = [f"colmap{pid}" for pid in model.point_ids]
     points = Points(

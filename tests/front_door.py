@@ -573,6 +573,61 @@ def _(ws, work):
     return ["import", "colmap", ws.colmap_binary, "--out", out], [ws.colmap_binary], out
 
 
+def _utm_block_and_geo(ws, work, bad_line: str | None = None) -> tuple[str, str]:
+    """A UTM copy of the workspace block and an ODM geo.txt (WGS84 UTM 32N) of its images' positions; with
+    ``bad_line`` that line is added at line 3."""
+    from dataclasses import replace
+    from selfcal.io import read_block, write_block
+    block = read_block(ws.block)
+    shift = np.array([500_000.0, 5_200_000.0, 0.0])
+    block = replace(block, crs="EPSG:32632", images=replace(block.images, position_m=block.images.position_m + shift),
+                    points=replace(block.points, xyz_m=block.points.xyz_m + shift))
+    folder = os.path.join(work, "utm")
+    write_block(block, folder)
+    lines = ["WGS84 UTM 32N"] + [f"{i}.JPG {x:.3f} {y:.3f} {z:.3f}" for i, (x, y, z) in
+                                 zip(block.images.image_id, block.images.position_m)]
+    if bad_line is not None:
+        lines.insert(2, bad_line)
+    geo = os.path.join(work, "geo.txt")
+    with open(geo, "w") as handle:
+        handle.write("\n".join(lines) + "\n")
+    return folder, geo
+
+
+@case("import gnss GEO --block B --out NEW (works)", exit=0)
+def _(ws, work):
+    block, geo = _utm_block_and_geo(ws, work)
+    out = os.path.join(work, "gnss")
+    return ["import", "gnss", geo, "--block", block, "--out", out], [block, geo], out
+
+
+@case("import gnss GEO --block B --out B", names="is the input")
+def _(ws, work):
+    block, geo = _utm_block_and_geo(ws, work)
+    return ["import", "gnss", geo, "--block", block, "--out", block], [block, geo], block
+
+
+@case("import gnss GEO(bad line 3) --block B", names="line 3")
+def _(ws, work):
+    block, geo = _utm_block_and_geo(ws, work, bad_line="S1_02.JPG 500100.0 5200100.0 high")
+    out = os.path.join(work, "gnss")
+    return ["import", "gnss", geo, "--block", block, "--out", out], [block, geo], out
+
+
+@case("import gnss GEO --block LOCAL_BLOCK", names='crs is "local"')
+def _(ws, work):
+    _, geo = _utm_block_and_geo(ws, work)
+    out = os.path.join(work, "gnss")
+    return ["import", "gnss", geo, "--block", ws.block, "--out", out], [ws.block, geo], out
+
+
+@case("import gnss GEO --block B --sigma-m 0.02,0", names="--sigma-m")
+def _(ws, work):
+    block, geo = _utm_block_and_geo(ws, work)
+    out = os.path.join(work, "gnss")
+    return ["import", "gnss", geo, "--block", block, "--sigma-m", "0.02,0", "--out", out], [block, geo], out
+
+
 @case("export --out RESULTS", names="is the input")
 def _(ws, work):
     return ["export", "opencv", ws.results, "--out", ws.results], [ws.results], ws.results

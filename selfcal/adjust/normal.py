@@ -366,14 +366,14 @@ def parameter_observations(problem: Problem, state: State) -> tuple[sp.csr_matri
         nz = d_eop != 0
         rows.append(np.broadcast_to(rows_here[:, :, None], (n, 3, 6))[nz])
         cols.append(np.broadcast_to(width * t.index[:, None, None] + np.arange(6)[None, None, :], (n, 3, 6))[nz])
-        vals.append((d_eop / t.sigma[None, :, None])[nz])
+        vals.append((d_eop / t.sigma[:, :, None])[nz])
         if t.estimate_mounting:
             free_pos = np.cumsum(t.free) - 1
             ok = t.free[t.n_strip_params:t.n_strip_params + 3]
             mount_cols = x_col + free_pos[t.n_strip_params + np.arange(3)]
             rows.append(np.broadcast_to(rows_here[:, :, None], (n, 3, 3))[:, :, ok].ravel())
             cols.append(np.broadcast_to(mount_cols[None, None, :], (n, 3, 3))[:, :, ok].ravel())
-            vals.append((d_mount / t.sigma[None, :, None])[:, :, ok].ravel())
+            vals.append((d_mount / t.sigma[:, :, None])[:, :, ok].ravel())
         if t.order >= 0:
             # column of (strip s, power j, axis a) among this sensor's free parameters
             full_index = (t.strip_of[:, None, None] * (t.order + 1) + np.arange(t.order + 1)[None, :, None]) * 3 \
@@ -383,7 +383,7 @@ def parameter_observations(problem: Problem, state: State) -> tuple[sp.csr_matri
             r_idx = np.broadcast_to(rows_here[:, None, :], full_index.shape)
             rows.append(r_idx[ok])
             cols.append(x_col + free_pos[full_index[ok]])
-            vals.append((np.broadcast_to(powers[:, :, None], full_index.shape) / t.sigma)[ok])
+            vals.append((np.broadcast_to(powers[:, :, None], full_index.shape) / t.sigma[:, None, :])[ok])
         res.append((diff / t.sigma).ravel())
         k += 3 * n
         x_col += int(t.free.sum())

@@ -305,7 +305,8 @@ class TrajectoryTerms:
     sensor: str                 # "GNSS" or "IMU"
     index: np.ndarray           # images with an observation
     observed: np.ndarray        # (k, 3)
-    sigma: np.ndarray           # (3,) metres or radians
+    sigma: np.ndarray           # (k, 3) a-priori sigma of each observation, metres or radians (the image's own
+                                # from images.csv where given, else block.toml's)
     offset: int                 # 0: X0 Y0 Z0, 3: omega phi kappa
     order: int
     strip_of: np.ndarray        # (k,) strip number of each observation
@@ -352,6 +353,8 @@ def trajectory_terms(sensor: str, images, index: np.ndarray, observed: np.ndarra
                      offset: int, order: int, mounting=None, estimate_mounting: bool = False) -> TrajectoryTerms:
     """Set up one sensor's trajectory observations with strip-wise shift/drift of ``order``.
 
+    ``sigma``: the a-priori sigma of each observation, (k, 3), or one (3,) for all of them.
+
     ``mounting``: the lever arm (GNSS, metres) or boresight angles (IMU, radians); with
     ``estimate_mounting`` they are unknowns. They cannot be told apart from strip-wise
     shifts (the attitude is nearly constant along a strip), so estimating them needs ``order`` -1.
@@ -376,6 +379,7 @@ def trajectory_terms(sensor: str, images, index: np.ndarray, observed: np.ndarra
     if estimate_mounting:
         names += [f"GNSS lever arm {a}" for a in "xyz"] if offset == 0 else \
             [f"IMU boresight {a}" for a in ("omega", "phi", "kappa")]
+    sigma = np.broadcast_to(np.asarray(sigma, float), (len(index), 3)).copy()
     return TrajectoryTerms(sensor, index, observed, sigma, offset, order, strip_of, dt, strips,
                            np.ones(len(names), bool), names,
                            np.zeros(3) if mounting is None else np.asarray(mounting, float), estimate_mounting)
@@ -545,13 +549,15 @@ def build_problem(block: Block, ap_spec: str = "none", ap_settings: dict | None 
         raise UsageError("--boresight needs IMU observations ([imu] in block.toml)")
     if block.gnss_sigma_m is not None:
         index = np.flatnonzero(np.isfinite(images.position_m).all(axis=1))
+        sigma = images.trajectory_sigma("GNSS", block.gnss_sigma_m)[index]
         problem.trajectory.append(trajectory_terms("GNSS", images, index, images.position_m[index],
-                                                   np.array(block.gnss_sigma_m, float), 0, gnss_drift,
+                                                   sigma, 0, gnss_drift,
                                                    block.gnss_lever_arm_m, lever_arm))
     if block.imu_sigma_deg is not None:
         index = np.flatnonzero(np.isfinite(images.attitude_rad).all(axis=1))
+        sigma = images.trajectory_sigma("IMU", np.radians(np.array(block.imu_sigma_deg, float)))[index]
         problem.trajectory.append(trajectory_terms("IMU", images, index, images.attitude_rad[index],
-                                                   np.radians(np.array(block.imu_sigma_deg, float)), 3, imu_drift,
+                                                   sigma, 3, imu_drift,
                                                    None if block.imu_boresight_deg is None else
                                                    np.radians(np.array(block.imu_boresight_deg, float)), boresight))
     return problem

@@ -1,4 +1,5 @@
-"""Import a model from another program as a block folder (COLMAP, BAL, ISIS; ground control from ODM)."""
+"""Import a model from another program as a block folder (COLMAP, BAL, ISIS; ground control from ODM; camera GNSS
+from the images or an ODM geo.txt)."""
 from __future__ import annotations
 
 import argparse

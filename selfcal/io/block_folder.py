@@ -23,7 +23,7 @@ from .sensor_files import SENSOR_FILE_READERS
 from .text import read_text
 from .table import NUM, OPT_NUM, STR, Column, read_table, write_table
 
-__all__ = ["read_block", "write_block", "IMAGE_COLUMNS", "POINT_COLUMNS", "OBSERVATION_COLUMNS", "EPHEMERIS_COLUMNS",
+__all__ = ["read_block", "write_block", "IMAGE_COLUMNS", "GNSS_SIGMA_COLUMNS", "IMU_SIGMA_COLUMNS", "POINT_COLUMNS", "OBSERVATION_COLUMNS", "EPHEMERIS_COLUMNS",
            "ATTITUDE_COLUMNS"]
 
 IMAGE_COLUMNS = [
@@ -32,7 +32,12 @@ IMAGE_COLUMNS = [
     Column("X0", OPT_NUM), Column("Y0", OPT_NUM), Column("Z0", OPT_NUM),
     Column("omega_deg", OPT_NUM), Column("phi_deg", OPT_NUM), Column("kappa_deg", OPT_NUM),
     Column("sensor_file", STR, required=False),
-]
+] + [Column(name, OPT_NUM, required=False) for name in (
+    "sigma_gnss_X_m", "sigma_gnss_Y_m", "sigma_gnss_Z_m", "sigma_imu_omega_deg", "sigma_imu_phi_deg",
+    "sigma_imu_kappa_deg")]
+#: optional images.csv columns: each image's own a-priori sigma of its GNSS / IMU observation (empty: block.toml's)
+GNSS_SIGMA_COLUMNS = ("sigma_gnss_X_m", "sigma_gnss_Y_m", "sigma_gnss_Z_m")
+IMU_SIGMA_COLUMNS = ("sigma_imu_omega_deg", "sigma_imu_phi_deg", "sigma_imu_kappa_deg")
 POINT_COLUMNS = [
     Column("point_id"), Column("role"),
     Column("X", OPT_NUM), Column("Y", OPT_NUM), Column("Z", OPT_NUM),
@@ -276,8 +281,23 @@ def _read_images(folder: str, cameras: dict) -> tuple[Images, dict[str, int], di
         position_m=np.column_stack([table["X0"], table["Y0"], table["Z0"]]),
         attitude_rad=np.radians(angles),
         line=table.line,
+        gnss_sigma_m=_own_sigmas(table, GNSS_SIGMA_COLUMNS),
+        imu_sigma_rad=_own_sigmas(table, IMU_SIGMA_COLUMNS, np.radians),
     )
     return images, index, files
+
+
+def _own_sigmas(table, names, convert=lambda v: v) -> np.ndarray | None:
+    """(n, 3) the images' own a-priori sigmas from the optional columns ``names`` (NaN where empty), or None
+    when none of them is in the file; every given value must be positive."""
+    if not any(name in table for name in names):
+        return None
+    values = np.column_stack([table[name] if name in table else np.full(len(table), np.nan) for name in names])
+    bad = np.argwhere(~np.isnan(values) & (values <= 0))
+    if bad.size:
+        i, k = bad[0]
+        raise BlockError(table.path, f"sigma must be positive, found {values[i, k]}", int(table.line[i]), names[k])
+    return convert(values)
 
 
 def _sensor_files(folder: str, table, cameras: dict) -> dict:
@@ -442,6 +462,13 @@ def read_block(folder: str | os.PathLike, min_gcp: int = 3) -> Block:
         _require_trajectory(folder, images, ("X0", "Y0", "Z0"), images.position_m, "gnss")
     if imu is not None:
         _require_trajectory(folder, images, ("omega_deg", "phi_deg", "kappa_deg"), images.attitude_rad, "imu")
+    for section, own, names in (("gnss", images.gnss_sigma_m, GNSS_SIGMA_COLUMNS),
+                                ("imu", images.imu_sigma_rad, IMU_SIGMA_COLUMNS)):
+        if section not in settings and own is not None and np.isfinite(own).any():
+            i, k = np.argwhere(np.isfinite(own))[0]
+            raise BlockError(os.path.join(folder, "images.csv"), f"an image's own sigma of its {section.upper()} "
+                             f"observation, but block.toml has no [{section}] (its observations and default sigma)",
+                             int(images.line[i]), names[k])
     block = Block(
         name=settings.get("name", os.path.basename(os.path.abspath(folder))),
         crs=settings.get("crs", "local"),
@@ -571,11 +598,19 @@ def _write_block_files(block: Block, tmp: str, folder: str) -> None:
         columns = [im.image_id, im.camera_id, im.strip_id, im.time_s, im.position_m[:, 0], im.position_m[:, 1],
                    im.position_m[:, 2], deg[:, 0], deg[:, 1], deg[:, 2]]
         formats = ["", "", "", ".4f", ".6f", ".6f", ".6f", ".10f", ".10f", ".10f"]
+        header = [c.name for c in IMAGE_COLUMNS][:len(columns)]
         if block.image_files:
             columns.append(np.array([os.path.relpath(block.image_files[i], folder) if i in block.image_files
                                      else "" for i in im.image_id], dtype=object))
             formats.append("")
-        write_table(handle, [c.name for c in IMAGE_COLUMNS][:len(columns)], columns, formats)
+            header.append("sensor_file")
+        for own, names, convert in ((im.gnss_sigma_m, GNSS_SIGMA_COLUMNS, lambda v: v),
+                                    (im.imu_sigma_rad, IMU_SIGMA_COLUMNS, np.degrees)):
+            if own is not None and np.isfinite(own).any():
+                columns += list(convert(own).T)
+                formats += [".6f" if names is GNSS_SIGMA_COLUMNS else ".8f"] * 3
+                header += list(names)
+        write_table(handle, header, columns, formats)
     pt = block.points
     with atomic_write(os.path.join(tmp, "points.csv")) as handle:
         write_table(handle, [c.name for c in POINT_COLUMNS],

@@ -1,6 +1,6 @@
-"""OpenDroneMap ``gcp_list.txt``: ground control points and their image measurements.
+"""OpenDroneMap ``gcp_list.txt`` (ground control and its image measurements) and ``geo.txt`` (image positions).
 
-Format (https://docs.opendronemap.org/gcp/): the first line names the
+gcp_list.txt (https://docs.opendronemap.org/gcp/): the first line names the
 coordinate reference system (a PROJ string, ``EPSG:<code>``, or ``WGS84 UTM
 <zone><hemisphere>``); every other line is
 
@@ -9,10 +9,24 @@ coordinate reference system (a PROJ string, ``EPSG:<code>``, or ``WGS84 UTM
 separated by spaces or tabs. ``im_x, im_y`` are the column and row in pixels
 from the upper-left corner of the image, read here with selfcal's convention
 (the upper-left corner of the first pixel is (0, 0)). Without a gcp name,
-points with identical coordinates are one point.
+points with identical coordinates are one point. In a geographic CRS
+(``EPSG:4326``) ``geo_x`` is the longitude and ``geo_y`` the latitude (ODM's
+order: it hands x, y to GDAL in the traditional GIS order, and its docs'
+examples give the longitude first), in degrees. ``geo_z`` may be ``NaN``: a
+control point known in plan only (it is kept as NaN here; the block holds it
+with a loose height, see :func:`selfcal.convert.block_from_colmap`).
+
+geo.txt ("Image Geolocation Files", https://docs.opendronemap.org/geo/): the
+first line names the CRS as above; every other line is
+
+    image_name geo_x geo_y [geo_z] [yaw pitch roll] [horz_accuracy vert_accuracy] [extras ...]
+
+(angles in degrees, accuracies in metres; the angles come as a triple and the
+accuracies as a pair, as ODM's ``opendm/geo.py`` reads them).
 """
 from __future__ import annotations
 
+import math
 import os
 import re
 from dataclasses import dataclass
@@ -22,7 +36,7 @@ import numpy as np
 from ..errors import BlockError
 from .text import read_text
 
-__all__ = ["GroundControl", "read_gcp_list"]
+__all__ = ["GroundControl", "read_gcp_list", "ImagePositions", "read_geo_txt"]
 
 
 @dataclass(frozen=True)
@@ -37,7 +51,7 @@ class GroundControl:
     obs_line: np.ndarray           # (m,) line in the file
 
 
-def _crs(path: str, text: str) -> tuple[str, str]:
+def _crs(path: str, text: str, geographic: bool = False) -> tuple[str, str]:
     from pyproj import CRS
     from pyproj.exceptions import CRSError
 
@@ -50,8 +64,8 @@ def _crs(path: str, text: str) -> tuple[str, str]:
         crs = CRS.from_user_input(spec)
     except CRSError as exc:
         raise BlockError(path, f"the first line is not a coordinate reference system pyproj knows: {exc}", 1) from None
-    if not crs.is_projected:
-        raise BlockError(path, f"the CRS '{crs.name}' is not projected; give GCPs in a projected CRS (e.g. UTM)", 1)
+    if not crs.is_projected and not (geographic and crs.is_geographic):
+        raise BlockError(path, f"the CRS '{crs.name}' is neither projected nor geographic (longitude, latitude)", 1)
     epsg = crs.to_epsg()
     if epsg:
         return f"EPSG:{epsg}", CRS.from_epsg(epsg).name
@@ -69,7 +83,8 @@ def read_gcp_list(path: str | os.PathLike) -> GroundControl:
         raise BlockError(path, "empty file: the first line must name the CRS", 1)
     if header[0] != 1:
         raise BlockError(path, "the first line must name the CRS", 1)
-    crs, crs_name = _crs(path, header[1])
+    crs, crs_name = _crs(path, header[1], geographic=True)
+    geographic = _is_geographic(crs)
     names, xyz = [], []
     by_name: dict[str, int] = {}
     o_pt, o_img, o_pix, o_line = [], [], [], []
@@ -85,15 +100,18 @@ def read_gcp_list(path: str | os.PathLike) -> GroundControl:
             bad = next(f for f in fields[:5] if not _is_number(f))
             column = ["geo_x", "geo_y", "geo_z", "im_x", "im_y"][fields[:5].index(bad)]
             raise BlockError(path, f"'{bad}' is not a number", number, column) from None
-        if not np.all(np.isfinite(values)):
-            raise BlockError(path, "NaN or infinite value", number)
+        if not np.all(np.isfinite(values[:2] + values[3:])) or np.isinf(values[2]):
+            raise BlockError(path, "NaN or infinite value (only geo_z may be NaN: a point known in plan only)", number)
+        if geographic:
+            _check_lon_lat(path, values[0], values[1], number)
         if values[3] < 0 or values[4] < 0:
             raise BlockError(path, "negative pixel coordinate", number, "im_x" if values[3] < 0 else "im_y")
         point = np.array(values[:3])
-        name = fields[6] if len(fields) > 6 else f"{values[0]:.3f}_{values[1]:.3f}_{values[2]:.3f}"
+        plan = ".9f" if geographic else ".3f"
+        name = fields[6] if len(fields) > 6 else f"{values[0]:{plan}}_{values[1]:{plan}}_{values[2]:.3f}"
         if name in by_name:
             k = by_name[name]
-            if not np.allclose(xyz[k], point, atol=1e-6):
+            if not np.allclose(xyz[k], point, atol=1e-6 if not geographic else 1e-11, equal_nan=True):
                 raise BlockError(path, f"gcp '{name}' appears with other coordinates on an earlier line", number)
         else:
             k = by_name[name] = len(names)
@@ -121,3 +139,81 @@ def _is_number(text: str) -> bool:
         return True
     except ValueError:
         return False
+
+
+def _is_geographic(crs: str) -> bool:
+    from pyproj import CRS
+    return CRS.from_user_input(crs).is_geographic
+
+
+def _check_lon_lat(path: str, lon: float, lat: float, line: int) -> None:
+    if not -90.0 <= lat <= 90.0:
+        raise BlockError(path, f"latitude {lat:g} is outside -90..90 degrees; in a geographic CRS geo_x is the "
+                               f"longitude and geo_y the latitude (ODM's order)", line, "geo_y")
+    if not -180.0 <= lon <= 360.0:
+        raise BlockError(path, f"longitude {lon:g} is outside -180..360 degrees", line, "geo_x")
+
+
+@dataclass(frozen=True)
+class ImagePositions:
+    """An ODM geo.txt: the position of each image (NaN where not given) in ``crs``."""
+
+    crs: str
+    crs_name: str
+    image_names: np.ndarray        # (n,)
+    xyz: np.ndarray                # (n, 3); z NaN where the line has none
+    ypr_deg: np.ndarray            # (n, 3) yaw, pitch, roll; NaN where not given
+    accuracy_m: np.ndarray         # (n, 2) horizontal, vertical; NaN where not given
+    line: np.ndarray               # (n,) line in the file
+
+
+def read_geo_txt(path: str | os.PathLike) -> ImagePositions:
+    """Read an ODM geo.txt; defects (a field that is not a number, too few fields, an image twice) are
+    BlockErrors naming the line and the field."""
+    path = str(path)
+    if not os.path.isfile(path):
+        raise BlockError(path, "file not found")
+    lines = read_text(path, "geo file").splitlines()
+    if not lines or not lines[0].strip():
+        raise BlockError(path, "the first line must name the CRS", 1)
+    crs, crs_name = _crs(path, lines[0], geographic=True)
+    geographic = _is_geographic(crs)
+    names, xyz, ypr, acc, where = [], [], [], [], []
+    seen: dict[str, int] = {}
+    header = ["image_name", "geo_x", "geo_y", "geo_z", "yaw", "pitch", "roll", "horz_accuracy", "vert_accuracy"]
+    for number, text in enumerate(lines[1:], start=2):
+        if not text.strip() or text.lstrip().startswith("#"):
+            continue
+        fields = text.split()
+        if len(fields) < 3:
+            raise BlockError(path, "expected image_name geo_x geo_y [geo_z] [yaw pitch roll] "
+                                   "[horz_accuracy vert_accuracy]", number)
+        n_numbers = 9 if len(fields) >= 9 else 7 if len(fields) >= 7 else min(len(fields), 4)
+        values = []
+        for k in range(1, n_numbers):
+            try:
+                value = float(fields[k])
+            except ValueError:
+                raise BlockError(path, f"'{fields[k]}' is not a number", number, header[k]) from None
+            if not math.isfinite(value):
+                raise BlockError(path, f"'{fields[k]}' is not a finite number", number, header[k])
+            values.append(value)
+        values += [math.nan] * (8 - len(values))
+        if geographic:
+            _check_lon_lat(path, values[0], values[1], number)
+        if fields[0] in seen:
+            raise BlockError(path, f"image '{fields[0]}' is given twice (first on line {seen[fields[0]]})", number,
+                             "image_name")
+        seen[fields[0]] = number
+        if values[6] <= 0 or values[7] <= 0:
+            raise BlockError(path, "an accuracy must be positive", number,
+                             "horz_accuracy" if values[6] <= 0 else "vert_accuracy")
+        names.append(fields[0])
+        xyz.append(values[:3])
+        ypr.append(values[3:6])
+        acc.append(values[6:8])
+        where.append(number)
+    if not names:
+        raise BlockError(path, "no image position in the file")
+    return ImagePositions(crs, crs_name, np.array(names, dtype=object), np.array(xyz, float), np.array(ypr, float),
+                          np.array(acc, float), np.array(where, np.int64))

@@ -106,10 +106,17 @@ def reweighted(block: Block, scale: dict[str, float]) -> Block:
     if s != 1.0:
         factor = np.where(block.points.role == "gcp", s, 1.0)[:, None]
         changes["points"] = replace(block.points, sigma_m=block.points.sigma_m * factor)
+    images = {}
     if scale.get("GNSS", 1.0) != 1.0:
         changes["gnss_sigma_m"] = tuple(scale["GNSS"] * v for v in block.gnss_sigma_m)
+        if block.images.gnss_sigma_m is not None:         # the images' own sigmas scale with the group's
+            images["gnss_sigma_m"] = scale["GNSS"] * block.images.gnss_sigma_m
     if scale.get("IMU", 1.0) != 1.0:
         changes["imu_sigma_deg"] = tuple(scale["IMU"] * v for v in block.imu_sigma_deg)
+        if block.images.imu_sigma_rad is not None:
+            images["imu_sigma_rad"] = scale["IMU"] * block.images.imu_sigma_rad
+    if images:
+        changes["images"] = replace(block.images, **images)
     return replace(block, **changes) if changes else block
 
 
