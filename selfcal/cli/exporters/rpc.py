@@ -1,0 +1,93 @@
+"""``selfcal export rpc``: the RPC of one adjusted image as GDAL reads it (.RPB or _RPC.TXT beside the image)."""
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+
+import numpy as np
+
+from ...errors import UsageError
+from ...io import read_block
+from ...io.output import output_file
+from ...io.results import read_camera_json, read_results_table
+from ...io.rpc_gdal import write_rpc_file
+from ...io.text import read_json
+from ...workflows.export_rpc import adjusted_rpc, points_height_range
+
+HELP = ("the RPC of an adjusted image for GDAL (.RPB or _RPC.TXT by the name of --out): the vendor RPC with its "
+        "shift bias folded in, or an RPC fitted to the adjusted model (affine bias; pushbroom, dimap, dg) with its "
+        "misfit")
+
+
+def _heights(text: str):
+    try:
+        low, high = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected MIN,MAX in metres, found {text!r}") from None
+    if not low < high:
+        raise argparse.ArgumentTypeError(f"MIN must be below MAX, found {text!r}")
+    return low, high
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--block", required=True, metavar="BLOCK",
+                        help="the block folder RESULTS was adjusted from (its images' RPCs, vendor metadata or "
+                             "telemetry; read, never modified)")
+    parser.add_argument("--image", required=True, metavar="ID", help="the image to export")
+    parser.add_argument("--out", required=True, metavar="FILE",
+                        help="file to write: NAME.RPB or NAME_RPC.TXT (0-based pixel centres, as GDAL reads them; "
+                             "replaced; never inside RESULTS or BLOCK)")
+    parser.add_argument("--heights", type=_heights, metavar="MIN,MAX",
+                        help="height range (m above the WGS 84 ellipsoid) of a fitted RPC; default: the image's own "
+                             "RPC's, else the adjusted points' heights widened by 10%% (at least 100 m) each side")
+
+
+def _check_results(args, block) -> None:
+    """RESULTS and --block belong together: the image's camera is in camera.json with the block's model, without
+    line APs (not in the hand-over)."""
+    cameras = read_camera_json(args.results).get("cameras", {})
+    ids = [str(i) for i in block.images.image_id]
+    if args.image not in ids:
+        return                                   # adjusted_rpc names the block's images
+    camera_id = str(block.images.camera_id[ids.index(args.image)])
+    entry = cameras.get(camera_id)
+    model = block.cameras[camera_id].model
+    if not isinstance(entry, dict) or entry.get("model") != model:
+        raise UsageError(f"--block {args.block}: camera {camera_id} ({model}) is not in {args.results}'s "
+                         f"camera.json as such: is RESULTS an adjustment of this block?")
+    if (entry.get("ap") or {}).get("n_active"):
+        raise UsageError(f"--image {args.image}: camera {camera_id} has {entry['ap']['n_active']} active additional "
+                         f"parameters ({entry['ap'].get('spec')}); the RPC export does not carry them")
+
+
+def run(args: argparse.Namespace) -> int:
+    args.out = output_file(args.out, (args.results, args.block))
+    name = os.path.basename(args.out).lower()
+    if not name.endswith((".rpb", "_rpc.txt")):
+        raise UsageError(f"--out {args.out}: the name must end in .RPB or _RPC.TXT (the format comes from it)")
+    parameters = read_results_table(args.results, "parameters.csv")
+    owners = {str(o) for o in parameters["owner"]}
+    if args.image not in owners:
+        raise UsageError(f"--image {args.image}: not an image of {args.results} (parameters.csv has: "
+                         f"{', '.join(sorted(owners)[:20])})")
+    block = read_block(args.block)
+    _check_results(args, block)
+    points = read_results_table(args.results, "points.csv")
+    summary = read_json(os.path.join(args.results, "summary.json"), "summary")
+    xyz = np.column_stack([points[c] for c in ("X", "Y", "Z")]) if {"X", "Y", "Z"} <= set(points) else np.zeros((0, 3))
+    fallback = points_height_range(xyz, summary.get("crs"))
+    result = adjusted_rpc(block, parameters, args.image, args.heights, fallback)
+    if result.exact:
+        print(f"image {args.image} ({result.sensor}): its RPC with the adjusted shift folded into LINE_OFF and "
+              f"SAMP_OFF (exact)", file=sys.stderr)
+    else:
+        fit, (lo, hi) = result.fit, result.heights_m
+        print(f"image {args.image} ({result.sensor}): RPC fitted to the adjusted model on a "
+              f"{'x'.join(map(str, result.grid))} grid over the image and {lo:.0f} .. {hi:.0f} m (Tao & Hu 2001): "
+              f"misfit {fit.check_rms_px:.2g} px rms, {fit.check_max_px:.2g} px max on the check grid "
+              f"({fit.n_check_points} points; {fit.fit_rms_px:.2g} / {fit.fit_max_px:.2g} px on the fit grid)",
+              file=sys.stderr)
+    write_rpc_file(result.model, args.out)
+    print(f"wrote {args.out}", file=sys.stderr)
+    return 0
