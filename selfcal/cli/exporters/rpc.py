@@ -85,8 +85,8 @@ def run(args: argparse.Namespace) -> int:
         fit, (lo, hi) = result.fit, result.heights_m
         print(f"image {args.image} ({result.sensor}): RPC fitted to the adjusted model on a "
               f"{'x'.join(map(str, result.grid))} grid over the image and {lo:.0f} .. {hi:.0f} m (Tao & Hu 2001): "
-              f"misfit {fit.check_rms_px:.2g} px rms, {fit.check_max_px:.2g} px max on the check grid "
-              f"({fit.n_check_points} points; {fit.fit_rms_px:.2g} / {fit.fit_max_px:.2g} px on the fit grid)",
+              f"misfit {fit.check_rms_px:.3g} px rms, {fit.check_max_px:.3g} px max on the check grid "
+              f"({fit.n_check_points} points; {fit.fit_rms_px:.3g} / {fit.fit_max_px:.3g} px on the fit grid)",
               file=sys.stderr)
     write_rpc_file(result.model, args.out)
     print(f"wrote {args.out}", file=sys.stderr)

@@ -1,0 +1,303 @@
+"""``selfcal export rpc`` and the NITF RPC reader, checked with GDAL's own RPC reader and transformer (rasterio).
+
+GDAL reads the exported file the way a user's GDAL does: an ``IMAGE.RPB`` / ``IMAGE_RPC.TXT`` beside ``IMAGE.tif``
+(GDAL's sidecar search, ``GDALFindAssociatedFile``), ``rasterio.open(IMAGE.tif).rpcs``, then
+``rasterio.transform.RPCTransformer`` (GDAL's ``GDALCreateRPCTransformerV2``) takes ground points to GDAL's pixel
+and line. GDAL's pixel coordinates put (0, 0) at the upper-left corner of the image, as selfcal does (gdal_rpc.cpp
+``RPCTransformPoint`` adds 0.5 to the RPC's centre-based line and sample): the transformer's (row, col) are
+compared with selfcal's adjusted model directly, so a half-pixel mistake shows as 0.5 px.
+
+Truth: an ``rpc`` block of one Pleiades image (CNES shareloc's RPC, ../shared/data) whose GCPs are seen by the RPC
+with a known bias (shift or affine) and 0.1 px noise; a ``dimap`` block of a Pleiades primary image whose attitude
+has known roll, pitch and yaw biases (tests/test_vendor_blocks.py's block writer).
+"""
+import csv
+import os
+import shutil
+
+import numpy as np
+import pytest
+import rasterio
+import rasterio.shutil
+from rasterio.transform import RPCTransformer
+
+from selfcal.errors import BlockError
+from selfcal.geometry.earth import ecef_from_geodetic, geodetic_from_ecef
+from selfcal.io import read_block
+from selfcal.io.rpc import read_rpc
+from selfcal.io.rpc_gdal import rasterio_rpcs
+from selfcal.sensors.pushbroom import ground_to_image, image_to_ground
+from selfcal.sensors.rpc import RpcBias, RpcModel
+from selfcal.sensors.rpc_fit import FIT_GRID, check_grid
+from selfcal.sensors.vendor import line_image_from_file
+
+from conftest import SHARED_DATA, run_cli
+
+RPC_DIR = os.path.join(SHARED_DATA, "pushbroom", "pleiades", "rpc")
+IMAGE = "PHR1B_P_201709281038393_SEN_PRG_FC_178609-001"
+#: the same RPC as DIMAP XML (1-based pixel centres) and OSSIM .geom (0-based)
+DIMAP_XML, GEOM = os.path.join(RPC_DIR, f"RPC_{IMAGE}.XML"), os.path.join(RPC_DIR, f"{IMAGE}.geom")
+BIASES = {"shift": RpcBias((3.2, 0.0, 0.0), (-1.7, 0.0, 0.0), "shift"),
+          "affine": RpcBias((3.2, 2e-5, -3e-5), (-1.7, 1e-5, 4e-5))}
+NOISE_PX = 0.1
+
+
+def _write_rpc_block(folder, kind: str, sensor_file: str, n: int = 30, seed: int = 1):
+    """A block of one rpc image (``sensor_file`` copied in) and n GCPs seen with the bias of ``kind`` + noise."""
+    os.makedirs(folder)
+    model = read_rpc(sensor_file)
+    rng = np.random.default_rng(seed)
+    rows = model.line_off + model.pixel_shift + model.line_scale * rng.uniform(-0.9, 0.9, n)
+    cols = model.samp_off + model.pixel_shift + model.samp_scale * rng.uniform(-0.9, 0.9, n)
+    h = model.height_off + model.height_scale * rng.uniform(-0.5, 0.5, n)
+    lon, lat = model.localize(rows, cols, h)
+    row, col = BIASES[kind].project(model, lon, lat, h)
+    row, col = row + rng.normal(0, NOISE_PX, n), col + rng.normal(0, NOISE_PX, n)
+    xyz = ecef_from_geodetic(np.radians(lat), np.radians(lon), h)
+    name = os.path.basename(sensor_file)
+    shutil.copy(sensor_file, os.path.join(folder, name))
+    with open(os.path.join(folder, "block.toml"), "w") as f:
+        f.write(f'name = "rpc"\ncrs = "EPSG:4978"\n[cameras.sat]\nmodel = "rpc"\nbias = "{kind}"\n'
+                f"[observations]\nimage_sigma_px = {NOISE_PX}\n")
+    with open(os.path.join(folder, "images.csv"), "w") as f:
+        f.write("image_id,camera_id,strip_id,time_s,X0,Y0,Z0,omega_deg,phi_deg,kappa_deg,sensor_file\n"
+                f"img,sat,,,,,,,,,{name}\n")
+    with open(os.path.join(folder, "points.csv"), "w") as f:
+        f.write("point_id,role,X,Y,Z,sigma_xy_m,sigma_z_m\n")
+        f.writelines(f"p{j},gcp,{x:.4f},{y:.4f},{z:.4f},0.01,0.01\n" for j, (x, y, z) in enumerate(xyz))
+    with open(os.path.join(folder, "observations.csv"), "w") as f:
+        f.write("image_id,point_id,col_px,row_px\n")
+        f.writelines(f"img,p{j},{c:.5f},{r:.5f}\n" for j, (c, r) in enumerate(zip(col, row)))
+
+
+def _parameters(results) -> dict:
+    """parameters.csv as {(owner, parameter): (value, sigma)} in the file's units."""
+    with open(os.path.join(results, "parameters.csv")) as handle:
+        return {(r["owner"], r["parameter"]): (float(r["value"]), float(r["sigma"] or "nan"))
+                for r in csv.DictReader(handle)}
+
+
+def _gdal_rowcol(written, lon, lat, h):
+    """GDAL's (row, col) of ground points through the RPC file ``written`` found beside a TIFF of the same name."""
+    stem = str(written)[:-len("_RPC.TXT")] if str(written).upper().endswith("_RPC.TXT") else str(written)[:-4]
+    if not os.path.exists(stem + ".tif"):          # (GDAL's Create would delete the sidecar of an existing one)
+        with rasterio.open(stem + ".tif", "w", driver="GTiff", width=4, height=4, count=1, dtype="uint8",
+                           transform=rasterio.Affine(1.0, 0.0, 0.0, 0.0, -1.0, 4.0)) as dst:
+            dst.write(np.zeros((1, 4, 4), "uint8"))
+    with rasterio.open(stem + ".tif") as src:
+        rpcs = src.rpcs
+    assert rpcs is not None, "GDAL found no RPC beside the TIFF"
+    with RPCTransformer(rpcs) as transformer:
+        rows, cols = transformer.rowcol(lon, lat, zs=h, op=lambda x: x)
+    return np.asarray(rows, float), np.asarray(cols, float)
+
+
+def _image_grid(rows_px, cols_px, heights, n=15):
+    """(row, col, h) on an n x n grid over the whole image (edges included) at 5 heights over the range."""
+    row, col, h = np.meshgrid(np.linspace(0, rows_px, n), np.linspace(0, cols_px, n),
+                              np.linspace(heights[0], heights[1], 5), indexing="ij")
+    return row.ravel(), col.ravel(), h.ravel()
+
+
+@pytest.fixture(scope="module")
+def rpc_results(tmp_path_factory):
+    """kind -> (block, results) of the shift block (DIMAP XML RPC, 1-based) and the affine one (.geom, 0-based)."""
+    root = tmp_path_factory.mktemp("rpc_export")
+    out = {}
+    for kind, source in (("shift", DIMAP_XML), ("affine", GEOM)):
+        block, results = root / f"block_{kind}", root / f"results_{kind}"
+        _write_rpc_block(block, kind, source)
+        assert run_cli("adjust", str(block), "--out", str(results), "--no-report", "--quiet") == 0
+        out[kind] = (block, results)
+    return out
+
+
+def test_shift_bias_is_folded_into_the_offsets_exactly(rpc_results, tmp_path, capsys):
+    """Shift (3.2, -1.7) px: recovered within 4 sigma; the .RPB's lineOffset / sampOffset are the DIMAP RPC's
+    LINE_OFF / SAMP_OFF moved to GDAL's 0-based centres (-1) plus a0 / b0 (px, unscaled), every coefficient the
+    vendor's; GDAL's transformer on that file gives selfcal's adjusted (row, col) over the image and its heights
+    within 0.01 px (measured 1e-9 px), and the true biased RPC's within 0.05 px (the estimate's error)."""
+    block, results = rpc_results["shift"]
+    p = _parameters(results)
+    for name, true in (("a0", 3.2), ("b0", -1.7)):
+        value, sigma = p[("img", name)]
+        assert abs(value - true) < 4 * sigma, (name, value, sigma)
+    written = tmp_path / "scene.RPB"
+    assert run_cli("export", "rpc", str(results), "--block", str(block), "--image", "img", "--out", str(written)) == 0
+    assert "exact" in capsys.readouterr().err
+    vendor = read_rpc(DIMAP_XML)
+    assert vendor.pixel_origin == 1.0
+    text = {line.split("=")[0].strip(): line.split("=")[1].strip(" ;") for line in written.read_text().splitlines()
+            if "=" in line and "(" not in line}
+    a0, b0 = p[("img", "a0")][0], p[("img", "b0")][0]
+    assert float(text["lineOffset"]) == pytest.approx(vendor.line_off - 1.0 + a0, abs=1e-9)
+    assert float(text["sampOffset"]) == pytest.approx(vendor.samp_off - 1.0 + b0, abs=1e-9)
+    back = read_rpc(written)
+    for name in ("line_num", "line_den", "samp_num", "samp_den"):
+        np.testing.assert_array_equal(getattr(back, name), getattr(vendor, name))
+
+    bias = RpcBias.from_parameters("shift", [a0, b0])
+    rows_px, cols_px = 2 * vendor.line_scale, 2 * vendor.samp_scale
+    row, col, h = _image_grid(rows_px, cols_px, (vendor.height_off - vendor.height_scale,
+                                                 vendor.height_off + vendor.height_scale))
+    lon, lat = bias.localize(vendor, row, col, h)                 # selfcal's adjusted model: ground of each pixel
+    g_row, g_col = _gdal_rowcol(written, lon, lat, h)
+    worst = np.max(np.hypot(g_row - row, g_col - col))
+    print(f"shift: GDAL vs selfcal's adjusted model, max {worst:.2e} px over {len(row)} points")
+    assert worst < 0.01
+    t_row, t_col = BIASES["shift"].project(vendor, lon, lat, h)
+    assert np.max(np.hypot(g_row - t_row, g_col - t_col)) < 0.05
+    # the first pixel's centre: selfcal (0.5, 0.5) is GDAL's (0.5, 0.5), i.e. the RPC's (line, samp) = (0, 0)
+    lon0, lat0 = bias.localize(vendor, 0.5, 0.5, vendor.height_off)
+    np.testing.assert_allclose(_gdal_rowcol(written, [lon0], [lat0], [vendor.height_off]), [[0.5], [0.5]], atol=1e-6)
+
+
+def test_affine_bias_is_refitted_and_its_reported_misfit_is_what_gdal_measures(rpc_results, tmp_path, capsys):
+    """Affine bias: recovered within 4 sigma; the RPC fitted on the 21 x 21 x 7 grid, written as _RPC.TXT, read by
+    GDAL: within 0.01 px of selfcal's adjusted model on an independent 15 x 15 x 5 grid (measured 2.5e-6 px), and
+    on the exporter's check grid GDAL measures the rms and max the exporter printed (to their 3 digits)."""
+    block, results = rpc_results["affine"]
+    p = _parameters(results)
+    names = ("a0", "a1", "a2", "b0", "b1", "b2")
+    for name, true in zip(names, BIASES["affine"].parameters):
+        value, sigma = p[("img", name)]
+        assert abs(value - true) < 4 * sigma, (name, value, sigma)
+    written = tmp_path / "scene_RPC.TXT"
+    assert run_cli("export", "rpc", str(results), "--block", str(block), "--image", "img", "--out", str(written)) == 0
+    err = capsys.readouterr().err
+    reported_rms = float(err.split("misfit ")[1].split(" px rms")[0])
+    reported_max = float(err.split("px rms, ")[1].split(" px max")[0])
+
+    vendor = read_rpc(GEOM)
+    bias = RpcBias.from_parameters("affine", [p[("img", n)][0] for n in names])
+    heights = (vendor.height_off - vendor.height_scale, vendor.height_off + vendor.height_scale)
+    rows_px, cols_px = vendor.line_off + 0.5 + vendor.line_scale, vendor.samp_off + 0.5 + vendor.samp_scale
+    row, col, h = _image_grid(rows_px, cols_px, heights)
+    lon, lat = bias.localize(vendor, row, col, h)
+    g_row, g_col = _gdal_rowcol(written, lon, lat, h)
+    worst = np.max(np.hypot(g_row - row, g_col - col))
+    print(f"affine: GDAL vs selfcal's adjusted model, max {worst:.2e} px over {len(row)} points; reported "
+          f"{reported_rms:.3g} / {reported_max:.3g} px")
+    assert worst < 0.01
+
+    row, col, h = check_grid(rows_px, cols_px, heights, FIT_GRID)
+    lon, lat = bias.localize(vendor, row, col, h)
+    t_row, t_col = bias.project(vendor, lon, lat, h)
+    g_row, g_col = _gdal_rowcol(written, lon, lat, h)
+    d = np.hypot(g_row - t_row, g_col - t_col)
+    assert np.sqrt(np.mean(d ** 2)) == pytest.approx(reported_rms, rel=6e-3)
+    assert np.max(d) == pytest.approx(reported_max, rel=6e-3)
+
+
+def test_rigorous_line_camera_gets_a_fitted_rpc(tmp_path, capsys):
+    """A Pleiades DIMAP image (49826 lines x 39951 detectors) adjusted with known attitude biases (M2): its RPC,
+    fitted to the adjusted physical model over the image and the adjusted points' heights (-100 .. 400 m) and read
+    by GDAL, is within 0.01 px of that model on a 15 x 15 x 5 grid (measured 2e-4 px; the reported check-grid max
+    is 1.5e-4 px), and within 0.3 px of the true (biased) camera (the adjustment's own error)."""
+    from test_vendor_blocks import CASES, TRUTH, _biased, _write_block
+    model, images, sensor_model = CASES["pleiades"]
+    block, results = tmp_path / "block", tmp_path / "results"
+    _write_block(block, model, images, np.random.default_rng(11), TRUTH)
+    assert run_cli("adjust", str(block), "--out", str(results), "--sensor-model", sensor_model, "--keep-focal",
+                   "--snoop", "0", "--no-report", "--quiet") == 0
+    written = tmp_path / "phr.RPB"
+    assert run_cli("export", "rpc", str(results), "--block", str(block), "--image", "phr", "--out", str(written)) == 0
+    err = capsys.readouterr().err
+    reported_max = float(err.split("px rms, ")[1].split(" px max")[0])
+    assert reported_max < 0.01
+
+    # selfcal's adjusted model, built here from parameters.csv (degrees) and the DIMAP file
+    p = _parameters(results)
+    nominal = line_image_from_file(images[0][1], "phr")
+    values = nominal.parameters.copy()
+    for k, name in enumerate(("d_roll0", "d_roll1", "d_pitch0", "d_pitch1", "d_yaw0", "d_yaw1")):
+        values[k] = np.radians(p[("phr", name)][0])
+    adjusted = nominal.with_parameters(values)
+    lo, hi = (float(v) for v in err.split("over the image and ")[1].split(" m ")[0].split(" .. "))
+    row, col, h = _image_grid(nominal.rows, nominal.camera.columns, (lo, hi))
+    lat, lon, _ = geodetic_from_ecef(image_to_ground(adjusted, row, col, h))
+    g_row, g_col = _gdal_rowcol(written, np.degrees(lon), np.degrees(lat), h)
+    worst = np.max(np.hypot(g_row - row, g_col - col))
+    print(f"pleiades dimap: GDAL vs selfcal's adjusted physical model, max {worst:.2e} px over {len(row)} points "
+          f"(heights {lo:.0f} .. {hi:.0f} m); reported max {reported_max:.3g} px")
+    assert worst < 0.01
+    t_row, t_col = ground_to_image(_biased(nominal, TRUTH[0]), image_to_ground(adjusted, row, col, h))
+    assert np.max(np.hypot(g_row - t_row, g_col - t_col)) < 0.3
+
+
+# --- NITF -------------------------------------------------------------------------------------------
+
+def _nitf_model() -> RpcModel:
+    """The shareloc RPC with every number as an RPC00B TRE holds it (7 significant digits and a one-digit exponent:
+    coefficients below 1e-9 are 0; whole-pixel image offsets, 4-decimal ground offsets, whole-metre height
+    offset). GDAL writes a number the TRE cannot hold into a .aux.xml beside the NITF instead."""
+    m = read_rpc(GEOM)
+    coefficients = {n: np.array([float(f"{c:.6e}") if abs(c) >= 1e-9 else 0.0 for c in getattr(m, n)])
+                    for n in ("line_num", "line_den", "samp_num", "samp_den")}
+    return RpcModel(line_off=11469.0, line_scale=11470.0, samp_off=19999.0, samp_scale=20000.0,
+                    lat_off=43.6773, lat_scale=0.0591, long_off=7.1138, long_scale=0.0769, height_off=670.0,
+                    height_scale=630.0, pixel_origin=0.0, **coefficients)
+
+
+def test_nitf_rpc00b_is_read_through_the_one_entry_point(tmp_path):
+    """A NITF 2.1 written by GDAL's NITF driver (CreateCopy of a raster with RPCs writes the RPC00B TRE): read_rpc
+    finds it from the header, reads what the TRE holds (every number equal), and projects as GDAL's transformer on
+    the NITF's own RPCs does (1e-9 px); a block naming the NITF as an rpc image's sensor_file reads it too; a NITF
+    without the TRE is an error naming the file."""
+    model = _nitf_model()
+    source = "/vsimem/rpc_source.tif"
+    with rasterio.open(source, "w", driver="GTiff", width=4, height=4, count=1, dtype="uint8",
+                       rpcs=rasterio_rpcs(model)) as dst:
+        dst.write(np.zeros((1, 4, 4), "uint8"))
+    ntf = tmp_path / "scene.ntf"
+    rasterio.shutil.copy(source, str(ntf), driver="NITF")
+    rasterio.shutil.delete(source)
+    assert not (tmp_path / "scene.ntf.aux.xml").exists() and len(os.listdir(tmp_path)) == 1
+    with rasterio.open(ntf) as src:
+        assert src.driver == "NITF" and "RPC00B" in src.tags(ns="TRE")
+        gdal_rpcs = src.rpcs
+    back = read_rpc(ntf)
+    assert back.pixel_origin == 0.0
+    for name in ("line_off", "line_scale", "samp_off", "samp_scale", "lat_off", "lat_scale", "long_off", "long_scale",
+                 "height_off", "height_scale"):
+        assert getattr(back, name) == pytest.approx(getattr(model, name), rel=1e-12), name
+    for name in ("line_num", "line_den", "samp_num", "samp_den"):
+        np.testing.assert_allclose(getattr(back, name), getattr(model, name), rtol=1e-12)
+    lon = model.long_off + model.long_scale * np.array([-0.7, 0.0, 0.5])
+    lat = model.lat_off + model.lat_scale * np.array([0.6, 0.0, -0.4])
+    h = model.height_off + np.array([-500.0, 0.0, 400.0])
+    with RPCTransformer(gdal_rpcs) as transformer:
+        rows, cols = transformer.rowcol(lon, lat, zs=h, op=lambda x: x)
+    np.testing.assert_allclose(np.stack(back.project(lon, lat, h)), np.stack([rows, cols]), rtol=0, atol=1e-9)
+
+    block = tmp_path / "block"
+    _write_rpc_block(block, "shift", GEOM, n=5)
+    shutil.copy(ntf, block / "scene.ntf")
+    images = (block / "images.csv").read_text().replace(os.path.basename(GEOM), "scene.ntf")
+    (block / "images.csv").write_text(images)
+    assert read_block(block).image_models["img"].line_off == 11469.0
+
+    plain = tmp_path / "plain.ntf"
+    with rasterio.open(plain, "w", driver="NITF", width=4, height=4, count=1, dtype="uint8",
+                       transform=rasterio.Affine(1.0, 0.0, 0.0, 0.0, -1.0, 4.0)) as dst:
+        dst.write(np.zeros((1, 4, 4), "uint8"))
+    with pytest.raises(BlockError, match=r"plain\.ntf: the NITF has no RPC \(no RPC00B TRE\)"):
+        read_rpc(plain)
+
+
+# --- bad input --------------------------------------------------------------------------------------
+
+def test_bad_requests_exit_with_two_and_write_nothing(rpc_results, tmp_path, capsys):
+    """An image not in the results, an --out that is neither .RPB nor _RPC.TXT, --heights MAX below MIN: exit 2
+    naming the option, no file written (a frame camera, which has no RPC: tests/front_door.py)."""
+    block, results = rpc_results["shift"]
+    out = tmp_path / "x.RPB"
+    assert run_cli("export", "rpc", str(results), "--block", str(block), "--image", "nope", "--out", str(out)) == 2
+    assert "--image nope: not an image of" in capsys.readouterr().err
+    assert run_cli("export", "rpc", str(results), "--block", str(block), "--image", "img",
+                   "--out", str(tmp_path / "x.tif")) == 2
+    assert ".RPB or _RPC.TXT" in capsys.readouterr().err
+    assert run_cli("export", "rpc", str(results), "--block", str(block), "--image", "img", "--heights", "5,1",
+                   "--out", str(out)) == 2
+    assert "--heights" in capsys.readouterr().err
+    assert not out.exists()
