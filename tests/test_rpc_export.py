@@ -343,3 +343,31 @@ def test_fit_refuses_what_it_cannot_fit():
         fit_rpc(truth.project, truth.localize, 100.0, 100.0, (0.0, 10.0), grid=(3, 21, 7))
     with pytest.raises(ValueError, match="localises only 0"):
         fit_rpc(truth.project, lambda r, c, h: (np.full(np.shape(r), np.nan),) * 2, 100.0, 100.0, (0.0, 10.0))
+
+
+def test_an_rpc_cannot_follow_the_joins_of_prisms_ccd_chips():
+    """Honest limit: the simulated PRISM nadir camera (14000 lines x 14496 detectors on three CCD chips offset by up
+    to 0.6 px along and 0.5 px across track, seed 001's Fig. 1) is a smooth function of the ground only within each
+    chip; a cubic RPC, smooth across the joins, misses the adjusted model by 0.3-0.4 px rms and about 1 px near the
+    joins (measured 0.39 px rms, 1.24 px max on the check grid). The same camera without chip offsets is fitted
+    to 1.5e-4 px. The pushbroom sensor's image_geometry is the model the adjustment uses (attitude corrections and
+    focal length applied)."""
+    from dataclasses import replace
+    from selfcal.sensors import sensor_of
+    from selfcal.sensors.rpc_fit import fit_rpc
+    from selfcal.simulate.prism import prism_block, simulate_prism
+    block = prism_block(simulate_prism(seed=1), seed=1)
+    k = [str(i) for i in block.images.image_id].index("N")
+    camera = block.cameras["N"]
+    sensor = sensor_of(camera)
+    corrections = np.array([2e-6, 0.0, -3e-6, 0.0, 1e-5, 0.0])
+    misfits = {}
+    for chips in (True, False):
+        b = block if chips else replace(block, cameras={**block.cameras,
+                                                       "N": replace(camera, chip_starts=(), chip_offsets_px=())})
+        geometry = sensor.image_geometry(b, k, corrections, np.array([camera.focal_mm + 0.05, 0.0, 0.0, 0.0]))
+        fit = fit_rpc(geometry.project, geometry.localize, geometry.rows_px, geometry.cols_px, (300.0, 1160.0))
+        misfits[chips] = fit.check_rms_px, fit.check_max_px
+    print(f"PRISM N: check grid rms / max with chips {misfits[True]}, without {misfits[False]} px")
+    assert misfits[True][0] > 0.2 and misfits[True][1] > 0.5
+    assert misfits[False][1] < 0.01
