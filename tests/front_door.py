@@ -691,9 +691,9 @@ def _(ws, work):
     return ["export", "rpc", ws.results, "--block", ws.block, "--image", "nope", "--out", out], [ws.results, ws.block], out
 
 
-@case("export rpc --out x.tif (the format is the name's)", names=".RPB or _RPC.TXT")
+@case("export rpc --out x.jpg (the format is the name's)", names=".RPB or _RPC.TXT")
 def _(ws, work):
-    out = os.path.join(work, "img.tif")
+    out = os.path.join(work, "img.jpg")
     return (["export", "rpc", ws.results, "--block", ws.block, "--image", _first_image(ws.block), "--out", out],
             [ws.results, ws.block], out)
 

@@ -17,7 +17,7 @@ this convention (tests/test_dg.py); 0.5 px off in both coordinates otherwise.
 * ``_RPC.TXT``: ``LINE_OFF: 11469.50 pixels`` lines (a unit may follow the number), ``LINE_NUM_COEFF_1`` ..
   ``_20`` and so on; ``ERR_BIAS``, ``ERR_RAND`` optional.
 * GeoTIFF: the ``RPCCoefficientTag`` as rasterio's ``dataset.rpcs`` gives it (GDAL also picks up an ``.RPB`` or
-  ``_RPC.TXT`` beside the image).
+  ``_RPC.TXT`` beside the image); written as a copy of a raster with the tags (:func:`write_geotiff_rpc`).
 * NITF (``NITF02.10`` or NSIF header): the ``RPC00B`` (or ``RPC00A``, which GDAL reorders) image-subheader TRE as
   rasterio's ``dataset.rpcs`` gives it. The TRE's fields are fixed-width text: 7 significant digits for the
   coefficients (``+9.318045E-3``), whole pixels for LINE_OFF / SAMP_OFF, 4 decimals for the latitude and longitude
@@ -42,7 +42,7 @@ from ..sensors.rpc import RpcModel
 
 __all__ = ["GDAL_PIXEL_ORIGIN", "read_rpb", "read_dg_xml_rpc", "read_rpc_txt", "read_geotiff_rpc", "write_rpb",
            "write_rpc_txt", "rasterio_rpcs", "RPC00A_TO_RPC00B", "is_rpb", "is_rpc_txt", "is_tiff", "is_nitf",
-           "write_rpc_file", "RPC_FILE_SUFFIXES",
+           "write_rpc_file", "RPC_FILE_SUFFIXES", "write_geotiff_rpc",
            "read_raster_rpc"]
 
 #: image coordinate of the first pixel's centre in .RPB, _RPC.TXT, GeoTIFF RPC tags and DigitalGlobe XML
@@ -293,6 +293,48 @@ def read_raster_rpc(path: str | os.PathLike, what: str = "GeoTIFF") -> RpcModel:
                              column=f"{name.upper()}_COEFF")
         fields[name] = values
     return _model(path, fields)
+
+
+def write_geotiff_rpc(model: RpcModel, path: str | os.PathLike, raster: str | os.PathLike) -> tuple[int, int]:
+    """Write a GeoTIFF copy of ``raster`` (any raster GDAL reads: every band's pixels, its data type, no-data value
+    and georeferencing if any; tiled, deflate) whose RPC tags hold ``model`` (GDAL's convention, ``pixel_origin`` 0;
+    any RPC of the source is replaced), atomically: written under a temporary name beside ``path``, then renamed.
+    GDAL reads the tags' doubles back to 15 significant digits. Returns the raster's (rows, cols)."""
+    import tempfile
+    import warnings
+
+    import rasterio
+    from rasterio.errors import NotGeoreferencedWarning, RasterioIOError
+
+    path, raster = str(path), str(raster)
+    directory = os.path.dirname(os.path.abspath(path))
+    os.makedirs(directory, exist_ok=True)
+    handle, tmp = tempfile.mkstemp(prefix=".tmp-", suffix="-" + os.path.basename(path), dir=directory)
+    os.close(handle)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", NotGeoreferencedWarning)
+            try:
+                source = rasterio.open(raster)
+            except RasterioIOError as exc:
+                raise BlockError(raster, f"cannot read the raster: {exc}") from None
+            with source:
+                profile = dict(driver="GTiff", width=source.width, height=source.height, count=source.count,
+                               dtype=source.dtypes[0], nodata=source.nodata, tiled=True, blockxsize=256,
+                               blockysize=256, compress="deflate", BIGTIFF="IF_SAFER")
+                if source.crs is not None:
+                    profile.update(crs=source.crs, transform=source.transform)
+                with rasterio.open(tmp, "w", rpcs=rasterio_rpcs(model), **profile) as target:
+                    for _, window in target.block_windows(1):
+                        target.write(source.read(window=window), window=window)
+                shape = (source.height, source.width)
+        os.replace(tmp, path)
+    except BaseException:
+        for name in (tmp, tmp + ".aux.xml"):
+            if os.path.exists(name):
+                os.unlink(name)
+        raise
+    return shape
 
 
 def read_geotiff_rpc(path: str | os.PathLike) -> RpcModel:

@@ -1,5 +1,6 @@
 """The RPC of an adjusted image (``selfcal export rpc``): the vendor RPC with its bias folded in, or an RPC fitted
-to the adjusted model.
+to the adjusted model. ``rows_px``, ``cols_px`` of the result are the image's size as the sensor knows it (an RPC
+image without ``width_px``/``height_px``: its RPC's normalisation), for checking a raster it is attached to.
 
 The results folder holds the adjusted values (parameters.csv: every image and camera parameter, in the files'
 units) but not the sensor descriptions they correct (an image's vendor RPC, its DIMAP or DigitalGlobe metadata, a
@@ -51,6 +52,8 @@ class AdjustedRpc:
     fit: RpcFit | None
     heights_m: tuple[float, float] | None
     grid: tuple[int, int, int] | None
+    rows_px: float
+    cols_px: float
 
 
 def image_parameter_values(table: dict, owner: str, parameters, path: str = "parameters.csv") -> np.ndarray:
@@ -109,7 +112,8 @@ def adjusted_rpc(block, parameters: dict, image_id: str, heights_m=None, points_
     except NotImplementedError as exc:
         raise UsageError(f"--image {image_id}: camera {camera_id} (model {camera.model!r}): {exc}") from None
     if geometry.rpc is not None:
-        return AdjustedRpc(image_id, sensor.name, geometry.rpc, True, None, geometry.height_range_m, None)
+        return AdjustedRpc(image_id, sensor.name, geometry.rpc, True, None, geometry.height_range_m, None,
+                           geometry.rows_px, geometry.cols_px)
     heights = heights_m or geometry.height_range_m or points_heights_m
     if heights is None:
         raise UsageError(f"--image {image_id}: no height range for the fit (the results hold no adjusted point on "
@@ -118,4 +122,5 @@ def adjusted_rpc(block, parameters: dict, image_id: str, heights_m=None, points_
         fit = fit_rpc(geometry.project, geometry.localize, geometry.rows_px, geometry.cols_px, heights, grid)
     except ValueError as exc:
         raise UsageError(f"--image {image_id}: cannot fit an RPC: {exc}") from None
-    return AdjustedRpc(image_id, sensor.name, fit.model, False, fit, tuple(heights), tuple(grid))
+    return AdjustedRpc(image_id, sensor.name, fit.model, False, fit, tuple(heights), tuple(grid), geometry.rows_px,
+                       geometry.cols_px)

@@ -11,13 +11,15 @@ from ...errors import UsageError
 from ...io import read_block
 from ...io.output import output_file
 from ...io.results import read_camera_json, read_results_table
-from ...io.rpc_gdal import write_rpc_file
+from ...io.rpc_gdal import write_geotiff_rpc, write_rpc_file
 from ...io.text import read_json
 from ...workflows.export_rpc import adjusted_rpc, points_height_range
 
-HELP = ("the RPC of an adjusted image for GDAL (.RPB or _RPC.TXT by the name of --out): the vendor RPC with its "
-        "shift bias folded in, or an RPC fitted to the adjusted model (affine bias; pushbroom, dimap, dg) with its "
-        "misfit")
+HELP = ("the RPC of an adjusted image for GDAL (.RPB, _RPC.TXT or a GeoTIFF copy of --raster, by the name of --out): "
+        "the vendor RPC with its shift bias folded in, or an RPC fitted to the adjusted model (affine bias; pushbroom, "
+        "dimap, dg) with its misfit")
+#: --out name endings (any case) and what they write
+_TIFF = (".tif", ".tiff")
 
 
 def _heights(text: str):
@@ -36,8 +38,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "telemetry; read, never modified)")
     parser.add_argument("--image", required=True, metavar="ID", help="the image to export")
     parser.add_argument("--out", required=True, metavar="FILE",
-                        help="file to write: NAME.RPB or NAME_RPC.TXT (0-based pixel centres, as GDAL reads them; "
-                             "replaced; never inside RESULTS or BLOCK)")
+                        help="file to write: NAME.RPB or NAME_RPC.TXT (0-based pixel centres, as GDAL reads them "
+                             "beside NAME.tif), or NAME.tif: a GeoTIFF copy of --raster with the RPC in its tags "
+                             "(replaced; never inside RESULTS or BLOCK)")
+    parser.add_argument("--raster", metavar="IMAGE",
+                        help="with --out NAME.tif: the image's pixels (any raster GDAL reads, the full image: the "
+                             "RPC is in its pixels), copied with the RPC in its tags")
     parser.add_argument("--heights", type=_heights, metavar="MIN,MAX",
                         help="height range (m above the WGS 84 ellipsoid) of a fitted RPC; default: the image's own "
                              "RPC's, else the adjusted points' heights widened by 10%% (at least 100 m) each side")
@@ -62,10 +68,13 @@ def _check_results(args, block) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    args.out = output_file(args.out, (args.results, args.block))
+    args.out = output_file(args.out, (args.results, args.block, args.raster))
     name = os.path.basename(args.out).lower()
-    if not name.endswith((".rpb", "_rpc.txt")):
-        raise UsageError(f"--out {args.out}: the name must end in .RPB or _RPC.TXT (the format comes from it)")
+    if not name.endswith((".rpb", "_rpc.txt") + _TIFF):
+        raise UsageError(f"--out {args.out}: the name must end in .RPB or _RPC.TXT, or .tif with --raster (the "
+                         f"format comes from it)")
+    if name.endswith(_TIFF) != (args.raster is not None):
+        raise UsageError("--raster goes with --out NAME.tif (a GeoTIFF copy of the raster), and only with it")
     parameters = read_results_table(args.results, "parameters.csv")
     owners = {str(o) for o in parameters["owner"]}
     if args.image not in owners:
@@ -88,6 +97,13 @@ def run(args: argparse.Namespace) -> int:
               f"misfit {fit.check_rms_px:.3g} px rms, {fit.check_max_px:.3g} px max on the check grid "
               f"({fit.n_check_points} points; {fit.fit_rms_px:.3g} / {fit.fit_max_px:.3g} px on the fit grid)",
               file=sys.stderr)
-    write_rpc_file(result.model, args.out)
+    if args.raster is None:
+        write_rpc_file(result.model, args.out)
+    else:
+        rows, cols = write_geotiff_rpc(result.model, args.out, args.raster)
+        if abs(rows - result.rows_px) > 1 or abs(cols - result.cols_px) > 1:
+            print(f"warning: --raster {args.raster} is {cols} x {rows} px, image {args.image} {result.cols_px:.0f} x "
+                  f"{result.rows_px:.0f}: the RPC is in the full image's pixels (a crop needs its offset)",
+                  file=sys.stderr)
     print(f"wrote {args.out}", file=sys.stderr)
     return 0
