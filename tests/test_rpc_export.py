@@ -289,8 +289,9 @@ def test_nitf_rpc00b_is_read_through_the_one_entry_point(tmp_path):
 
 def test_bad_requests_exit_with_two_and_write_nothing(rpc_results, tmp_path, capsys):
     """An image not in the results, an --out that is neither .RPB, _RPC.TXT nor .tif, a .tif without --raster, a
-    --raster that does not exist, --heights MAX below MIN: exit 2 naming the option or file, no file written (a
-    frame camera, which has no RPC: tests/front_door.py)."""
+    --raster that does not exist, --heights MAX below MIN, results whose camera.json is not the block's camera or has
+    active APs: exit 2 naming the option or file, no file written (a frame camera, which has no RPC:
+    tests/front_door.py)."""
     block, results = rpc_results["shift"]
     out = tmp_path / "x.RPB"
     assert run_cli("export", "rpc", str(results), "--block", str(block), "--image", "nope", "--out", str(out)) == 2
@@ -307,6 +308,17 @@ def test_bad_requests_exit_with_two_and_write_nothing(rpc_results, tmp_path, cap
     assert run_cli("export", "rpc", str(results), "--block", str(block), "--image", "img", "--heights", "5,1",
                    "--out", str(out)) == 2
     assert "--heights" in capsys.readouterr().err
+    import json
+    for change, message in ((lambda c: c.update(model="dimap"), "an adjustment of --block"),
+                            (lambda c: c["ap"].update(n_active=3, spec="wavelet1d:db4"), "3 active additional")):
+        other = tmp_path / "other_results"
+        shutil.rmtree(other, ignore_errors=True)
+        shutil.copytree(results, other)
+        camera = json.loads((other / "camera.json").read_text())
+        change(camera["cameras"]["sat"])
+        (other / "camera.json").write_text(json.dumps(camera))
+        assert run_cli("export", "rpc", str(other), "--block", str(block), "--image", "img", "--out", str(out)) == 2
+        assert message in capsys.readouterr().err
     assert not out.exists() and not (tmp_path / "x.tif").exists() and not (tmp_path / "x.jpg").exists()
     assert not [n for n in os.listdir(tmp_path) if n.startswith(".tmp-")]
 

@@ -29,7 +29,6 @@ from ..geometry.earth import geodetic_from_ecef
 from ..sensors import sensor_of
 from ..sensors.rpc import RpcModel
 from ..sensors.rpc_fit import FIT_GRID, RpcFit, fit_rpc
-from .frames import ECEF_NAMES, ecef_of
 
 __all__ = ["AdjustedRpc", "adjusted_rpc", "image_parameter_values", "points_height_range", "HEIGHT_MARGIN",
            "HEIGHT_MARGIN_MIN_M"]
@@ -73,14 +72,14 @@ def image_parameter_values(table: dict, owner: str, parameters, path: str = "par
     return out
 
 
-def points_height_range(xyz: np.ndarray, crs: str | None) -> tuple[float, float] | None:
-    """The ellipsoidal heights of adjusted points (results points.csv X, Y, Z in ``crs``; None: ECEF, as satellite
-    results are written) widened by the margins (module docstring); None without points on the Earth."""
-    xyz = np.asarray(xyz, float)
-    xyz = xyz[np.all(np.isfinite(xyz), axis=1)]
-    if not len(xyz):
+def points_height_range(xyz: np.ndarray) -> tuple[float, float] | None:
+    """The ellipsoidal heights of adjusted points (results points.csv X, Y, Z: ECEF metres, the object frame of the
+    satellite sensors, in which their results are written) widened by the margins (module docstring); None without
+    points near the Earth's surface (6200-6600 km from its centre)."""
+    xyz = np.asarray(xyz, float).reshape(-1, 3)
+    ecef = xyz[np.all(np.isfinite(xyz), axis=1)]
+    if not len(ecef):
         return None
-    ecef = xyz if crs is None or crs in ECEF_NAMES else ecef_of(crs, xyz)
     radius = np.linalg.norm(ecef, axis=1)
     if np.any((radius < 6.2e6) | (radius > 6.6e6)):
         return None
@@ -90,13 +89,24 @@ def points_height_range(xyz: np.ndarray, crs: str | None) -> tuple[float, float]
     return float(np.min(h)) - margin, float(np.max(h)) + margin
 
 
+def _check_camera(entry, camera_id: str, model: str, image_id: str) -> None:
+    if not isinstance(entry, dict) or entry.get("model") != model:
+        raise UsageError(f"camera {camera_id} ({model}) of the block is not in the results' camera.json as such: are "
+                         f"RESULTS an adjustment of --block?")
+    if (entry.get("ap") or {}).get("n_active"):
+        raise UsageError(f"--image {image_id}: camera {camera_id} has {entry['ap']['n_active']} active additional "
+                         f"parameters ({entry['ap'].get('spec')}); the RPC export does not carry them")
+
+
 def adjusted_rpc(block, parameters: dict, image_id: str, heights_m=None, points_heights_m=None,
-                 grid=FIT_GRID) -> AdjustedRpc:
+                 grid=FIT_GRID, cameras: dict | None = None) -> AdjustedRpc:
     """The RPC of image ``image_id`` of ``block`` adjusted by a parameters.csv table (module docstring).
 
     ``heights_m`` (min, max) overrides the fit's height range; ``points_heights_m`` is the fallback from the
-    adjusted points (:func:`points_height_range`). UsageError where the image's sensor has no RPC hand-over or no
-    height range is known.
+    adjusted points (:func:`points_height_range`). ``cameras`` (camera.json's ``cameras`` of the same results)
+    checks that the results are the block's (the camera there with the block's model) and that the camera has no
+    active additional parameters (line APs are not in the hand-over). UsageError where they are not, where the
+    image's sensor has no RPC hand-over, or where no height range is known.
     """
     ids = [str(i) for i in block.images.image_id]
     if image_id not in ids:
@@ -104,6 +114,8 @@ def adjusted_rpc(block, parameters: dict, image_id: str, heights_m=None, points_
     k = ids.index(image_id)
     camera_id = str(block.images.camera_id[k])
     camera = block.cameras[camera_id]
+    if cameras is not None:
+        _check_camera(cameras.get(camera_id), camera_id, camera.model, image_id)
     sensor = sensor_of(camera)
     image_values = image_parameter_values(parameters, image_id, sensor.image_parameters)
     camera_values = image_parameter_values(parameters, camera_id, sensor.camera_parameters)

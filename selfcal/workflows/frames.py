@@ -15,7 +15,7 @@ from ..block import Block
 from ..errors import BlockError
 from ..sensors import sensor_of
 
-__all__ = ["object_frame_block", "ecef_of", "ECEF_NAMES"]
+__all__ = ["object_frame_block", "ECEF_NAMES"]
 
 #: crs names already in the ECEF (or body-fixed) Cartesian frame
 ECEF_NAMES = ("EPSG:4978", "ECEF", "body-fixed")
@@ -26,24 +26,17 @@ def object_frame_block(block: Block) -> Block:
     frames = {sensor_of(c).object_frame for c in block.cameras.values()}
     if frames != {"ECEF"} or block.crs in ECEF_NAMES or block.crs.upper().startswith("IAU"):
         return block
-    return replace(block, crs="EPSG:4978", points=replace(block.points, xyz_m=ecef_of(block.crs, block.points.xyz_m)))
-
-
-def ecef_of(crs: str, xyz: np.ndarray) -> np.ndarray:
-    """Points (n, 3) of an Earth CRS (block.toml ``crs``) in ECEF metres (EPSG:4978); NaN rows stay NaN."""
-    xyz = np.asarray(xyz, float)
-    if crs in ECEF_NAMES:
-        return xyz.copy()
     from pyproj import CRS, Transformer
     from pyproj.exceptions import CRSError
     try:
-        source = CRS.from_user_input(crs)
+        source = CRS.from_user_input(block.crs)
     except CRSError as exc:
-        raise BlockError("block.toml", f"crs {crs!r} is not a coordinate reference system pyproj knows: {exc}",
+        raise BlockError("block.toml", f"crs {block.crs!r} is not a coordinate reference system pyproj knows: {exc}",
                          None, "crs") from None
     transformer = Transformer.from_crs(source, "EPSG:4978", always_xy=True)
+    xyz = block.points.xyz_m
     known = np.isfinite(xyz).all(axis=1)
     out = np.full_like(xyz, np.nan)
     if known.any():
         out[known] = np.column_stack(transformer.transform(xyz[known, 0], xyz[known, 1], xyz[known, 2]))
-    return out
+    return replace(block, crs="EPSG:4978", points=replace(block.points, xyz_m=out))

@@ -12,7 +12,6 @@ from ...io import read_block
 from ...io.output import output_file
 from ...io.results import read_camera_json, read_results_table
 from ...io.rpc_gdal import write_geotiff_rpc, write_rpc_file
-from ...io.text import read_json
 from ...workflows.export_rpc import adjusted_rpc, points_height_range
 
 HELP = ("the RPC of an adjusted image for GDAL (.RPB, _RPC.TXT or a GeoTIFF copy of --raster, by the name of --out): "
@@ -49,24 +48,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "RPC's, else the adjusted points' heights widened by 10%% (at least 100 m) each side")
 
 
-def _check_results(args, block) -> None:
-    """RESULTS and --block belong together: the image's camera is in camera.json with the block's model, without
-    line APs (not in the hand-over)."""
-    cameras = read_camera_json(args.results).get("cameras", {})
-    ids = [str(i) for i in block.images.image_id]
-    if args.image not in ids:
-        return                                   # adjusted_rpc names the block's images
-    camera_id = str(block.images.camera_id[ids.index(args.image)])
-    entry = cameras.get(camera_id)
-    model = block.cameras[camera_id].model
-    if not isinstance(entry, dict) or entry.get("model") != model:
-        raise UsageError(f"--block {args.block}: camera {camera_id} ({model}) is not in {args.results}'s "
-                         f"camera.json as such: is RESULTS an adjustment of this block?")
-    if (entry.get("ap") or {}).get("n_active"):
-        raise UsageError(f"--image {args.image}: camera {camera_id} has {entry['ap']['n_active']} active additional "
-                         f"parameters ({entry['ap'].get('spec')}); the RPC export does not carry them")
-
-
 def run(args: argparse.Namespace) -> int:
     args.out = output_file(args.out, (args.results, args.block, args.raster))
     name = os.path.basename(args.out).lower()
@@ -81,12 +62,11 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"--image {args.image}: not an image of {args.results} (parameters.csv has: "
                          f"{', '.join(sorted(owners)[:20])})")
     block = read_block(args.block)
-    _check_results(args, block)
+    cameras = read_camera_json(args.results).get("cameras", {})
     points = read_results_table(args.results, "points.csv")
-    summary = read_json(os.path.join(args.results, "summary.json"), "summary")
     xyz = np.column_stack([points[c] for c in ("X", "Y", "Z")]) if {"X", "Y", "Z"} <= set(points) else np.zeros((0, 3))
-    fallback = points_height_range(xyz, summary.get("crs"))
-    result = adjusted_rpc(block, parameters, args.image, args.heights, fallback)
+    fallback = points_height_range(xyz)
+    result = adjusted_rpc(block, parameters, args.image, args.heights, fallback, cameras=cameras)
     if result.exact:
         print(f"image {args.image} ({result.sensor}): its RPC with the adjusted shift folded into LINE_OFF and "
               f"SAMP_OFF (exact)", file=sys.stderr)
