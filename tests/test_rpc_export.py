@@ -398,7 +398,8 @@ def test_geotiff_copy_carries_the_adjusted_rpc(tmp_path, capsys):
     """--out NAME.tif --raster IMAGE: a small image (the Pleiades RPC's image normalisation divided by 100: 229 x
     400 px) as the vendor delivers it, a GeoTIFF with the vendor RPC in its tags; after a shift adjustment the copy
     has the same pixels and, as GDAL reads its tags, the adjusted RPC: GDAL's transformer on it gives selfcal's
-    adjusted (row, col) within 0.01 px (measured 1e-9 px) where the source's tags are 3.6 px off (the shift)."""
+    adjusted (row, col) within 0.01 px (measured 1e-9 px) where the source's tags are 3.6 px off (the shift). A
+    crop of the image (100 of its 400 columns) is refused: the RPC is in the full image's pixels."""
     from dataclasses import replace
     from selfcal.io.rpc_gdal import write_rpb
     vendor = read_rpc(GEOM)
@@ -418,9 +419,15 @@ def test_geotiff_copy_carries_the_adjusted_rpc(tmp_path, capsys):
                        rpcs=rasterio_rpcs(small)) as dst:
         dst.write(pixels)
     out = tmp_path / "adjusted.tif"
+    crop = tmp_path / "crop.tif"
+    with rasterio.open(crop, "w", driver="GTiff", width=100, height=rows_px, count=1, dtype="uint16",
+                       rpcs=rasterio_rpcs(small)) as dst:
+        dst.write(pixels[:, :, :100])
+    assert run_cli("export", "rpc", str(results), "--block", str(block), "--image", "img", "--raster", str(crop),
+                   "--out", str(out)) == 2
+    assert "crop.tif is 100 x 229 px, image img 400 x 230 px" in capsys.readouterr().err and not out.exists()
     assert run_cli("export", "rpc", str(results), "--block", str(block), "--image", "img", "--raster", str(source),
                    "--out", str(out)) == 0
-    assert "warning" not in capsys.readouterr().err
     with rasterio.open(out) as src:
         assert src.driver == "GTiff" and (src.height, src.width) == (rows_px, cols_px)
         np.testing.assert_array_equal(src.read(), pixels)

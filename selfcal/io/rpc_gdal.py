@@ -42,7 +42,7 @@ from ..sensors.rpc import RpcModel
 
 __all__ = ["GDAL_PIXEL_ORIGIN", "read_rpb", "read_dg_xml_rpc", "read_rpc_txt", "read_geotiff_rpc", "write_rpb",
            "write_rpc_txt", "rasterio_rpcs", "RPC00A_TO_RPC00B", "is_rpb", "is_rpc_txt", "is_tiff", "is_nitf",
-           "write_rpc_file", "RPC_FILE_SUFFIXES", "write_geotiff_rpc",
+           "write_rpc_file", "RPC_FILE_SUFFIXES", "write_geotiff_rpc", "raster_size",
            "read_raster_rpc"]
 
 #: image coordinate of the first pixel's centre in .RPB, _RPC.TXT, GeoTIFF RPC tags and DigitalGlobe XML
@@ -295,16 +295,33 @@ def read_raster_rpc(path: str | os.PathLike, what: str = "GeoTIFF") -> RpcModel:
     return _model(path, fields)
 
 
+def _open_raster(raster: str):
+    import warnings
+
+    import rasterio
+    from rasterio.errors import NotGeoreferencedWarning, RasterioIOError
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", NotGeoreferencedWarning)
+        try:
+            return rasterio.open(raster)
+        except RasterioIOError as exc:
+            raise BlockError(raster, f"cannot read the raster: {exc}") from None
+
+
+def raster_size(raster: str | os.PathLike) -> tuple[int, int]:
+    """(rows, cols) of a raster GDAL reads."""
+    with _open_raster(str(raster)) as source:
+        return source.height, source.width
+
+
 def write_geotiff_rpc(model: RpcModel, path: str | os.PathLike, raster: str | os.PathLike) -> tuple[int, int]:
     """Write a GeoTIFF copy of ``raster`` (any raster GDAL reads: every band's pixels, its data type, no-data value
     and georeferencing if any; tiled, deflate) whose RPC tags hold ``model`` (GDAL's convention, ``pixel_origin`` 0;
     any RPC of the source is replaced), atomically: written under a temporary name beside ``path``, then renamed.
     GDAL reads the tags' doubles back to 15 significant digits. Returns the raster's (rows, cols)."""
     import tempfile
-    import warnings
 
     import rasterio
-    from rasterio.errors import NotGeoreferencedWarning, RasterioIOError
 
     path, raster = str(path), str(raster)
     directory = os.path.dirname(os.path.abspath(path))
@@ -312,22 +329,16 @@ def write_geotiff_rpc(model: RpcModel, path: str | os.PathLike, raster: str | os
     handle, tmp = tempfile.mkstemp(prefix=".tmp-", suffix="-" + os.path.basename(path), dir=directory)
     os.close(handle)
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", NotGeoreferencedWarning)
-            try:
-                source = rasterio.open(raster)
-            except RasterioIOError as exc:
-                raise BlockError(raster, f"cannot read the raster: {exc}") from None
-            with source:
-                profile = dict(driver="GTiff", width=source.width, height=source.height, count=source.count,
-                               dtype=source.dtypes[0], nodata=source.nodata, tiled=True, blockxsize=256,
-                               blockysize=256, compress="deflate", BIGTIFF="IF_SAFER")
-                if source.crs is not None:
-                    profile.update(crs=source.crs, transform=source.transform)
-                with rasterio.open(tmp, "w", rpcs=rasterio_rpcs(model), **profile) as target:
-                    for _, window in target.block_windows(1):
-                        target.write(source.read(window=window), window=window)
-                shape = (source.height, source.width)
+        with _open_raster(raster) as source:
+            profile = dict(driver="GTiff", width=source.width, height=source.height, count=source.count,
+                           dtype=source.dtypes[0], nodata=source.nodata, tiled=True, blockxsize=256,
+                           blockysize=256, compress="deflate", BIGTIFF="IF_SAFER")
+            if source.crs is not None:
+                profile.update(crs=source.crs, transform=source.transform)
+            with rasterio.open(tmp, "w", rpcs=rasterio_rpcs(model), **profile) as target:
+                for _, window in target.block_windows(1):
+                    target.write(source.read(window=window), window=window)
+            shape = (source.height, source.width)
         os.replace(tmp, path)
     except BaseException:
         for name in (tmp, tmp + ".aux.xml"):

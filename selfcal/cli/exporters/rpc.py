@@ -11,7 +11,7 @@ from ...errors import UsageError
 from ...io import read_block
 from ...io.output import output_file
 from ...io.results import read_camera_json, read_results_table
-from ...io.rpc_gdal import write_geotiff_rpc, write_rpc_file
+from ...io.rpc_gdal import raster_size, write_geotiff_rpc, write_rpc_file
 from ...workflows.export_rpc import adjusted_rpc, points_height_range
 
 HELP = ("the RPC of an adjusted image for GDAL (.RPB, _RPC.TXT or a GeoTIFF copy of --raster, by the name of --out): "
@@ -41,8 +41,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "beside NAME.tif), or NAME.tif: a GeoTIFF copy of --raster with the RPC in its tags "
                              "(replaced; never inside RESULTS or BLOCK)")
     parser.add_argument("--raster", metavar="IMAGE",
-                        help="with --out NAME.tif: the image's pixels (any raster GDAL reads, the full image: the "
-                             "RPC is in its pixels), copied with the RPC in its tags")
+                        help="with --out NAME.tif: the image's pixels (any raster GDAL reads; the full image, of the "
+                             "image's size within 1 px: the RPC is in its pixels), copied with the RPC in its tags")
     parser.add_argument("--heights", type=_heights, metavar="MIN,MAX",
                         help="height range (m above the WGS 84 ellipsoid) of a fitted RPC; default: the image's own "
                              "RPC's, else the adjusted points' heights widened by 10%% (at least 100 m) each side")
@@ -67,6 +67,12 @@ def run(args: argparse.Namespace) -> int:
     xyz = np.column_stack([points[c] for c in ("X", "Y", "Z")]) if {"X", "Y", "Z"} <= set(points) else np.zeros((0, 3))
     fallback = points_height_range(xyz)
     result = adjusted_rpc(block, parameters, args.image, args.heights, fallback, cameras=cameras)
+    if args.raster is not None:
+        rows, cols = raster_size(args.raster)
+        if abs(rows - result.rows_px) > 1 or abs(cols - result.cols_px) > 1:
+            raise UsageError(f"--raster {args.raster} is {cols} x {rows} px, image {args.image} {result.cols_px:.0f} x "
+                             f"{result.rows_px:.0f} px: the RPC is in the full image's pixels (a crop would carry it "
+                             f"wrongly; an rpc camera without width_px, height_px takes its size from its RPC)")
     if result.exact:
         print(f"image {args.image} ({result.sensor}): its RPC with the adjusted shift folded into LINE_OFF and "
               f"SAMP_OFF (exact)", file=sys.stderr)
@@ -80,10 +86,6 @@ def run(args: argparse.Namespace) -> int:
     if args.raster is None:
         write_rpc_file(result.model, args.out)
     else:
-        rows, cols = write_geotiff_rpc(result.model, args.out, args.raster)
-        if abs(rows - result.rows_px) > 1 or abs(cols - result.cols_px) > 1:
-            print(f"warning: --raster {args.raster} is {cols} x {rows} px, image {args.image} {result.cols_px:.0f} x "
-                  f"{result.rows_px:.0f}: the RPC is in the full image's pixels (a crop needs its offset)",
-                  file=sys.stderr)
+        write_geotiff_rpc(result.model, args.out, args.raster)
     print(f"wrote {args.out}", file=sys.stderr)
     return 0
