@@ -14,6 +14,11 @@ the image's camera turns both into an :class:`~selfcal.sensors.base.ImageGeometr
   a 3-D grid over the image and its height range (:func:`~selfcal.sensors.rpc_fit.fit_rpc`, Tao & Hu 2001), with
   its misfit on an independent check grid.
 
+Pixels: the models here are in selfcal's pixels (DESIGN.md §2; a fitted RPC has ``pixel_origin`` 0.5, a vendor RPC
+keeps its file's); the writers of :mod:`selfcal.io.rpc_gdal` move the offsets to GDAL's convention (the centre of the
+first pixel at line, sample 0, 0: line = row - 0.5), which GDAL's transformer turns back into corner-based pixels
+equal to selfcal's.
+
 Height range of the fit: ``heights_m`` when given; else the image's own RPC's (HEIGHT_OFF -/+ HEIGHT_SCALE); else
 the adjusted points' ellipsoidal heights widened by :data:`HEIGHT_MARGIN` of their span (at least
 :data:`HEIGHT_MARGIN_MIN_M`) on each side.
