@@ -1,7 +1,7 @@
 """The RPC formats of GDAL's world as :class:`selfcal.sensors.rpc.RpcModel`: DigitalGlobe / GDAL ``.RPB``
 keyword files, the RPB block of a DigitalGlobe XML, ``_RPC.TXT`` (GeoEye / GDAL), a GeoTIFF's RPC tags and a
-NITF's RPC00B TRE (both through rasterio); writers for ``.RPB`` and ``_RPC.TXT`` (full precision) and the rasterio
-object.
+NITF's RPC00B TRE (both through rasterio); writers for ``.RPB`` and ``_RPC.TXT`` (full precision), a GeoTIFF copy
+of a raster with the RPC tags, and the rasterio object.
 
 Pixel convention: all five put the centre of the first pixel at (0, 0) (NITF RPC00B; GDAL's RPC transformer
 adds 0.5 to reach its own corner-based pixels, ``gdal_rpc.cpp`` ``RPCTransformPoint``: "RPCs are using the
@@ -18,8 +18,8 @@ this convention (tests/test_dg.py); 0.5 px off in both coordinates otherwise.
   ``_20`` and so on; ``ERR_BIAS``, ``ERR_RAND`` optional.
 * GeoTIFF: the ``RPCCoefficientTag`` as rasterio's ``dataset.rpcs`` gives it (GDAL also picks up an ``.RPB`` or
   ``_RPC.TXT`` beside the image); written as a copy of a raster with the tags (:func:`write_geotiff_rpc`).
-* NITF (``NITF02.10`` or NSIF header): the ``RPC00B`` (or ``RPC00A``, which GDAL reorders) image-subheader TRE as
-  rasterio's ``dataset.rpcs`` gives it. The TRE's fields are fixed-width text: 7 significant digits for the
+* NITF (``NITF02.10`` or NSIF header): the ``RPC00B`` image-subheader TRE as rasterio's ``dataset.rpcs`` gives it
+  (what GDAL's NITF driver makes of the file's RPC TREs). The TRE's fields are fixed-width text: 7 significant digits for the
   coefficients (``+9.318045E-3``), whole pixels for LINE_OFF / SAMP_OFF, 4 decimals for the latitude and longitude
   offsets, whole metres for the height offset: a NITF carries less than the other formats, so selfcal reads it but
   writes ``.RPB`` / ``_RPC.TXT`` / GeoTIFF.
