@@ -195,6 +195,7 @@ def test_rigorous_line_camera_gets_a_fitted_rpc(case, image_id, limit_px, tmp_pa
     fitted to the adjusted physical model over the image and the adjusted points' heights (-89 .. 400 m) and read
     by GDAL beside a TIFF, against that model on an independent 15 x 15 x 5 grid, and on the exporter's check grid
     the rms and max it printed; and against the true (biased) camera within 0.3 px (the adjustment's own error).
+    ``--image all --out rpcs/{image}.RPB`` writes one file per image.
 
     Pleiades DIMAP (49826 lines x 39951 detectors): within 0.01 px (measured 3.0e-4 px; reported 1.9e-4 max).
     DigitalGlobe (dg_example1, 23708 x 35170): the best a cubic RPC does is 0.055 px max, 0.027 px rms on the check
@@ -209,10 +210,11 @@ def test_rigorous_line_camera_gets_a_fitted_rpc(case, image_id, limit_px, tmp_pa
     _write_block(block, model, images, np.random.default_rng(11), TRUTH)
     assert run_cli("adjust", str(block), "--out", str(results), "--sensor-model", sensor_model, "--keep-focal",
                    "--snoop", "0", "--no-report", "--quiet") == 0
-    written = tmp_path / f"{image_id}.RPB"
-    assert run_cli("export", "rpc", str(results), "--block", str(block), "--image", image_id,
-                   "--out", str(written)) == 0
-    err = capsys.readouterr().err
+    assert run_cli("export", "rpc", str(results), "--block", str(block), "--image", "all",
+                   "--out", str(tmp_path / "rpcs" / "{image}.RPB")) == 0
+    assert sorted(os.listdir(tmp_path / "rpcs")) == sorted(f"{i}.RPB" for i, _ in images)
+    written = tmp_path / "rpcs" / f"{image_id}.RPB"
+    err = next(line for line in capsys.readouterr().err.splitlines() if line.startswith(f"image {image_id} "))
     reported_rms = float(err.split("misfit ")[1].split(" px rms")[0])
     reported_max = float(err.split("px rms, ")[1].split(" px max")[0])
 
@@ -313,7 +315,8 @@ def test_nitf_rpc00b_is_read_through_the_one_entry_point(tmp_path):
 # --- bad input --------------------------------------------------------------------------------------
 
 def test_bad_requests_exit_with_two_and_write_nothing(rpc_results, tmp_path, capsys):
-    """An image not in the results, an --out that is neither .RPB, _RPC.TXT nor .tif, a .tif without --raster, a
+    """An image not in the results (alone or in a list), several images without {image} in --out, an --out that is
+    neither .RPB, _RPC.TXT nor .tif, a .tif without --raster, a
     --raster that does not exist, --heights MAX below MIN, results whose camera.json is not the block's camera or has
     active APs: exit 2 naming the option or file, no file written (a frame camera, which has no RPC:
     tests/front_door.py)."""
@@ -321,6 +324,11 @@ def test_bad_requests_exit_with_two_and_write_nothing(rpc_results, tmp_path, cap
     out = tmp_path / "x.RPB"
     assert run_cli("export", "rpc", str(results), "--block", str(block), "--image", "nope", "--out", str(out)) == 2
     assert "--image nope: not an image of" in capsys.readouterr().err
+    assert run_cli("export", "rpc", str(results), "--block", str(block), "--image", "img,nope",
+                   "--out", str(tmp_path / "{image}.RPB")) == 2
+    assert "--image img,nope: nope: not an image of" in capsys.readouterr().err
+    assert run_cli("export", "rpc", str(results), "--block", str(block), "--image", "img,img", "--out", str(out)) == 2
+    assert "--out needs {image}" in capsys.readouterr().err
     assert run_cli("export", "rpc", str(results), "--block", str(block), "--image", "img",
                    "--out", str(tmp_path / "x.jpg")) == 2
     assert ".RPB or _RPC.TXT" in capsys.readouterr().err
@@ -345,6 +353,7 @@ def test_bad_requests_exit_with_two_and_write_nothing(rpc_results, tmp_path, cap
         assert run_cli("export", "rpc", str(other), "--block", str(block), "--image", "img", "--out", str(out)) == 2
         assert message in capsys.readouterr().err
     assert not out.exists() and not (tmp_path / "x.tif").exists() and not (tmp_path / "x.jpg").exists()
+    assert not (tmp_path / "img.RPB").exists()
     assert not [n for n in os.listdir(tmp_path) if n.startswith(".tmp-")]
 
 
