@@ -673,6 +673,38 @@ def _(ws, work):
     return ["export", "colmap", ws.results, "--out", "/proc/selfcal/cameras.txt"], [ws.results], None
 
 
+def _first_image(block: str) -> str:
+    with open(os.path.join(block, "images.csv")) as handle:
+        return handle.read().splitlines()[1].split(",")[0]
+
+
+@case("export rpc of a frame image (no RPC)", names="cannot be handed over")
+def _(ws, work):
+    out = os.path.join(work, "img.RPB")
+    return (["export", "rpc", ws.results, "--block", ws.block, "--image", _first_image(ws.block), "--out", out],
+            [ws.results, ws.block], out)
+
+
+@case("export rpc --image NOT_IN_RESULTS", names="--image nope: not an image of")
+def _(ws, work):
+    out = os.path.join(work, "img.RPB")
+    return ["export", "rpc", ws.results, "--block", ws.block, "--image", "nope", "--out", out], [ws.results, ws.block], out
+
+
+@case("export rpc --out x.jpg (the format is the name's)", names=".RPB or _RPC.TXT")
+def _(ws, work):
+    out = os.path.join(work, "img.jpg")
+    return (["export", "rpc", ws.results, "--block", ws.block, "--image", _first_image(ws.block), "--out", out],
+            [ws.results, ws.block], out)
+
+
+@case("export rpc --out BLOCK/x.RPB", names="lies inside the input")
+def _(ws, work):
+    out = os.path.join(ws.block, "x.RPB")
+    return (["export", "rpc", ws.results, "--block", ws.block, "--image", _first_image(ws.block), "--out", out],
+            [ws.results, ws.block], out)
+
+
 @case("undistort --out RESULTS", names="is the input")
 def _(ws, work):
     return ["undistort", ws.results, ws.bal, "--out", ws.results], [ws.results, ws.bal], ws.results

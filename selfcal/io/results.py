@@ -26,7 +26,7 @@ from .table import write_table
 from .text import read_text
 
 __all__ = ["summary_schema", "write_results", "write_files", "to_jsonable", "ResultsFolder", "read_results",
-           "read_camera_json", "results_from_files", "RESULT_TABLES", "OPTIONAL_TABLES"]
+           "read_camera_json", "read_results_table", "results_from_files", "RESULT_TABLES", "OPTIONAL_TABLES"]
 
 #: the CSV tables of every results folder that the report reads (DESIGN.md §4), by short name
 RESULT_TABLES = {"images": "images.csv", "points": "points.csv", "residuals": "residuals.csv",
@@ -189,6 +189,17 @@ def read_camera_json(folder: str | os.PathLike) -> dict:
     if not os.path.isfile(path):
         raise BlockError(path, "missing: is this a results folder written by 'selfcal adjust'?")
     return _read_json(path)
+
+
+def read_results_table(folder: str | os.PathLike, name: str) -> dict[str, np.ndarray]:
+    """One CSV table of a results folder (``parameters.csv``) as columns by name; missing: BlockError."""
+    folder = os.fspath(folder)
+    if not os.path.isdir(folder):
+        raise BlockError(folder, "no such results folder")
+    path = os.path.join(folder, name)
+    if not os.path.isfile(path):
+        raise BlockError(path, "missing: is this a results folder written by 'selfcal adjust'?")
+    return _read_csv(path)
 
 
 def results_from_files(files: dict, path: str | None = None) -> ResultsFolder:

@@ -18,8 +18,11 @@ Formats, found by :func:`read_rpc` from the content:
   ``samp_num_coeff_*``, ``samp_den_coeff_*``; ``polynomial_format`` must be ``B`` (RPC00B) when
   given. OSSIM's image coordinates are 0-based at pixel centres: ``pixel_origin`` 0.
 * **GDAL's formats** (:mod:`selfcal.io.rpc_gdal`): a DigitalGlobe / GDAL ``.RPB``, the ``RPB`` block of a
-  DigitalGlobe / Maxar XML (root ``isd``), a ``_RPC.TXT`` and a GeoTIFF's RPC tags (through rasterio). All four
-  are 0-based at pixel centres: ``pixel_origin`` 0.
+  DigitalGlobe / Maxar XML (root ``isd``), a ``_RPC.TXT``, a GeoTIFF's RPC tags and a NITF's RPC00B TRE (both
+  through rasterio). All five are 0-based at pixel centres: ``pixel_origin`` 0.
+
+:func:`read_rpc` is the one entry point: a block's ``sensor_file`` of an ``rpc`` camera, and every other reader of
+an RPC in selfcal, go through it.
 
 Errors are :class:`~selfcal.errors.BlockError` naming the file and the missing or invalid key.
 """
@@ -47,7 +50,8 @@ _NORMALISATION = ("line_off", "line_scale", "samp_off", "samp_scale", "lat_off",
 
 def read_rpc(path: str | os.PathLike) -> RpcModel:
     """The RPC of a DIMAP XML file (v2 ``RPC_*.XML`` or v1 ``PHRDIMAP_*.XML``), an OSSIM ``.geom``, a ``.RPB``,
-    a DigitalGlobe XML's RPB block, a ``_RPC.TXT`` or a GeoTIFF's RPC tags, found from the content."""
+    a DigitalGlobe XML's RPB block, a ``_RPC.TXT``, a GeoTIFF's RPC tags or a NITF's RPC00B TRE, found from the
+    content."""
     from . import rpc_gdal
     path = str(path)
     try:
@@ -56,7 +60,9 @@ def read_rpc(path: str | os.PathLike) -> RpcModel:
     except OSError as exc:
         raise BlockError(path, f"cannot read the RPC file: {exc.strerror}") from None
     if rpc_gdal.is_tiff(head):
-        return rpc_gdal.read_geotiff_rpc(path)
+        return rpc_gdal.read_raster_rpc(path, "GeoTIFF")
+    if rpc_gdal.is_nitf(head):
+        return rpc_gdal.read_raster_rpc(path, "NITF")
     if head.startswith(b"<"):
         if b"<isd>" in head or b"<isd " in head:
             return rpc_gdal.read_dg_xml_rpc(path)
@@ -67,8 +73,8 @@ def read_rpc(path: str | os.PathLike) -> RpcModel:
         return rpc_gdal.read_rpc_txt(path)
     if path.lower().endswith(".geom") or b":" in head.split(b"\n", 1)[0]:
         return read_ossim_geom_rpc(path)
-    raise BlockError(path, "not an RPC file: neither DIMAP XML, DigitalGlobe XML, .RPB, _RPC.TXT, GeoTIFF nor an "
-                           "OSSIM .geom keyword list")
+    raise BlockError(path, "not an RPC file: neither DIMAP XML, DigitalGlobe XML, .RPB, _RPC.TXT, GeoTIFF, NITF "
+                           "nor an OSSIM .geom keyword list")
 
 
 # --- DIMAP -----------------------------------------------------------------------------------------

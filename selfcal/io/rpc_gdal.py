@@ -1,8 +1,9 @@
 """The RPC formats of GDAL's world as :class:`selfcal.sensors.rpc.RpcModel`: DigitalGlobe / GDAL ``.RPB``
-keyword files, the RPB block of a DigitalGlobe XML, ``_RPC.TXT`` (GeoEye / GDAL) and a GeoTIFF's RPC tags
-(through rasterio); writers for ``.RPB`` and ``_RPC.TXT`` (full precision) and the rasterio object.
+keyword files, the RPB block of a DigitalGlobe XML, ``_RPC.TXT`` (GeoEye / GDAL), a GeoTIFF's RPC tags and a
+NITF's RPC00B TRE (both through rasterio); writers for ``.RPB`` and ``_RPC.TXT`` (full precision), a GeoTIFF copy
+of a raster with the RPC tags, and the rasterio object.
 
-Pixel convention: all four put the centre of the first pixel at (0, 0) (NITF RPC00B; GDAL's RPC transformer
+Pixel convention: all five put the centre of the first pixel at (0, 0) (NITF RPC00B; GDAL's RPC transformer
 adds 0.5 to reach its own corner-based pixels, ``gdal_rpc.cpp`` ``RPCTransformPoint``: "RPCs are using the
 center of upper left pixel = 0,0 convention"): ``pixel_origin`` :data:`GDAL_PIXEL_ORIGIN` = 0, i.e. selfcal's
 (row, col) = (line, samp) + 0.5. The DigitalGlobe XML's RPB agrees with its rigorous model to 0.2 px only in
@@ -16,7 +17,12 @@ this convention (tests/test_dg.py); 0.5 px off in both coordinates otherwise.
 * ``_RPC.TXT``: ``LINE_OFF: 11469.50 pixels`` lines (a unit may follow the number), ``LINE_NUM_COEFF_1`` ..
   ``_20`` and so on; ``ERR_BIAS``, ``ERR_RAND`` optional.
 * GeoTIFF: the ``RPCCoefficientTag`` as rasterio's ``dataset.rpcs`` gives it (GDAL also picks up an ``.RPB`` or
-  ``_RPC.TXT`` beside the image).
+  ``_RPC.TXT`` beside the image); written as a copy of a raster with the tags (:func:`write_geotiff_rpc`).
+* NITF (``NITF02.10`` or NSIF header): the ``RPC00B`` image-subheader TRE as rasterio's ``dataset.rpcs`` gives it
+  (what GDAL's NITF driver makes of the file's RPC TREs). The TRE's fields are fixed-width text: 7 significant digits for the
+  coefficients (``+9.318045E-3``), whole pixels for LINE_OFF / SAMP_OFF, 4 decimals for the latitude and longitude
+  offsets, whole metres for the height offset: a NITF carries less than the other formats, so selfcal reads it but
+  writes ``.RPB`` / ``_RPC.TXT`` / GeoTIFF.
 
 The coefficient order is RPC00B's. ``SpecId``/``SPECID`` ``RPC00A`` (the older order, with PLH before the
 squares) is reordered to RPC00B; any other value is read as RPC00B, as GDAL and ASP do (dg_example1.xml says
@@ -29,12 +35,15 @@ import re
 
 import numpy as np
 
-from ..errors import BlockError
+from ..errors import BlockError, UsageError
+from .atomic import atomic_write
 from .text import read_text
 from ..sensors.rpc import RpcModel
 
 __all__ = ["GDAL_PIXEL_ORIGIN", "read_rpb", "read_dg_xml_rpc", "read_rpc_txt", "read_geotiff_rpc", "write_rpb",
-           "write_rpc_txt", "rasterio_rpcs", "RPC00A_TO_RPC00B", "is_rpb", "is_rpc_txt", "is_tiff"]
+           "write_rpc_txt", "rasterio_rpcs", "RPC00A_TO_RPC00B", "is_rpb", "is_rpc_txt", "is_tiff", "is_nitf",
+           "write_rpc_file", "RPC_FILE_SUFFIXES", "write_geotiff_rpc", "raster_size",
+           "read_raster_rpc"]
 
 #: image coordinate of the first pixel's centre in .RPB, _RPC.TXT, GeoTIFF RPC tags and DigitalGlobe XML
 GDAL_PIXEL_ORIGIN = 0.0
@@ -94,6 +103,11 @@ def is_tiff(head: bytes) -> bool:
     return head[:4] in (b"II*\x00", b"MM\x00*", b"II+\x00", b"MM\x00+")
 
 
+def is_nitf(head: bytes) -> bool:
+    """NITF 2.0 / 2.1 or NSIF 1.0: the file header begins with its profile name and version."""
+    return head[:4] in (b"NITF", b"NSIF")
+
+
 # --- .RPB ------------------------------------------------------------------------------------------
 
 def read_rpb(path: str | os.PathLike) -> RpcModel:
@@ -150,7 +164,7 @@ def write_rpb(model: RpcModel, path: str | os.PathLike, satellite: str = "unknow
         coefficients = ",\n".join(f"\t\t{float(c)!r}" for c in values[name])
         lines.append(f"\t{_RPB_KEYS[name]} = (\n{coefficients});")
     lines += ["END_GROUP = IMAGE", "END;"]
-    with open(path, "w", encoding="utf-8") as handle:
+    with atomic_write(path) as handle:
         handle.write("\n".join(lines) + "\n")
 
 
@@ -220,8 +234,24 @@ def write_rpc_txt(model: RpcModel, path: str | os.PathLike) -> None:
         lines.append(f"{_TXT_KEYS[name]}: {values[name]!r} {units[name.split('_')[0]]}")
     for name in _POLYNOMIALS:
         lines += [f"{_TXT_KEYS[name]}_{k}: {float(c)!r}" for k, c in enumerate(values[name], start=1)]
-    with open(path, "w", encoding="utf-8") as handle:
+    with atomic_write(path) as handle:
         handle.write("\n".join(lines) + "\n")
+
+
+#: file name ending (any case) -> writer
+RPC_FILE_SUFFIXES = {".rpb": write_rpb, "_rpc.txt": write_rpc_txt}
+
+
+def write_rpc_file(model: RpcModel, path: str | os.PathLike) -> None:
+    """Write ``model`` in the format its name ends with: ``.RPB`` or ``_RPC.TXT`` (any case), atomically; another
+    name is a UsageError."""
+    name = os.path.basename(str(path)).lower()
+    for suffix, writer in RPC_FILE_SUFFIXES.items():
+        if name.endswith(suffix):
+            writer(model, path)
+            return
+    raise UsageError(f"--out {path}: the format comes from the name, which must end in .RPB or _RPC.TXT "
+                     f"(GDAL finds IMAGE.RPB or IMAGE_RPC.TXT beside IMAGE.tif)")
 
 
 # --- GeoTIFF ---------------------------------------------------------------------------------------
@@ -238,21 +268,23 @@ def rasterio_rpcs(model: RpcModel):
                samp_off=values["samp_off"], samp_scale=values["samp_scale"])
 
 
-def read_geotiff_rpc(path: str | os.PathLike) -> RpcModel:
-    """The RPC of a GeoTIFF (its RPC tags, or GDAL's .RPB / _RPC.TXT beside it), read by rasterio."""
+def read_raster_rpc(path: str | os.PathLike, what: str = "GeoTIFF") -> RpcModel:
+    """The RPC of a raster that GDAL opens, read by rasterio (``dataset.rpcs``): a GeoTIFF's RPC tags (or GDAL's
+    .RPB / _RPC.TXT beside it), a NITF's RPC00B TRE. ``what`` names the format in errors."""
     path = str(path)
     try:
         import rasterio
         from rasterio.errors import RasterioIOError
     except ImportError:                                   # pragma: no cover - rasterio is a dependency
-        raise BlockError(path, "reading a GeoTIFF's RPC needs rasterio") from None
+        raise BlockError(path, f"reading a {what}'s RPC needs rasterio") from None
     try:
         with rasterio.open(path) as dataset:
             rpcs = dataset.rpcs
     except RasterioIOError as exc:
-        raise BlockError(path, f"cannot read the GeoTIFF: {exc}") from None
+        raise BlockError(path, f"cannot read the {what}: {exc}") from None
     if rpcs is None:
-        raise BlockError(path, "the GeoTIFF has no RPC (no RPCCoefficientTag, .RPB or _RPC.TXT)")
+        where = "no RPC00B TRE" if what == "NITF" else "no RPCCoefficientTag, .RPB or _RPC.TXT"
+        raise BlockError(path, f"the {what} has no RPC ({where})")
     fields = {name: float(getattr(rpcs, name)) for name in _NORMALISATION}
     for name in _POLYNOMIALS:
         values = np.asarray(getattr(rpcs, f"{name}_coeff"), float)
@@ -261,3 +293,61 @@ def read_geotiff_rpc(path: str | os.PathLike) -> RpcModel:
                              column=f"{name.upper()}_COEFF")
         fields[name] = values
     return _model(path, fields)
+
+
+def _open_raster(raster: str):
+    import warnings
+
+    import rasterio
+    from rasterio.errors import NotGeoreferencedWarning, RasterioIOError
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", NotGeoreferencedWarning)
+        try:
+            return rasterio.open(raster)
+        except RasterioIOError as exc:
+            raise BlockError(raster, f"cannot read the raster: {exc}") from None
+
+
+def raster_size(raster: str | os.PathLike) -> tuple[int, int]:
+    """(rows, cols) of a raster GDAL reads."""
+    with _open_raster(str(raster)) as source:
+        return source.height, source.width
+
+
+def write_geotiff_rpc(model: RpcModel, path: str | os.PathLike, raster: str | os.PathLike) -> tuple[int, int]:
+    """Write a GeoTIFF copy of ``raster`` (any raster GDAL reads: every band's pixels, its data type, no-data value
+    and georeferencing if any; tiled, deflate) whose RPC tags hold ``model`` (GDAL's convention, ``pixel_origin`` 0;
+    any RPC of the source is replaced), atomically: written under a temporary name beside ``path``, then renamed.
+    GDAL reads the tags' doubles back to 15 significant digits. Returns the raster's (rows, cols)."""
+    import tempfile
+
+    import rasterio
+
+    path, raster = str(path), str(raster)
+    directory = os.path.dirname(os.path.abspath(path))
+    os.makedirs(directory, exist_ok=True)
+    handle, tmp = tempfile.mkstemp(prefix=".tmp-", suffix="-" + os.path.basename(path), dir=directory)
+    os.close(handle)
+    try:
+        with _open_raster(raster) as source:
+            profile = dict(driver="GTiff", width=source.width, height=source.height, count=source.count,
+                           dtype=source.dtypes[0], nodata=source.nodata, tiled=True, blockxsize=256,
+                           blockysize=256, compress="deflate", BIGTIFF="IF_SAFER")
+            if source.crs is not None:
+                profile.update(crs=source.crs, transform=source.transform)
+            with rasterio.open(tmp, "w", rpcs=rasterio_rpcs(model), **profile) as target:
+                for _, window in target.block_windows(1):
+                    target.write(source.read(window=window), window=window)
+            shape = (source.height, source.width)
+        os.replace(tmp, path)
+    except BaseException:
+        for name in (tmp, tmp + ".aux.xml"):
+            if os.path.exists(name):
+                os.unlink(name)
+        raise
+    return shape
+
+
+def read_geotiff_rpc(path: str | os.PathLike) -> RpcModel:
+    """The RPC of a GeoTIFF (its RPC tags, or GDAL's .RPB / _RPC.TXT beside it), read by rasterio."""
+    return read_raster_rpc(path, "GeoTIFF")

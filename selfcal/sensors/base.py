@@ -29,10 +29,11 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
-__all__ = ["Parameter", "Sensor", "BoundSensor", "display_unit"]
+__all__ = ["Parameter", "Sensor", "BoundSensor", "ImageGeometry", "display_unit"]
 
 #: code unit -> (unit in files and reports, factor)
 _DISPLAY = {"rad": ("deg", float(np.degrees(1.0))), "rad/s": ("deg/s", float(np.degrees(1.0)))}
@@ -78,6 +79,26 @@ class Parameter:
 
 def _with_unit(name: str, unit: str) -> str:
     return f"{name}_{unit.replace('/', '_')}" if unit else name
+
+
+@dataclass(frozen=True)
+class ImageGeometry:
+    """One adjusted image as ground <-> image functions, for handing it to other programs (an RPC).
+
+    ``project(lon_deg, lat_deg, h_m) -> (row_px, col_px)`` and ``localize(row_px, col_px, h_m) -> (lon_deg,
+    lat_deg)`` (NaN where a point has none), longitude and latitude on WGS 84, h above the ellipsoid, pixels
+    DESIGN.md §2's; the image spans 0 .. ``rows_px`` and 0 .. ``cols_px``. ``height_range_m``: the heights the
+    sensor's own description is valid for (an RPC's HEIGHT_OFF -/+ HEIGHT_SCALE), None where it states none.
+    ``rpc``: an RPC (:class:`~selfcal.sensors.rpc.RpcModel`) that *is* the adjusted image, where one exists (a
+    vendor RPC with a shift bias); otherwise None and an RPC has to be fitted."""
+
+    image_id: str
+    rows_px: float
+    cols_px: float
+    project: Callable
+    localize: Callable
+    height_range_m: tuple[float, float] | None = None
+    rpc: object | None = None
 
 
 class BoundSensor(ABC):
@@ -222,3 +243,11 @@ class Sensor(ABC):
         """(free (n, width), a-priori sigma (n, width)) of the image parameters; NaN sigma: no prior."""
         shape = (len(image_index), len(self.image_parameters))
         return np.ones(shape, bool), np.full(shape, np.nan)
+
+    def image_geometry(self, block, k: int, image_parameters: np.ndarray,
+                       camera_parameters: np.ndarray) -> ImageGeometry:
+        """Image ``k`` of ``block`` with the adjusted values of its :attr:`image_parameters` and of its camera's
+        :attr:`camera_parameters` (code units, in their order) as an :class:`ImageGeometry`. Sensors whose images
+        are not on the Earth's ellipsoid, or have no such hand-over, raise NotImplementedError saying why."""
+        raise NotImplementedError(f"a {self.name} image cannot be handed over as ground <-> image functions on "
+                                  f"WGS 84 (only rpc and the Earth's line scanners can)")

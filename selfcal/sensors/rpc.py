@@ -37,15 +37,16 @@ others held at zero). a0, b0 are in px, a1, a2, b1, b2 unitless (px per px). Obj
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from ..geometry.earth import ecef_from_geodetic, geodetic_from_ecef, geodetic_jacobian
-from .base import BoundSensor, Parameter, Sensor
+from .base import BoundSensor, ImageGeometry, Parameter, Sensor
 
 __all__ = ["RPC00B_TERMS", "RpcModel", "rpc00b_terms", "LOCALIZE_TOLERANCE_PX", "LOCALIZE_STEP_TOLERANCE_DEG",
-           "LOCALIZE_MAX_ITERATIONS", "BIAS_PARAMETERS", "RpcBias", "RpcCamera", "bias_design", "RpcSensor", "SENSOR"]
+           "LOCALIZE_MAX_ITERATIONS", "BIAS_PARAMETERS", "RpcBias", "RpcCamera", "bias_design", "RpcSensor", "SENSOR",
+           "shifted_rpc", "rpc_extent_px"]
 
 #: the 20 monomials of an RPC00B polynomial, in file order (L = longitude, P = latitude, H = height)
 RPC00B_TERMS = ("1", "L", "P", "H", "LP", "LH", "PH", "L2", "P2", "H2",
@@ -285,6 +286,39 @@ class RpcBias:
         """Bias-corrected image coordinates (row, col) in px of ground points."""
         return self.apply(*model.project(lon_deg, lat_deg, h_m))
 
+    def remove(self, row_px, col_px):
+        """The RPC's (row_rpc, col_rpc) of corrected image coordinates: :meth:`apply` inverted."""
+        A = np.array([[1.0 + self.a[1], self.a[2]], [self.b[1], 1.0 + self.b[2]]])
+        row, col = np.broadcast_arrays(np.asarray(row_px, float) - self.a[0], np.asarray(col_px, float) - self.b[0])
+        out = np.linalg.solve(A, np.stack([row.ravel(), col.ravel()]))
+        return out[0].reshape(row.shape), out[1].reshape(row.shape)
+
+    def localize(self, model: RpcModel, row_px, col_px, h_m):
+        """Ground (lon_deg, lat_deg) of bias-corrected image coordinates at heights h_m."""
+        return model.localize(*self.remove(row_px, col_px), h_m)
+
+    @property
+    def is_shift(self) -> bool:
+        """Whether the linear terms are all zero (a shift, whatever ``kind`` estimated it)."""
+        return not any(self.a[1:] + self.b[1:])
+
+
+def shifted_rpc(model: RpcModel, bias: RpcBias) -> RpcModel:
+    """The RPC whose projection *is* ``bias.project(model, ...)`` for a shift bias, exactly: the image coordinate is
+    ``line = r * line_scale + line_off`` (the offset added after the scale), so row = row_rpc + a0 is LINE_OFF + a0
+    and col = col_rpc + b0 is SAMP_OFF + b0, in pixels, the coefficients untouched. An affine bias mixes the line's
+    and the sample's rational functions (two denominators): it has no exact RPC (ValueError; fit one)."""
+    if not bias.is_shift:
+        raise ValueError("an affine bias with non-zero linear terms has no exact RPC; fit one (selfcal.sensors.rpc_fit)")
+    return replace(model, line_off=model.line_off + bias.a[0], samp_off=model.samp_off + bias.b[0])
+
+
+def rpc_extent_px(model: RpcModel) -> tuple[float, float]:
+    """(rows, cols) of the image an RPC describes, from its image normalisation: its last line and sample,
+    LINE_OFF + LINE_SCALE and SAMP_OFF + SAMP_SCALE, in selfcal's pixels (the image starts at 0)."""
+    return (model.line_off + model.pixel_shift + abs(model.line_scale),
+            model.samp_off + model.pixel_shift + abs(model.samp_scale))
+
 
 def bias_design(kind: str, row_rpc_px, col_rpc_px) -> np.ndarray:
     """Design matrix (n, 2, u): the derivatives of (row, col) of each point with respect to the
@@ -486,6 +520,23 @@ class RpcSensor(Sensor):
             size = max(size, 1.0)
             sigma.append([s, s / size, s / size, s, s / size, s / size])
         return np.array(free, bool).reshape(-1, 6), np.array(sigma).reshape(-1, 6)
+
+    def image_geometry(self, block, k, image_parameters, camera_parameters):
+        """The image's RPC with its adjusted bias (a0, a1, a2, b0, b1, b2); ``rpc`` the exact corrected RPC
+        when the linear terms are zero (:func:`shifted_rpc`). The image's size is its camera's ``height_px``,
+        ``width_px`` where given, else the RPC's (:func:`rpc_extent_px`); its heights the RPC's HEIGHT_OFF -/+
+        HEIGHT_SCALE."""
+        image_id = str(block.images.image_id[k])
+        model = (block.image_models or {})[image_id]
+        camera = block.cameras[block.images.camera_id[k]]
+        bias = RpcBias.from_parameters("affine", image_parameters)
+        rows, cols = rpc_extent_px(model)
+        rows, cols = float(camera.height_px or rows), float(camera.width_px or cols)
+        heights = (model.height_off - abs(model.height_scale), model.height_off + abs(model.height_scale))
+        return ImageGeometry(image_id, rows, cols,
+                             lambda lon, lat, h: bias.project(model, lon, lat, h),
+                             lambda row, col, h: bias.localize(model, row, col, h),
+                             heights, shifted_rpc(model, bias) if bias.is_shift else None)
 
 
 SENSOR = RpcSensor()

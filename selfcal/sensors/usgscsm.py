@@ -449,6 +449,10 @@ class UsgscsmLineSensor(PushbroomSensor):
                     sigma[row, _ATTITUDE_WIDTH:] = camera.sigma_position_m
         return free, sigma
 
+    def image_geometry(self, block, k, image_parameters, camera_parameters):
+        raise NotImplementedError("a usgscsm-line image (a planetary body's ISD, with jigsaw's attitude and "
+                                  "position corrections) has no RPC hand-over yet")
+
     def camera_setup(self, camera, options):
         held = np.zeros(4, bool)
         sigma = np.full(4, np.nan)

@@ -23,7 +23,7 @@ import numpy as np
 
 from ...block import PushbroomCamera
 from ...errors import BlockError, UsageError
-from ..base import BoundSensor, Parameter, Sensor
+from ..base import BoundSensor, ImageGeometry, Parameter, Sensor
 from .model import (PARAMETER_NAMES, LineCamera, LineImage, fit_trajectory, ground_to_image, image_scales,
                     image_to_ground, line_of_sight, photo_coordinates, track)
 
@@ -317,6 +317,24 @@ class PushbroomSensor(Sensor):
         image_id = block.images.image_id[k]
         given = block.image_models or {}
         return given[image_id] if image_id in given else line_images(block, given_attitude, image_index=[k])[0]
+
+    def image_geometry(self, block, k, image_parameters, camera_parameters):
+        """The line image with its adjusted attitude corrections (6) and its camera's focal length and boresight
+        (4): :func:`~.model.ground_to_image` and :func:`~.model.image_to_ground` on WGS 84 (the line APs of
+        ``--ap wavelet1d`` are not in it: the caller refuses a camera with active ones)."""
+        from ...geometry.earth import ecef_from_geodetic, geodetic_from_ecef
+        image = self.line_image(block, k).with_parameters(
+            np.concatenate([np.asarray(image_parameters, float)[:6], np.asarray(camera_parameters, float)[:4]]))
+
+        def project(lon, lat, h):
+            return ground_to_image(image, ecef_from_geodetic(np.radians(lat), np.radians(lon), h))
+
+        def localize(row, col, h):
+            row, col, h = np.broadcast_arrays(*(np.atleast_1d(np.asarray(v, float)) for v in (row, col, h)))
+            lat, lon, _ = geodetic_from_ecef(image_to_ground(image, row, col, h))
+            return np.degrees(lon), np.degrees(lat)
+
+        return ImageGeometry(image.image_id, float(image.rows), float(image.camera.columns), project, localize)
 
     def check_camera(self, values):
         from datetime import datetime
