@@ -59,18 +59,40 @@ class Calibration:
     y0_mm: float
     ap: APModel
     coefficients_px: np.ndarray          # inactive (screened-out) coefficients are zero
+    #: covariance of :attr:`theta_names` (c, x0, y0 in mm, AP coefficients in px; zero rows and columns for
+    #: held ones), from camera.json's ``covariance``; None when the results folder has none
+    covariance: np.ndarray | None = None
+
+    @property
+    def theta_names(self) -> tuple[str, ...]:
+        """selfcal's parameters of the camera: c, x0, y0 (mm) and the AP coefficients (px)."""
+        return ("c", "x0", "y0") + tuple(self.ap.parameter_names)
 
     @classmethod
     def from_camera_json(cls, camera_id: str, entry: dict) -> "Calibration":
         p = float(entry["pixel_size_mm"])
         frame = ImageFrame(entry["width_px"] * p, entry["height_px"] * p, p)
         ap = ap_from_dict(entry["ap"], frame)
-        values = np.array([c["value_px"] if c["active"] else 0.0 for c in entry["ap"]["coefficients"]], float)
+        # held coefficients (an imported calibration held with --fixed) keep their value, screened ones are zero
+        values = np.array([c["value_px"] if c["active"] or c.get("held") else 0.0
+                           for c in entry["ap"]["coefficients"]], float)
         if len(values) != ap.n_params:
             raise ValueError(f"camera {camera_id}: {len(values)} AP coefficients for {ap.spec}, which has "
                              f"{ap.n_params}")
+        names = ("c", "x0", "y0") + tuple(ap.parameter_names)
+        covariance = None
+        if entry.get("covariance"):
+            given = entry["covariance"]
+            index = {name: k for k, name in enumerate(names)}
+            unknown = [name for name in given["parameters"] if name not in index]
+            if unknown:
+                raise ValueError(f"camera {camera_id}: covariance of an unknown parameter '{unknown[0]}'")
+            at = np.array([index[name] for name in given["parameters"]], dtype=np.int64)
+            matrix = np.asarray(given["matrix"], float).reshape(len(at), len(at))
+            covariance = np.zeros((len(names), len(names)))
+            covariance[np.ix_(at, at)] = matrix
         return cls(camera_id, int(entry["width_px"]), int(entry["height_px"]), p, float(entry["focal_mm"]["value"]),
-                   float(entry["x0_mm"]["value"]), float(entry["y0_mm"]["value"]), ap, values)
+                   float(entry["x0_mm"]["value"]), float(entry["y0_mm"]["value"]), ap, values, covariance)
 
     @property
     def focal_px(self) -> float:

@@ -6,11 +6,13 @@ import os
 import sys
 
 from ..calibration import OPENCV_MODELS, Calibration, undistortion_maps
+from ..calibration_models import FAMILIES, MODELS, fit_best, propagate
 from ..errors import BlockError, UsageError
 from ..io.results import read_camera_json
 from .options import number
 
-__all__ = ["calibrations", "pick_camera", "maps_of", "models", "report_fit", "camera_options"]
+__all__ = ["calibrations", "pick_camera", "maps_of", "models", "report_fit", "camera_options", "tool_options",
+           "fit_tool", "fitted_covariance"]
 
 
 def camera_options(parser) -> None:
@@ -71,3 +73,44 @@ def report_fit(camera_id, fitted, tolerance_px) -> None:
     if fitted.misfit_max_px > tolerance_px:
         print(f"warning: camera {camera_id}: no OpenCV model reproduces selfcal's within {tolerance_px:g} px; "
               f"'selfcal export undistort-map' or 'selfcal undistort' are exact", file=sys.stderr)
+
+
+#: how each tool is named in messages
+TOOL_NAMES = {"opencv": "OpenCV", "metashape": "Metashape", "opensfm": "OpenSfM", "kalibr": "Kalibr"}
+
+
+def tool_options(parser, tool: str, option: str = "--model") -> None:
+    """--camera, the tool's model (auto or a name) and --tolerance-px: every export that fits a tool's model."""
+    known = [m for t, m in MODELS if t == tool]
+    parser.add_argument("--camera", metavar="ID", help="camera to export (needed when the block has several)")
+    parser.add_argument(option, default="auto", metavar="MODEL", dest="tool_model",
+                        help=f"{TOOL_NAMES[tool]} camera model: auto (the first of {', '.join(FAMILIES[tool])} "
+                             f"within --tolerance-px, else the closest) or one of {', '.join(known)}")
+    parser.add_argument("--tolerance-px", type=number(0.0, low_open=True), default=0.01,
+                        help=f"largest misfit of the {TOOL_NAMES[tool]} model accepted by 'auto' and without a "
+                             f"warning (default 0.01 px)")
+
+
+def fit_tool(cal: Calibration, tool: str, option: str, tolerance_px: float):
+    """The tool's model fitted to ``cal`` (``option``: auto or a model name), its misfit printed and warned."""
+    known = [m for t, m in MODELS if t == tool]
+    if option != "auto" and option not in known:
+        raise UsageError(f"{TOOL_NAMES[tool]} has no camera model '{option}' (known: auto, {', '.join(known)})")
+    fitted = fit_best(cal, tool, None if option == "auto" else (option,), tolerance_px)
+    print(f"camera {cal.camera_id}: {TOOL_NAMES[tool]} {fitted.model.name}, misfit to selfcal's model "
+          f"{fitted.misfit_rms_px:.4f} px rms, {fitted.misfit_max_px:.4f} px max over the image", file=sys.stderr)
+    if fitted.misfit_max_px > tolerance_px:
+        print(f"warning: camera {cal.camera_id}: {TOOL_NAMES[tool]}'s {fitted.model.name} model does not reproduce "
+              f"selfcal's within {tolerance_px:g} px; 'selfcal export undistort-map' or 'selfcal undistort' are "
+              f"exact", file=sys.stderr)
+    return fitted
+
+
+def fitted_covariance(cal: Calibration, fitted):
+    """Covariance of the fitted parameters (propagated from camera.json's), or None with a note when the
+    results folder has none (written by a selfcal without it)."""
+    if cal.covariance is None:
+        print(f"camera {cal.camera_id}: camera.json has no covariance; the export carries no sigma",
+              file=sys.stderr)
+        return None
+    return propagate(fitted, cal.covariance)

@@ -10,7 +10,7 @@ import numpy as np
 from ..calibration import OpenCVCamera, undistort_image
 from ..errors import BlockError
 from ..io.atomic import atomic_folder
-from ..io.opencv import read_image, write_image, write_opencv_yaml
+from ..io.opencv import read_image, write_image, write_opencv_file
 from ..io.output import output_folder
 from .options import force_option
 from .calibrations import calibrations, maps_of, pick_camera
@@ -43,7 +43,7 @@ def run(args: argparse.Namespace) -> int:
                                        f"{cal.width_px} x {cal.height_px} px")
             write_image(os.path.join(tmp, name), undistort_image(image, map_x, map_y))
             print(f"[{k}/{len(names)}] {name}", file=sys.stderr)
-        write_opencv_yaml(ideal, os.path.join(tmp, "ideal_camera.yaml"),
+        write_opencv_file(ideal, os.path.join(tmp, "ideal_camera.yaml"),
                           source=f"ideal camera of the undistorted images of camera {cal.camera_id}")
     print(f"{len(names)} images undistorted into {args.out} (camera {cal.camera_id}, {cal.ap.spec})",
           file=sys.stderr)

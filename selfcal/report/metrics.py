@@ -187,6 +187,10 @@ def camera_json(block, result) -> dict:
              "active": bool(cam.free[nc + j])}
             for j, name in enumerate(cam.ap.parameter_names)
         ]
+        for j, c in enumerate(coefficients):
+            if not cam.free[nc + j] and cam.prior_sigma[nc + j] == 0:
+                c["held"] = True                    # held at its given value (an imported calibration, --fixed)
+        entry["covariance"] = _camera_covariance(result, k, cam)
         ap = {**cam.ap.to_dict(), "coefficient_unit": "px", "n_active": int(cam.free[nc:].sum())}
         if hasattr(cam.ap, "active_ranges"):
             # the translation ranges that remain after screening (Table 3 of seed 000)
@@ -194,6 +198,18 @@ def camera_json(block, result) -> dict:
         entry["ap"] = {**ap, "coefficients": coefficients}
         cameras[cam.camera_id] = entry
     return {"cameras": cameras}
+
+
+def _camera_covariance(result, k: int, cam) -> dict:
+    """The full covariance of a camera's estimated parameters (files' units: c, x0, y0 in mm, APs in px), for
+    the exports that carry it through a fit into another tool's parameters (correlation.csv is rounded)."""
+    start = result.problem.d_offset[k]
+    free = np.flatnonzero(cam.free)
+    core = _sensor(result, k).camera_parameters
+    factor = np.array([core[i].display[1] if i < cam.n_core else 1.0 for i in free])
+    block = result.variance_factor * result.Q_theta[start:start + len(free), start:start + len(free)]
+    return {"parameters": [cam.names[i] for i in free],
+            "matrix": (block * factor[:, None] * factor[None, :]).tolist()}
 
 
 def _image_parameters(result):

@@ -1,0 +1,257 @@
+"""Other tools' camera calibration files, as plain data (:class:`ToolCalibration`), written and read.
+
+* Metashape calibration XML (``<calibration>``): f, cx, cy, b1, b2, k1-k4, p1, p2 in Metashape's own
+  conventions (cx, cy offsets of the principal point from the image centre in px; its P1, P2 swapped
+  relative to OpenCV's p1, p2; the centre of the first pixel at (0.5, 0.5)), and the ``<covariance>`` block
+  Metashape writes (``<params>`` names, ``<coeffs>`` the matrix row by row).
+* OpenSfM / OpenDroneMap ``cameras.json``: ``{camera key: {projection_type, width, height, ...}}`` with the
+  focal length and principal point normalised by the larger image side (OpenSfM's normalised image
+  coordinates: origin at the image centre).
+* Kalibr ``camchain.yaml``: ``cam0: {camera_model: pinhole, intrinsics: [fu, fv, pu, pv], distortion_model:
+  radtan | equidistant, distortion_coeffs, resolution: [w, h]}``, OpenCV's pixel convention.
+* OpenCV FileStorage (YAML, XML, JSON): :mod:`selfcal.io.opencv`.
+
+No conversion happens here: the values are the tool's, named as the tool names them
+(:data:`selfcal.calibration_models.MODELS` gives their meaning).
+"""
+from __future__ import annotations
+
+import json
+import os
+import xml.etree.ElementTree as ElementTree
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import BlockError
+from .atomic import atomic_write
+from .text import read_text
+from .xmlfile import xml_root
+
+__all__ = ["ToolCalibration", "write_metashape_xml", "read_metashape_xml", "write_opensfm_cameras",
+           "read_opensfm_cameras", "write_kalibr_camchain", "read_kalibr_camchain", "read_calibration_file",
+           "METASHAPE_NAMES", "OPENSFM_NAMES", "KALIBR_DISTORTION_NAMES"]
+
+#: Metashape's parameters in the order of its calibration file
+METASHAPE_NAMES = ("f", "cx", "cy", "b1", "b2", "k1", "k2", "k3", "k4", "p1", "p2")
+#: OpenSfM's parameters of each projection type (opensfm/io.py camera_to_json)
+OPENSFM_NAMES = {"perspective": ("focal", "k1", "k2"),
+                 "brown": ("focal_x", "focal_y", "c_x", "c_y", "k1", "k2", "k3", "p1", "p2"),
+                 "fisheye": ("focal", "k1", "k2")}
+#: Kalibr's distortion coefficients of each distortion model
+KALIBR_DISTORTION_NAMES = {"radtan": ("k1", "k2", "r1", "r2"), "equidistant": ("k1", "k2", "k3", "k4")}
+
+
+@dataclass(frozen=True)
+class ToolCalibration:
+    """One camera of another tool's calibration file: the tool, its model, its parameters by its own names,
+    the image size and, where the file has it, the covariance of the parameters (names, matrix)."""
+
+    tool: str
+    model: str
+    values: dict
+    width_px: int
+    height_px: int
+    covariance_names: tuple[str, ...] = ()
+    covariance: np.ndarray | None = None
+    camera_id: str = ""
+
+
+def _number(text: str) -> str:
+    return repr(float(text))
+
+
+# --- Metashape --------------------------------------------------------------------------------------------
+
+def write_metashape_xml(path: str | os.PathLike, calibration: ToolCalibration) -> None:
+    """A Metashape calibration file (Tools > Camera Calibration > Load), with the covariance when given."""
+    root = ElementTree.Element("calibration")
+    ElementTree.SubElement(root, "projection").text = "frame"
+    ElementTree.SubElement(root, "width").text = str(int(calibration.width_px))
+    ElementTree.SubElement(root, "height").text = str(int(calibration.height_px))
+    for name in METASHAPE_NAMES:
+        ElementTree.SubElement(root, name).text = _number(calibration.values.get(name, 0.0))
+    if calibration.covariance is not None:
+        cov = ElementTree.SubElement(root, "covariance")
+        ElementTree.SubElement(cov, "params").text = " ".join(calibration.covariance_names)
+        ElementTree.SubElement(cov, "coeffs").text = " ".join(repr(float(v)) for v in
+                                                              np.asarray(calibration.covariance).ravel())
+    ElementTree.indent(root)
+    with atomic_write(path) as handle:
+        handle.write('<?xml version="1.0" encoding="UTF-8"?>\n')
+        handle.write(ElementTree.tostring(root, encoding="unicode") + "\n")
+
+
+def read_metashape_xml(path: str | os.PathLike) -> ToolCalibration:
+    path = os.fspath(path)
+    root = xml_root(path, "Metashape calibration")
+    if root.tag != "calibration":
+        raise BlockError(path, f"not a Metashape calibration: the root element is <{root.tag}>, not <calibration>")
+    projection = (root.findtext("projection") or "frame").strip()
+    if projection != "frame":
+        raise BlockError(path, f"Metashape projection '{projection}': only 'frame' cameras are supported")
+
+    def number(tag, default=None):
+        text = root.findtext(tag)
+        if text is None:
+            if default is None:
+                raise BlockError(path, f"<{tag}> is missing")
+            return default
+        try:
+            value = float(text)
+        except ValueError:
+            raise BlockError(path, f"<{tag}> is not a number: {text.strip()!r}") from None
+        if not np.isfinite(value):
+            raise BlockError(path, f"<{tag}> is not finite")
+        return value
+
+    width, height = number("width"), number("height")
+    if width <= 0 or height <= 0 or width != int(width) or height != int(height):
+        raise BlockError(path, f"image size {width:g} x {height:g} is not two positive whole numbers")
+    values = {name: number(name, 0.0) for name in METASHAPE_NAMES}
+    if root.find("f") is None:
+        raise BlockError(path, "<f> is missing (the focal length in pixels)")
+    names, matrix = (), None
+    cov = root.find("covariance")
+    if cov is not None:
+        names = tuple((cov.findtext("params") or "").split())
+        try:
+            matrix = np.array([float(v) for v in (cov.findtext("coeffs") or "").split()], float)
+        except ValueError:
+            raise BlockError(path, "<covariance><coeffs> holds something that is not a number") from None
+        if matrix.size != len(names) ** 2:
+            raise BlockError(path, f"<covariance>: {matrix.size} coefficients for {len(names)} parameters")
+        matrix = matrix.reshape(len(names), len(names))
+    return ToolCalibration("metashape", "frame", values, int(width), int(height), names, matrix)
+
+
+# --- OpenSfM / ODM ----------------------------------------------------------------------------------------
+
+def opensfm_camera_key(calibration: ToolCalibration) -> str:
+    """A camera key as OpenSfM forms its own (``v2 make model width height projection focal``)."""
+    focal = calibration.values.get("focal", calibration.values.get("focal_x", 0.0))
+    ident = "selfcal " + (calibration.camera_id or "camera")
+    return f"v2 {ident} {calibration.width_px} {calibration.height_px} {calibration.model} {focal:.4f}".lower()
+
+
+def write_opensfm_cameras(path: str | os.PathLike, calibration: ToolCalibration, key: str | None = None) -> None:
+    entry = {"projection_type": calibration.model, "width": int(calibration.width_px),
+             "height": int(calibration.height_px)}
+    entry.update({name: float(calibration.values[name]) for name in OPENSFM_NAMES[calibration.model]})
+    with atomic_write(path) as handle:
+        json.dump({key or opensfm_camera_key(calibration): entry}, handle, indent=4)
+        handle.write("\n")
+
+
+def read_opensfm_cameras(path: str | os.PathLike, camera: str | None = None) -> ToolCalibration:
+    """One camera of an OpenSfM cameras.json (the only one, or ``camera``, its key)."""
+    from .text import read_json
+    path = os.fspath(path)
+    data = read_json(path, "OpenSfM cameras.json")
+    if not isinstance(data, dict) or not data or not all(isinstance(v, dict) for v in data.values()):
+        raise BlockError(path, "not an OpenSfM cameras.json: expected {camera key: {projection_type, ...}}")
+    if camera is None:
+        if len(data) > 1:
+            raise BlockError(path, f"holds {len(data)} cameras ({', '.join(data)}); choose one")
+        camera = next(iter(data))
+    if camera not in data:
+        raise BlockError(path, f"no camera {camera!r} (it has: {', '.join(data)})")
+    entry = data[camera]
+    model = entry.get("projection_type")
+    if model not in OPENSFM_NAMES:
+        raise BlockError(path, f"camera {camera!r}: projection_type {model!r} is not supported (supported: "
+                               f"{', '.join(OPENSFM_NAMES)})")
+    values = {}
+    for name in ("width", "height") + OPENSFM_NAMES[model]:
+        value = entry.get(name, 0.0 if name[0] in "kpc" else None)
+        if not isinstance(value, (int, float)) or isinstance(value, bool):
+            raise BlockError(path, f"camera {camera!r}: {name} is missing or not a number")
+        values[name] = float(value)
+    width, height = values.pop("width"), values.pop("height")
+    if width <= 0 or height <= 0 or width != int(width) or height != int(height):
+        raise BlockError(path, f"camera {camera!r}: image size {width:g} x {height:g} is not two positive whole "
+                               f"numbers")
+    return ToolCalibration("opensfm", model, values, int(width), int(height), camera_id=camera)
+
+
+# --- Kalibr -----------------------------------------------------------------------------------------------
+
+def write_kalibr_camchain(path: str | os.PathLike, calibration: ToolCalibration) -> None:
+    import yaml
+    v = calibration.values
+    names = KALIBR_DISTORTION_NAMES[calibration.model]
+    cam = {"camera_model": "pinhole",
+           "intrinsics": [float(v["fu"]), float(v["fv"]), float(v["pu"]), float(v["pv"])],
+           "distortion_model": calibration.model,
+           "distortion_coeffs": [float(v[name]) for name in names],
+           "resolution": [int(calibration.width_px), int(calibration.height_px)]}
+    with atomic_write(path) as handle:
+        yaml.safe_dump({"cam0": cam}, handle, default_flow_style=None, sort_keys=False)
+
+
+def read_kalibr_camchain(path: str | os.PathLike, camera: str | None = None) -> ToolCalibration:
+    """One camera (``cam0`` unless ``camera``) of a Kalibr camchain.yaml."""
+    import yaml
+    path = os.fspath(path)
+    try:
+        data = yaml.safe_load(read_text(path, "Kalibr camchain"))
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        raise BlockError(path, f"not YAML: {getattr(exc, 'problem', exc)}",
+                         mark.line + 1 if mark is not None else None) from None
+    if not isinstance(data, dict) or not any(isinstance(v, dict) and "intrinsics" in v for v in data.values()):
+        raise BlockError(path, "not a Kalibr camchain: no camN entry with intrinsics")
+    camera = camera or ("cam0" if "cam0" in data else next(k for k, v in data.items()
+                                                           if isinstance(v, dict) and "intrinsics" in v))
+    if camera not in data:
+        raise BlockError(path, f"no camera {camera!r} (it has: {', '.join(map(str, data))})")
+    cam = data[camera]
+    if cam.get("camera_model", "pinhole") != "pinhole":
+        raise BlockError(path, f"{camera}: camera_model {cam.get('camera_model')!r} is not supported (pinhole)")
+    model = cam.get("distortion_model", "radtan")
+    if model not in KALIBR_DISTORTION_NAMES:
+        raise BlockError(path, f"{camera}: distortion_model {model!r} is not supported (supported: "
+                               f"{', '.join(KALIBR_DISTORTION_NAMES)})")
+    try:
+        intrinsics = [float(v) for v in cam["intrinsics"]]
+        coeffs = [float(v) for v in cam.get("distortion_coeffs", [0.0] * 4)]
+        width, height = (int(v) for v in cam["resolution"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise BlockError(path, f"{camera}: intrinsics [fu, fv, pu, pv], distortion_coeffs and resolution [w, h] "
+                               f"are needed ({exc})") from None
+    if len(intrinsics) != 4 or len(coeffs) != 4 or width <= 0 or height <= 0:
+        raise BlockError(path, f"{camera}: intrinsics and distortion_coeffs need 4 numbers each, resolution 2 "
+                               f"positive ones")
+    values = dict(zip(("fu", "fv", "pu", "pv"), intrinsics))
+    values.update(zip(KALIBR_DISTORTION_NAMES[model], coeffs))
+    return ToolCalibration("kalibr", model, values, width, height, camera_id=camera)
+
+
+# --- any of them ------------------------------------------------------------------------------------------
+
+def read_calibration_file(path: str | os.PathLike) -> ToolCalibration:
+    """A calibration file of any of the tools, recognised by its content (then its extension)."""
+    from .opencv import read_opencv_calibration
+    path = os.fspath(path)
+    if not os.path.isfile(path):
+        raise BlockError(path, "file not found")
+    try:
+        with open(path, "rb") as handle:
+            head = handle.read(4096).decode("utf-8", "replace")
+    except OSError as exc:
+        raise BlockError(path, f"cannot read the calibration: {exc.strerror}") from None
+    text = head.lstrip("\ufeff \t\r\n")
+    if "opencv_storage" in head or text.startswith("%YAML") or "!!opencv-matrix" in head \
+            or ('"camera_matrix"' in head and text.startswith("{")):
+        return read_opencv_calibration(path)
+    if "<calibration" in head:
+        return read_metashape_xml(path)
+    if text.startswith("{") and "projection_type" in head:
+        return read_opensfm_cameras(path)
+    if "intrinsics" in head and "resolution" in head:
+        return read_kalibr_camchain(path)
+    ext = os.path.splitext(path)[1].lower()
+    raise BlockError(path, f"not a calibration file selfcal recognises (a {ext or 'file without extension'} that "
+                           f"is none of: Metashape <calibration> XML, OpenSfM cameras.json with projection_type, "
+                           f"OpenCV FileStorage with camera_matrix, Kalibr camchain with intrinsics and "
+                           f"resolution)")
