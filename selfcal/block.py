@@ -50,6 +50,10 @@ class InitialAP:
     spec: str
     names: tuple[str, ...]
     values_px: tuple[float, ...]
+    #: a-priori sigma of every coefficient about its value (key ``sigma_px``): None (default) = start values
+    #: only; 0 = held at them (an imported calibration used as fixed: the camera keeps this AP model whatever
+    #: the adjustment's --ap)
+    sigma_px: float | None = None
 
 
 @dataclass(frozen=True)

@@ -129,13 +129,13 @@ def _from_previous(problem: Problem, block, state: State, start) -> tuple[np.nda
             nc = cam.n_core
             state.cameras[k][:nc] = values[:nc]
             if pc.names == cam.names:
-                state.cameras[k][nc:] = np.where(cam.free[nc:], values[nc:], 0.0)
+                state.cameras[k][nc:] = np.where(cam.free[nc:], values[nc:], cam.reference[nc:])
     return has_img, has_pt
 
 
 def _hold(problem: Problem, state: State) -> None:
     """Parameters held by the problem keep their start value: an image parameter its sensor's, a core
-    parameter the camera's (block.toml), an AP coefficient zero."""
+    parameter the camera's (block.toml), an AP coefficient zero (or its value held by block.toml)."""
     held = ~problem.image_free & np.isfinite(problem.image_prior_value)
     state.image[held] = problem.image_prior_value[held]
     for cam, values in zip(problem.cameras, state.cameras):

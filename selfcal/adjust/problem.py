@@ -75,8 +75,9 @@ class CameraParameters:
     @property
     def reference(self) -> np.ndarray:
         """What screening tests an entry against and holds it at: the start value of a core
-        parameter, zero for an AP coefficient."""
-        return np.concatenate([self.prior_value[:self.n_core], np.zeros(self.size - self.n_core)])
+        parameter, zero for an AP coefficient (its given value for one held by block.toml, sigma 0)."""
+        ap = np.where(self.prior_sigma[self.n_core:] == 0, self.prior_value[self.n_core:], 0.0)
+        return np.concatenate([self.prior_value[:self.n_core], ap])
 
 
 @dataclass
@@ -527,13 +528,19 @@ def build_problem(block: Block, ap_spec: str = "none", ap_settings: dict | None 
         cfg = block.cameras[cid]
         value, free, sigma = sensor.camera_setup(cfg, options)
         spec = ap_spec if ap_cameras is None or cid in ap_cameras else "none"
+        initial = getattr(cfg, "initial_ap", None)
+        held = initial is not None and initial.sigma_px == 0
+        if held:
+            spec = initial.spec          # a held calibration keeps its own AP model (block.toml sigma_px = 0)
         ap, ap_start = sensor.create_ap(spec, cfg, problem.obs_value[cam_of_obs == k], ap_settings,
                                         model=(ap_models or {}).get(cid))
         n_ap = ap.n_params
         units = tuple(p.unit for p in sensor.camera_parameters) + ("px",) * n_ap
         ap_sigma = np.full(n_ap, np.nan if ap_sigma_px is None else float(ap_sigma_px))
+        if initial is not None and initial.sigma_px is not None:
+            ap_sigma[:] = initial.sigma_px          # 0 with free False: held at the given values
         camera = CameraParameters(cid, ap, getattr(cfg, "pixel_size_mm", 1.0),
-                                  np.concatenate([free, np.ones(n_ap, bool)]),
+                                  np.concatenate([free, np.full(n_ap, not held)]),
                                   np.concatenate([value, ap_start]), np.concatenate([sigma, ap_sigma]),
                                   list(sensor.camera_names) + list(ap.parameter_names), sensor.name,
                                   len(sensor.camera_parameters), tuple(p.screened for p in sensor.camera_parameters),

@@ -161,9 +161,11 @@ def _initial_ap(path, text, section, table) -> InitialAP:
     if not isinstance(table.get("model"), str):
         raise BlockError(path, "missing key 'model' (the AP model of the initial values, e.g. \"brown\")",
                          _key_line(text, section, None), f"{section}.model")
-    names = [k for k in table if k != "model"]
+    names = [k for k in table if k not in ("model", "sigma_px")]
     values = [_check_value(path, text, section, k, table[k], "num") for k in names]
-    return InitialAP(table["model"], tuple(names), tuple(values))
+    sigma = _check_value(path, text, section, "sigma_px", table["sigma_px"], "nonneg") if "sigma_px" in table \
+        else None
+    return InitialAP(table["model"], tuple(names), tuple(values), sigma)
 
 
 def _read_settings(folder: str) -> dict:
@@ -544,6 +546,7 @@ def block_toml_document(block: Block) -> dict:
         initial = getattr(camera, "initial_ap", None)
         if initial is not None:
             entry["initial_ap"] = {"model": initial.spec,
+                                   **({} if initial.sigma_px is None else {"sigma_px": _toml_value(initial.sigma_px)}),
                                    **{n: _toml_value(v) for n, v in zip(initial.names, initial.values_px)}}
     doc["observations"] = {"image_sigma_px": _toml_value(block.image_sigma_px)}
     if block.dem_path is not None or block.terrain_height_m is not None:

@@ -1,6 +1,6 @@
 """``selfcal import FORMAT``: one module per format, each with ``HELP``, ``add_arguments(parser)`` and
 ``run(args) -> int``. A new format is one module and one line here."""
-from . import bal, colmap, gnss, isis, metashape_markers, opensfm, patb, pix4d
+from . import bal, calibration, colmap, gnss, isis, metashape_markers, opensfm, patb, pix4d
 
 #: format -> module
 IMPORTERS = {
@@ -12,4 +12,5 @@ IMPORTERS = {
     "pix4d": pix4d,
     "metashape-markers": metashape_markers,
     "gnss": gnss,
+    "calibration": calibration,
 }

@@ -1,0 +1,385 @@
+"""The UAV tools' calibration formats, out and in: Metashape XML, OpenSfM cameras.json, OpenCV FileStorage
+(YAML, XML, JSON) and Kalibr camchain.yaml.
+
+Truth first: a camera with a known Brown distortion (and one with a WAP, whose misfit must be reported) and a
+known covariance of its parameters. Every written file is read by the other tool's reader where one installs
+here (cv2.FileStorage, cv2.projectPoints), else by the tool's DOCUMENTED projection implemented here
+independently of selfcal's (each cites its source), and must project a grid of measured positions within
+the misfit the export printed. The sigmas written are checked against a finite-difference propagation
+(refitting with each selfcal parameter moved). Round trip: export, import into a block, and the block's
+initial camera projects like the original. ``--fixed`` holds the values through ``selfcal adjust``.
+"""
+import json
+import re
+import xml.etree.ElementTree as ElementTree
+from dataclasses import replace
+
+import cv2
+import numpy as np
+import pytest
+import yaml
+
+from selfcal.ap import ImageFrame, create_ap
+from selfcal.calibration import Calibration
+from selfcal.calibration_models import MODELS, fit_camera_model, propagate
+
+from conftest import run_cli
+
+WIDTH, HEIGHT, PIXEL_MM, FOCAL_MM = 1500, 1000, 0.004, 6.0
+CAMERA_ID = 'Canon "EOS" 450D'
+# Brown (selfcal's, px at the frame corner): about 27 px of radial distortion at the corner, some decentering
+BROWN = [-30.0, 3.0, 0.0, 0.1, -0.05, 0.0, 0.0]
+THETA = ["c", "x0", "y0", "k1", "k2", "k3", "p1", "p2", "b1", "b2"]
+
+
+def known_covariance():
+    """A covariance of (c, x0, y0 in mm; the seven Brown coefficients in px) with strong correlations, as a
+    self-calibration gives: sigma c 2 um, x0 and y0 1 um, APs 0.02-0.2 px."""
+    sigma = np.array([0.002, 0.001, 0.001, 0.2, 0.1, 0.05, 0.02, 0.02, 0.03, 0.03])
+    rng = np.random.default_rng(7)
+    a = rng.normal(size=(10, 10))
+    rho = a @ a.T + 3 * np.eye(10)
+    d = 1 / np.sqrt(np.diag(rho))
+    rho = rho * d[:, None] * d[None, :]
+    return rho * sigma[:, None] * sigma[None, :]
+
+
+def camera_entry(values=BROWN, spec="brown", x0_mm=0.01, y0_mm=-0.02, covariance=None, ap=None,
+                 width=WIDTH, height=HEIGHT, pixel_mm=PIXEL_MM, focal_mm=FOCAL_MM):
+    """camera.json entry of a frame camera, as selfcal adjust writes it (with the covariance block)."""
+    frame = ImageFrame(width * pixel_mm, height * pixel_mm, pixel_mm)
+    ap = ap or create_ap(spec, frame)
+    entry = {"model": "frame", "width_px": width, "height_px": height, "pixel_size_mm": pixel_mm,
+             "focal_mm": {"value": focal_mm}, "x0_mm": {"value": x0_mm}, "y0_mm": {"value": y0_mm},
+             "ap": {**ap.to_dict(), "coefficients": [{"name": n, "value_px": float(v), "active": True}
+                                                     for n, v in zip(ap.parameter_names, values)]}}
+    if covariance is not None:
+        entry["covariance"] = {"parameters": ["c", "x0", "y0"] + list(ap.parameter_names),
+                               "matrix": np.asarray(covariance).tolist()}
+    return entry
+
+
+def results_folder(path, entry, camera_id=CAMERA_ID):
+    path.mkdir()
+    (path / "camera.json").write_text(json.dumps({"cameras": {camera_id: entry}}))
+    return path
+
+
+def grid(cal, n=25):
+    """Measured positions on a grid over the whole image, corners included, and their ideal normalised
+    coordinates (OpenCV's camera frame: x right, y down) from selfcal's model."""
+    u, v = np.meshgrid(np.linspace(0, cal.width_px, n), np.linspace(0, cal.height_px, n))
+    measured = np.column_stack([u.ravel(), v.ravel()])
+    return measured, cal.normalised_from_measured(measured)
+
+
+def printed_misfit(err):
+    rms, worst = re.search(r"misfit to selfcal's model ([\d.]+) px rms, ([\d.]+) px max", err).groups()
+    return float(rms), float(worst)
+
+
+# --- the tools' documented projections, written here from their manuals (not from selfcal's code) ----------
+
+def metashape_project(n, c, w, h):
+    """Metashape user manual (Professional Edition 1.5-2.1), Appendix C "Camera models", Frame cameras:
+    x' = x(1 + K1 r^2 + K2 r^4 + K3 r^6 + K4 r^8) + (P1(r^2 + 2x^2) + 2 P2 x y),
+    y' = y(1 + K1 r^2 + ... ) + (P2(r^2 + 2y^2) + 2 P1 x y), u = w 0.5 + cx + x' f + x' B1 + y' B2,
+    v = h 0.5 + cy + y' f; pixel coordinates with the centre of the top-left pixel at (0.5, 0.5)."""
+    x, y = n.T
+    r2 = x**2 + y**2
+    radial = 1 + c["k1"] * r2 + c["k2"] * r2**2 + c["k3"] * r2**3 + c["k4"] * r2**4
+    xs = x * radial + (c["p1"] * (r2 + 2 * x**2) + 2 * c["p2"] * x * y)
+    ys = y * radial + (c["p2"] * (r2 + 2 * y**2) + 2 * c["p1"] * x * y)
+    return np.column_stack([w * 0.5 + c["cx"] + xs * c["f"] + xs * c["b1"] + ys * c["b2"],
+                            h * 0.5 + c["cy"] + ys * c["f"]])
+
+
+def opensfm_project(n, c, w, h):
+    """OpenSfM docs, "Geometric models" (doc/source/geometry.rst): the brown / perspective camera maps x/z,
+    y/z to normalised image coordinates (origin at the image centre, larger side 1); pixel coordinates
+    (OpenCV's, the centre of the first pixel at 0) are max(w, h) u + (w - 1)/2. Returned in the corner
+    convention (+ 0.5) to compare with selfcal."""
+    x, y = n.T
+    r2 = x**2 + y**2
+    if c["projection_type"] == "brown":
+        dr = 1 + c["k1"] * r2 + c["k2"] * r2**2 + c["k3"] * r2**3
+        u = c["focal_x"] * (dr * x + 2 * c["p1"] * x * y + c["p2"] * (r2 + 2 * x**2)) + c["c_x"]
+        v = c["focal_y"] * (dr * y + 2 * c["p2"] * x * y + c["p1"] * (r2 + 2 * y**2)) + c["c_y"]
+    else:                                          # perspective
+        d = 1 + c["k1"] * r2 + c["k2"] * r2**2
+        u, v = c["focal"] * d * x, c["focal"] * d * y
+    s = max(w, h)
+    return np.column_stack([s * u + (w - 1) / 2 + 0.5, s * v + (h - 1) / 2 + 0.5])
+
+
+def kalibr_project(n, cam):
+    """Kalibr wiki, "Supported models": pinhole projection [fu, fv, pu, pv]; radtan distortion [k1, k2, r1, r2]
+    (OpenCV's plumb_bob without k3); equidistant [k1..k4] (theta_d = theta(1 + k1 theta^2 + ... + k4 theta^8),
+    OpenCV's fisheye). Pixel centres at integers (OpenCV), returned + 0.5."""
+    fu, fv, pu, pv = cam["intrinsics"]
+    k = cam["distortion_coeffs"]
+    x, y = n.T
+    r2 = x**2 + y**2
+    if cam["distortion_model"] == "radtan":
+        radial = 1 + k[0] * r2 + k[1] * r2**2
+        xd = x * radial + 2 * k[2] * x * y + k[3] * (r2 + 2 * x**2)
+        yd = y * radial + k[2] * (r2 + 2 * y**2) + 2 * k[3] * x * y
+    else:
+        r = np.sqrt(r2)
+        t = np.arctan(r)
+        td = t * (1 + k[0] * t**2 + k[1] * t**4 + k[2] * t**6 + k[3] * t**8)
+        xd, yd = td / r * x, td / r * y
+    return np.column_stack([fu * xd + pu + 0.5, fv * yd + pv + 0.5])
+
+
+# --- OUT ---------------------------------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def brown(tmp_path_factory):
+    folder = results_folder(tmp_path_factory.mktemp("brown") / "r", camera_entry(covariance=known_covariance()))
+    return folder, Calibration.from_camera_json(CAMERA_ID, camera_entry(covariance=known_covariance()))
+
+
+def finite_difference_covariance(cal, model, start, covariance):
+    """Sigma_q = L Sigma L^T with L from refitting the tool's model with each selfcal parameter moved by +-h."""
+    columns = []
+    for j, name in enumerate(cal.theta_names):
+        h = 2e-4 if j < 3 else 2e-3
+        fits = []
+        for s in (h, -h):
+            if j < 3:
+                moved = replace(cal, **{("focal_mm", "x0_mm", "y0_mm")[j]: getattr(cal, ("focal_mm", "x0_mm",
+                                                                                          "y0_mm")[j]) + s})
+            else:
+                a = cal.coefficients_px.copy()
+                a[j - 3] += s
+                moved = replace(cal, coefficients_px=a)
+            fits.append(fit_camera_model(moved, model, start=start).values)
+        columns.append((fits[0] - fits[1]) / (2 * h))
+    L = np.column_stack(columns)
+    return L @ covariance @ L.T
+
+
+def test_metashape_xml_projects_like_selfcal_with_propagated_covariance(brown, tmp_path, capsys):
+    folder, cal = brown
+    out = tmp_path / "cal.xml"
+    assert run_cli("export", "metashape", str(folder), "--out", str(out), "--tolerance-px", "0.05") == 0
+    err = capsys.readouterr().err
+    rms, worst = printed_misfit(err)
+    assert "warning" not in err and worst < 0.05
+    root = ElementTree.parse(out).getroot()
+    assert root.tag == "calibration" and root.findtext("projection") == "frame"
+    w, h = int(root.findtext("width")), int(root.findtext("height"))
+    assert (w, h) == (WIDTH, HEIGHT)
+    c = {tag: float(root.findtext(tag)) for tag in ("f", "cx", "cy", "b1", "b2", "k1", "k2", "k3", "k4", "p1", "p2")}
+    # Metashape's conventions: f in px, cx/cy offsets from the image centre in px
+    assert c["f"] == pytest.approx(FOCAL_MM / PIXEL_MM, abs=0.05)
+    assert c["cx"] == pytest.approx(0.01 / PIXEL_MM, abs=0.05) and c["cy"] == pytest.approx(0.02 / PIXEL_MM, abs=0.05)
+    measured, n = grid(cal)
+    miss = np.hypot(*(metashape_project(n, c, w, h) - measured).T)
+    assert miss.max() <= worst + 1e-3, (miss.max(), worst)
+    # P1/P2 are swapped against OpenCV's p1/p2: OpenCV's plumb_bob fit of the same camera has p2 = Metashape's P1
+    plumb = fit_camera_model(cal, MODELS["opencv", "plumb_bob"]).values
+    assert c["p1"] == pytest.approx(plumb[7], rel=0.05) and c["p2"] == pytest.approx(plumb[6], rel=0.05)
+    # the covariance block, in Metashape's parameter names, against a finite-difference propagation
+    names = root.findtext("covariance/params").split()
+    coeffs = np.array(root.findtext("covariance/coeffs").split(), float).reshape(len(names), len(names))
+    assert names == ["f", "cx", "cy", "b1", "b2", "k1", "k2", "k3", "k4", "p1", "p2"]
+    fitted = fit_camera_model(cal, MODELS["metashape", "frame"])
+    reference = finite_difference_covariance(cal, fitted.model, fitted.values, known_covariance())
+    # Gauss-Newton linearisation (the misfit's curvature left out) against refits: 0.1 % for f, cx, cy, 2.2 % for
+    # k4, the worst-determined coefficient
+    np.testing.assert_allclose(np.sqrt(np.diag(coeffs))[:3], np.sqrt(np.diag(reference))[:3], rtol=0.002)
+    np.testing.assert_allclose(np.sqrt(np.diag(coeffs)), np.sqrt(np.diag(reference)), rtol=0.03)
+    # sigma f comes from sigma c (2 um = 0.5 px) and the correlations: it is not zero, and not just sigma c
+    assert 0.1 < np.sqrt(coeffs[0, 0]) < 2.0
+
+
+@pytest.mark.parametrize("ext", [".yaml", ".xml", ".json"])
+def test_opencv_filestorage_in_every_format_with_sigma(brown, tmp_path, capsys, ext):
+    """cv2.FileStorage reads all three formats back; cv2.projectPoints with them lands within the printed
+    misfit; the camera id with quotes and a space survives; sigma matches a finite-difference propagation."""
+    folder, cal = brown
+    out = tmp_path / f"cam{ext}"
+    assert run_cli("export", "opencv", str(folder), "--out", str(out), "--opencv-model", "plumb_bob",
+                   "--tolerance-px", "0.05") == 0
+    _, worst = printed_misfit(capsys.readouterr().err)
+    storage = cv2.FileStorage(str(out), cv2.FILE_STORAGE_READ)
+    K = storage.getNode("camera_matrix").mat()
+    dist = storage.getNode("distortion_coefficients").mat().ravel()
+    assert storage.getNode("camera_id").string() == CAMERA_ID
+    assert storage.getNode("distortion_model").string() == "plumb_bob"
+    assert int(storage.getNode("image_width").real()) == WIDTH
+    sigma = storage.getNode("parameter_sigma").mat().ravel()
+    cov = storage.getNode("parameter_covariance").mat()
+    names = storage.getNode("parameter_names").string().split()
+    storage.release()
+    assert names == ["fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3"]
+    measured, n = grid(cal)
+    projected, _ = cv2.projectPoints(np.column_stack([n, np.ones(len(n))]), np.zeros(3), np.zeros(3), K, dist)
+    miss = np.hypot(*(projected[:, 0] + 0.5 - measured).T)           # OpenCV: first pixel centre at (0, 0)
+    assert miss.max() <= worst + 1e-3
+    np.testing.assert_allclose(sigma, np.sqrt(np.diag(cov)))
+    if ext == ".yaml":                                   # the finite differences once (the same numbers in all)
+        fitted = fit_camera_model(cal, MODELS["opencv", "plumb_bob"])
+        reference = finite_difference_covariance(cal, fitted.model, fitted.values, known_covariance())
+        np.testing.assert_allclose(sigma, np.sqrt(np.diag(reference)), rtol=0.03)
+
+
+def test_opensfm_and_kalibr_project_like_selfcal(brown, tmp_path, capsys):
+    folder, cal = brown
+    measured, n = grid(cal)
+    assert run_cli("export", "opensfm", str(folder), "--out", str(tmp_path / "cameras.json")) == 0
+    _, worst = printed_misfit(capsys.readouterr().err)
+    cameras = json.loads((tmp_path / "cameras.json").read_text())
+    (entry,) = cameras.values()
+    assert entry["projection_type"] == "brown"          # perspective has no principal point off centre
+    assert entry["focal_x"] == pytest.approx(FOCAL_MM / PIXEL_MM / WIDTH, rel=1e-3)
+    miss = np.hypot(*(opensfm_project(n, entry, entry["width"], entry["height"]) - measured).T)
+    assert miss.max() <= worst + 1e-3 and worst < 0.05
+
+    for model in ("radtan", "equidistant"):
+        out = tmp_path / f"camchain-{model}.yaml"
+        assert run_cli("export", "kalibr", str(folder), "--out", str(out), "--model", model) == 0
+        _, worst = printed_misfit(capsys.readouterr().err)
+        cam = yaml.safe_load(out.read_text())["cam0"]
+        assert cam["camera_model"] == "pinhole" and cam["distortion_model"] == model
+        assert cam["resolution"] == [WIDTH, HEIGHT]
+        miss = np.hypot(*(kalibr_project(n, cam) - measured).T)
+        assert miss.max() <= worst + 1e-3 and worst < 0.5
+
+
+def test_wap_misfit_is_reported_and_warned(tmp_path, capsys):
+    """A db4 WAP field has no form in any of the tools: each export prints the misfit its own documented
+    projection really shows, and warns."""
+    frame = ImageFrame(WIDTH * PIXEL_MM, HEIGHT * PIXEL_MM, PIXEL_MM)
+    ap = create_ap("wavelet:db4", frame, grid=(9, 6))
+    values = np.random.default_rng(3).normal(0.0, 1.5, ap.n_params)
+    folder = results_folder(tmp_path / "r", camera_entry(values, ap=ap))
+    cal = Calibration.from_camera_json(CAMERA_ID, camera_entry(values, ap=ap))
+    measured, n = grid(cal, 61)
+    assert run_cli("export", "metashape", str(folder), "--out", str(tmp_path / "w.xml")) == 0
+    err = capsys.readouterr().err
+    rms, worst = printed_misfit(err)
+    assert "warning" in err and worst > 0.5
+    root = ElementTree.parse(tmp_path / "w.xml").getroot()
+    c = {e.tag: float(e.text) for e in root if e.tag not in ("projection", "width", "height", "covariance")}
+    miss = np.hypot(*(metashape_project(n, c, WIDTH, HEIGHT) - measured).T)
+    # the stated misfit is the real one (measured on the export's 121-node grid, this grid's nodes fall between)
+    assert 0.9 * worst < miss.max() <= 1.01 * worst
+    assert root.find("covariance") is None and "no covariance" in err
+
+
+# --- IN ----------------------------------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def small_block(tmp_path_factory):
+    """A 10-image simulated block with a Brown distortion, its camera and the true calibration as a
+    camera.json entry (selfcal's brown, about the frame centre, fitted to the simulation's field about the
+    principal point: within 0.02 px, far below the 0.5 px noise)."""
+    from selfcal.ap import fit_displacement, frame_nodes_mm
+    from selfcal.io import write_block
+    from selfcal.simulate import simulate_uav
+    sim = simulate_uav(seed=3, distortion="brown", points_per_mm2=0.05, n_strips=2, images_per_strip=5)
+    block = sim.blocks["type3"]
+    path = tmp_path_factory.mktemp("block") / "block"
+    write_block(block, path)
+    (camera,) = block.cameras.values()
+    true = sim.truth.camera
+    frame = ImageFrame(true.width_mm, true.height_mm, true.pixel_size_mm)
+    x, y = frame_nodes_mm(frame)
+    ap = create_ap("brown", frame)
+    values, misfit = fit_displacement(ap, x, y, *sim.truth.distortion.displacement_px(x, y))
+    assert np.abs(misfit).max() < 0.02
+    truth = camera_entry(values, width=true.width_px, height=true.height_px, pixel_mm=true.pixel_size_mm,
+                         focal_mm=true.focal_mm, x0_mm=true.x0_mm, y0_mm=true.y0_mm)
+    return path, camera, truth
+
+
+def block_calibration(folder):
+    """The initial calibration of the only camera of a block folder, as selfcal would start from it."""
+    from selfcal.io import read_block
+    block = read_block(folder)
+    (cam,) = block.cameras.values()
+    frame = ImageFrame(cam.width_mm, cam.height_mm, cam.pixel_size_mm)
+    ap = create_ap(cam.initial_ap.spec, frame)
+    values = dict(zip(cam.initial_ap.names, cam.initial_ap.values_px))
+    return cam, Calibration(cam.camera_id, cam.width_px, cam.height_px, cam.pixel_size_mm, cam.focal_mm, cam.x0_mm,
+                            cam.y0_mm, ap, np.array([values[n] for n in ap.parameter_names]))
+
+
+EXPORTS = [("metashape", "cal.xml", ()), ("opensfm", "cameras.json", ()), ("opencv", "cam.yaml", ()),
+           ("opencv", "cam.xml", ()), ("opencv", "cam.json", ()), ("kalibr", "camchain.yaml", ())]
+
+
+@pytest.mark.parametrize("tool,name,options", EXPORTS)
+def test_round_trip_export_import(small_block, tmp_path, capsys, tool, name, options):
+    """Export, import into the block: the block's initial camera projects like the original calibration."""
+    path, camera, _ = small_block
+    entry = camera_entry([v * 0.5 for v in BROWN], width=camera.width_px, height=camera.height_px,
+                         pixel_mm=camera.pixel_size_mm, focal_mm=camera.focal_mm, x0_mm=0.02, y0_mm=-0.01)
+    folder = results_folder(tmp_path / "r", entry, camera.camera_id)
+    original = Calibration.from_camera_json(camera.camera_id, entry)
+    assert run_cli("export", tool, str(folder), "--out", str(tmp_path / name), *options) == 0
+    _, exported = printed_misfit(capsys.readouterr().err)
+    assert run_cli("import", "calibration", str(tmp_path / name), "--block", str(path),
+                   "--out", str(tmp_path / "b2")) == 0
+    assert "brown APs reproduce its distortion" in capsys.readouterr().err
+    cam, imported = block_calibration(tmp_path / "b2")
+    assert cam.sigma_focal_mm is None and cam.initial_ap.sigma_px is None
+    u, v = np.meshgrid(np.linspace(0, camera.width_px, 31), np.linspace(0, camera.height_px, 31))
+    measured = np.column_stack([u.ravel(), v.ravel()])
+    # the same ray (ideal normalised coordinates) from the original and from the imported camera
+    miss = np.hypot(*((imported.normalised_from_measured(measured) - original.normalised_from_measured(measured))
+                      * original.focal_px).T)
+    assert miss.max() < exported + 0.02, (miss.max(), exported)
+
+
+def test_fixed_calibration_is_held_through_adjust(small_block, tmp_path, capsys):
+    """The true calibration, exported to Metashape, imported with --fixed: ``selfcal adjust`` (asked for
+    ebner APs) keeps c, x0, y0 and the brown APs exactly as imported, and they are used: sigma0 is the
+    simulated noise (0.5 px), where the same block without its 11 px of distortion modelled is far off."""
+    path, camera, truth = small_block
+    folder = results_folder(tmp_path / "r", truth, camera.camera_id)
+    assert run_cli("export", "metashape", str(folder), "--out", str(tmp_path / "cal.xml")) == 0
+    assert run_cli("import", "calibration", str(tmp_path / "cal.xml"), "--block", str(path), "--fixed",
+                   "--out", str(tmp_path / "b2")) == 0
+    cam, _ = block_calibration(tmp_path / "b2")
+    assert cam.sigma_focal_mm == 0 and cam.sigma_x0_mm == 0 and cam.sigma_y0_mm == 0
+    assert cam.initial_ap.sigma_px == 0
+    assert run_cli("adjust", str(tmp_path / "b2"), "--out", str(tmp_path / "res"), "--ap", "ebner",
+                   "--no-report", "--quiet") == 0
+    adjusted = json.loads((tmp_path / "res" / "camera.json").read_text())["cameras"][camera.camera_id]
+    assert adjusted["focal_mm"]["value"] == cam.focal_mm and adjusted["focal_mm"]["estimated"] is False
+    assert adjusted["x0_mm"]["value"] == cam.x0_mm and adjusted["y0_mm"]["value"] == cam.y0_mm
+    assert adjusted["ap"]["spec"] == "brown"
+    values = {c["name"]: c["value_px"] for c in adjusted["ap"]["coefficients"]}
+    assert values == dict(zip(cam.initial_ap.names, cam.initial_ap.values_px))
+    assert all(c["held"] and not c["active"] for c in adjusted["ap"]["coefficients"])
+    sigma0 = json.loads((tmp_path / "res" / "summary.json").read_text())["sigma0_px"]
+    assert 0.4 < sigma0 < 0.6, sigma0
+    # and an export of those results carries the held APs (not zeros)
+    held = Calibration.from_camera_json(camera.camera_id, adjusted)
+    np.testing.assert_array_equal(held.coefficients_px, [values[n] for n in held.ap.parameter_names])
+
+
+def test_import_errors_exit_with_two(small_block, tmp_path, capsys):
+    path, camera, _ = small_block
+    other = camera_entry(width=camera.width_px + 2, height=camera.height_px, pixel_mm=camera.pixel_size_mm)
+    folder = results_folder(tmp_path / "r", other, camera.camera_id)
+    assert run_cli("export", "kalibr", str(folder), "--out", str(tmp_path / "camchain.yaml")) == 0
+    capsys.readouterr()
+    assert run_cli("import", "calibration", str(tmp_path / "camchain.yaml"), "--block", str(path),
+                   "--out", str(tmp_path / "b2")) == 2
+    err = capsys.readouterr().err
+    assert "camchain.yaml" in err and f"{camera.width_px + 2} x {camera.height_px} px" in err
+    junk = tmp_path / "notes.txt"
+    junk.write_text("f = 3000\n")
+    assert run_cli("import", "calibration", str(junk), "--block", str(path), "--out", str(tmp_path / "b3")) == 2
+    err = capsys.readouterr().err
+    assert "notes.txt" in err and "not a calibration file" in err
+    bad = tmp_path / "bad.xml"
+    bad.write_text("<calibration><projection>frame</projection><width>10</width></calibration>")
+    assert run_cli("import", "calibration", str(bad), "--block", str(path), "--out", str(tmp_path / "b4")) == 2
+    assert "bad.xml" in capsys.readouterr().err
+    assert not (tmp_path / "b2").exists() and not (tmp_path / "b3").exists()
