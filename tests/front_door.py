@@ -705,6 +705,67 @@ def _(ws, work):
             [ws.results, ws.block], out)
 
 
+@case("export metashape --out RESULTS/cal.xml", names="lies inside the input")
+def _(ws, work):
+    out = os.path.join(ws.results, "cal.xml")
+    return ["export", "metashape", ws.results, "--out", out], [ws.results], out
+
+
+@case("export opencv --out cam.txt (no FileStorage format)", names="cam.txt")
+def _(ws, work):
+    out = os.path.join(work, "cam.txt")
+    return ["export", "opencv", ws.results, "--out", out], [ws.results], out
+
+
+@case("export kalibr --model pinhole (no such model)", names="--model")
+def _(ws, work):
+    out = os.path.join(work, "camchain.yaml")
+    return ["export", "kalibr", ws.results, "--model", "pinhole", "--out", out], [ws.results], out
+
+
+@case("export opensfm --out NEW (works)", exit=0)
+def _(ws, work):
+    out = os.path.join(work, "cameras.json")
+    return ["export", "opensfm", ws.results, "--out", out, "--tolerance-px", "1"], [ws.results], out
+
+
+def _metashape_xml(ws, work) -> str:
+    """A Metashape calibration of the block's camera (exported from its results)."""
+    path = os.path.join(work, "cal.xml")
+    code, err = run_main(["export", "metashape", ws.results, "--out", path, "--tolerance-px", "1"])
+    assert code == 0, err
+    return path
+
+
+@case("import calibration XML --block BLOCK --out BLOCK", names="is the input")
+def _(ws, work):
+    xml = _metashape_xml(ws, work)
+    return ["import", "calibration", xml, "--block", ws.block, "--out", ws.block], [ws.block, xml], ws.block
+
+
+@case("import calibration NOT_A_CALIBRATION --block BLOCK", names="not a calibration file")
+def _(ws, work):
+    path = os.path.join(work, "notes.txt")
+    with open(path, "w") as handle:
+        handle.write("f = 3000\n")
+    out = os.path.join(work, "b2")
+    return ["import", "calibration", path, "--block", ws.block, "--out", out], [ws.block, path], out
+
+
+@case("import calibration XML --block BLOCK --camera NOPE", names="--camera")
+def _(ws, work):
+    xml = _metashape_xml(ws, work)
+    out = os.path.join(work, "b2")
+    return ["import", "calibration", xml, "--block", ws.block, "--camera", "NOPE", "--out", out], [ws.block, xml], out
+
+
+@case("import calibration XML --block BLOCK --fixed --out NEW (works)", exit=0)
+def _(ws, work):
+    xml = _metashape_xml(ws, work)
+    out = os.path.join(work, "b2")
+    return ["import", "calibration", xml, "--block", ws.block, "--fixed", "--out", out], [ws.block, xml], out
+
+
 @case("undistort --out RESULTS", names="is the input")
 def _(ws, work):
     return ["undistort", ws.results, ws.bal, "--out", ws.results], [ws.results, ws.bal], ws.results

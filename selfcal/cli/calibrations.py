@@ -89,13 +89,15 @@ def tool_options(parser, tool: str, option: str = "--model") -> None:
     parser.add_argument("--tolerance-px", type=number(0.0, low_open=True), default=0.01,
                         help=f"largest misfit of the {TOOL_NAMES[tool]} model accepted by 'auto' and without a "
                              f"warning (default 0.01 px)")
+    parser.set_defaults(tool_model_option=option)
 
 
-def fit_tool(cal: Calibration, tool: str, option: str, tolerance_px: float):
+def fit_tool(cal: Calibration, tool: str, option: str, tolerance_px: float, option_name: str = "--model"):
     """The tool's model fitted to ``cal`` (``option``: auto or a model name), its misfit printed and warned."""
     known = [m for t, m in MODELS if t == tool]
     if option != "auto" and option not in known:
-        raise UsageError(f"{TOOL_NAMES[tool]} has no camera model '{option}' (known: auto, {', '.join(known)})")
+        raise UsageError(f"{option_name} {option}: {TOOL_NAMES[tool]} has no such camera model (known: auto, "
+                         f"{', '.join(known)})")
     fitted = fit_best(cal, tool, None if option == "auto" else (option,), tolerance_px)
     print(f"camera {cal.camera_id}: {TOOL_NAMES[tool]} {fitted.model.name}, misfit to selfcal's model "
           f"{fitted.misfit_rms_px:.4f} px rms, {fitted.misfit_max_px:.4f} px max over the image", file=sys.stderr)

@@ -20,7 +20,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     args.out = output_file(args.out, (args.results,))
     cal = pick_camera(calibrations(args.results), args.camera)
-    fitted = fit_tool(cal, "kalibr", args.tool_model, args.tolerance_px)
+    fitted = fit_tool(cal, "kalibr", args.tool_model, args.tolerance_px,
+                      args.tool_model_option)
     write_kalibr_camchain(args.out, ToolCalibration("kalibr", fitted.model.name, fitted.as_dict(), cal.width_px,
                                                     cal.height_px, camera_id=cal.camera_id))
     print(f"wrote {args.out}", file=sys.stderr)

@@ -20,7 +20,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     args.out = output_file(args.out, (args.results,))
     cal = pick_camera(calibrations(args.results), args.camera)
-    fitted = fit_tool(cal, "metashape", args.tool_model, args.tolerance_px)
+    fitted = fit_tool(cal, "metashape", args.tool_model, args.tolerance_px,
+                      args.tool_model_option)
     covariance = fitted_covariance(cal, fitted)
     write_metashape_xml(args.out, ToolCalibration("metashape", fitted.model.name, fitted.as_dict(), cal.width_px,
                                                   cal.height_px, fitted.names if covariance is not None else (),

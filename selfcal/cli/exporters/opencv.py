@@ -25,7 +25,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     args.out = output_file(args.out, (args.results,))
     cal = pick_camera(calibrations(args.results), args.camera)
-    fitted = fit_tool(cal, "opencv", args.tool_model, args.tolerance_px)
+    fitted = fit_tool(cal, "opencv", args.tool_model, args.tolerance_px,
+                      args.tool_model_option)
     q = fitted.values
     camera = OpenCVCamera(fitted.model.name, np.array([[q[0], 0, q[2]], [0, q[1], q[3]], [0, 0, 1]]), q[4:].copy(),
                           fitted.misfit_rms_px, fitted.misfit_max_px, cal.width_px, cal.height_px)

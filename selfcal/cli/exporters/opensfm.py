@@ -23,7 +23,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     args.out = output_file(args.out, (args.results,))
     cal = pick_camera(calibrations(args.results), args.camera)
-    fitted = fit_tool(cal, "opensfm", args.tool_model, args.tolerance_px)
+    fitted = fit_tool(cal, "opensfm", args.tool_model, args.tolerance_px,
+                      args.tool_model_option)
     write_opensfm_cameras(args.out, ToolCalibration("opensfm", fitted.model.name, fitted.as_dict(), cal.width_px,
                                                     cal.height_px, camera_id=cal.camera_id), args.key)
     print(f"wrote {args.out}", file=sys.stderr)
