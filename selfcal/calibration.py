@@ -27,10 +27,9 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.interpolate import RectBivariateSpline
-from scipy.optimize import least_squares
 
-from .ap import APModel, ImageFrame, ap_from_dict, frame_nodes_mm
-from .sensors.frame import photo_from_pixel, pixel_from_photo
+from .ap import APModel, ImageFrame, ap_from_dict
+from .sensors.frame import photo_from_pixel
 
 __all__ = ["Calibration", "OpenCVCamera", "OPENCV_MODELS", "fit_opencv", "undistortion_maps", "undistort_image",
            "opencv_project", "colmap_parameters"]
@@ -203,14 +202,8 @@ def colmap_parameters(camera: OpenCVCamera) -> tuple[str, list[float]]:
 
 def opencv_distort(normalised: np.ndarray, coefficients: np.ndarray) -> np.ndarray:
     """OpenCV's distortion of normalised coordinates (the formula of cv::projectPoints)."""
-    k = np.zeros(12)
-    k[:len(coefficients)] = coefficients
-    x, y = normalised[:, 0], normalised[:, 1]
-    r2 = x * x + y * y
-    radial = (1 + k[0] * r2 + k[1] * r2**2 + k[4] * r2**3) / (1 + k[5] * r2 + k[6] * r2**2 + k[7] * r2**3)
-    xd = x * radial + 2 * k[2] * x * y + k[3] * (r2 + 2 * x * x) + k[8] * r2 + k[9] * r2**2
-    yd = y * radial + k[2] * (r2 + 2 * y * y) + 2 * k[3] * x * y + k[10] * r2 + k[11] * r2**2
-    return np.column_stack([xd, yd])
+    from .calibration_models import opencv_radial_tangential
+    return opencv_radial_tangential(normalised, np.asarray(coefficients, float))
 
 
 def opencv_project(normalised: np.ndarray, camera_matrix: np.ndarray, coefficients: np.ndarray) -> np.ndarray:
@@ -220,13 +213,6 @@ def opencv_project(normalised: np.ndarray, camera_matrix: np.ndarray, coefficien
     return np.column_stack([K[0, 0] * d[:, 0] + K[0, 2], K[1, 1] * d[:, 1] + K[1, 2]])
 
 
-def _image_grid(calibration: Calibration, nodes_x: int) -> np.ndarray:
-    """Pixel positions (col, row) of the frame's node grid (:func:`selfcal.ap.frame_nodes_mm`)."""
-    x, y = frame_nodes_mm(calibration.ap.frame, nodes_x)
-    return pixel_from_photo(np.column_stack([x, y]), calibration.width_px, calibration.height_px,
-                            calibration.pixel_size_mm)
-
-
 def fit_opencv(calibration: Calibration, models=tuple(OPENCV_MODELS), tolerance_px: float = 0.01,
                nodes_x: int = 121) -> OpenCVCamera:
     """The OpenCV camera that projects like ``calibration`` over its image.
@@ -234,45 +220,25 @@ def fit_opencv(calibration: Calibration, models=tuple(OPENCV_MODELS), tolerance_
     On a grid of measured positions, selfcal gives the ideal normalised
     coordinates n; the camera matrix (fx, fy, cx, cy) and the distortion
     coefficients are fitted so that OpenCV projects n to the measured
-    position (nonlinear least squares). ``models`` are tried in order (each
-    starting from the previous fit): the first whose largest misfit is within
-    ``tolerance_px`` is returned, else the one with the smallest misfit.
+    position (nonlinear least squares, :func:`selfcal.calibration_models.fit_best`).
+    ``models`` are tried in order (each starting from the previous fit): the
+    first whose largest misfit is within ``tolerance_px`` is returned, else the
+    one with the smallest misfit.
 
     selfcal's Delta cannot always be written in OpenCV's form: its terms are
     centred on the frame, not the principal point, the shear b2 has no OpenCV
     counterpart, and the inverse of radial plus tangential distortion has cross
     terms. The misfit says how much is lost; undistortion maps lose nothing.
     """
+    from .calibration_models import fit_best
     unknown = [m for m in models if m not in OPENCV_MODELS]
     if unknown or not models:
         raise ValueError(f"unknown OpenCV distortion model '{unknown[0] if unknown else ''}' "
                          f"(known: {', '.join(OPENCV_MODELS)})")
-    measured = _image_grid(calibration, nodes_x)
-    target = measured - 0.5                                   # OpenCV's pixel convention
-    n = calibration.normalised_from_measured(measured)
-    K0 = calibration.opencv_intrinsics()
-    start = np.array([K0[0, 0], K0[1, 1], K0[0, 2], K0[1, 2]])
-    best = None
-    for name in sorted(models, key=OPENCV_MODELS.get):        # each model starts from the previous fit
-        count = OPENCV_MODELS[name]
-
-        def residual(q):
-            K = np.array([[q[0], 0, q[2]], [0, q[1], q[3]], [0, 0, 1]])
-            return (opencv_project(n, K, q[4:]) - target).ravel()
-
-        start = np.concatenate([start, np.zeros(4 + count - len(start))])
-        fit = least_squares(residual, start, method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15,
-                            x_scale=np.concatenate([[K0[0, 0]] * 2, [1.0, 1.0], np.full(count, 0.01)]))
-        start = fit.x
-        miss = np.hypot(*fit.fun.reshape(-1, 2).T)
-        camera = OpenCVCamera(name, np.array([[start[0], 0, start[2]], [0, start[1], start[3]], [0, 0, 1]]),
-                              start[4:].copy(), float(np.sqrt(np.mean(miss ** 2))), float(miss.max()),
-                              calibration.width_px, calibration.height_px)
-        if camera.misfit_max_px <= tolerance_px:
-            return camera
-        if best is None or camera.misfit_max_px < best.misfit_max_px:
-            best = camera
-    return best
+    fitted = fit_best(calibration, "opencv", sorted(models, key=OPENCV_MODELS.get), tolerance_px, nodes_x)
+    q = fitted.values
+    return OpenCVCamera(fitted.model.name, np.array([[q[0], 0, q[2]], [0, q[1], q[3]], [0, 0, 1]]), q[4:].copy(),
+                        fitted.misfit_rms_px, fitted.misfit_max_px, calibration.width_px, calibration.height_px)
 
 
 def undistortion_maps(calibration: Calibration, step_px: int = 4) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -21,7 +21,7 @@ import yaml
 
 from selfcal.ap import ImageFrame, create_ap
 from selfcal.calibration import Calibration
-from selfcal.calibration_models import MODELS, fit_camera_model, propagate
+from selfcal.calibration_models import MODELS, fit_camera_model
 
 from conftest import run_cli
 
@@ -253,7 +253,7 @@ def test_wap_misfit_is_reported_and_warned(tmp_path, capsys):
     """A db4 WAP field has no form in any of the tools: each export prints the misfit its own documented
     projection really shows, and warns."""
     frame = ImageFrame(WIDTH * PIXEL_MM, HEIGHT * PIXEL_MM, PIXEL_MM)
-    ap = create_ap("wavelet:db4", frame, grid=(9, 6))
+    ap = create_ap("wavelet:db4", frame, grid=(5, 4))
     values = np.random.default_rng(3).normal(0.0, 1.5, ap.n_params)
     folder = results_folder(tmp_path / "r", camera_entry(values, ap=ap))
     cal = Calibration.from_camera_json(CAMERA_ID, camera_entry(values, ap=ap))
@@ -383,3 +383,25 @@ def test_import_errors_exit_with_two(small_block, tmp_path, capsys):
     assert run_cli("import", "calibration", str(bad), "--block", str(path), "--out", str(tmp_path / "b4")) == 2
     assert "bad.xml" in capsys.readouterr().err
     assert not (tmp_path / "b2").exists() and not (tmp_path / "b3").exists()
+
+
+def test_adjusted_camera_json_carries_the_covariance_the_export_propagates(small_block, tmp_path, capsys):
+    """After a real adjustment, camera.json's covariance block has the sigmas camera.json states on its
+    diagonal, and the Metashape export of those results propagates it (sigma f from sigma c: f = c / p)."""
+    path, camera, truth = small_block
+    assert run_cli("adjust", str(path), "--out", str(tmp_path / "res"), "--ap", "brown", "--no-report",
+                   "--quiet") == 0
+    entry = json.loads((tmp_path / "res" / "camera.json").read_text())["cameras"][camera.camera_id]
+    cov = entry["covariance"]
+    sigma = dict(zip(cov["parameters"], np.sqrt(np.diag(np.array(cov["matrix"])))))
+    assert cov["parameters"][:3] == ["c", "x0", "y0"]
+    assert sigma["c"] == pytest.approx(entry["focal_mm"]["sigma"], rel=1e-9)
+    assert sigma["y0"] == pytest.approx(entry["y0_mm"]["sigma"], rel=1e-9)
+    for c in entry["ap"]["coefficients"]:
+        assert sigma[c["name"]] == pytest.approx(c["sigma_px"], rel=1e-9)
+    assert run_cli("export", "metashape", str(tmp_path / "res"), "--out", str(tmp_path / "cal.xml"),
+                   "--tolerance-px", "0.1") == 0
+    root = ElementTree.parse(tmp_path / "cal.xml").getroot()
+    coeffs = np.array(root.findtext("covariance/coeffs").split(), float).reshape(11, 11)
+    # f moves with c (1/p px per mm) and hardly with anything else: its sigma is sigma_c / p within 5 %
+    assert np.sqrt(coeffs[0, 0]) == pytest.approx(sigma["c"] / camera.pixel_size_mm, rel=0.05)
