@@ -405,3 +405,26 @@ def test_adjusted_camera_json_carries_the_covariance_the_export_propagates(small
     coeffs = np.array(root.findtext("covariance/coeffs").split(), float).reshape(11, 11)
     # f moves with c (1/p px per mm) and hardly with anything else: its sigma is sigma_c / p within 5 %
     assert np.sqrt(coeffs[0, 0]) == pytest.approx(sigma["c"] / camera.pixel_size_mm, rel=0.05)
+
+
+def test_metashape_document_sensor_is_read_like_its_calibration_file(tmp_path):
+    """A Metashape cameras export (<document>: sensor/calibration with <resolution>, as Metashape writes its
+    project's cameras) gives the same calibration and covariance as the calibration file."""
+    from selfcal.io.calibration_files import read_calibration_file
+    c = {"f": 1940.44, "cx": 13.17, "cy": 9.91, "k1": -0.1057, "k2": 0.1813, "k3": -0.0593, "p1": 0.00206,
+         "p2": 0.00047}
+    cov = np.diag([2.07, 2.90, 3.62, 1e-6, 1e-5, 1e-5, 1e-8, 1e-8])
+    tags = "".join(f"<{k}>{v}</{k}>" for k, v in c.items())
+    (tmp_path / "cameras.xml").write_text(
+        '<?xml version="1.0" encoding="UTF-8"?>\n<document version="1.5.0"><chunk label="Chunk 1"><sensors>'
+        '<sensor id="0" label="unknown" type="frame"><resolution width="2256" height="1504"/>'
+        f'<calibration type="frame" class="adjusted"><resolution width="2256" height="1504"/>{tags}</calibration>'
+        f'<covariance><params>f cx cy k1 k2 k3 p1 p2</params><coeffs>{" ".join(map(str, cov.ravel()))}</coeffs>'
+        '</covariance></sensor></sensors></chunk></document>\n')
+    (tmp_path / "cal.xml").write_text(f"<calibration><projection>frame</projection><width>2256</width>"
+                                      f"<height>1504</height>{tags}</calibration>")
+    doc, single = read_calibration_file(tmp_path / "cameras.xml"), read_calibration_file(tmp_path / "cal.xml")
+    assert (doc.width_px, doc.height_px) == (2256, 1504) and doc.values == single.values
+    assert doc.values["b1"] == 0.0 and doc.values["k1"] == -0.1057
+    assert doc.covariance_names == ("f", "cx", "cy", "k1", "k2", "k3", "p1", "p2")
+    np.testing.assert_array_equal(doc.covariance, cov)

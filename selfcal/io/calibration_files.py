@@ -83,16 +83,35 @@ def write_metashape_xml(path: str | os.PathLike, calibration: ToolCalibration) -
 
 
 def read_metashape_xml(path: str | os.PathLike) -> ToolCalibration:
+    """A Metashape calibration file (``<calibration>``), or the one calibrated sensor of a Metashape cameras
+    export (``<document>``: ``sensor/calibration`` with ``<resolution width= height=>``, the adjusted one when
+    both are there, and the sensor's ``<covariance>``)."""
     path = os.fspath(path)
     root = xml_root(path, "Metashape calibration")
-    if root.tag != "calibration":
+    if root.tag == "document":
+        sensors = [s for s in root.iter("sensor") if s.find("calibration") is not None]
+        if len(sensors) != 1:
+            raise BlockError(path, f"a Metashape document with {len(sensors)} calibrated sensors; export the one "
+                                   f"wanted (Tools > Camera Calibration > Export) and import that file")
+        sensor = sensors[0]
+        calibrations = sensor.findall("calibration")
+        calib = next((c for c in calibrations if c.get("class") == "adjusted"), calibrations[0])
+        resolution = calib.find("resolution")
+        resolution = resolution if resolution is not None else sensor.find("resolution")
+        if resolution is None:
+            raise BlockError(path, "the sensor's <resolution width=... height=...> is missing")
+        size = (resolution.get("width"), resolution.get("height"))
+        projection, cov = calib.get("type", "frame"), sensor.find("covariance")
+    elif root.tag == "calibration":
+        calib = root
+        size = (root.findtext("width"), root.findtext("height"))
+        projection, cov = (root.findtext("projection") or "frame").strip(), root.find("covariance")
+    else:
         raise BlockError(path, f"not a Metashape calibration: the root element is <{root.tag}>, not <calibration>")
-    projection = (root.findtext("projection") or "frame").strip()
     if projection != "frame":
         raise BlockError(path, f"Metashape projection '{projection}': only 'frame' cameras are supported")
 
-    def number(tag, default=None):
-        text = root.findtext(tag)
+    def number(tag, text, default=None):
         if text is None:
             if default is None:
                 raise BlockError(path, f"<{tag}> is missing")
@@ -105,14 +124,13 @@ def read_metashape_xml(path: str | os.PathLike) -> ToolCalibration:
             raise BlockError(path, f"<{tag}> is not finite")
         return value
 
-    width, height = number("width"), number("height")
+    width, height = number("width", size[0]), number("height", size[1])
     if width <= 0 or height <= 0 or width != int(width) or height != int(height):
         raise BlockError(path, f"image size {width:g} x {height:g} is not two positive whole numbers")
-    values = {name: number(name, 0.0) for name in METASHAPE_NAMES}
-    if root.find("f") is None:
+    if calib.find("f") is None:
         raise BlockError(path, "<f> is missing (the focal length in pixels)")
+    values = {name: number(name, calib.findtext(name), 0.0) for name in METASHAPE_NAMES}
     names, matrix = (), None
-    cov = root.find("covariance")
     if cov is not None:
         names = tuple((cov.findtext("params") or "").split())
         try:
@@ -244,7 +262,7 @@ def read_calibration_file(path: str | os.PathLike) -> ToolCalibration:
     if "opencv_storage" in head or text.startswith("%YAML") or "!!opencv-matrix" in head \
             or ('"camera_matrix"' in head and text.startswith("{")):
         return read_opencv_calibration(path)
-    if "<calibration" in head:
+    if "<calibration" in head or ("<document" in head and "<sensor" in head):
         return read_metashape_xml(path)
     if text.startswith("{") and "projection_type" in head:
         return read_opensfm_cameras(path)
