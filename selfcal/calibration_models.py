@@ -25,8 +25,8 @@ from scipy.optimize import least_squares
 from .ap import ImageFrame, create_ap, fit_displacement, frame_nodes_mm
 from .sensors.frame import photo_from_pixel, pixel_from_photo
 
-__all__ = ["CameraModel", "FittedModel", "MODELS", "FAMILIES", "fit_camera_model", "fit_best", "propagate",
-           "project", "ideal_from_pixel", "initial_from_model", "opencv_radial_tangential"]
+__all__ = ["CameraModel", "FittedModel", "InitialCalibration", "MODELS", "FAMILIES", "fit_camera_model", "fit_best",
+           "propagate", "ideal_from_pixel", "initial_from_model", "opencv_radial_tangential"]
 
 
 def opencv_radial_tangential(n: np.ndarray, k: np.ndarray) -> np.ndarray:
@@ -176,10 +176,6 @@ FAMILIES = {
     "metashape": ("frame",),
     "opensfm": ("perspective", "brown"),
 }
-
-
-def project(model: CameraModel, n: np.ndarray, values, width_px: int, height_px: int) -> np.ndarray:
-    return model.project(n, values, width_px, height_px)
 
 
 @dataclass(frozen=True)

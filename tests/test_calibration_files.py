@@ -332,7 +332,8 @@ def test_round_trip_export_import(small_block, tmp_path, capsys, tool, name, opt
     # the same ray (ideal normalised coordinates) from the original and from the imported camera
     miss = np.hypot(*((imported.normalised_from_measured(measured) - original.normalised_from_measured(measured))
                       * original.focal_px).T)
-    assert miss.max() < exported + 0.02, (miss.max(), exported)
+    print(f"round trip {tool} {name}: export misfit {exported:.4f} px, imported camera off by {miss.max():.4f} px")
+    assert miss.max() < exported + 0.005, (miss.max(), exported)      # measured: 0.0005-0.0036 px
 
 
 def test_fixed_calibration_is_held_through_adjust(small_block, tmp_path, capsys):
