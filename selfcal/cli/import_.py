@@ -1,5 +1,5 @@
 """Import a model from another program as a block folder (COLMAP, BAL, ISIS; ground control from ODM; camera GNSS
-from the images or an ODM geo.txt)."""
+from the images or an ODM geo.txt; a camera calibration into a block)."""
 from __future__ import annotations
 
 import argparse

@@ -20,8 +20,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--block", required=True, metavar="BLOCK", help="block folder to add it to (read only)")
     parser.add_argument("--camera", metavar="ID", help="the block's camera it calibrates (needed when it has several)")
     parser.add_argument("--fixed", action="store_true",
-                        help="hold the calibration in the adjustment (c, x0, y0 and the APs, whatever --ap) "
-                             "instead of starting from it")
+                        help="hold the calibration in the adjustment (c, x0, y0 and the APs, whatever model "
+                             "'selfcal adjust --ap' asks for) instead of starting from it")
     parser.add_argument("--ap", default="brown", metavar="MODEL",
                         help="AP model whose initial values take up the distortion (default brown)")
 
