@@ -269,7 +269,7 @@ def _camera_section(page: Page, results) -> None:
             value, sigma = c.get("value_px"), c.get("sigma_px")
             t = abs(value) / sigma if value is not None and sigma else None
             entry = dropped.get((camera_id, c["name"]))
-            outcome = "kept" if c.get("active") else (
+            outcome = "kept" if c.get("active") else "held at its given value" if c.get("held") else (
                 f"dropped in round {entry['round']}: {entry['reason']}" if entry else "not estimated")
             rows.append([c["name"], fmt(value, ".4f"), fmt(sigma, ".4f"), fmt(t, ".1f"), outcome])
         page.paragraph(f"{ap.get('spec', '')}: {ap.get('n_active', 0)} of {len(coefficients)} coefficients active "
