@@ -429,3 +429,66 @@ def test_metashape_document_sensor_is_read_like_its_calibration_file(tmp_path):
     assert doc.values["b1"] == 0.0 and doc.values["k1"] == -0.1057
     assert doc.covariance_names == ("f", "cx", "cy", "k1", "k2", "k3", "p1", "p2")
     np.testing.assert_array_equal(doc.covariance, cov)
+
+
+def _written_as_the_tool_documents(tool, path, w, h, f):
+    """A calibration file of each tool, written here as its documentation describes it (not by selfcal), and its
+    projection of normalised coordinates (corner pixel convention)."""
+    if tool == "metashape":
+        c = {"f": f, "cx": 12.5, "cy": -7.25, "b1": 3.0, "b2": -1.5, "k1": -0.03, "k2": 0.01, "k3": -0.002,
+             "k4": 0.0, "p1": 2e-4, "p2": -1e-4}
+        path.write_text("<calibration><projection>frame</projection>" + f"<width>{w}</width><height>{h}</height>"
+                        + "".join(f"<{k}>{v!r}</{k}>" for k, v in c.items()) + "</calibration>")
+        return lambda n: metashape_project(n, c, w, h)
+    if tool == "opensfm":
+        s = max(w, h)
+        c = {"projection_type": "brown", "width": w, "height": h, "focal_x": f / s, "focal_y": 1.001 * f / s,
+             "c_x": 0.002, "c_y": -0.001, "k1": -0.03, "k2": 0.01, "k3": -0.002, "p1": 2e-4, "p2": -1e-4}
+        path.write_text(json.dumps({"v2 dji fc6310 5472 3648 brown 0.6666": c}))
+        return lambda n: opensfm_project(n, c, w, h)
+    if tool == "kalibr":
+        cam = {"camera_model": "pinhole", "intrinsics": [f, 1.001 * f, w / 2 + 10.0, h / 2 - 5.0],
+               "distortion_model": "radtan", "distortion_coeffs": [-0.03, 0.01, 2e-4, -1e-4], "resolution": [w, h],
+               "rostopic": "/cam0/image_raw"}
+        path.write_text(yaml.safe_dump({"cam0": cam}))
+        return lambda n: kalibr_project(n, cam)
+    K = np.array([[f, 0, w / 2 + 10.0], [0, 1.001 * f, h / 2 - 5.0], [0, 0, 1]])    # OpenCV's own writer
+    dist = np.array([[-0.03, 0.01, 2e-4, -1e-4, -0.002]])
+    storage = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
+    storage.write("image_width", w)
+    storage.write("image_height", h)
+    storage.write("camera_matrix", K)
+    storage.write("distortion_coefficients", dist)
+    storage.release()
+
+    def project(n):
+        p, _ = cv2.projectPoints(np.column_stack([n, np.ones(len(n))]), np.zeros(3), np.zeros(3), K, dist)
+        return p[:, 0] + 0.5
+    return project
+
+
+@pytest.mark.parametrize("tool,name", [("metashape", "cal.xml"), ("opensfm", "cameras.json"),
+                                       ("kalibr", "camchain.yaml"), ("opencv", "cam.xml")])
+def test_import_of_files_written_as_each_tool_documents(small_block, tmp_path, capsys, tool, name):
+    """IN, truth first: a file written here as the tool documents it (affinity, skew, principal point off
+    centre, radial and tangential terms) becomes a block camera that measures every ray where the tool's own
+    projection puts it, within the brown fit's stated misfit."""
+    path, camera, _ = small_block
+    w, h = camera.width_px, camera.height_px
+    project = _written_as_the_tool_documents(tool, tmp_path / name, w, h, camera.focal_mm / camera.pixel_size_mm)
+    assert run_cli("import", "calibration", str(tmp_path / name), "--block", str(path),
+                   "--out", str(tmp_path / "b2")) == 0
+    err = capsys.readouterr().err
+    stated = float(re.search(r"within ([\d.]+) px over the image", err).group(1))
+    assert ("warning" in err) == (stated > 0.05)
+    _, imported = block_calibration(tmp_path / "b2")
+    u, v = np.meshgrid(np.linspace(0, w, 31), np.linspace(0, h, 31))
+    measured = np.column_stack([u.ravel(), v.ravel()])
+    miss = np.hypot(*(project(imported.normalised_from_measured(measured)) - measured).T)
+    print(f"{tool}: brown fit stated {stated:.4f} px, measured {miss.max():.4f} px")
+    # the stated misfit is the real one: 0.5-0.95 px here, a principal point 10-15 px off the frame centre
+    # with 50 px of radial distortion (selfcal's Brown terms are centred on the frame)
+    assert 0.9 * stated <= miss.max() <= stated + 1e-3 and stated < 1.0, (miss.max(), stated)
+    # not a trivial pass: the pinhole part alone misses by pixels
+    pinhole = replace(imported, coefficients_px=np.zeros_like(imported.coefficients_px))
+    assert np.hypot(*(project(pinhole.normalised_from_measured(measured)) - measured).T).max() > 20

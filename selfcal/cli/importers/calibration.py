@@ -11,6 +11,7 @@ from ...errors import BlockError, UsageError
 from ...io.block_folder import read_block, write_block
 from ...io.calibration_files import read_calibration_file
 from ...io.output import output_folder
+from ..options import number
 
 HELP = ("a camera calibration (Metashape XML, OpenSfM cameras.json, OpenCV YAML/XML/JSON, Kalibr camchain.yaml) "
         "as a block camera's initial or fixed values")
@@ -24,6 +25,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "'selfcal adjust --ap' asks for) instead of starting from it")
     parser.add_argument("--ap", default="brown", metavar="MODEL",
                         help="AP model whose initial values take up the distortion (default brown)")
+    parser.add_argument("--tolerance-px", type=number(0.0, low_open=True), default=0.05,
+                        help="largest misfit of the AP fit over the image without a warning (default 0.05 px)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -54,6 +57,11 @@ def run(args: argparse.Namespace) -> int:
     print(f"camera {args.camera}: c = {new_camera.focal_mm:.5f} mm, x0 = {new_camera.x0_mm:.5f} mm, y0 = "
           f"{new_camera.y0_mm:.5f} mm, {args.ap} APs reproduce its distortion within {misfit_px:.4f} px over the "
           f"image; {'held fixed' if args.fixed else 'initial values'}", file=sys.stderr)
+    if misfit_px > args.tolerance_px:
+        print(f"warning: camera {args.camera}: the {args.ap} APs reproduce the {tool_cal.tool} calibration only within "
+              f"{misfit_px:.3f} px (selfcal's terms are centred on the frame, the tool's on its principal point)"
+              + ("; held with --fixed, that error stays in the adjustment" if args.fixed else
+                 "; the adjustment refines them"), file=sys.stderr)
     cameras = dict(block.cameras)
     cameras[args.camera] = new_camera
     write_block(replace(block, cameras=cameras), args.out, source=args.source)
