@@ -1,4 +1,4 @@
-"""Export a results folder to other programs: camera models (OpenCV, COLMAP, Metashape, OpenSfM, Kalibr), maps."""
+"""Export a results folder to other programs: camera models (OpenCV, COLMAP, Metashape, OpenSfM, Kalibr), maps, RPCs."""
 from __future__ import annotations
 
 import argparse
