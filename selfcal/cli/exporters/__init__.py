@@ -1,6 +1,6 @@
 """``selfcal export FORMAT``: one module per format, each with ``HELP``, ``add_arguments(parser)`` and
 ``run(args) -> int``. A new format is one module and one line here."""
-from . import colmap, opencv, rpc, undistort_map
+from . import colmap, colmap_workspace, opencv, rpc, undistort_map
 
 #: format -> module
 EXPORTERS = {
@@ -8,4 +8,5 @@ EXPORTERS = {
     "colmap": colmap,
     "undistort-map": undistort_map,
     "rpc": rpc,
+    "colmap-workspace": colmap_workspace,
 }

@@ -1,0 +1,129 @@
+"""``selfcal export colmap-workspace``: a COLMAP dense workspace (undistorted images, sparse model, stereo
+configuration), laid out as ``colmap image_undistorter`` writes it, from a results folder and the images."""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+
+import numpy as np
+
+from ...calibration import undistort_image
+from ...convert import colmap_workspace
+from ...errors import BlockError
+from ...io.atomic import atomic_folder, atomic_write
+from ...io.colmap import write_colmap_bin, write_stereo_config
+from ...io.opencv import read_image, write_image
+from ...io.output import output_folder
+from ...io.results import read_results, to_jsonable
+from ..calibrations import calibrations, maps_of
+from ..options import force_option
+
+HELP = ("COLMAP dense workspace (images/ undistorted exactly for every AP model, sparse/ PINHOLE cameras, adjusted "
+        "poses and tie points, stereo/ configuration) for patch_match_stereo, OpenMVS or Gaussian splatting")
+
+#: the workspace file that says where the model's coordinates are (object = model + origin_m)
+ORIGIN_FILE = "selfcal_origin.json"
+#: the workspace file that names each 3-D point's selfcal point id
+POINTS_FILE = "selfcal_points.csv"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--images", required=True, metavar="DIR",
+                        help="folder with the block's images; an image is found by its image id as the file name, "
+                             "or as the file name without its extension")
+    parser.add_argument("--out", required=True, metavar="WS",
+                        help="workspace folder to write (replaced if selfcal wrote it; never inside RESULTS or DIR)")
+    force_option(parser)
+
+
+def find_images(folder: str, image_ids) -> tuple[dict[str, str], list[str]]:
+    """image id -> file name in ``folder`` (the id itself, else a unique file whose name without extension is
+    the id), and the files that belong to no image."""
+    if not os.path.isdir(folder):
+        raise BlockError(folder, "--images: no such folder")
+    files = sorted(f for f in os.listdir(folder) if os.path.isfile(os.path.join(folder, f)))
+    by_stem: dict[str, list[str]] = {}
+    for f in files:
+        by_stem.setdefault(os.path.splitext(f)[0], []).append(f)
+    found = {}
+    for image_id in image_ids:
+        if image_id in files:
+            found[image_id] = image_id
+        elif image_id in by_stem:
+            if len(by_stem[image_id]) > 1:
+                raise BlockError(os.path.join(folder, by_stem[image_id][0]),
+                                 f"image {image_id}: {len(by_stem[image_id])} files could be it "
+                                 f"({', '.join(by_stem[image_id])}); keep one")
+            found[image_id] = by_stem[image_id][0]
+    used = set(found.values())
+    return found, [f for f in files if f not in used]
+
+
+def run(args: argparse.Namespace) -> int:
+    args.out = output_folder(args.out, (args.results, args.images), args.force)
+    cams = calibrations(args.results)
+    results = read_results(args.results)
+    images, residuals = results.tables["images"], results.tables["residuals"]
+    frame_images = [i for i, c in zip(images["image_id"], images["camera_id"]) if c in cams]
+    others = len(images["image_id"]) - len(frame_images)
+    if others:
+        print(f"note: {others} image(s) of cameras that are not frame cameras are left out", file=sys.stderr)
+    found, strangers = find_images(args.images, frame_images)
+    if not found:
+        raise BlockError(args.images, f"none of the block's {len(frame_images)} images is here (looked for "
+                                      f"e.g. '{frame_images[0]}' or '{frame_images[0]}.*')" if frame_images
+                         else "the results hold no frame image")
+    missing = [i for i in frame_images if i not in found]
+    if missing:
+        print(f"warning: {len(missing)} of the block's {len(frame_images)} images are not in {args.images} "
+              f"(e.g. {missing[0]}): left out of the workspace (poses, 2-D points and tracks)", file=sys.stderr)
+    if strangers:
+        print(f"note: {len(strangers)} file(s) in {args.images} are not images of the block and are ignored "
+              f"(e.g. {strangers[0]})", file=sys.stderr)
+    try:
+        ws = colmap_workspace(cams, images, results.tables["points"], residuals, found)
+    except ArithmeticError as exc:
+        raise BlockError(os.path.join(args.results, "camera.json"), str(exc)) from None
+    model = ws.model
+    if ws.n_points_short_track:
+        print(f"note: {ws.n_points_short_track} point(s) seen in fewer than two of the exported images are left "
+              f"out", file=sys.stderr)
+    names = list(model.image_names)
+    with atomic_folder(args.out) as tmp:
+        os.makedirs(os.path.join(tmp, "images"))
+        for colmap_id, camera_id in ws.camera_id.items():
+            cal = cams[camera_id]
+            map_x, map_y, _ = maps_of(cal)
+            for k in np.flatnonzero(model.image_camera == colmap_id):
+                image_id, name = ws.image_id[k], names[k]
+                path = os.path.join(args.images, name)
+                image = read_image(path)
+                if image.shape[:2] != (cal.height_px, cal.width_px):
+                    raise BlockError(path, f"is {image.shape[1]} x {image.shape[0]} px, camera {camera_id} of image "
+                                           f"{image_id} is {cal.width_px} x {cal.height_px} px")
+                write_image(os.path.join(tmp, "images", name), undistort_image(image, map_x, map_y))
+                print(f"[{k + 1}/{len(names)}] {name}", file=sys.stderr)
+        sparse = os.path.join(tmp, "sparse")
+        write_colmap_bin(sparse, model)
+        with atomic_write(os.path.join(sparse, ORIGIN_FILE)) as handle:
+            json.dump(to_jsonable({
+                "origin_m": ws.origin_m,
+                "crs": results.summary.get("crs"),
+                "meaning": "object coordinates (the results' CRS) = COLMAP model coordinates + origin_m; same axes "
+                           "and scale",
+                "results": os.path.abspath(args.results),
+                "ap_model": results.summary.get("ap_model"),
+                "cameras": {str(k): c for k, c in ws.camera_id.items()},
+                "points_file": POINTS_FILE}), handle, indent=2)
+            handle.write("\n")
+        with atomic_write(os.path.join(sparse, POINTS_FILE)) as handle:
+            handle.write("point3D_id,point_id,role\n")
+            handle.writelines(f"{k},{p},{r}\n" for k, p, r in zip(model.point_ids, ws.point_id, ws.point_role))
+        write_stereo_config(os.path.join(tmp, "stereo"), names)
+    rms = float(np.sqrt(np.mean(model.point_error ** 2))) if len(model.point_error) else float("nan")
+    print(f"wrote {args.out}: {len(names)} images, {len(model.point_ids)} points, {len(model.obs_point)} "
+          f"observations (mean error per point {rms:.3f} px rms); model coordinates = object coordinates - "
+          f"({', '.join(f'{v:.0f}' for v in ws.origin_m)}) m (sparse/{ORIGIN_FILE})", file=sys.stderr)
+    return 0
