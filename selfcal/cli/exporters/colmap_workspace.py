@@ -1,5 +1,20 @@
-"""``selfcal export colmap-workspace``: a COLMAP dense workspace (undistorted images, sparse model, stereo
-configuration), laid out as ``colmap image_undistorter`` writes it, from a results folder and the images."""
+"""``selfcal export colmap-workspace``: a COLMAP dense workspace, laid out as ``colmap image_undistorter``
+writes it, from a results folder and the block's images::
+
+    WS/images/NAME              each image found in --images, resampled to the ideal camera (exact for every
+                                AP model: selfcal.calibration.undistortion_maps), same name and format
+    WS/sparse/cameras.bin       one PINHOLE camera per frame camera: fx = fy = principal distance, principal point
+    WS/sparse/images.bin        adjusted poses (world to camera) and the kept observations, undistorted
+    WS/sparse/points3D.bin      adjusted tie and control points seen in two or more exported images, with tracks
+    WS/sparse/selfcal_origin.json   object coordinates = model coordinates + origin_m (and the CRS, when the
+                                results name it); COLMAP camera ids -> selfcal camera ids
+    WS/sparse/selfcal_points.csv    point3D_id,point_id,role: the selfcal id of each 3-D point
+    WS/stereo/patch-match.cfg, fusion.cfg, depth_maps/, normal_maps/, consistency_graphs/
+
+The observations and tracks come from the results folder alone: residuals.csv holds every image measurement
+(col_px, row_px) and whether the adjustment rejected it; only kept ones are written. Pixel convention:
+COLMAP's and selfcal's are the same (the upper-left corner of the first pixel at (0, 0)).
+"""
 from __future__ import annotations
 
 import argparse
@@ -39,17 +54,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def find_images(folder: str, image_ids) -> tuple[dict[str, str], list[str]]:
-    """image id -> file name in ``folder`` (the id itself, else a unique file whose name without extension is
-    the id), and the files that belong to no image."""
+    """image id -> file name in ``folder`` (relative; the id itself, which may hold sub-folders as COLMAP image
+    names do, else the one file of the folder whose name without extension is the id), and the folder's
+    files that belong to no image."""
     if not os.path.isdir(folder):
         raise BlockError(folder, "--images: no such folder")
+    root = os.path.realpath(folder)
     files = sorted(f for f in os.listdir(folder) if os.path.isfile(os.path.join(folder, f)))
     by_stem: dict[str, list[str]] = {}
     for f in files:
         by_stem.setdefault(os.path.splitext(f)[0], []).append(f)
     found = {}
     for image_id in image_ids:
-        if image_id in files:
+        path = os.path.realpath(os.path.join(folder, image_id))
+        if os.path.commonpath([path, root]) == root and os.path.isfile(path):
             found[image_id] = image_id
         elif image_id in by_stem:
             if len(by_stem[image_id]) > 1:
@@ -87,6 +105,10 @@ def run(args: argparse.Namespace) -> int:
     except ArithmeticError as exc:
         raise BlockError(os.path.join(args.results, "camera.json"), str(exc)) from None
     model = ws.model
+    unoriented = len(found) - len(model.image_ids)
+    if unoriented:
+        print(f"note: {unoriented} of the images found have no adjusted orientation in images.csv and are left "
+              f"out", file=sys.stderr)
     if ws.n_points_short_track:
         print(f"note: {ws.n_points_short_track} point(s) seen in fewer than two of the exported images are left "
               f"out", file=sys.stderr)
@@ -103,7 +125,9 @@ def run(args: argparse.Namespace) -> int:
                 if image.shape[:2] != (cal.height_px, cal.width_px):
                     raise BlockError(path, f"is {image.shape[1]} x {image.shape[0]} px, camera {camera_id} of image "
                                            f"{image_id} is {cal.width_px} x {cal.height_px} px")
-                write_image(os.path.join(tmp, "images", name), undistort_image(image, map_x, map_y))
+                target = os.path.join(tmp, "images", name)
+                os.makedirs(os.path.dirname(target), exist_ok=True)
+                write_image(target, undistort_image(image, map_x, map_y))
                 print(f"[{k + 1}/{len(names)}] {name}", file=sys.stderr)
         sparse = os.path.join(tmp, "sparse")
         write_colmap_bin(sparse, model)
