@@ -517,7 +517,7 @@ def colmap_workspace(calibrations: dict, images: dict, points: dict, residuals: 
     new_id = np.zeros(len(xyz), np.int64)
     new_id[exported] = np.arange(1, len(exported) + 1)
     base = xyz[exported] if len(exported) else centre
-    origin = np.round(base.mean(axis=0)) if len(base) else np.zeros(3)
+    origin = np.round(base.mean(axis=0)) + 0.0 if len(base) else np.zeros(3)     # + 0.0: no -0
 
     cam_ids = [c for c in calibrations if c in set(cam_of_image)]
     colmap_cam = {c: k for k, c in enumerate(cam_ids, start=1)}

@@ -137,7 +137,9 @@ def test_pycolmap_reprojects_like_selfcal(adjusted, model):
     assert sorted(os.listdir(ws / "images")) == sorted(f"{i}.png" for i in EXPORTED)
     ids = _point_ids(ws)
     assert len(rec.points3D) == len(ids) > 300
-    origin = np.array(json.loads((ws / "sparse" / "selfcal_origin.json").read_text())["origin_m"])
+    meta = json.loads((ws / "sparse" / "selfcal_origin.json").read_text())
+    origin = np.array(meta["origin_m"])
+    assert meta["crs"] == "local" and meta["cameras"] == {"1": "ilce7m3"}
     res = read_results(base / model).tables["residuals"]
     v_of = {(i, p): (vx, -vy) for i, p, vx, vy in zip(res["image_id"], res["point_id"], res["vx_px"],
                                                           res["vy_px"])}
