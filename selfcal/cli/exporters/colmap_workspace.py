@@ -18,6 +18,7 @@ COLMAP's and selfcal's are the same (the upper-left corner of the first pixel at
 from __future__ import annotations
 
 import argparse
+import csv
 import json
 import os
 import sys
@@ -100,10 +101,7 @@ def run(args: argparse.Namespace) -> int:
     if strangers:
         print(f"note: {len(strangers)} file(s) in {args.images} are not images of the block and are ignored "
               f"(e.g. {strangers[0]})", file=sys.stderr)
-    try:
-        ws = colmap_workspace(cams, images, results.tables["points"], residuals, found)
-    except ArithmeticError as exc:
-        raise BlockError(os.path.join(args.results, "camera.json"), str(exc)) from None
+    ws = colmap_workspace(cams, images, results.tables["points"], residuals, found)
     model = ws.model
     unoriented = len(found) - len(model.image_ids)
     if unoriented:
@@ -117,7 +115,10 @@ def run(args: argparse.Namespace) -> int:
         os.makedirs(os.path.join(tmp, "images"))
         for colmap_id, camera_id in ws.camera_id.items():
             cal = cams[camera_id]
-            map_x, map_y, _ = maps_of(cal)
+            try:
+                map_x, map_y, _ = maps_of(cal)
+            except ArithmeticError as exc:          # a distortion that folds over inside the frame
+                raise BlockError(os.path.join(args.results, "camera.json"), str(exc)) from None
             for k in np.flatnonzero(model.image_camera == colmap_id):
                 image_id, name = ws.image_id[k], names[k]
                 path = os.path.join(args.images, name)
@@ -143,8 +144,9 @@ def run(args: argparse.Namespace) -> int:
                 "points_file": POINTS_FILE}), handle, indent=2)
             handle.write("\n")
         with atomic_write(os.path.join(sparse, POINTS_FILE)) as handle:
-            handle.write("point3D_id,point_id,role\n")
-            handle.writelines(f"{k},{p},{r}\n" for k, p, r in zip(model.point_ids, ws.point_id, ws.point_role))
+            table = csv.writer(handle, lineterminator="\n")
+            table.writerow(["point3D_id", "point_id", "role"])
+            table.writerows(zip(model.point_ids.tolist(), ws.point_id, ws.point_role))
         write_stereo_config(os.path.join(tmp, "stereo"), names)
     rms = float(np.sqrt(np.mean(model.point_error ** 2))) if len(model.point_error) else float("nan")
     print(f"wrote {args.out}: {len(names)} images, {len(model.point_ids)} points, {len(model.obs_point)} "
