@@ -9,9 +9,11 @@ Pixel convention: COLMAP puts the upper-left corner of the first pixel at
 so image coordinates are taken as they are.
 
 COLMAP poses map world to camera, x_cam = R(q) x_world + t, with the camera
-looking along +z, x right and y down; :func:`frame_orientation` turns them
-into selfcal's exterior orientation (perspective centre and
-M = R3(kappa) R2(phi) R1(omega) with the camera looking along -z, y up).
+looking along +z, x right and y down; :func:`selfcal.convert.block_from_colmap`
+turns them into selfcal's exterior orientation (perspective centre and
+M = R3(kappa) R2(phi) R1(omega) with the camera looking along -z, y up), and
+:func:`selfcal.convert.colmap_workspace` back (R = diag(1, -1, -1) M,
+t = -R C).
 """
 from __future__ import annotations
 
