@@ -6,7 +6,7 @@ STAMP  := $(VENV)/.installed-stamp
 # glibc keeps freed memory instead of re-mapping (and re-zeroing) it every iteration (selfcal/allocator.py)
 MALLOC := MALLOC_MMAP_THRESHOLD_=33554432 MALLOC_TRIM_THRESHOLD_=2147483647 MALLOC_TOP_PAD_=268435456
 
-.PHONY: install browser test demo bench clean
+.PHONY: install browser colmap test demo bench clean
 
 install: $(STAMP)
 
@@ -23,7 +23,14 @@ browser:
 	  SUDO=$$(command -v sudo >/dev/null 2>&1 && [ "$$(id -u)" != 0 ] && echo sudo); \
 	  $$SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq chromium >/dev/null; }
 
-test: install browser
+# The dense-workspace tests read the exported model with COLMAP's own reader (colmap model_analyzer).
+colmap:
+	@command -v colmap >/dev/null 2>&1 || { \
+	  echo "installing Debian's colmap for the dense-workspace tests"; \
+	  SUDO=$$(command -v sudo >/dev/null 2>&1 && [ "$$(id -u)" != 0 ] && echo sudo); \
+	  $$SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq colmap >/dev/null; }
+
+test: install browser colmap
 	# one BLAS thread per test worker: two workers on two cores, not four threads fighting
 	OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 MKL_NUM_THREADS=1 $(MALLOC) $(PY) -m pytest -q -n 2 --durations=15
 

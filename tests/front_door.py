@@ -766,6 +766,41 @@ def _(ws, work):
     return ["import", "calibration", xml, "--block", ws.block, "--fixed", "--out", out], [ws.block, xml], out
 
 
+def _images_folder(work, *names, size=(10, 10)):
+    """A folder of small grey PNGs with the given file names."""
+    import cv2
+    folder = os.path.join(work, "photos")
+    os.makedirs(folder)
+    for name in names:
+        cv2.imwrite(os.path.join(folder, name), np.zeros(size, np.uint8))
+    return folder
+
+
+@case("export colmap-workspace --images MISSING", names="no such folder")
+def _(ws, work):
+    out = os.path.join(work, "ws")
+    return (["export", "colmap-workspace", ws.results, "--images", os.path.join(work, "photos"), "--out", out],
+            [ws.results], out)
+
+
+@case("export colmap-workspace --images DIR without the block's images", names="none of the block's")
+def _(ws, work):
+    images, out = _images_folder(work, "IMG_0001.JPG"), os.path.join(work, "ws")
+    return ["export", "colmap-workspace", ws.results, "--images", images, "--out", out], [ws.results, images], out
+
+
+@case("export colmap-workspace --out RESULTS/ws", names="lies inside the input")
+def _(ws, work):
+    images, out = _images_folder(work, "S1_01.png"), os.path.join(ws.results, "ws")
+    return ["export", "colmap-workspace", ws.results, "--images", images, "--out", out], [ws.results, images], out
+
+
+@case("export colmap-workspace, an image of the wrong size", names="is 10 x 10 px")
+def _(ws, work):
+    images, out = _images_folder(work, "S1_01.png", "S1_02.png"), os.path.join(work, "ws")
+    return ["export", "colmap-workspace", ws.results, "--images", images, "--out", out], [ws.results, images], out
+
+
 @case("undistort --out RESULTS", names="is the input")
 def _(ws, work):
     return ["undistort", ws.results, ws.bal, "--out", ws.results], [ws.results, ws.bal], ws.results

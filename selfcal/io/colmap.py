@@ -1,15 +1,19 @@
 """COLMAP sparse models (text and binary) as plain data.
 
 Reads ``cameras``, ``images`` and ``points3D`` of a COLMAP sparse model,
-``.txt`` or ``.bin`` (format of COLMAP's ``src/colmap/scene/reconstruction_io``).
+``.txt`` or ``.bin`` (format of COLMAP's ``src/colmap/scene/reconstruction_io``),
+and writes them in the binary format (:func:`write_colmap_bin`), with the
+``stereo/`` configuration files of a dense workspace (:func:`write_stereo_config`).
 Pixel convention: COLMAP puts the upper-left corner of the first pixel at
 (0, 0) (the centre of the first pixel is (0.5, 0.5)), the same as selfcal's,
 so image coordinates are taken as they are.
 
 COLMAP poses map world to camera, x_cam = R(q) x_world + t, with the camera
-looking along +z, x right and y down; :func:`frame_orientation` turns them
-into selfcal's exterior orientation (perspective centre and
-M = R3(kappa) R2(phi) R1(omega) with the camera looking along -z, y up).
+looking along +z, x right and y down; :func:`selfcal.convert.block_from_colmap`
+turns them into selfcal's exterior orientation (perspective centre and
+M = R3(kappa) R2(phi) R1(omega) with the camera looking along -z, y up), and
+:func:`selfcal.convert.colmap_workspace` back (R = diag(1, -1, -1) M,
+t = -R C).
 """
 from __future__ import annotations
 
@@ -24,8 +28,8 @@ from ..errors import BlockError
 from .text import read_text
 from .atomic import atomic_write
 
-__all__ = ["ColmapCamera", "ColmapModel", "read_colmap", "write_cameras_txt", "CAMERA_MODELS",
-           "PERSPECTIVE_MODELS"]
+__all__ = ["ColmapCamera", "ColmapModel", "read_colmap", "write_cameras_txt", "write_colmap_bin",
+           "write_stereo_config", "CAMERA_MODELS", "PERSPECTIVE_MODELS"]
 
 #: model id -> (name, parameter names)
 CAMERA_MODELS = {
@@ -71,6 +75,7 @@ class ColmapModel:
     point_ids: np.ndarray           # (k,)
     point_xyz: np.ndarray           # (k, 3)
     point_error: np.ndarray         # (k,) mean reprojection error (px)
+    point_rgb: np.ndarray | None = None     # (k, 3) uint8 colour (not read; grey where not given)
 
 
 def _find(folder: str, stem: str) -> tuple[str, str]:
@@ -321,3 +326,81 @@ def write_cameras_txt(path: str | os.PathLike, cameras: list[tuple[int, str, int
         lines.append(" ".join([str(camera_id), model, str(width), str(height)] + [repr(float(p)) for p in params]))
     with atomic_write(path) as handle:
         handle.write("\n".join(lines) + "\n")
+
+
+#: grey, the colour of a written 3-D point whose colour is not given
+GREY = 128
+
+
+def write_colmap_bin(folder: str | os.PathLike, model: ColmapModel) -> None:
+    """Write ``cameras.bin``, ``images.bin`` and ``points3D.bin`` of ``model`` into ``folder`` (each atomically).
+
+    The binary layout of COLMAP's ``reconstruction_io`` (little-endian; the reader above reads it back):
+    cameras ``uint64 n`` then ``int32 id, int32 model, uint64 width, uint64 height, double params[]``;
+    images ``uint64 n`` then ``uint32 id, double qw qx qy qz tx ty tz, uint32 camera, name NUL, uint64 n2d,
+    (double x, double y, int64 point3D_id)[]``; points ``uint64 n`` then ``uint64 id, double xyz[3],
+    uint8 rgb[3], double error, uint64 track length, (int32 image_id, int32 point2D_idx)[]``.
+    An image's 2-D points are its observations in the order of ``obs_*`` (index = POINT2D_IDX); each point's
+    track lists them in the same order. Pixel coordinates are written as given (COLMAP's convention:
+    the upper-left corner of the first pixel at (0, 0)).
+    """
+    folder = os.fspath(folder)
+    os.makedirs(folder, exist_ok=True)
+    cams = [struct.pack("<Q", len(model.cameras))]
+    for cid in sorted(model.cameras):
+        cam = model.cameras[cid]
+        model_id, names = MODEL_IDS[cam.model]
+        cams.append(struct.pack("<iiQQ", cid, model_id, cam.width, cam.height)
+                    + struct.pack("<" + "d" * len(names), *(float(cam.params[n]) for n in names)))
+    with atomic_write(os.path.join(folder, "cameras.bin"), "wb", encoding=None) as handle:
+        handle.write(b"".join(cams))
+
+    obs_image = np.asarray(model.obs_image, np.int64)
+    obs_point = np.asarray(model.obs_point, np.int64)
+    order = np.argsort(obs_image, kind="stable")
+    index_in_image = np.empty(len(obs_image), np.int64)
+    record = np.dtype([("x", "<f8"), ("y", "<f8"), ("id", "<i8")])
+    images = [struct.pack("<Q", len(model.image_ids))]
+    for k, image_id in enumerate(model.image_ids):
+        lo, hi = np.searchsorted(obs_image[order], [image_id, image_id + 1])
+        rows = order[lo:hi]
+        index_in_image[rows] = np.arange(len(rows))
+        points2d = np.empty(len(rows), record)
+        points2d["x"], points2d["y"] = model.obs_xy[rows, 0], model.obs_xy[rows, 1]
+        points2d["id"] = obs_point[rows]
+        images.append(struct.pack("<I7dI", int(image_id), *map(float, model.qvec[k]), *map(float, model.tvec[k]),
+                                  int(model.image_camera[k]))
+                      + str(model.image_names[k]).encode("utf-8") + b"\0"
+                      + struct.pack("<Q", len(rows)) + points2d.tobytes())
+    with atomic_write(os.path.join(folder, "images.bin"), "wb", encoding=None) as handle:
+        handle.write(b"".join(images))
+
+    track = np.dtype([("image", "<i4"), ("index", "<i4")])
+    by_point = np.argsort(obs_point, kind="stable")
+    starts = np.searchsorted(obs_point[by_point], model.point_ids)
+    ends = np.searchsorted(obs_point[by_point], model.point_ids, side="right")
+    rgb = (np.full((len(model.point_ids), 3), GREY, np.uint8) if model.point_rgb is None
+           else np.asarray(model.point_rgb, np.uint8))
+    points = [struct.pack("<Q", len(model.point_ids))]
+    for k, point_id in enumerate(model.point_ids):
+        rows = by_point[starts[k]:ends[k]]
+        entries = np.empty(len(rows), track)
+        entries["image"], entries["index"] = obs_image[rows], index_in_image[rows]
+        points.append(struct.pack("<Q3d3BdQ", int(point_id), *map(float, model.point_xyz[k]), *map(int, rgb[k]),
+                                  float(model.point_error[k]), len(rows)) + entries.tobytes())
+    with atomic_write(os.path.join(folder, "points3D.bin"), "wb", encoding=None) as handle:
+        handle.write(b"".join(points))
+
+
+def write_stereo_config(folder: str | os.PathLike, image_names, source_images: str = "__auto__, 20") -> None:
+    """The ``stereo/`` folder of a COLMAP dense workspace, as ``colmap image_undistorter`` writes it:
+    ``patch-match.cfg`` (each image name, then its source images: ``__auto__, 20`` lets
+    ``patch_match_stereo`` pick the 20 that share the most 3-D points), ``fusion.cfg`` (the image names)
+    and the empty ``depth_maps/``, ``normal_maps/``, ``consistency_graphs/`` that the dense steps fill."""
+    folder = os.fspath(folder)
+    for sub in ("depth_maps", "normal_maps", "consistency_graphs"):
+        os.makedirs(os.path.join(folder, sub), exist_ok=True)
+    with atomic_write(os.path.join(folder, "patch-match.cfg")) as handle:
+        handle.write("".join(f"{name}\n{source_images}\n" for name in image_names))
+    with atomic_write(os.path.join(folder, "fusion.cfg")) as handle:
+        handle.write("".join(f"{name}\n" for name in image_names))
