@@ -1,5 +1,7 @@
-"""Import a model from another program as a block folder (COLMAP, BAL, ISIS; ground control from ODM; camera GNSS
-from the images or an ODM geo.txt; a camera calibration into a block)."""
+"""Import another program's model, control, camera GNSS or calibration as a block folder.
+
+COLMAP, BAL, ISIS, PAT-B, OpenSfM, Pix4D; Metashape markers, camera GNSS (EXIF, DJI XMP, ODM geo.txt) and a
+camera calibration added to an existing block (--block)."""
 from __future__ import annotations
 
 import argparse
