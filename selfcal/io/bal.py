@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import BlockError
-from .text import read_text
+from .text import is_number, read_text
 
 __all__ = ["BalProblem", "read_bal"]
 
@@ -71,7 +71,7 @@ def read_bal(path: str | os.PathLike) -> BalProblem:
     try:
         values = np.array(rest, dtype=float)
     except ValueError:
-        bad = next(v for v in rest if not _is_number(v))
+        bad = next(v for v in rest if not is_number(v))
         raise BlockError(path, f"'{bad}' is not a number (in the parameter block)") from None
     if not np.all(np.isfinite(values)):
         k = int(np.flatnonzero(~np.isfinite(values))[0])
@@ -88,11 +88,3 @@ def read_bal(path: str | os.PathLike) -> BalProblem:
                                f"header's counts", int(obs_line[bad[0]]))
     return BalProblem(values[:9 * n_cam].reshape(n_cam, 9), values[9 * n_cam:].reshape(n_pt, 3), cam, pt,
                       obs[:, 2:4].copy())
-
-
-def _is_number(text: str) -> bool:
-    try:
-        float(text)
-        return True
-    except ValueError:
-        return False

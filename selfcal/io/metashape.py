@@ -24,7 +24,7 @@ import numpy as np
 
 from ..errors import BlockError
 from .patb import ControlPoints, numbers
-from .text import read_text
+from .text import is_number, read_text
 from .xmlfile import xml_root
 
 __all__ = ["Markers", "read_markers_xml", "read_reference_csv"]
@@ -149,7 +149,7 @@ def read_reference_csv(path: str | os.PathLike) -> ControlPoints:
         fields = [f.strip() for f in re.split(r"[,;\t]" if re.search(r"[,;\t]", text) else r"\s+", text)]
         if len(fields) < 4:
             raise BlockError(path, f"expected 'label, X, Y, Z[, accuracy...]', found {len(fields)} field(s)", number)
-        if not data_seen and not _is_number(fields[1]):
+        if not data_seen and not is_number(fields[1]):
             data_seen = True            # a header line
             continue
         data_seen = True
@@ -181,11 +181,3 @@ def read_reference_csv(path: str | os.PathLike) -> ControlPoints:
     k = len(ids)
     return ControlPoints(path, np.array(ids, object), np.array(xyz, float), np.array(sigma, float),
                          np.array(lines, np.int64), np.ones(k, bool))
-
-
-def _is_number(text: str) -> bool:
-    try:
-        float(text)
-        return True
-    except ValueError:
-        return False

@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import BlockError
-from .text import read_text
+from .text import is_number, read_text
 
 __all__ = ["GroundControl", "read_gcp_list", "ImagePositions", "read_geo_txt"]
 
@@ -97,7 +97,7 @@ def read_gcp_list(path: str | os.PathLike) -> GroundControl:
         try:
             values = [float(f) for f in fields[:5]]
         except ValueError:
-            bad = next(f for f in fields[:5] if not _is_number(f))
+            bad = next(f for f in fields[:5] if not is_number(f))
             column = ["geo_x", "geo_y", "geo_z", "im_x", "im_y"][fields[:5].index(bad)]
             raise BlockError(path, f"'{bad}' is not a number", number, column) from None
         if not np.all(np.isfinite(values[:2] + values[3:])) or np.isinf(values[2]):
@@ -132,13 +132,6 @@ def read_gcp_list(path: str | os.PathLike) -> GroundControl:
                          np.array(o_pt, np.int64), np.array(o_img, dtype=object), np.array(o_pix, float),
                          np.array(o_line, np.int64))
 
-
-def _is_number(text: str) -> bool:
-    try:
-        float(text)
-        return True
-    except ValueError:
-        return False
 
 
 def _is_geographic(crs: str) -> bool:

@@ -28,7 +28,7 @@ import numpy as np
 
 from ..errors import BlockError
 from .patb import PhotoMeasurements, numbers, read_photo_blocks
-from .text import read_text
+from .text import is_number, read_text
 
 __all__ = ["Pix4dCamera", "Pix4dExternal", "Pix4dParams", "read_pix4d_params", "params_folder"]
 
@@ -91,7 +91,7 @@ def _image_size(path: str) -> tuple[int, int]:
     sizes = {}
     for number, line in enumerate(read_text(path, "Pix4D calibrated camera parameters").splitlines(), start=1):
         tokens = line.split()
-        if len(tokens) == 3 and tokens[1].isdigit() and tokens[2].isdigit() and not _is_number(tokens[0]):
+        if len(tokens) == 3 and tokens[1].isdigit() and tokens[2].isdigit() and not is_number(tokens[0]):
             sizes.setdefault((int(tokens[1]), int(tokens[2])), number)
     if not sizes:
         raise BlockError(path, "no 'fileName imageWidth imageHeight' record: the image size is unknown (give "
@@ -169,11 +169,3 @@ def read_pix4d_params(source: str, image_size: tuple[int, int] | None = None) ->
     ext_path = _one(folder, ("*_calibrated_external_camera_parameters.txt",), "external parameters", required=False,
                     exclude="wgs84")
     return Pix4dParams(folder, bingo, camera, read_external(ext_path) if ext_path else None)
-
-
-def _is_number(text: str) -> bool:
-    try:
-        float(text)
-        return True
-    except ValueError:
-        return False

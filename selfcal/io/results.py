@@ -23,7 +23,7 @@ from ..errors import BlockError
 from .atomic import atomic_folder, atomic_write
 from .ply import ply_bytes
 from .table import write_table
-from .text import read_text
+from .text import is_number, read_text
 
 __all__ = ["summary_schema", "write_results", "write_files", "to_jsonable", "ResultsFolder", "read_results",
            "read_camera_json", "read_results_table", "results_from_files", "RESULT_TABLES", "OPTIONAL_TABLES"]
@@ -123,17 +123,10 @@ def _columns(header: list[str], rows: list[list[str]], path: str) -> dict[str, n
         try:
             out[name] = np.array([float(t) if t.strip() else math.nan for t in texts], dtype=float)
         except ValueError:
-            bad = next(i for i, t in enumerate(texts) if t.strip() and not _is_number(t))
+            bad = next(i for i, t in enumerate(texts) if t.strip() and not is_number(t))
             raise BlockError(path, f"'{texts[bad]}' is not a number", bad + 2, name) from None
     return out
 
-
-def _is_number(text: str) -> bool:
-    try:
-        float(text)
-    except ValueError:
-        return False
-    return True
 
 
 def _read_csv(path: str) -> dict[str, np.ndarray]:

@@ -10,7 +10,7 @@ import os
 
 from ..errors import BlockError
 
-__all__ = ["read_text", "read_json", "decode_text", "UTF8_BOM"]
+__all__ = ["read_text", "read_json", "decode_text", "is_number", "UTF8_BOM"]
 
 UTF8_BOM = b"\xef\xbb\xbf"
 
@@ -86,3 +86,12 @@ def read_json(path: str | os.PathLike, what: str = "file"):
         raise BlockError(path, f"not JSON: {exc.msg}", exc.lineno) from None
     except RecursionError:
         raise BlockError(path, "not JSON: nested too deeply") from None
+
+
+def is_number(text: str) -> bool:
+    """Whether ``float`` reads ``text`` (NaN and infinity included: the readers refuse those themselves)."""
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
