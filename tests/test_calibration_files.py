@@ -10,6 +10,7 @@ the misfit the export printed. The sigmas written are checked against a finite-d
 initial camera projects like the original. ``--fixed`` holds the values through ``selfcal adjust``.
 """
 import json
+import shutil
 import re
 import xml.etree.ElementTree as ElementTree
 from dataclasses import replace
@@ -362,6 +363,39 @@ def test_fixed_calibration_is_held_through_adjust(small_block, tmp_path, capsys)
     # and an export of those results carries the held APs (not zeros)
     held = Calibration.from_camera_json(camera.camera_id, adjusted)
     np.testing.assert_array_equal(held.coefficients_px, [values[n] for n in held.ap.parameter_names])
+
+
+def test_weighted_calibration_is_a_prior_of_the_given_sigma(small_block, tmp_path):
+    """``[cameras.ID.initial_ap] sigma_px`` > 0 weights the imported APs: a tight sigma keeps them at the
+    imported (here: wrong, half the true) values, a loose one lets the adjustment take them to the truth."""
+    path, camera, truth = small_block
+    truth_ap = {c["name"]: c["value_px"] for c in truth["ap"]["coefficients"]}
+    wrong = json.loads(json.dumps(truth))
+    for c in wrong["ap"]["coefficients"]:
+        c["value_px"] *= 0.5
+    folder = results_folder(tmp_path / "r", wrong, camera.camera_id)
+    assert run_cli("export", "metashape", str(folder), "--out", str(tmp_path / "cal.xml")) == 0
+    assert run_cli("import", "calibration", str(tmp_path / "cal.xml"), "--block", str(path),
+                   "--out", str(tmp_path / "b")) == 0
+    cam, _ = block_calibration(tmp_path / "b")
+    imported = dict(zip(cam.initial_ap.names, cam.initial_ap.values_px))
+    toml = (tmp_path / "b" / "block.toml").read_text()
+    out = {}
+    for sigma in (1e-4, 1e3):
+        folder_b = tmp_path / f"b{sigma:g}"
+        shutil.copytree(tmp_path / "b", folder_b)
+        (folder_b / "block.toml").write_text(toml.replace('model = "brown"', f'model = "brown"\nsigma_px = {sigma!r}', 1))
+        assert run_cli("adjust", str(folder_b), "--out", str(tmp_path / f"res{sigma:g}"), "--ap", "brown",
+                       "--snoop", "0", "--no-report", "--quiet") == 0
+        adjusted = json.loads((tmp_path / f"res{sigma:g}" / "camera.json").read_text())["cameras"][camera.camera_id]
+        out[sigma] = {c["name"]: (c["value_px"], c["sigma_px"]) for c in adjusted["ap"]["coefficients"]}
+    k1 = "k1" if "k1" in truth_ap else next(iter(truth_ap))
+    assert abs(truth_ap[k1]) > 5                                          # the tested coefficient matters
+    tight, loose = out[1e-4][k1], out[1e3][k1]
+    # held by its prior (a-posteriori sigma: the prior's, times sigma0 / the a-priori image sigma)
+    assert abs(tight[0] - imported[k1]) < 5e-4 and tight[1] < 1.5e-4
+    assert abs(loose[0] - truth_ap[k1]) < 4 * loose[1] + 0.05 * abs(truth_ap[k1])   # free to reach the truth
+    assert abs(loose[0] - imported[k1]) > 3 * loose[1]                    # and it did move
 
 
 def test_import_errors_exit_with_two(small_block, tmp_path, capsys):
