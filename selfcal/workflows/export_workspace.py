@@ -1,0 +1,140 @@
+"""A COLMAP dense workspace of a results folder (``selfcal export colmap-workspace``), laid out as
+``colmap image_undistorter`` writes it::
+
+    WS/images/NAME              each image found, resampled to the ideal camera (exact for every AP model:
+                                selfcal.calibration.undistortion_maps), same name and format
+    WS/sparse/cameras.bin       one PINHOLE camera per frame camera: fx = fy = principal distance, principal point
+    WS/sparse/images.bin        adjusted poses (world to camera) and the kept observations, undistorted
+    WS/sparse/points3D.bin      adjusted tie and control points seen in two or more exported images, with tracks
+    WS/sparse/selfcal_origin.json   object coordinates = model coordinates + origin_m (and the CRS, when the
+                                results name it); COLMAP camera ids -> selfcal camera ids
+    WS/sparse/selfcal_points.csv    point3D_id,point_id,role: the selfcal id of each 3-D point
+    WS/stereo/patch-match.cfg, fusion.cfg, depth_maps/, normal_maps/, consistency_graphs/
+
+The observations and tracks come from the results folder alone: residuals.csv holds every image measurement
+(col_px, row_px) and whether the adjustment rejected it; only kept ones are written. Pixel convention:
+COLMAP's and selfcal's are the same (the upper-left corner of the first pixel at (0, 0)).
+"""
+from __future__ import annotations
+
+import csv
+import json
+import os
+from typing import Callable
+
+import numpy as np
+
+from ..calibration import Calibration, undistort_image, undistortion_maps
+from ..convert import colmap_workspace
+from ..errors import BlockError
+from ..io.atomic import atomic_folder, atomic_write
+from ..io.colmap import write_colmap_bin, write_stereo_config
+from ..io.opencv import read_image, write_image
+from ..io.results import read_results, to_jsonable
+
+__all__ = ["export_workspace", "find_images", "ORIGIN_FILE", "POINTS_FILE"]
+
+#: the workspace file that says where the model's coordinates are (object = model + origin_m)
+ORIGIN_FILE = "selfcal_origin.json"
+#: the workspace file that names each 3-D point's selfcal point id
+POINTS_FILE = "selfcal_points.csv"
+
+
+def find_images(folder: str, image_ids) -> tuple[dict[str, str], list[str]]:
+    """image id -> file name in ``folder`` (relative; the id itself, which may hold sub-folders as COLMAP image
+    names do, else the one file of the folder whose name without extension is the id), and the folder's
+    files that belong to no image."""
+    if not os.path.isdir(folder):
+        raise BlockError(folder, "--images: no such folder")
+    root = os.path.realpath(folder)
+    files = sorted(f for f in os.listdir(folder) if os.path.isfile(os.path.join(folder, f)))
+    by_stem: dict[str, list[str]] = {}
+    for f in files:
+        by_stem.setdefault(os.path.splitext(f)[0], []).append(f)
+    found = {}
+    for image_id in image_ids:
+        path = os.path.realpath(os.path.join(folder, image_id))
+        if os.path.commonpath([path, root]) == root and os.path.isfile(path):
+            found[image_id] = image_id
+        elif image_id in by_stem:
+            if len(by_stem[image_id]) > 1:
+                raise BlockError(os.path.join(folder, by_stem[image_id][0]),
+                                 f"image {image_id}: {len(by_stem[image_id])} files could be it "
+                                 f"({', '.join(by_stem[image_id])}); keep one")
+            found[image_id] = by_stem[image_id][0]
+    used = set(found.values())
+    return found, [f for f in files if f not in used]
+
+
+def export_workspace(results_folder: str, cams: dict[str, Calibration], images_folder: str, out: str,
+                     say: Callable[[str], None] = lambda text: None,
+                     maps: Callable = undistortion_maps) -> dict:
+    """Write the workspace ``out`` (atomically) for the frame cameras ``cams`` of ``results_folder`` and the images
+    of ``images_folder``; ``say`` receives the notes, warnings and progress lines; ``maps(calibration)`` gives the
+    undistortion maps. Returns the counts (images, points, observations), the origin and the mean error."""
+    results = read_results(results_folder)
+    images, residuals = results.tables["images"], results.tables["residuals"]
+    frame_images = [i for i, c in zip(images["image_id"], images["camera_id"]) if c in cams]
+    others = len(images["image_id"]) - len(frame_images)
+    if others:
+        say(f"note: {others} image(s) of cameras that are not frame cameras are left out")
+    found, strangers = find_images(images_folder, frame_images)
+    if not found:
+        raise BlockError(images_folder, f"none of the block's {len(frame_images)} images is here (looked for "
+                                        f"e.g. '{frame_images[0]}' or '{frame_images[0]}.*')" if frame_images
+                         else "the results hold no frame image")
+    missing = [i for i in frame_images if i not in found]
+    if missing:
+        say(f"warning: {len(missing)} of the block's {len(frame_images)} images are not in {images_folder} "
+            f"(e.g. {missing[0]}): left out of the workspace (poses, 2-D points and tracks)")
+    if strangers:
+        say(f"note: {len(strangers)} file(s) in {images_folder} are not images of the block and are ignored "
+            f"(e.g. {strangers[0]})")
+    ws = colmap_workspace(cams, images, results.tables["points"], residuals, found)
+    model = ws.model
+    unoriented = len(found) - len(model.image_ids)
+    if unoriented:
+        say(f"note: {unoriented} of the images found have no adjusted orientation in images.csv and are left out")
+    if ws.n_points_short_track:
+        say(f"note: {ws.n_points_short_track} point(s) seen in fewer than two of the exported images are left out")
+    names = list(model.image_names)
+    with atomic_folder(out) as tmp:
+        os.makedirs(os.path.join(tmp, "images"))
+        for colmap_id, camera_id in ws.camera_id.items():
+            cal = cams[camera_id]
+            try:
+                map_x, map_y, _ = maps(cal)
+            except ArithmeticError as exc:          # a distortion that folds over inside the frame
+                raise BlockError(os.path.join(results_folder, "camera.json"), str(exc)) from None
+            for k in np.flatnonzero(model.image_camera == colmap_id):
+                image_id, name = ws.image_id[k], names[k]
+                path = os.path.join(images_folder, name)
+                image = read_image(path)
+                if image.shape[:2] != (cal.height_px, cal.width_px):
+                    raise BlockError(path, f"is {image.shape[1]} x {image.shape[0]} px, camera {camera_id} of image "
+                                           f"{image_id} is {cal.width_px} x {cal.height_px} px")
+                target = os.path.join(tmp, "images", name)
+                os.makedirs(os.path.dirname(target), exist_ok=True)
+                write_image(target, undistort_image(image, map_x, map_y))
+                say(f"[{k + 1}/{len(names)}] {name}")
+        sparse = os.path.join(tmp, "sparse")
+        write_colmap_bin(sparse, model)
+        with atomic_write(os.path.join(sparse, ORIGIN_FILE)) as handle:
+            json.dump(to_jsonable({
+                "origin_m": ws.origin_m,
+                "crs": results.summary.get("crs"),
+                "meaning": "object coordinates (the results' CRS) = COLMAP model coordinates + origin_m; same axes "
+                           "and scale",
+                "results": os.path.abspath(results_folder),
+                "ap_model": results.summary.get("ap_model"),
+                "cameras": {str(k): c for k, c in ws.camera_id.items()},
+                "points_file": POINTS_FILE}), handle, indent=2)
+            handle.write("\n")
+        with atomic_write(os.path.join(sparse, POINTS_FILE)) as handle:
+            table = csv.writer(handle, lineterminator="\n")
+            table.writerow(["point3D_id", "point_id", "role"])
+            table.writerows(zip(model.point_ids.tolist(), ws.point_id, ws.point_role))
+        write_stereo_config(os.path.join(tmp, "stereo"), names)
+    rms = float(np.sqrt(np.mean(model.point_error ** 2))) if len(model.point_error) else float("nan")
+    return {"images": len(names), "points": len(model.point_ids), "observations": len(model.obs_point),
+            "origin_m": ws.origin_m, "mean_error_px": rms}
