@@ -14,10 +14,16 @@ import scipy.linalg as la
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-__all__ = ["SingularSystem", "Factor", "factorise", "null_directions", "DENSE_LIMIT"]
+__all__ = ["SingularSystem", "Factor", "factorise", "pseudo_factorise", "null_directions", "DENSE_LIMIT",
+           "PSEUDO_INVERSE_LIMIT", "DEFECT_TOLERANCE"]
 
 #: reduced systems up to this size are factorised densely
 DENSE_LIMIT = 6000
+#: free networks up to this many orientation and camera unknowns take minimum-norm Gauss-Newton steps through a
+#: dense eigendecomposition of S in every undamped iteration (0.02 s at 441 unknowns, about 1 s at 2000)
+PSEUDO_INVERSE_LIMIT = 2000
+#: eigenvalues of the Jacobi-scaled S below this share of the largest are the datum defect
+DEFECT_TOLERANCE = 1e-10
 
 try:  # pragma: no cover - depends on the machine
     from sksparse.cholmod import CholmodNotPositiveDefiniteError, cholesky as _cholmod
@@ -118,6 +124,29 @@ def factorise(S, rcond: float = 1e-13) -> Factor:
     if u.min() < rcond or np.any(lu.U.diagonal() <= 0):
         raise SingularSystem(f"not positive definite or singular (smallest pivot {u.min():.1e})")
     return Factor(lu.solve, scale, scaled=Ss)
+
+
+def pseudo_factorise(S, defect_tol: float = DEFECT_TOLERANCE) -> Factor:
+    """The minimum-norm solution of a singular S x = b (free network): S's pseudo-inverse in the Jacobi-scaled
+    metric, from a dense eigendecomposition; the eigenvalues below ``defect_tol`` times the largest are the
+    datum defect (``Factor.defect`` of them) and get no share of the solution, so x has no component along
+    the datum directions (inner constraints on the orientation and camera unknowns).
+
+    Raises SingularSystem when S has an unknown without any observation.
+    """
+    S = S.toarray() if sp.issparse(S) else np.asarray(S)
+    diag = np.diag(S).copy()
+    if np.any(~np.isfinite(diag)):
+        raise SingularSystem("the normal matrix has non-finite entries")
+    if np.any(diag <= 0):
+        raise SingularSystem(f"{int(np.sum(diag <= 0))} unknown(s) have no observation at all")
+    scale = 1.0 / np.sqrt(diag)
+    w, V = np.linalg.eigh(S * scale[:, None] * scale[None, :])
+    keep = w > defect_tol * w.max()
+    Vk, wk = V[:, keep], w[keep]
+    factor = Factor(lambda b: Vk @ ((Vk.T @ b) / (wk if b.ndim == 1 else wk[:, None])), scale)
+    factor.defect = int((~keep).sum())
+    return factor
 
 
 #: a column with more non-zeros than this share of the rows is put in the border (camera parameters)

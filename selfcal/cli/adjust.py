@@ -199,7 +199,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"{line}; results in {args.out}", file=sys.stderr)
     failure = s.get("failure")
     for note in s.get("notes", []):
-        if note.startswith(("weakly determined", "object points not determined")) and note != failure:
+        if note.startswith(("weakly determined", "object points not determined", "left out")) and note != failure:
             print(f"warning: {note}", file=sys.stderr)
     if failure:
         print(f"selfcal adjust: error: {failure}", file=sys.stderr)
