@@ -169,7 +169,7 @@ def solve(problem: Problem, state: State, names: list[str], options: SolverOptio
     pseudo = options.free_network and problem.n_theta <= PSEUDO_INVERSE_LIMIT
     damped_free = options.free_network and not pseudo
     min_damping = 1e-9 if damped_free else 0.0
-    if options.free_network and lam == 0.0:
+    if damped_free and lam == 0.0:
         lam = 1e-4
     history: list[IterationRecord] = []
     converged, reason = False, f"no convergence within {options.max_iterations} iterations"
