@@ -369,10 +369,10 @@ def main() -> None:
     problem = _problem()
     print(f"BAL problem-49-7776: {len(problem.cameras)} cameras, {len(problem.points)} points, "
           f"{len(problem.obs_xy)} observations; initial cost {bal_cost(problem, problem.cameras, problem.points):.2f}")
-    print(f"{"engine":<14}{'seconds':>9}{'iter.':>7}{'final cost':>14}{'peak MB':>9}")
+    print(f"{'engine':<14}{'seconds':>9}{'iter.':>7}{'final cost':>14}{'peak MB':>9}")
     for name, r in results.items():
         its = str(r["iterations"]) if r["iterations"] else "-"
-        print(f"{name:<14}{r["seconds"]:>9.2f}{its:>7}{r['cost']:>14.4f}{r['peak_mb']:>9.0f}")
+        print(f"{name:<14}{r['seconds']:>9.2f}{its:>7}{r['cost']:>14.4f}{r['peak_mb']:>9.0f}")
     kept = results["pycolmap-kept"]
     print(f"selfcal left out {ours['left_out_behind']} observations behind their camera and {ours['left_out_points']} "
           f"points its rays do not determine; on the observations it kept: selfcal {ours['cost']:.4f}, pycolmap "

@@ -45,6 +45,12 @@ def test_pseudo_factorise_gives_the_minimum_norm_solution_in_the_scaled_metric()
     # no component along the null space of the scaled system (S D^-1 null = 0, and x = scale y)
     null_scaled = np.linalg.qr(np.linalg.solve(D, null) / scale[:, None])[0]
     assert np.abs(null_scaled.T @ (x / scale)).max() < 1e-8 * np.linalg.norm(x / scale)
+    # the next iteration's path: the null basis passed back, a Cholesky factorisation of S_s + Z Z^T
+    again = pseudo_factorise(S, factor.null)
+    assert again.defect == defect and np.allclose(again.solve(b), x, rtol=1e-6, atol=1e-9 * np.abs(x).max())
+    # a basis that is no longer null (the state moved): the eigendecomposition again, the same solution
+    moved = pseudo_factorise(S, factor.null + 1e-3 * rng.normal(size=factor.null.shape) * np.abs(factor.null).max())
+    assert moved.defect == defect and np.allclose(moved.solve(b), x, rtol=1e-7, atol=1e-12 * np.abs(x).max())
 
 
 def test_free_tie_point_network_converges_by_gauss_newton_without_drift():

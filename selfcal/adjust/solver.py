@@ -175,7 +175,7 @@ def solve(problem: Problem, state: State, names: list[str], options: SolverOptio
     converged, reason = False, f"no convergence within {options.max_iterations} iterations"
     iteration = 0
     reduction = None
-    checked = None
+    checked = null = None
     for iteration in range(1, options.max_iterations + 1):
         if options.point_sigma_ratio and options.free_network and checked is not lin:
             checked = lin
@@ -187,7 +187,11 @@ def solve(problem: Problem, state: State, names: list[str], options: SolverOptio
         while True:
             S, g, v_inv = reduce(problem, lin, lam, dense)
             try:
-                factor = pseudo_factorise(S) if pseudo and lam == 0.0 else factorise(S)
+                if pseudo and lam == 0.0:
+                    factor = pseudo_factorise(S, null)
+                    null = factor.null
+                else:
+                    factor = factorise(S)
                 break
             except SingularSystem as exc:
                 if lam == 0.0 and iteration == 1 and not options.free_network:
