@@ -310,7 +310,8 @@ def adjust(block: Block, options: AdjustOptions = AdjustOptions(),
     if free_network:
         solver_options = replace(solver_options, free_network=True,
                                  point_sigma_ratio=solver_options.point_sigma_ratio or FREE_POINT_SIGMA_RATIO)
-        behind = behind_camera(problem, state)
+        # at the start values; a warm start comes from an adjustment that left them out already
+        behind = behind_camera(problem, state) if start is None else np.zeros(problem.n_image_observations, bool)
         if behind.any():
             flagged = np.zeros(len(block.observations), bool)
             flagged[problem.obs_order[behind]] = True
