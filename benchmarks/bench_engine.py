@@ -139,15 +139,21 @@ def _write_points3d(folder: str, points: list, track: dict[int, list[str]]) -> N
 
 
 def _colmap_cost(reconstruction) -> float:
-    squares = 0.0
+    return _colmap_cost_and_behind(reconstruction)[0]
+
+
+def _colmap_cost_and_behind(reconstruction) -> tuple[float, int]:
+    """1/2 sum of squared pixel residuals, and the number of observations whose point projects to NaN (behind its
+    camera: COLMAP's cost gives it a zero residual, and so does this sum)."""
+    squares, behind = 0.0, 0
     for image in reconstruction.images.values():
         points = [(p.xy, reconstruction.points3D[p.point3D_id].xyz) for p in image.points2D if p.has_point3D()]
         xy = np.array([a for a, _ in points])
         xyz = np.array([b for _, b in points])
         projected = image.camera.img_from_cam(image.cam_from_world() * xyz)
-        # a point behind the camera projects to NaN: COLMAP's cost gives it a zero residual
         squares += float(np.nansum((projected - xy) ** 2))
-    return 0.5 * squares
+        behind += int(np.sum(np.isnan(projected).any(axis=1)))
+    return 0.5 * squares, behind
 
 
 def _kept(problem, rows):
@@ -173,7 +179,8 @@ def run_pycolmap(target: float | None, rows_file: str | None = None) -> dict:
         _colmap_model(problem, folder)
         reconstruction = pycolmap.Reconstruction(folder)
     seconds = _pycolmap_adjust(reconstruction, refine_principal_point=False)
-    return {"seconds": seconds, "iterations": 0, "cost": _colmap_cost(reconstruction), "to_target": None,
+    cost, behind = _colmap_cost_and_behind(reconstruction)
+    return {"seconds": seconds, "iterations": 0, "cost": cost, "behind": behind, "to_target": None,
             "converged": True, "peak_mb": _peak_mb()}
 
 
@@ -376,7 +383,9 @@ def main() -> None:
     kept = results["pycolmap-kept"]
     print(f"selfcal left out {ours['left_out_behind']} observations behind their camera and {ours['left_out_points']} "
           f"points its rays do not determine; on the observations it kept: selfcal {ours['cost']:.4f}, pycolmap "
-          f"{kept['cost']:.4f} ({100 * (ours['cost'] / kept['cost'] - 1):+.4f} %)")
+          f"{kept['cost']:.4f} ({100 * (ours['cost'] / kept['cost'] - 1):+.4f} %)"
+          + (f"; pycolmap ended with {kept['behind']} observations behind their camera (zero residual in its cost)"
+             if kept["behind"] else ""))
     print(f"selfcal/pycolmap time: {ours['seconds'] / kept['seconds']:.2f} on the same observations, "
           f"{ours['seconds'] / results['pycolmap']['seconds']:.2f} against pycolmap on the whole file")
     if "scipy" in results:
