@@ -329,12 +329,17 @@ def adjust(block: Block, options: AdjustOptions = AdjustOptions(),
             raise AdjustmentError(f"no redundancy: {n_obs} observations for {n_unk} unknowns")
         budget = replace(solver_options, max_iterations=max(1, options.solver.max_iterations - len(history)),
                          initial_damping=history[-1].damping if history else solver_options.initial_damping)
+        done = len(history)                 # iterations before a leave-out: the numbering goes on
+
+        def numbered(record: IterationRecord) -> None:
+            if progress is not None:
+                progress(replace(record, iteration=record.iteration + done))
         try:
-            outcome = solve(problem, state, names, budget, progress)
+            outcome = solve(problem, state, names, budget, numbered)
         except SingularPoints as exc:
             ids = ", ".join(f"'{block.points.point_id[i]}'" for i in exc.indices[:5])
             raise AdjustmentError(f"{exc} (e.g. {ids}): remove them or check their observations") from None
-        history += outcome.history
+        history += [replace(record, iteration=record.iteration + done) for record in outcome.history]
         if outcome.undetermined is None or len(history) >= options.solver.max_iterations:
             break
         # a free network's points that their rays do not determine: left out, and on from the estimate so far
