@@ -5,7 +5,7 @@
 # import's frame), adjust it with four AP models (data snooping on, APs screened), write the reports, say
 # what the control can and cannot fix (control.py), and export the wavelet:db4 result as a COLMAP dense
 # workspace (the two images of the data) checked with pycolmap.
-# Run from the repository root: sh examples/copr/run.sh [OUT]   (about 6 minutes on 2 cores)
+# Run from the repository root: sh examples/copr/run.sh [OUT]   (about 7 minutes on 2 busy cores)
 set -e
 DATA=${COPR_DATA:-../shared/data/copr}
 OUT=${1:-copr-results}
