@@ -29,6 +29,7 @@ __all__ = [
     "Dropped",
     "Block",
     "prune",
+    "leave_out",
     "MIN_POINTS_PER_IMAGE",
 ]
 
@@ -281,6 +282,10 @@ class Dropped:
     images_too_few_points: int = 0
     #: image observations outside their image's frame (beyond half a pixel), left out when read
     observations_outside_frame: int = 0
+    #: a free network's observations of a point behind its camera at the start values, left out
+    observations_behind_camera: int = 0
+    #: a free network's points that their rays do not determine (``selfcal.adjust.datum``), left out
+    points_undetermined: int = 0
     messages: tuple[str, ...] = ()
 
     def as_dict(self) -> dict:
@@ -290,6 +295,8 @@ class Dropped:
             "check_points_one_image": self.check_points_one_image,
             "images_too_few_points": self.images_too_few_points,
             "observations_outside_frame": self.observations_outside_frame,
+            "observations_behind_camera": self.observations_behind_camera,
+            "points_undetermined": self.points_undetermined,
         }
 
 
@@ -397,6 +404,8 @@ def prune(block: Block, min_points_per_image: int = MIN_POINTS_PER_IMAGE) -> Blo
         check_points_one_image=block.dropped.check_points_one_image + counts["chk"],
         images_too_few_points=block.dropped.images_too_few_points + counts["img"],
         observations_outside_frame=block.dropped.observations_outside_frame,
+        observations_behind_camera=block.dropped.observations_behind_camera,
+        points_undetermined=block.dropped.points_undetermined,
         messages=tuple(messages),
     )
     return replace(
@@ -406,3 +415,19 @@ def prune(block: Block, min_points_per_image: int = MIN_POINTS_PER_IMAGE) -> Blo
         observations=kept_obs,
         dropped=dropped,
     )
+
+
+def leave_out(block: Block, observations: np.ndarray | None = None, points: np.ndarray | None = None,
+              dropped: Dropped | None = None) -> Block:
+    """``block`` without the observations flagged in ``observations`` (bool over its observations) and the points
+    flagged in ``points`` (bool over its points; their observations go with them); ``dropped`` replaces its
+    record of what went. Observation rows (``Observations.row``) are kept; run :func:`prune` afterwards for
+    what the removal leaves with too few rays."""
+    keep_pt = np.ones(len(block.points), bool) if points is None else ~np.asarray(points, bool)
+    keep_obs = np.ones(len(block.observations), bool) if observations is None else ~np.asarray(observations, bool)
+    keep_obs &= keep_pt[block.observations.point_index]
+    pt_new = np.cumsum(keep_pt) - 1
+    kept = block.observations.take(np.flatnonzero(keep_obs))
+    kept = replace(kept, point_index=pt_new[kept.point_index])
+    return replace(block, points=block.points.take(np.flatnonzero(keep_pt)), observations=kept,
+                   dropped=block.dropped if dropped is None else dropped)

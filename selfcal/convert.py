@@ -305,7 +305,10 @@ def block_from_colmap(model, control=None, pixel_size_mm: float = 0.005, image_s
     block = Block(name=name, crs=crs, cameras=cameras, images=images, points=points,
                   observations=observations, image_sigma_px=image_sigma_px,
                   datum="control" if n_gcp >= 3 else "free")
-    if n_gcp < 3:
+    if n_gcp < 3 and control is not None and gcp_xyz is not None and n_gcp == 0:
+        notes.append("every control point is a check point: the block is a free network (datum = \"free\") in the "
+                     "frame of the similarity above")
+    elif n_gcp < 3:
         notes.append(f"{n_gcp} ground control points: the block is a free network (datum = \"free\"); give --gcp "
                      f"with at least 3 points to georeference it")
     return block, notes

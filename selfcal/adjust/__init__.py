@@ -11,15 +11,17 @@ goes to an optional callback.
 from __future__ import annotations
 
 import time
+from types import SimpleNamespace
 from dataclasses import dataclass, field, replace
 from typing import Callable
 
 import numpy as np
 
 from ..ap import ap_settings
-from ..block import Block
+from ..block import Block, leave_out, prune
 from ..errors import AdjustmentError
 from .covariance import point_cofactors
+from .datum import FREE_POINT_SIGMA_RATIO, behind_camera, points_not_determined_by_rays
 from .initial import initial_state
 from .linalg import DENSE_LIMIT, SingularSystem, factorise, null_directions
 from .normal import Linearisation, SingularPoints, carry_ap_columns, image_residuals, reduce
@@ -169,6 +171,18 @@ class AdjustmentResult:
         return self.variance_factor * self.Q_points
 
 
+def _leave_out(block: Block, observations, points, text: str, behind: int = 0, undetermined: int = 0) -> Block:
+    """``block`` without the flagged observations / points, pruned (a point left with one ray, an image with too
+    few points), its ``dropped`` record counting them and saying ``text``."""
+    from ..sensors import sensor_of
+
+    dropped = replace(block.dropped, observations_behind_camera=block.dropped.observations_behind_camera + behind,
+                      points_undetermined=block.dropped.points_undetermined + undetermined,
+                      messages=block.dropped.messages + (text,))
+    need = min((sensor_of(c).min_points_per_image for c in block.cameras.values()), default=6)
+    return prune(leave_out(block, observations, points, dropped), min_points_per_image=need)
+
+
 def _free_network_cofactor(S, notes: list[str], defect_tol: float = 1e-10) -> np.ndarray:
     """Cofactor of theta in a free network: the pseudo-inverse of S (minimum-trace datum).
 
@@ -274,26 +288,79 @@ def adjust(block: Block, options: AdjustOptions = AdjustOptions(),
     """
     t0 = time.perf_counter()
     settings = ap_settings(options.ap, options.grid)
-    problem = build_problem(block, options.ap, settings, ap_models=ap_models,
-                            gnss_drift=options.gnss_drift, imu_drift=options.imu_drift,
-                            lever_arm=options.lever_arm, boresight=options.boresight, options=options)
-    if free:
-        apply_free(problem, free)
-    if start is not None:
-        carry_ap_columns(problem, block.observations.row[problem.obs_order],
-                         start.problem, start.block.observations.row[start.problem.obs_order])
-    state, notes = initial_state(problem, block, start)
-    for slot in problem.sensors:
-        slot.bound.refine_sigma(state, problem.obs_sigma)
-    names = problem.theta_names(block.images.image_id)
-    n_obs, n_unk = problem.n_observations(), problem.n_unknowns()
-    if n_obs <= n_unk:
-        raise AdjustmentError(f"no redundancy: {n_obs} observations for {n_unk} unknowns")
+
+    def setup(block: Block, start, ap_models):
+        problem = build_problem(block, options.ap, settings, ap_models=ap_models,
+                                gnss_drift=options.gnss_drift, imu_drift=options.imu_drift,
+                                lever_arm=options.lever_arm, boresight=options.boresight, options=options)
+        if free:
+            apply_free(problem, free)
+        if start is not None:
+            carry_ap_columns(problem, block.observations.row[problem.obs_order],
+                             start.problem, start.block.observations.row[start.problem.obs_order])
+        state, notes = initial_state(problem, block, start)
+        for slot in problem.sensors:
+            slot.bound.refine_sigma(state, problem.obs_sigma)
+        return problem, state, notes
+
+    problem, state, notes = setup(block, start, ap_models)
     solver_options = options.solver
-    if block.datum == "free" and not solver_options.free_network:
-        solver_options = replace(solver_options, free_network=True)
+    free_network = block.datum == "free" or solver_options.free_network
+    left_out: list[str] = []
+    if free_network:
+        solver_options = replace(solver_options, free_network=True,
+                                 point_sigma_ratio=solver_options.point_sigma_ratio or FREE_POINT_SIGMA_RATIO)
+        # at the start values; a warm start comes from an adjustment that left them out already
+        behind = behind_camera(problem, state) if start is None else np.zeros(problem.n_image_observations, bool)
+        if behind.any():
+            flagged = np.zeros(len(block.observations), bool)
+            flagged[problem.obs_order[behind]] = True
+            text = (f"left out {int(behind.sum())} observations of {len(np.unique(problem.obs_point[behind]))} "
+                    f"points behind their camera at the start values (a central projection fits their mirror "
+                    f"image; COLMAP's cost gives them no residual)")
+            block = _leave_out(block, flagged, None, text, behind=int(behind.sum()))
+            left_out.append(text)
+            problem, state, notes = setup(block, start, ap_models)
+    history: list[IterationRecord] = []
+    while True:
+        names = problem.theta_names(block.images.image_id)
+        n_obs, n_unk = problem.n_observations(), problem.n_unknowns()
+        if n_obs <= n_unk:
+            raise AdjustmentError(f"no redundancy: {n_obs} observations for {n_unk} unknowns")
+        budget = replace(solver_options, max_iterations=max(1, options.solver.max_iterations - len(history)),
+                         initial_damping=history[-1].damping if history else solver_options.initial_damping)
+        done = len(history)                 # iterations before a leave-out: the numbering goes on
+
+        def numbered(record: IterationRecord) -> None:
+            if progress is not None:
+                progress(replace(record, iteration=record.iteration + done))
+        try:
+            outcome = solve(problem, state, names, budget, numbered)
+        except SingularPoints as exc:
+            ids = ", ".join(f"'{block.points.point_id[i]}'" for i in exc.indices[:5])
+            raise AdjustmentError(f"{exc} (e.g. {ids}): remove them or check their observations") from None
+        history += [replace(record, iteration=record.iteration + done) for record in outcome.history]
+        if outcome.undetermined is None or len(history) >= options.solver.max_iterations:
+            break
+        # a free network's points that their rays do not determine: left out, and on from the estimate so far
+        flagged = np.zeros(len(block.points), bool)
+        flagged[outcome.undetermined] = True
+        sigma = points_not_determined_by_rays(np.concatenate([ch.V for ch in outcome.linearisation.chunks]),
+                                              solver_options.point_sigma_ratio)[1]
+        worst = outcome.undetermined[np.argsort(-sigma[outcome.undetermined])][:5]
+        listed = ", ".join(f"'{block.points.point_id[k]}' ({sigma[k]:.3g} m)" for k in worst)
+        text = (f"left out {int(flagged.sum())} points that their rays do not determine after {outcome.iterations} "
+                f"iteration(s) (sigma with the orientations held above {solver_options.point_sigma_ratio:g}x the median "
+                f"{np.median(sigma[np.isfinite(sigma)]):.3g} m, or a "
+                f"singular point block): {listed}{', ...' if flagged.sum() > 5 else ''}")
+        left_out.append(text)
+        previous = SimpleNamespace(block=block, state=outcome.state, problem=problem)
+        block = _leave_out(block, None, flagged, text, undetermined=int(flagged.sum()))
+        problem, state, notes = setup(block, previous, {cam.camera_id: cam.ap for cam in problem.cameras})
+    notes = left_out + notes
+    outcome.history = history
+    outcome.iterations = len(history)
     try:
-        outcome = solve(problem, state, names, solver_options, progress)
         lin = outcome.linearisation
         dense = problem.n_theta <= DENSE_LIMIT
         if outcome.reduction is not None:

@@ -5,6 +5,10 @@
   from the coordinates alone.
 * :func:`undetermined_points` — after the adjustment, object points whose a-posteriori sigma is orders of
   magnitude above the block's median (rays nearly parallel, a point far outside the block).
+* :func:`behind_camera` and :func:`points_not_determined_by_rays` — before a free network's adjustment, at the
+  start values: observations of a point behind its camera (a central projection still gives them a residual,
+  through the mirrored point), and points whose rays alone do not fix them (their 3 x 3 block of the normal
+  equations near-singular, or their sigma with the orientations held orders of magnitude above the median).
 
 The weakly determined *parameters* are :func:`selfcal.adjust.weakly_determined`'s, and exactly singular
 directions :func:`selfcal.adjust.linalg.null_directions`'; these two add what the normal equations hide when
@@ -14,13 +18,21 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["control_on_a_line", "control_far_away", "undetermined_points", "LINE_FRACTION", "POINT_SIGMA_RATIO",
-           "FAR_FACTOR"]
+__all__ = ["control_on_a_line", "control_far_away", "undetermined_points", "behind_camera",
+           "points_not_determined_by_rays", "LINE_FRACTION", "POINT_SIGMA_RATIO", "FAR_FACTOR", "POINT_BLOCK_RCOND",
+           "FREE_POINT_SIGMA_RATIO"]
 
 #: control whose RMS distance from its best-fitting line is below this share of the block's extent is on a line
 LINE_FRACTION = 0.01
 #: a point whose sigma exceeds the median of the block's points by this factor is not determined
 POINT_SIGMA_RATIO = 1000.0
+#: a free network leaves out a point whose sigma with the orientations held exceeds this factor times the median:
+#: without a datum nothing holds it, and a least-squares step sends a point with nearly parallel rays along them
+#: (BAL problem-49: the points 35-1000x the median at the start drift beyond 1e10 m within 50 iterations, each
+#: crossing 1000x one at a time, so the 1000x rule alone would restart the adjustment dozens of times)
+FREE_POINT_SIGMA_RATIO = 100.0
+#: a point whose 3 x 3 normal block has its smallest eigenvalue below this share of its largest is not determined
+POINT_BLOCK_RCOND = 1e-12
 #: control farther from the block's centre than this many times the block's median radius is a mistake
 FAR_FACTOR = 100.0
 
@@ -96,3 +108,43 @@ def undetermined_points(point_ids, sigma_m: np.ndarray, ratio: float = POINT_SIG
     return bad, (f"object points not determined: {bad.size} point(s) have a sigma above {ratio:g}x the block's median "
                  f"({median:.3g} m): {listed}{', ...' if bad.size > top else ''}. Their rays are nearly parallel or "
                  f"they lie far outside the block: check their observations or remove them")
+
+
+def behind_camera(problem, state) -> np.ndarray:
+    """Bool over the problem's (sorted) image observations: the point lies behind its camera at ``state``.
+
+    Sensor-independent: the ray of the pixel the point projects to (:meth:`BoundSensor.rays`, pointing into
+    the scene) has the point on its backward half. A central projection maps a point behind the camera to
+    the pixel of its mirror image, so the point is then opposite the ray's direction; COLMAP's cost function
+    gives such an observation a zero residual (benchmarks/bench_engine.py).
+    """
+    behind = np.zeros(problem.n_image_observations, bool)
+    for slot in problem.sensors:
+        o = np.asarray(slot.observations)
+        if not o.size:
+            continue
+        img, points = problem.obs_image[o], state.points[problem.obs_point[o]]
+        context = slot.bound.context(state, False)
+        try:
+            origin, direction = slot.bound.rays(context, img, slot.bound.pixels(context, img, points))
+        except NotImplementedError:
+            continue
+        behind[o] = np.einsum("ni,ni->n", points - origin, direction) < 0
+    return behind
+
+
+def points_not_determined_by_rays(V: np.ndarray, ratio: float = POINT_SIGMA_RATIO,
+                                  rcond: float = POINT_BLOCK_RCOND) -> tuple[np.ndarray, np.ndarray]:
+    """(indices, sigma) of the points whose rays do not determine them, from their 3 x 3 blocks ``V`` (n, 3, 3)
+    of the normal equations (unit weight): the smallest eigenvalue below ``rcond`` times the largest, or the
+    conditional sigma sqrt(trace V^-1) (the point's sigma with the orientations held) above ``ratio`` times
+    the median. ``sigma`` is that conditional sigma (inf where singular)."""
+    V = np.asarray(V, float)
+    w = np.linalg.eigvalsh(V)
+    singular = ~(w[:, 0] > rcond * np.abs(w[:, 2]))
+    sigma = np.full(len(V), np.inf)
+    ok = ~singular
+    if ok.any():
+        sigma[ok] = np.sqrt(np.trace(np.linalg.inv(V[ok]), axis1=1, axis2=2))
+    median = float(np.median(sigma[ok])) if ok.any() else np.inf
+    return np.flatnonzero(singular | (sigma > ratio * median)), sigma

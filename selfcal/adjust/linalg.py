@@ -14,10 +14,16 @@ import scipy.linalg as la
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-__all__ = ["SingularSystem", "Factor", "factorise", "null_directions", "DENSE_LIMIT"]
+__all__ = ["SingularSystem", "Factor", "factorise", "pseudo_factorise", "null_directions", "DENSE_LIMIT",
+           "PSEUDO_INVERSE_LIMIT", "DEFECT_TOLERANCE"]
 
 #: reduced systems up to this size are factorised densely
 DENSE_LIMIT = 6000
+#: free networks up to this many orientation and camera unknowns take minimum-norm Gauss-Newton steps through a
+#: dense eigendecomposition of S in every undamped iteration (0.02 s at 441 unknowns, about 1 s at 2000)
+PSEUDO_INVERSE_LIMIT = 2000
+#: eigenvalues of the Jacobi-scaled S below this share of the largest are the datum defect
+DEFECT_TOLERANCE = 1e-10
 
 try:  # pragma: no cover - depends on the machine
     from sksparse.cholmod import CholmodNotPositiveDefiniteError, cholesky as _cholmod
@@ -118,6 +124,52 @@ def factorise(S, rcond: float = 1e-13) -> Factor:
     if u.min() < rcond or np.any(lu.U.diagonal() <= 0):
         raise SingularSystem(f"not positive definite or singular (smallest pivot {u.min():.1e})")
     return Factor(lu.solve, scale, scaled=Ss)
+
+
+def pseudo_factorise(S, null: np.ndarray | None = None, defect_tol: float = DEFECT_TOLERANCE) -> Factor:
+    """The minimum-norm solution of a singular S x = b (free network): S's pseudo-inverse in the Jacobi-scaled
+    metric, so that x has no component along the datum directions (inner constraints on the orientation and
+    camera unknowns). ``Factor.defect`` is the number of datum directions, ``Factor.null`` (n, defect) a basis
+    of them in S's own units, to pass back as ``null`` in the next iteration.
+
+    Without ``null``: a dense eigendecomposition of the scaled S, whose eigenvalues below ``defect_tol`` times
+    the largest are the datum defect. With ``null`` (a basis of the previous iteration's): a Cholesky
+    factorisation of S_s + Z Z^T, Z that basis orthonormalised in the current scaling, and the solution's Z
+    part removed; exact when Z spans S's null space, as (S_s + Z Z^T)^-1 is then S_s's pseudo-inverse on
+    Z's complement, where the gradient lies. Ten times cheaper than the eigendecomposition (0.03 s against
+    0.37 s at 1200 unknowns); when S_s Z is no longer below 1e-6 (the state moved the datum directions) or
+    the factorisation fails, the eigendecomposition is repeated.
+
+    Raises SingularSystem when S has an unknown without any observation.
+    """
+    S = S.toarray() if sp.issparse(S) else np.asarray(S)
+    diag = np.diag(S).copy()
+    if np.any(~np.isfinite(diag)):
+        raise SingularSystem("the normal matrix has non-finite entries")
+    if np.any(diag <= 0):
+        raise SingularSystem(f"{int(np.sum(diag <= 0))} unknown(s) have no observation at all")
+    scale = 1.0 / np.sqrt(diag)
+    Ss = S * scale[:, None] * scale[None, :]
+    if null is not None and null.shape[1]:
+        Z = np.linalg.qr(null / scale[:, None])[0]
+        if np.linalg.norm(Ss @ Z) < 1e-6 * np.sqrt(Z.shape[1]):
+            try:
+                c = la.cho_factor(Ss + Z @ Z.T, lower=True, check_finite=False)
+            except la.LinAlgError:
+                c = None
+            if c is not None and np.diag(c[0]).min() ** 2 > 1e-13:
+                def solve(b):
+                    y = la.cho_solve(c, b, check_finite=False)
+                    return y - Z @ (Z.T @ y)
+                factor = Factor(solve, scale)
+                factor.defect, factor.null = Z.shape[1], Z * scale[:, None]
+                return factor
+    w, V = np.linalg.eigh(Ss)
+    keep = w > defect_tol * w.max()
+    Vk, wk = V[:, keep], w[keep]
+    factor = Factor(lambda b: Vk @ ((Vk.T @ b) / (wk if b.ndim == 1 else wk[:, None])), scale)
+    factor.defect, factor.null = int((~keep).sum()), V[:, ~keep] * scale[:, None]
+    return factor
 
 
 #: a column with more non-zeros than this share of the rows is put in the border (camera parameters)

@@ -17,7 +17,8 @@ from typing import Callable
 import numpy as np
 
 from ..errors import AdjustmentError
-from .linalg import DENSE_LIMIT, SingularSystem, factorise, null_directions
+from .datum import points_not_determined_by_rays
+from .linalg import DENSE_LIMIT, PSEUDO_INVERSE_LIMIT, SingularSystem, factorise, null_directions, pseudo_factorise
 from .normal import Linearisation, back_substitute, evaluate_cost, linearise, reduce
 from .problem import Problem, State
 
@@ -52,15 +53,33 @@ class SolverOptions:
     line_search : int
         How many times an undamped step that does not lower the cost is halved
         before damping is switched on (0: damping at once).
+    point_sigma_ratio : float, optional
+        Free networks: stop (``SolverOutcome.undetermined``) as soon as a linearisation has points that their
+        rays do not determine (:func:`~selfcal.adjust.datum.points_not_determined_by_rays` with this ratio),
+        for the caller to leave them out and go on from the estimate so far. Without a datum nothing holds
+        such a point: Gauss-Newton sends it along its ray to infinity, damping only slows that to a creep
+        that no convergence test ends (BAL problem-49: 39 points drift beyond 1e10 m in 50 iterations).
     free_network : bool
-        The block has no datum (no control, no trajectory observations): the
-        normal equations are singular by the datum defect (7 for a similarity).
-        Levenberg-Marquardt damping then stays on (never below 1e-12), as in
-        Ceres, and the estimate is one of the equivalent solutions. Meant for
-        relative problems such as BAL benchmarks; no covariance follows.
+        The block has no datum (datum = "free"): the normal equations are
+        singular by the datum defect (7 for a similarity). Up to
+        PSEUDO_INVERSE_LIMIT orientation and camera unknowns the undamped step
+        is the minimum-norm Gauss-Newton step (S's pseudo-inverse in the
+        Jacobi-scaled metric, :func:`~selfcal.adjust.linalg.pseudo_factorise`):
+        it has no component along the datum directions, so the estimate does
+        not drift along them and every test above applies unchanged. This is
+        the classical free-network adjustment (inner constraints), and it makes
+        the convergence tests gauge-invariant: sqrt(d^T N d) does not see the
+        datum at all (N is null along it), and a minimum-norm step has no datum
+        part for the conditional ``step_sigma`` to be inflated by. Larger free
+        networks keep Levenberg-Marquardt damping on (never below 1e-9: below,
+        the rounding in g along the datum directions is amplified into steps
+        that are rejected) and converge by the function test once the damping
+        is at most 1e-6 (the step is the Gauss-Newton step in every direction
+        the data determine to better than 1e-6 of the diagonal).
     """
 
     max_iterations: int = 50
+    point_sigma_ratio: float | None = None
     step_tolerance: float = 1e-3
     function_tolerance: float = 1e-2
     cost_tolerance: float = 1e-12
@@ -102,6 +121,7 @@ class SolverOutcome:
     history: list[IterationRecord]
     cost: float                     # at ``state``
     reduction: tuple | None = None
+    undetermined: np.ndarray | None = None     # points to leave out (``point_sigma_ratio``), else None
 
 
 def _singular_message(problem: Problem, S, names: list[str], detail: str) -> str:
@@ -146,18 +166,32 @@ def solve(problem: Problem, state: State, names: list[str], options: SolverOptio
         raise AdjustmentError("the initial residuals are not finite (points behind a camera?)")
     redundancy = max(problem.n_observations() - problem.n_unknowns(), 1)
     lam, nu = options.initial_damping, 2.0
-    min_damping = 1e-12 if options.free_network else 0.0
-    if options.free_network:
-        lam = max(lam, 1e-4)
+    pseudo = options.free_network and problem.n_theta <= PSEUDO_INVERSE_LIMIT
+    damped_free = options.free_network and not pseudo
+    min_damping = 1e-9 if damped_free else 0.0
+    if damped_free and lam == 0.0:
+        lam = 1e-4
     history: list[IterationRecord] = []
     converged, reason = False, f"no convergence within {options.max_iterations} iterations"
     iteration = 0
     reduction = None
+    checked = null = None
     for iteration in range(1, options.max_iterations + 1):
+        if options.point_sigma_ratio and options.free_network and checked is not lin:
+            checked = lin
+            bad = points_not_determined_by_rays(np.concatenate([ch.V for ch in lin.chunks]),
+                                                options.point_sigma_ratio)[0]
+            if bad.size:
+                return SolverOutcome(state, lin, False, f"{bad.size} points not determined by their rays",
+                                     iteration - 1, history, lin.cost, undetermined=bad)
         while True:
             S, g, v_inv = reduce(problem, lin, lam, dense)
             try:
-                factor = factorise(S)
+                if pseudo and lam == 0.0:
+                    factor = pseudo_factorise(S, null)
+                    null = factor.null
+                else:
+                    factor = factorise(S)
                 break
             except SingularSystem as exc:
                 if lam == 0.0 and iteration == 1 and not options.free_network:
@@ -174,8 +208,11 @@ def solve(problem: Problem, state: State, names: list[str], options: SolverOptio
         g_p = np.concatenate([ch.g_p for ch in lin.chunks])
         predicted = 0.5 * (d_theta @ lin.g_theta + np.sum(d_p * g_p)
                            + lam * (d_theta @ (lin.diag_theta * d_theta) + np.sum(diag_p * d_p * d_p)))
+        # d^T N d of the undamped N ((N + lam D) d = g): how far the step moves any function of the unknowns
+        # in units of its sigma; blind to the datum directions, along which N is null
+        moved = 2.0 * predicted - 2.0 * lam * (d_theta @ (lin.diag_theta * d_theta) + np.sum(diag_p * d_p * d_p))
         full_gauss_newton = lam == 0.0
-        if (full_gauss_newton and options.line_search and not options.free_network and not new_cost < lin.cost
+        if (full_gauss_newton and options.line_search and not damped_free and not new_cost < lin.cost
                 and abs(new_cost - lin.cost) > 1e-12 * lin.cost):
             d_theta, d_p, candidate, new_cost, predicted = _shortened(problem, state, lin.cost, d_theta, d_p,
                                                                       predicted, options.line_search)
@@ -199,7 +236,9 @@ def solve(problem: Problem, state: State, names: list[str], options: SolverOptio
             # an undamped step d changes any function a^T x by at most sqrt(d^T N d) = sqrt(2 predicted)
             # times its sigma (unit weight): below the tolerance, no estimate moved by a visible share of its
             # a-posteriori sigma (the conditional step_sigma above can stay large in a correlated block)
-            elif full_gauss_newton and np.sqrt(2.0 * predicted) < options.function_tolerance * record.sigma0:
+            elif ((full_gauss_newton and np.sqrt(2.0 * predicted) < options.function_tolerance * record.sigma0)
+                  or (damped_free and lam <= 1e-6
+                      and np.sqrt(max(moved, 0.0)) < options.function_tolerance * record.sigma0)):
                 converged, reason = True, f"no estimate moves by {options.function_tolerance:g} of its sigma"
             elif lin.cost - new_cost <= options.cost_tolerance * max(new_cost, 1e-300):
                 converged, reason = True, "cost no longer decreases"

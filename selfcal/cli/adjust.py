@@ -198,6 +198,10 @@ def run(args: argparse.Namespace) -> int:
         line += f", {s['n_ap_significant']}/{s['n_ap_initial']} APs"
     print(f"{line}; results in {args.out}", file=sys.stderr)
     failure = s.get("failure")
+    # what a free network's adjustments left out (observations behind their camera, undetermined points)
+    for message in tested.result.block.dropped.messages[len(block.dropped.messages):]:
+        if message.startswith("left out"):
+            print(f"warning: {message}", file=sys.stderr)
     for note in s.get("notes", []):
         if note.startswith(("weakly determined", "object points not determined")) and note != failure:
             print(f"warning: {note}", file=sys.stderr)

@@ -78,6 +78,7 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
     snoop_on = snooping is not None and snooping.critical > 0
     critical = snooping.critical if snoop_on else 3.0
     result = adjust(block, options, progress=progress, ap_models=ap_models)
+    block = result.block                # a free network's adjustment leaves out what it cannot determine
     models = {cam.camera_id: cam.ap for cam in result.problem.cameras}
     free = screening_masks(result.problem)
     n_ap_initial = int(sum(cam.ap.n_params for cam in result.problem.cameras))
