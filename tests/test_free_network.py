@@ -13,7 +13,6 @@ import tempfile
 from dataclasses import replace
 
 import numpy as np
-import pytest
 
 from conftest import SHARED_DATA, run_cli, simulation
 

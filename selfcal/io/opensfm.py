@@ -12,7 +12,7 @@ Conventions (OpenSfM's doc/source/geometry.rst, "Coordinate Systems" and "Camera
   id, feature id, the feature's normalized x and y, scale, r g b, segmentation and instance (v1 has no
   segmentation/instance, v0 neither scale). A track id names a point of ``reconstruction.json``.
 
-The conversion to pixels and to selfcal's camera frame is :mod:`selfcal.convert_uav`'s.
+The conversion to pixels and to selfcal's camera frame is :mod:`selfcal.convert.uav`'s.
 """
 from __future__ import annotations
 

@@ -14,7 +14,7 @@ PAT-B (the Stuttgart block adjustment program) exchanges free-format text record
   rotation matrix row by row, ``a11 a12 a13 a21 a22`` and ``a23 a31 a32 a33`` (PCI's "Using PAT-B in
   OrthoEngine": I16,16x,3F16.5 / 5F16.12 / 4F16.12). The matrix A rotates image vectors into object space
   (X - X0 = lambda A x, with x = (x, y, -c) in the image frame, x right, y up): the transpose of selfcal's
-  M = R3(kappa) R2(phi) R1(omega). Read here as written; :mod:`selfcal.convert_uav` turns it into M.
+  M = R3(kappa) R2(phi) R1(omega). Read here as written; :mod:`selfcal.convert.uav` turns it into M.
 
 Every defect (a short record, a non-number, a block without ``-99``, a photo or point given twice) is a
 :class:`~selfcal.errors.BlockError` naming the file and the line. Nothing here converts units.

@@ -41,7 +41,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ...convert_gnss import block_with_gnss, positions_from_geo, positions_from_images
+    from ...convert.gnss import block_with_gnss, positions_from_geo, positions_from_images
     from ...io import read_block
     from ...io.block_folder import write_block
     from ...io.exif import image_files, read_image_gnss

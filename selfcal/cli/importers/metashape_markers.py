@@ -4,7 +4,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from ...convert_uav import block_with_markers
+from ...convert.uav import block_with_markers
 from ...errors import UsageError
 from ...io import read_block
 from ...io.block_folder import write_block

@@ -5,7 +5,7 @@ import argparse
 import os
 import sys
 
-from ...convert_uav import block_from_opensfm
+from ...convert.uav import block_from_opensfm
 from ...errors import BlockError
 from ...io.block_folder import write_block
 from ...io.opensfm import read_reconstruction, read_tracks

@@ -6,7 +6,7 @@ import argparse
 import os
 import sys
 
-from ...convert_uav import block_from_patb
+from ...convert.uav import block_from_patb
 from ...errors import UsageError
 from ...io.block_folder import write_block
 from ...io.output import output_folder

@@ -5,7 +5,7 @@ import argparse
 import os
 import sys
 
-from ...convert_uav import block_from_pix4d
+from ...convert.uav import block_from_pix4d
 from ...errors import UsageError
 from ...io.block_folder import write_block
 from ...io.metashape import read_reference_csv

@@ -24,9 +24,9 @@ from dataclasses import replace
 
 import numpy as np
 
-from .block import Block, FrameCamera, Images, Observations, Points
-from .errors import BlockError, UsageError
-from .geometry.rotation import matrix_from_rotation_vector, opk_from_matrix
+from ..block import Block, FrameCamera, Images, Observations, Points
+from ..errors import BlockError, UsageError
+from ..geometry.rotation import matrix_from_rotation_vector, opk_from_matrix
 
 __all__ = ["block_from_opensfm", "block_from_patb", "block_from_pix4d", "block_with_markers", "camera_key"]
 
@@ -216,8 +216,8 @@ def block_from_pix4d(params, control=None, *, image_sigma_px: float = 1.0, contr
     if radial:
         # Pix4D's radial model is OpenCV's (x_d = x_h (1 + R1 r^2 + R2 r^4 + R3 r^6) on the homogeneous point):
         # fitted as initial brown APs the way a COLMAP camera's distortion is
-        from .convert import colmap_distortion_as_brown
-        from .io.colmap import ColmapCamera
+        from .colmap import colmap_distortion_as_brown
+        from ..io.colmap import ColmapCamera
         f_px = cam.focal_mm / p
         colmap = ColmapCamera(0, "PIX4D", cam.width_px, cam.height_px,
                               {"fx": f_px, "fy": f_px, "cx": cam.principal_point_mm[0] / p,
@@ -248,7 +248,7 @@ def block_from_pix4d(params, control=None, *, image_sigma_px: float = 1.0, contr
 
 def _opensfm_camera(cam, pixel_size_mm: float):
     """A FrameCamera and the equivalent COLMAP camera (pixels, corner origin) of an OpenSfM camera."""
-    from .io.colmap import ColmapCamera
+    from ..io.colmap import ColmapCamera
 
     w, h, s = cam.width, cam.height, float(max(cam.width, cam.height))
     q = cam.params
@@ -274,7 +274,7 @@ def block_from_opensfm(reconstruction, tracks, pixel_size_mm: float = 0.005, ima
     Every observation of a reconstructed point (a track id among the reconstruction's points) in a
     reconstructed shot is kept; the others are counted in the notes.
     """
-    from .convert import colmap_distortion_as_brown
+    from .colmap import colmap_distortion_as_brown
 
     notes: list[str] = []
     if reconstruction.n_reconstructions > 1:

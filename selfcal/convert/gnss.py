@@ -11,8 +11,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .block import Block
-from .geometry.gnss import STRIP_GAP_FACTOR, STRIP_TURN_DEG, check_block_crs, detect_strips, positions_in_crs
+from ..block import Block
+from ..geometry.gnss import STRIP_GAP_FACTOR, STRIP_TURN_DEG, check_block_crs, detect_strips, positions_in_crs
 
 __all__ = ["CameraPositions", "positions_from_images", "positions_from_geo", "block_with_gnss", "GnssImport",
            "projected_control", "utm_crs"]
@@ -183,7 +183,7 @@ def _with_attitude(block: Block, positions: CameraPositions, index, ok, imu_sigm
     """``block`` with the gimbal angles of ``positions`` as its IMU observations (see :func:`block_with_gnss`)."""
     from pyproj import CRS
 
-    from .geometry.gnss import grid_bearing_of_north, opk_from_yaw_pitch_roll
+    from ..geometry.gnss import grid_bearing_of_north, opk_from_yaw_pitch_roll
     ypr = positions.gimbal_ypr_deg
     if ypr is None or not np.isfinite(ypr[ok]).all(axis=1).any():
         raise ValueError("--imu-sigma-deg asks for attitudes, but no image gives its gimbal's yaw, pitch and roll")

@@ -1,0 +1,19 @@
+"""Foreign models (read by :mod:`selfcal.io`) turned into selfcal blocks, and results into foreign models: the
+conventions of each source are translated here, once, one module per source.
+
+* :mod:`.colmap`: a COLMAP sparse model (poses, cameras, distortion as initial ``brown`` APs, control by a 3-D
+  similarity); :mod:`.workspace`: a results folder as a COLMAP dense workspace's sparse model;
+* :mod:`.bal`: Bundle Adjustment in the Large; :mod:`.isis`: ISIS control networks with usgscsm/ALE ISDs;
+* :mod:`.uav`: PAT-B, Pix4D, OpenSfM and Metashape markers; :mod:`.gnss`: camera GNSS/attitude from the images;
+* :mod:`.calibration`: another tool's camera calibration as a block camera.
+"""
+from .bal import bal_behind_camera, block_from_bal
+from .calibration import camera_from_calibration
+from .colmap import (MAX_RAY_MISS_DEG, MEASUREMENT_MISS_SIGMAS, PLAN_ONLY_SIGMA_Z_M, block_from_colmap,
+                     colmap_distortion_as_brown, colmap_undistort)
+from .isis import FREE_SIGMA_M, block_from_isis
+from .workspace import WORKSPACE_ROLES, ColmapWorkspace, colmap_workspace
+
+__all__ = ["block_from_colmap", "colmap_undistort", "colmap_distortion_as_brown", "block_from_bal",
+           "bal_behind_camera", "block_from_isis", "camera_from_calibration", "colmap_workspace", "ColmapWorkspace",
+           "WORKSPACE_ROLES", "PLAN_ONLY_SIGMA_Z_M", "FREE_SIGMA_M", "MEASUREMENT_MISS_SIGMAS", "MAX_RAY_MISS_DEG"]
