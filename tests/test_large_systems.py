@@ -79,6 +79,9 @@ def test_selected_inverse_gives_the_dense_point_cofactors_and_leverages():
     assert isinstance(Q, BandedCofactor)
     Q_dense = factorise(S.toarray()).inverse()
     np.testing.assert_allclose(Q.diagonal(), np.diag(Q_dense), rtol=1e-9)
+    covariance = np.float64(2.0) * Q                      # a covariance (variance factor x cofactor) stays selected
+    assert isinstance(covariance, BandedCofactor)
+    np.testing.assert_allclose(covariance.diagonal(), 2.0 * np.diag(Q_dense), rtol=1e-9)
     Qp, Qp_dense = point_cofactors(problem, lin, v_inv, Q), point_cofactors(problem, lin, v_inv, Q_dense)
     scale = np.sqrt(np.einsum("pii->pi", Qp_dense))
     assert np.max(np.abs(Qp - Qp_dense) / (scale[:, :, None] * scale[:, None, :])) < 1e-9

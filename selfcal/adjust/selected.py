@@ -63,6 +63,7 @@ class BandedCofactor:
 
     ndim = 2
     dtype = np.dtype(float)
+    __array_ufunc__ = None          # numpy_scalar * Q comes to __rmul__, not through a dense array
 
     def __init__(self, scaled, scale: np.ndarray, perm: np.ndarray, border: np.ndarray, width: int, solve):
         n = scaled.shape[0]
