@@ -94,9 +94,13 @@ class Factor:
         inverse, info = la.lapack.dpotri(lower, lower=1, overwrite_c=self._lower is None)
         if info != 0:
             raise SingularSystem(f"singular (dpotri info {info})")
-        # the upper triangle from the lower, and the scaling, in place: one n x n array in all
-        upper = np.triu_indices(inverse.shape[0], 1)
-        inverse[upper] = inverse.T[upper]
+        # the upper triangle from the lower, and the scaling, in place by strips: one n x n array in all
+        n, step = inverse.shape[0], 512
+        for j0 in range(0, n, step):
+            j1 = min(j0 + step, n)
+            diagonal = np.tril(inverse[j0:j1, j0:j1])
+            inverse[j0:j1, j0:j1] = diagonal + np.tril(diagonal, -1).T
+            inverse[j0:j1, j1:] = inverse[j1:, j0:j1].T
         inverse *= self.scale[:, None]
         inverse *= self.scale[None, :]
         return inverse
