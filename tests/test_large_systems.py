@@ -56,6 +56,10 @@ def test_cholmod_is_installed_and_factorises_a_system_without_a_band():
     assert dense.method == "dense"
     x, x_dense = factor.solve(b), dense.solve(b)
     assert np.max(np.abs(x - x_dense)) / np.max(np.abs(x_dense)) < 1e-10
+    # the same pattern with other values (the next iteration) reuses the symbolic analysis, and solves exactly
+    S2 = (S + sp.diags(np.linspace(1.0, 50.0, S.shape[0]))).tocsc()
+    x2 = factorise(S2).solve(b)
+    assert np.max(np.abs(x2 - np.linalg.solve(S2.toarray(), b))) / np.max(np.abs(x2)) < 1e-10
     # its cofactor is the dense inverse (no band to exploit)
     Q = factor.cofactor()
     assert isinstance(Q, np.ndarray)
