@@ -6,7 +6,7 @@ equal terms. Small systems use dense LAPACK; large ones a banded Cholesky with a
 dense border when the image graph has a narrow band (strip-structured blocks) and
 the band is cheaper than CHOLMOD, else CHOLMOD (scikit-sparse, installed by
 ``make install``). Measured on one machine in one run (benchmarks/bench_scaling.py
---linalg): strips of 1000 / 2000 / 5000 images factorised in 0.21 / 0.56 / 8.6 s
+--linalg; one BLAS thread, load average 2 on 2 cores): strips of 1000 / 2000 / 5000 images factorised in 0.21 / 0.56 / 8.6 s
 banded, 0.30 / 0.69 / 3.6 s by CHOLMOD, 0.38 / 1.6 / 6.2 s by SuperLU; a random
 image graph (no band) of 1000 / 2000 images 4.9 / 31 s by CHOLMOD, 9.3 / 33 s by
 SuperLU. SciPy's SuperLU remains only for an installation without scikit-sparse,
