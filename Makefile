@@ -6,15 +6,22 @@ STAMP  := $(VENV)/.installed-stamp
 # glibc keeps freed memory instead of re-mapping (and re-zeroing) it every iteration (selfcal/allocator.py)
 MALLOC := MALLOC_MMAP_THRESHOLD_=33554432 MALLOC_TRIM_THRESHOLD_=2147483647 MALLOC_TOP_PAD_=268435456
 
-.PHONY: install browser colmap test demo bench clean
+.PHONY: install suitesparse browser colmap test demo bench clean
 
-install: $(STAMP)
+install: suitesparse $(STAMP)
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[test,bench]'
+	$(PY) -m pip install --quiet -e '.[test,bench,cholmod]'
 	touch $(STAMP)
+
+# scikit-sparse (the cholmod extra) builds against Debian's SuiteSparse headers and a C compiler.
+suitesparse:
+	@test -f /usr/include/suitesparse/cholmod.h || { \
+	  echo "installing Debian's libsuitesparse-dev for CHOLMOD (scikit-sparse)"; \
+	  SUDO=$$(command -v sudo >/dev/null 2>&1 && [ "$$(id -u)" != 0 ] && echo sudo); \
+	  $$SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq libsuitesparse-dev build-essential >/dev/null; }
 
 # The report tests open the HTML report in Debian's headless Chromium.
 browser:

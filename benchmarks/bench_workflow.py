@@ -51,7 +51,7 @@ def main() -> None:
     watch.wrap(adjust_module, "solve", "solve")
     for name in ("reduce", "factorise", "point_cofactors"):
         watch.wrap(adjust_module, name, "covariance")
-    watch.wrap(linalg.Factor, "inverse", "covariance")
+    watch.wrap(linalg.Factor, "cofactor", "covariance")
     for name in ("observation_tests", "screen_once", "reject_candidates"):
         watch.wrap(workflow, name, "tests")
 

@@ -190,7 +190,8 @@ def test_banded_factorisation_with_a_border_solves_like_dense():
     a border column depends on the others."""
     import scipy.sparse as sp
 
-    from selfcal.adjust.linalg import SingularSystem, _bordered_banded
+    from selfcal.adjust.linalg import SingularSystem
+    from selfcal.adjust.selected import BandedCofactor
 
     rng = np.random.default_rng(4)
     n_img, k = 300, 3
@@ -206,10 +207,24 @@ def test_banded_factorisation_with_a_border_solves_like_dense():
                 J_rows.append(row)
     J = np.vstack(J_rows + [np.eye(n)[:n - k] * 0.5])
     S = sp.csc_matrix(J.T @ J)
-    assert _bordered_banded(S, 1e-13) is not None
+    factor = factorise(S)
+    assert factor.method == "banded"
     b = rng.normal(size=(n, 2))
-    x = factorise(S).solve(b)
+    x = factor.solve(b)
     np.testing.assert_allclose(x, np.linalg.solve(S.toarray(), b), rtol=1e-8, atol=1e-10)
+    # the selected inverse (Takahashi's recurrence on the band, the border's full columns) against the dense
+    # inverse: the diagonal, every entry on S's pattern, and entries off it (by solves) within 1e-9 relative
+    Q_dense = np.linalg.inv(S.toarray())
+    Q = factor.cofactor()
+    assert isinstance(Q, BandedCofactor)
+    np.testing.assert_allclose(Q.diagonal(), np.diag(Q_dense), rtol=1e-9)
+    rows, cols = S.nonzero()
+    scale = np.sqrt(np.outer(np.diag(Q_dense), np.diag(Q_dense)))
+    assert np.max(np.abs(Q[rows, cols] - Q_dense[rows, cols]) / scale[rows, cols]) < 1e-9
+    far = np.ix_([0, 5, 6 * 150], [6 * 299, n - 1, 3])
+    assert np.max(np.abs(Q[far] - Q_dense[far]) / scale[far]) < 1e-9
+    # a border column (camera parameter), scaled: relative to sqrt(Q_ii Q_jj) (entries near zero cancel)
+    assert np.max(np.abs((2.0 * Q)[:, n - 2] - 2.0 * Q_dense[:, n - 2]) / scale[:, n - 2]) < 1e-9
     J[:, -1] = J[:, -2]                                  # two border columns alike: singular
     with pytest.raises(SingularSystem):
         factorise(sp.csc_matrix(J.T @ J))

@@ -97,7 +97,7 @@ class AdjustmentResult:
     variance_factor: float
     image_sigma_px: float
     theta_names: list[str]
-    Q_theta: np.ndarray
+    Q_theta: np.ndarray            # or a BandedCofactor beyond DENSE_LIMIT (Factor.cofactor): index it, .diagonal()
     Q_points: np.ndarray
     residuals: np.ndarray          # (m, 2) image residuals in ``block``'s observation order, observation units
     notes: list[str]
@@ -129,13 +129,13 @@ class AdjustmentResult:
         """A-posteriori standard deviations of the image parameters, (n_images, width) in code units
         (a frame image's X0, Y0, Z0 in m, omega, phi, kappa in rad); NaN where held."""
         n_e = self.problem.n_e
-        s = np.sqrt(self.variance_factor * np.diag(self.Q_theta)[:n_e]).reshape(self.problem.n_images, -1)
+        s = np.sqrt(self.variance_factor * self.Q_theta.diagonal()[:n_e]).reshape(self.problem.n_images, -1)
         return np.where(self.problem.image_free, s, np.nan)
 
     def camera_sigma(self) -> list[np.ndarray]:
         """A-posteriori standard deviations of each camera's parameters (NaN where fixed)."""
         out = []
-        diag = np.diag(self.Q_theta)
+        diag = self.Q_theta.diagonal()
         for cam, start in zip(self.problem.cameras, self.problem.d_offset):
             s = np.full(cam.size, np.nan)
             k = int(cam.free.sum())
@@ -236,12 +236,12 @@ def apply_free(problem: Problem, free: dict) -> None:
 WEAK_INFLATION = 1000.0
 
 
-def weakly_determined(S, Q: np.ndarray, names: list[str], problem: Problem, limit: float = WEAK_INFLATION,
+def weakly_determined(S, Q, names: list[str], problem: Problem, limit: float = WEAK_INFLATION,
                       top: int = 4) -> str | None:
     """A note naming the free parameters whose a-posteriori sigma is more than ``limit`` times the sigma they
     would have if the others were known (sqrt of Q_kk times the reduced normal matrix's S_kk); None if none is."""
     diag = np.asarray(S.diagonal() if hasattr(S, "diagonal") else np.diag(S), float).ravel()
-    inflation = np.sqrt(np.abs(np.diag(Q) * diag))
+    inflation = np.sqrt(np.abs(Q.diagonal() * diag))
     free = np.ones(len(inflation), bool)
     free[:problem.n_e] = problem.image_free.ravel()
     weak = np.flatnonzero(free & (inflation > limit))
@@ -380,7 +380,10 @@ def adjust(block: Block, options: AdjustOptions = AdjustOptions(),
             directions = null_directions(S, names)
             raise AdjustmentError(f"the normal equations are singular at the solution ({exc}):\n  "
                                   + "\n  ".join(directions)) from None
-        Q = factor.inverse()
+        Q = factor.cofactor()
+        if factor.method == "superlu":
+            notes.append("sparse factorisation by SciPy's SuperLU: CHOLMOD (scikit-sparse) is not installed; "
+                         "`make install` or `pip install selfcal[cholmod]` installs it (1-2x faster)")
     if not solver_options.free_network:
         note = weakly_determined(S, Q, names, problem)
         if note:

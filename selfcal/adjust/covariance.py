@@ -7,7 +7,11 @@ object point follows from the Schur structure:
 
 summed over the pairs of observations of the point (their images' blocks of
 Q_theta) and the camera-parameter block, so the cost grows with the number of
-observations, not with the square of the number of unknowns.
+observations, not with the square of the number of unknowns. Of Q_theta it reads
+only the blocks on the pattern of the reduced matrix (:func:`image_blocks`: each
+image's own block and those of the pairs of images that share a point) and the
+camera parameters' columns, so a :class:`~selfcal.adjust.selected.BandedCofactor`
+(the selected inverse) serves as well as the dense inverse.
 """
 from __future__ import annotations
 
@@ -18,7 +22,22 @@ from .normal import Linearisation, point_camera_coupling
 from .problem import Problem
 from .kernels import point_blocks_times, point_cofactor_pairs
 
-__all__ = ["point_cofactors", "by_point_and_image"]
+__all__ = ["point_cofactors", "by_point_and_image", "image_blocks"]
+
+
+def image_blocks(Q, problem: Problem) -> tuple[np.ndarray, np.ndarray]:
+    """Q_theta's image blocks: (n_images, w, w) of each image, and (n_pairs, w, w) of each pair of
+    images that share a point (``problem.structure().pair_keys``: Q(image_pair_a, image_pair_b)).
+    ``Q`` is a dense ndarray or a BandedCofactor: both take NumPy's fancy indexing."""
+    w, n_img = problem.image_width, problem.n_images
+    structure = problem.structure()
+    k = np.arange(w)
+    diag = w * np.arange(n_img)[:, None, None]
+    Q_diag = Q[diag + k[None, :, None], diag + k[None, None, :]]
+    rows = w * structure.image_pair_a[:, None, None] + k[None, :, None]
+    cols = w * structure.image_pair_b[:, None, None] + k[None, None, :]
+    Q_pair = Q[rows, cols] if len(structure.pair_keys) else np.zeros((0, w, w))
+    return np.ascontiguousarray(Q_diag), np.ascontiguousarray(Q_pair)
 
 
 def by_point_and_image(Z_e: np.ndarray, img: np.ndarray, ptl: np.ndarray, n_pc: int, n_img: int) -> sp.csr_matrix:
@@ -30,10 +49,10 @@ def by_point_and_image(Z_e: np.ndarray, img: np.ndarray, ptl: np.ndarray, n_pc: 
     return sp.csr_matrix((vals.ravel(), (rows.ravel(), cols.ravel())), shape=(3 * n_pc, w * n_img))
 
 
-def point_cofactors(problem: Problem, lin: Linearisation, v_inv: list, Q: np.ndarray) -> np.ndarray:
-    """Cofactor blocks Q_pp of all points, shape (n_points, 3, 3)."""
+def point_cofactors(problem: Problem, lin: Linearisation, v_inv: list, Q) -> np.ndarray:
+    """Cofactor blocks Q_pp of all points, shape (n_points, 3, 3); ``Q``: Q_theta (see module docstring)."""
     n_img, n_e, n_d = problem.n_images, problem.n_e, problem.n_d
-    Q_e = np.ascontiguousarray(Q[:n_e, :n_e])
+    Q_diag, Q_pair = image_blocks(Q, problem)
     Q_dd = Q[n_e:n_e + n_d, n_e:n_e + n_d]
     Q_ed_2d = np.ascontiguousarray(Q[:n_e, n_e:n_e + n_d])
     out = np.zeros((problem.n_points, 3, 3))
@@ -42,7 +61,7 @@ def point_cofactors(problem: Problem, lin: Linearisation, v_inv: list, Q: np.nda
         img, ptl = cs.img, cs.ptl
         Z_e = ch.w_e @ Vi[ptl]                                              # (m, w, 3)
         Qp = Vi.copy()
-        point_cofactor_pairs(Z_e, img, ptl, cs.pair_a, cs.pair_b, Q_e, Qp)
+        point_cofactor_pairs(Z_e, img, ptl, cs.pair_a, cs.pair_b, cs.pair_key, Q_diag, Q_pair, Qp)
         if n_d:
             W_pd = point_camera_coupling(problem, ch, cs)
             Z = point_blocks_times(Vi, W_pd, False).reshape(n_pc, 3, n_d)      # Z[p] = Vi[p] W_pd[p]

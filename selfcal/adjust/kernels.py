@@ -83,22 +83,23 @@ def schur_image_blocks(Y, w_e, img, pair_a, pair_b, pair_key, diag, off):
 
 
 @njit(cache=True, nogil=True)
-def point_cofactor_pairs(Z_e, img, ptl, pair_a, pair_b, Q_e, out):
+def point_cofactor_pairs(Z_e, img, ptl, pair_a, pair_b, pair_key, Q_diag, Q_pair, out):
     """out[p] += sum over ordered pairs (a, b) of point p of Z_e[a]^T Q(img a, img b) Z_e[b].
 
     ``pair_a``, ``pair_b`` hold the unordered pairs a < b; the diagonal (a = b)
-    and both orders are added here. Q_e is the dense image part of Q_theta.
+    and both orders are added here. Q(i, i) = Q_diag[i]; Q(img a, img b) = Q_pair[pair_key[q]]: the blocks of
+    Q_theta on the pattern of the reduced matrix (see :func:`selfcal.adjust.covariance.image_blocks`).
     """
     m, ne, _ = Z_e.shape
     tmp = np.zeros((ne, 3))
     for o in range(m):
-        base = ne * img[o]
+        i = img[o]
         p = ptl[o]
         for a in range(ne):
             for j in range(3):
                 s = 0.0
                 for b in range(ne):
-                    s += Q_e[base + a, base + b] * Z_e[o, b, j]
+                    s += Q_diag[i, a, b] * Z_e[o, b, j]
                 tmp[a, j] = s
         for i in range(3):
             for j in range(3):
@@ -109,14 +110,13 @@ def point_cofactor_pairs(Z_e, img, ptl, pair_a, pair_b, Q_e, out):
     for q in range(pair_a.shape[0]):
         oa = pair_a[q]
         ob = pair_b[q]
-        ba = ne * img[oa]
-        bb = ne * img[ob]
+        key = pair_key[q]
         p = ptl[oa]
         for a in range(ne):
             for j in range(3):
                 s = 0.0
                 for b in range(ne):
-                    s += Q_e[ba + a, bb + b] * Z_e[ob, b, j]
+                    s += Q_pair[key, a, b] * Z_e[ob, b, j]
                 tmp[a, j] = s
         for i in range(3):
             for j in range(3):
@@ -128,29 +128,29 @@ def point_cofactor_pairs(Z_e, img, ptl, pair_a, pair_b, Q_e, out):
 
 
 @njit(cache=True, nogil=True)
-def leverage_pairs(Z_e, img, pair_a, pair_b, Q_e, G):
-    """G[a] += Q(img a, img b) Z_e[b] for every ordered pair of the same point, diagonal included."""
+def leverage_pairs(Z_e, img, pair_a, pair_b, pair_key, Q_diag, Q_pair, G):
+    """G[a] += Q(img a, img b) Z_e[b] for every ordered pair of the same point, diagonal included
+    (Q_diag, Q_pair as in :func:`point_cofactor_pairs`)."""
     m, ne, _ = Z_e.shape
     for o in range(m):
-        base = ne * img[o]
+        i = img[o]
         for a in range(ne):
             for j in range(3):
                 s = 0.0
                 for b in range(ne):
-                    s += Q_e[base + a, base + b] * Z_e[o, b, j]
+                    s += Q_diag[i, a, b] * Z_e[o, b, j]
                 G[o, a, j] += s
     for q in range(pair_a.shape[0]):
         oa = pair_a[q]
         ob = pair_b[q]
-        ba = ne * img[oa]
-        bb = ne * img[ob]
+        key = pair_key[q]
         for a in range(ne):
             for j in range(3):
                 s1 = 0.0
                 s2 = 0.0
                 for b in range(ne):
-                    s1 += Q_e[ba + a, bb + b] * Z_e[ob, b, j]
-                    s2 += Q_e[bb + a, ba + b] * Z_e[oa, b, j]
+                    s1 += Q_pair[key, a, b] * Z_e[ob, b, j]
+                    s2 += Q_pair[key, b, a] * Z_e[oa, b, j]
                 G[oa, a, j] += s1
                 G[ob, a, j] += s2
 

@@ -3,9 +3,14 @@
 The reduced matrix S is scaled to unit diagonal (Jacobi scaling) before its
 Cholesky factorisation, so that unknowns in metres, radians and pixels meet on
 equal terms. Small systems use dense LAPACK; large ones a banded Cholesky with a
-dense border when the image graph has a narrow band (strip-structured blocks),
-else a sparse Cholesky (CHOLMOD through scikit-sparse when installed, SciPy's
-SuperLU otherwise).
+dense border when the image graph has a narrow band (strip-structured blocks) and
+the band is cheaper than CHOLMOD, else CHOLMOD (scikit-sparse, installed by
+``make install``). Measured on one machine in one run (benchmarks/bench_scaling.py
+--linalg; one BLAS thread, load average 2 on 2 cores): strips of 1000 / 2000 / 5000 images factorised in 0.21 / 0.56 / 8.6 s
+banded, 0.30 / 0.69 / 3.6 s by CHOLMOD, 0.38 / 1.6 / 6.2 s by SuperLU; a random
+image graph (no band) of 1000 / 2000 images 4.9 / 31 s by CHOLMOD, 9.3 / 33 s by
+SuperLU. SciPy's SuperLU remains only for an installation without scikit-sparse,
+and says so: :attr:`Factor.method` names the path taken and the adjustment notes it.
 """
 from __future__ import annotations
 
@@ -14,8 +19,8 @@ import scipy.linalg as la
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-__all__ = ["SingularSystem", "Factor", "factorise", "pseudo_factorise", "null_directions", "DENSE_LIMIT",
-           "PSEUDO_INVERSE_LIMIT", "DEFECT_TOLERANCE"]
+__all__ = ["SingularSystem", "Factor", "factorise", "pseudo_factorise", "null_directions", "band_structure",
+           "DENSE_LIMIT", "PSEUDO_INVERSE_LIMIT", "DEFECT_TOLERANCE", "CHOLMOD_AVAILABLE"]
 
 #: reduced systems up to this size are factorised densely
 DENSE_LIMIT = 6000
@@ -25,11 +30,14 @@ PSEUDO_INVERSE_LIMIT = 2000
 #: eigenvalues of the Jacobi-scaled S below this share of the largest are the datum defect
 DEFECT_TOLERANCE = 1e-10
 
-try:  # pragma: no cover - depends on the machine
-    from sksparse.cholmod import CholmodNotPositiveDefiniteError, cholesky as _cholmod
-except Exception:  # noqa: BLE001
-    _cholmod = None
+try:  # scikit-sparse is an extra (selfcal[cholmod]): it builds against the system's SuiteSparse
+    from sksparse.cholmod import CholmodNotPositiveDefiniteError, analyze as _cholmod_analyze, cholesky as _cholmod
+except ImportError:  # pragma: no cover - an installation without it
+    _cholmod = _cholmod_analyze = None
     CholmodNotPositiveDefiniteError = None
+
+#: whether large systems without a narrow band are factorised by CHOLMOD (else by SuperLU: 1-2x slower)
+CHOLMOD_AVAILABLE = _cholmod is not None
 
 
 class SingularSystem(np.linalg.LinAlgError):
@@ -39,15 +47,38 @@ class SingularSystem(np.linalg.LinAlgError):
 class Factor:
     """A factorisation of S that solves S x = b for vectors and matrices.
 
-    ``lower`` is the dense Cholesky factor of the scaled S when there is one;
-    ``scaled`` the scaled sparse S otherwise (for :meth:`inverse`).
+    ``method`` names the factorisation: "dense" (LAPACK), "banded" (band with a dense border),
+    "cholmod" or "superlu" (sparse). ``lower`` is the dense Cholesky factor of the scaled S when
+    there is one; ``scaled`` the scaled sparse S otherwise (for :meth:`inverse` and :meth:`cofactor`).
     """
 
-    def __init__(self, solve, scale: np.ndarray, lower: np.ndarray | None = None, scaled=None):
+    def __init__(self, solve, scale: np.ndarray, method: str, lower: np.ndarray | None = None, scaled=None):
         self._solve = solve
         self.scale = scale
+        self.method = method
         self._lower = lower
         self._scaled = scaled
+
+    def cofactor(self):
+        """Q_theta = S^-1 as the covariance needs it.
+
+        A dense ndarray (:meth:`inverse`) for a dense S or a sparse S without a narrow band; for a
+        banded S (every strip-structured block beyond ``DENSE_LIMIT`` unknowns) a
+        :class:`~selfcal.adjust.selected.BandedCofactor`: the entries on S's pattern and the
+        border's full columns by Takahashi's recurrence, n w^2 flops and n w numbers instead of
+        the n^2 of the dense inverse (2000 images: 12003 unknowns, 1.1 GB per dense copy).
+        """
+        if self._scaled is None:
+            return self.inverse()
+        pattern = _pattern_cache(self._scaled)
+        if "band" not in pattern:
+            pattern["band"] = band_structure(self._scaled)
+        band = pattern["band"]
+        if band is None:
+            return self.inverse()
+        from .selected import BandedCofactor
+        border, perm, width = band
+        return BandedCofactor(self._scaled, self.scale, perm, border, width, self.solve)
 
     def solve(self, b: np.ndarray) -> np.ndarray:
         s = self.scale if b.ndim == 1 else self.scale[:, None]
@@ -71,9 +102,16 @@ class Factor:
         inverse, info = la.lapack.dpotri(lower, lower=1, overwrite_c=self._lower is None)
         if info != 0:
             raise SingularSystem(f"singular (dpotri info {info})")
-        inverse = np.tril(inverse)
-        inverse += np.tril(inverse, -1).T
-        return inverse * self.scale[:, None] * self.scale[None, :]
+        # the upper triangle from the lower, and the scaling, in place by strips: one n x n array in all
+        n, step = inverse.shape[0], 512
+        for j0 in range(0, n, step):
+            j1 = min(j0 + step, n)
+            diagonal = np.tril(inverse[j0:j1, j0:j1])
+            inverse[j0:j1, j0:j1] = diagonal + np.tril(diagonal, -1).T
+            inverse[j0:j1, j1:] = inverse[j1:, j0:j1].T
+        inverse *= self.scale[:, None]
+        inverse *= self.scale[None, :]
+        return inverse
 
 
 def factorise(S, rcond: float = 1e-13) -> Factor:
@@ -100,21 +138,26 @@ def factorise(S, rcond: float = 1e-13) -> Factor:
         pivots = np.diag(c) ** 2
         if pivots.min() < rcond:
             raise SingularSystem(f"numerically singular (smallest scaled pivot {pivots.min():.1e})")
-        return Factor(lambda b: la.cho_solve((c, lower), b, check_finite=False), scale, lower=c)
-    D = sp.diags(scale)
-    Ss = (D @ S @ D).tocsc()
-    banded = _bordered_banded(Ss, rcond)
-    if banded is not None:
-        return Factor(banded, scale, scaled=Ss)
+        return Factor(lambda b: la.cho_solve((c, lower), b, check_finite=False), scale, "dense", lower=c)
+    Ss = S.tocsc(copy=True)
+    Ss.data *= scale[Ss.indices] * np.repeat(scale, np.diff(Ss.indptr))
+    pattern = _pattern_cache(Ss)
+    if "band" not in pattern:
+        pattern["band"] = band_structure(Ss)
+    band = pattern["band"]
+    if band is not None and (_cholmod is None or _band_flops(band) <= BAND_FLOPS):
+        return Factor(_bordered_banded(Ss, band, rcond), scale, "banded", scaled=Ss)
     if _cholmod is not None:
         try:
-            f = _cholmod(Ss)
+            if "cholmod" not in pattern:
+                pattern["cholmod"] = _cholmod_analyze(Ss)
+            f = pattern["cholmod"].cholesky(Ss)
         except CholmodNotPositiveDefiniteError as exc:
             raise SingularSystem(f"not positive definite ({exc})") from None
         d = f.D()
         if d.min() < rcond:
             raise SingularSystem(f"numerically singular (smallest scaled pivot {d.min():.1e})")
-        return Factor(f, scale, scaled=Ss)
+        return Factor(f, scale, "cholmod", scaled=Ss)
     try:
         lu = spla.splu(Ss, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
                        options={"SymmetricMode": True})
@@ -123,7 +166,25 @@ def factorise(S, rcond: float = 1e-13) -> Factor:
     u = np.abs(lu.U.diagonal())
     if u.min() < rcond or np.any(lu.U.diagonal() <= 0):
         raise SingularSystem(f"not positive definite or singular (smallest pivot {u.min():.1e})")
-    return Factor(lu.solve, scale, scaled=Ss)
+    return Factor(lu.solve, scale, "superlu", scaled=Ss)
+
+
+_PATTERN: dict = {}
+
+
+def _pattern_cache(Ss: sp.csc_matrix) -> dict:
+    """What depends only on the sparsity pattern of S (the band ordering, CHOLMOD's symbolic analysis),
+    kept for the last pattern seen: every iteration of an adjustment factorises the same pattern
+    (on the 5000-image block this saves 1 of the 4.7 s of a factorisation)."""
+    import hashlib
+
+    digest = hashlib.blake2b(Ss.indptr.tobytes(), digest_size=16)
+    digest.update(Ss.indices.tobytes())
+    key = (Ss.shape, digest.hexdigest())
+    if _PATTERN.get("key") != key:
+        _PATTERN.clear()
+        _PATTERN["key"] = key
+    return _PATTERN
 
 
 def pseudo_factorise(S, null: np.ndarray | None = None, defect_tol: float = DEFECT_TOLERANCE) -> Factor:
@@ -161,13 +222,13 @@ def pseudo_factorise(S, null: np.ndarray | None = None, defect_tol: float = DEFE
                 def solve(b):
                     y = la.cho_solve(c, b, check_finite=False)
                     return y - Z @ (Z.T @ y)
-                factor = Factor(solve, scale)
+                factor = Factor(solve, scale, "pseudo-inverse")
                 factor.defect, factor.null = Z.shape[1], Z * scale[:, None]
                 return factor
     w, V = np.linalg.eigh(Ss)
     keep = w > defect_tol * w.max()
     Vk, wk = V[:, keep], w[keep]
-    factor = Factor(lambda b: Vk @ ((Vk.T @ b) / (wk if b.ndim == 1 else wk[:, None])), scale)
+    factor = Factor(lambda b: Vk @ ((Vk.T @ b) / (wk if b.ndim == 1 else wk[:, None])), scale, "pseudo-inverse")
     factor.defect, factor.null = int((~keep).sum()), V[:, ~keep] * scale[:, None]
     return factor
 
@@ -176,17 +237,18 @@ def pseudo_factorise(S, null: np.ndarray | None = None, defect_tol: float = DEFE
 BORDER_SHARE = 0.1
 #: the banded path is taken when the reverse Cuthill-McKee bandwidth is below this share of the size
 BAND_SHARE = 0.25
+#: with CHOLMOD installed, the banded path is taken while its n w^2 flops stay below this: the strips of
+#: 1000 and 2000 images (n w^2 = 4.5e9, 1.6e10) factorise banded in 0.21 and 0.56 s against CHOLMOD's 0.30
+#: and 0.69 s; 5000 images (1.6e11) in 8.6 s against 3.6 s
+BAND_FLOPS = 4e10
 
 
-def _bordered_banded(Ss: sp.csc_matrix, rcond: float):
-    """Solve function of S by a banded Cholesky factorisation with a dense border, or None.
+def band_structure(Ss: sp.csc_matrix):
+    """(border, perm, width) of S when its image part has a narrow band, else None.
 
-    The image part of a strip-structured block becomes a narrow band under the reverse
-    Cuthill-McKee ordering; the few columns that couple every image (interior orientation,
-    APs, shift/drift) would make the band as wide as the matrix, so they form a border:
-    with S = [[A, B], [B^T, C]], A = L L^T (LAPACK pbtrf on the band) and the Schur
-    complement C - B^T A^-1 B factorised densely. On the 1000-image block this takes 0.09 s
-    against SuperLU's 0.2 s, the 2000-image block 0.2 s against 0.7 s.
+    ``border``: the columns with more than BORDER_SHARE of the rows non-zero (the parameters that
+    couple every image); ``perm``: the others in reverse Cuthill-McKee order; ``width``: the half
+    bandwidth of S[perm][:, perm].
     """
     from scipy.sparse.csgraph import reverse_cuthill_mckee
 
@@ -199,26 +261,46 @@ def _bordered_banded(Ss: sp.csc_matrix, rcond: float):
     A = Ss[inner][:, inner].tocsr()
     order = reverse_cuthill_mckee(A, symmetric_mode=True)
     P = A[order][:, order].tocoo()
-    lower = P.row >= P.col
-    offset = (P.row - P.col)[lower]
-    width = int(offset.max(initial=0))
+    width = int(np.max(P.row - P.col, initial=0))
     if width > BAND_SHARE * inner.size:
         return None
-    band = np.zeros((width + 1, inner.size))
-    band[offset, P.col[lower]] = P.data[lower]
+    return border, inner[order], width
+
+
+def _band_flops(band) -> float:
+    border, perm, width = band
+    return float(perm.size) * float(width + 1) ** 2
+
+
+def _bordered_banded(Ss: sp.csc_matrix, band, rcond: float):
+    """Solve function of S by a banded Cholesky factorisation with a dense border.
+
+    The image part of a strip-structured block becomes a narrow band under the reverse
+    Cuthill-McKee ordering; the few columns that couple every image (interior orientation,
+    APs, shift/drift) would make the band as wide as the matrix, so they form a border:
+    with S = [[A, B], [B^T, C]], A = L L^T (LAPACK pbtrf on the band) and the Schur
+    complement C - B^T A^-1 B factorised densely. On the 1000-image block this takes 0.09 s
+    against SuperLU's 0.2 s, the 2000-image block 0.2 s against 0.7 s.
+    """
+    border, perm, width = band
+    P = Ss[perm][:, perm].tocoo()
+    lower = P.row >= P.col
+    offset = (P.row - P.col)[lower]
+    stored = np.zeros((width + 1, perm.size))
+    stored[offset, P.col[lower]] = P.data[lower]
     try:
-        chol = la.cholesky_banded(band, lower=True, check_finite=False)
+        chol = la.cholesky_banded(stored, lower=True, check_finite=False)
     except la.LinAlgError as exc:
         raise SingularSystem(f"not positive definite ({exc})") from None
     if (chol[0] ** 2).min() < rcond:
         raise SingularSystem(f"numerically singular (smallest scaled pivot {(chol[0] ** 2).min():.1e})")
-    perm = inner[order]                                   # position k of the band holds unknown perm[k]
+    # position k of the band holds unknown perm[k]
 
     def band_solve(b):
         return la.cho_solve_banded((chol, True), b, check_finite=False)
 
     B = Ss[perm][:, border].toarray()
-    X = band_solve(B) if border.size else np.zeros((inner.size, 0))
+    X = band_solve(B) if border.size else np.zeros((perm.size, 0))
     C = Ss[border][:, border].toarray() - B.T @ X
     if border.size:
         try:

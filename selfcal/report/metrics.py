@@ -479,7 +479,7 @@ def trajectory_table(result):
     (false: held at zero by screening, sigma empty).
     """
     problem, state = result.problem, result.state
-    diag = np.diag(result.Q_theta)
+    diag = result.Q_theta.diagonal()
     cols = {k: [] for k in ("sensor", "strip_id", "term", "axis", "value", "sigma", "unit", "active")}
     full, free_col = 0, problem.n_e + problem.n_d
     for t in problem.trajectory:

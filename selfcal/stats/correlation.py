@@ -36,14 +36,14 @@ def correlation_matrix(Q: np.ndarray, index: np.ndarray) -> np.ndarray:
     return sub * s[:, None] * s[None, :]
 
 
-def max_abs_correlation_by_group(problem, Q: np.ndarray) -> dict[str, float | None]:
+def max_abs_correlation_by_group(problem, Q) -> dict[str, float | None]:
     """max |rho| between the APs and each group; None where a group is empty or there are no APs."""
     groups = parameter_groups(problem)
     ap = groups["AP"]
     out: dict[str, float | None] = {name: None for name in GROUPS}
     if ap.size == 0:
         return out
-    d = np.sqrt(np.diag(Q))
+    d = np.sqrt(Q.diagonal())
     for name in GROUPS:
         other = ap if name == "intra-AP" else groups[name]
         if other.size == 0 or (name == "intra-AP" and ap.size < 2):

@@ -33,7 +33,7 @@ import scipy.linalg.blas
 from scipy.stats import norm
 
 from ..adjust.normal import chunk_rows, contexts, parameter_observations, point_camera_coupling
-from ..adjust.covariance import by_point_and_image
+from ..adjust.covariance import by_point_and_image, image_blocks
 from ..adjust.kernels import leverage_camera_cross, leverage_pairs, point_blocks_times, rows_dot_blocks
 
 __all__ = ["ObservationTests", "observation_tests", "noncentrality"]
@@ -81,11 +81,24 @@ def _quadratic_rows(X: np.ndarray, Q: np.ndarray, L: np.ndarray | None) -> np.nd
     return np.einsum("rd,rd->r", XL, XL)
 
 
+def _row_quadratic(J, Q) -> np.ndarray:
+    """diag(J Q J^T) of a sparse J, reading Q only at the pairs of columns a row of J couples (on the
+    pattern of J^T J, part of the reduced matrix: a BandedCofactor knows them)."""
+    counts = np.diff(J.indptr)
+    row = np.repeat(np.arange(J.shape[0]), counts)
+    # every ordered pair (a, b) of non-zeros of the same row
+    sizes = counts[row]
+    first = np.repeat(np.arange(J.nnz), sizes)
+    offsets = np.arange(first.size) - np.repeat(np.cumsum(sizes) - sizes, sizes)
+    second = np.repeat(J.indptr[row], sizes) + offsets
+    values = J.data[first] * J.data[second] * Q[J.indices[first], J.indices[second]]
+    return np.bincount(row[first], weights=values, minlength=J.shape[0])
+
+
 def _image_leverage(problem, state, lin, v_inv, Q, Q_points):
     """h (m, 2) of every image coordinate (sorted order) and whitened residuals l - f."""
     n_img, n_e, n_d, width = problem.n_images, problem.n_e, problem.n_d, problem.image_width
-    Q_ee = Q[:n_e, :n_e].reshape(n_img, width, n_img, width)
-    Q_e = np.ascontiguousarray(Q[:n_e, :n_e])
+    Q_diag, Q_pair = image_blocks(Q, problem)          # Q_theta on the reduced matrix's pattern only
     Q_dd = Q[n_e:n_e + n_d, n_e:n_e + n_d]
     Q_ed_2d = np.ascontiguousarray(Q[:n_e, n_e:n_e + n_d])
     Q_ed = Q_ed_2d.reshape(n_img, width, n_d)
@@ -104,8 +117,8 @@ def _image_leverage(problem, state, lin, v_inv, Q, Q_points):
         r, j_e, j_p, j_d = chunk_rows(problem, state, cs, context)
         Z_e = ch.w_e @ Vi[ptl]                                              # (m, w, 3)
         G = np.zeros((m, width, 3))
-        leverage_pairs(Z_e, img, cs.pair_a, cs.pair_b, Q_e, G)             # sum_b Q_{i_a, i_b} Z_b
-        h = np.einsum("oki,oij,okj->ok", j_e, Q_ee[img, :, img, :], j_e)
+        leverage_pairs(Z_e, img, cs.pair_a, cs.pair_b, cs.pair_key, Q_diag, Q_pair, G)   # sum_b Q_{i_a, i_b} Z_b
+        h = np.einsum("oki,oij,okj->ok", j_e, Q_diag[img], j_e)
         jp_term = j_e @ G                                                   # (m, 2, 3), completed below
         if n_d:
             W_pd = point_camera_coupling(problem, ch, cs)
@@ -147,11 +160,7 @@ def observation_tests(result, critical: float = 3.0) -> ObservationTests:
     ctl_r = np.clip(1.0 - ctl_h, 1e-12, None)
     ctl_v = np.einsum("nij,nj->ni", W, state.points[ctl] - problem.control_xyz)
     J_x, r_x = parameter_observations(problem, state)
-    if J_x.shape[0]:
-        JQ = J_x @ Q
-        par_h = np.asarray(J_x.multiply(JQ).sum(axis=1)).ravel()
-    else:
-        par_h = np.zeros(0)
+    par_h = _row_quadratic(J_x.tocsr(), Q) if J_x.shape[0] else np.zeros(0)
     par_r = np.clip(1.0 - par_h, 1e-12, None)
     return ObservationTests(
         image_redundancy=image_r, image_w=image_w, image_mdb_px=mdb, image_external=external,

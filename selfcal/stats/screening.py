@@ -175,7 +175,7 @@ class _Elimination:
 
     def __init__(self, theta: np.ndarray, Q: np.ndarray, omega: float, redundancy: int):
         self.theta = theta.copy()
-        self.Q = Q.copy()
+        self.Q = np.array(Q, dtype=float)    # a copy; dense (a BandedCofactor of a large block included)
         self.omega0 = self.omega = omega
         self.redundancy = redundancy
 
