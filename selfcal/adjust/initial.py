@@ -99,13 +99,28 @@ def resect(xy_mm: np.ndarray, xyz: np.ndarray, iop: np.ndarray, eop0: np.ndarray
     return eop
 
 
-def _control_rms(problem: Problem, state: State, image: int, known: np.ndarray) -> float:
-    sel = (problem.obs_image == image) & known[problem.obs_point]
-    if sel.sum() < 3:
-        return 0.0
-    iop = state.cameras[problem.image_camera[image]][:3]
-    pred = project(state.points[problem.obs_point[sel]], np.broadcast_to(state.image[image], (sel.sum(), 6)), iop)
-    return float(np.sqrt(np.mean(np.sum((pred - problem.obs_value[sel]) ** 2, axis=1))))
+def _control_rms(problem: Problem, state: State, images: np.ndarray, known: np.ndarray) -> np.ndarray:
+    """Per image of the problem: the RMS misfit (photo mm) of its given orientation at the points with reference
+    coordinates (``known``) it sees, for the frame images ``images``; 0 elsewhere and where fewer than three
+    such observations. One pass over the observations (per image it was one pass each: 15.6 s at 5000 images)."""
+    rms = np.zeros(problem.n_images)
+    wanted = np.zeros(problem.n_images, bool)
+    wanted[images] = True
+    sel = np.flatnonzero(wanted[problem.obs_image] & known[problem.obs_point])
+    if not sel.size:
+        return rms
+    image = problem.obs_image[sel]
+    camera = problem.image_camera[image]
+    iop = np.empty((sel.size, 3))
+    for k in np.unique(camera):
+        iop[camera == k] = state.cameras[k][:3]
+    pred = project(state.points[problem.obs_point[sel]], state.image[image, :6], iop)
+    count = np.bincount(image, minlength=problem.n_images)
+    squares = np.bincount(image, weights=np.sum((pred - problem.obs_value[sel]) ** 2, axis=1),
+                          minlength=problem.n_images)
+    enough = count >= 3
+    rms[enough] = np.sqrt(squares[enough] / count[enough])
+    return rms
 
 
 def _from_previous(problem: Problem, block, state: State, start) -> tuple[np.ndarray, np.ndarray]:
@@ -202,10 +217,12 @@ def initial_state(problem: Problem, block, start=None) -> tuple[State, list[str]
         raise AdjustmentError(f"image '{bad}' has no initial values from its sensor (and its sensor has no "
                               f"space resection)")
     # given orientations that miss their control points badly are treated as missing
-    for i in np.flatnonzero(~need & resectable):
+    given_frames = np.flatnonzero(~need & resectable)
+    control_rms = _control_rms(problem, state, given_frames, known)
+    for i in given_frames:
         cam = block.cameras[images.camera_id[i]]
         diagonal = np.hypot(cam.width_mm, cam.height_mm)
-        rms = _control_rms(problem, state, i, known)
+        rms = control_rms[i]
         if rms > POOR_ORIENTATION_SHARE * diagonal:
             notes.append(f"image '{images.image_id[i]}': given orientation misses its control points by "
                          f"{rms / cam.pixel_size_mm:.0f} px rms; re-oriented by space resection")
