@@ -12,7 +12,7 @@ from ..io.results import read_camera_json
 from .options import number
 
 __all__ = ["calibrations", "pick_camera", "maps_of", "models", "report_fit", "camera_options", "tool_options",
-           "fit_tool", "fitted_covariance"]
+           "fit_tool", "fitted_covariance", "tool_calibration"]
 
 
 def camera_options(parser) -> None:
@@ -116,3 +116,16 @@ def fitted_covariance(cal: Calibration, fitted):
               file=sys.stderr)
         return None
     return propagate(fitted, cal.covariance)
+
+
+def tool_calibration(args, tool: str, with_covariance: bool = False):
+    """The steps every export of a camera to another tool shares: the camera of ``--camera``, the tool's model
+    fitted to it (misfit printed and warned, :func:`fit_tool`) and, ``with_covariance``, the fitted parameters'
+    covariance (:func:`fitted_covariance`); as the :class:`~selfcal.io.calibration_files.ToolCalibration` its
+    writer takes."""
+    from ..io.calibration_files import ToolCalibration
+    cal = pick_camera(calibrations(args.results), args.camera)
+    fitted = fit_tool(cal, tool, args.tool_model, args.tolerance_px, args.tool_model_option)
+    covariance = fitted_covariance(cal, fitted) if with_covariance else None
+    return ToolCalibration(tool, fitted.model.name, fitted.as_dict(), cal.width_px, cal.height_px,
+                           fitted.names if covariance is not None else (), covariance, cal.camera_id)

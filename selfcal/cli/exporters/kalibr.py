@@ -4,9 +4,9 @@ from __future__ import annotations
 import argparse
 import sys
 
-from ...io.calibration_files import ToolCalibration, write_kalibr_camchain
+from ...io.calibration_files import write_kalibr_camchain
 from ...io.output import output_file
-from ..calibrations import calibrations, fit_tool, pick_camera, tool_options
+from ..calibrations import tool_calibration, tool_options
 
 HELP = "Kalibr camchain.yaml of one camera (pinhole, radtan or equidistant)"
 
@@ -19,10 +19,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     args.out = output_file(args.out, (args.results,))
-    cal = pick_camera(calibrations(args.results), args.camera)
-    fitted = fit_tool(cal, "kalibr", args.tool_model, args.tolerance_px,
-                      args.tool_model_option)
-    write_kalibr_camchain(args.out, ToolCalibration("kalibr", fitted.model.name, fitted.as_dict(), cal.width_px,
-                                                    cal.height_px, camera_id=cal.camera_id))
+    write_kalibr_camchain(args.out, tool_calibration(args, "kalibr"))
     print(f"wrote {args.out}", file=sys.stderr)
     return 0

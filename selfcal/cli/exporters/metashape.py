@@ -4,9 +4,9 @@ from __future__ import annotations
 import argparse
 import sys
 
-from ...io.calibration_files import ToolCalibration, write_metashape_xml
+from ...io.calibration_files import write_metashape_xml
 from ...io.output import output_file
-from ..calibrations import calibrations, fit_tool, fitted_covariance, pick_camera, tool_options
+from ..calibrations import tool_calibration, tool_options
 
 HELP = "Metashape calibration XML of one camera (f, cx, cy, b1, b2, k1-k4, p1, p2 and their covariance)"
 
@@ -19,12 +19,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     args.out = output_file(args.out, (args.results,))
-    cal = pick_camera(calibrations(args.results), args.camera)
-    fitted = fit_tool(cal, "metashape", args.tool_model, args.tolerance_px,
-                      args.tool_model_option)
-    covariance = fitted_covariance(cal, fitted)
-    write_metashape_xml(args.out, ToolCalibration("metashape", fitted.model.name, fitted.as_dict(), cal.width_px,
-                                                  cal.height_px, fitted.names if covariance is not None else (),
-                                                  covariance, cal.camera_id))
+    write_metashape_xml(args.out, tool_calibration(args, "metashape", with_covariance=True))
     print(f"wrote {args.out}", file=sys.stderr)
     return 0
