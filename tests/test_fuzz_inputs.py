@@ -184,7 +184,26 @@ READERS = {
                          None),
     "spot5 dimap": (_reader("selfcal.io.spot", "read_spot5"), _shared("pushbroom", "asp_dg_spot", "spot_example1.xml"),
                     None),
+    "pat-b .im": (_reader("selfcal.io.patb", "read_photo_blocks"), lambda ws: os.path.join(ws.patb, "block.im"), None),
+    "pat-b .con": (_reader("selfcal.io.patb", "read_con"), lambda ws: os.path.join(ws.patb, "block.con"), None),
+    "pat-b .ori": (_reader("selfcal.io.patb", "read_ori"), lambda ws: os.path.join(ws.patb, "block.ori"), None),
+    "opensfm reconstruction": (_reader("selfcal.io.opensfm", "read_reconstruction"),
+                               lambda ws: os.path.join(ws.opensfm, "reconstruction.json"), None),
+    "opensfm tracks": (_reader("selfcal.io.opensfm", "read_tracks"),
+                       lambda ws: os.path.join(ws.opensfm, "tracks.csv"), None),
+    "metashape calibration": (_reader("selfcal.io.calibration_files", "read_calibration_file"),
+                              lambda ws: _metashape_calibration(ws), None),
 }
+
+
+def _metashape_calibration(ws) -> str:
+    """A Metashape calibration XML of the block's camera, exported once from its results."""
+    path = os.path.join(ws.root, "calibration", "cal.xml")
+    if not os.path.exists(path):
+        from front_door import run_main
+        code, err = run_main(["export", "metashape", ws.results, "--out", path, "--tolerance-px", "1"])
+        assert code == 0, err
+    return path
 
 
 def _bytes(path: str) -> bytes:
