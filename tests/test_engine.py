@@ -175,6 +175,15 @@ def test_re_adjustment_carries_ap_columns_and_gram():
     fresh = adjust(sub, options, free=free, ap_models=models)
     gram_c, gram_f = carried.problem._ap_gram, fresh.problem._ap_gram
     assert gram_c is not None and gram_c.shape == (int(free[cam.camera_id].sum()),) * 2
+    # the columns were compacted in place inside the first problem's array (no copy): the same values
+    key = (0, free[cam.camera_id].tobytes())
+    columns_c, columns_f = carried.problem._ap_columns[key], fresh.problem._ap_columns[key]
+    assert columns_c.shape == columns_f.shape and not first.problem._ap_columns
+    np.testing.assert_allclose(columns_c[:, :, 3:], columns_f[:, :, 3:], rtol=1e-13, atol=0)
+    # the first adjustment, whose array was taken over, evaluates its columns afresh when used again
+    from selfcal.adjust.normal import image_residuals
+    v = -image_residuals(first.problem, first.state)
+    np.testing.assert_allclose(v, first.residuals[first.problem.obs_order], rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(gram_c, gram_f, rtol=1e-9, atol=1e-12 * np.abs(gram_f).max())
     # the same estimate, within the solver's tolerance (1 % of sigma) of each other
     problem = carried.problem

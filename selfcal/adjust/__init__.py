@@ -271,7 +271,9 @@ def adjust(block: Block, options: AdjustOptions = AdjustOptions(),
     start : AdjustmentResult, optional
         A previous adjustment of (a superset or subset of) this block: its
         estimates are the initial values wherever the ids match (warm start,
-        used by data snooping and AP screening).
+        used by data snooping and AP screening). Its kept AP columns are taken
+        over, not copied: it stays valid, but would evaluate them afresh if
+        linearised again.
     free : dict, optional
         Which screenable parameters are estimated, by owner: a camera id maps to
         a bool array over its AP coefficients, "GNSS" or "IMU" to one over that
@@ -297,7 +299,7 @@ def adjust(block: Block, options: AdjustOptions = AdjustOptions(),
             apply_free(problem, free)
         if start is not None:
             carry_ap_columns(problem, block.observations.row[problem.obs_order],
-                             start.problem, start.block.observations.row[start.problem.obs_order])
+                             start.problem, start.block.observations.row[start.problem.obs_order], consume=True)
         state, notes = initial_state(problem, block, start)
         for slot in problem.sensors:
             slot.bound.refine_sigma(state, problem.obs_sigma)

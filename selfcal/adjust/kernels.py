@@ -17,7 +17,7 @@ import numpy as np
 from numba import njit
 
 __all__ = ["accumulate_observations", "schur_image_blocks", "point_cofactor_pairs", "leverage_pairs", "camera_couplings", "point_blocks_times", "subtract_image_couplings", "rows_dot_blocks",
-           "camera_couplings_compact", "schur_camera_blocks", "leverage_camera_cross"]
+           "camera_couplings_compact", "schur_camera_blocks", "leverage_camera_cross", "compact_rows"]
 
 
 @njit(cache=True, nogil=True)
@@ -384,3 +384,16 @@ def leverage_camera_cross(j_e, j_d, img, ptl, Q_ed, Z, jp_term, h):
             for e in range(ne):
                 s += j_e[o, k, e] * T[e, 3 + k]
             h[o, k] += 2.0 * s
+
+
+@njit(cache=True, nogil=True)
+def compact_rows(flat, width, take, keep):
+    """In place: row i of the (n, width) array in ``flat`` becomes old row take[i] restricted to the columns
+    ``keep``, written as a (len(take), len(keep)) array at the start of ``flat``. Both index arrays must be
+    strictly increasing: every value is then read before the position it sits at is written."""
+    k = keep.size
+    for i in range(take.size):
+        src = take[i] * width
+        dst = i * k
+        for j in range(k):
+            flat[dst + j] = flat[src + keep[j]]

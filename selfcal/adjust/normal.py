@@ -27,8 +27,8 @@ import scipy.sparse as sp
 
 from ..errors import AdjustmentError
 from ..geometry.rotation import matrix_from_opk_with_derivatives, opk_from_matrix_with_derivatives
-from .kernels import (accumulate_observations, camera_couplings, camera_couplings_compact, point_blocks_times,
-                      schur_camera_blocks, schur_image_blocks, subtract_image_couplings)
+from .kernels import (accumulate_observations, camera_couplings, camera_couplings_compact, compact_rows,
+                      point_blocks_times, schur_camera_blocks, schur_image_blocks, subtract_image_couplings)
 from .problem import Problem, State
 
 __all__ = [
@@ -99,12 +99,24 @@ def _camera_jacobian(problem: Problem, k: int) -> np.ndarray:
     if columns is None:
         mine = np.flatnonzero(problem.image_camera[problem.obs_image] == k)
         n_free = int(free.sum())
-        columns = np.zeros((mine.size, 2, nc + n_free))
+        # np.empty, then every entry written: calloc's lazily zeroed pages take no transparent huge
+        # pages, and faulting in hundreds of MB of 4 KiB pages costs more than the writes
+        columns = np.empty((mine.size, 2, nc + n_free))
+        columns[:, :, :nc] = 0.0
         if n_free and mine.size:
-            full = _bound_of(problem, mine).ap_columns(k, mine, cam.ap)
-            columns[:, :, nc:] = (full if free.all() else full[:, :, free]) / problem.obs_sigma[mine][:, :, None]
+            bound = _bound_of(problem, mine)
+            # block by block into the kept array: a basis evaluation makes several temporaries of the array's size
+            for start in range(0, mine.size, AP_COLUMN_BLOCK):
+                o = mine[start:start + AP_COLUMN_BLOCK]
+                full = bound.ap_columns(k, o, cam.ap)
+                columns[start:start + o.size, :, nc:] = \
+                    (full if free.all() else full[:, :, free]) / problem.obs_sigma[o][:, :, None]
         problem._ap_columns[key] = columns
     return columns
+
+
+#: observations per block when a camera's AP columns are evaluated
+AP_COLUMN_BLOCK = 8192
 
 
 def _bound_of(problem: Problem, o: np.ndarray):
@@ -135,14 +147,17 @@ def _gather(columns: np.ndarray, rows: np.ndarray, keep: np.ndarray | None, bloc
     return out
 
 
-def carry_ap_columns(problem: Problem, rows: np.ndarray, previous: Problem, previous_rows: np.ndarray) -> None:
+def carry_ap_columns(problem: Problem, rows: np.ndarray, previous: Problem, previous_rows: np.ndarray,
+                     consume: bool = False) -> None:
     """Give ``problem`` the AP columns of ``previous`` where both use the same AP model object.
 
     A re-adjustment after data snooping or AP screening keeps a subset of the
     observations and of the free APs; its columns are rows and columns of the
     previous ones (rescaled where an observation's sigma changed, as in a
     variance-component iteration). ``rows`` and ``previous_rows`` are the block
-    row numbers of each problem's observations in problem order.
+    row numbers of each problem's observations in problem order. With ``consume`` the previous
+    problem's arrays are taken over and compacted in place (it is not used again, or evaluates its
+    columns afresh if it is).
     """
     lookup = np.argsort(previous_rows)
     if np.any(np.diff(previous_rows[lookup]) == 0):
@@ -164,13 +179,23 @@ def carry_ap_columns(problem: Problem, rows: np.ndarray, previous: Problem, prev
         mine = problem.image_camera[problem.obs_image] == k
         take = old_position[source[mine]]
         keep = np.concatenate([np.ones(nc, bool), free[old_free]])   # the slots and the still free APs
-        columns = _gather(old_columns, take, None if keep.all() else np.flatnonzero(keep))
         ratio = previous.obs_sigma[source[mine]] / problem.obs_sigma[mine]
+        if len(problem.cameras) == 1 and len(previous.cameras) == 1 and np.all(ratio == 1.0):
+            problem._ap_gram = _carried_gram(previous, old_columns, source, free[old_free])
+        if consume and old_columns.flags.c_contiguous and np.all(np.diff(take) > 0):
+            # the previous problem's array, compacted where it lies (no second copy of hundreds of MB);
+            # the previous problem forgets it and would evaluate its columns afresh if used again
+            del previous._ap_columns[(old_k, old_free.tobytes())]
+            flat = old_columns.reshape(-1)
+            width = 2 * old_columns.shape[2]
+            both = np.flatnonzero(np.concatenate([keep, keep]))          # x then y row of each observation
+            compact_rows(flat, width, take.astype(np.int64), both)
+            columns = flat[:take.size * both.size].reshape(take.size, 2, both.size // 2)
+        else:
+            columns = _gather(old_columns, take, None if keep.all() else np.flatnonzero(keep))
         if np.any(ratio != 1.0):
             columns *= ratio[:, :, None]
         problem._ap_columns[(k, free.tobytes())] = columns
-        if len(problem.cameras) == 1 and len(previous.cameras) == 1 and np.all(ratio == 1.0):
-            problem._ap_gram = _carried_gram(previous, old_columns, source, free[old_free])
 
 
 def _carried_gram(previous: Problem, old_columns: np.ndarray, source: np.ndarray, keep: np.ndarray):
