@@ -16,13 +16,14 @@ camera parameters' columns, so a :class:`~selfcal.adjust.selected.BandedCofactor
 from __future__ import annotations
 
 import numpy as np
-import scipy.sparse as sp
+import scipy.linalg
 
 from .normal import Linearisation, point_camera_coupling
 from .problem import Problem
-from .kernels import point_blocks_times, point_cofactor_pairs
+from .kernels import add_point_image_products, point_blocks_times, point_cofactor_pairs
 
-__all__ = ["point_cofactors", "by_point_and_image", "image_blocks"]
+__all__ = ["point_cofactors", "image_blocks", "lower_cholesky", "times_lower",
+           "camera_quadratic"]
 
 
 def image_blocks(Q, problem: Problem) -> tuple[np.ndarray, np.ndarray]:
@@ -40,21 +41,13 @@ def image_blocks(Q, problem: Problem) -> tuple[np.ndarray, np.ndarray]:
     return np.ascontiguousarray(Q_diag), np.ascontiguousarray(Q_pair)
 
 
-def by_point_and_image(Z_e: np.ndarray, img: np.ndarray, ptl: np.ndarray, n_pc: int, n_img: int) -> sp.csr_matrix:
-    """Sparse (3 n_pc, w n_img) matrix holding Z_e[o]^T (Z_e: (m, w, 3)) at (point of o, image of o), summed."""
-    w = Z_e.shape[1]
-    rows = (3 * ptl[:, None, None] + np.arange(3)[None, :, None]).repeat(w, axis=2)      # (m, 3, w)
-    cols = (w * img[:, None, None] + np.arange(w)[None, None, :]).repeat(3, axis=1)
-    vals = Z_e.transpose(0, 2, 1)                                                        # (m, 3, w)
-    return sp.csr_matrix((vals.ravel(), (rows.ravel(), cols.ravel())), shape=(3 * n_pc, w * n_img))
-
-
 def point_cofactors(problem: Problem, lin: Linearisation, v_inv: list, Q) -> np.ndarray:
     """Cofactor blocks Q_pp of all points, shape (n_points, 3, 3); ``Q``: Q_theta (see module docstring)."""
-    n_img, n_e, n_d = problem.n_images, problem.n_e, problem.n_d
+    n_e, n_d = problem.n_images * problem.image_width, problem.n_d
     Q_diag, Q_pair = image_blocks(Q, problem)
     Q_dd = Q[n_e:n_e + n_d, n_e:n_e + n_d]
     Q_ed_2d = np.ascontiguousarray(Q[:n_e, n_e:n_e + n_d])
+    L_dd = lower_cholesky(Q_dd) if n_d else None
     out = np.zeros((problem.n_points, 3, 3))
     for ch, cs, Vi in zip(lin.chunks, problem.structure().chunks, v_inv):
         n_pc = ch.p1 - ch.p0
@@ -64,11 +57,36 @@ def point_cofactors(problem: Problem, lin: Linearisation, v_inv: list, Q) -> np.
         point_cofactor_pairs(Z_e, img, ptl, cs.pair_a, cs.pair_b, cs.pair_key, Q_diag, Q_pair, Qp)
         if n_d:
             W_pd = point_camera_coupling(problem, ch, cs)
-            Z = point_blocks_times(Vi, W_pd, False).reshape(n_pc, 3, n_d)      # Z[p] = Vi[p] W_pd[p]
-            QZ = (Z.reshape(3 * n_pc, n_d) @ Q_dd).reshape(n_pc, 3, n_d)
-            # per point: sum over its observations of Z_e^T Q_ed(image), as one sparse product
-            A = (by_point_and_image(Z_e, img, ptl, n_pc, n_img) @ Q_ed_2d).reshape(n_pc, 3, n_d)
-            cross = A @ Z.transpose(0, 2, 1)
-            Qp += Z @ QZ.transpose(0, 2, 1) + cross + cross.transpose(0, 2, 1)
+            Z = point_blocks_times(Vi, W_pd, False)                            # Z[p] = Vi[p] W_pd[p], (3 n_pc, n_d)
+            # per point: sum over its observations of Z_e^T Q_ed(image)
+            A = np.zeros((3 * n_pc, n_d))
+            add_point_image_products(Z_e, img, ptl, Q_ed_2d, A)
+            cross = A.reshape(n_pc, 3, n_d) @ Z.reshape(n_pc, 3, n_d).transpose(0, 2, 1)
+            Qp += camera_quadratic(Z, Q_dd, L_dd).reshape(n_pc, 3, 3) + cross + cross.transpose(0, 2, 1)
         out[ch.p0:ch.p1] = 0.5 * (Qp + Qp.transpose(0, 2, 1))
     return out
+
+
+def lower_cholesky(Q: np.ndarray) -> np.ndarray | None:
+    """L with Q = L L^T, or None if Q is not numerically positive definite."""
+    try:
+        return np.linalg.cholesky(Q)
+    except np.linalg.LinAlgError:
+        return None
+
+
+def times_lower(X: np.ndarray, L: np.ndarray) -> np.ndarray:
+    """X L for a lower triangular L: a triangular product (half the flops of X Q), as a new C-ordered array."""
+    # X^T is Fortran-ordered: L^T X^T is X L, written to a copy (X may be a view of kept data)
+    return scipy.linalg.blas.dtrmm(1.0, L, X.T, side=0, lower=1, trans_a=1).T
+
+
+def camera_quadratic(Z: np.ndarray, Q: np.ndarray, L: np.ndarray | None) -> np.ndarray:
+    """The 3x3 blocks Z[p] Q Z[p]^T of Z (3 n, k): with Q = L L^T, Gram matrices of the rows of Z L."""
+    n = Z.shape[0] // 3
+    if L is None:
+        ZQ = (Z @ Q).reshape(n, 3, -1)
+    else:
+        ZQ = times_lower(Z, L).reshape(n, 3, -1)
+    right = Z.reshape(n, 3, -1) if L is None else ZQ
+    return ZQ @ right.transpose(0, 2, 1)

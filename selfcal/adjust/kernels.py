@@ -17,7 +17,8 @@ import numpy as np
 from numba import njit
 
 __all__ = ["accumulate_observations", "schur_image_blocks", "point_cofactor_pairs", "leverage_pairs", "camera_couplings", "point_blocks_times", "subtract_image_couplings", "rows_dot_blocks",
-           "camera_couplings_compact", "schur_camera_blocks", "leverage_camera_cross", "compact_rows"]
+           "camera_couplings_compact", "schur_camera_blocks", "leverage_camera_cross", "compact_rows",
+           "add_point_image_products"]
 
 
 @njit(cache=True, nogil=True)
@@ -172,26 +173,27 @@ def camera_couplings(j_d, j_e, j_p, r, img, ptl, varying, U_ed, W_pd, g_d, U_vd)
     for o in range(m):
         i6 = ne * img[o]
         p3 = 3 * ptl[o]
-        for k in range(2):
-            row = j_d[o, k]
-            rk = r[o, k]
+        x, y = j_d[o, 0], j_d[o, 1]
+        rx, ry = r[o, 0], r[o, 1]
+        for d in range(n_d):                # both rows of the observation in one update of each sum
+            g_d[d] += rx * x[d] + ry * y[d]
+        for a in range(ne):
+            cx, cy = j_e[o, 0, a], j_e[o, 1, a]
+            if cx != 0.0 or cy != 0.0:
+                out = U_ed[i6 + a]
+                for d in range(n_d):
+                    out[d] += cx * x[d] + cy * y[d]
+        for a in range(3):
+            cx, cy = j_p[o, 0, a], j_p[o, 1, a]
+            out = W_pd[p3 + a]
             for d in range(n_d):
-                g_d[d] += rk * row[d]
-            for a in range(ne):
-                c = j_e[o, k, a]
-                if c != 0.0:
-                    for d in range(n_d):
-                        U_ed[i6 + a, d] += c * row[d]
-            for a in range(3):
-                c = j_p[o, k, a]
-                if c != 0.0:
-                    for d in range(n_d):
-                        W_pd[p3 + a, d] += c * row[d]
-            for v in range(varying.shape[0]):
-                c = row[varying[v]]
-                if c != 0.0:
-                    for d in range(n_d):
-                        U_vd[v, d] += c * row[d]
+                out[d] += cx * x[d] + cy * y[d]
+        for v in range(varying.shape[0]):
+            cx, cy = x[varying[v]], y[varying[v]]
+            if cx != 0.0 or cy != 0.0:
+                out = U_vd[v]
+                for d in range(n_d):
+                    out[d] += cx * x[d] + cy * y[d]
 
 
 @njit(cache=True, nogil=True)
@@ -199,14 +201,17 @@ def point_blocks_times(B, W_pd, transpose):
     """out[3 p + l] = sum_k B[p, k, l] W_pd[3 p + k] (``transpose``) or B[p, l, k] W_pd[3 p + k]:
     each point's 3 rows of W_pd (3 n_p, n) multiplied by its 3x3 block, B^T or B."""
     n = W_pd.shape[1]
-    out = np.zeros_like(W_pd)
+    out = np.empty_like(W_pd)
     for p in range(B.shape[0]):
+        w0, w1, w2 = W_pd[3 * p], W_pd[3 * p + 1], W_pd[3 * p + 2]
         for l in range(3):
-            for k in range(3):
-                c = B[p, k, l] if transpose else B[p, l, k]
-                if c != 0.0:
-                    for d in range(n):
-                        out[3 * p + l, d] += c * W_pd[3 * p + k, d]
+            if transpose:
+                c0, c1, c2 = B[p, 0, l], B[p, 1, l], B[p, 2, l]
+            else:
+                c0, c1, c2 = B[p, l, 0], B[p, l, 1], B[p, l, 2]
+            row = out[3 * p + l]
+            for d in range(n):              # one pass over the output row: three rows read, one written
+                row[d] = c0 * w0[d] + c1 * w1[d] + c2 * w2[d]
     return out
 
 
@@ -219,12 +224,31 @@ def subtract_image_couplings(Y, W_pd, img, ptl, S_ed):
     for o in range(Y.shape[0]):
         i6 = ne * img[o]
         p3 = 3 * ptl[o]
+        w0, w1, w2 = W_pd[p3], W_pd[p3 + 1], W_pd[p3 + 2]
         for a in range(ne):
-            for k in range(3):
-                c = Y[o, a, k]
-                if c != 0.0:
+            c0, c1, c2 = Y[o, a, 0], Y[o, a, 1], Y[o, a, 2]
+            row = S_ed[i6 + a]
+            for d in range(n):              # one read-modify-write of the row for the three terms
+                row[d] -= c0 * w0[d] + c1 * w1[d] + c2 * w2[d]
+
+
+@njit(cache=True, nogil=True)
+def add_point_image_products(Z_e, img, ptl, Q_ed, out):
+    """out[3 p + c] += sum over observations of point p of sum_a Z_e[o, a, c] Q_ed[ne i + a] (i the
+    observation's image): per point, Z_e^T times its images' rows of Q_ed (n_e, n), summed."""
+    n = Q_ed.shape[1]
+    ne = Z_e.shape[1]
+    for o in range(Z_e.shape[0]):
+        i6 = ne * img[o]
+        p3 = 3 * ptl[o]
+        for c in range(3):
+            row = out[p3 + c]
+            for a in range(ne):
+                z = Z_e[o, a, c]
+                if z != 0.0:
+                    q = Q_ed[i6 + a]
                     for d in range(n):
-                        S_ed[i6 + a, d] -= c * W_pd[p3 + k, d]
+                        row[d] += z * q[d]
 
 
 @njit(cache=True, nogil=True, fastmath=True)

@@ -29,12 +29,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg.blas
 from scipy.stats import norm
 
 from ..adjust.normal import chunk_rows, contexts, parameter_observations, point_camera_coupling
-from ..adjust.covariance import by_point_and_image, image_blocks
-from ..adjust.kernels import leverage_camera_cross, leverage_pairs, point_blocks_times, rows_dot_blocks
+from ..adjust.covariance import image_blocks, lower_cholesky, times_lower
+from ..adjust.kernels import (add_point_image_products, leverage_camera_cross, leverage_pairs, point_blocks_times,
+                              rows_dot_blocks)
 
 __all__ = ["ObservationTests", "observation_tests", "noncentrality"]
 
@@ -72,15 +72,6 @@ class ObservationTests:
         return w[np.arange(len(w)), pick]
 
 
-def _quadratic_rows(X: np.ndarray, Q: np.ndarray, L: np.ndarray | None) -> np.ndarray:
-    """diag(X Q X^T): with Q = L L^T the row norms of X L, a triangular product (half the flops of X Q)."""
-    if L is None:
-        return np.einsum("rd,rd->r", X @ Q, X)
-    # X^T is Fortran-ordered: L^T X^T is X L, written to a copy (X may be a view of kept data)
-    XL = scipy.linalg.blas.dtrmm(1.0, L, X.T, side=0, lower=1, trans_a=1).T
-    return np.einsum("rd,rd->r", XL, XL)
-
-
 def _row_quadratic(J, Q) -> np.ndarray:
     """diag(J Q J^T) of a sparse J, reading Q only at the pairs of columns a row of J couples (on the
     pattern of J^T J, part of the reduced matrix: a BandedCofactor knows them)."""
@@ -104,10 +95,7 @@ def _image_leverage(problem, state, lin, v_inv, Q, Q_points):
     Q_ed = Q_ed_2d.reshape(n_img, width, n_d)
     context = contexts(problem, state)
     h_all = np.zeros((problem.n_image_observations, 2))
-    try:
-        L_dd = np.linalg.cholesky(Q_dd) if n_d else None
-    except np.linalg.LinAlgError:
-        L_dd = None
+    L_dd = lower_cholesky(Q_dd) if n_d else None
     r_all = np.zeros((problem.n_image_observations, 2))
     structure = problem.structure()
     for ch, cs, Vi in zip(lin.chunks, structure.chunks, v_inv):
@@ -122,13 +110,22 @@ def _image_leverage(problem, state, lin, v_inv, Q, Q_points):
         jp_term = j_e @ G                                                   # (m, 2, 3), completed below
         if n_d:
             W_pd = point_camera_coupling(problem, ch, cs)
-            Z = point_blocks_times(Vi, W_pd, False).reshape(n_pc, 3, n_d)      # Z[p] = Vi[p] W_pd[p]
-            leverage_camera_cross(j_e, j_d, img, ptl, Q_ed, Z, jp_term, h)      # the j_e Q_ed terms
-            # H_p = Q_dd Z_d(p) + sum over the point's observations of Q_ed(image)^T Z_e
-            QZ = (Z.reshape(3 * n_pc, n_d) @ Q_dd).reshape(n_pc, 3, n_d)
-            A = (by_point_and_image(Z_e, img, ptl, n_pc, n_img) @ Q_ed_2d).reshape(n_pc, 3, n_d)
-            jp_term += rows_dot_blocks(j_d, ptl, QZ + A)                       # H_p^T stored (n_pc, 3, n_d)
-            h += _quadratic_rows(j_d.reshape(2 * m, n_d), Q_dd, L_dd).reshape(m, 2)
+            Z = point_blocks_times(Vi, W_pd, False)                             # Z[p] = Vi[p] W_pd[p]
+            leverage_camera_cross(j_e, j_d, img, ptl, Q_ed, Z.reshape(n_pc, 3, n_d), jp_term, h)   # j_e Q_ed terms
+            # H_p = Q_dd Z_d(p) + sum over the point's observations of Q_ed(image)^T Z_e, H_p^T stored
+            A = np.zeros((3 * n_pc, n_d))
+            add_point_image_products(Z_e, img, ptl, Q_ed_2d, A)
+            if L_dd is None:
+                jp_term += rows_dot_blocks(j_d, ptl, (Z @ Q_dd + A).reshape(n_pc, 3, n_d))
+                h += np.einsum("rd,rd->r", j_d.reshape(2 * m, n_d) @ Q_dd, j_d.reshape(2 * m, n_d)).reshape(m, 2)
+            else:
+                # with Q_dd = L L^T: j_d Q_dd Z^T = (j_d L)(Z L)^T and j_d Q_dd j_d^T = |j_d L|^2, two triangular
+                # products instead of a general one and a second pass
+                XL = times_lower(j_d.reshape(2 * m, n_d), L_dd)
+                ZL = times_lower(Z, L_dd).reshape(n_pc, 3, n_d)
+                jp_term += rows_dot_blocks(XL.reshape(m, 2, n_d), ptl, ZL)
+                jp_term += rows_dot_blocks(j_d, ptl, A.reshape(n_pc, 3, n_d))
+                h += np.einsum("rd,rd->r", XL, XL).reshape(m, 2)
         h -= 2.0 * np.einsum("okj,okj->ok", jp_term, j_p)
         h += np.einsum("oki,oij,okj->ok", j_p, Q_points[ch.p0:ch.p1][ptl], j_p)
         h_all[cs.o0:cs.o1] = h
