@@ -324,6 +324,7 @@ def adjust(block: Block, options: AdjustOptions = AdjustOptions(),
             left_out.append(text)
             problem, state, notes = setup(block, start, ap_models)
     history: list[IterationRecord] = []
+    datum_null = None                 # a free network's datum directions, carried over a leave-out
     while True:
         names = problem.theta_names(block.images.image_id)
         n_obs, n_unk = problem.n_observations(), problem.n_unknowns()
@@ -337,11 +338,12 @@ def adjust(block: Block, options: AdjustOptions = AdjustOptions(),
             if progress is not None:
                 progress(replace(record, iteration=record.iteration + done))
         try:
-            outcome = solve(problem, state, names, budget, numbered)
+            outcome = solve(problem, state, names, budget, numbered, datum_null)
         except SingularPoints as exc:
             ids = ", ".join(f"'{block.points.point_id[i]}'" for i in exc.indices[:5])
             raise AdjustmentError(f"{exc} (e.g. {ids}): remove them or check their observations") from None
         history += [replace(record, iteration=record.iteration + done) for record in outcome.history]
+        datum_null = outcome.datum_null
         if outcome.undetermined is None or len(history) >= options.solver.max_iterations:
             break
         # a free network's points that their rays do not determine: left out, and on from the estimate so far

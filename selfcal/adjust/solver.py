@@ -122,6 +122,7 @@ class SolverOutcome:
     cost: float                     # at ``state``
     reduction: tuple | None = None
     undetermined: np.ndarray | None = None     # points to leave out (``point_sigma_ratio``), else None
+    datum_null: np.ndarray | None = None       # a free network's datum directions at the last factorisation
 
 
 def _singular_message(problem: Problem, S, names: list[str], detail: str) -> str:
@@ -151,8 +152,12 @@ def _shortened(problem: Problem, state: State, cost: float, d_theta: np.ndarray,
 
 
 def solve(problem: Problem, state: State, names: list[str], options: SolverOptions = SolverOptions(),
-          progress: Callable[[IterationRecord], None] | None = None) -> SolverOutcome:
+          progress: Callable[[IterationRecord], None] | None = None,
+          datum_null: np.ndarray | None = None) -> SolverOutcome:
     """Iterate to the least-squares estimate.
+
+    ``datum_null``: a free network's datum directions from an earlier solve of the same unknowns
+    (``SolverOutcome.datum_null``), followed from there instead of found by an eigendecomposition.
 
     Raises
     ------
@@ -175,7 +180,8 @@ def solve(problem: Problem, state: State, names: list[str], options: SolverOptio
     converged, reason = False, f"no convergence within {options.max_iterations} iterations"
     iteration = 0
     reduction = None
-    checked = null = None
+    checked = None
+    null = datum_null if datum_null is not None and len(datum_null) == problem.n_theta else None
     for iteration in range(1, options.max_iterations + 1):
         if options.point_sigma_ratio and options.free_network and checked is not lin:
             checked = lin
@@ -183,7 +189,7 @@ def solve(problem: Problem, state: State, names: list[str], options: SolverOptio
                                                 options.point_sigma_ratio)[0]
             if bad.size:
                 return SolverOutcome(state, lin, False, f"{bad.size} points not determined by their rays",
-                                     iteration - 1, history, lin.cost, undetermined=bad)
+                                     iteration - 1, history, lin.cost, undetermined=bad, datum_null=null)
         while True:
             S, g, v_inv = reduce(problem, lin, lam, dense)
             try:
@@ -245,7 +251,8 @@ def solve(problem: Problem, state: State, names: list[str], options: SolverOptio
             if converged:
                 if lam == 0.0:
                     reduction = (S, factor, v_inv)
-                return SolverOutcome(state, lin, converged, reason, iteration, history, new_cost, reduction)
+                return SolverOutcome(state, lin, converged, reason, iteration, history, new_cost, reduction,
+                                     datum_null=null)
             lin = linearise(problem, state)
             lam *= max(1.0 / 3.0, 1.0 - (2.0 * min(max(rho, 0.0), 1.0) - 1.0) ** 3)
             lam = min_damping if lam < 1e-9 else lam
@@ -256,4 +263,4 @@ def solve(problem: Problem, state: State, names: list[str], options: SolverOptio
             if lam > 1e12:
                 reason = "diverged: no step lowers the cost"
                 break
-    return SolverOutcome(state, lin, converged, reason, iteration, history, lin.cost)
+    return SolverOutcome(state, lin, converged, reason, iteration, history, lin.cost, datum_null=null)
