@@ -455,12 +455,19 @@ def chunk_rows(problem: Problem, state: State, cs, context=None, compact: bool =
         np.multiply(j_i[:, :, :nc], w[:, :, None], out=j_d[:, :, :nc])
         return r, j_e, j_p, j_d
     j_d = np.zeros((m, 2, problem.camera_columns().shape[1] if compact else n_d))
+    # compact rows of cameras alike (BAL: 49 cameras with f, k1, k2 free): the core slots in one product, not one
+    # masked copy per camera (8.7 of a chunk's 10 ms on BAL problem-49)
+    n_core_all = {c.n_core for c in problem.cameras}
+    alike = compact and len(n_core_all) == 1 and all(c.free[:c.n_core].all() for c in problem.cameras)
+    if alike:
+        nc = n_core_all.pop()
+        np.multiply(j_i[:, :, :nc], w[:, :, None], out=j_d[:, :, :nc])
     for k, mask, columns in cam_cols:
         cam = problem.cameras[k]
         start = 0 if compact else problem.d_offset[k] - n_e
         core_free = cam.free[:cam.n_core]
         n_core = int(core_free.sum())
-        if n_core:
+        if n_core and not alike:
             j_d[mask, :, start:start + n_core] = j_i[mask][:, :, :cam.n_core][:, :, core_free] * w[mask][:, :, None]
         if columns.shape[2]:
             j_d[mask, :, start + n_core:start + n_core + columns.shape[2]] = columns
