@@ -191,17 +191,20 @@ def _follow_null_space(Ss: np.ndarray, Z: np.ndarray, steps: int = 2) -> np.ndar
     """The null space of the scaled S from the previous iteration's basis ``Z`` (orthonormal): the datum
     directions turn with the state (a free network's similarity acts on the current estimate), so Z is
     refined by inverse iteration with a shift far below the defect tolerance. Each step multiplies Z's
-    components along the non-null eigenvectors (eigenvalues above DEFECT_TOLERANCE of the largest) by at
-    most shift / eigenvalue = 1e-2; on BAL problem-49 two steps bring |S_s Z| from about 1e-4 to below
-    1e-9. None when the shifted matrix cannot be factorised."""
-    shift = 1e-2 * DEFECT_TOLERANCE * float(np.abs(Ss).sum(axis=1).max())     # the row sums bound the largest eigenvalue
-    try:
-        c = la.cho_factor(Ss + shift * np.eye(len(Ss)), lower=True, check_finite=False)
-    except la.LinAlgError:
-        return None
-    for _ in range(steps):
-        Z = np.linalg.qr(la.cho_solve(c, Z, check_finite=False))[0]
-    return Z
+    components along the other eigenvectors by shift / eigenvalue. The shift starts at 1e-12 of a bound on
+    the largest eigenvalue and grows by 100 (to 1e-8) while S_s + shift I is not positive definite: far from
+    the solution the Schur complement's rounding makes S_s's null eigenvalues up to about 4e-10 of the largest
+    in either sign (BAL problem-49, second iteration; the next eigenvalue 2.3e-5). None when no shift works."""
+    bound = float(np.abs(Ss).sum(axis=1).max())            # the row sums bound the largest eigenvalue
+    for relative in (1e-12, 1e-10, 1e-8):
+        try:
+            c = la.cho_factor(Ss + relative * bound * np.eye(len(Ss)), lower=True, check_finite=False)
+        except la.LinAlgError:
+            continue
+        for _ in range(steps):
+            Z = np.linalg.qr(la.cho_solve(c, Z, check_finite=False))[0]
+        return Z
+    return None
 
 
 def pseudo_factorise(S, null: np.ndarray | None = None, defect_tol: float = DEFECT_TOLERANCE) -> Factor:
