@@ -10,6 +10,8 @@ the file's values by
   problem written as a COLMAP model: camera RADIAL (f, cx = cy = 0, k1, k2), pose
   turned by 180 deg about x (COLMAP looks along +z, BAL along -z), y observed negated;
   principal point fixed. The cost is the same function;
+* the command line: ``selfcal import bal`` then ``selfcal adjust --no-report`` with ``--snoop 0`` and with the
+  default snooping; the seconds its summary.json reports;
 * SciPy: ``least_squares`` ('trf', LSMR, ``x_scale="jac"``), the Jacobian by finite differences
   on the known sparsity (SciPy groups the columns), stopped when its cost is within 0.1 % of
   selfcal's final cost, or after 30 times selfcal's wall time (then the ratio is a lower bound:
@@ -336,8 +338,32 @@ def run_pycolmap_frame(images: int) -> dict:
             "peak_mb": _peak_mb(), "observations": len(block.observations)}
 
 
+def run_cli(snoop: str) -> dict:
+    """``selfcal import bal`` then ``selfcal adjust --no-report`` (``--snoop 0`` or the default snooping) in
+    this process; the seconds summary.json reports, and the wall time of the adjust command."""
+    from selfcal.cli.main import main as selfcal_main
+
+    with tempfile.TemporaryDirectory() as folder:
+        block, out = os.path.join(folder, "block"), os.path.join(folder, "results")
+        if selfcal_main(["import", "bal", BAL, "--out", block]) != 0:
+            raise RuntimeError("selfcal import bal failed")
+        extra = ["--snoop", "0"] if snoop == "0" else []
+        t0 = time.perf_counter()
+        code = selfcal_main(["adjust", block, "--out", out, "--no-report", "--quiet"] + extra)
+        wall = time.perf_counter() - t0
+        with open(os.path.join(out, "summary.json")) as handle:
+            summary = json.load(handle)
+    return {"exit": code, "seconds": summary["seconds"], "wall": wall, "rejected": summary["n_obs_rejected"]}
+
+
 RUNNERS = {"selfcal": run_selfcal, "pycolmap": run_pycolmap, "pycolmap-kept": run_pycolmap, "scipy": run_scipy,
            "selfcal-frame": run_selfcal_frame, "pycolmap-frame": run_pycolmap_frame}
+
+
+def _cli_child(snoop: str) -> dict:
+    out = subprocess.run([sys.executable, __file__, "--child", "cli", "--target", snoop], capture_output=True,
+                         text=True, check=True)
+    return json.loads(out.stdout.strip().splitlines()[-1])
 
 
 def _child(which: str, target, budget_s: float | None = None, rows_file: str | None = None) -> dict:
@@ -358,6 +384,9 @@ def main() -> None:
     parser.add_argument("--images", default="28,200,1000", help="synthetic frame blocks (default 28,200,1000)")
     args = parser.parse_args()
     if args.child:
+        if args.child == "cli":
+            print(json.dumps(run_cli(args.target)))
+            return
         if args.child.endswith("-frame"):
             print(json.dumps(RUNNERS[args.child](int(args.target))))
             return
@@ -396,6 +425,13 @@ def main() -> None:
           f"{ours['seconds'] / results['pycolmap']['seconds']:.2f} against pycolmap on the whole file "
           f"(selfcal's time includes the covariance of every unknown, which Ceres does not compute; to its final "
           f"cost, the last iteration: {ours['solve_seconds']:.2f} s, ratio {ours['solve_seconds'] / kept['seconds']:.2f})")
+    for snoop in ("0", "default"):
+        cli = _cli_child(snoop)
+        print(f"selfcal import bal + selfcal adjust --no-report{' --snoop 0' if snoop == '0' else ''}: exit {cli['exit']}, "
+              f"{cli['rejected']} observations rejected, "
+              f"summary.json {cli['seconds']:.2f} s (command {cli['wall']:.2f} s); against pycolmap on the whole file "
+              f"{cli['seconds'] / results['pycolmap']['seconds']:.2f}, on the same observations "
+              f"{cli['seconds'] / kept['seconds']:.2f}")
     if "scipy" in results:
         r = results["scipy"]
         if r["to_target"] is not None:

@@ -237,3 +237,35 @@ def test_banded_factorisation_with_a_border_solves_like_dense():
     J[:, -1] = J[:, -2]                                  # two border columns alike: singular
     with pytest.raises(SingularSystem):
         factorise(sp.csc_matrix(J.T @ J))
+
+
+def test_small_blocks_adjust_on_one_blas_thread(monkeypatch):
+    """A block of at most SINGLE_THREAD_IMAGES images is adjusted and tested with BLAS on one thread (the calls
+    are too small to share), whatever the caller's setting, which is restored afterwards; above the limit the
+    caller's setting stands."""
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    import selfcal.adjust.linalg as linalg
+    from selfcal.adjust import AdjustOptions, adjust
+    from selfcal.stats.reliability import observation_tests
+
+    def blas_threads():
+        return {info["num_threads"] for info in threadpool_info() if info["user_api"] == "blas"}
+
+    block = pruned(simulation(seed=5, distortion="brown", points_per_mm2=0.04), "type2")
+    seen = []
+    with threadpool_limits(limits=2, user_api="blas"):
+        assert blas_threads() == {2}
+        result = adjust(block, AdjustOptions(ap="brown"), progress=lambda record: seen.append(blas_threads()))
+        assert seen and all(threads == {1} for threads in seen)
+        assert blas_threads() == {2}
+        import selfcal.stats.reliability as reliability
+        original, inside = reliability._image_leverage, []
+        monkeypatch.setattr(reliability, "_image_leverage", lambda *args: inside.append(blas_threads())
+                            or original(*args))
+        observation_tests(result)
+        assert inside == [{1}] and blas_threads() == {2}
+        monkeypatch.setattr(linalg, "SINGLE_THREAD_IMAGES", len(block.images) - 1)
+        seen.clear()
+        adjust(block, AdjustOptions(ap="brown"), progress=lambda record: seen.append(blas_threads()))
+        assert seen and all(threads == {2} for threads in seen)

@@ -23,7 +23,7 @@ from ..errors import AdjustmentError
 from .covariance import point_cofactors
 from .datum import FREE_POINT_SIGMA_RATIO, behind_camera, points_not_determined_by_rays
 from .initial import initial_state
-from .linalg import DENSE_LIMIT, SingularSystem, factorise, null_directions
+from .linalg import DENSE_LIMIT, SingularSystem, blas_threads, factorise, null_directions
 from .normal import Linearisation, SingularPoints, carry_ap_columns, image_residuals, reduce
 from .problem import Problem, State, build_problem
 from .solver import IterationRecord, SolverOptions, solve
@@ -288,6 +288,11 @@ def adjust(block: Block, options: AdjustOptions = AdjustOptions(),
         When the block has a rank defect (the message names the unknowns
         involved) or cannot be initialised.
     """
+    with blas_threads(len(block.images)):
+        return _adjust(block, options, progress, start, free, ap_models)
+
+
+def _adjust(block: Block, options: AdjustOptions, progress, start, free, ap_models) -> AdjustmentResult:
     t0 = time.perf_counter()
     settings = ap_settings(options.ap, options.grid)
 

@@ -14,6 +14,8 @@ and says so: :attr:`Factor.method` names the path taken and the adjustment notes
 """
 from __future__ import annotations
 
+import contextlib
+
 import numpy as np
 import scipy.linalg as la
 import scipy.sparse as sp
@@ -254,6 +256,23 @@ def pseudo_factorise(S, null: np.ndarray | None = None, defect_tol: float = DEFE
     factor = Factor(lambda b: Vk @ ((Vk.T @ b) / (wk if b.ndim == 1 else wk[:, None])), scale, "pseudo-inverse")
     factor.defect, factor.null = int((~keep).sum()), V[:, ~keep] * scale[:, None]
     return factor
+
+
+#: blocks of up to this many images are adjusted with one BLAS thread: their dense products and factorisations
+#: (reduced systems up to about 2000 unknowns) are too small to share between threads, and waking the second
+#: thread for each call costs more than it saves on this kind of machine (BAL problem-49: 2.0-2.4 s against
+#: 2.4-2.9 s with two threads; the 28- and 200-image blocks neither gain nor lose). Larger blocks keep the
+#: BLAS's own threads (the dense and banded factorisations of thousands of unknowns use them).
+SINGLE_THREAD_IMAGES = 300
+
+
+def blas_threads(n_images: int):
+    """A context in which BLAS runs on one thread if the block has at most SINGLE_THREAD_IMAGES images (through
+    threadpoolctl, which finds the BLAS NumPy and SciPy loaded); otherwise a context that changes nothing."""
+    if n_images > SINGLE_THREAD_IMAGES:
+        return contextlib.nullcontext()
+    from threadpoolctl import threadpool_limits
+    return threadpool_limits(limits=1, user_api="blas")
 
 
 #: a column with more non-zeros than this share of the rows is put in the border (camera parameters)

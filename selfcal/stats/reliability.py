@@ -33,6 +33,7 @@ from scipy.stats import norm
 
 from ..adjust.normal import chunk_rows, contexts, parameter_observations, point_camera_coupling
 from ..adjust.covariance import image_blocks, lower_cholesky, times_lower
+from ..adjust.linalg import blas_threads
 from ..adjust.kernels import (add_point_image_products, leverage_camera_cross, leverage_pairs, point_blocks_times,
                               rows_dot_blocks)
 
@@ -138,7 +139,8 @@ def observation_tests(result, critical: float = 3.0) -> ObservationTests:
     problem, state = result.problem, result.state
     Q, Qp = result.Q_theta, result.Q_points
     delta0 = noncentrality(critical)
-    h, res = _image_leverage(problem, state, result.linearisation, result.v_inv, Q, Qp)
+    with blas_threads(problem.n_images):
+        h, res = _image_leverage(problem, state, result.linearisation, result.v_inv, Q, Qp)
     red = np.clip(1.0 - h, 1e-12, None)
     v = -res                                             # whitened residuals v = f - l
     # back to the block's observation order
