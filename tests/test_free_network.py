@@ -139,3 +139,30 @@ def test_bal_subset_from_the_command_line_converges_to_ceres_cost(tmp_path, caps
     bench._pycolmap_adjust(reconstruction, refine_principal_point=False)
     reference = bench._colmap_cost(reconstruction)
     assert abs(cost / reference - 1) < 1e-6, (cost, reference)
+
+
+def test_undetermined_points_by_closed_forms_match_the_eigenvalues():
+    """points_not_determined_by_rays decides most 3 x 3 blocks by a determinant bound and computes sigma from
+    the principal minors: the same points as the eigenvalue test (well conditioned, rank one, a smallest
+    eigenvalue 1e-13 of the largest, blocks 1e8 larger) and the same sigma as trace(V^-1) to 1e-10."""
+    from selfcal.adjust.datum import POINT_BLOCK_RCOND, points_not_determined_by_rays
+
+    rng = np.random.default_rng(0)
+    A = rng.normal(size=(5000, 3, 5))
+    V = A @ A.transpose(0, 2, 1)
+    u = rng.normal(size=(50, 3))
+    V[:50] = np.einsum("ni,nj->nij", u, u)                                 # rank one: singular
+    V[50:60] *= 1e8
+    V[60:70] = np.diag([1.0, 1.0, 1e-13])                                 # below rcond
+    V[70:80] = np.diag([1.0, 1.0, 1e-11])                                 # above rcond, far above the median sigma
+    indices, sigma = points_not_determined_by_rays(V, 100.0)
+    w = np.linalg.eigvalsh(V)
+    singular = ~(w[:, 0] > POINT_BLOCK_RCOND * np.abs(w[:, 2]))
+    assert singular[:50].all() and singular[60:70].all() and not singular[70:].any()
+    assert np.array_equal(np.isinf(sigma), singular)
+    reference = np.sqrt(np.trace(np.linalg.inv(V[~singular]), axis1=1, axis2=2))
+    np.testing.assert_allclose(sigma[~singular], reference, rtol=1e-10)
+    full = np.full(len(V), np.inf)
+    full[~singular] = reference
+    expected = np.flatnonzero(full > 100 * np.median(reference))
+    assert np.array_equal(indices, expected) and set(range(70, 80)) <= set(indices.tolist())

@@ -140,11 +140,22 @@ def points_not_determined_by_rays(V: np.ndarray, ratio: float = POINT_SIGMA_RATI
     conditional sigma sqrt(trace V^-1) (the point's sigma with the orientations held) above ``ratio`` times
     the median. ``sigma`` is that conditional sigma (inf where singular)."""
     V = np.asarray(V, float)
-    w = np.linalg.eigvalsh(V)
-    singular = ~(w[:, 0] > rcond * np.abs(w[:, 2]))
+    # closed forms for the symmetric 3 x 3 blocks: the principal 2 x 2 minors and the determinant. The
+    # eigenvalues are needed only where 4 det / trace^2, a lower bound of the smallest eigenvalue (the other
+    # two multiply to at most trace^2 / 4), does not clear rcond times trace with room for det's rounding
+    a, b, c = V[:, 0, 0], V[:, 1, 1], V[:, 2, 2]
+    d, e, f = V[:, 0, 1], V[:, 0, 2], V[:, 1, 2]
+    minors = (b * c - f * f) + (a * c - e * e) + (a * b - d * d)
+    det = a * (b * c - f * f) - d * (d * c - f * e) + e * (d * f - b * e)
+    trace = a + b + c
+    singular = ~(4.0 * det > 2.0 * rcond * trace ** 3)
+    unclear = np.flatnonzero(singular)
+    if unclear.size:
+        w = np.linalg.eigvalsh(V[unclear])
+        singular[unclear] = ~(w[:, 0] > rcond * np.abs(w[:, 2]))
     sigma = np.full(len(V), np.inf)
     ok = ~singular
     if ok.any():
-        sigma[ok] = np.sqrt(np.trace(np.linalg.inv(V[ok]), axis1=1, axis2=2))
+        sigma[ok] = np.sqrt(minors[ok] / det[ok])                  # trace(V^-1) = sum of the minors / det
     median = float(np.median(sigma[ok])) if ok.any() else np.inf
     return np.flatnonzero(singular | (sigma > ratio * median)), sigma
