@@ -100,25 +100,45 @@ def read_table(path: str | os.PathLike, columns: list[Column]) -> Table:
     for column in columns:
         if column.required and column.name not in seen:
             raise BlockError(path, "missing column", header_line, column.name)
-    data: dict[str, list] = {name: [] for name in header}
-    lines: list[int] = []
     for line, fields in rows[1:]:
         if len(fields) != len(header):
             raise BlockError(path, f"expected {len(header)} fields, found {len(fields)}", line)
-        lines.append(line)
+    lines = np.array([line for line, _ in rows[1:]], dtype=np.int64)
+    texts = list(zip(*(fields for _, fields in rows[1:]))) or [()] * len(header)
+    out = _columns_at_once(header, texts, spec)
+    if out is None:                     # a value to refuse or an empty optional one: value by value, in line order
+        out = _columns_value_by_value(path, header, rows[1:], spec)
+    return Table(path, out, lines)
+
+
+def _columns_at_once(header: list[str], texts: list[tuple], spec: dict) -> dict[str, np.ndarray] | None:
+    """Each column converted in one pass (``float`` of every text, as :func:`_parse_number` does); None when a
+    number column holds anything else than finite numbers, for the value-by-value reading to say where."""
+    out: dict[str, np.ndarray] = {}
+    for name, column in zip(header, texts):
+        if spec[name].kind == STR:
+            out[name] = np.array([text.strip() for text in column], dtype=object)
+            continue
+        try:
+            values = np.array(column, dtype=object).astype(float)
+        except (ValueError, TypeError):
+            return None
+        if not np.isfinite(values).all():
+            return None
+        out[name] = values
+    return out
+
+
+def _columns_value_by_value(path: str, header: list[str], rows: list, spec: dict) -> dict[str, np.ndarray]:
+    data: dict[str, list] = {name: [] for name in header}
+    for line, fields in rows:
         for name, text in zip(header, fields):
             kind = spec[name].kind
             if kind == STR:
                 data[name].append(text.strip())
             else:
                 data[name].append(_parse_number(text, path, line, name, kind == OPT_NUM))
-    out: dict[str, np.ndarray] = {}
-    for name in header:
-        if spec[name].kind == STR:
-            out[name] = np.array(data[name], dtype=object)
-        else:
-            out[name] = np.array(data[name], dtype=float)
-    return Table(path, out, np.array(lines, dtype=np.int64))
+    return {name: np.array(data[name], dtype=object if spec[name].kind == STR else float) for name in header}
 
 
 def _quoted(text: str) -> str:
