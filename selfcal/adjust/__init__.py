@@ -10,6 +10,7 @@ goes to an optional callback.
 """
 from __future__ import annotations
 
+import contextlib
 import time
 from types import SimpleNamespace
 from dataclasses import dataclass, field, replace
@@ -288,11 +289,12 @@ def adjust(block: Block, options: AdjustOptions = AdjustOptions(),
         When the block has a rank defect (the message names the unknowns
         involved) or cannot be initialised.
     """
-    with blas_threads(len(block.images)):
-        return _adjust(block, options, progress, start, free, ap_models)
+    with contextlib.ExitStack() as threads:
+        return _adjust(block, options, progress, start, free, ap_models, threads)
 
 
-def _adjust(block: Block, options: AdjustOptions, progress, start, free, ap_models) -> AdjustmentResult:
+def _adjust(block: Block, options: AdjustOptions, progress, start, free, ap_models,
+            threads: contextlib.ExitStack) -> AdjustmentResult:
     t0 = time.perf_counter()
     settings = ap_settings(options.ap, options.grid)
 
@@ -311,6 +313,8 @@ def _adjust(block: Block, options: AdjustOptions, progress, start, free, ap_mode
         return problem, state, notes
 
     problem, state, notes = setup(block, start, ap_models)
+    # small blocks on one BLAS thread from here on; the AP basis above keeps them all (a WAP basis's pivoted QR)
+    threads.enter_context(blas_threads(len(block.images)))
     solver_options = options.solver
     free_network = block.datum == "free" or solver_options.free_network
     left_out: list[str] = []
