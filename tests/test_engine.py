@@ -269,3 +269,19 @@ def test_small_blocks_adjust_on_one_blas_thread(monkeypatch):
         seen.clear()
         adjust(block, AdjustOptions(ap="brown"), progress=lambda record: seen.append(blas_threads()))
         assert seen and all(threads == {2} for threads in seen)
+
+
+def test_camera_quadratic_with_and_without_the_cholesky_factor():
+    """Z[p] Q Z[p]^T per point: the triangular path (Q = L L^T) and the plain product (Q not positive definite,
+    L None) both equal the blocks computed one by one."""
+    from selfcal.adjust.covariance import camera_quadratic, lower_cholesky
+
+    rng = np.random.default_rng(3)
+    Z = rng.normal(size=(3 * 40, 17))
+    B = rng.normal(size=(17, 17))
+    Q = B @ B.T + 0.1 * np.eye(17)
+    expected = np.array([Z[3 * p:3 * p + 3] @ Q @ Z[3 * p:3 * p + 3].T for p in range(40)])
+    L = lower_cholesky(Q)
+    assert L is not None and lower_cholesky(-Q) is None
+    np.testing.assert_allclose(camera_quadratic(Z, Q, L), expected, rtol=1e-12, atol=1e-12 * np.abs(expected).max())
+    np.testing.assert_allclose(camera_quadratic(Z, Q, None), expected, rtol=1e-12, atol=1e-12 * np.abs(expected).max())

@@ -43,7 +43,7 @@ def image_blocks(Q, problem: Problem) -> tuple[np.ndarray, np.ndarray]:
 
 def point_cofactors(problem: Problem, lin: Linearisation, v_inv: list, Q) -> np.ndarray:
     """Cofactor blocks Q_pp of all points, shape (n_points, 3, 3); ``Q``: Q_theta (see module docstring)."""
-    n_e, n_d = problem.n_images * problem.image_width, problem.n_d
+    n_e, n_d = problem.n_e, problem.n_d
     Q_diag, Q_pair = image_blocks(Q, problem)
     Q_dd = Q[n_e:n_e + n_d, n_e:n_e + n_d]
     Q_ed_2d = np.ascontiguousarray(Q[:n_e, n_e:n_e + n_d])
@@ -85,8 +85,6 @@ def camera_quadratic(Z: np.ndarray, Q: np.ndarray, L: np.ndarray | None) -> np.n
     """The 3x3 blocks Z[p] Q Z[p]^T of Z (3 n, k): with Q = L L^T, Gram matrices of the rows of Z L."""
     n = Z.shape[0] // 3
     if L is None:
-        ZQ = (Z @ Q).reshape(n, 3, -1)
-    else:
-        ZQ = times_lower(Z, L).reshape(n, 3, -1)
-    right = Z.reshape(n, 3, -1) if L is None else ZQ
-    return ZQ @ right.transpose(0, 2, 1)
+        return (Z @ Q).reshape(n, 3, -1) @ Z.reshape(n, 3, -1).transpose(0, 2, 1)
+    ZL = times_lower(Z, L).reshape(n, 3, -1)
+    return ZL @ ZL.transpose(0, 2, 1)
