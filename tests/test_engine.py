@@ -269,6 +269,42 @@ def test_small_blocks_adjust_on_one_blas_thread(monkeypatch):
         seen.clear()
         adjust(block, AdjustOptions(ap="brown"), progress=lambda record: seen.append(blas_threads()))
         assert seen and all(threads == {2} for threads in seen)
+        # inside the one-thread limit a long dense product gets the caller's threads back, a short one does not
+        with linalg.blas_threads(1):
+            with linalg.shared_product(linalg.SHARED_PRODUCT_FLOPS):
+                assert blas_threads() == {2}
+            with linalg.shared_product(linalg.SHARED_PRODUCT_FLOPS - 1):
+                assert blas_threads() == {1}
+            assert blas_threads() == {1}
+        with linalg.shared_product(linalg.SHARED_PRODUCT_FLOPS):
+            assert blas_threads() == {2}
+    with threadpool_limits(limits=1, user_api="blas"), linalg.blas_threads(1):
+        with linalg.shared_product(linalg.SHARED_PRODUCT_FLOPS):
+            assert blas_threads() == {1}                # a caller on one thread stays on one
+
+
+def test_point_cofactors_from_the_tests_pass_equal_their_own():
+    """The object points' cofactors are computed on first use; the observation tests compute them in their own
+    pass over the points (sharing its products) and leave them on the result: both ways give the same blocks,
+    and the leverages are the same whether the tests are given the blocks or compute them."""
+    from selfcal.adjust import AdjustOptions, adjust
+    from selfcal.stats.reliability import _image_leverage, observation_tests
+
+    block = pruned(simulation(seed=5, distortion="local+brown", points_per_mm2=0.04), "type3")
+    result = adjust(block, AdjustOptions(ap="wavelet:db4"))
+    assert result.point_cofactor_blocks is None
+    tests = observation_tests(result)
+    fused = result.point_cofactor_blocks
+    assert fused is not None and result.Q_points is fused
+    own = point_cofactors(result.problem, result.linearisation, result.v_inv, result.Q_theta)
+    scale = np.sqrt(np.einsum("pii->pi", own))
+    assert np.max(np.abs(fused - own) / (scale[:, :, None] * scale[:, None, :])) < 1e-12
+    h_given = _image_leverage(result.problem, result.state, result.linearisation, result.v_inv, result.Q_theta,
+                              own)[0]
+    h_sorted = 1.0 - tests.image_redundancy[result.problem.obs_order]
+    np.testing.assert_allclose(h_given, h_sorted, rtol=0, atol=1e-10)      # rounding: h sums terms larger than 1
+    lazy = adjust(block, AdjustOptions(ap="wavelet:db4"))
+    np.testing.assert_allclose(lazy.Q_points, own, rtol=0, atol=1e-12 * np.abs(own).max())
 
 
 def test_camera_quadratic_with_and_without_the_cholesky_factor():

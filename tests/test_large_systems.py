@@ -89,7 +89,7 @@ def test_selected_inverse_gives_the_dense_point_cofactors_and_leverages():
     Qp, Qp_dense = point_cofactors(problem, lin, v_inv, Q), point_cofactors(problem, lin, v_inv, Q_dense)
     scale = np.sqrt(np.einsum("pii->pi", Qp_dense))
     assert np.max(np.abs(Qp - Qp_dense) / (scale[:, :, None] * scale[:, None, :])) < 1e-9
-    h, _ = _image_leverage(problem, state, lin, v_inv, Q, Qp)
-    h_dense, _ = _image_leverage(problem, state, lin, v_inv, Q_dense, Qp_dense)
+    h = _image_leverage(problem, state, lin, v_inv, Q, Qp)[0]
+    h_dense = _image_leverage(problem, state, lin, v_inv, Q_dense, Qp_dense)[0]
     assert np.max(np.abs(h - h_dense)) < 1e-9 * np.max(np.abs(h_dense))
     assert 0.0 < h.min() and h.max() < 1.0

@@ -99,12 +99,22 @@ class AdjustmentResult:
     image_sigma_px: float
     theta_names: list[str]
     Q_theta: np.ndarray            # or a BandedCofactor beyond DENSE_LIMIT (Factor.cofactor): index it, .diagonal()
-    Q_points: np.ndarray
     residuals: np.ndarray          # (m, 2) image residuals in ``block``'s observation order, observation units
     notes: list[str]
     seconds: float
     linearisation: Linearisation = field(repr=False, default=None)
     v_inv: list = field(repr=False, default=None)
+    point_cofactor_blocks: np.ndarray | None = field(repr=False, default=None)   # Q_points once computed
+
+    @property
+    def Q_points(self) -> np.ndarray:
+        """Cofactor blocks of the object points, (n_points, 3, 3), computed on first use: the rounds of a tested
+        workflow get them from the observation tests, whose pass over the points shares their products."""
+        if self.point_cofactor_blocks is None:
+            with blas_threads(self.problem.n_images):
+                self.point_cofactor_blocks = point_cofactors(self.problem, self.linearisation, self.v_inv,
+                                                             self.Q_theta)
+        return self.point_cofactor_blocks
 
     @property
     def redundancy(self) -> int:
@@ -401,7 +411,6 @@ def _adjust(block: Block, options: AdjustOptions, progress, start, free, ap_mode
         note = weakly_determined(S, Q, names, problem)
         if note:
             notes.append(note)
-    Q_points = point_cofactors(problem, lin, v_inv, Q)
     variance_factor = 2.0 * outcome.cost / (n_obs - n_unk)
     v_sorted = -image_residuals(problem, outcome.state)
     residuals = np.empty_like(v_sorted)
@@ -421,7 +430,6 @@ def _adjust(block: Block, options: AdjustOptions, progress, start, free, ap_mode
         image_sigma_px=block.image_sigma_px,
         theta_names=names,
         Q_theta=Q,
-        Q_points=Q_points,
         residuals=residuals,
         notes=notes,
         seconds=time.perf_counter() - t0,

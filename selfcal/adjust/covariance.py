@@ -15,14 +15,17 @@ camera parameters' columns, so a :class:`~selfcal.adjust.selected.BandedCofactor
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 import scipy.linalg
 
+from .linalg import shared_product
 from .normal import Linearisation, point_camera_coupling
 from .problem import Problem
 from .kernels import add_point_image_products, point_blocks_times, point_cofactor_pairs
 
-__all__ = ["point_cofactors", "image_blocks", "lower_cholesky", "times_lower",
+__all__ = ["point_cofactors", "PointCofactors", "PointTerms", "image_blocks", "lower_cholesky", "times_lower",
            "camera_quadratic"]
 
 
@@ -41,29 +44,56 @@ def image_blocks(Q, problem: Problem) -> tuple[np.ndarray, np.ndarray]:
     return np.ascontiguousarray(Q_diag), np.ascontiguousarray(Q_pair)
 
 
+@dataclass
+class PointTerms:
+    """A chunk's products that the point cofactors and the leverages (:mod:`selfcal.stats.reliability`) share."""
+
+    Z_e: np.ndarray              # (m, w, 3) each observation's image coupling times its point's V^-1
+    Z: np.ndarray | None         # (3 n_pc, n_d) V^-1 W_pd per point, None without camera parameters
+    A: np.ndarray | None         # (3 n_pc, n_d) per point: sum over its observations of Z_e^T Q_ed(image)
+    ZL: np.ndarray | None        # (3 n_pc, n_d) Z L_dd (Q_dd = L_dd L_dd^T), None where Q_dd has no such factor
+    Q_pp: np.ndarray             # (n_pc, 3, 3) the points' cofactor blocks
+
+
+class PointCofactors:
+    """The parts of Q_theta that the object points need (module docstring), read once, and per chunk of
+    points their cofactor blocks with the products they are made of (:class:`PointTerms`)."""
+
+    def __init__(self, problem: Problem, Q):
+        n_e, n_d = problem.n_e, problem.n_d
+        self.problem = problem
+        self.Q_diag, self.Q_pair = image_blocks(Q, problem)
+        self.Q_dd = Q[n_e:n_e + n_d, n_e:n_e + n_d]
+        self.Q_ed = np.ascontiguousarray(Q[:n_e, n_e:n_e + n_d])          # (n_e, n_d)
+        self.L_dd = lower_cholesky(self.Q_dd) if n_d else None
+
+    def chunk(self, ch, cs, Vi: np.ndarray) -> PointTerms:
+        problem, n_d = self.problem, self.problem.n_d
+        n_pc = ch.p1 - ch.p0
+        Z_e = ch.w_e @ Vi[cs.ptl]                                          # (m, w, 3)
+        Qp = Vi.copy()
+        point_cofactor_pairs(Z_e, cs.img, cs.ptl, cs.pair_a, cs.pair_b, cs.pair_key, self.Q_diag, self.Q_pair, Qp)
+        Z = A = ZL = None
+        if n_d:
+            Z = point_blocks_times(Vi, point_camera_coupling(problem, ch, cs), False)   # Z[p] = Vi[p] W_pd[p]
+            A = np.zeros((3 * n_pc, n_d))
+            add_point_image_products(Z_e, cs.img, cs.ptl, self.Q_ed, A)
+            cross = A.reshape(n_pc, 3, n_d) @ Z.reshape(n_pc, 3, n_d).transpose(0, 2, 1)
+            if self.L_dd is None:
+                quadratic = camera_quadratic(Z, self.Q_dd, None)
+            else:
+                ZL = times_lower(Z, self.L_dd)
+                quadratic = ZL.reshape(n_pc, 3, n_d) @ ZL.reshape(n_pc, 3, n_d).transpose(0, 2, 1)
+            Qp += quadratic.reshape(n_pc, 3, 3) + cross + cross.transpose(0, 2, 1)
+        return PointTerms(Z_e, Z, A, ZL, 0.5 * (Qp + Qp.transpose(0, 2, 1)))
+
+
 def point_cofactors(problem: Problem, lin: Linearisation, v_inv: list, Q) -> np.ndarray:
     """Cofactor blocks Q_pp of all points, shape (n_points, 3, 3); ``Q``: Q_theta (see module docstring)."""
-    n_e, n_d = problem.n_e, problem.n_d
-    Q_diag, Q_pair = image_blocks(Q, problem)
-    Q_dd = Q[n_e:n_e + n_d, n_e:n_e + n_d]
-    Q_ed_2d = np.ascontiguousarray(Q[:n_e, n_e:n_e + n_d])
-    L_dd = lower_cholesky(Q_dd) if n_d else None
+    parts = PointCofactors(problem, Q)
     out = np.zeros((problem.n_points, 3, 3))
     for ch, cs, Vi in zip(lin.chunks, problem.structure().chunks, v_inv):
-        n_pc = ch.p1 - ch.p0
-        img, ptl = cs.img, cs.ptl
-        Z_e = ch.w_e @ Vi[ptl]                                              # (m, w, 3)
-        Qp = Vi.copy()
-        point_cofactor_pairs(Z_e, img, ptl, cs.pair_a, cs.pair_b, cs.pair_key, Q_diag, Q_pair, Qp)
-        if n_d:
-            W_pd = point_camera_coupling(problem, ch, cs)
-            Z = point_blocks_times(Vi, W_pd, False)                            # Z[p] = Vi[p] W_pd[p], (3 n_pc, n_d)
-            # per point: sum over its observations of Z_e^T Q_ed(image)
-            A = np.zeros((3 * n_pc, n_d))
-            add_point_image_products(Z_e, img, ptl, Q_ed_2d, A)
-            cross = A.reshape(n_pc, 3, n_d) @ Z.reshape(n_pc, 3, n_d).transpose(0, 2, 1)
-            Qp += camera_quadratic(Z, Q_dd, L_dd).reshape(n_pc, 3, 3) + cross + cross.transpose(0, 2, 1)
-        out[ch.p0:ch.p1] = 0.5 * (Qp + Qp.transpose(0, 2, 1))
+        out[ch.p0:ch.p1] = parts.chunk(ch, cs, Vi).Q_pp
     return out
 
 
@@ -78,7 +108,8 @@ def lower_cholesky(Q: np.ndarray) -> np.ndarray | None:
 def times_lower(X: np.ndarray, L: np.ndarray) -> np.ndarray:
     """X L for a lower triangular L: a triangular product (half the flops of X Q), as a new C-ordered array."""
     # X^T is Fortran-ordered: L^T X^T is X L, written to a copy (X may be a view of kept data)
-    return scipy.linalg.blas.dtrmm(1.0, L, X.T, side=0, lower=1, trans_a=1).T
+    with shared_product(0.5 * X.shape[0] * L.shape[0] ** 2):
+        return scipy.linalg.blas.dtrmm(1.0, L, X.T, side=0, lower=1, trans_a=1).T
 
 
 def camera_quadratic(Z: np.ndarray, Q: np.ndarray, L: np.ndarray | None) -> np.ndarray:

@@ -15,6 +15,7 @@ and says so: :attr:`Factor.method` names the path taken and the adjustment notes
 from __future__ import annotations
 
 import contextlib
+import functools
 
 import numpy as np
 import scipy.linalg as la
@@ -264,15 +265,45 @@ def pseudo_factorise(S, null: np.ndarray | None = None, defect_tol: float = DEFE
 #: 2.4-2.9 s with two threads; the 28- and 200-image blocks neither gain nor lose). Larger blocks keep the
 #: BLAS's own threads (the dense and banded factorisations of thousands of unknowns use them).
 SINGLE_THREAD_IMAGES = 300
+#: inside such a block, one dense product of at least this many multiply-adds gets the caller's threads back
+#: (:func:`shared_product`): the leverages' j_d L of 32,000 rows by 257 WAP columns took 84 ms on one thread, 53 ms
+#: on two, while a whole workflow on two threads throughout was 2 s slower
+SHARED_PRODUCT_FLOPS = 5e8
+
+_caller_threads: list[int] = []        # the callers' BLAS threads of the one-thread contexts entered, innermost last
 
 
+@functools.cache
+def _blas():
+    """threadpoolctl's controller of the BLAS libraries NumPy and SciPy loaded, found once (each
+    ``threadpool_limits`` call searches the process's libraries again: 3 ms)."""
+    from threadpoolctl import ThreadpoolController
+    return ThreadpoolController().select(user_api="blas")
+
+
+@contextlib.contextmanager
 def blas_threads(n_images: int):
-    """A context in which BLAS runs on one thread if the block has at most SINGLE_THREAD_IMAGES images (through
-    threadpoolctl, which finds the BLAS NumPy and SciPy loaded); otherwise a context that changes nothing."""
+    """A context in which BLAS runs on one thread if the block has at most SINGLE_THREAD_IMAGES images (the
+    caller's setting is restored after it); otherwise a context that changes nothing."""
     if n_images > SINGLE_THREAD_IMAGES:
+        yield
+        return
+    blas = _blas()
+    caller = max((lib.num_threads for lib in blas.lib_controllers), default=1)
+    with blas.limit(limits=1):
+        _caller_threads.append(caller)
+        try:
+            yield
+        finally:
+            _caller_threads.pop()
+
+
+def shared_product(multiply_adds: float):
+    """A context for one dense product of ``multiply_adds``: inside :func:`blas_threads`' one-thread limit, a
+    product of at least SHARED_PRODUCT_FLOPS runs on the caller's threads; anything else is left as it is."""
+    if multiply_adds < SHARED_PRODUCT_FLOPS or not _caller_threads or _caller_threads[-1] <= 1:
         return contextlib.nullcontext()
-    from threadpoolctl import threadpool_limits
-    return threadpool_limits(limits=1, user_api="blas")
+    return _blas().limit(limits=_caller_threads[-1])
 
 
 #: a column with more non-zeros than this share of the rows is put in the border (camera parameters)

@@ -32,10 +32,9 @@ import numpy as np
 from scipy.stats import norm
 
 from ..adjust.normal import chunk_rows, contexts, parameter_observations, point_camera_coupling
-from ..adjust.covariance import image_blocks, lower_cholesky, times_lower
+from ..adjust.covariance import PointCofactors, times_lower
 from ..adjust.linalg import blas_threads
-from ..adjust.kernels import (add_point_image_products, leverage_camera_cross, leverage_pairs, point_blocks_times,
-                              rows_dot_blocks)
+from ..adjust.kernels import leverage_camera_cross, leverage_pairs, rows_dot_blocks
 
 __all__ = ["ObservationTests", "observation_tests", "noncentrality"]
 
@@ -87,60 +86,60 @@ def _row_quadratic(J, Q) -> np.ndarray:
     return np.bincount(row[first], weights=values, minlength=J.shape[0])
 
 
-def _image_leverage(problem, state, lin, v_inv, Q, Q_points):
-    """h (m, 2) of every image coordinate (sorted order) and whitened residuals l - f."""
+def _image_leverage(problem, state, lin, v_inv, Q, Q_points=None):
+    """h (m, 2) of every image coordinate (sorted order), whitened residuals l - f, and the points' cofactor
+    blocks: ``Q_points`` if given, else computed in the same pass (they share its products)."""
     n_img, n_e, n_d, width = problem.n_images, problem.n_e, problem.n_d, problem.image_width
-    Q_diag, Q_pair = image_blocks(Q, problem)          # Q_theta on the reduced matrix's pattern only
-    Q_dd = Q[n_e:n_e + n_d, n_e:n_e + n_d]
-    Q_ed_2d = np.ascontiguousarray(Q[:n_e, n_e:n_e + n_d])
-    Q_ed = Q_ed_2d.reshape(n_img, width, n_d)
+    parts = PointCofactors(problem, Q)                  # Q_theta on the reduced matrix's pattern only
+    Q_diag, L_dd = parts.Q_diag, parts.L_dd
+    Q_ed = parts.Q_ed.reshape(n_img, width, n_d)
     context = contexts(problem, state)
     h_all = np.zeros((problem.n_image_observations, 2))
-    L_dd = lower_cholesky(Q_dd) if n_d else None
     r_all = np.zeros((problem.n_image_observations, 2))
+    points = np.zeros((problem.n_points, 3, 3)) if Q_points is None else Q_points
     structure = problem.structure()
     for ch, cs, Vi in zip(lin.chunks, structure.chunks, v_inv):
         n_pc = ch.p1 - ch.p0
         img, ptl = cs.img, cs.ptl
         m = len(img)
         r, j_e, j_p, j_d = chunk_rows(problem, state, cs, context)
-        Z_e = ch.w_e @ Vi[ptl]                                              # (m, w, 3)
+        terms = parts.chunk(ch, cs, Vi)
+        if Q_points is None:
+            points[ch.p0:ch.p1] = terms.Q_pp
         G = np.zeros((m, width, 3))
-        leverage_pairs(Z_e, img, cs.pair_a, cs.pair_b, cs.pair_key, Q_diag, Q_pair, G)   # sum_b Q_{i_a, i_b} Z_b
+        leverage_pairs(terms.Z_e, img, cs.pair_a, cs.pair_b, cs.pair_key, Q_diag, parts.Q_pair, G)  # sum_b Q_ab Z_b
         h = np.einsum("oki,oij,okj->ok", j_e, Q_diag[img], j_e)
         jp_term = j_e @ G                                                   # (m, 2, 3), completed below
         if n_d:
-            W_pd = point_camera_coupling(problem, ch, cs)
-            Z = point_blocks_times(Vi, W_pd, False)                             # Z[p] = Vi[p] W_pd[p]
-            leverage_camera_cross(j_e, j_d, img, ptl, Q_ed, Z.reshape(n_pc, 3, n_d), jp_term, h)   # j_e Q_ed terms
+            Z = terms.Z.reshape(n_pc, 3, n_d)
+            leverage_camera_cross(j_e, j_d, img, ptl, Q_ed, Z, jp_term, h)   # j_e Q_ed terms
             # H_p = Q_dd Z_d(p) + sum over the point's observations of Q_ed(image)^T Z_e, H_p^T stored
-            A = np.zeros((3 * n_pc, n_d))
-            add_point_image_products(Z_e, img, ptl, Q_ed_2d, A)
-            if L_dd is None:
-                jp_term += rows_dot_blocks(j_d, ptl, (Z @ Q_dd + A).reshape(n_pc, 3, n_d))
-                h += np.einsum("rd,rd->r", j_d.reshape(2 * m, n_d) @ Q_dd, j_d.reshape(2 * m, n_d)).reshape(m, 2)
+            jp_term += rows_dot_blocks(j_d, ptl, terms.A.reshape(n_pc, 3, n_d))
+            if terms.ZL is None:
+                jp_term += rows_dot_blocks(j_d, ptl, (terms.Z @ parts.Q_dd).reshape(n_pc, 3, n_d))
+                h += np.einsum("rd,rd->r", j_d.reshape(2 * m, n_d) @ parts.Q_dd, j_d.reshape(2 * m, n_d)).reshape(m, 2)
             else:
                 # with Q_dd = L L^T: j_d Q_dd Z^T = (j_d L)(Z L)^T and j_d Q_dd j_d^T = |j_d L|^2, two triangular
                 # products instead of a general one and a second pass
                 XL = times_lower(j_d.reshape(2 * m, n_d), L_dd)
-                ZL = times_lower(Z, L_dd).reshape(n_pc, 3, n_d)
-                jp_term += rows_dot_blocks(XL.reshape(m, 2, n_d), ptl, ZL)
-                jp_term += rows_dot_blocks(j_d, ptl, A.reshape(n_pc, 3, n_d))
+                jp_term += rows_dot_blocks(XL.reshape(m, 2, n_d), ptl, terms.ZL.reshape(n_pc, 3, n_d))
                 h += np.einsum("rd,rd->r", XL, XL).reshape(m, 2)
         h -= 2.0 * np.einsum("okj,okj->ok", jp_term, j_p)
-        h += np.einsum("oki,oij,okj->ok", j_p, Q_points[ch.p0:ch.p1][ptl], j_p)
+        h += np.einsum("oki,oij,okj->ok", j_p, points[ch.p0:ch.p1][ptl], j_p)
         h_all[cs.o0:cs.o1] = h
         r_all[cs.o0:cs.o1] = r
-    return h_all, r_all
+    return h_all, r_all, points
 
 
 def observation_tests(result, critical: float = 3.0) -> ObservationTests:
     """Redundancy numbers, w-tests and reliability of all observations of an adjustment."""
     problem, state = result.problem, result.state
-    Q, Qp = result.Q_theta, result.Q_points
+    Q = result.Q_theta
     delta0 = noncentrality(critical)
     with blas_threads(problem.n_images):
-        h, res = _image_leverage(problem, state, result.linearisation, result.v_inv, Q, Qp)
+        h, res, Qp = _image_leverage(problem, state, result.linearisation, result.v_inv, Q,
+                                     result.point_cofactor_blocks)
+    result.point_cofactor_blocks = Qp
     red = np.clip(1.0 - h, 1e-12, None)
     v = -res                                             # whitened residuals v = f - l
     # back to the block's observation order
