@@ -22,6 +22,7 @@ from ..ap import ap_settings
 from ..block import Block, leave_out, prune
 from ..errors import AdjustmentError
 from .covariance import point_cofactors
+from .update import UPDATE_LIMIT, downdated_start
 from .datum import FREE_POINT_SIGMA_RATIO, behind_camera, points_not_determined_by_rays
 from .initial import initial_state
 from .linalg import DENSE_LIMIT, SingularSystem, blas_threads, factorise, null_directions
@@ -105,6 +106,7 @@ class AdjustmentResult:
     linearisation: Linearisation = field(repr=False, default=None)
     v_inv: list = field(repr=False, default=None)
     point_cofactor_blocks: np.ndarray | None = field(repr=False, default=None)   # Q_points once computed
+    reduced_matrix: np.ndarray | None = field(repr=False, default=None)   # S of the last linearisation (dense, small)
 
     @property
     def Q_points(self) -> np.ndarray:
@@ -315,6 +317,9 @@ def _adjust(block: Block, options: AdjustOptions, progress, start, free, ap_mode
         if free:
             apply_free(problem, free)
         if start is not None:
+            # the previous estimate moved by the downdated step, before its AP columns are carried away
+            start = downdated_start(start, problem, block, block.datum == "free" or options.solver.free_network) \
+                or start
             carry_ap_columns(problem, block.observations.row[problem.obs_order],
                              start.problem, start.block.observations.row[start.problem.obs_order], consume=True)
         state, notes = initial_state(problem, block, start)
@@ -435,4 +440,5 @@ def _adjust(block: Block, options: AdjustOptions, progress, start, free, ap_mode
         seconds=time.perf_counter() - t0,
         linearisation=lin,
         v_inv=v_inv,
+        reduced_matrix=S if isinstance(S, np.ndarray) and S.shape[0] <= UPDATE_LIMIT else None,
     )

@@ -41,6 +41,8 @@ __all__ = [
     "image_residuals",
     "contexts",
     "predict",
+    "predict_observations",
+    "observation_rows",
     "carry_ap_columns",
     "chunk_rows",
     "point_camera_coupling",
@@ -269,12 +271,17 @@ def predict(problem: Problem, context: list, o0: int, o1: int, points: np.ndarra
     """Predictions f (m, 2) of observations o0:o1 by their images' sensors; with ``jacobians`` also
     (f, j_image (m, 2, width), j_point (m, 2, 3), j_core (m, 2, widest core)). Additional parameters
     excluded."""
-    img = problem.obs_image[o0:o1]
+    return predict_observations(problem, context, np.arange(o0, o1), points, jacobians)
+
+
+def predict_observations(problem: Problem, context: list, o: np.ndarray, points: np.ndarray, jacobians: bool):
+    """:func:`predict` of the observations ``o`` (indices in problem order)."""
+    img = problem.obs_image[o]
     cam = problem.image_camera[img]
     if len(problem.sensors) == 1:
-        return problem.sensors[0].bound.predict(context[0], np.arange(o0, o1), img, cam, points, jacobians)
-    m = o1 - o0
-    kinds = problem.obs_sensor[o0:o1]
+        return problem.sensors[0].bound.predict(context[0], o, img, cam, points, jacobians)
+    m = len(o)
+    kinds = problem.obs_sensor[o]
     n_core = max(c.n_core for c in problem.cameras)
     f = np.zeros((m, 2))
     j_e = np.zeros((m, 2, problem.image_width))
@@ -284,13 +291,44 @@ def predict(problem: Problem, context: list, o0: int, o1: int, points: np.ndarra
         sel = np.flatnonzero(kinds == s)
         if not sel.size:
             continue
-        out = slot.bound.predict(context[s], o0 + sel, img[sel], cam[sel], points[sel], jacobians)
+        out = slot.bound.predict(context[s], o[sel], img[sel], cam[sel], points[sel], jacobians)
         if not jacobians:
             f[sel] = out
             continue
         f[sel], j_e[sel], j_p[sel] = out[0], out[1], out[2]
         j_c[sel, :, :out[3].shape[2]] = out[3]
     return (f, j_e, j_p, j_c) if jacobians else f
+
+
+def observation_rows(problem: Problem, state: State, o: np.ndarray):
+    """Whitened residuals l - f (n, 2) and Jacobian rows of the image observations ``o`` (indices in problem
+    order, any few): j_e (n, 2, width) (zero where held), j_p (n, 2, 3) and j_d (n, 2, n_d) in theta order.
+    The AP columns are evaluated afresh (a problem's kept ones may have been carried away)."""
+    img = problem.obs_image[o]
+    f, j_e, j_p, j_i = predict_observations(problem, contexts(problem, state), o, state.points[problem.obs_point[o]],
+                                            jacobians=True)
+    cam_of = problem.image_camera[img]
+    delta = np.zeros((len(o), 2))
+    j_d = np.zeros((len(o), 2, problem.n_d))
+    for k, cam in enumerate(problem.cameras):
+        sel = np.flatnonzero(cam_of == k)
+        if not sel.size:
+            continue
+        start = problem.d_offset[k] - problem.n_e
+        core_free = cam.free[:cam.n_core]
+        n_core = int(core_free.sum())
+        j_d[sel, :, start:start + n_core] = j_i[sel][:, :, :cam.n_core][:, :, core_free]
+        if cam.ap.n_params:
+            full = _bound_of(problem, o[sel]).ap_columns(k, o[sel], cam.ap)
+            delta[sel] = full @ state.cameras[k][cam.n_core:]
+            ap_free = cam.free[cam.n_core:]
+            j_d[sel, :, start + n_core:start + n_core + int(ap_free.sum())] = full[:, :, ap_free]
+    w = 1.0 / problem.obs_sigma[o]
+    r = (problem.obs_value[o] - f - delta) * w
+    j_e *= w[:, :, None]
+    if not problem.all_images_free:
+        j_e *= problem.image_free[img][:, None, :]
+    return r, j_e, j_p * w[:, :, None], j_d * w[:, :, None]
 
 
 def image_residuals(problem: Problem, state: State, o0: int = 0, o1: int | None = None, context=None) -> np.ndarray:

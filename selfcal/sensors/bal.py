@@ -68,9 +68,15 @@ def eop_from_params(params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return -np.einsum("nji,nj->ni", R, params[:, 3:]), opk_from_matrix(R)
 
 
-def project(points: np.ndarray, params: np.ndarray, camera: np.ndarray) -> np.ndarray:
-    """BAL image coordinates (n, 2) of points (n, 3) with per-observation image params (n, 6) and camera [f, k1, k2]."""
-    R = matrix_from_rotation_vector(params[:, :3])
+def project(points: np.ndarray, params: np.ndarray, camera: np.ndarray, rotation: np.ndarray | None = None,
+            image: np.ndarray | None = None) -> np.ndarray:
+    """BAL image coordinates (n, 2) of points (n, 3) with per-observation image params (n, 6) and camera [f, k1, k2].
+    With ``rotation`` (n_images, 3, 3) and ``image`` (n,), ``params`` are per image and each observation takes
+    its image's: the rotations are computed once per image, not once per observation."""
+    if rotation is None:
+        R, params = matrix_from_rotation_vector(params[:, :3]), params
+    else:
+        R, params = rotation[image], params[image]
     P = np.einsum("nij,nj->ni", R, points) + params[:, 3:]
     p = -P[:, :2] / P[:, 2:3]
     r2 = np.sum(p * p, axis=1)
@@ -200,17 +206,17 @@ class BalBound(BoundSensor):
 
     def context(self, state, jacobians: bool = True):
         core = np.array([c[:3] if len(c) >= 3 else np.zeros(3) for c in state.cameras]).reshape(-1, 3)
-        return state.image, core
+        return state.image, core, matrix_from_rotation_vector(state.image[:, :3])
 
     def predict(self, context, o, img, cam, points, jacobians):
-        image, core = context
+        image, core, rotation = context
         if jacobians:
             return project_with_jacobians_indexed(points, image, core, img, cam)
-        return project(points, image[img], core[cam])
+        return project(points, image, core[cam], rotation, img)
 
     def rays(self, context, img, pixel):
         """Rays of the distortion-free camera: P = s (x/f, y/f, -1) in the camera frame."""
-        image, core = context
+        image, core, _ = context
         cam = self.problem.image_camera[img]
         f = core[cam, 0]
         R = matrix_from_rotation_vector(image[img, :3])
@@ -221,10 +227,10 @@ class BalBound(BoundSensor):
         return origin, direction / np.linalg.norm(direction, axis=1, keepdims=True)
 
     def pixels(self, context, img, points):
-        image, core = context
+        image, core, rotation = context
         cam = self.problem.image_camera[img]
         w, h = self.format_px[cam].T
-        return pixel_from_photo(project(points, image[img], core[cam]), w, h, 1.0)
+        return pixel_from_photo(project(points, image, core[cam], rotation, img), w, h, 1.0)
 
     def pixel_residuals(self, o, v):
         return np.column_stack([v[:, 0], -v[:, 1]])

@@ -1,0 +1,106 @@
+"""The downdated start of a re-adjustment (selfcal.adjust.update): the previous normal equations with the
+left-out observations taken out and the screened parameters held.
+
+Truth: for a block whose model is linear in the unknowns the downdated step would be the new solution; for
+a converged photogrammetric block it must land far closer to the new solution than the previous estimate
+lies, the re-adjustment from it must reach the same estimate as one from the previous estimate, in fewer
+iterations, and it must decline what it cannot do."""
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from selfcal.adjust import AdjustOptions, adjust
+from selfcal.adjust.update import downdated_start
+from selfcal.block import prune
+from selfcal.stats.screening import screening_masks
+
+from conftest import pruned, simulation
+
+
+@pytest.fixture(scope="module")
+def previous():
+    block = pruned(simulation(seed=5, distortion="local+brown", points_per_mm2=0.04), "type3")
+    return adjust(block, AdjustOptions(ap="brown"))
+
+
+def _without(result, rows):
+    block = result.block
+    keep = ~np.isin(block.observations.row, rows)
+    return prune(replace(block, observations=block.observations.take(np.flatnonzero(keep))))
+
+
+def _unit_distance(result, a, b) -> float:
+    """The largest difference of two states' points in units of their sigma (unit weight)."""
+    sigma = np.sqrt(np.einsum("pii->pi", result.Q_points))
+    return float(np.max(np.abs(a.points - b.points) / sigma))
+
+
+def _readjust(previous, block, free, downdate: bool, monkeypatch):
+    import selfcal.adjust as adjust_module
+    monkeypatch.setattr(adjust_module, "downdated_start", downdated_start if downdate else lambda *a, **k: None)
+    return adjust(block, AdjustOptions(ap="brown"), start=previous, free=free,
+                  ap_models={c.camera_id: c.ap for c in previous.problem.cameras})
+
+
+def test_downdated_start_lands_near_the_new_solution(previous, monkeypatch):
+    rng = np.random.default_rng(3)
+    obs = previous.block.observations
+    rows = rng.choice(obs.row[previous.block.points.role[obs.point_index] == "tie"], 40, replace=False)
+    block = _without(previous, rows)
+    free = screening_masks(previous.problem)
+    (camera_id,) = [k for k in free if isinstance(k, str) and k in previous.block.cameras]
+    free[camera_id] = free[camera_id].copy()
+    free[camera_id][[2, 5]] = False                                     # two APs held at zero
+    cold = _readjust(previous, block, free, False, monkeypatch)
+    warm = _readjust(previous, block, free, True, monkeypatch)
+    # the same estimate (both converged to the same tolerance), the warm one in fewer iterations
+    assert cold.converged and warm.converged
+    assert abs(warm.cost - cold.cost) <= 1e-9 * cold.cost
+    assert _unit_distance(cold, warm.state, cold.state) < 1e-2
+    assert warm.iterations < cold.iterations
+    # the downdated start itself: the held APs at zero, and far closer to the solution than the previous estimate
+    from selfcal.adjust.problem import build_problem
+    from selfcal.adjust import apply_free
+    from selfcal.adjust.initial import initial_state
+    problem = build_problem(block, "brown", None, ap_models={c.camera_id: c.ap for c in previous.problem.cameras})
+    apply_free(problem, free)
+    start = downdated_start(previous, problem, block)
+    assert start is not None
+    predicted, _ = initial_state(problem, block, start)
+    plain, _ = initial_state(problem, block, previous)
+    assert np.all(predicted.cameras[0][problem.cameras[0].n_core:][[2, 5]] == 0.0)
+    before, after = _unit_distance(cold, plain, cold.state), _unit_distance(cold, predicted, cold.state)
+    assert before > 1.0 and after < 0.02 * before
+
+
+def test_downdated_start_declines_what_it_cannot_do(previous):
+    from selfcal.adjust.problem import build_problem
+    from selfcal.adjust import apply_free
+
+    models = {c.camera_id: c.ap for c in previous.problem.cameras}
+    free = screening_masks(previous.problem)
+    obs = previous.block.observations
+    ties = obs.row[previous.block.points.role[obs.point_index] == "tie"]
+    block = _without(previous, ties[:5])
+    problem = build_problem(block, "brown", None, ap_models=models)
+    apply_free(problem, free)
+    assert downdated_start(previous, problem, block) is not None
+    # an image left out
+    fewer = prune(replace(block, observations=block.observations.take(
+        np.flatnonzero(block.observations.image_index != 0))))
+    assert len(fewer.images) == len(block.images) - 1
+    assert downdated_start(previous, build_problem(fewer, "brown", None, ap_models=models), fewer) is None
+    # an observation the previous block did not have
+    smaller = adjust(block, AdjustOptions(ap="brown"), ap_models=models)
+    assert downdated_start(smaller, build_problem(previous.block, "brown", None, ap_models=models),
+                           previous.block) is None
+    # other weights
+    heavier = replace(block, observations=replace(block.observations,
+                                                  sigma_px=0.5 * block.observations.sigma_px))
+    assert downdated_start(previous, build_problem(heavier, "brown", None, ap_models=models), heavier) is None
+    # nothing to update, or no previous normal equations
+    same = build_problem(previous.block, "brown", None, ap_models=models)
+    apply_free(same, free)
+    assert downdated_start(previous, same, previous.block) is None
+    assert downdated_start(replace(previous, reduced_matrix=None), problem, block) is None
