@@ -10,9 +10,10 @@ Each is adjusted with Baarda's data snooping (k = 3.0), AP screening and the cov
 unknown. The time of each stage is measured by wrapping the functions that do it:
 
 * solve: the iterations of every (re-)adjustment (``selfcal.adjust.solve``);
-* covariance: the final reduction, factorisation and inverse of the normal equations and the
-  cofactors of every tie point;
-* tests: redundancy numbers, w-tests, rejection and AP screening;
+* update: the downdated start of each re-adjustment (``selfcal.adjust.update``);
+* covariance: the final reduction, factorisation and inverse of the normal equations (Q_theta);
+* tests: redundancy numbers, w-tests, rejection and AP screening, and the cofactors of every tie point
+  (computed in the same pass as the redundancy numbers);
 * setup: the rest (building each problem, the AP basis, initial values, pruning).
 
 The peer: ``pycolmap.bundle_adjustment`` (Ceres, COLMAP's solver choice) on the same image
@@ -67,6 +68,7 @@ def run_selfcal(scenario: str, ap: str, repeat: int) -> tuple:
 
     watch = Stopwatch()
     watch.wrap(adjust_module, "solve", "solve")
+    watch.wrap(adjust_module, "downdated_start", "update")
     for name in ("reduce", "factorise", "point_cofactors"):
         watch.wrap(adjust_module, name, "covariance")
     watch.wrap(linalg.Factor, "cofactor", "covariance")
@@ -130,8 +132,9 @@ def main() -> None:
         print(f"the median of {args.repeat} runs: selfcal " + ", ".join(f"{run[0]:.2f}" for run in runs)
               + " s; pycolmap " + ", ".join(f"{s:.2f}" for s in peer) + " s")
         print(f"{'stage':<46}{'seconds':>9}{'share':>8}")
-        for name, text in (("solve", "solve (all iterations)"), ("covariance", "covariance (theta + every tie point)"),
-                           ("tests", "tests (w, redundancy, rejection, screening)"),
+        for name, text in (("solve", "solve (all iterations)"), ("update", "update (downdated starts)"),
+                           ("covariance", "covariance (theta)"),
+                           ("tests", "tests (w, redundancy, Q_pp, rejection, screening)"),
                            ("setup", "setup (problems, AP basis, initial values)")):
             value = stages.get(name, 0.0)
             print(f"{text:<46}{value:>9.2f}{100 * value / total:>7.0f}%")

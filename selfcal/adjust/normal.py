@@ -110,9 +110,12 @@ def _camera_jacobian(problem: Problem, k: int) -> np.ndarray:
             # block by block into the kept array: a basis evaluation makes several temporaries of the array's size
             for start in range(0, mine.size, AP_COLUMN_BLOCK):
                 o = mine[start:start + AP_COLUMN_BLOCK]
-                full = bound.ap_columns(k, o, cam.ap)
-                columns[start:start + o.size, :, nc:] = \
-                    (full if free.all() else full[:, :, free]) / problem.obs_sigma[o][:, :, None]
+                part = columns[start:start + o.size, :, nc:]
+                if free.all():
+                    bound.ap_columns(k, o, cam.ap, out=part)           # written in place, then whitened
+                    part /= problem.obs_sigma[o][:, :, None]
+                else:
+                    np.divide(bound.ap_columns(k, o, cam.ap)[:, :, free], problem.obs_sigma[o][:, :, None], out=part)
         problem._ap_columns[key] = columns
     return columns
 

@@ -263,10 +263,16 @@ class WaveletAP(APModel):
 
     def basis(self, x_mm, y_mm):
         x_mm, y_mm = np.asarray(x_mm, float), np.asarray(y_mm, float)
-        Bx, By = self._raw_basis(x_mm, y_mm, kept_only=True)
+        B = self._blocks(*self._domain(x_mm, y_mm))
+        n = B.shape[1]
+        keep_x, keep_y = self._kept[:n], self._kept[n:]
+        n_x = int(keep_x.sum())
         Fx, Fy = _camera_fields(self.frame, x_mm, y_mm)
-        Bx -= Fx @ self._field_projection
-        By -= Fy @ self._field_projection
+        # [B_x, 0] - Fx M and [0, B_y] - Fy M, each written once (no zero-filled raw basis)
+        Bx = Fx @ -self._field_projection
+        By = Fy @ -self._field_projection
+        Bx[:, :n_x] += B[:, keep_x]
+        By[:, n_x:] += B[:, keep_y]
         return Bx, By
 
     def basis_derivatives(self, x_mm, y_mm):

@@ -129,9 +129,10 @@ class BoundSensor(ABC):
         j_core (m, 2, n_core)): derivatives with respect to the image's parameters, the object point and
         the camera's core parameters."""
 
-    def ap_columns(self, camera: int, o: np.ndarray, ap) -> np.ndarray:
+    def ap_columns(self, camera: int, o: np.ndarray, ap, out: np.ndarray | None = None) -> np.ndarray:
         """Delta per unit coefficient (n, 2, n_ap) of ``ap`` (the camera's additional parameters) at
-        observations ``o`` of that camera, in observation units. Constant over the adjustment."""
+        observations ``o`` of that camera, in observation units. Constant over the adjustment. With ``out``
+        (n, 2, n_ap, possibly a strided view), written there and returned."""
         raise NotImplementedError(f"{type(self).__name__} takes no additional parameters")
 
     @abstractmethod

@@ -227,9 +227,13 @@ class FrameBound(BoundSensor):
             return project_with_jacobians_indexed(points, image, iop, rotation, img, cam)
         return project(points, image[img], iop[cam], rotation[img])
 
-    def ap_columns(self, camera, o, ap):
+    def ap_columns(self, camera, o, ap, out=None):
         bx, by = ap.basis(self.xy_mm[o, 0], self.xy_mm[o, 1])
-        return self.pixel_size_mm[o][:, None, None] * np.stack([bx, by], axis=1)
+        out = np.empty((len(o), 2, bx.shape[1])) if out is None else out
+        pixel = self.pixel_size_mm[o][:, None]
+        np.multiply(bx, pixel, out=out[:, 0])
+        np.multiply(by, pixel, out=out[:, 1])
+        return out
 
     def rays(self, context, img, pixel):
         image, iop, _, _ = context

@@ -213,12 +213,15 @@ class PushbroomBound(BoundSensor):
             j_p[sel] = out[2]
         return (f, j_e, j_p, j_c) if jacobians else f
 
-    def ap_columns(self, camera, o, ap):
+    def ap_columns(self, camera, o, ap, out=None):
         """The line APs displace the detectors (the observations): Delta = -p B per coefficient."""
         B = ap.basis(self.col[o])
         m = B.shape[1]
         p = self.problem.cameras[camera].pixel_size_mm
-        out = np.zeros((len(o), 2, 2 * m))
+        if out is None:
+            out = np.zeros((len(o), 2, 2 * m))
+        else:
+            out[:] = 0.0
         out[:, 0, :m] = -p * B
         out[:, 1, m:] = -p * B
         return out
