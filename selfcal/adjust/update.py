@@ -23,7 +23,7 @@ from types import SimpleNamespace
 import numpy as np
 
 from .linalg import SingularSystem, factorise, pseudo_factorise
-from .normal import SingularPoints, back_substitute, observation_rows
+from .normal import SingularPoints, back_substitute, evaluate_cost, observation_rows
 from .problem import Problem
 
 __all__ = ["downdated_start"]
@@ -217,4 +217,18 @@ def _step(previous, S_old: np.ndarray, removed: np.ndarray, held, free_network: 
     quiet = replace(lin, chunks=[replace(ch, g_p=np.zeros_like(ch.g_p)) for ch in lin.chunks])
     d_p = back_substitute(old, quiet, previous.v_inv, d_theta)
     d_p[touched] = np.einsum("jik,jk->ji", L_new, Lg - (X_new.T @ d_theta).reshape(n_t, 3))
-    return SimpleNamespace(block=previous.block, problem=old, state=old.apply(state, d_theta, d_p))
+    predicted = old.apply(state, d_theta, d_p)
+    # the linear model must hold: the step lowers the new problem's cost below that of the previous estimate
+    # (the previous problem's cost less the left-out rows'); where it does not (BAL's free network, strongly
+    # non-linear, in some rounds), the re-adjustment starts from the previous estimate as before
+    if index.size:
+        d_held = np.zeros(old.n_theta)
+        d_held[index] = move
+        state = old.apply(state, d_held, np.zeros_like(state.points))
+        plain = evaluate_cost(old, state) - 0.5 * float(np.sum(observation_rows(old, state, removed)[0] ** 2))
+    else:
+        plain = previous.cost - 0.5 * float(np.sum(r * r))
+    new = evaluate_cost(old, predicted) - 0.5 * float(np.sum(observation_rows(old, predicted, removed)[0] ** 2))
+    if not new < plain:
+        return None
+    return SimpleNamespace(block=previous.block, problem=old, state=predicted)

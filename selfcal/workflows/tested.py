@@ -126,6 +126,7 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
         keep = ~np.isin(block.observations.row, rejected)
         sub = prune_for(replace(block, observations=block.observations.take(np.flatnonzero(keep))))
         result = adjust(sub, options, progress=progress, start=result, free=free, ap_models=models)
+        block = result.block            # what a free network's re-adjustment left out stays out
         tests = observation_tests(result, critical)
     components = converged = None
     if variance is not None:
