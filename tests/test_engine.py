@@ -321,3 +321,23 @@ def test_camera_quadratic_with_and_without_the_cholesky_factor():
     assert L is not None and lower_cholesky(-Q) is None
     np.testing.assert_allclose(camera_quadratic(Z, Q, L), expected, rtol=1e-12, atol=1e-12 * np.abs(expected).max())
     np.testing.assert_allclose(camera_quadratic(Z, Q, None), expected, rtol=1e-12, atol=1e-12 * np.abs(expected).max())
+
+
+@pytest.mark.parametrize("environment, expected", [(None, "False"), ("1", "True")])
+def test_keep_freed_memory_stops_numpys_huge_page_requests_unless_the_environment_decides(environment, expected):
+    """`selfcal adjust` (keep_freed_memory) turns NumPy's madvise for transparent huge pages off (first touches of
+    hundreds of MB cost 5x more with it on this project's VM), unless NUMPY_MADVISE_HUGEPAGE is set."""
+    import os
+    import subprocess
+    import sys
+
+    env = {k: v for k, v in os.environ.items() if k != "NUMPY_MADVISE_HUGEPAGE"}
+    if environment is not None:
+        env["NUMPY_MADVISE_HUGEPAGE"] = environment
+    code = ("from selfcal.allocator import keep_freed_memory, _small_pages\n"
+            "keep_freed_memory()\n"
+            "try:\n    from numpy._core.multiarray import _set_madvise_hugepage\n"
+            "except ImportError:\n    from numpy.core.multiarray import _set_madvise_hugepage\n"
+            "print(_set_madvise_hugepage(True))\n")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == expected
