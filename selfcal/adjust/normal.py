@@ -231,10 +231,18 @@ def _rows_times(rows: np.ndarray, vector: np.ndarray) -> np.ndarray:
 
 def _camera_terms(problem: Problem, state: State, o0: int, o1: int, img: np.ndarray):
     """Additional-parameter displacement (observation units) of observations o0:o1, and per camera
-    the observations it takes (mask) with the (whitened) Jacobian columns of its free APs."""
+    the observations it takes (mask) with the (whitened) Jacobian columns of its free APs (None when
+    no camera has additional parameters)."""
     m = o1 - o0
+    if not any(cam.ap.n_params for cam in problem.cameras):
+        return np.zeros((m, 2)), None          # no additional parameters (BAL's 49 cameras: no mask per camera)
+    # the displacement depends on the AP values alone: a cost evaluation at a state and the linearisation at the
+    # same state that follows it (an accepted step) compute it once (one pass over the kept AP columns)
+    values = b"".join(v[c.n_core:].tobytes() for c, v in zip(problem.cameras, state.cameras))
+    cached = problem._ap_delta.get((o0, o1))
+    known = cached is not None and cached[0] == values
+    delta = cached[1] if known else np.zeros((m, 2))
     cam_of_obs = problem.image_camera[img]
-    delta = np.zeros((m, 2))
     cam_cols = []  # (camera index, mask, whitened columns (n, 2, n_free_ap))
     single = len(problem.cameras) == 1
     sigma = problem.obs_sigma[o0:o1]
@@ -251,17 +259,20 @@ def _camera_terms(problem: Problem, state: State, o0: int, o1: int, img: np.ndar
                 # one matrix-vector product over them, the slots weighted by zero
                 rows = _camera_jacobian(problem, k)[o0:o1]
                 columns = rows[:, :, nc:]
-                delta[:] = _rows_times(rows, np.concatenate([np.zeros(nc), a[free]])) * sigma
+                if not known:
+                    delta[:] = _rows_times(rows, np.concatenate([np.zeros(nc), a[free]])) * sigma
             else:
                 columns = _ap_columns(problem, k, o0, o1, mask)
-                delta[mask] = _rows_times(columns, a[free]) * sigma[mask]
-            if np.any(a[~free] != 0):          # APs held at a non-zero value
+                if not known:
+                    delta[mask] = _rows_times(columns, a[free]) * sigma[mask]
+            if not known and np.any(a[~free] != 0):          # APs held at a non-zero value
                 o = o0 + (np.arange(m) if single else np.flatnonzero(mask))
                 held = np.where(free, 0.0, a)
                 delta[mask] += _bound_of(problem, o).ap_columns(k, o, cam.ap) @ held
         else:
             columns = np.zeros((m if single else int(mask.sum()), 2, 0))
         cam_cols.append((k, mask, columns))
+    problem._ap_delta[(o0, o1)] = (values, delta)
     return delta, cam_cols
 
 
@@ -503,6 +514,11 @@ def chunk_rows(problem: Problem, state: State, cs, context=None, compact: bool =
     if alike:
         nc = n_core_all.pop()
         np.multiply(j_i[:, :, :nc], w[:, :, None], out=j_d[:, :, :nc])
+    if cam_cols is None:                        # no camera has additional parameters
+        if alike:
+            return r, j_e, j_p, j_d
+        cam_of_obs = problem.image_camera[img]
+        cam_cols = [(k, cam_of_obs == k, np.zeros((0, 2, 0))) for k in range(len(problem.cameras))]
     for k, mask, columns in cam_cols:
         cam = problem.cameras[k]
         start = 0 if compact else problem.d_offset[k] - n_e

@@ -143,6 +143,7 @@ class Problem:
     _structure: object = field(default=None, repr=False)
     _ap_gram: object = field(default=None, repr=False)
     _ap_columns: dict = field(default_factory=dict, repr=False)
+    _ap_delta: dict = field(default_factory=dict, repr=False)     # (o0, o1) -> (AP values, their displacement)
 
     def d_varying(self) -> np.ndarray:
         """Columns of the camera part whose Jacobian changes between iterations.
