@@ -212,7 +212,9 @@ def _carried_gram(previous: Problem, old_columns: np.ndarray, source: np.ndarray
     n_core = previous.cameras[0].n_core
     if gram is None or gram.shape[0] != old_columns.shape[2] - n_core:
         return None
-    removed = np.setdiff1d(np.arange(previous.n_image_observations), source)
+    left = np.ones(previous.n_image_observations, bool)
+    left[source] = False
+    removed = np.flatnonzero(left)                 # (a mask: setdiff1d sorts 80,000 rows by hashing, 50 ms)
     if removed.size > 0.2 * previous.n_image_observations:
         return None                          # the difference would lose digits: sum afresh
     if removed.size:

@@ -95,7 +95,9 @@ def downdated_start(previous, problem: Problem, block, free_network: bool = Fals
         return None
     if np.any(old_block.observations.sigma_px[old.obs_order][kept] != block.observations.sigma_px):
         return None
-    removed = np.setdiff1d(np.arange(old.n_image_observations), kept)
+    left = np.ones(old.n_image_observations, bool)
+    left[kept] = False
+    removed = np.flatnonzero(left)
     if removed.size == 0 and held[0].size == 0:
         return None
     try:
