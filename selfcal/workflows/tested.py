@@ -4,8 +4,11 @@ Each round tests the current adjustment: screening of the APs, the sensors' cali
 parameters and the trajectory terms (significance and correlation, :mod:`selfcal.stats.screening`)
 and Baarda's data snooping (:mod:`selfcal.stats.snooping`). What fails is removed (parameters
 held at their start values, observations rejected) and the block is re-adjusted from the
-previous estimate, until a round removes nothing. The AP basis is built once, from all
-observations, and kept.
+previous estimate moved by the downdated Gauss-Newton step (:mod:`selfcal.adjust.update`: the
+previous normal equations without the rejected rows, the held parameters at their held values),
+until a round removes nothing. Each round starts from the block the previous adjustment kept: what
+a free network's re-adjustment left out (points its rays no longer determine) stays out. The AP
+basis is built once, from all observations, and kept.
 
 Data snooping stops with a failure rather than reject more than :data:`MAX_REJECTED_SHARE` of
 the image observations: so many outliers are a model that does not fit (an uncalibrated focal
