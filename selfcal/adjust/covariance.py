@@ -25,30 +25,43 @@ from .normal import Linearisation, point_camera_coupling
 from .problem import Problem
 from .kernels import add_point_image_products, point_blocks_times, point_cofactor_pairs
 
-__all__ = ["point_cofactors", "PointCofactors", "PointTerms", "image_blocks", "lower_cholesky", "times_lower",
+__all__ = ["point_cofactors", "PointCofactors", "PointTerms", "image_blocks", "observation_columns", "lower_cholesky", "times_lower",
            "camera_quadratic"]
 
 
-def image_blocks(Q, problem: Problem) -> tuple[np.ndarray, np.ndarray]:
+def image_blocks(Q, problem: Problem, columns: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Q_theta's image blocks: (n_images, w, w) of each image, and (n_pairs, w, w) of each pair of
     images that share a point (``problem.structure().pair_keys``: Q(image_pair_a, image_pair_b)).
-    ``Q`` is a dense ndarray or a BandedCofactor: both take NumPy's fancy indexing."""
-    w, n_img = problem.image_width, problem.n_images
+    ``columns`` (n_images, w): each image's columns of theta (-1: none, its rows and columns of the
+    blocks are zero); by default its own image parameters. ``Q`` is a dense ndarray or a
+    BandedCofactor: both take NumPy's fancy indexing."""
+    if columns is None:
+        columns = problem.image_theta()
     structure = problem.structure()
-    k = np.arange(w)
-    diag = w * np.arange(n_img)[:, None, None]
-    Q_diag = Q[diag + k[None, :, None], diag + k[None, None, :]]
-    rows = w * structure.image_pair_a[:, None, None] + k[None, :, None]
-    cols = w * structure.image_pair_b[:, None, None] + k[None, None, :]
-    Q_pair = Q[rows, cols] if len(structure.pair_keys) else np.zeros((0, w, w))
-    return np.ascontiguousarray(Q_diag), np.ascontiguousarray(Q_pair)
+    valid = columns >= 0
+    safe = np.where(valid, columns, 0)
+
+    def blocks(a, b):
+        out = Q[safe[a][:, :, None], safe[b][:, None, :]]
+        return np.ascontiguousarray(out * (valid[a][:, :, None] & valid[b][:, None, :]))
+    Q_diag = blocks(np.arange(problem.n_images), np.arange(problem.n_images))
+    w = columns.shape[1]
+    Q_pair = blocks(structure.image_pair_a, structure.image_pair_b) if len(structure.pair_keys) else np.zeros((0, w, w))
+    return Q_diag, Q_pair
+
+
+def observation_columns(problem: Problem) -> np.ndarray:
+    """Each image's columns of theta that its observations touch when the cameras are compact: its own
+    parameters, then its camera's (-1 pads a narrower camera), (n_images, width + camera width)."""
+    cameras = problem.camera_columns()[problem.image_camera]
+    return np.concatenate([problem.image_theta(), np.where(cameras >= 0, problem.n_e + cameras, -1)], axis=1)
 
 
 @dataclass
 class PointTerms:
     """A chunk's products that the point cofactors and the leverages (:mod:`selfcal.stats.reliability`) share."""
 
-    Z_e: np.ndarray              # (m, w, 3) each observation's image coupling times its point's V^-1
+    Z_e: np.ndarray              # (m, w, 3) each observation's image (and compact camera) coupling times V^-1
     Z: np.ndarray | None         # (3 n_pc, n_d) V^-1 W_pd per point, None without camera parameters
     A: np.ndarray | None         # (3 n_pc, n_d) per point: sum over its observations of Z_e^T Q_ed(image)
     ZL: np.ndarray | None        # (3 n_pc, n_d) Z L_dd (Q_dd = L_dd L_dd^T), None where Q_dd has no such factor
@@ -62,19 +75,26 @@ class PointCofactors:
     def __init__(self, problem: Problem, Q):
         n_e, n_d = problem.n_e, problem.n_d
         self.problem = problem
-        self.Q_diag, self.Q_pair = image_blocks(Q, problem)
-        self.Q_dd = Q[n_e:n_e + n_d, n_e:n_e + n_d]
-        self.Q_ed = np.ascontiguousarray(Q[:n_e, n_e:n_e + n_d])          # (n_e, n_d)
-        self.L_dd = lower_cholesky(self.Q_dd) if n_d else None
+        # compact cameras (BAL: one camera of 3 parameters per image): an observation touches its image's and its
+        # camera's columns only, so both are one block per image, summed over the pairs of each point's
+        # observations like the image parameters alone (no dense point x camera coupling, no Q_dd products)
+        self.compact = bool(n_d) and problem.compact_cameras
+        self.Q_diag, self.Q_pair = image_blocks(Q, problem, observation_columns(problem) if self.compact else None)
+        self.Q_dd = self.Q_ed = self.L_dd = None
+        if n_d and not self.compact:
+            self.Q_dd = Q[n_e:n_e + n_d, n_e:n_e + n_d]
+            self.Q_ed = np.ascontiguousarray(Q[:n_e, n_e:n_e + n_d])          # (n_e, n_d)
+            self.L_dd = lower_cholesky(self.Q_dd)
 
     def chunk(self, ch, cs, Vi: np.ndarray) -> PointTerms:
         problem, n_d = self.problem, self.problem.n_d
         n_pc = ch.p1 - ch.p0
-        Z_e = ch.w_e @ Vi[cs.ptl]                                          # (m, w, 3)
+        w_e = np.concatenate([ch.w_e, ch.w_d.transpose(0, 2, 1)], axis=1) if self.compact else ch.w_e
+        Z_e = w_e @ Vi[cs.ptl]                                             # (m, w, 3)
         Qp = Vi.copy()
         point_cofactor_pairs(Z_e, cs.img, cs.ptl, cs.pair_a, cs.pair_b, cs.pair_key, self.Q_diag, self.Q_pair, Qp)
         Z = A = ZL = None
-        if n_d:
+        if n_d and not self.compact:
             Z = point_blocks_times(Vi, point_camera_coupling(problem, ch, cs), False)   # Z[p] = Vi[p] W_pd[p]
             A = np.zeros((3 * n_pc, n_d))
             add_point_image_products(Z_e, cs.img, cs.ptl, self.Q_ed, A)

@@ -92,7 +92,8 @@ def _image_leverage(problem, state, lin, v_inv, Q, Q_points=None):
     n_img, n_e, n_d, width = problem.n_images, problem.n_e, problem.n_d, problem.image_width
     parts = PointCofactors(problem, Q)                  # Q_theta on the reduced matrix's pattern only
     Q_diag, L_dd = parts.Q_diag, parts.L_dd
-    Q_ed = parts.Q_ed.reshape(n_img, width, n_d)
+    dense = n_d and not parts.compact                   # compact cameras are part of each observation's block
+    Q_ed = parts.Q_ed.reshape(n_img, width, n_d) if dense else None
     context = contexts(problem, state)
     h_all = np.zeros((problem.n_image_observations, 2))
     r_all = np.zeros((problem.n_image_observations, 2))
@@ -102,15 +103,17 @@ def _image_leverage(problem, state, lin, v_inv, Q, Q_points=None):
         n_pc = ch.p1 - ch.p0
         img, ptl = cs.img, cs.ptl
         m = len(img)
-        r, j_e, j_p, j_d = chunk_rows(problem, state, cs, context)
+        r, j_e, j_p, j_d = chunk_rows(problem, state, cs, context, parts.compact)
+        if parts.compact:
+            j_e = np.concatenate([j_e, j_d], axis=2)        # the image's and its camera's columns, one block
         terms = parts.chunk(ch, cs, Vi)
         if Q_points is None:
             points[ch.p0:ch.p1] = terms.Q_pp
-        G = np.zeros((m, width, 3))
+        G = np.zeros((m, j_e.shape[2], 3))
         leverage_pairs(terms.Z_e, img, cs.pair_a, cs.pair_b, cs.pair_key, Q_diag, parts.Q_pair, G)  # sum_b Q_ab Z_b
         h = np.einsum("oki,oij,okj->ok", j_e, Q_diag[img], j_e)
         jp_term = j_e @ G                                                   # (m, 2, 3), completed below
-        if n_d:
+        if dense:
             Z = terms.Z.reshape(n_pc, 3, n_d)
             leverage_camera_cross(j_e, j_d, img, ptl, Q_ed, Z, jp_term, h)   # j_e Q_ed terms
             # H_p = Q_dd Z_d(p) + sum over the point's observations of Q_ed(image)^T Z_e, H_p^T stored
