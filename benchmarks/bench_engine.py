@@ -91,6 +91,7 @@ def run_selfcal(target: float | None) -> dict:
             first[0] = last[0]
 
     result = adjust(block, AdjustOptions(), progress=progress)
+    result.Q_points                   # the covariance of every unknown: the points' cofactors are made on first use
     seconds = time.perf_counter() - t0
     behind = _behind(result.problem, result.state)
     v = image_residuals(result.problem, result.state)
@@ -283,7 +284,8 @@ def run_selfcal_frame(images: int) -> dict:
         records = []
         t0 = time.perf_counter()
         try:
-            adjust(block, AdjustOptions(), progress=lambda record: records.append((time.perf_counter(), record)))
+            adjust(block, AdjustOptions(),
+                   progress=lambda record: records.append((time.perf_counter(), record))).Q_points
             total = time.perf_counter() - t0
         except AdjustmentError:
             total = float("nan")
