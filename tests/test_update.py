@@ -15,7 +15,7 @@ from selfcal.adjust.update import downdated_start
 from selfcal.block import prune
 from selfcal.stats.screening import screening_masks
 
-from conftest import pruned, simulation
+from conftest import SHARED_DATA, pruned, simulation
 
 
 @pytest.fixture(scope="module")
@@ -104,3 +104,33 @@ def test_downdated_start_declines_what_it_cannot_do(previous):
     apply_free(same, free)
     assert downdated_start(previous, same, previous.block) is None
     assert downdated_start(replace(previous, reduced_matrix=None), problem, block) is None
+
+
+def test_downdated_start_serves_a_free_networks_snooping(monkeypatch):
+    """BAL's 1,800-point subset (a free network: minimum-norm steps) with data snooping: the rounds start from
+    the downdated step where it lowers the cost, and end where they end without it (the same rejections, the
+    same final cost to 1e-9)."""
+    import os
+
+    import selfcal.adjust as adjust_module
+    import selfcal.adjust.update as update
+    from selfcal.convert import block_from_bal
+    from selfcal.io.bal import read_bal
+    from selfcal.workflows.tested import adjust_with_tests
+
+    path = os.path.join(SHARED_DATA, "bal", "bal-ladybug-problem-49-7776-pre-shrink-1800.txt")
+    assert os.path.exists(path), f"shared test data missing: {path}"
+    block = block_from_bal(read_bal(path))
+    used = []
+
+    def counted(*args, **kwargs):
+        start = update.downdated_start(*args, **kwargs)
+        used.append(start is not None)
+        return start
+    monkeypatch.setattr(adjust_module, "downdated_start", counted)
+    warm = adjust_with_tests(block, AdjustOptions())
+    monkeypatch.setattr(adjust_module, "downdated_start", lambda *a, **k: None)
+    cold = adjust_with_tests(block, AdjustOptions())
+    assert len(cold.rounds) >= 2 and any(used)
+    np.testing.assert_array_equal(warm.rejected_rows, cold.rejected_rows)
+    assert abs(warm.result.cost - cold.result.cost) <= 1e-9 * cold.result.cost
