@@ -21,7 +21,7 @@ import numpy as np
 import scipy.linalg
 
 from .linalg import shared_product
-from .normal import Linearisation, point_camera_coupling
+from .normal import Linearisation
 from .problem import Problem
 from .kernels import add_point_image_products, point_blocks_times, point_cofactor_pairs
 
@@ -87,7 +87,7 @@ class PointCofactors:
             self.L_dd = lower_cholesky(self.Q_dd)
 
     def chunk(self, ch, cs, Vi: np.ndarray) -> PointTerms:
-        problem, n_d = self.problem, self.problem.n_d
+        n_d = self.problem.n_d
         n_pc = ch.p1 - ch.p0
         w_e = np.concatenate([ch.w_e, ch.w_d.transpose(0, 2, 1)], axis=1) if self.compact else ch.w_e
         Z_e = w_e @ Vi[cs.ptl]                                             # (m, w, 3)
@@ -95,7 +95,7 @@ class PointCofactors:
         point_cofactor_pairs(Z_e, cs.img, cs.ptl, cs.pair_a, cs.pair_b, cs.pair_key, self.Q_diag, self.Q_pair, Qp)
         Z = A = ZL = None
         if n_d and not self.compact:
-            Z = point_blocks_times(Vi, point_camera_coupling(problem, ch, cs), False)   # Z[p] = Vi[p] W_pd[p]
+            Z = point_blocks_times(Vi, ch.W_pd, False)                     # Z[p] = Vi[p] W_pd[p]
             A = np.zeros((3 * n_pc, n_d))
             add_point_image_products(Z_e, cs.img, cs.ptl, self.Q_ed, A)
             cross = A.reshape(n_pc, 3, n_d) @ Z.reshape(n_pc, 3, n_d).transpose(0, 2, 1)

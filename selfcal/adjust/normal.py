@@ -45,7 +45,6 @@ __all__ = [
     "observation_rows",
     "carry_ap_columns",
     "chunk_rows",
-    "point_camera_coupling",
     "parameter_observation_groups",
     "parameter_observations",
 ]
@@ -625,22 +624,6 @@ def linearise(problem: Problem, state: State) -> Linearisation:
     if J_x.shape[0]:
         diag_theta += np.asarray(J_x.multiply(J_x).sum(axis=0)).ravel()
     return Linearisation(cost, U_ee, U_ed, U_dd, g_theta, J_x, r_x, chunks, diag_theta)
-
-
-def point_camera_coupling(problem: Problem, ch: ChunkLinearisation, cs) -> np.ndarray:
-    """The dense coupling W_pd (3 n_pc, n_d) of a chunk's points with the camera parameters,
-    assembled from its compact parts where the linearisation kept those."""
-    if ch.W_pd is not None:
-        return ch.W_pd
-    W_pd = np.zeros((3 * (ch.p1 - ch.p0), problem.n_d))
-    if ch.w_d is None:
-        return W_pd
-    own = problem.camera_columns()[problem.image_camera[cs.img]]             # (m, width)
-    rows = np.broadcast_to((3 * cs.ptl)[:, None, None] + np.arange(3)[None, :, None], ch.w_d.shape)
-    cols = np.broadcast_to(own[:, None, :], ch.w_d.shape)
-    keep = cols >= 0
-    np.add.at(W_pd, (rows[keep], cols[keep]), ch.w_d[keep])
-    return W_pd
 
 
 class SingularPoints(AdjustmentError):

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import norm
 
-from ..adjust.normal import chunk_rows, contexts, parameter_observations, point_camera_coupling
+from ..adjust.normal import chunk_rows, contexts, parameter_observations
 from ..adjust.covariance import PointCofactors, times_lower
 from ..adjust.linalg import blas_threads
 from ..adjust.kernels import leverage_camera_cross, leverage_pairs, rows_dot_blocks
@@ -89,7 +89,7 @@ def _row_quadratic(J, Q) -> np.ndarray:
 def _image_leverage(problem, state, lin, v_inv, Q, Q_points=None):
     """h (m, 2) of every image coordinate (sorted order), whitened residuals l - f, and the points' cofactor
     blocks: ``Q_points`` if given, else computed in the same pass (they share its products)."""
-    n_img, n_e, n_d, width = problem.n_images, problem.n_e, problem.n_d, problem.image_width
+    n_img, n_d, width = problem.n_images, problem.n_d, problem.image_width
     parts = PointCofactors(problem, Q)                  # Q_theta on the reduced matrix's pattern only
     Q_diag, L_dd = parts.Q_diag, parts.L_dd
     dense = n_d and not parts.compact                   # compact cameras are part of each observation's block
