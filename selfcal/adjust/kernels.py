@@ -17,7 +17,7 @@ import numpy as np
 from numba import njit
 
 __all__ = ["accumulate_observations", "schur_image_blocks", "point_cofactor_pairs", "leverage_pairs", "camera_couplings", "point_blocks_times", "subtract_image_couplings", "rows_dot_blocks",
-           "camera_couplings_compact", "schur_camera_blocks", "leverage_camera_cross", "compact_rows",
+           "camera_couplings_compact", "leverage_camera_cross", "compact_rows",
            "add_point_image_products"]
 
 
@@ -303,72 +303,6 @@ def camera_couplings_compact(j_c, j_e, j_p, r, img, cam, cols, U_ed, U_dd, g_d):
                     if d2 >= 0:
                         U_dd[d, d2] += x * j_c[o, k, c2]
     return w_d
-
-
-@njit(cache=True, nogil=True)
-def schur_camera_blocks(w_e, w_d, Vi, g_p, img, cam, ptl, cols, pair_a, pair_b, S_ed, S_dd, g_d):
-    """Subtract the camera parts of W V^-1 W^T and W V^-1 g_p for compact rows (see
-    :func:`camera_couplings_compact`), summed over the observations and the pairs of
-    observations of each point instead of a dense product over all camera columns:
-
-    S_dd[cols a, cols b] -= w_d[a]^T V^-1 w_d[b] and S_ed[image a, cols b] -= w_e[a] V^-1 w_d[b]
-    for every ordered pair (a, b) of observations of the same point, a = b included;
-    g_d[cols o] -= w_d[o]^T V^-1 g_p.
-    """
-    m, _, w = w_d.shape
-    ne = w_e.shape[1]
-    T = np.zeros((m, 3, w))                      # V^-1 w_d per observation
-    for o in range(m):
-        p = ptl[o]
-        cc = cols[cam[o]]
-        for a in range(3):
-            for c in range(w):
-                s = 0.0
-                for k in range(3):
-                    s += Vi[p, a, k] * w_d[o, k, c]
-                T[o, a, c] = s
-        vg = np.zeros(3)
-        for a in range(3):
-            for k in range(3):
-                vg[a] += Vi[p, a, k] * g_p[p, k]
-        for c in range(w):
-            d = cc[c]
-            if d < 0:
-                continue
-            s = 0.0
-            for k in range(3):
-                s += w_d[o, k, c] * vg[k]
-            g_d[d] -= s
-    for q in range(m + pair_a.shape[0]):
-        if q < m:
-            oa = q
-            ob = q
-        else:
-            oa = pair_a[q - m]
-            ob = pair_b[q - m]
-        for turn in range(1 if oa == ob else 2):
-            if turn == 1:
-                oa, ob = ob, oa
-            ca = cols[cam[oa]]
-            cb = cols[cam[ob]]
-            i6 = ne * img[oa]
-            for c2 in range(w):
-                d2 = cb[c2]
-                if d2 < 0:
-                    continue
-                for e in range(ne):
-                    s = 0.0
-                    for k in range(3):
-                        s += w_e[oa, e, k] * T[ob, k, c2]
-                    S_ed[i6 + e, d2] -= s
-                for c1 in range(w):
-                    d1 = ca[c1]
-                    if d1 < 0:
-                        continue
-                    s = 0.0
-                    for k in range(3):
-                        s += w_d[oa, k, c1] * T[ob, k, c2]
-                    S_dd[d1, d2] -= s
 
 
 @njit(cache=True, nogil=True, fastmath=True)

@@ -28,7 +28,7 @@ import scipy.sparse as sp
 from ..errors import AdjustmentError
 from ..geometry.rotation import matrix_from_opk_with_derivatives, opk_from_matrix_with_derivatives
 from .kernels import (accumulate_observations, camera_couplings, camera_couplings_compact, compact_rows,
-                      point_blocks_times, schur_camera_blocks, schur_image_blocks, subtract_image_couplings)
+                      point_blocks_times, schur_image_blocks, subtract_image_couplings)
 from .problem import Problem, State
 
 __all__ = [
@@ -681,21 +681,40 @@ def reduce(problem: Problem, lin: Linearisation, lam: float = 0.0, dense: bool =
     g = lin.g_theta.copy()
     diag_blocks = lin.U_ee.copy()
     off_blocks = np.zeros((len(structure.pair_keys), w, w))
+    # compact cameras: an observation's block is its image's columns and its camera's (one camera per
+    # image in BAL); the Schur terms of both are summed over the pairs of each point's observations at once
+    # and spread over S_ee, S_ed and S_dd afterwards
+    compact = bool(n_d) and bool(lin.chunks) and lin.chunks[0].w_d is not None
+    if compact:
+        own = problem.camera_columns()[problem.image_camera]               # (n_images, camera width), -1 pads
+        wide = w + own.shape[1]
+        wide_diag = np.zeros((n_img, wide, wide))
+        wide_off = np.zeros((len(structure.pair_keys), wide, wide))
     v_inv = []
     for ch, cs in zip(lin.chunks, structure.chunks):
         Vi = _damped_inverse(ch.V, lam, ch.p0)
         v_inv.append(Vi)
+        if compact:
+            coupling = np.concatenate([ch.w_e, ch.w_d.transpose(0, 2, 1)], axis=1)   # (m, wide, 3)
+            Y = coupling @ Vi[cs.ptl]
+            schur_image_blocks(Y, coupling, cs.img, cs.pair_a, cs.pair_b, cs.pair_key, wide_diag, wide_off)
+            yg = np.einsum("oik,ok->oi", Y, ch.g_p[cs.ptl])
+            g[:n_e] -= (cs.sum_by_image @ yg[:, :w]).ravel()
+            cols = own[cs.img]
+            np.subtract.at(g, n_e + cols[cols >= 0], yg[:, w:][cols >= 0])
+            continue
         Y = ch.w_e @ Vi[cs.ptl]                                  # (m, w, 3) = W V^-1 per observation
         schur_image_blocks(Y, ch.w_e, cs.img, cs.pair_a, cs.pair_b, cs.pair_key, diag_blocks, off_blocks)
         g[:n_e] -= (cs.sum_by_image @ np.einsum("oik,ok->oi", Y, ch.g_p[cs.ptl])).ravel()
-        if n_d and ch.w_d is not None:
-            schur_camera_blocks(ch.w_e, ch.w_d, Vi, ch.g_p, cs.img, problem.image_camera[cs.img], cs.ptl,
-                                problem.camera_columns(), cs.pair_a, cs.pair_b, S_ed, S_dd, g[n_e:n_e + n_d])
-        elif n_d:
+        if n_d:
             subtract_image_couplings(Y, ch.W_pd, cs.img, cs.ptl, S_ed)
             S_dd -= _point_schur(Vi, ch.W_pd)
             g[n_e:n_e + n_d] -= ch.W_pd.T @ np.einsum("pij,pj->pi", Vi, ch.g_p).ravel()
     ia, ib = structure.image_pair_a, structure.image_pair_b
+    if compact:
+        diag_blocks += wide_diag[:, :w, :w]
+        off_blocks += wide_off[:, :w, :w]
+        _spread_camera_blocks(wide_diag, wide_off, own, ia, ib, w, S_ed, S_dd)
 
     damp = lam * lin.diag_theta
     if dense:
@@ -728,6 +747,28 @@ def reduce(problem: Problem, lin: Linearisation, lam: float = 0.0, dense: bool =
         S = S + sp.diags(damp)
         S = (0.5 * (S + S.T)).tocsc()
     return S, g, v_inv
+
+
+def _spread_camera_blocks(wide_diag, wide_off, own, ia, ib, w, S_ed, S_dd) -> None:
+    """Add the camera rows and columns of the per-image blocks (image then camera columns, ``own``: each
+    image's camera columns, -1 pads) to S_ed and S_dd: each image's own block, and each pair of images
+    (ia, ib) sharing a point with its transpose. Several images may share a camera: np.add.at sums them."""
+    rows = w * np.arange(len(own))[:, None] + np.arange(w)[None, :]            # (n_images, w) image rows
+
+    def add(image_rows, cams_a, cams_b, e_part, d_part):
+        keep = cams_b >= 0
+        r = np.broadcast_to(image_rows[:, :, None], e_part.shape)
+        c = np.broadcast_to(cams_b[:, None, :], e_part.shape)
+        mask = np.broadcast_to(keep[:, None, :], e_part.shape)
+        np.add.at(S_ed, (r[mask], c[mask]), e_part[mask])
+        both = (cams_a >= 0)[:, :, None] & keep[:, None, :]
+        ra = np.broadcast_to(cams_a[:, :, None], d_part.shape)
+        cb = np.broadcast_to(cams_b[:, None, :], d_part.shape)
+        np.add.at(S_dd, (ra[both], cb[both]), d_part[both])
+    add(rows, own, own, wide_diag[:, :w, w:], wide_diag[:, w:, w:])
+    if len(ia):
+        add(rows[ia], own[ia], own[ib], wide_off[:, :w, w:], wide_off[:, w:, w:])
+        add(rows[ib], own[ib], own[ia], wide_off[:, w:, :w].transpose(0, 2, 1), wide_off[:, w:, w:].transpose(0, 2, 1))
 
 
 def back_substitute(problem: Problem, lin: Linearisation, v_inv: list, d_theta: np.ndarray) -> np.ndarray:
