@@ -107,6 +107,7 @@ class AdjustmentResult:
     v_inv: list = field(repr=False, default=None)
     point_cofactor_blocks: np.ndarray | None = field(repr=False, default=None)   # Q_points once computed
     reduced_matrix: np.ndarray | None = field(repr=False, default=None)   # S of the last linearisation (dense, small)
+    datum_null: np.ndarray | None = field(repr=False, default=None)       # a free network's datum directions
 
     @property
     def Q_points(self) -> np.ndarray:
@@ -348,7 +349,9 @@ def _adjust(block: Block, options: AdjustOptions, progress, start, free, ap_mode
             left_out.append(text)
             problem, state, notes = setup(block, start, ap_models)
     history: list[IterationRecord] = []
-    datum_null = None                 # a free network's datum directions, carried over a leave-out
+    # a free network's datum directions, carried over a leave-out and from the adjustment this one re-runs (the
+    # solver checks they still fit the unknowns and finds them afresh if not)
+    datum_null = getattr(start, "datum_null", None)
     while True:
         names = problem.theta_names(block.images.image_id)
         n_obs, n_unk = problem.n_observations(), problem.n_unknowns()
@@ -441,4 +444,5 @@ def _adjust(block: Block, options: AdjustOptions, progress, start, free, ap_mode
         linearisation=lin,
         v_inv=v_inv,
         reduced_matrix=S if isinstance(S, np.ndarray) and S.shape[0] <= UPDATE_LIMIT else None,
+        datum_null=outcome.datum_null,
     )
