@@ -89,8 +89,7 @@ class PointCofactors:
     def chunk(self, ch, cs, Vi: np.ndarray) -> PointTerms:
         n_d = self.problem.n_d
         n_pc = ch.p1 - ch.p0
-        w_e = np.concatenate([ch.w_e, ch.w_d.transpose(0, 2, 1)], axis=1) if self.compact else ch.w_e
-        Z_e = w_e @ Vi[cs.ptl]                                             # (m, w, 3)
+        Z_e = (ch.couplings() if self.compact else ch.w_e) @ Vi[cs.ptl]                                             # (m, w, 3)
         Qp = Vi.copy()
         point_cofactor_pairs(Z_e, cs.img, cs.ptl, cs.pair_a, cs.pair_b, cs.pair_key, self.Q_diag, self.Q_pair, Qp)
         Z = A = ZL = None

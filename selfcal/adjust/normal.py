@@ -66,6 +66,11 @@ class ChunkLinearisation:
     W_pd: np.ndarray | None      # (3 n_pc, n_d) coupling of the points with the camera parameters (dense form)
     w_d: np.ndarray | None = None  # (m_c, 3, width) its non-zero parts per observation (compact form)
 
+    def couplings(self) -> np.ndarray:
+        """Each observation's coupling with its point over the columns it touches, (m_c, w, 3): its image's,
+        then (compact cameras) its camera's (:func:`selfcal.adjust.covariance.observation_columns` names them)."""
+        return self.w_e if self.w_d is None else np.concatenate([self.w_e, self.w_d.transpose(0, 2, 1)], axis=1)
+
 
 @dataclass
 class Linearisation:
@@ -338,12 +343,21 @@ def observation_rows(problem: Problem, state: State, o: np.ndarray):
             delta[sel] = full @ state.cameras[k][cam.n_core:]
             ap_free = cam.free[cam.n_core:]
             j_d[sel, :, start + n_core:start + n_core + int(ap_free.sum())] = full[:, :, ap_free]
+    r, w = _whiten(problem, o, img, f, delta, j_e, j_p)
+    return r, j_e, j_p, j_d * w[:, :, None]
+
+
+def _whiten(problem: Problem, o, img: np.ndarray, f: np.ndarray, delta: np.ndarray, j_e: np.ndarray,
+            j_p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Whitened residuals l - f - delta of observations ``o`` (a slice or indices) and their weights 1/sigma; the
+    image and point rows are whitened in place (held image parameters zeroed)."""
     w = 1.0 / problem.obs_sigma[o]
     r = (problem.obs_value[o] - f - delta) * w
     j_e *= w[:, :, None]
+    j_p *= w[:, :, None]
     if not problem.all_images_free:
         j_e *= problem.image_free[img][:, None, :]
-    return r, j_e, j_p * w[:, :, None], j_d * w[:, :, None]
+    return r, w
 
 
 def image_residuals(problem: Problem, state: State, o0: int = 0, o1: int | None = None, context=None) -> np.ndarray:
@@ -494,12 +508,7 @@ def chunk_rows(problem: Problem, state: State, cs, context=None, compact: bool =
     m = o1 - o0
     f, j_e, j_p, j_i = predict(problem, context, o0, o1, state.points[p0:p1][ptl], jacobians=True)
     delta, cam_cols = _camera_terms(problem, state, o0, o1, img)
-    w = 1.0 / problem.obs_sigma[o0:o1]
-    r = (problem.obs_value[o0:o1] - f - delta) * w
-    j_e *= w[:, :, None]
-    j_p *= w[:, :, None]
-    if not problem.all_images_free:
-        j_e *= problem.image_free[img][:, None, :]
+    r, w = _whiten(problem, slice(o0, o1), img, f, delta, j_e, j_p)
     if len(problem.cameras) == 1 and problem.cameras[0].free[:problem.cameras[0].n_core].all():
         # one camera with its core parameters free, the common case: the rows are a view of the
         # kept AP Jacobian with the core derivatives written into its slots (valid until the next call)
@@ -695,7 +704,7 @@ def reduce(problem: Problem, lin: Linearisation, lam: float = 0.0, dense: bool =
         Vi = _damped_inverse(ch.V, lam, ch.p0)
         v_inv.append(Vi)
         if compact:
-            coupling = np.concatenate([ch.w_e, ch.w_d.transpose(0, 2, 1)], axis=1)   # (m, wide, 3)
+            coupling = ch.couplings()                                         # (m, wide, 3)
             Y = coupling @ Vi[cs.ptl]
             schur_image_blocks(Y, coupling, cs.img, cs.pair_a, cs.pair_b, cs.pair_key, wide_diag, wide_off)
             yg = np.einsum("oik,ok->oi", Y, ch.g_p[cs.ptl])

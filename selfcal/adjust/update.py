@@ -23,6 +23,7 @@ from types import SimpleNamespace
 import numpy as np
 
 from .linalg import SingularSystem, factorise, pseudo_factorise
+from .covariance import observation_columns
 from .normal import SingularPoints, back_substitute, evaluate_cost, observation_rows
 from .problem import Problem
 
@@ -111,47 +112,30 @@ def _point_columns(old: Problem, lin, obs: np.ndarray, block_of: np.ndarray, L: 
     """X (n_theta, 3 n_blocks) with X[:, 3 j:3 j + 3] = W_j^T L_j: the couplings W_j (3 x theta) of points j made
     of the observations ``obs`` (``block_of`` their point's j), times the factor L_j of each one's V^-1, so that
     the points' part of the reduced matrix is X X^T. ``W_d`` (n_blocks, 3, n_d): the dense camera couplings
-    (None for compact rows, taken from the observations)."""
-    n_e, n_d, width = old.n_e, old.n_d, old.image_width
+    (None: compact cameras, whose columns are part of each observation's block)."""
+    n_e, n_d = old.n_e, old.n_d
     X = np.zeros((old.n_theta, 3 * n_blocks))
-    w_e = _per_observation(lin, "w_e", obs)                            # (k, width, 3)
-    rows = width * old.obs_image[obs][:, None] + np.arange(width)[None, :]
-    cols = 3 * block_of[:, None] + np.arange(3)[None, :]
-    np.add.at(X, (rows[:, :, None], cols[:, None, :]), w_e @ L[block_of])
+    coupling = _at(lin, [ch.couplings() for ch in lin.chunks], "o0", obs)       # (k, wide, 3)
+    rows = (old.image_theta() if coupling.shape[1] == old.image_width else observation_columns(old))[old.obs_image[obs]]
+    part = coupling @ L[block_of]
+    cols = np.broadcast_to((3 * block_of[:, None] + np.arange(3)[None, :])[:, None, :], part.shape)
+    ok = rows >= 0
+    np.add.at(X, (np.broadcast_to(rows[:, :, None], part.shape)[ok], cols[ok]), part[ok])
     if W_d is not None:
         X[n_e:n_e + n_d] = np.einsum("jkd,jkl->djl", W_d, L).reshape(n_d, 3 * n_blocks)
-    elif n_d:
-        w_d = _per_observation(lin, "w_d", obs)                        # (k, 3, w) j_p^T j_c
-        own = old.camera_columns()[old.image_camera[old.obs_image[obs]]]
-        part = np.einsum("okc,okl->ocl", w_d, L[block_of])            # (k, w, 3)
-        ok = own >= 0
-        np.add.at(X, ((n_e + own)[:, :, None][ok], cols[:, None, :].repeat(own.shape[1], 1)[ok]), part[ok])
     return X
 
 
-def _per_observation(lin, name: str, obs: np.ndarray) -> np.ndarray:
-    """A per-observation array of the linearisation's chunks at observations ``obs`` (problem order)."""
-    starts = np.array([ch.o0 for ch in lin.chunks])
-    chunk = np.searchsorted(starts, obs, side="right") - 1
-    first = getattr(lin.chunks[0], name)
-    out = np.empty((len(obs),) + first.shape[1:])
-    for c in np.unique(chunk):
-        sel = chunk == c
-        out[sel] = getattr(lin.chunks[c], name)[obs[sel] - lin.chunks[c].o0]
-    return out
-
-
-def _point_rows(lin, name: str, points: np.ndarray, size: int) -> np.ndarray:
-    """The rows of a per-point array of the linearisation's chunks (``size`` rows per point) at ``points``."""
-    starts = np.array([ch.p0 for ch in lin.chunks])
-    chunk = np.searchsorted(starts, points, side="right") - 1
-    first = getattr(lin.chunks[0], name)
-    out = np.empty((len(points), size) + first.shape[1:])
+def _at(lin, arrays: list, start: str, index: np.ndarray, size: int = 1) -> np.ndarray:
+    """Rows of per-chunk arrays (one per chunk of ``lin``, ``size`` rows per item) at ``index``: observations
+    (``start`` = "o0") or points ("p0") in problem order."""
+    starts = np.array([getattr(ch, start) for ch in lin.chunks])
+    chunk = np.searchsorted(starts, index, side="right") - 1
+    out = np.empty((len(index), size) + arrays[0].shape[1:])
     for c in np.unique(chunk):
         sel = np.flatnonzero(chunk == c)
-        local = points[sel] - lin.chunks[c].p0
-        out[sel] = getattr(lin.chunks[c], name).reshape((-1, size) + first.shape[1:])[local]
-    return out
+        out[sel] = arrays[c].reshape((-1, size) + arrays[c].shape[1:])[index[sel] - starts[c]]
+    return out[:, 0] if size == 1 else out
 
 
 def _step(previous, S_old: np.ndarray, removed: np.ndarray, held, free_network: bool):
@@ -181,8 +165,8 @@ def _step(previous, S_old: np.ndarray, removed: np.ndarray, held, free_network: 
     obs = np.repeat(old.point_start[touched], counts) + np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts,
                                                                                            counts)
     block_of = np.repeat(np.arange(n_t), counts)
-    V_old = _point_rows(lin, "V", touched, 1)[:, 0]
-    Vi_old = np.linalg.inv(V_old)
+    V_old = _at(lin, [ch.V for ch in lin.chunks], "p0", touched)
+    Vi_old = _at(lin, previous.v_inv, "p0", touched)                   # undamped: the last reduction's
     position = np.searchsorted(touched, point)
     V_new = V_old.copy()
     np.subtract.at(V_new, position, np.einsum("oki,okj->oij", j_p, j_p))
@@ -194,7 +178,7 @@ def _step(previous, S_old: np.ndarray, removed: np.ndarray, held, free_network: 
     L_new = np.linalg.cholesky(np.linalg.inv(V_new)) * stays[:, None, None]
     W_old = W_new = None
     if lin.chunks[0].W_pd is not None and n_d:
-        W_old = _point_rows(lin, "W_pd", touched, 3)                    # (n_t, 3, n_d)
+        W_old = _at(lin, [ch.W_pd for ch in lin.chunks], "p0", touched, 3)   # (n_t, 3, n_d)
         W_new = W_old.copy()
         np.subtract.at(W_new, position, np.einsum("oki,okd->oid", j_p, j_d))
     X_old = _point_columns(old, lin, obs, block_of, L_old, W_old, n_t)
