@@ -246,8 +246,9 @@ def test_ids_with_spaces_quotes_and_commas_round_trip(template, tmp_path):
 
 
 def test_table_columns_at_once_equal_value_by_value(tmp_path):
-    """read_table converts each number column in one pass; a table it cannot (an empty optional value, a word,
-    a NaN) goes value by value, which says where. Both give the same values; the errors name line and column."""
+    """read_table converts each number column in one pass (empty optional values read as NaN); a table it cannot
+    (a word, a NaN written out) goes value by value, which says where. Both give the same values; the errors name
+    line and column."""
     from selfcal.io.table import NUM, OPT_NUM, STR, Column, read_table
 
     columns = [Column("id", STR, True), Column("x", NUM, True), Column("s", OPT_NUM, False)]
@@ -257,11 +258,19 @@ def test_table_columns_at_once_equal_value_by_value(tmp_path):
     assert fast["id"].tolist() == ["a", "b", "c"] and fast.line.tolist() == [2, 3, 6]
     np.testing.assert_array_equal(fast["x"], [1.5, -300.0, 4.0])
     np.testing.assert_array_equal(fast["s"], [2.0, 10.0, 0.25])
-    path.write_text("id,x,s\na,1.5,\nb,-3e2,1\n")                      # an empty optional value: value by value
-    slow = read_table(path, columns)
-    assert np.isnan(slow["s"][0]) and slow["s"][1] == 1.0 and slow["x"].tolist() == [1.5, -300.0]
+    from selfcal.io import table as table_module
+    rows = [(2, ["a", "1.5", ""]), (3, ["b", "-3e2", " 1 "]), (4, ["c", "2", "  "])]
+    path.write_text("id,x,s\na,1.5,\nb,-3e2, 1 \nc,2,  \n")           # empty optional values: at once
+    slow = table_module._columns_value_by_value(str(path), ["id", "x", "s"], rows, {c.name: c for c in columns})
+    fast = read_table(path, columns)
+    np.testing.assert_array_equal(fast["s"], slow["s"])
+    np.testing.assert_array_equal(fast["x"], slow["x"])
+    assert np.isnan(fast["s"][[0, 2]]).all() and fast["s"][1] == 1.0
+    path.write_text("id,x,s\na,1.5,\nb,-3e2,\n")                         # a column of empty values only
+    assert np.isnan(read_table(path, columns)["s"]).all()
     for body, line, column, words in (("a,1,2\nb,x,2\nc,1,y\n", 3, "x", "not a number"),
                                       ("a,1,2\nb,1,nan\n", 3, "s", "not a finite number"),
+                                      ("a,1,\nb,1, inf\n", 3, "s", "not a finite number"),
                                       ("a,1,2\nb,,2\n", 3, "x", "empty value")):
         path.write_text("id,x,s\n" + body)
         with pytest.raises(BlockError) as error:

@@ -142,6 +142,7 @@ class Problem:
     image_screenable: np.ndarray = None     # (n_images, width) bool
     _structure: object = field(default=None, repr=False)
     _ap_gram: object = field(default=None, repr=False)
+    _layout: tuple | None = field(default=None, repr=False)
     _ap_columns: dict = field(default_factory=dict, repr=False)
     _ap_delta: dict = field(default_factory=dict, repr=False)     # (o0, o1) -> (AP values, their displacement)
 
@@ -157,14 +158,23 @@ class Problem:
             cols += [int(pos[i]) for i in range(min(cam.n_core, cam.size)) if cam.free[i]]
         return np.array(cols, dtype=np.int64)
 
+    def _camera_layout(self) -> tuple[int, np.ndarray]:
+        """(n_d, camera_columns), computed once per layout (read-only). ``d_offset`` is replaced whenever a
+        camera's free parameters change (:func:`selfcal.adjust.apply_free`) and only appended to while the
+        problem is built. BAL's 49 cameras asked for them some 1000 times per tested adjustment."""
+        if self._layout is None or self._layout[0] is not self.d_offset or self._layout[3] != len(self.d_offset):
+            widths = [int(c.free.sum()) for c in self.cameras]
+            columns = np.full((len(self.cameras), max(widths, default=0)), -1, dtype=np.int64)
+            for k, (start, n) in enumerate(zip(self.d_offset, widths)):
+                columns[k, :n] = start - self.n_e + np.arange(n)
+            columns.flags.writeable = False
+            self._layout = (self.d_offset, sum(widths), columns, len(self.d_offset))
+        return self._layout[1], self._layout[2]
+
     def camera_columns(self) -> np.ndarray:
         """Columns of the camera part (0 .. n_d) of each camera's free parameters, one row per
         camera, padded with -1 to the widest camera: (n_cameras, width)."""
-        widths = [int(c.free.sum()) for c in self.cameras]
-        out = np.full((len(self.cameras), max(widths, default=0)), -1, dtype=np.int64)
-        for k, (start, n) in enumerate(zip(self.d_offset, widths)):
-            out[k, :n] = start - self.n_e + np.arange(n)
-        return out
+        return self._camera_layout()[1]
 
     @property
     def compact_cameras(self) -> bool:
@@ -229,7 +239,7 @@ class Problem:
 
     @property
     def n_d(self) -> int:
-        return int(sum(int(c.free.sum()) for c in self.cameras))
+        return self._camera_layout()[0]
 
     @property
     def n_theta(self) -> int:

@@ -91,7 +91,10 @@ class SolverOptions:
 @dataclass(frozen=True)
 class IterationRecord:
     """One iteration: the cost after it, the damping used, the largest
-    correction in units of its conditional sigma, and sigma0 (unitless) so far."""
+    correction in units of its conditional sigma, and sigma0 (unitless) so far.
+    ``moved_sigma``: how far the step moves any function of the unknowns at most, in units of its
+    a-posteriori sigma (sqrt(d^T N d) / sigma0, the function test's measure); infinite for a damped or
+    shortened step, which the function test does not judge."""
 
     iteration: int
     cost: float
@@ -99,6 +102,7 @@ class IterationRecord:
     max_step_sigma: float
     accepted: bool
     sigma0: float
+    moved_sigma: float = float("inf")
 
 
 @dataclass
@@ -230,8 +234,15 @@ def solve(problem: Problem, state: State, names: list[str], options: SolverOptio
         negligible = abs(new_cost - lin.cost) <= 1e-12 * lin.cost
         accepted = bool(np.isfinite(new_cost) and (rho > 0 or negligible))
         cost_now = new_cost if accepted else lin.cost
-        record = IterationRecord(iteration, cost_now, lam, step_sigma, accepted,
-                                 float(np.sqrt(2.0 * cost_now / redundancy)))
+        sigma0 = float(np.sqrt(2.0 * cost_now / redundancy))
+        # an undamped step d changes any function a^T x by at most sqrt(d^T N d) = sqrt(2 predicted) times its
+        # sigma (unit weight); a damped free network's by sqrt(d^T N d) of the undamped N once the damping is small
+        moved_sigma = float("inf")
+        if full_gauss_newton:
+            moved_sigma = float(np.sqrt(2.0 * predicted)) / sigma0
+        elif damped_free and lam <= 1e-6:
+            moved_sigma = float(np.sqrt(max(moved, 0.0))) / sigma0
+        record = IterationRecord(iteration, cost_now, lam, step_sigma, accepted, sigma0, moved_sigma)
         history.append(record)
         if progress is not None:
             progress(record)
@@ -239,12 +250,9 @@ def solve(problem: Problem, state: State, names: list[str], options: SolverOptio
             state = candidate
             if step_sigma < options.step_tolerance:
                 converged, reason = True, f"corrections below {options.step_tolerance:g} sigma"
-            # an undamped step d changes any function a^T x by at most sqrt(d^T N d) = sqrt(2 predicted)
-            # times its sigma (unit weight): below the tolerance, no estimate moved by a visible share of its
-            # a-posteriori sigma (the conditional step_sigma above can stay large in a correlated block)
-            elif ((full_gauss_newton and np.sqrt(2.0 * predicted) < options.function_tolerance * record.sigma0)
-                  or (damped_free and lam <= 1e-6
-                      and np.sqrt(max(moved, 0.0)) < options.function_tolerance * record.sigma0)):
+            # below the tolerance, no estimate moved by a visible share of its a-posteriori sigma (the
+            # conditional step_sigma above can stay large in a correlated block)
+            elif moved_sigma < options.function_tolerance:
                 converged, reason = True, f"no estimate moves by {options.function_tolerance:g} of its sigma"
             elif lin.cost - new_cost <= options.cost_tolerance * max(new_cost, 1e-300):
                 converged, reason = True, "cost no longer decreases"

@@ -84,7 +84,7 @@ def read_table(path: str | os.PathLike, columns: list[Column]) -> Table:
             rows.append((reader.line_num, fields))
     except csv.Error as exc:
         raise BlockError(path, f"not a CSV line: {exc}", reader.line_num + 1) from None
-    rows = [(n, r) for n, r in rows if r and any(f.strip() for f in r) and not r[0].lstrip().startswith("#")]
+    rows = [(n, r) for n, r in rows if r and "".join(r).strip() and not r[0].lstrip().startswith("#")]
     if not rows:
         raise BlockError(path, "empty file: a header line is required", 1)
     header_line, header = rows[0]
@@ -119,10 +119,19 @@ def _columns_at_once(header: list[str], texts: list[tuple], spec: dict) -> dict[
         if spec[name].kind == STR:
             out[name] = np.array([text.strip() for text in column], dtype=object)
             continue
+        texts = np.array(column, dtype=object)
+        if spec[name].kind == OPT_NUM:
+            empty = np.array([text.strip() == "" for text in column], dtype=bool)
+            texts[empty] = "nan"
         try:
-            values = np.array(column, dtype=object).astype(float)
+            values = texts.astype(float)
         except (ValueError, TypeError):
             return None
+        if spec[name].kind == OPT_NUM:
+            if not np.isfinite(values[~empty]).all():
+                return None
+            out[name] = values
+            continue
         if not np.isfinite(values).all():
             return None
         out[name] = values

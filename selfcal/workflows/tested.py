@@ -32,6 +32,7 @@ __all__ = ["TestedAdjustment", "adjust_with_tests", "MAX_REJECTED_SHARE", "prune
 
 #: data snooping stops with a failure rather than reject more than this share of the image observations
 MAX_REJECTED_SHARE = 0.1
+ROUND_TOLERANCE = 0.1
 
 
 def prune_for(block: Block) -> Block:
@@ -39,6 +40,19 @@ def prune_for(block: Block) -> Block:
     from ..sensors import sensor_of
     need = min((sensor_of(c).min_points_per_image for c in block.cameras.values()), default=6)
     return prune(block, min_points_per_image=need)
+
+
+def _meets(result: AdjustmentResult, options: AdjustOptions) -> bool:
+    """Whether the last step of ``result`` (converged with a rough tolerance) also meets ``options``' tests."""
+    last = result.history[-1] if result.history else None
+    return last is None or (last.accepted and (last.moved_sigma < options.solver.function_tolerance
+                                               or last.max_step_sigma < options.solver.step_tolerance))
+
+
+def _converge(result: AdjustmentResult, options: AdjustOptions, critical: float, progress, free, models):
+    """``result``'s block adjusted from its estimate to ``options``' tolerance, and its tests."""
+    result = adjust(result.block, options, progress=progress, start=result, free=free, ap_models=models)
+    return result, observation_tests(result, critical)
 
 
 @dataclass
@@ -80,7 +94,13 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
     """
     snoop_on = snooping is not None and snooping.critical > 0
     critical = snooping.critical if snoop_on else 3.0
-    result = adjust(block, options, progress=progress, ap_models=ap_models)
+    max_rounds = max(snooping.max_rounds if snoop_on else 0, screening.max_rounds if screening else 0)
+    # a round's adjustment only chooses the next round's rejections: it stops once no estimate moves by
+    # ROUND_TOLERANCE of its sigma; the adjustment the tests end with is converged to the caller's tolerance
+    rough = options if not max_rounds else replace(options, solver=replace(
+        options.solver, function_tolerance=max(options.solver.function_tolerance, ROUND_TOLERANCE)))
+    result = adjust(block, rough, progress=progress, ap_models=ap_models)
+    finished = rough is options or _meets(result, options)
     block = result.block                # a free network's adjustment leaves out what it cannot determine
     models = {cam.camera_id: cam.ap for cam in result.problem.cameras}
     free = screening_masks(result.problem)
@@ -95,8 +115,8 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
     joint_tests: list[tuple[int, ScreeningRound]] = []
     failure = ""
     limit = max(1, int(MAX_REJECTED_SHARE * len(block.observations)))
-    max_rounds = max(snooping.max_rounds if snoop_on else 0, screening.max_rounds if screening else 0)
-    for k in range(1, max_rounds + 1):
+    while len(rounds) < max_rounds:
+        k = len(rounds) + 1
         dropped = 0
         if screening is not None and screenable:
             before = joint_tests[-1][1] if joint_tests else None
@@ -121,16 +141,24 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
             rejected_w = np.concatenate([rejected_w, w[picks]])
             rejected_mdb = np.concatenate([rejected_mdb, tests.image_mdb_px[picks]])
         if dropped == 0 and picks.size == 0:
-            break
+            if finished:
+                break
+            # the rough adjustment passed the tests: converge it, and test again
+            result, tests = _converge(result, options, critical, progress, free, models)
+            block, finished = result.block, True
+            continue
         record = SnoopingRound(k, int(picks.size), dropped, largest, result.sigma0_px)
         rounds.append(record)
         if report is not None:
             report(record)
         keep = ~np.isin(block.observations.row, rejected)
         sub = prune_for(replace(block, observations=block.observations.take(np.flatnonzero(keep))))
-        result = adjust(sub, options, progress=progress, start=result, free=free, ap_models=models)
+        result = adjust(sub, rough, progress=progress, start=result, free=free, ap_models=models)
+        finished = rough is options or _meets(result, options)
         block = result.block            # what a free network's re-adjustment left out stays out
         tests = observation_tests(result, critical)
+    if not finished:                    # stopped by a failure or the round limit
+        result, tests = _converge(result, options, critical, progress, free, models)
     components = converged = None
     if variance is not None:
         result, tests, components, converged = estimate_variance_components(

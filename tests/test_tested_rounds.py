@@ -1,0 +1,72 @@
+"""The tested adjustment's rounds (selfcal.workflows.tested): a round's adjustment only chooses the next
+round's rejections, so it stops at ROUND_TOLERANCE of a sigma; the adjustment the tests end with is converged to
+the caller's tolerance.
+
+Truth: the rough rounds must end where rounds converged to the full tolerance end (the same rejections, the same
+final cost to 1e-9), the final adjustment must pass the full tolerance's test, and the rough rounds must save
+iterations where the re-adjustments converge slowly (BAL's weakly intersected points)."""
+import os
+
+import numpy as np
+import pytest
+
+from selfcal.adjust import AdjustOptions
+from selfcal.convert import block_from_bal
+from selfcal.io.bal import read_bal
+import selfcal.workflows.tested as tested_module
+from selfcal.workflows.tested import adjust_with_tests
+
+from conftest import SHARED_DATA
+
+
+@pytest.fixture(scope="module")
+def bal_subset():
+    path = os.path.join(SHARED_DATA, "bal", "bal-ladybug-problem-49-7776-pre-shrink-1800.txt")
+    assert os.path.exists(path), f"shared test data missing: {path}"
+    return block_from_bal(read_bal(path))
+
+
+def _run(block, options):
+    records = []
+    result = adjust_with_tests(block, options, progress=records.append)
+    return result, records
+
+
+def test_rough_rounds_end_where_full_rounds_end(bal_subset, monkeypatch):
+    options = AdjustOptions()
+    rough, rough_records = _run(bal_subset, options)
+    monkeypatch.setattr(tested_module, "ROUND_TOLERANCE", options.solver.function_tolerance)
+    full, full_records = _run(bal_subset, options)
+    assert len(full.rounds) >= 2
+    # the same observations, except where two observations of a point tie in |w| (a two-ray point's are equal):
+    # rounding picks one of them (measured: one such pair on this subset)
+    assert len(rough.rejected_rows) == len(full.rejected_rows)
+    obs = bal_subset.observations
+    point_of = dict(zip(obs.row.tolist(), obs.point_index.tolist()))
+    assert sorted(point_of[r] for r in rough.rejected_rows) == sorted(point_of[r] for r in full.rejected_rows)
+    assert np.setxor1d(rough.rejected_rows, full.rejected_rows).size <= 2
+    assert [r.rejected for r in rough.rounds] == [r.rejected for r in full.rounds]
+    assert abs(rough.result.cost - full.result.cost) <= 1e-9 * full.result.cost
+    last = rough.result.history[-1]
+    assert last.accepted and (last.moved_sigma < options.solver.function_tolerance
+                              or last.max_step_sigma < options.solver.step_tolerance)
+    assert len(rough_records) < len(full_records), (len(rough_records), len(full_records))
+
+
+def test_one_adjustment_without_tests_is_not_rough(bal_subset, monkeypatch):
+    """Without snooping and screening the first adjustment is the result: it is converged to the caller's
+    tolerance, with no second adjustment."""
+    from selfcal.stats.snooping import SnoopingOptions
+
+    options = AdjustOptions()
+    calls = []
+    original = tested_module.adjust
+
+    def counted(*args, **kwargs):
+        calls.append(args[1])
+        return original(*args, **kwargs)
+    monkeypatch.setattr(tested_module, "adjust", counted)
+    result = adjust_with_tests(bal_subset, options, snooping=SnoopingOptions(critical=0), screening=None)
+    assert calls == [options]
+    last = result.result.history[-1]
+    assert last.moved_sigma < options.solver.function_tolerance or last.max_step_sigma < options.solver.step_tolerance
