@@ -56,31 +56,42 @@ def accumulate_observations(j_e, j_p, r, img, ptl, n_img, n_pc):
 
 
 @njit(cache=True, nogil=True)
-def schur_image_blocks(Y, w_e, img, pair_a, pair_b, pair_key, diag, off):
-    """Subtract W V^-1 W^T from the image blocks.
+def schur_image_blocks(V_inv, ptl, w_t, img, pair_a, pair_b, pair_key, diag, off):
+    """Subtract W V^-1 W^T from the image blocks; returns Y_t = V^-1 W^T per observation, (m, 3, ne).
 
-    diag[img[o]] -= Y[o] w_e[o]^T for every observation; off[pair_key[q]] -= Y[a] w_e[b]^T
-    for every pair q = (a, b), a < b, of observations of the same point.
+    w_t[o] (3, ne) is observation o's coupling with its point, transposed (each row contiguous: the inner loops
+    run along it, 35 % faster than along the coupling's 3 columns on BAL problem-49).
+    Y_t[o] = V_inv[ptl[o]] w_t[o]; diag[img[o]] -= Y_t[o]^T w_t[o] for every observation;
+    off[pair_key[q]] -= Y_t[a]^T w_t[b] for every pair q = (a, b), a < b, of observations of the same point.
     """
-    ne = Y.shape[1]
-    for o in range(Y.shape[0]):
+    m, _, ne = w_t.shape
+    Y_t = np.empty((m, 3, ne))
+    for o in range(m):
+        p = ptl[o]
+        for k in range(3):
+            v0 = V_inv[p, k, 0]
+            v1 = V_inv[p, k, 1]
+            v2 = V_inv[p, k, 2]
+            for a in range(ne):
+                Y_t[o, k, a] = v0 * w_t[o, 0, a] + v1 * w_t[o, 1, a] + v2 * w_t[o, 2, a]
         i = img[o]
         for a in range(ne):
+            y0 = Y_t[o, 0, a]
+            y1 = Y_t[o, 1, a]
+            y2 = Y_t[o, 2, a]
             for b in range(ne):
-                s = 0.0
-                for k in range(3):
-                    s += Y[o, a, k] * w_e[o, b, k]
-                diag[i, a, b] -= s
+                diag[i, a, b] -= y0 * w_t[o, 0, b] + y1 * w_t[o, 1, b] + y2 * w_t[o, 2, b]
     for q in range(pair_a.shape[0]):
         oa = pair_a[q]
         ob = pair_b[q]
         key = pair_key[q]
         for a in range(ne):
+            y0 = Y_t[oa, 0, a]
+            y1 = Y_t[oa, 1, a]
+            y2 = Y_t[oa, 2, a]
             for b in range(ne):
-                s = 0.0
-                for k in range(3):
-                    s += Y[oa, a, k] * w_e[ob, b, k]
-                off[key, a, b] -= s
+                off[key, a, b] -= y0 * w_t[ob, 0, b] + y1 * w_t[ob, 1, b] + y2 * w_t[ob, 2, b]
+    return Y_t
 
 
 @njit(cache=True, nogil=True)
@@ -216,17 +227,17 @@ def point_blocks_times(B, W_pd, transpose):
 
 
 @njit(cache=True, nogil=True)
-def subtract_image_couplings(Y, W_pd, img, ptl, S_ed):
-    """S_ed[ne i + a] -= sum over observations of image i of sum_k Y[o, a, k] W_pd[3 p + k]:
-    the image x camera part of W V^-1 W^T (Y = w_e V^-1 per observation)."""
+def subtract_image_couplings(Y_t, W_pd, img, ptl, S_ed):
+    """S_ed[ne i + a] -= sum over observations of image i of sum_k Y_t[o, k, a] W_pd[3 p + k]:
+    the image x camera part of W V^-1 W^T (Y_t = V^-1 w_e^T per observation, :func:`schur_image_blocks`)."""
     n = W_pd.shape[1]
-    ne = Y.shape[1]
-    for o in range(Y.shape[0]):
+    ne = Y_t.shape[2]
+    for o in range(Y_t.shape[0]):
         i6 = ne * img[o]
         p3 = 3 * ptl[o]
         w0, w1, w2 = W_pd[p3], W_pd[p3 + 1], W_pd[p3 + 2]
         for a in range(ne):
-            c0, c1, c2 = Y[o, a, 0], Y[o, a, 1], Y[o, a, 2]
+            c0, c1, c2 = Y_t[o, 0, a], Y_t[o, 1, a], Y_t[o, 2, a]
             row = S_ed[i6 + a]
             for d in range(n):              # one read-modify-write of the row for the three terms
                 row[d] -= c0 * w0[d] + c1 * w1[d] + c2 * w2[d]

@@ -66,9 +66,14 @@ class ChunkLinearisation:
     W_pd: np.ndarray | None      # (3 n_pc, n_d) coupling of the points with the camera parameters (dense form)
     w_d: np.ndarray | None = None  # (m_c, 3, width) its non-zero parts per observation (compact form)
 
-    def couplings(self) -> np.ndarray:
+    def couplings(self, transposed: bool = False) -> np.ndarray:
         """Each observation's coupling with its point over the columns it touches, (m_c, w, 3): its image's,
-        then (compact cameras) its camera's (:func:`selfcal.adjust.covariance.observation_columns` names them)."""
+        then (compact cameras) its camera's (:func:`selfcal.adjust.covariance.observation_columns` names them).
+        ``transposed``: (m_c, 3, w), C-contiguous."""
+        if transposed:
+            if self.w_d is None:
+                return np.ascontiguousarray(self.w_e.transpose(0, 2, 1))
+            return np.concatenate([self.w_e.transpose(0, 2, 1), self.w_d], axis=2)
         return self.w_e if self.w_d is None else np.concatenate([self.w_e, self.w_d.transpose(0, 2, 1)], axis=1)
 
 
@@ -704,19 +709,18 @@ def reduce(problem: Problem, lin: Linearisation, lam: float = 0.0, dense: bool =
         Vi = _damped_inverse(ch.V, lam, ch.p0)
         v_inv.append(Vi)
         if compact:
-            coupling = ch.couplings()                                         # (m, wide, 3)
-            Y = coupling @ Vi[cs.ptl]
-            schur_image_blocks(Y, coupling, cs.img, cs.pair_a, cs.pair_b, cs.pair_key, wide_diag, wide_off)
-            yg = np.einsum("oik,ok->oi", Y, ch.g_p[cs.ptl])
+            Y_t = schur_image_blocks(Vi, cs.ptl, ch.couplings(transposed=True), cs.img, cs.pair_a, cs.pair_b,
+                                     cs.pair_key, wide_diag, wide_off)              # (m, 3, wide) = V^-1 W^T
+            yg = np.einsum("oki,ok->oi", Y_t, ch.g_p[cs.ptl])
             g[:n_e] -= (cs.sum_by_image @ yg[:, :w]).ravel()
             cols = own[cs.img]
             np.subtract.at(g, n_e + cols[cols >= 0], yg[:, w:][cols >= 0])
             continue
-        Y = ch.w_e @ Vi[cs.ptl]                                  # (m, w, 3) = W V^-1 per observation
-        schur_image_blocks(Y, ch.w_e, cs.img, cs.pair_a, cs.pair_b, cs.pair_key, diag_blocks, off_blocks)
-        g[:n_e] -= (cs.sum_by_image @ np.einsum("oik,ok->oi", Y, ch.g_p[cs.ptl])).ravel()
+        Y_t = schur_image_blocks(Vi, cs.ptl, ch.couplings(transposed=True), cs.img, cs.pair_a, cs.pair_b,
+                                 cs.pair_key, diag_blocks, off_blocks)              # (m, 3, w) = V^-1 W^T
+        g[:n_e] -= (cs.sum_by_image @ np.einsum("oki,ok->oi", Y_t, ch.g_p[cs.ptl])).ravel()
         if n_d:
-            subtract_image_couplings(Y, ch.W_pd, cs.img, cs.ptl, S_ed)
+            subtract_image_couplings(Y_t, ch.W_pd, cs.img, cs.ptl, S_ed)
             S_dd -= _point_schur(Vi, ch.W_pd)
             g[n_e:n_e + n_d] -= ch.W_pd.T @ np.einsum("pij,pj->pi", Vi, ch.g_p).ravel()
     ia, ib = structure.image_pair_a, structure.image_pair_b
