@@ -343,3 +343,31 @@ def test_keep_freed_memory_stops_numpys_huge_page_requests_unless_the_environmen
             "print(_set_madvise_hugepage(True))\n")
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
     assert out.stdout.strip() == expected
+
+
+def test_point_block_inverse_equals_lu_and_falls_back_where_not_positive_definite():
+    """The 3x3 point blocks are inverted through their Cholesky factor (selfcal.adjust.kernels.spd_inverse_3x3):
+    equal to LU to rounding times the condition, even for weakly intersected points (condition 1e10); a block
+    that is not positive definite sends the whole batch to LU, which names the singular points."""
+    from selfcal.adjust.kernels import spd_inverse_3x3
+    from selfcal.adjust.normal import SingularPoints, _damped_inverse
+
+    rng = np.random.default_rng(3)
+    A = rng.normal(size=(500, 3, 3))
+    V = A @ A.transpose(0, 2, 1)
+    # two nearly parallel rays: a depth direction 1e-5 of the others
+    Q = np.linalg.qr(rng.normal(size=(500, 3, 3)))[0]
+    weak = Q @ (np.array([1.0, 1.0, 1e-10])[None, :, None] * Q.transpose(0, 2, 1))
+    for blocks, cond in ((V, np.linalg.cond(V)), (weak, np.full(500, 1e10))):
+        out = np.empty_like(blocks)
+        assert spd_inverse_3x3(blocks, out) == -1
+        lu = np.linalg.inv(blocks)
+        scale = np.abs(lu).max(axis=(1, 2))
+        assert np.all(np.abs(out - lu).max(axis=(1, 2)) <= 1e-14 * cond * scale)
+        np.testing.assert_array_equal(out, out.transpose(0, 2, 1))
+    singular = V.copy()
+    singular[7] = np.outer([1.0, 2.0, 3.0], [1.0, 2.0, 3.0])
+    assert spd_inverse_3x3(singular, np.empty_like(singular)) == 7
+    with pytest.raises(SingularPoints) as error:
+        _damped_inverse(singular, 0.0, first_point=100)
+    assert 107 in error.value.indices.tolist()

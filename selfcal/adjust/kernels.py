@@ -18,7 +18,7 @@ from numba import njit
 
 __all__ = ["accumulate_observations", "schur_image_blocks", "point_cofactor_pairs", "leverage_pairs", "camera_couplings", "point_blocks_times", "subtract_image_couplings", "rows_dot_blocks",
            "camera_couplings_compact", "leverage_camera_cross", "compact_rows",
-           "add_point_image_products"]
+           "add_point_image_products", "spd_inverse_3x3"]
 
 
 @njit(cache=True, nogil=True)
@@ -92,6 +92,44 @@ def schur_image_blocks(V_inv, ptl, w_t, img, pair_a, pair_b, pair_key, diag, off
             for b in range(ne):
                 off[key, a, b] -= y0 * w_t[ob, 0, b] + y1 * w_t[ob, 1, b] + y2 * w_t[ob, 2, b]
     return Y_t
+
+
+@njit(cache=True, nogil=True)
+def spd_inverse_3x3(V, out):
+    """out[n] = V[n]^-1 through the Cholesky factor V = L L^T (V^-1 = L^-T L^-1), from V's lower triangle.
+
+    Returns the first block that is not numerically positive definite (a pivot <= 0), or -1: the caller then
+    inverts all blocks by LU, as before this kernel (NumPy's batched inverse took 2.2 ms for 3,900 points, this
+    loop a few hundredths of that)."""
+    for n in range(V.shape[0]):
+        d0 = V[n, 0, 0]
+        if not d0 > 0.0:
+            return n
+        l00 = np.sqrt(d0)
+        l10 = V[n, 1, 0] / l00
+        l20 = V[n, 2, 0] / l00
+        d1 = V[n, 1, 1] - l10 * l10
+        if not d1 > 0.0:
+            return n
+        l11 = np.sqrt(d1)
+        l21 = (V[n, 2, 1] - l20 * l10) / l11
+        d2 = V[n, 2, 2] - l20 * l20 - l21 * l21
+        if not d2 > 0.0:
+            return n
+        l22 = np.sqrt(d2)
+        m00 = 1.0 / l00                         # M = L^-1, lower triangular
+        m11 = 1.0 / l11
+        m22 = 1.0 / l22
+        m10 = -l10 * m00 / l11
+        m21 = -l21 * m11 / l22
+        m20 = -(l20 * m00 + l21 * m10) / l22
+        out[n, 0, 0] = m00 * m00 + m10 * m10 + m20 * m20
+        out[n, 1, 1] = m11 * m11 + m21 * m21
+        out[n, 2, 2] = m22 * m22
+        out[n, 0, 1] = out[n, 1, 0] = m10 * m11 + m20 * m21
+        out[n, 0, 2] = out[n, 2, 0] = m20 * m22
+        out[n, 1, 2] = out[n, 2, 1] = m21 * m22
+    return -1
 
 
 @njit(cache=True, nogil=True)

@@ -28,7 +28,8 @@ import scipy.sparse as sp
 from ..errors import AdjustmentError
 from ..geometry.rotation import matrix_from_opk_with_derivatives, opk_from_matrix_with_derivatives
 from .kernels import (accumulate_observations, camera_couplings, camera_couplings_compact, compact_rows,
-                      point_blocks_times, schur_image_blocks, subtract_image_couplings)
+                      point_blocks_times, schur_image_blocks, spd_inverse_3x3,
+                      subtract_image_couplings)
 from .problem import Problem, State
 
 __all__ = [
@@ -652,7 +653,10 @@ class SingularPoints(AdjustmentError):
 def _damped_inverse(V: np.ndarray, lam: float, first_point: int = 0) -> np.ndarray:
     if lam:
         V = V + lam * np.einsum("nii,ij->nij", V, np.eye(3))
-    try:
+    out = np.empty_like(V)
+    if spd_inverse_3x3(V, out) < 0:
+        return out
+    try:                                    # a block not positive definite: LU, which names singular ones
         return np.linalg.inv(V)
     except np.linalg.LinAlgError:
         w = np.linalg.eigvalsh(V)
