@@ -108,12 +108,13 @@ def left_jacobian(r: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True, nogil=True)
-def _project_indexed(points, params, R_img, Jl_img, cameras, img, cam):
+def _project_indexed(points, params, R_img, Jl_img, cameras, img, cam, jacobians):
     n = points.shape[0]
+    m = n if jacobians else 0
     xy = np.empty((n, 2))
-    j_e = np.zeros((n, 2, 6))
-    j_p = np.zeros((n, 2, 3))
-    j_c = np.zeros((n, 2, 3))
+    j_e = np.zeros((m, 2, 6))
+    j_p = np.zeros((m, 2, 3))
+    j_c = np.zeros((m, 2, 3))
     RX = np.empty(3)
     dP = np.empty((2, 3))
     for o in range(n):
@@ -132,6 +133,8 @@ def _project_indexed(points, params, R_img, Jl_img, cameras, img, cam):
         d = 1.0 + k1 * r2 + k2 * r2 * r2
         xy[o, 0] = f * d * px
         xy[o, 1] = f * d * py
+        if not jacobians:
+            continue
         dd = 2.0 * (k1 + 2.0 * k2 * r2)
         # du/dp = f (d I + dd p p^T);  dp/dP = [[-1/Pz, 0, Px/Pz^2], [0, -1/Pz, Py/Pz^2]]
         a00 = f * (d + dd * px * px)
@@ -169,21 +172,23 @@ def _project_indexed(points, params, R_img, Jl_img, cameras, img, cam):
 
 
 def project_with_jacobians_indexed(points: np.ndarray, params_images: np.ndarray, cameras: np.ndarray,
-                                   image_index: np.ndarray, camera_index: np.ndarray):
-    """Image coordinates and Jacobians of observations given by image and camera index.
+                                   image_index: np.ndarray, camera_index: np.ndarray, rotation: np.ndarray | None = None,
+                                   jacobians: bool = True):
+    """Image coordinates and Jacobians of observations given by image and camera index (``rotation``: the
+    images' rotation matrices, if known). Without ``jacobians`` the three Jacobians are empty, (0, 2, k).
 
     Returns
     -------
     xy : (n, 2); j_e : (n, 2, 6) w.r.t. [r, t]; j_p : (n, 2, 3); j_c : (n, 2, 3) w.r.t. [f, k1, k2]
     """
     params_images = np.ascontiguousarray(params_images, dtype=np.float64)
-    R = matrix_from_rotation_vector(params_images[:, :3])
-    Jl = left_jacobian(params_images[:, :3])
+    R = matrix_from_rotation_vector(params_images[:, :3]) if rotation is None else rotation
+    Jl = left_jacobian(params_images[:, :3]) if jacobians else np.zeros((0, 3, 3))
     return _project_indexed(np.ascontiguousarray(points, dtype=np.float64), params_images,
-                            np.ascontiguousarray(R), np.ascontiguousarray(Jl),
+                            np.ascontiguousarray(R, dtype=np.float64), np.ascontiguousarray(Jl),
                             np.ascontiguousarray(cameras, dtype=np.float64),
                             np.ascontiguousarray(image_index, dtype=np.int64),
-                            np.ascontiguousarray(camera_index, dtype=np.int64))
+                            np.ascontiguousarray(camera_index, dtype=np.int64), jacobians)
 
 
 # --- the sensor contract (selfcal.sensors.base) --------------------------------------------------
@@ -211,8 +216,8 @@ class BalBound(BoundSensor):
     def predict(self, context, o, img, cam, points, jacobians):
         image, core, rotation = context
         if jacobians:
-            return project_with_jacobians_indexed(points, image, core, img, cam)
-        return project(points, image, core[cam], rotation, img)
+            return project_with_jacobians_indexed(points, image, core, img, cam, rotation)
+        return project_with_jacobians_indexed(points, image, core, img, cam, rotation, jacobians=False)[0]
 
     def rays(self, context, img, pixel):
         """Rays of the distortion-free camera: P = s (x/f, y/f, -1) in the camera frame."""
@@ -230,7 +235,8 @@ class BalBound(BoundSensor):
         image, core, rotation = context
         cam = self.problem.image_camera[img]
         w, h = self.format_px[cam].T
-        return pixel_from_photo(project(points, image, core[cam], rotation, img), w, h, 1.0)
+        xy = project_with_jacobians_indexed(points, image, core, img, cam, rotation, jacobians=False)[0]
+        return pixel_from_photo(xy, w, h, 1.0)
 
     def pixel_residuals(self, o, v):
         return np.column_stack([v[:, 0], -v[:, 1]])
