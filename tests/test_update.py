@@ -134,3 +134,51 @@ def test_downdated_start_serves_a_free_networks_snooping(monkeypatch):
     assert len(cold.rounds) >= 2 and any(used)
     np.testing.assert_array_equal(warm.rejected_rows, cold.rejected_rows)
     assert abs(warm.result.cost - cold.result.cost) <= 1e-9 * cold.result.cost
+
+
+def test_downdated_start_of_a_free_network_closes_the_cost_gap():
+    """BAL's 1,800-point subset (a free network) without 20 observations of points with three rays or more: the
+    downdated start (minimum-norm step along the previous datum directions, the touched points intersected
+    again) closes at least 99 % of the cost between the previous estimate and the new solution (measured 99.96 %
+    for three draws; before the datum directions were passed on, the downdate's rounding lifted S's datum
+    eigenvalues above the defect tolerance and BAL problem-49 declined every round)."""
+    import os
+
+    from selfcal.adjust.initial import initial_state
+    from selfcal.adjust.normal import evaluate_cost
+    from selfcal.adjust.problem import build_problem
+    from selfcal.convert import block_from_bal
+    from selfcal.io.bal import read_bal
+
+    path = os.path.join(SHARED_DATA, "bal", "bal-ladybug-problem-49-7776-pre-shrink-1800.txt")
+    assert os.path.exists(path), f"shared test data missing: {path}"
+    previous = adjust(block_from_bal(read_bal(path)), AdjustOptions())
+    obs = previous.block.observations
+    rays = np.bincount(obs.point_index)
+    rows = np.random.default_rng(2).choice(obs.row[rays[obs.point_index] >= 3], 20, replace=False)
+    block = _without(previous, rows)
+    problem = build_problem(block, "none", None)
+    start = downdated_start(previous, problem, block, free_network=True)
+    assert start is not None
+    final = adjust(block, AdjustOptions(), start=previous)
+    gap_before = evaluate_cost(problem, initial_state(problem, block, previous)[0]) - final.cost
+    gap_after = evaluate_cost(problem, initial_state(problem, block, start)[0]) - final.cost
+    assert gap_before > 0.5 and gap_after < 0.01 * gap_before, (gap_before, gap_after)
+
+
+def test_touched_points_are_intersected_again(previous):
+    """update._intersect: points moved off a converged estimate return to it from their rays, the other unknowns
+    held (at the joint optimum each point is at its own), within 1e-3 of their sigma."""
+    from selfcal.adjust.update import _intersect
+
+    problem, state = previous.problem, previous.state.copy()
+    rng = np.random.default_rng(4)
+    tie = np.setdiff1d(np.arange(problem.n_points), problem.control_index)
+    points = np.sort(rng.choice(tie, 25, replace=False))
+    sigma = np.sqrt(np.einsum("pii->pi", previous.Q_points))[points] * np.sqrt(previous.variance_factor)
+    state.points[points] += rng.normal(size=(25, 3)) * 50.0 * sigma
+    obs = np.concatenate([np.arange(problem.point_start[p], problem.point_start[p + 1]) for p in points])
+    _intersect(problem, state, points, obs)
+    assert np.max(np.abs(state.points[points] - previous.state.points[points]) / sigma) < 1e-3
+    untouched = np.setdiff1d(np.arange(problem.n_points), points)
+    np.testing.assert_array_equal(state.points[untouched], previous.state.points[untouched])
