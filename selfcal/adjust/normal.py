@@ -333,24 +333,51 @@ def observation_rows(problem: Problem, state: State, o: np.ndarray):
     img = problem.obs_image[o]
     f, j_e, j_p, j_i = predict_observations(problem, contexts(problem, state), o, state.points[problem.obs_point[o]],
                                             jacobians=True)
-    cam_of = problem.image_camera[img]
-    delta = np.zeros((len(o), 2))
     j_d = np.zeros((len(o), 2, problem.n_d))
+    delta = _ap_terms(problem, state, o, j_d)
+    cam_of = problem.image_camera[img]
     for k, cam in enumerate(problem.cameras):
         sel = np.flatnonzero(cam_of == k)
-        if not sel.size:
-            continue
         start = problem.d_offset[k] - problem.n_e
         core_free = cam.free[:cam.n_core]
-        n_core = int(core_free.sum())
-        j_d[sel, :, start:start + n_core] = j_i[sel][:, :, :cam.n_core][:, :, core_free]
-        if cam.ap.n_params:
-            full = _bound_of(problem, o[sel]).ap_columns(k, o[sel], cam.ap)
-            delta[sel] = full @ state.cameras[k][cam.n_core:]
-            ap_free = cam.free[cam.n_core:]
-            j_d[sel, :, start + n_core:start + n_core + int(ap_free.sum())] = full[:, :, ap_free]
+        if sel.size:
+            j_d[sel, :, start:start + int(core_free.sum())] = j_i[sel][:, :, :cam.n_core][:, :, core_free]
     r, w = _whiten(problem, o, img, f, delta, j_e, j_p)
     return r, j_e, j_p, j_d * w[:, :, None]
+
+
+def point_rows(problem: Problem, state: State, o: np.ndarray, delta: np.ndarray):
+    """Whitened residuals (n, 2) and point Jacobian rows (n, 2, 3) of the image observations ``o``, given their
+    AP displacement ``delta`` (:func:`ap_displacement`): what re-intersecting points needs, the AP columns not
+    evaluated again."""
+    img = problem.obs_image[o]
+    f, j_e, j_p, _ = predict_observations(problem, contexts(problem, state), o, state.points[problem.obs_point[o]],
+                                          jacobians=True)
+    r, _ = _whiten(problem, o, img, f, delta, j_e, j_p)
+    return r, j_p
+
+
+def ap_displacement(problem: Problem, state: State, o: np.ndarray) -> np.ndarray:
+    """The AP displacement (n, 2) of the image observations ``o`` (problem order, any few), the AP columns
+    evaluated afresh."""
+    return _ap_terms(problem, state, o, None)
+
+
+def _ap_terms(problem: Problem, state: State, o: np.ndarray, j_d: np.ndarray | None) -> np.ndarray:
+    """AP displacement of observations ``o``; with ``j_d`` (n, 2, n_d) the free AP columns are written into it."""
+    delta = np.zeros((len(o), 2))
+    cam_of = problem.image_camera[problem.obs_image[o]]
+    for k, cam in enumerate(problem.cameras):
+        sel = np.flatnonzero(cam_of == k)
+        if not sel.size or not cam.ap.n_params:
+            continue
+        full = _bound_of(problem, o[sel]).ap_columns(k, o[sel], cam.ap)
+        delta[sel] = full @ state.cameras[k][cam.n_core:]
+        if j_d is not None:
+            start = problem.d_offset[k] - problem.n_e + int(cam.free[:cam.n_core].sum())
+            ap_free = cam.free[cam.n_core:]
+            j_d[sel, :, start:start + int(ap_free.sum())] = full[:, :, ap_free]
+    return delta
 
 
 def _whiten(problem: Problem, o, img: np.ndarray, f: np.ndarray, delta: np.ndarray, j_e: np.ndarray,

@@ -32,7 +32,7 @@ import numpy as np
 
 from .linalg import SingularSystem, factorise, pseudo_factorise
 from .covariance import observation_columns
-from .normal import SingularPoints, back_substitute, evaluate_cost, observation_rows
+from .normal import SingularPoints, ap_displacement, back_substitute, evaluate_cost, observation_rows, point_rows
 from .problem import Problem, State
 
 __all__ = ["downdated_start"]
@@ -148,32 +148,38 @@ def _at(lin, arrays: list, start: str, index: np.ndarray, size: int = 1) -> np.n
 
 def _intersect(problem: Problem, state: State, points: np.ndarray, obs: np.ndarray, iterations: int = 5) -> None:
     """Gauss-Newton on each of ``points`` alone from its observations ``obs`` (problem order, grouped by point),
-    the other unknowns held; a point keeps each step that lowers its own cost (``state`` is changed in place)."""
+    the other unknowns held; a point keeps each step that lowers its own cost and stops once its step is below
+    1e-3 of its sigma (``state`` is changed in place)."""
     if not points.size:
         return
     owner = np.searchsorted(points, problem.obs_point[obs])
-    cost = None
+    delta = ap_displacement(problem, state, obs)           # the APs are held: their displacement is fixed
+    r, j_p = point_rows(problem, state, obs, delta)
+    cost = np.bincount(owner, np.sum(r * r, axis=1), minlength=points.size)
+    active = np.ones(points.size, bool)
     for _ in range(iterations):
-        r, _, j_p, _ = observation_rows(problem, state, obs)
-        now = np.bincount(owner, np.sum(r * r, axis=1), minlength=points.size)
-        if cost is not None:
-            worse = now > cost
-            if worse.any():                      # that step raised the point's cost: back to where it was
-                state.points[points[worse]] = before[worse]
-                r, _, j_p, _ = observation_rows(problem, state, obs)
-                now = np.bincount(owner, np.sum(r * r, axis=1), minlength=points.size)
-        cost, before = now, state.points[points].copy()
         V = np.zeros((points.size, 3, 3))
         g = np.zeros((points.size, 3))
         np.add.at(V, owner, np.einsum("oki,okj->oij", j_p, j_p))
         np.add.at(g, owner, np.einsum("oki,ok->oi", j_p, r))
         try:
-            state.points[points] += np.linalg.solve(V, g[:, :, None])[:, :, 0]
+            step = np.linalg.solve(V, g[:, :, None])[:, :, 0] * active[:, None]
         except np.linalg.LinAlgError:
             return
-    r = observation_rows(problem, state, obs)[0]
-    worse = np.bincount(owner, np.sum(r * r, axis=1), minlength=points.size) > cost
-    state.points[points[worse]] = before[worse]
+        before = state.points[points].copy()
+        state.points[points] += step
+        r, j_p = point_rows(problem, state, obs, delta)
+        now = np.bincount(owner, np.sum(r * r, axis=1), minlength=points.size)
+        worse = now > cost
+        if worse.any():                          # that step raised the point's cost: back to where it was
+            state.points[points[worse]] = before[worse]
+            active &= ~worse
+            r, j_p = point_rows(problem, state, obs, delta)
+            now = np.bincount(owner, np.sum(r * r, axis=1), minlength=points.size)
+        cost = now
+        active &= np.einsum("pi,pij,pj->p", step, V, step) > 1e-6
+        if not active.any():
+            return
 
 
 def _step(previous, S_old: np.ndarray, removed: np.ndarray, held, free_network: bool):
