@@ -22,7 +22,7 @@ __all__ = ["matrix_from_opk", "matrix_from_opk_with_derivatives", "opk_from_matr
            "matrix_from_rotation_vector", "slerp"]
 
 
-def _elementary(omega, phi, kappa):
+def _elementary(omega, phi, kappa, derivatives: bool = True):
     co, so = np.cos(omega), np.sin(omega)
     cp, sp = np.cos(phi), np.sin(phi)
     ck, sk = np.cos(kappa), np.sin(kappa)
@@ -31,6 +31,8 @@ def _elementary(omega, phi, kappa):
     r1 = np.stack([one, zero, zero, zero, co, so, zero, -so, co], -1).reshape(n + (3, 3))
     r2 = np.stack([cp, zero, -sp, zero, one, zero, sp, zero, cp], -1).reshape(n + (3, 3))
     r3 = np.stack([ck, sk, zero, -sk, ck, zero, zero, zero, one], -1).reshape(n + (3, 3))
+    if not derivatives:
+        return r1, r2, r3
     d1 = np.stack([zero, zero, zero, zero, -so, co, zero, -co, -so], -1).reshape(n + (3, 3))
     d2 = np.stack([-sp, zero, -cp, zero, zero, zero, cp, zero, -sp], -1).reshape(n + (3, 3))
     d3 = np.stack([-sk, ck, zero, -ck, -sk, zero, zero, zero, zero], -1).reshape(n + (3, 3))
@@ -40,7 +42,7 @@ def _elementary(omega, phi, kappa):
 def matrix_from_opk(opk: np.ndarray) -> np.ndarray:
     """Rotation matrices M, shape (..., 3, 3), from angles (..., 3) = (omega, phi, kappa)."""
     opk = np.asarray(opk, float)
-    r1, r2, r3, *_ = _elementary(opk[..., 0], opk[..., 1], opk[..., 2])
+    r1, r2, r3 = _elementary(opk[..., 0], opk[..., 1], opk[..., 2], derivatives=False)
     return r3 @ r2 @ r1
 
 

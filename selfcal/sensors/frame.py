@@ -182,10 +182,11 @@ def project_with_jacobians_indexed(points_m: np.ndarray, eop_images: np.ndarray,
                             np.ascontiguousarray(camera_index, dtype=np.int64))
 
 
-def rays(xy_mm: np.ndarray, eop: np.ndarray, iop: np.ndarray) -> np.ndarray:
-    """Unit object-space directions of the rays through photo points (mm), shape (n, 3)."""
+def rays(xy_mm: np.ndarray, eop: np.ndarray, iop: np.ndarray, m: np.ndarray | None = None) -> np.ndarray:
+    """Unit object-space directions of the rays through photo points (mm), shape (n, 3); ``m``: each point's
+    rotation matrix if known (else from ``eop``'s angles)."""
     iop = np.broadcast_to(np.asarray(iop, float), (len(xy_mm), 3))
-    m = matrix_from_opk(eop[:, 3:])
+    m = matrix_from_opk(eop[:, 3:]) if m is None else m
     v = np.stack([xy_mm[:, 0] - iop[:, 1], xy_mm[:, 1] - iop[:, 2], -iop[:, 0]], axis=-1)
     d = np.einsum("nji,nj->ni", m, v)
     return d / np.linalg.norm(d, axis=1, keepdims=True)
@@ -236,10 +237,11 @@ class FrameBound(BoundSensor):
         return out
 
     def rays(self, context, img, pixel):
-        image, iop, _, _ = context
+        image, iop, rotation, _ = context
+        M = rotation[0] if isinstance(rotation, tuple) else rotation    # per image: not once per observation
         cam = self.problem.image_camera[img]
         w, h, p = self.format_px[cam].T
-        return image[img, :3], rays(photo_from_pixel(pixel, w, h, p), image[img], iop[cam])
+        return image[img, :3], rays(photo_from_pixel(pixel, w, h, p), image[img], iop[cam], M[img])
 
     def photo_coordinates(self, context, img, points) -> np.ndarray:
         """Eq. (1) with the additional parameters (mm), Delta evaluated at the predicted position (at the
