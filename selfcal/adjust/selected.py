@@ -102,17 +102,14 @@ class BandedCofactor:
         bi, bj = block[A.row], block[A.col]
         if np.any(np.abs(bi - bj) > 1):
             raise ValueError("the blocks are not block tridiagonal")
-        # the diagonal and sub-diagonal blocks, filled in one pass over the entries (a pass per block over all
-        # of them took 13 of the 5000-image block's 25 s of covariance)
-        off_d = np.concatenate([[0], np.cumsum(sizes * sizes)])
-        off_s = np.concatenate([[0], np.cumsum(sizes[1:] * sizes[:-1])])
-        flat_d, flat_s = np.zeros(off_d[-1]), np.zeros(off_s[-1])
-        on = bi == bj
-        flat_d[off_d[bi[on]] + offset[A.row[on]] * sizes[bi[on]] + offset[A.col[on]]] = A.data[on]
-        below = bi == bj + 1
-        flat_s[off_s[bj[below]] + offset[A.row[below]] * sizes[bj[below]] + offset[A.col[below]]] = A.data[below]
-        D = [flat_d[off_d[i]:off_d[i + 1]].reshape(sizes[i], sizes[i]) for i in range(nb)]
-        F = [flat_s[off_s[i]:off_s[i + 1]].reshape(sizes[i + 1], sizes[i]) for i in range(nb - 1)]
+        D = [np.zeros((sizes[i], sizes[i])) for i in range(nb)]
+        F = [np.zeros((sizes[i + 1], sizes[i])) for i in range(nb - 1)]
+        for i in range(nb):
+            on = np.flatnonzero((bi == i) & (bj == i))
+            D[i][offset[A.row[on]], offset[A.col[on]]] = A.data[on]
+            if i < nb - 1:
+                below = np.flatnonzero((bi == i + 1) & (bj == i))
+                F[i][offset[A.row[below]], offset[A.col[below]]] = A.data[below]
         # block Cholesky: D_i - M_{i-1} M_{i-1}^T = L_i L_i^T, M_i = F_i L_i^-T
         L, M = D, F                                         # overwritten block by block
         for i in range(nb):
