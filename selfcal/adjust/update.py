@@ -253,7 +253,9 @@ def _step(previous, S_old: np.ndarray, removed: np.ndarray, held, free_network: 
     # the touched points are intersected again from the rays they keep, the orientations held at the step's: a
     # blunder left out of a weakly intersected point moves it far along its rays, where the previous Jacobian no
     # longer holds (BAL problem-49: one such point raised the cost by 44-297 in three of five rounds)
-    _intersect(old, predicted, touched[stays], obs[still & stays[block_of]])
+    # (control points keep the linear step: their surveyed coordinates are observations too)
+    rays_only = stays & ~np.isin(touched, old.control_index)
+    _intersect(old, predicted, touched[rays_only], obs[still & rays_only[block_of]])
     # the linear model must hold: the step lowers the new problem's cost below that of the previous estimate
     # (the previous problem's cost less the left-out rows'); where it does not (BAL's free network, strongly
     # non-linear, in some rounds), the re-adjustment starts from the previous estimate as before
