@@ -70,3 +70,23 @@ def test_one_adjustment_without_tests_is_not_rough(bal_subset, monkeypatch):
     assert calls == [options]
     last = result.result.history[-1]
     assert last.moved_sigma < options.solver.function_tolerance or last.max_step_sigma < options.solver.step_tolerance
+
+
+def test_rough_rounds_on_a_controlled_block_with_screening(monkeypatch):
+    """A simulated Type 2 block (GCPs, GNSS/IMU with strip-wise shift and drift, 0.5 % blunders, Brown APs) with
+    snooping and screening: rough and full rounds reject the same observations, hold the same parameters and end
+    at the same cost."""
+    from selfcal.stats.screening import ScreeningOptions
+
+    from conftest import pruned, simulation
+
+    block = pruned(simulation(seed=7, distortion="local+brown", points_per_mm2=0.2, blunder_rate=0.005), "type2")
+    options = AdjustOptions(ap="brown")
+    rough = adjust_with_tests(block, options, screening=ScreeningOptions())
+    monkeypatch.setattr(tested_module, "ROUND_TOLERANCE", options.solver.function_tolerance)
+    full = adjust_with_tests(block, options, screening=ScreeningOptions())
+    assert len(full.rejected_rows) > 0
+    np.testing.assert_array_equal(rough.rejected_rows, full.rejected_rows)
+    assert {k: v.tolist() for k, v in rough.ap_free.items()} == {k: v.tolist() for k, v in full.ap_free.items()}
+    assert [d.name for _, d in rough.screening_log] == [d.name for _, d in full.screening_log]
+    assert abs(rough.result.cost - full.result.cost) <= 1e-9 * full.result.cost
