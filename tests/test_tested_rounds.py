@@ -53,6 +53,21 @@ def test_rough_rounds_end_where_full_rounds_end(bal_subset, monkeypatch):
     assert len(rough_records) < len(full_records), (len(rough_records), len(full_records))
 
 
+def test_the_converging_round_is_reported_not_counted(bal_subset, monkeypatch):
+    """The adjustment taken on to the full tolerance is announced by a line of its own (a progress display would
+    otherwise show its iterations as if a round had started); it is not a round of the result. (This subset's last
+    round meets the full tolerance by itself, so no round is taken as meeting it here.)"""
+    from selfcal.workflows.progress import round_line
+
+    monkeypatch.setattr(tested_module, "_meets", lambda result, options: False)
+    lines = []
+    result = adjust_with_tests(bal_subset, AdjustOptions(), report=lambda record: lines.append(round_line(record)))
+    assert len(lines) == len(result.rounds) + 1
+    assert all("re-adjusting" in line for line in lines[:-1])
+    assert lines[-1].startswith(f"tests round {len(result.rounds) + 1}: nothing to remove")
+    assert all(r.rejected or r.dropped_aps for r in result.rounds)
+
+
 def test_one_adjustment_without_tests_is_not_rough(bal_subset, monkeypatch):
     """Without snooping and screening the first adjustment is the result: it is converged to the caller's
     tolerance, with no second adjustment."""

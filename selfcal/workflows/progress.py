@@ -17,7 +17,11 @@ def iteration_line(record, image_sigma_px: float, prefix: str = "") -> str:
 
 
 def round_line(record) -> str:
-    """One round of data snooping and screening."""
+    """One round of data snooping and screening (a round that removed nothing: its adjustment, stopped at the
+    rounds' tolerance, is taken on to the full one and tested again)."""
+    if not record.rejected and not record.dropped_aps:
+        return (f"tests round {record.round}: nothing to remove (largest |w| {record.largest_w:.1f}); converging "
+                f"the adjustment to the full tolerance and testing it again")
     return (f"tests round {record.round}: rejected {record.rejected} observations (largest |w| "
             f"{record.largest_w:.1f}), dropped {record.dropped_aps} APs; re-adjusting")
 

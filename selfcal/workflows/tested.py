@@ -147,7 +147,9 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
         if dropped == 0 and picks.size == 0:
             if finished:
                 break
-            # the rough adjustment passed the tests: converge it, and test again
+            # the rough adjustment passed the tests: converge it, and test again (reported, not a round of its own)
+            if report is not None:
+                report(SnoopingRound(k, 0, 0, largest, result.sigma0_px))
             result, tests = _converge(result, options, critical, progress, free, models)
             block, finished = result.block, True
             continue
