@@ -63,9 +63,20 @@ def _problem():
     return read_bal(BAL)
 
 
+def project(points: np.ndarray, params: np.ndarray, camera: np.ndarray) -> np.ndarray:
+    """BAL's projection as its page states it, written here apart from selfcal's kernel to referee the costs:
+    pixel = f (1 + k1 |p|^2 + k2 |p|^4) p, p = -P_xy / P_z, P = R(r) X + t, per observation ([r, t] (n, 6),
+    [f, k1, k2] (n, 3))."""
+    from selfcal.geometry.rotation import matrix_from_rotation_vector
+    P = np.einsum("nij,nj->ni", matrix_from_rotation_vector(params[:, :3]), points) + params[:, 3:]
+    p = -P[:, :2] / P[:, 2:3]
+    r2 = np.sum(p * p, axis=1)
+    d = 1.0 + camera[:, 1] * r2 + camera[:, 2] * r2 * r2
+    return camera[:, 0:1] * d[:, None] * p
+
+
 def bal_cost(problem, cameras: np.ndarray, points: np.ndarray) -> float:
     """1/2 sum of squared residuals with BAL's own projection."""
-    from selfcal.sensors.bal import project
     cam = cameras[problem.obs_camera]
     predicted = project(points[problem.obs_point], cam[:, :6], cam[:, 6:9])
     return 0.5 * float(np.sum((predicted - problem.obs_xy) ** 2))
@@ -208,7 +219,6 @@ def _pycolmap_adjust(reconstruction, refine_principal_point: bool) -> float:
 def run_scipy(target: float | None, budget_s: float = SCIPY_BUDGET_S) -> dict:
     import scipy.sparse as sp
     from scipy.optimize import least_squares
-    from selfcal.sensors.bal import project
 
     problem = _problem()
     n_cam, n_pt = len(problem.cameras), len(problem.points)

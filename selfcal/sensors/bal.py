@@ -25,7 +25,7 @@ from ..block import BalCamera
 from .base import BoundSensor, Parameter, Sensor
 from .frame import photo_from_pixel, pixel_from_photo
 
-__all__ = ["BalSensor", "SENSOR", "CAMERA_NAMES", "IMAGE_NAMES", "project", "project_with_jacobians_indexed", "params_from_eop", "eop_from_params",
+__all__ = ["BalSensor", "SENSOR", "CAMERA_NAMES", "IMAGE_NAMES", "project_with_jacobians_indexed", "params_from_eop", "eop_from_params",
            "rotation_vector_from_matrix", "left_jacobian"]
 
 CAMERA_NAMES = ("f", "k1", "k2")
@@ -66,23 +66,6 @@ def eop_from_params(params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Perspective centres and omega-phi-kappa of images given [r, t] (n, 6)."""
     R = matrix_from_rotation_vector(params[:, :3])
     return -np.einsum("nji,nj->ni", R, params[:, 3:]), opk_from_matrix(R)
-
-
-def project(points: np.ndarray, params: np.ndarray, camera: np.ndarray, rotation: np.ndarray | None = None,
-            image: np.ndarray | None = None) -> np.ndarray:
-    """BAL image coordinates (n, 2) of points (n, 3) with per-observation image params (n, 6) and camera [f, k1, k2].
-    With ``rotation`` (n_images, 3, 3) and ``image`` (n,), ``params`` are per image and each observation takes
-    its image's: the rotations are computed once per image, not once per observation."""
-    if rotation is None:
-        R, params = matrix_from_rotation_vector(params[:, :3]), params
-    else:
-        R, params = rotation[image], params[image]
-    P = np.einsum("nij,nj->ni", R, points) + params[:, 3:]
-    p = -P[:, :2] / P[:, 2:3]
-    r2 = np.sum(p * p, axis=1)
-    camera = np.broadcast_to(camera, (len(points), 3))
-    d = 1.0 + camera[:, 1] * r2 + camera[:, 2] * r2 * r2
-    return camera[:, 0:1] * d[:, None] * p
 
 
 def behind_camera(points: np.ndarray, params: np.ndarray) -> np.ndarray:
