@@ -5,12 +5,15 @@ Cholesky factorisation, so that unknowns in metres, radians and pixels meet on
 equal terms. Small systems use dense LAPACK; large ones a banded Cholesky with a
 dense border when the image graph has a narrow band (strip-structured blocks) and
 the band is cheaper than CHOLMOD, else CHOLMOD (scikit-sparse, installed by
-``make install``). Measured on one machine in one run (benchmarks/bench_scaling.py
---linalg; one BLAS thread, load average 2 on 2 cores): strips of 1000 / 2000 / 5000 images factorised in 0.21 / 0.56 / 8.6 s
-banded, 0.30 / 0.69 / 3.6 s by CHOLMOD, 0.38 / 1.6 / 6.2 s by SuperLU; a random
-image graph (no band) of 1000 / 2000 images 4.9 / 31 s by CHOLMOD, 9.3 / 33 s by
-SuperLU. SciPy's SuperLU remains only for an installation without scikit-sparse,
-and says so: :attr:`Factor.method` names the path taken and the adjustment notes it.
+``make install`` with Debian's OpenBLAS under it: CHOLMOD's supernodes are BLAS calls, and
+the reference BLAS or a generic ATLAS made them 3x slower). Measured on one machine in one run
+(benchmarks/bench_scaling.py --linalg, two BLAS threads, factorisation and one solve): strips of
+1000 / 2000 / 5000 images 0.21 / 0.40 / 4.19 s banded, 0.15 / 0.31 / 1.35 s by CHOLMOD,
+0.40 / 1.38 / 6.46 s by SuperLU; a random image graph (no band) of 1000 / 2000 images
+0.77 / 3.04 s by CHOLMOD, 4.55 / 36.8 s by SuperLU. On one BLAS thread the banded path still wins
+at 1000 images (0.23 against 0.29 s) and loses at 2000 (0.60 against 0.42 s). SciPy's SuperLU
+remains only for an installation without scikit-sparse, and says so: :attr:`Factor.method` names
+the path taken and the adjustment notes it.
 """
 from __future__ import annotations
 
@@ -311,9 +314,10 @@ BORDER_SHARE = 0.1
 #: the banded path is taken when the reverse Cuthill-McKee bandwidth is below this share of the size
 BAND_SHARE = 0.25
 #: with CHOLMOD installed, the banded path is taken while its n w^2 flops stay below this: the strips of
-#: 1000 and 2000 images (n w^2 = 4.5e9, 1.6e10) factorise banded in 0.21 and 0.56 s against CHOLMOD's 0.30
-#: and 0.69 s; 5000 images (1.6e11) in 8.6 s against 3.6 s
-BAND_FLOPS = 4e10
+#: 1000 images (n w^2 = 4.5e9) factorise banded in 0.23 s against CHOLMOD's 0.29 s on one BLAS thread (0.21
+#: against 0.15 s on two), those of 2000 images (1.6e10) in 0.60 against 0.42 s (0.40 against 0.31 s on two),
+#: 5000 images (1.6e11) in 4.19 against 1.35 s (CHOLMOD on OpenBLAS; on ATLAS it lost up to 2000 images)
+BAND_FLOPS = 1e10
 
 
 def band_structure(Ss: sp.csc_matrix):
