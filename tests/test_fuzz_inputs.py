@@ -88,6 +88,29 @@ def test_ctrl_c_leaves_nothing_behind(tmp_path):
     assert not out.exists() and not strays(str(tmp_path)) and digest(str(block)) == before
 
 
+def test_ctrl_c_inside_a_compiled_kernel_is_an_interrupt(monkeypatch, capsys):
+    """Ctrl-C while a Numba kernel calls back into Python (unpickling a constant) reaches the command as a
+    SystemError caused by the KeyboardInterrupt (seen once in test_ctrl_c_leaves_nothing_behind): it is an
+    interrupt, exit 130 without a traceback; a SystemError of any other cause is not hidden."""
+    from selfcal.cli import main as cli
+
+    def interrupted(args):
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as exc:
+            raise SystemError("<function _numba_unpickle> returned a result with an exception set") from exc
+
+    def broken(args):
+        raise SystemError("a genuine fault")
+
+    monkeypatch.setattr(cli.COMMANDS["adjust"], "run", interrupted)
+    assert cli.main(["adjust", "somewhere", "--out", "elsewhere"]) == 130
+    assert "interrupted; nothing was written" in capsys.readouterr().err
+    monkeypatch.setattr(cli.COMMANDS["adjust"], "run", broken)
+    with pytest.raises(SystemError, match="genuine fault"):
+        cli.main(["adjust", "somewhere", "--out", "elsewhere"])
+
+
 # ------------------------------------------------------------------------------------------ Hypothesis
 
 _NUMBER = re.compile(rb"-?\d+\.?\d*(?:[eE][-+]?\d+)?")

@@ -53,6 +53,17 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _interrupted(exc: BaseException) -> bool:
+    """Whether a KeyboardInterrupt is among the causes of ``exc``."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return False
+
+
 def main(argv: list[str] | None = None) -> int:
     try:
         args = build_parser().parse_args(argv)
@@ -66,6 +77,13 @@ def main(argv: list[str] | None = None) -> int:
         print(f"selfcal {args.command}: error: {exc}", file=sys.stderr)
         return exc.exit_code
     except KeyboardInterrupt:
+        print(f"selfcal {args.command}: interrupted; nothing was written", file=sys.stderr)
+        return 130
+    except SystemError as exc:
+        # Ctrl-C while a compiled kernel called back into Python (Numba unpickling a constant): Numba reports
+        # the KeyboardInterrupt as the cause of a SystemError
+        if not _interrupted(exc):
+            raise
         print(f"selfcal {args.command}: interrupted; nothing was written", file=sys.stderr)
         return 130
     except OSError as exc:             # a disk that fills up, a folder removed under the run: no traceback
