@@ -111,3 +111,38 @@ def test_selected_inverse_gives_the_dense_point_cofactors_and_leverages():
     h_dense = _image_leverage(problem, state, lin, v_inv, Q_dense, Qp_dense)[0]
     assert np.max(np.abs(h - h_dense)) < 1e-9 * np.max(np.abs(h_dense))
     assert 0.0 < h.min() and h.max() < 1.0
+
+
+def test_mid_size_blocks_are_reduced_sparse_to_the_dense_path_s_result(monkeypatch):
+    """Beyond DENSE_ASSEMBLY_LIMIT unknowns the reduced matrix is assembled sparse (CHOLMOD or banded: 4.6x
+    faster an iteration at 504 images), and Q_theta is still the dense inverse up to DENSE_LIMIT: a two-strip
+    block of 264 images (1587 unknowns) adjusts to the dense path's cost within 1e-10 relative, its sigmas
+    within 1e-9, and its reduced matrix is kept (dense) for the downdated start of a re-adjustment."""
+    import selfcal.adjust as adjust_module
+    import selfcal.adjust.solver as solver_module
+    from selfcal.adjust import adjust
+    from selfcal.adjust.linalg import DENSE_ASSEMBLY_LIMIT, DENSE_LIMIT
+
+    paths = []
+
+    def reduce_spy(problem, lin, lam=0.0, dense=True):
+        paths.append(dense)
+        return reduce(problem, lin, lam, dense)
+
+    monkeypatch.setattr(solver_module, "reduce", reduce_spy)
+    sim = simulate_uav(seed=1, distortion="none", points_per_mm2=0.2, n_strips=2, images_per_strip=132)
+    block = prune(sim.blocks["type3"])
+    sparse = adjust(block, AdjustOptions())
+    assert DENSE_ASSEMBLY_LIMIT < sparse.problem.n_theta <= DENSE_LIMIT
+    assert paths and not any(paths)
+    paths.clear()
+    assert isinstance(sparse.Q_theta, np.ndarray) and isinstance(sparse.reduced_matrix, np.ndarray)
+    monkeypatch.setattr(solver_module, "DENSE_ASSEMBLY_LIMIT", DENSE_LIMIT)
+    monkeypatch.setattr(adjust_module, "DENSE_ASSEMBLY_LIMIT", DENSE_LIMIT)
+    dense = adjust(block, AdjustOptions())
+    assert paths and all(paths)
+    assert sparse.iterations == dense.iterations
+    assert abs(sparse.cost - dense.cost) < 1e-10 * dense.cost
+    np.testing.assert_allclose(np.diag(sparse.Q_theta), np.diag(dense.Q_theta), rtol=1e-9)
+    np.testing.assert_allclose(sparse.reduced_matrix, dense.reduced_matrix, rtol=1e-9, atol=1e-9 * np.abs(
+        dense.reduced_matrix).max())

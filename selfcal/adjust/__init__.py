@@ -25,7 +25,7 @@ from .covariance import point_cofactors
 from .update import UPDATE_LIMIT, downdated_start
 from .datum import FREE_POINT_SIGMA_RATIO, behind_camera, points_not_determined_by_rays
 from .initial import initial_state
-from .linalg import DENSE_LIMIT, SingularSystem, blas_threads, factorise, null_directions
+from .linalg import DENSE_ASSEMBLY_LIMIT, DENSE_LIMIT, SingularSystem, blas_threads, factorise, null_directions
 from .normal import Linearisation, SingularPoints, carry_ap_columns, image_residuals, reduce
 from .problem import Problem, State, build_problem
 from .solver import IterationRecord, SolverOptions, solve
@@ -393,7 +393,7 @@ def _adjust(block: Block, options: AdjustOptions, progress, start, free, ap_mode
     outcome.iterations = len(history)
     try:
         lin = outcome.linearisation
-        dense = problem.n_theta <= DENSE_LIMIT
+        dense = problem.n_theta <= DENSE_ASSEMBLY_LIMIT
         if outcome.reduction is not None:
             S, factor, v_inv = outcome.reduction
         else:
@@ -411,7 +411,8 @@ def _adjust(block: Block, options: AdjustOptions, progress, start, free, ap_mode
             directions = null_directions(S, names)
             raise AdjustmentError(f"the normal equations are singular at the solution ({exc}):\n  "
                                   + "\n  ".join(directions)) from None
-        Q = factor.cofactor()
+        # the dense inverse up to DENSE_LIMIT unknowns (a sparse S beyond DENSE_ASSEMBLY_LIMIT made dense for it)
+        Q = factor.inverse() if problem.n_theta <= DENSE_LIMIT else factor.cofactor()
         if factor.method == "superlu":
             notes.append("sparse factorisation by SciPy's SuperLU: CHOLMOD (scikit-sparse) is not installed; "
                          "`make install` or `pip install selfcal[cholmod]` installs it (1-2x faster)")
@@ -443,6 +444,6 @@ def _adjust(block: Block, options: AdjustOptions, progress, start, free, ap_mode
         seconds=time.perf_counter() - t0,
         linearisation=lin,
         v_inv=v_inv,
-        reduced_matrix=S if isinstance(S, np.ndarray) and S.shape[0] <= UPDATE_LIMIT else None,
+        reduced_matrix=(S if isinstance(S, np.ndarray) else S.toarray()) if S.shape[0] <= UPDATE_LIMIT else None,
         datum_null=outcome.datum_null,
     )

@@ -18,7 +18,7 @@ import numpy as np
 
 from ..errors import AdjustmentError
 from .datum import points_not_determined_by_rays
-from .linalg import DENSE_LIMIT, PSEUDO_INVERSE_LIMIT, SingularSystem, factorise, null_directions, pseudo_factorise
+from .linalg import DENSE_ASSEMBLY_LIMIT, PSEUDO_INVERSE_LIMIT, SingularSystem, factorise, null_directions, pseudo_factorise
 from .normal import Linearisation, back_substitute, evaluate_cost, linearise, reduce
 from .problem import Problem, State
 
@@ -169,13 +169,13 @@ def solve(problem: Problem, state: State, names: list[str], options: SolverOptio
         When the normal equations are singular (rank defect); the message names
         the unknowns involved.
     """
-    dense = problem.n_theta <= DENSE_LIMIT
+    pseudo = options.free_network and problem.n_theta <= PSEUDO_INVERSE_LIMIT
+    dense = problem.n_theta <= DENSE_ASSEMBLY_LIMIT or pseudo        # the pseudo-inverse step reads S dense
     lin = linearise(problem, state)
     if not np.isfinite(lin.cost):
         raise AdjustmentError("the initial residuals are not finite (points behind a camera?)")
     redundancy = max(problem.n_observations() - problem.n_unknowns(), 1)
     lam, nu = options.initial_damping, 2.0
-    pseudo = options.free_network and problem.n_theta <= PSEUDO_INVERSE_LIMIT
     damped_free = options.free_network and not pseudo
     min_damping = 1e-9 if damped_free else 0.0
     if damped_free and lam == 0.0:
