@@ -319,11 +319,13 @@ def shared_product(multiply_adds: float):
 BORDER_SHARE = 0.1
 #: the banded path is taken when the reverse Cuthill-McKee bandwidth is below this share of the size
 BAND_SHARE = 0.25
-#: with CHOLMOD installed, the banded path is taken while its n w^2 flops stay below this: the strips of
-#: 1000 images (n w^2 = 4.5e9) factorise banded in 0.23 s against CHOLMOD's 0.29 s on one BLAS thread (0.21
-#: against 0.15 s on two), those of 2000 images (1.6e10) in 0.60 against 0.42 s (0.40 against 0.31 s on two),
-#: 5000 images (1.6e11) in 4.19 against 1.35 s (CHOLMOD on OpenBLAS; on ATLAS it lost up to 2000 images)
-BAND_FLOPS = 1e10
+#: with CHOLMOD installed, the banded path is taken while its n w^2 flops stay below this (narrow strips, such as
+#: two strips of 132 images: n w^2 = 5.7e6). An iteration's factorisation of the strip blocks of 504 images
+#: (n w^2 = 1.2e9) took 0.08 s banded against 0.056 s by CHOLMOD on two BLAS threads, of 1000 images (4.5e9)
+#: 0.27-0.29 against 0.145-0.153 s (on one thread banded won there: 0.21 against 0.29 s), of 2000 images (1.6e10)
+#: 0.40 against 0.31 s, of 5000 images (1.6e11) 4.19 against 1.35 s (CHOLMOD on OpenBLAS; on ATLAS it lost up to
+#: 2000 images)
+BAND_FLOPS = 1e9
 
 
 def band_structure(Ss: sp.csc_matrix):
