@@ -411,8 +411,7 @@ def _adjust(block: Block, options: AdjustOptions, progress, start, free, ap_mode
             directions = null_directions(S, names)
             raise AdjustmentError(f"the normal equations are singular at the solution ({exc}):\n  "
                                   + "\n  ".join(directions)) from None
-        # the dense inverse up to DENSE_LIMIT unknowns (a sparse S beyond DENSE_ASSEMBLY_LIMIT made dense for it)
-        Q = factor.inverse() if problem.n_theta <= DENSE_LIMIT else factor.cofactor()
+        Q = factor.cofactor()
         if factor.method == "superlu":
             notes.append("sparse factorisation by SciPy's SuperLU: CHOLMOD (scikit-sparse) is not installed; "
                          "`make install` or `pip install selfcal[cholmod]` installs it (1-2x faster)")
