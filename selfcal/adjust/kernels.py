@@ -22,16 +22,16 @@ __all__ = ["accumulate_observations", "schur_image_blocks", "point_cofactor_pair
 
 
 @njit(cache=True, nogil=True)
-def accumulate_observations(j_e, j_p, r, img, ptl, n_img, n_pc):
-    """Per-image and per-point normal blocks of whitened rows.
+def accumulate_observations(j_e, j_p, r, img, ptl, U_ee, g_e, n_pc):
+    """Per-image and per-point normal blocks of whitened rows; the image blocks are summed into the caller's.
 
-    U_ee[i] += sum_o j_e[o]^T j_e[o] over observations of image i, g_e[i] += j_e^T r;
+    U_ee[i] += sum_o j_e[o]^T j_e[o] over observations of image i, g_e[i] += j_e^T r (in place, not a zeroed
+    (n_images, w, w) copy per chunk added to the total: each chunk's points lie anywhere in the block);
     V[p] += j_p^T j_p, g_p[p] += j_p^T r over observations of point p;
     w_e[o] = j_e[o]^T j_p[o] (the 6x3 coupling of the observation's image and point).
+    Returns V, g_p, w_e.
     """
     m, _, ne = j_e.shape
-    U_ee = np.zeros((n_img, ne, ne))
-    g_e = np.zeros((n_img, ne))
     V = np.zeros((n_pc, 3, 3))
     g_p = np.zeros((n_pc, 3))
     w_e = np.zeros((m, ne, 3))
@@ -52,7 +52,7 @@ def accumulate_observations(j_e, j_p, r, img, ptl, n_img, n_pc):
                 g_p[p, a] += pa * rk
                 for b in range(3):
                     V[p, a, b] += pa * j_p[o, k, b]
-    return U_ee, g_e, V, g_p, w_e
+    return V, g_p, w_e
 
 
 @njit(cache=True, nogil=True)

@@ -618,9 +618,7 @@ def linearise(problem: Problem, state: State) -> Linearisation:
         cost += 0.5 * float(np.sum(r * r))
 
         # image and point blocks, and the coupling of each observation's image and point
-        U_c, g_c, V, g_p, w_e = accumulate_observations(j_e, j_p, r, cs.img, cs.ptl, n_img, n_pc)
-        U_ee += U_c
-        g_e += g_c
+        V, g_p, w_e = accumulate_observations(j_e, j_p, r, cs.img, cs.ptl, U_ee, g_e, n_pc)
         W_pd, w_d = None, None
         if n_d and compact:
             w_d = camera_couplings_compact(j_d, j_e, j_p, r, cs.img, problem.image_camera[cs.img], cols,
