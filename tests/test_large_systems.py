@@ -118,7 +118,7 @@ def test_mid_size_blocks_are_reduced_sparse_to_the_dense_path_s_result(monkeypat
     faster an iteration at 504 images), and Q_theta is still the dense inverse up to DENSE_LIMIT: a two-strip
     block of 264 images (1587 unknowns) adjusts to the dense path's cost within 1e-10 relative, its sigmas
     within 1e-9, and its reduced matrix is kept (dense) for the downdated start of a re-adjustment."""
-    import selfcal.adjust as adjust_module
+    import selfcal.adjust.linalg as linalg_module
     import selfcal.adjust.solver as solver_module
     from selfcal.adjust import adjust
     from selfcal.adjust.linalg import DENSE_ASSEMBLY_LIMIT, DENSE_LIMIT
@@ -137,8 +137,7 @@ def test_mid_size_blocks_are_reduced_sparse_to_the_dense_path_s_result(monkeypat
     assert paths and not any(paths)
     paths.clear()
     assert isinstance(sparse.Q_theta, np.ndarray) and isinstance(sparse.reduced_matrix, np.ndarray)
-    monkeypatch.setattr(solver_module, "DENSE_ASSEMBLY_LIMIT", DENSE_LIMIT)
-    monkeypatch.setattr(adjust_module, "DENSE_ASSEMBLY_LIMIT", DENSE_LIMIT)
+    monkeypatch.setattr(linalg_module, "DENSE_ASSEMBLY_LIMIT", DENSE_LIMIT)
     dense = adjust(block, AdjustOptions())
     assert paths and all(paths)
     assert sparse.iterations == dense.iterations

@@ -25,7 +25,8 @@ from .covariance import point_cofactors
 from .update import UPDATE_LIMIT, downdated_start
 from .datum import FREE_POINT_SIGMA_RATIO, behind_camera, points_not_determined_by_rays
 from .initial import initial_state
-from .linalg import DENSE_ASSEMBLY_LIMIT, DENSE_LIMIT, SingularSystem, blas_threads, factorise, null_directions
+from .linalg import (DENSE_LIMIT, PSEUDO_INVERSE_LIMIT, SingularSystem, blas_threads, dense_assembly, factorise,
+                     null_directions)
 from .normal import Linearisation, SingularPoints, carry_ap_columns, image_residuals, reduce
 from .problem import Problem, State, build_problem
 from .solver import IterationRecord, SolverOptions, solve
@@ -393,7 +394,8 @@ def _adjust(block: Block, options: AdjustOptions, progress, start, free, ap_mode
     outcome.iterations = len(history)
     try:
         lin = outcome.linearisation
-        dense = problem.n_theta <= DENSE_ASSEMBLY_LIMIT
+        dense = dense_assembly(problem.n_theta,
+                               solver_options.free_network and problem.n_theta <= PSEUDO_INVERSE_LIMIT)
         if outcome.reduction is not None:
             S, factor, v_inv = outcome.reduction
         else:

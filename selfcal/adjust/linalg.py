@@ -26,13 +26,21 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 __all__ = ["SingularSystem", "Factor", "factorise", "pseudo_factorise", "null_directions", "band_structure",
-           "DENSE_LIMIT", "DENSE_ASSEMBLY_LIMIT", "PSEUDO_INVERSE_LIMIT", "DEFECT_TOLERANCE", "CHOLMOD_AVAILABLE"]
+           "DENSE_LIMIT", "DENSE_ASSEMBLY_LIMIT", "dense_assembly", "PSEUDO_INVERSE_LIMIT", "DEFECT_TOLERANCE", "CHOLMOD_AVAILABLE"]
 
 #: reduced systems up to this size are assembled and factorised densely, larger ones sparse (CHOLMOD or the
 #: banded path). Reduction, factorisation and solve of strip blocks, measured in one run on two BLAS threads:
 #: 1203 unknowns (200 images) 0.102 s dense against 0.107 s sparse, 1803 (300 images) 0.34 against 0.10 s,
 #: 3027 (504 images) 0.97 against 0.21 s: the dense assembly writes n^2 numbers several times over
 DENSE_ASSEMBLY_LIMIT = 1500
+
+
+def dense_assembly(n_theta: int, pseudo_inverse: bool = False) -> bool:
+    """Whether a reduced system of ``n_theta`` unknowns is assembled dense: up to DENSE_ASSEMBLY_LIMIT, and for the
+    pseudo-inverse steps of a free network, whose eigendecomposition reads S dense."""
+    return n_theta <= DENSE_ASSEMBLY_LIMIT or pseudo_inverse
+
+
 #: up to this size Q_theta is the dense inverse (a sparse S made dense for it) and a singular S is analysed by
 #: its eigenvectors; beyond, Q_theta is a selected inverse where S has a band (:meth:`Factor.cofactor`)
 DENSE_LIMIT = 6000

@@ -18,7 +18,7 @@ import numpy as np
 
 from ..errors import AdjustmentError
 from .datum import points_not_determined_by_rays
-from .linalg import DENSE_ASSEMBLY_LIMIT, PSEUDO_INVERSE_LIMIT, SingularSystem, factorise, null_directions, pseudo_factorise
+from .linalg import PSEUDO_INVERSE_LIMIT, dense_assembly, SingularSystem, factorise, null_directions, pseudo_factorise
 from .normal import Linearisation, back_substitute, evaluate_cost, linearise, reduce
 from .problem import Problem, State
 
@@ -170,7 +170,7 @@ def solve(problem: Problem, state: State, names: list[str], options: SolverOptio
         the unknowns involved.
     """
     pseudo = options.free_network and problem.n_theta <= PSEUDO_INVERSE_LIMIT
-    dense = problem.n_theta <= DENSE_ASSEMBLY_LIMIT or pseudo        # the pseudo-inverse step reads S dense
+    dense = dense_assembly(problem.n_theta, pseudo)
     lin = linearise(problem, state)
     if not np.isfinite(lin.cost):
         raise AdjustmentError("the initial residuals are not finite (points behind a camera?)")

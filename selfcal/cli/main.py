@@ -76,10 +76,7 @@ def main(argv: list[str] | None = None) -> int:
     except SelfcalError as exc:
         print(f"selfcal {args.command}: error: {exc}", file=sys.stderr)
         return exc.exit_code
-    except KeyboardInterrupt:
-        print(f"selfcal {args.command}: interrupted; nothing was written", file=sys.stderr)
-        return 130
-    except SystemError as exc:
+    except (KeyboardInterrupt, SystemError) as exc:
         # Ctrl-C while a compiled kernel called back into Python (Numba unpickling a constant): Numba reports
         # the KeyboardInterrupt as the cause of a SystemError
         if not _interrupted(exc):
