@@ -177,7 +177,8 @@ def test_touched_points_are_intersected_again(previous):
     points = np.sort(rng.choice(tie, 25, replace=False))
     sigma = np.sqrt(np.einsum("pii->pi", previous.Q_points))[points] * np.sqrt(previous.variance_factor)
     state.points[points] += rng.normal(size=(25, 3)) * 50.0 * sigma
-    obs = np.concatenate([np.arange(problem.point_start[p], problem.point_start[p + 1]) for p in points])
+    at = problem.point_positions()[points]
+    obs = np.concatenate([np.arange(problem.point_start[q], problem.point_start[q + 1]) for q in at])
     _intersect(problem, state, points, obs)
     assert np.max(np.abs(state.points[points] - previous.state.points[points]) / sigma) < 1e-3
     untouched = np.setdiff1d(np.arange(problem.n_points), points)

@@ -28,7 +28,7 @@ from .initial import initial_state
 from .linalg import (DENSE_LIMIT, PSEUDO_INVERSE_LIMIT, SingularSystem, blas_threads, dense_assembly, factorise,
                      null_directions)
 from .normal import Linearisation, SingularPoints, carry_ap_columns, image_residuals, reduce
-from .problem import Problem, State, build_problem
+from .problem import Problem, State, build_problem, inherited_point_key
 from .solver import IterationRecord, SolverOptions, solve
 
 __all__ = ["AdjustOptions", "AdjustmentResult", "IterationRecord", "adjust", "apply_free", "Problem", "State"]
@@ -313,9 +313,11 @@ def _adjust(block: Block, options: AdjustOptions, progress, start, free, ap_mode
     settings = ap_settings(options.ap, options.grid)
 
     def setup(block: Block, start, ap_models):
+        key = None if start is None else inherited_point_key(block, start.block, start.problem)
         problem = build_problem(block, options.ap, settings, ap_models=ap_models,
                                 gnss_drift=options.gnss_drift, imu_drift=options.imu_drift,
-                                lever_arm=options.lever_arm, boresight=options.boresight, options=options)
+                                lever_arm=options.lever_arm, boresight=options.boresight, options=options,
+                                point_key=key)
         if free:
             apply_free(problem, free)
         if start is not None:
@@ -377,7 +379,7 @@ def _adjust(block: Block, options: AdjustOptions, progress, start, free, ap_mode
         # a free network's points that their rays do not determine: left out, and on from the estimate so far
         flagged = np.zeros(len(block.points), bool)
         flagged[outcome.undetermined] = True
-        sigma = points_not_determined_by_rays(np.concatenate([ch.V for ch in outcome.linearisation.chunks]),
+        sigma = points_not_determined_by_rays(outcome.linearisation.of_points("V"),
                                               solver_options.point_sigma_ratio)[1]
         worst = outcome.undetermined[np.argsort(-sigma[outcome.undetermined])][:5]
         listed = ", ".join(f"'{block.points.point_id[k]}' ({sigma[k]:.3g} m)" for k in worst)

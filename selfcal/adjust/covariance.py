@@ -112,7 +112,7 @@ def point_cofactors(problem: Problem, lin: Linearisation, v_inv: list, Q) -> np.
     parts = PointCofactors(problem, Q)
     out = np.zeros((problem.n_points, 3, 3))
     for ch, cs, Vi in zip(lin.chunks, problem.structure().chunks, v_inv):
-        out[ch.p0:ch.p1] = parts.chunk(ch, cs, Vi).Q_pp
+        out[ch.points] = parts.chunk(ch, cs, Vi).Q_pp
     return out
 
 

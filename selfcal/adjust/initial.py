@@ -162,7 +162,7 @@ def _ground_the_rest(problem: Problem, state: State, points: np.ndarray, notes: 
     where the ray of their first observation meets the median height of the points that have coordinates,
     where their sensor can say (:meth:`~selfcal.sensors.base.BoundSensor.ground`)."""
     known = np.isfinite(state.points).all(axis=1)
-    first = problem.point_start[points]
+    first = problem.point_start[problem.point_positions()[points]]      # each one's first observation
     placed = 0
     for slot in problem.sensors:
         o = first[np.isin(first, slot.observations)]

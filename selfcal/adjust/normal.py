@@ -57,10 +57,11 @@ def _wrap(angle: np.ndarray) -> np.ndarray:
 
 @dataclass
 class ChunkLinearisation:
-    p0: int
+    p0: int              # positions [p0, p1) in Problem.point_order
     p1: int
     o0: int
     o1: int
+    points: np.ndarray   # (n_pc,) the block's point at each position
     V: np.ndarray        # (n_pc, 3, 3) point normal blocks, control prior included
     g_p: np.ndarray      # (n_pc, 3)
     w_e: np.ndarray      # (m_c, width, 3) coupling of each observation's image with its point
@@ -89,6 +90,14 @@ class Linearisation:
     r_x: np.ndarray
     chunks: list[ChunkLinearisation]
     diag_theta: np.ndarray   # diagonal of U (parameter observations included)
+
+    def of_points(self, name: str) -> np.ndarray:
+        """A chunk quantity of every point (``"V"``, ``"g_p"``) in the block's point order."""
+        parts = [getattr(ch, name) for ch in self.chunks]
+        out = np.empty((sum(len(ch.points) for ch in self.chunks),) + parts[0].shape[1:])
+        for ch, part in zip(self.chunks, parts):
+            out[ch.points] = part
+        return out
 
 
 def _camera_jacobian(problem: Problem, k: int) -> np.ndarray:
@@ -537,9 +546,9 @@ def chunk_rows(problem: Problem, state: State, cs, context=None, compact: bool =
     """
     n_e, n_d = problem.n_e, problem.n_d
     context = contexts(problem, state) if context is None else context
-    p0, p1, o0, o1, img, ptl = cs.p0, cs.p1, cs.o0, cs.o1, cs.img, cs.ptl
+    o0, o1, img = cs.o0, cs.o1, cs.img
     m = o1 - o0
-    f, j_e, j_p, j_i = predict(problem, context, o0, o1, state.points[p0:p1][ptl], jacobians=True)
+    f, j_e, j_p, j_i = predict(problem, context, o0, o1, state.points[problem.obs_point[o0:o1]], jacobians=True)
     delta, cam_cols = _camera_terms(problem, state, o0, o1, img)
     r, w = _whiten(problem, slice(o0, o1), img, f, delta, j_e, j_p)
     if len(problem.cameras) == 1 and problem.cameras[0].free[:problem.cameras[0].n_core].all():
@@ -636,15 +645,15 @@ def linearise(problem: Problem, state: State) -> Linearisation:
             else:
                 U_dd += U_vd
 
-        ctl = control_of_point[p0:p1]
+        ctl = control_of_point[cs.points]
         has = np.flatnonzero(ctl >= 0)
         if has.size:
             W = problem.control_weight[ctl[has]]
-            rc = np.einsum("nij,nj->ni", W, problem.control_xyz[ctl[has]] - state.points[p0:p1][has])
+            rc = np.einsum("nij,nj->ni", W, problem.control_xyz[ctl[has]] - state.points[cs.points[has]])
             cost += 0.5 * float(np.sum(rc * rc))
             V[has] += np.einsum("nki,nkj->nij", W, W)
             g_p[has] += np.einsum("nki,nk->ni", W, rc)
-        chunks.append(ChunkLinearisation(p0, p1, o0, o1, V, g_p, w_e, W_pd, w_d))
+        chunks.append(ChunkLinearisation(p0, p1, o0, o1, cs.points, V, g_p, w_e, W_pd, w_d))
 
     if constant.size:
         if build_gram:
@@ -675,7 +684,9 @@ class SingularPoints(AdjustmentError):
                          f"or a point gone to infinity or behind its cameras)")
 
 
-def _damped_inverse(V: np.ndarray, lam: float, first_point: int = 0) -> np.ndarray:
+def _damped_inverse(V: np.ndarray, lam: float, points: np.ndarray | None = None) -> np.ndarray:
+    """The inverse damped point blocks; a block that is singular raises SingularPoints naming its point
+    (``points``: the block's point of each block, by default its index)."""
     if lam:
         V = V + lam * np.einsum("nii,ij->nij", V, np.eye(3))
     out = np.empty_like(V)
@@ -685,7 +696,8 @@ def _damped_inverse(V: np.ndarray, lam: float, first_point: int = 0) -> np.ndarr
         return np.linalg.inv(V)
     except np.linalg.LinAlgError:
         w = np.linalg.eigvalsh(V)
-        raise SingularPoints(first_point + np.flatnonzero(w[:, 0] <= 1e-14 * np.abs(w[:, 2]))) from None
+        bad = np.flatnonzero(w[:, 0] <= 1e-14 * np.abs(w[:, 2]))
+        raise SingularPoints(bad if points is None else points[bad]) from None
 
 
 def _point_schur(Vi: np.ndarray, W_pd: np.ndarray) -> np.ndarray:
@@ -735,7 +747,7 @@ def reduce(problem: Problem, lin: Linearisation, lam: float = 0.0, dense: bool =
         wide_off = np.zeros((len(structure.pair_keys), wide, wide))
     v_inv = []
     for ch, cs in zip(lin.chunks, structure.chunks):
-        Vi = _damped_inverse(ch.V, lam, ch.p0)
+        Vi = _damped_inverse(ch.V, lam, ch.points)
         v_inv.append(Vi)
         if compact:
             Y_t = schur_image_blocks(Vi, cs.ptl, ch.couplings(transposed=True), cs.img, cs.pair_a, cs.pair_b,
@@ -828,7 +840,7 @@ def back_substitute(problem: Problem, lin: Linearisation, v_inv: list, d_theta: 
             wt += np.add.reduceat(np.einsum("okc,oc->ok", ch.w_d, d_own), starts, axis=0)
         elif n_d:
             wt += (ch.W_pd @ d_d).reshape(-1, 3)
-        d_p[ch.p0:ch.p1] = np.einsum("pij,pj->pi", Vi, ch.g_p - wt)
+        d_p[ch.points] = np.einsum("pij,pj->pi", Vi, ch.g_p - wt)
     return d_p
 
 

@@ -105,7 +105,14 @@ class SensorSlot:
 
 @dataclass
 class Problem:
-    """Arrays the engine works on; observations are sorted by point."""
+    """Arrays the engine works on; observations are sorted by point, the points in the problem's own order
+    (``point_order``: by the first image that observes them), which the assembly chunks cut into ranges.
+
+    Points keep the block's numbering everywhere (``obs_point``, ``control_index``, a state's points, the
+    results): only ``point_start`` and ``chunks`` count positions in ``point_order``. A chunk of points in
+    block order (as read: often by id or by track) touches nearly every image of a large block; in the
+    order of their first images its points share few images, and their blocks stay in the caches.
+    """
 
     n_images: int
     n_points: int
@@ -115,8 +122,9 @@ class Problem:
     obs_image: np.ndarray
     obs_point: np.ndarray
     obs_order: np.ndarray           # position of each sorted observation in the block's observations
-    point_start: np.ndarray         # (n_points + 1,) first observation of each point
-    chunks: list[tuple[int, int]]   # point ranges [p0, p1) of the assembly chunks
+    point_order: np.ndarray         # (n_points,) the block's point at each position of the problem's order
+    point_start: np.ndarray         # (n_points + 1,) first observation of the point at each position
+    chunks: list[tuple[int, int]]   # position ranges [p0, p1) in point_order of the assembly chunks
     # weighted point observations (gcp): W^T W = inverse covariance of the surveyed coordinates
     control_index: np.ndarray
     control_xyz: np.ndarray
@@ -216,6 +224,12 @@ class Problem:
             groups.setdefault(t.sensor, []).extend(range(start, start + k))
             start += k
         return groups
+
+    def point_positions(self) -> np.ndarray:
+        """The position in ``point_order`` of each of the block's points (the inverse permutation)."""
+        position = np.empty_like(self.point_order)
+        position[self.point_order] = np.arange(len(self.point_order))
+        return position
 
     def structure(self):
         """Sparsity structure of the normal equations (built on first use, then cached)."""
@@ -397,6 +411,35 @@ def trajectory_terms(sensor: str, images, index: np.ndarray, observed: np.ndarra
                            np.zeros(3) if mounting is None else np.asarray(mounting, float), estimate_mounting)
 
 
+def _point_order(image_index: np.ndarray, point_index: np.ndarray, n_points: int,
+                 key: np.ndarray | None = None) -> np.ndarray:
+    """The points by ``key`` if given, else by the first image that observes them (then as in the block;
+    unobserved points last)."""
+    if key is None:
+        key = np.full(n_points, np.iinfo(np.int64).max)
+        np.minimum.at(key, point_index, image_index.astype(np.int64))
+    return np.argsort(key, kind="stable")
+
+
+def inherited_point_key(block: Block, previous_block: Block, previous: "Problem") -> np.ndarray | None:
+    """A key that puts the points of ``block`` (a subset of the observations of ``previous_block``, as after
+    data snooping) in the order they had in ``previous``, or None if the observations are not such a subset.
+
+    The first image of a point changes when that observation is rejected; a re-adjustment that kept its
+    predecessor's order for the other points only would reorder it, and the arrays it carries over (the AP
+    columns, hundreds of MB) could not be compacted in place."""
+    old_rows, new_rows = previous_block.observations.row, block.observations.row
+    if not len(new_rows) or not len(old_rows):
+        return None
+    order = np.argsort(old_rows, kind="stable")
+    where = order[np.minimum(np.searchsorted(old_rows, new_rows, sorter=order), len(old_rows) - 1)]
+    if np.any(old_rows[where] != new_rows):
+        return None
+    key = np.full(len(block.points), np.iinfo(np.int64).max)
+    key[block.observations.point_index] = previous.point_positions()[previous_block.observations.point_index[where]]
+    return key
+
+
 def _chunks(point_start: np.ndarray, target: int) -> list[tuple[int, int]]:
     """Split points into ranges holding about ``target`` observations each."""
     n_points = len(point_start) - 1
@@ -435,7 +478,7 @@ def _control_weights(block: Block, control: np.ndarray, object_frame: str) -> np
 def build_problem(block: Block, ap_spec: str = "none", ap_settings: dict | None = None,
                   chunk_observations: int = CHUNK_OBSERVATIONS, ap_models: dict | None = None,
                   gnss_drift: int = 1, imu_drift: int = 1, lever_arm: bool = False,
-                  boresight: bool = False, options=None) -> Problem:
+                  boresight: bool = False, options=None, point_key: np.ndarray | None = None) -> Problem:
     """Arrange a (pruned) block for the engine.
 
     Parameters
@@ -456,6 +499,8 @@ def build_problem(block: Block, ap_spec: str = "none", ap_settings: dict | None 
         initial values, else zero); both need the shift/drift order -1.
     options : AdjustOptions, optional
         Handed to the sensors (a sensor model's parameter set and weights).
+    point_key : ndarray, optional
+        Orders the points (``Problem.point_order``; :func:`inherited_point_key`); by default their first images.
     """
     from ..sensors import sensor_of
     ap_settings = ap_settings or {}
@@ -464,8 +509,11 @@ def build_problem(block: Block, ap_spec: str = "none", ap_settings: dict | None 
     camera_ids = [c for c in block.cameras if c in used]         # a camera without images has no unknowns
     lookup = {c: k for k, c in enumerate(camera_ids)}
     image_camera = np.array([lookup[c] for c in block.images.camera_id], dtype=np.int64)
-    order = np.lexsort((obs.image_index, obs.point_index))
-    point_start = np.searchsorted(obs.point_index[order], np.arange(len(block.points) + 1))
+    point_order = _point_order(obs.image_index, obs.point_index, len(block.points), point_key)
+    position = np.empty_like(point_order)
+    position[point_order] = np.arange(len(point_order))             # (Problem.point_positions)
+    order = np.lexsort((obs.image_index, position[obs.point_index]))
+    point_start = np.searchsorted(position[obs.point_index[order]], np.arange(len(block.points) + 1))
     sensors = [sensor_of(block.cameras[c]) for c in camera_ids]
     object_frames = {s.object_frame for s in sensors}
     if len(object_frames) > 1:
@@ -481,6 +529,7 @@ def build_problem(block: Block, ap_spec: str = "none", ap_settings: dict | None 
         obs_image=obs.image_index[order],
         obs_point=obs.point_index[order],
         obs_order=order,
+        point_order=point_order,
         point_start=point_start,
         chunks=_chunks(point_start, chunk_observations),
         control_index=control,

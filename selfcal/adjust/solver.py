@@ -189,7 +189,7 @@ def solve(problem: Problem, state: State, names: list[str], options: SolverOptio
     for iteration in range(1, options.max_iterations + 1):
         if options.point_sigma_ratio and options.free_network and checked is not lin:
             checked = lin
-            bad = points_not_determined_by_rays(np.concatenate([ch.V for ch in lin.chunks]),
+            bad = points_not_determined_by_rays(lin.of_points("V"),
                                                 options.point_sigma_ratio)[0]
             if bad.size:
                 return SolverOutcome(state, lin, False, f"{bad.size} points not determined by their rays",
@@ -214,8 +214,8 @@ def solve(problem: Problem, state: State, names: list[str], options: SolverOptio
         d_p = back_substitute(problem, lin, v_inv, d_theta)
         candidate = problem.apply(state, d_theta, d_p)
         new_cost = evaluate_cost(problem, candidate)
-        diag_p = np.concatenate([np.einsum("nii->ni", ch.V) for ch in lin.chunks])
-        g_p = np.concatenate([ch.g_p for ch in lin.chunks])
+        diag_p = np.einsum("nii->ni", lin.of_points("V"))
+        g_p = lin.of_points("g_p")
         predicted = 0.5 * (d_theta @ lin.g_theta + np.sum(d_p * g_p)
                            + lam * (d_theta @ (lin.diag_theta * d_theta) + np.sum(diag_p * d_p * d_p)))
         # d^T N d of the undamped N ((N + lam D) d = g): how far the step moves any function of the unknowns

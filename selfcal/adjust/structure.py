@@ -66,12 +66,13 @@ class ChunkStructure:
     """Index arrays and summing matrices of one chunk of points and their observations (the
     camera-parameter couplings are accumulated by the kernels in selfcal.adjust.kernels)."""
 
-    p0: int
+    p0: int                         # the chunk's positions [p0, p1) in Problem.point_order
     p1: int
     o0: int
     o1: int
+    points: np.ndarray              # the block's point at each of its positions
     img: np.ndarray                 # image of each observation
-    ptl: np.ndarray                 # point of each observation, relative to p0
+    ptl: np.ndarray                 # point of each observation, relative to p0 (an index into ``points``)
     sum_by_image: sp.csr_matrix     # (n_images, m)
     sum_by_point: sp.csr_matrix     # (n_pc, m)
     pair_a: np.ndarray              # upper pairs a < b of observations of the same point
@@ -92,11 +93,12 @@ def build_structure(problem) -> BlockStructure:
     n_img = problem.n_images
     per_chunk = []
     all_keys = []
+    position = problem.point_positions()
     for p0, p1 in problem.chunks:
         o0, o1 = int(problem.point_start[p0]), int(problem.point_start[p1])
         m, n_pc = o1 - o0, p1 - p0
         img = problem.obs_image[o0:o1]
-        ptl = problem.obs_point[o0:o1] - p0
+        ptl = position[problem.obs_point[o0:o1]] - p0
         a, b = observation_pairs(ptl, n_pc, upper=True)
         keys = img[a] * n_img + img[b]
         all_keys.append(np.unique(keys))
@@ -107,7 +109,7 @@ def build_structure(problem) -> BlockStructure:
     for p0, p1, o0, o1, m, n_pc, img, ptl, a, b, keys in per_chunk:
         key_index = np.searchsorted(pair_keys, keys)
         chunks.append(ChunkStructure(
-            p0=p0, p1=p1, o0=o0, o1=o1, img=img, ptl=ptl,
+            p0=p0, p1=p1, o0=o0, o1=o1, points=problem.point_order[p0:p1], img=img, ptl=ptl,
             sum_by_image=_summing(img, n_img),
             sum_by_point=_summing(ptl, n_pc),
             pair_a=a, pair_b=b, pair_key=key_index,

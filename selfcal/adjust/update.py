@@ -136,7 +136,7 @@ def _point_columns(old: Problem, lin, obs: np.ndarray, block_of: np.ndarray, L: 
 
 def _at(lin, arrays: list, start: str, index: np.ndarray, size: int = 1) -> np.ndarray:
     """Rows of per-chunk arrays (one per chunk of ``lin``, ``size`` rows per item) at ``index``: observations
-    (``start`` = "o0") or points ("p0") in problem order."""
+    (``start`` = "o0") in problem order or points at their positions in ``Problem.point_order`` ("p0")."""
     starts = np.array([getattr(ch, start) for ch in lin.chunks])
     chunk = np.searchsorted(starts, index, side="right") - 1
     out = np.empty((len(index), size) + arrays[0].shape[1:])
@@ -205,12 +205,13 @@ def _step(previous, S_old: np.ndarray, removed: np.ndarray, held, free_network: 
     # the points the left-out rows touch: their part of the reduced matrix before and after
     touched = np.unique(point)
     n_t = len(touched)
-    counts = old.point_start[touched + 1] - old.point_start[touched]
-    obs = np.repeat(old.point_start[touched], counts) + np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts,
-                                                                                           counts)
+    at = old.point_positions()[touched]                                # their positions in the problem's order
+    counts = old.point_start[at + 1] - old.point_start[at]
+    obs = np.repeat(old.point_start[at], counts) + np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts,
+                                                                                      counts)
     block_of = np.repeat(np.arange(n_t), counts)
-    V_old = _at(lin, [ch.V for ch in lin.chunks], "p0", touched)
-    Vi_old = _at(lin, previous.v_inv, "p0", touched)                   # undamped: the last reduction's
+    V_old = _at(lin, [ch.V for ch in lin.chunks], "p0", at)
+    Vi_old = _at(lin, previous.v_inv, "p0", at)                        # undamped: the last reduction's
     position = np.searchsorted(touched, point)
     V_new = V_old.copy()
     np.subtract.at(V_new, position, np.einsum("oki,okj->oij", j_p, j_p))
@@ -222,7 +223,7 @@ def _step(previous, S_old: np.ndarray, removed: np.ndarray, held, free_network: 
     L_new = np.linalg.cholesky(np.linalg.inv(V_new)) * stays[:, None, None]
     W_old = W_new = None
     if lin.chunks[0].W_pd is not None and n_d:
-        W_old = _at(lin, [ch.W_pd for ch in lin.chunks], "p0", touched, 3)   # (n_t, 3, n_d)
+        W_old = _at(lin, [ch.W_pd for ch in lin.chunks], "p0", at, 3)        # (n_t, 3, n_d)
         W_new = W_old.copy()
         np.subtract.at(W_new, position, np.einsum("oki,okd->oid", j_p, j_d))
     X_old = _point_columns(old, lin, obs, block_of, L_old, W_old, n_t)

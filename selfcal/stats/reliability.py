@@ -108,7 +108,7 @@ def _image_leverage(problem, state, lin, v_inv, Q, Q_points=None):
             j_e = np.concatenate([j_e, j_d], axis=2)        # the image's and its camera's columns, one block
         terms = parts.chunk(ch, cs, Vi)
         if Q_points is None:
-            points[ch.p0:ch.p1] = terms.Q_pp
+            points[ch.points] = terms.Q_pp
         G = np.zeros((m, j_e.shape[2], 3))
         leverage_pairs(terms.Z_e, img, cs.pair_a, cs.pair_b, cs.pair_key, Q_diag, parts.Q_pair, G)  # sum_b Q_ab Z_b
         h = np.einsum("oki,oij,okj->ok", j_e, Q_diag[img], j_e)
@@ -128,7 +128,7 @@ def _image_leverage(problem, state, lin, v_inv, Q, Q_points=None):
                 jp_term += rows_dot_blocks(XL.reshape(m, 2, n_d), ptl, terms.ZL.reshape(n_pc, 3, n_d))
                 h += np.einsum("rd,rd->r", XL, XL).reshape(m, 2)
         h -= 2.0 * np.einsum("okj,okj->ok", jp_term, j_p)
-        h += np.einsum("oki,oij,okj->ok", j_p, points[ch.p0:ch.p1][ptl], j_p)
+        h += np.einsum("oki,oij,okj->ok", j_p, points[ch.points[ptl]], j_p)
         h_all[cs.o0:cs.o1] = h
         r_all[cs.o0:cs.o1] = r
     return h_all, r_all, points
