@@ -376,3 +376,34 @@ def test_point_block_inverse_equals_lu_and_falls_back_where_not_positive_definit
     with pytest.raises(SingularPoints) as error:
         _damped_inverse(singular, 0.0, points=np.arange(100, 600))       # the block's point of each block
     assert 107 in error.value.indices.tolist()
+
+
+def test_points_are_chunked_by_their_first_images_whatever_the_block_order():
+    """The problem orders its points by the first image that observes them (Problem.point_order): with the
+    block's points shuffled, a chunk of them still touches a few neighbouring images, not nearly all of them, and
+    the adjustment is the same as that of the block in its own order (point by point, to rounding)."""
+    import dataclasses
+
+    from selfcal.adjust import AdjustOptions, adjust
+
+    block = pruned(simulation(seed=5, points_per_mm2=0.5), "type3")
+    shuffle = np.random.default_rng(8).permutation(len(block.points))        # new point i is old point shuffle[i]
+    new_index = np.empty_like(shuffle)
+    new_index[shuffle] = np.arange(len(shuffle))
+    shuffled = dataclasses.replace(
+        block, points=block.points.take(shuffle),
+        observations=dataclasses.replace(block.observations, point_index=new_index[block.observations.point_index]))
+    problem = build_problem(shuffled, chunk_observations=500)
+    assert len(problem.chunks) >= 20
+    touched = [np.unique(cs.img).size for cs in problem.structure().chunks]
+    # the same chunk sizes over the points in the shuffled block's order
+    by_block = np.argsort(shuffled.observations.point_index, kind="stable")
+    images_in_block_order = [np.unique(shuffled.observations.image_index[by_block][cs.o0:cs.o1]).size
+                             for cs in problem.structure().chunks]
+    assert np.mean(touched) < 0.6 * np.mean(images_in_block_order), (touched, images_in_block_order)
+    np.testing.assert_array_equal(problem.point_order[problem.point_positions()], np.arange(len(block.points)))
+
+    own, mixed = adjust(block, AdjustOptions()), adjust(shuffled, AdjustOptions())
+    assert own.iterations == mixed.iterations
+    np.testing.assert_allclose(mixed.state.points, own.state.points[shuffle], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(mixed.Q_points, own.Q_points[shuffle], rtol=1e-7, atol=1e-12)
