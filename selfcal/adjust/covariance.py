@@ -18,9 +18,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg
 
 from .linalg import shared_product
+from .parallel import over_chunks
 from .normal import Linearisation
 from .problem import Problem
 from .kernels import add_point_image_products, point_blocks_times, point_cofactor_pairs
@@ -111,8 +111,11 @@ def point_cofactors(problem: Problem, lin: Linearisation, v_inv: list, Q) -> np.
     """Cofactor blocks Q_pp of all points, shape (n_points, 3, 3); ``Q``: Q_theta (see module docstring)."""
     parts = PointCofactors(problem, Q)
     out = np.zeros((problem.n_points, 3, 3))
-    for ch, cs, Vi in zip(lin.chunks, problem.structure().chunks, v_inv):
+
+    def work(chunk, _) -> None:
+        ch, cs, Vi = chunk
         out[ch.points] = parts.chunk(ch, cs, Vi).Q_pp
+    over_chunks(list(zip(lin.chunks, problem.structure().chunks, v_inv)), work, lambda: None)
     return out
 
 
@@ -125,10 +128,12 @@ def lower_cholesky(Q: np.ndarray) -> np.ndarray | None:
 
 
 def times_lower(X: np.ndarray, L: np.ndarray) -> np.ndarray:
-    """X L for a lower triangular L: a triangular product (half the flops of X Q), as a new C-ordered array."""
-    # X^T is Fortran-ordered: L^T X^T is X L, written to a copy (X may be a view of kept data)
-    with shared_product(0.5 * X.shape[0] * L.shape[0] ** 2):
-        return scipy.linalg.blas.dtrmm(1.0, L, X.T, side=0, lower=1, trans_a=1).T
+    """X L for a lower triangular L, as a new C-ordered array. A general product: twice the flops of SciPy's
+    triangular one (dtrmm), but NumPy releases the interpreter lock in it, so the two threads of a pass over
+    the chunks (:mod:`.parallel`) run theirs side by side (a round of tests on the 254-WAP block: 0.55-0.56 s
+    against 0.63-0.71 s with dtrmm)."""
+    with shared_product(X.shape[0] * L.shape[0] ** 2):
+        return X @ L
 
 
 def camera_quadratic(Z: np.ndarray, Q: np.ndarray, L: np.ndarray | None) -> np.ndarray:

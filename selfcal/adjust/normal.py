@@ -22,7 +22,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg.blas
 import scipy.sparse as sp
 
 from ..errors import AdjustmentError
@@ -30,6 +29,7 @@ from ..geometry.rotation import matrix_from_opk_with_derivatives, opk_from_matri
 from .kernels import (accumulate_observations, camera_couplings, camera_couplings_compact, compact_rows,
                       point_blocks_times, schur_image_blocks, spd_inverse_3x3,
                       subtract_image_couplings)
+from .parallel import over_chunks
 from .problem import Problem, State
 
 __all__ = [
@@ -46,6 +46,7 @@ __all__ = [
     "observation_rows",
     "carry_ap_columns",
     "chunk_rows",
+    "evaluate_ap_columns",
     "parameter_observation_groups",
     "parameter_observations",
 ]
@@ -137,6 +138,14 @@ def _camera_jacobian(problem: Problem, k: int) -> np.ndarray:
                     np.divide(bound.ap_columns(k, o, cam.ap)[:, :, free], problem.obs_sigma[o][:, :, None], out=part)
         problem._ap_columns[key] = columns
     return columns
+
+
+def evaluate_ap_columns(problem: Problem) -> None:
+    """Evaluate the kept AP columns of every camera now, before the threads of a pass over the chunks
+    (:mod:`.parallel`) share them."""
+    for k, cam in enumerate(problem.cameras):
+        if cam.ap.n_params:
+            _camera_jacobian(problem, k)
 
 
 #: observations per block when a camera's AP columns are evaluated
@@ -406,10 +415,13 @@ def image_residuals(problem: Problem, state: State, o0: int = 0, o1: int | None 
     """Residuals l - f (observation units) of image observations o0:o1 (sorted order), shape (m, 2)."""
     context = contexts(problem, state, jacobians=False) if context is None else context
     if o0 == 0 and o1 is None and len(problem.chunks) > 1:
-        # chunk by chunk: the AP columns are kept per assembly chunk
+        # chunk by chunk (the AP columns are kept per assembly chunk), on the threads of a pass
         out = np.empty((problem.n_image_observations, 2))
-        for cs in problem.structure().chunks:
+        evaluate_ap_columns(problem)
+
+        def work(cs, _) -> None:
             out[cs.o0:cs.o1] = image_residuals(problem, state, cs.o0, cs.o1, context)
+        over_chunks(problem.structure().chunks, work, lambda: None)
         return out
     o1 = problem.n_image_observations if o1 is None else o1
     img = problem.obs_image[o0:o1]
@@ -584,12 +596,17 @@ def chunk_rows(problem: Problem, state: State, cs, context=None, compact: bool =
 
 
 def _gram(rows: np.ndarray, columns: np.ndarray) -> np.ndarray:
-    """rows[:, columns]^T rows[:, columns]: the symmetric rank-k update of all columns (rows is
-    C-ordered, so rows.T goes to BLAS without a copy), then the block of ``columns``. A strided
-    view or a gathered copy of the columns is several times slower than the few extra ones."""
-    rows_t = rows.T if rows.flags.c_contiguous else np.asfortranarray(rows.T)
-    upper = scipy.linalg.blas.dsyrk(1.0, rows_t, trans=0, lower=0)
-    return (upper + np.triu(upper, 1).T)[np.ix_(columns, columns)]
+    """rows[:, columns]^T rows[:, columns]: the product of all columns, then the block of ``columns``. A
+    strided view or a gathered copy of the columns is several times slower than the few extra ones."""
+    return _self_product(rows)[np.ix_(columns, columns)]
+
+
+def _self_product(Z: np.ndarray) -> np.ndarray:
+    """Z^T Z. NumPy sees the transpose of the same array and takes BLAS's symmetric rank-k update (half the
+    flops of a general product), and releases the interpreter lock in it, so the threads of a pass
+    (:mod:`.parallel`) run theirs side by side; SciPy's BLAS wrappers (dsyrk) hold the lock."""
+    Z = np.ascontiguousarray(Z)
+    return Z.T @ Z
 
 
 def linearise(problem: Problem, state: State) -> Linearisation:
@@ -597,13 +614,6 @@ def linearise(problem: Problem, state: State) -> Linearisation:
     n_img, n_e, n_d, width = problem.n_images, problem.n_e, problem.n_d, problem.image_width
     structure = problem.structure()
     context = contexts(problem, state)
-    U_ee = np.zeros((n_img, width, width))
-    U_ed = np.zeros((n_e, n_d))
-    U_dd = np.zeros((n_d, n_d))
-    g_e = np.zeros((n_img, width))
-    g_d = np.zeros(n_d)
-    cost = 0.0
-    chunks = []
     control_of_point = np.full(problem.n_points, -1)
     control_of_point[problem.control_index] = np.arange(len(problem.control_index))
     varying = problem.d_varying()
@@ -617,31 +627,36 @@ def linearise(problem: Problem, state: State) -> Linearisation:
         varying = np.arange(n_d)
     gram = problem._ap_gram
     build_gram = gram is None and constant.size > 0
-    if build_gram:
-        gram = np.zeros((constant.size, constant.size))
+    evaluate_ap_columns(problem)
 
-    for cs in structure.chunks:
+    def new_sums() -> dict:
+        return {"U_ee": np.zeros((n_img, width, width)), "U_ed": np.zeros((n_e, n_d)), "U_dd": np.zeros((n_d, n_d)),
+                "g_e": np.zeros((n_img, width)), "g_d": np.zeros(n_d), "cost": np.zeros(1),
+                "gram": np.zeros((constant.size, constant.size)) if build_gram else None}
+
+    def work(cs, sums: dict) -> ChunkLinearisation:
         p0, p1, o0, o1 = cs.p0, cs.p1, cs.o0, cs.o1
         m, n_pc = o1 - o0, p1 - p0
         r, j_e, j_p, j_d = chunk_rows(problem, state, cs, context, compact)
-        cost += 0.5 * float(np.sum(r * r))
+        sums["cost"] += 0.5 * float(np.sum(r * r))
 
         # image and point blocks, and the coupling of each observation's image and point
-        V, g_p, w_e = accumulate_observations(j_e, j_p, r, cs.img, cs.ptl, U_ee, g_e, n_pc)
+        V, g_p, w_e = accumulate_observations(j_e, j_p, r, cs.img, cs.ptl, sums["U_ee"], sums["g_e"], n_pc)
         W_pd, w_d = None, None
         if n_d and compact:
             w_d = camera_couplings_compact(j_d, j_e, j_p, r, cs.img, problem.image_camera[cs.img], cols,
-                                           U_ed, U_dd, g_d)
+                                           sums["U_ed"], sums["U_dd"], sums["g_d"])
         elif n_d:
             W_pd = np.zeros((3 * n_pc, n_d))
             U_vd = np.zeros((varying.size, n_d))
-            camera_couplings(j_d, j_e, j_p, r, cs.img, cs.ptl, varying, U_ed, W_pd, g_d, U_vd)
+            camera_couplings(j_d, j_e, j_p, r, cs.img, cs.ptl, varying, sums["U_ed"], W_pd, sums["g_d"], U_vd)
+            U_dd = sums["U_dd"]
             if constant.size:
                 # the AP columns are constant: their Gram block is summed once per problem
                 U_dd[varying, :] += U_vd
                 U_dd[np.ix_(constant, varying)] += U_vd[:, constant].T
                 if build_gram:
-                    gram += _gram(j_d.reshape(2 * m, n_d), constant)
+                    sums["gram"] += _gram(j_d.reshape(2 * m, n_d), constant)
             else:
                 U_dd += U_vd
 
@@ -650,10 +665,17 @@ def linearise(problem: Problem, state: State) -> Linearisation:
         if has.size:
             W = problem.control_weight[ctl[has]]
             rc = np.einsum("nij,nj->ni", W, problem.control_xyz[ctl[has]] - state.points[cs.points[has]])
-            cost += 0.5 * float(np.sum(rc * rc))
+            sums["cost"] += 0.5 * float(np.sum(rc * rc))
             V[has] += np.einsum("nki,nkj->nij", W, W)
             g_p[has] += np.einsum("nki,nk->ni", W, rc)
-        chunks.append(ChunkLinearisation(p0, p1, o0, o1, cs.points, V, g_p, w_e, W_pd, w_d))
+        return ChunkLinearisation(p0, p1, o0, o1, cs.points, V, g_p, w_e, W_pd, w_d)
+
+    chunks, parts = over_chunks(structure.chunks, work, new_sums)
+    U_ee, U_ed, U_dd, g_e, g_d, cost = (sum(part[name] for part in parts)
+                                        for name in ("U_ee", "U_ed", "U_dd", "g_e", "g_d", "cost"))
+    cost = float(cost[0])
+    if build_gram:
+        gram = sum(part["gram"] for part in parts)
 
     if constant.size:
         if build_gram:
@@ -707,9 +729,7 @@ def _point_schur(Vi: np.ndarray, W_pd: np.ndarray) -> np.ndarray:
         L = np.linalg.cholesky(Vi)
     except np.linalg.LinAlgError:                       # a point block not positive definite: the plain product
         return W_pd.T @ point_blocks_times(Vi, W_pd, False)
-    Z = point_blocks_times(L, W_pd, True)
-    upper = scipy.linalg.blas.dsyrk(1.0, Z.T, trans=0, lower=0)      # Z.T is Fortran-ordered: no copy
-    return upper + np.triu(upper, 1).T
+    return _self_product(point_blocks_times(L, W_pd, True))
 
 
 def reduce(problem: Problem, lin: Linearisation, lam: float = 0.0, dense: bool = True):
@@ -745,25 +765,43 @@ def reduce(problem: Problem, lin: Linearisation, lam: float = 0.0, dense: bool =
         wide = w + own.shape[1]
         wide_diag = np.zeros((n_img, wide, wide))
         wide_off = np.zeros((len(structure.pair_keys), wide, wide))
-    v_inv = []
-    for ch, cs in zip(lin.chunks, structure.chunks):
+    n_pairs = len(structure.pair_keys)
+
+    def new_sums() -> dict:
+        wider = wide if compact else w
+        return {"diag": np.zeros((n_img, wider, wider)), "off": np.zeros((n_pairs, wider, wider)),
+                "g": np.zeros(n_t), "S_ed": np.zeros((n_e, n_d)), "S_dd": np.zeros((n_d, n_d))}
+
+    def work(pair, sums: dict) -> np.ndarray:
+        ch, cs = pair
         Vi = _damped_inverse(ch.V, lam, ch.points)
-        v_inv.append(Vi)
+        g = sums["g"]
+        Y_t = schur_image_blocks(Vi, cs.ptl, ch.couplings(transposed=True), cs.img, cs.pair_a, cs.pair_b,
+                                 cs.pair_key, sums["diag"], sums["off"])          # (m, 3, w or wide) = V^-1 W^T
         if compact:
-            Y_t = schur_image_blocks(Vi, cs.ptl, ch.couplings(transposed=True), cs.img, cs.pair_a, cs.pair_b,
-                                     cs.pair_key, wide_diag, wide_off)              # (m, 3, wide) = V^-1 W^T
             yg = np.einsum("oki,ok->oi", Y_t, ch.g_p[cs.ptl])
             g[:n_e] -= (cs.sum_by_image @ yg[:, :w]).ravel()
             cols = own[cs.img]
             np.subtract.at(g, n_e + cols[cols >= 0], yg[:, w:][cols >= 0])
-            continue
-        Y_t = schur_image_blocks(Vi, cs.ptl, ch.couplings(transposed=True), cs.img, cs.pair_a, cs.pair_b,
-                                 cs.pair_key, diag_blocks, off_blocks)              # (m, 3, w) = V^-1 W^T
+            return Vi
         g[:n_e] -= (cs.sum_by_image @ np.einsum("oki,ok->oi", Y_t, ch.g_p[cs.ptl])).ravel()
         if n_d:
-            subtract_image_couplings(Y_t, ch.W_pd, cs.img, cs.ptl, S_ed)
-            S_dd -= _point_schur(Vi, ch.W_pd)
+            subtract_image_couplings(Y_t, ch.W_pd, cs.img, cs.ptl, sums["S_ed"])
+            sums["S_dd"] -= _point_schur(Vi, ch.W_pd)
             g[n_e:n_e + n_d] -= ch.W_pd.T @ np.einsum("pij,pj->pi", Vi, ch.g_p).ravel()
+        return Vi
+
+    v_inv, parts = over_chunks(list(zip(lin.chunks, structure.chunks)), work, new_sums)
+    for part in parts:
+        g += part["g"]
+        S_ed += part["S_ed"]
+        S_dd += part["S_dd"]
+        if compact:
+            wide_diag += part["diag"]
+            wide_off += part["off"]
+        else:
+            diag_blocks += part["diag"]
+            off_blocks += part["off"]
     ia, ib = structure.image_pair_a, structure.image_pair_b
     if compact:
         diag_blocks += wide_diag[:, :w, :w]

@@ -441,8 +441,15 @@ def inherited_point_key(block: Block, previous_block: Block, previous: "Problem"
 
 
 def _chunks(point_start: np.ndarray, target: int) -> list[tuple[int, int]]:
-    """Split points into ranges holding about ``target`` observations each."""
+    """Split points into ranges holding about ``target`` observations each (at most), their number a
+    multiple of the threads of a pass (:mod:`selfcal.adjust.parallel`), so that the threads' shares are even:
+    five chunks of 16,000 observations on two threads wait for the third (six of 13,400 do not)."""
+    from .parallel import MAX_WORKERS
     n_points = len(point_start) - 1
+    n_chunks = -(-int(point_start[-1]) // max(int(target), 1))
+    if n_chunks > 1:
+        n_chunks = -(-n_chunks // MAX_WORKERS) * MAX_WORKERS
+        target = -(-int(point_start[-1]) // n_chunks)
     bounds = [0]
     cuts = np.searchsorted(point_start, np.arange(target, point_start[-1], target))
     for cut in cuts:

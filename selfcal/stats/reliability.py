@@ -31,7 +31,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import norm
 
-from ..adjust.normal import chunk_rows, contexts, parameter_observations
+from ..adjust.normal import chunk_rows, contexts, evaluate_ap_columns, parameter_observations
+from ..adjust.parallel import over_chunks
 from ..adjust.covariance import PointCofactors, times_lower
 from ..adjust.linalg import blas_threads
 from ..adjust.kernels import leverage_camera_cross, leverage_pairs, rows_dot_blocks
@@ -99,7 +100,10 @@ def _image_leverage(problem, state, lin, v_inv, Q, Q_points=None):
     r_all = np.zeros((problem.n_image_observations, 2))
     points = np.zeros((problem.n_points, 3, 3)) if Q_points is None else Q_points
     structure = problem.structure()
-    for ch, cs, Vi in zip(lin.chunks, structure.chunks, v_inv):
+    evaluate_ap_columns(problem)
+
+    def work(chunk, _) -> None:
+        ch, cs, Vi = chunk
         n_pc = ch.p1 - ch.p0
         img, ptl = cs.img, cs.ptl
         m = len(img)
@@ -131,6 +135,8 @@ def _image_leverage(problem, state, lin, v_inv, Q, Q_points=None):
         h += np.einsum("oki,oij,okj->ok", j_p, points[ch.points[ptl]], j_p)
         h_all[cs.o0:cs.o1] = h
         r_all[cs.o0:cs.o1] = r
+
+    over_chunks(list(zip(lin.chunks, structure.chunks, v_inv)), work, lambda: None)
     return h_all, r_all, points
 
 

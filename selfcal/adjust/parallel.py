@@ -1,0 +1,78 @@
+"""A pass over the chunks of the points on the machine's cores.
+
+The linearisation, the reduction and the leverages go over the points in chunks (``Problem.chunks``) and
+sum each chunk's products into a few arrays (the image blocks, the camera-parameter blocks). The work of a
+chunk is NumPy, BLAS and Numba kernels compiled with ``nogil``, which release the interpreter lock, so two
+threads that take alternate chunks run side by side. Each thread sums into arrays of its own, added at the
+end in a fixed order: the result does not depend on which thread ran first, and differs from one thread's
+sums only by rounding. Inside the pass every BLAS call runs on one thread (the threads are the parallelism).
+"""
+from __future__ import annotations
+
+import concurrent.futures
+import contextlib
+import functools
+import os
+from typing import Callable, Sequence
+
+from . import linalg
+
+__all__ = ["over_chunks", "workers"]
+
+#: the most threads a pass uses
+MAX_WORKERS = 2
+
+
+def workers() -> int:
+    """Threads a pass over the chunks uses: the cores this process may run on, at most MAX_WORKERS."""
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:                      # not Linux
+        cores = os.cpu_count() or 1
+    return max(1, min(MAX_WORKERS, cores))
+
+
+@functools.cache
+def _pool() -> concurrent.futures.ThreadPoolExecutor:
+    return concurrent.futures.ThreadPoolExecutor(max_workers=MAX_WORKERS - 1, thread_name_prefix="selfcal-chunks")
+
+
+def over_chunks(chunks: Sequence, work: Callable, new_sums: Callable) -> tuple[list, list]:
+    """``work(chunk, sums)`` of every chunk, thread t taking chunks t, t + n, ... (n threads) with its own
+    ``sums = new_sums()``. Returns the results in chunk order and the sums of each thread (thread order)."""
+    n = min(workers(), len(chunks))
+    if n <= 1:
+        sums = new_sums()
+        return [work(chunk, sums) for chunk in chunks], [sums]
+    parts = [new_sums() for _ in range(n)]
+
+    def run(t: int) -> list:
+        return [work(chunks[i], parts[t]) for i in range(t, len(chunks), n)]
+
+    results: list = [None] * len(chunks)
+    with _one_blas_thread():
+        others = [_pool().submit(run, t) for t in range(1, n)]
+        try:
+            mine = run(0)
+        finally:
+            concurrent.futures.wait(others)         # no worker outlives the pass, whatever happened here
+        done = [future.result() for future in others]
+    for t, part in enumerate([mine] + done):
+        results[t::n] = part
+    return results, parts
+
+
+@contextlib.contextmanager
+def _one_blas_thread():
+    """BLAS on one thread inside the pass, and no product takes the caller's threads back
+    (:func:`linalg.shared_product`): the pass's threads are the parallelism."""
+    blas = linalg._blas()
+    caller = max((lib.num_threads for lib in blas.lib_controllers), default=1)
+    with contextlib.ExitStack() as stack:
+        if caller > 1:
+            stack.enter_context(blas.limit(limits=1))
+        linalg._caller_threads.append(1)
+        try:
+            yield
+        finally:
+            linalg._caller_threads.pop()
