@@ -127,8 +127,10 @@ def _camera_jacobian(problem: Problem, k: int) -> np.ndarray:
         columns[:, :, :nc] = 0.0
         if n_free and mine.size:
             bound = _bound_of(problem, mine)
-            # block by block into the kept array: a basis evaluation makes several temporaries of the array's size
-            for start in range(0, mine.size, AP_COLUMN_BLOCK):
+
+            # block by block into the kept array (a basis evaluation makes several temporaries of the array's
+            # size), the blocks on the threads of a pass (the wavelets' table look-ups release the interpreter lock)
+            def evaluate(start: int, _) -> None:
                 o = mine[start:start + AP_COLUMN_BLOCK]
                 part = columns[start:start + o.size, :, nc:]
                 if free.all():
@@ -136,6 +138,7 @@ def _camera_jacobian(problem: Problem, k: int) -> np.ndarray:
                     part /= problem.obs_sigma[o][:, :, None]
                 else:
                     np.divide(bound.ap_columns(k, o, cam.ap)[:, :, free], problem.obs_sigma[o][:, :, None], out=part)
+            over_chunks(range(0, mine.size, AP_COLUMN_BLOCK), evaluate, lambda: None)
         problem._ap_columns[key] = columns
     return columns
 
