@@ -322,8 +322,10 @@ def _adjust(block: Block, options: AdjustOptions, progress, start, free, ap_mode
             apply_free(problem, free)
         if start is not None:
             # the previous estimate moved by the downdated step, before its AP columns are carried away
-            start = downdated_start(start, problem, block, block.datum == "free" or options.solver.free_network) \
-                or start
+            with blas_threads(len(block.images)):   # (two BLAS runtimes' threads on two cores: a 350x350
+                # Cholesky took 100 ms on two threads just after NumPy's, 1 ms on one)
+                start = downdated_start(start, problem, block,
+                                        block.datum == "free" or options.solver.free_network) or start
             carry_ap_columns(problem, block.observations.row[problem.obs_order],
                              start.problem, start.block.observations.row[start.problem.obs_order], consume=True)
         state, notes = initial_state(problem, block, start)
