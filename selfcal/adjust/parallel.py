@@ -15,6 +15,7 @@ import functools
 import os
 from typing import Callable, Sequence
 
+from ..errors import UsageError
 from . import linalg
 
 __all__ = ["over_chunks", "workers"]
@@ -24,7 +25,14 @@ MAX_WORKERS = 2
 
 
 def workers() -> int:
-    """Threads a pass over the chunks uses: the cores this process may run on, at most MAX_WORKERS."""
+    """Threads a pass over the chunks uses: ``SELFCAL_THREADS`` if set (the batch's worker processes set 1: they
+    are the parallelism there), else the cores this process may run on; at most MAX_WORKERS."""
+    setting = os.environ.get("SELFCAL_THREADS", "").strip()
+    if setting:
+        try:
+            return max(1, min(MAX_WORKERS, int(setting)))
+        except ValueError:
+            raise UsageError(f"SELFCAL_THREADS must be a whole number of threads, found '{setting}'") from None
     try:
         cores = len(os.sched_getaffinity(0))
     except AttributeError:                      # not Linux

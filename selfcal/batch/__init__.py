@@ -102,7 +102,8 @@ def run_matrix(blocks: dict, models: list[str], settings: CellSettings = CellSet
 
     cluster = None
     if scheduler == "local":
-        single_thread = {k: "1" for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
+        single_thread = {k: "1" for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",
+                                          "SELFCAL_THREADS")}
         cluster = LocalCluster(n_workers=n_workers or os.cpu_count() or 1, threads_per_worker=1,
                                processes=True, dashboard_address=":0", env=single_thread)   # ":0": a free port (two runs at once raced for 8787)
     client = Client(cluster if cluster is not None else scheduler)

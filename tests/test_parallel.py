@@ -1,0 +1,75 @@
+"""Passes over the chunks on two threads (selfcal.adjust.parallel): the same results as on one, whatever the
+order in which the threads run, and the thread count a user or the batch sets."""
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from selfcal.adjust import parallel
+from selfcal.errors import UsageError
+
+from conftest import pruned, simulation
+
+
+def test_each_thread_takes_alternate_chunks_into_sums_of_its_own(monkeypatch):
+    monkeypatch.setattr(parallel, "workers", lambda: 2)
+    seen = []
+
+    def work(chunk, sums):
+        if chunk == 0:
+            time.sleep(0.05)                    # the other thread goes first
+        seen.append(threading.get_ident())
+        sums.append(chunk)
+        return chunk * 10
+
+    results, parts = parallel.over_chunks(list(range(7)), work, list)
+    assert results == [0, 10, 20, 30, 40, 50, 60]
+    assert parts == [[0, 2, 4, 6], [1, 3, 5]]
+    assert len(set(seen)) == 2
+
+
+def test_a_failing_chunk_raises_after_both_threads_are_done(monkeypatch):
+    monkeypatch.setattr(parallel, "workers", lambda: 2)
+    finished = []
+
+    def work(chunk, _):
+        if chunk == 1:
+            raise ArithmeticError("chunk 1")
+        time.sleep(0.02)
+        finished.append(chunk)
+
+    with pytest.raises(ArithmeticError, match="chunk 1"):
+        parallel.over_chunks(list(range(6)), work, lambda: None)
+    assert sorted(finished) == [0, 2, 4]        # the main thread's chunks all ran; no worker left running
+
+
+def test_selfcal_threads_sets_the_threads(monkeypatch):
+    monkeypatch.setenv("SELFCAL_THREADS", "1")
+    assert parallel.workers() == 1
+    monkeypatch.setenv("SELFCAL_THREADS", "8")
+    assert parallel.workers() == parallel.MAX_WORKERS
+    monkeypatch.setenv("SELFCAL_THREADS", "two")
+    with pytest.raises(UsageError, match="SELFCAL_THREADS"):
+        parallel.workers()
+
+
+def test_an_adjustment_on_two_threads_equals_one_on_one(monkeypatch):
+    """The seed-000 block with Brown APs, data snooping and the tests: the same rejections, estimate and
+    redundancy numbers on two threads as on one, to rounding."""
+    from selfcal.adjust import AdjustOptions
+    from selfcal.workflows.tested import adjust_with_tests
+
+    block = pruned(simulation(seed=3, distortion="local+brown", points_per_mm2=1.0, blunder_rate=0.003), "type2")
+    runs = {}
+    for threads in ("1", "2"):
+        monkeypatch.setenv("SELFCAL_THREADS", threads)
+        runs[threads] = adjust_with_tests(block, AdjustOptions(ap="brown"))
+    one, two = runs["1"], runs["2"]
+    assert len(one.result.problem.chunks) >= 2
+    np.testing.assert_array_equal(one.rejected_rows, two.rejected_rows)
+    assert one.rejected_rows.size > 0
+    np.testing.assert_allclose(two.result.state.points, one.result.state.points, rtol=0, atol=1e-8)
+    np.testing.assert_allclose(two.result.state.image, one.result.state.image, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(two.tests.image_redundancy, one.tests.image_redundancy, rtol=0, atol=1e-10)
+    assert abs(two.result.sigma0_px - one.result.sigma0_px) < 1e-10
