@@ -25,8 +25,8 @@ from .covariance import point_cofactors
 from .update import UPDATE_LIMIT, downdated_start
 from .datum import FREE_POINT_SIGMA_RATIO, behind_camera, points_not_determined_by_rays
 from .initial import initial_state
-from .linalg import (DENSE_LIMIT, PSEUDO_INVERSE_LIMIT, SingularSystem, blas_threads, dense_assembly, factorise,
-                     null_directions)
+from .linalg import (DENSE_LIMIT, EIGH_FLOPS, PSEUDO_INVERSE_LIMIT, SingularSystem, blas_threads, dense_assembly,
+                     factorise, null_directions, shared_product)
 from .normal import Linearisation, SingularPoints, carry_ap_columns, image_residuals, reduce
 from .problem import Problem, State, build_problem, inherited_point_key
 from .solver import IterationRecord, SolverOptions, solve
@@ -209,7 +209,8 @@ def _free_network_cofactor(S, notes: list[str], defect_tol: float = 1e-10) -> np
         raise AdjustmentError("free-network covariance is implemented for up to "
                               f"{DENSE_LIMIT} orientation and camera unknowns")
     d = np.sqrt(np.clip(np.diag(S), 1e-300, None))
-    w, V = np.linalg.eigh(S / d[:, None] / d[None, :])
+    with shared_product(EIGH_FLOPS * S.shape[0] ** 3):
+        w, V = np.linalg.eigh(S / d[:, None] / d[None, :])
     keep = w > defect_tol * w.max()
     notes.append(f"free network: datum defect {int((~keep).sum())}; precision in the minimum-trace datum")
     Q = (V[:, keep] / w[keep]) @ V[:, keep].T

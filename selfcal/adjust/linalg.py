@@ -269,7 +269,8 @@ def pseudo_factorise(S, null: np.ndarray | None = None, defect_tol: float = DEFE
                 factor = Factor(solve, scale, "pseudo-inverse")
                 factor.defect, factor.null = Z.shape[1], Z * scale[:, None]
                 return factor
-    w, V = np.linalg.eigh(Ss)
+    with shared_product(EIGH_FLOPS * Ss.shape[0] ** 3):    # (1203 unknowns: 0.24-0.27 s on one thread, 0.15 on two)
+        w, V = np.linalg.eigh(Ss)
     keep = w > defect_tol * w.max()
     Vk, wk = V[:, keep], w[keep]
     factor = Factor(lambda b: Vk @ ((Vk.T @ b) / (wk if b.ndim == 1 else wk[:, None])), scale, "pseudo-inverse")
@@ -283,6 +284,8 @@ def pseudo_factorise(S, null: np.ndarray | None = None, defect_tol: float = DEFE
 #: 2.4-2.9 s with two threads; the 28- and 200-image blocks neither gain nor lose). Larger blocks keep the
 #: BLAS's own threads (the dense and banded factorisations of thousands of unknowns use them).
 SINGLE_THREAD_IMAGES = 300
+#: multiply-adds of a symmetric eigendecomposition with its vectors, per cubed unknown (about)
+EIGH_FLOPS = 4.0
 #: inside such a block, one dense product of at least this many multiply-adds gets the caller's threads back
 #: (:func:`shared_product`): the leverages' j_d L of 32,000 rows by 257 WAP columns took 84 ms on one thread, 53 ms
 #: on two, while a whole workflow on two threads throughout was 2 s slower
