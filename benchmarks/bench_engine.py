@@ -47,6 +47,7 @@ import sys
 import tempfile
 import time
 
+import selfcal  # noqa: F401  (before NumPy, as on the command line: it sets OpenBLAS's thread timeout)
 import numpy as np
 
 BAL = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "shared", "data", "bal",

@@ -28,6 +28,7 @@ import subprocess
 import sys
 import time
 
+import selfcal  # noqa: F401  (before NumPy, as on the command line: it sets OpenBLAS's thread timeout)
 import numpy as np
 
 #: (strips, images per strip)

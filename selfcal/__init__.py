@@ -16,7 +16,17 @@ Everything else is reached through its package (``selfcal.io``, ``selfcal.adjust
 """
 from __future__ import annotations
 
-from importlib import import_module
+import os
+
+# NumPy's and SciPy's wheels each bring their own OpenBLAS, and the engine alternates their calls (NumPy's
+# products, SciPy's triangular solves and factorisations). An OpenBLAS thread that finished spins for about
+# 2^28 cycles before it sleeps, and on two cores the other runtime's threads then wait for a core: Takahashi's
+# recurrence on a 5000-image block took 14.6 s with that and 11.1 s with 2^12 (docs/DESIGN-NOTES.md, "Two
+# BLAS runtimes"). OpenBLAS reads this when it is loaded: it applies where selfcal is imported before NumPy (the
+# command line), and a value the user set stays.
+os.environ.setdefault("OPENBLAS_THREAD_TIMEOUT", "12")
+
+from importlib import import_module  # noqa: E402
 from importlib.metadata import PackageNotFoundError, version
 
 try:

@@ -73,3 +73,19 @@ def test_an_adjustment_on_two_threads_equals_one_on_one(monkeypatch):
     np.testing.assert_allclose(two.result.state.image, one.result.state.image, rtol=0, atol=1e-9)
     np.testing.assert_allclose(two.tests.image_redundancy, one.tests.image_redundancy, rtol=0, atol=1e-10)
     assert abs(two.result.sigma0_px - one.result.sigma0_px) < 1e-10
+
+
+def test_selfcal_sets_openblas_thread_timeout_unless_the_user_did():
+    """Imported before NumPy (as the command line does), selfcal shortens OpenBLAS's spinning (the two
+    runtimes of NumPy and SciPy wait for each other's spinning threads otherwise); a user's value stays."""
+    import os
+    import subprocess
+    import sys
+
+    code = "import selfcal, numpy, os; print(os.environ['OPENBLAS_THREAD_TIMEOUT'])"
+    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_THREAD_TIMEOUT"}
+    assert subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
+                          check=True).stdout.strip() == "12"
+    env["OPENBLAS_THREAD_TIMEOUT"] = "20"
+    assert subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
+                          check=True).stdout.strip() == "20"

@@ -45,6 +45,15 @@ def _block_solve(L: list, M: list, rhs: list) -> list:
     return x
 
 
+def _cholesky_inverse(L: np.ndarray, out: np.ndarray) -> None:
+    """(L L^T)^-1 of a lower triangular L into ``out`` (LAPACK's potri: its lower triangle, mirrored)."""
+    inverse, info = la.lapack.dpotri(L, lower=1)
+    if info:
+        raise la.LinAlgError(f"the block's Cholesky factor is singular (potri info {info})")
+    np.copyto(out, np.tril(inverse))
+    out += np.tril(out, -1).T
+
+
 def _levels(A, perm: np.ndarray, width: int) -> tuple[np.ndarray, np.ndarray]:
     """Block-tridiagonal order and block starts of A: the level sets of a breadth-first search from
     the reverse Cuthill-McKee start (a level touches only its neighbours; on the strip blocks their
@@ -104,12 +113,20 @@ class BandedCofactor:
             raise ValueError("the blocks are not block tridiagonal")
         D = [np.zeros((sizes[i], sizes[i])) for i in range(nb)]
         F = [np.zeros((sizes[i + 1], sizes[i])) for i in range(nb - 1)]
+        # the entries of each diagonal block, then of each sub-diagonal one, grouped once (a mask per block
+        # went over all the entries for every block: 1.3 s at 5000 images, 29 blocks of 7 million entries)
+        on = np.flatnonzero(bi == bj)
+        on = on[np.argsort(bi[on], kind="stable")]
+        on_cuts = np.searchsorted(bi[on], np.arange(nb + 1))
+        below = np.flatnonzero(bi == bj + 1)
+        below = below[np.argsort(bj[below], kind="stable")]
+        below_cuts = np.searchsorted(bj[below], np.arange(nb))
         for i in range(nb):
-            on = np.flatnonzero((bi == i) & (bj == i))
-            D[i][offset[A.row[on]], offset[A.col[on]]] = A.data[on]
+            e = on[on_cuts[i]:on_cuts[i + 1]]
+            D[i][offset[A.row[e]], offset[A.col[e]]] = A.data[e]
             if i < nb - 1:
-                below = np.flatnonzero((bi == i + 1) & (bj == i))
-                F[i][offset[A.row[below]], offset[A.col[below]]] = A.data[below]
+                e = below[below_cuts[i]:below_cuts[i + 1]]
+                F[i][offset[A.row[e]], offset[A.col[e]]] = A.data[e]
         # block Cholesky: D_i - M_{i-1} M_{i-1}^T = L_i L_i^T, M_i = F_i L_i^-T
         L, M = D, F                                         # overwritten block by block
         for i in range(nb):
@@ -128,20 +145,30 @@ class BandedCofactor:
             Q_cc = 0.5 * (Q_cc + Q_cc.T)
         else:
             X, Q_cc = np.zeros((n_a, 0)), np.zeros((0, 0))
-        # Takahashi's recurrence from the last block back; Z_i overwrites L_i, Z_{i+1,i} overwrites M_i
-        inv_last = la.solve_triangular(L[-1], np.eye(sizes[-1]), lower=True, check_finite=False)
-        L[-1] = inv_last.T @ inv_last
-        for i in range(nb - 2, -1, -1):
-            inv_i = la.solve_triangular(L[i], np.eye(sizes[i]), lower=True, check_finite=False)
-            G = M[i] @ inv_i
-            M[i] = -L[i + 1] @ G
-            L[i] = inv_i.T @ inv_i - M[i].T @ G
-        # flat storage: block i's entry (a, b) at off_d[i] + a * sizes[i] + b, Z_{i+1,i}'s at off_s[i] + ...
+        # Takahashi's recurrence from the last block back, each block written where it is kept (flat storage:
+        # block i's entry (a, b) at off_d[i] + a * sizes[i] + b, Z_{i+1,i}'s at off_s[i] + ...; concatenated
+        # afterwards, the copy's first touch of 600 MB took 2 s at 5000 images). (L_i L_i^T)^-1 by LAPACK's
+        # Cholesky inverse and G = M_i L_i^-1 by a triangular solve: 5.7 b^3 flops a block instead of 9 b^3.
         self._sizes, self._block, self._offset = sizes, block, offset
         self._off_d = np.concatenate([[0], np.cumsum(sizes * sizes)])[:-1]
         self._off_s = np.concatenate([[0], np.cumsum(sizes[1:] * sizes[:-1])])[:-1]
-        self._Zd = np.concatenate([z.ravel() for z in L])
-        self._Zs = np.concatenate([z.ravel() for z in M]) if M else np.zeros(0)
+        self._Zd = np.empty(int(np.sum(sizes * sizes)))
+        self._Zs = np.empty(int(np.sum(sizes[1:] * sizes[:-1])))
+
+        def Z(i: int) -> np.ndarray:
+            return self._Zd[self._off_d[i]:self._off_d[i] + sizes[i] ** 2].reshape(sizes[i], sizes[i])
+
+        def Z_below(i: int) -> np.ndarray:
+            return self._Zs[self._off_s[i]:self._off_s[i] + sizes[i + 1] * sizes[i]].reshape(sizes[i + 1], sizes[i])
+        _cholesky_inverse(L[-1], out=Z(nb - 1))
+        for i in range(nb - 2, -1, -1):
+            G = la.solve_triangular(L[i], M[i].T, lower=True, trans="T", check_finite=False).T     # M_i L_i^-1
+            below = Z_below(i)
+            np.matmul(Z(i + 1), G, out=below)
+            below *= -1.0                                                                       # Z_{i+1,i}
+            _cholesky_inverse(L[i], out=Z(i))
+            Z(i)[...] -= below.T @ G
+            L[i] = M[i] = None                                                                  # done with
         self._X, self._XQ, self._Q_cc = X, X @ Q_cc, Q_cc
         self._pos = np.full(n, -1, np.int64)
         self._pos[perm] = np.arange(n_a)
