@@ -89,3 +89,19 @@ def test_selfcal_sets_openblas_thread_timeout_unless_the_user_did():
     env["OPENBLAS_THREAD_TIMEOUT"] = "20"
     assert subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
                           check=True).stdout.strip() == "20"
+
+
+def test_a_pass_inside_a_pass_runs_on_its_callers_thread(monkeypatch):
+    """A chunk's work that starts a pass of its own (on either thread) does not wait for the pool's one
+    thread, which may be the one asking."""
+    monkeypatch.setattr(parallel, "workers", lambda: 2)
+
+    def inner(chunk, _):
+        return threading.get_ident()
+
+    def outer(chunk, _):
+        threads = parallel.over_chunks(list(range(4)), inner, lambda: None)[0]
+        return len(set(threads)) == 1 and threads[0] == threading.get_ident()
+
+    results, _ = parallel.over_chunks(list(range(4)), outer, lambda: None)
+    assert results == [True] * 4

@@ -13,6 +13,7 @@ import concurrent.futures
 import contextlib
 import functools
 import os
+import threading
 from typing import Callable, Sequence
 
 from ..errors import UsageError
@@ -40,6 +41,9 @@ def workers() -> int:
     return max(1, min(MAX_WORKERS, cores))
 
 
+_state = threading.local()              # .inside: this thread is running chunks of a pass
+
+
 @functools.cache
 def _pool() -> concurrent.futures.ThreadPoolExecutor:
     return concurrent.futures.ThreadPoolExecutor(max_workers=MAX_WORKERS - 1, thread_name_prefix="selfcal-chunks")
@@ -47,15 +51,20 @@ def _pool() -> concurrent.futures.ThreadPoolExecutor:
 
 def over_chunks(chunks: Sequence, work: Callable, new_sums: Callable) -> tuple[list, list]:
     """``work(chunk, sums)`` of every chunk, thread t taking chunks t, t + n, ... (n threads) with its own
-    ``sums = new_sums()``. Returns the results in chunk order and the sums of each thread (thread order)."""
-    n = min(workers(), len(chunks))
+    ``sums = new_sums()``. Returns the results in chunk order and the sums of each thread (thread order).
+    A pass started inside another one runs on its caller's thread (the pool's thread may be the caller)."""
+    n = 1 if getattr(_state, "inside", False) else min(workers(), len(chunks))
     if n <= 1:
         sums = new_sums()
         return [work(chunk, sums) for chunk in chunks], [sums]
     parts = [new_sums() for _ in range(n)]
 
     def run(t: int) -> list:
-        return [work(chunks[i], parts[t]) for i in range(t, len(chunks), n)]
+        _state.inside = True
+        try:
+            return [work(chunks[i], parts[t]) for i in range(t, len(chunks), n)]
+        finally:
+            _state.inside = False
 
     results: list = [None] * len(chunks)
     with _one_blas_thread():
