@@ -105,3 +105,24 @@ def test_a_pass_inside_a_pass_runs_on_its_callers_thread(monkeypatch):
 
     results, _ = parallel.over_chunks(list(range(4)), outer, lambda: None)
     assert results == [True] * 4
+
+
+def test_a_pushbroom_block_in_small_chunks_adjusts_alike_on_two_threads(monkeypatch):
+    """The pushbroom sensor's predictions on two threads (the PRISM triplet cut into six chunks): the same
+    adjustment as on one, to rounding."""
+    import selfcal.adjust.problem as problem_module
+    from selfcal.adjust import AdjustOptions, adjust
+    from selfcal.simulate.prism import prism_block, simulate_prism
+
+    block = prism_block(simulate_prism(seed=1), seed=1)
+    chunks = problem_module._chunks
+    monkeypatch.setattr(problem_module, "_chunks", lambda point_start, target: chunks(point_start, 20))
+    runs = {}
+    for threads in ("1", "2"):
+        monkeypatch.setenv("SELFCAL_THREADS", threads)
+        runs[threads] = adjust(block, AdjustOptions())
+    one, two = runs["1"], runs["2"]
+    assert len(one.problem.chunks) >= 4 and one.iterations == two.iterations
+    np.testing.assert_allclose(two.state.points, one.state.points, rtol=0, atol=1e-6)        # ECEF metres
+    np.testing.assert_allclose(two.Q_points, one.Q_points, rtol=1e-9, atol=1e-15)
+    assert abs(two.sigma0_px - one.sigma0_px) < 1e-9
