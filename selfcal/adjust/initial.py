@@ -21,6 +21,14 @@ __all__ = ["intersect", "resect", "initial_state"]
 POOR_ORIENTATION_SHARE = 0.05
 
 
+def _sum_by_point(point: np.ndarray, values: np.ndarray, n_points: int) -> np.ndarray:
+    """values (m, ...) summed per point (n_points, ...), in the observations' order: one bincount per component
+    (np.add.at took 0.54 s for the rays of a 5000-image block)."""
+    flat = values.reshape(len(point), -1)
+    sums = [np.bincount(point, weights=flat[:, j], minlength=n_points) for j in range(flat.shape[1])]
+    return np.stack(sums, axis=1).reshape((n_points,) + values.shape[1:])
+
+
 def intersect(problem: Problem, state: State, use: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Least-squares intersection of the rays of every point.
 
@@ -47,8 +55,8 @@ def intersect(problem: Problem, state: State, use: np.ndarray | None = None) -> 
             continue
         origin, d = slot.bound.rays(slot.bound.context(state, False), problem.obs_image[o], problem.obs_pixel[o])
         proj = np.eye(3)[None] - d[:, :, None] * d[:, None, :]
-        np.add.at(A, problem.obs_point[o], proj)
-        np.add.at(b, problem.obs_point[o], np.einsum("nij,nj->ni", proj, origin))
+        A += _sum_by_point(problem.obs_point[o], proj, problem.n_points)
+        b += _sum_by_point(problem.obs_point[o], np.einsum("nij,nj->ni", proj, origin), problem.n_points)
     n_rays = np.bincount(pt, minlength=problem.n_points)
     xyz = np.full((problem.n_points, 3), np.nan)
     w = np.linalg.eigvalsh(A)
