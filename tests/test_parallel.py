@@ -126,3 +126,26 @@ def test_a_pushbroom_block_in_small_chunks_adjusts_alike_on_two_threads(monkeypa
     np.testing.assert_allclose(two.state.points, one.state.points, rtol=0, atol=1e-6)        # ECEF metres
     np.testing.assert_allclose(two.Q_points, one.Q_points, rtol=1e-9, atol=1e-15)
     assert abs(two.sigma0_px - one.sigma0_px) < 1e-9
+
+
+def _forked_pass(queue) -> None:
+    results, _ = parallel.over_chunks(list(range(6)), lambda chunk, _: chunk * chunk, lambda: None)
+    queue.put(results)
+
+
+def test_a_process_forked_after_a_pass_runs_passes_of_its_own(monkeypatch):
+    """multiprocessing's fork (Linux's default) copies the thread pool but not its thread: the child's passes
+    still finish."""
+    import multiprocessing
+
+    monkeypatch.setattr(parallel, "workers", lambda: 2)
+    parallel.over_chunks(list(range(4)), lambda chunk, _: chunk, lambda: None)     # the pool and its thread exist
+    context = multiprocessing.get_context("fork")
+    queue = context.Queue()
+    child = context.Process(target=_forked_pass, args=(queue,))
+    child.start()
+    child.join(timeout=60)
+    if child.is_alive():
+        child.kill()
+    assert child.exitcode == 0, "the forked process did not finish its pass"
+    assert queue.get(timeout=5) == [0, 1, 4, 9, 16, 25]

@@ -49,6 +49,12 @@ def _pool() -> concurrent.futures.ThreadPoolExecutor:
     return concurrent.futures.ThreadPoolExecutor(max_workers=MAX_WORKERS - 1, thread_name_prefix="selfcal-chunks")
 
 
+# a process forked after a pass (multiprocessing's default on Linux) has the pool but not its thread: the
+# child makes its own, or its first pass would wait for a thread that does not exist
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_pool.cache_clear)
+
+
 def over_chunks(chunks: Sequence, work: Callable, new_sums: Callable) -> tuple[list, list]:
     """``work(chunk, sums)`` of every chunk, thread t taking chunks t, t + n, ... (n threads) with its own
     ``sums = new_sums()``. Returns the results in chunk order and the sums of each thread (thread order).
