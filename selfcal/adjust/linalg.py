@@ -319,6 +319,22 @@ def blas_threads(n_images: int):
             _caller_threads.pop()
 
 
+@contextlib.contextmanager
+def blas_on_one_thread():
+    """BLAS on one thread, and no product takes the caller's threads back (:func:`shared_product`): for the
+    threads of a pass over the chunks (:mod:`selfcal.adjust.parallel`), which are the parallelism there."""
+    blas = _blas()
+    caller = max((lib.num_threads for lib in blas.lib_controllers), default=1)
+    with contextlib.ExitStack() as stack:
+        if caller > 1:
+            stack.enter_context(blas.limit(limits=1))
+        _caller_threads.append(1)
+        try:
+            yield
+        finally:
+            _caller_threads.pop()
+
+
 def shared_product(multiply_adds: float):
     """A context for one dense product of ``multiply_adds``: inside :func:`blas_threads`' one-thread limit, a
     product of at least SHARED_PRODUCT_FLOPS runs on the caller's threads; anything else is left as it is."""

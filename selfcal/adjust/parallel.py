@@ -1,7 +1,8 @@
 """A pass over the chunks of the points on the machine's cores.
 
-The linearisation, the reduction and the leverages go over the points in chunks (``Problem.chunks``) and
-sum each chunk's products into a few arrays (the image blocks, the camera-parameter blocks). The work of a
+The linearisation, the reduction, the residuals, the leverages, the point cofactors and the evaluation of the
+AP columns go over the points (observations) in chunks (``Problem.chunks``); the first two sum each chunk's
+products into a few arrays (the image blocks, the camera-parameter blocks), the others write their own rows. The work of a
 chunk is NumPy, BLAS and Numba kernels compiled with ``nogil``, which release the interpreter lock, so two
 threads that take alternate chunks run side by side. Each thread sums into arrays of its own, added at the
 end in a fixed order: the result does not depend on which thread ran first, and differs from one thread's
@@ -10,7 +11,6 @@ sums only by rounding. Inside the pass every BLAS call runs on one thread (the t
 from __future__ import annotations
 
 import concurrent.futures
-import contextlib
 import functools
 import os
 import threading
@@ -73,7 +73,7 @@ def over_chunks(chunks: Sequence, work: Callable, new_sums: Callable) -> tuple[l
             _state.inside = False
 
     results: list = [None] * len(chunks)
-    with _one_blas_thread():
+    with linalg.blas_on_one_thread():          # the pass's threads are the parallelism
         others = [_pool().submit(run, t) for t in range(1, n)]
         try:
             mine = run(0)
@@ -83,19 +83,3 @@ def over_chunks(chunks: Sequence, work: Callable, new_sums: Callable) -> tuple[l
     for t, part in enumerate([mine] + done):
         results[t::n] = part
     return results, parts
-
-
-@contextlib.contextmanager
-def _one_blas_thread():
-    """BLAS on one thread inside the pass, and no product takes the caller's threads back
-    (:func:`linalg.shared_product`): the pass's threads are the parallelism."""
-    blas = linalg._blas()
-    caller = max((lib.num_threads for lib in blas.lib_controllers), default=1)
-    with contextlib.ExitStack() as stack:
-        if caller > 1:
-            stack.enter_context(blas.limit(limits=1))
-        linalg._caller_threads.append(1)
-        try:
-            yield
-        finally:
-            linalg._caller_threads.pop()
