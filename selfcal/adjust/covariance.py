@@ -64,7 +64,7 @@ class PointTerms:
     Z_e: np.ndarray              # (m, w, 3) each observation's image (and compact camera) coupling times V^-1
     Z: np.ndarray | None         # (3 n_pc, n_d) V^-1 W_pd per point, None without camera parameters
     A: np.ndarray | None         # (3 n_pc, n_d) per point: sum over its observations of Z_e^T Q_ed(image)
-    ZL: np.ndarray | None        # (3 n_pc, n_d) Z L_dd (Q_dd = L_dd L_dd^T), None where Q_dd has no such factor
+    ZL: list | None              # Z L_dd (Q_dd = L_dd L_dd^T) in column blocks (times_lower), None without that factor
     Q_pp: np.ndarray             # (n_pc, 3, 3) the points' cofactor blocks
 
 
@@ -102,7 +102,7 @@ class PointCofactors:
                 quadratic = camera_quadratic(Z, self.Q_dd, None)
             else:
                 ZL = times_lower(Z, self.L_dd)
-                quadratic = ZL.reshape(n_pc, 3, n_d) @ ZL.reshape(n_pc, 3, n_d).transpose(0, 2, 1)
+                quadratic = _block_grams(ZL, n_pc)
             Qp += quadratic.reshape(n_pc, 3, 3) + cross + cross.transpose(0, 2, 1)
         return PointTerms(Z_e, Z, A, ZL, 0.5 * (Qp + Qp.transpose(0, 2, 1)))
 
@@ -127,13 +127,29 @@ def lower_cholesky(Q: np.ndarray) -> np.ndarray | None:
         return None
 
 
-def times_lower(X: np.ndarray, L: np.ndarray) -> np.ndarray:
-    """X L for a lower triangular L, as a new C-ordered array. A general product: twice the flops of SciPy's
-    triangular one (dtrmm), but NumPy releases the interpreter lock in it, so the two threads of a pass over
-    the chunks (:mod:`.parallel`) run theirs side by side (a round of tests on the 254-WAP block: 0.55-0.56 s
-    against 0.63-0.71 s with dtrmm)."""
-    with shared_product(X.shape[0] * L.shape[0] ** 2):
-        return X @ L
+def times_lower(X: np.ndarray, L: np.ndarray) -> list[np.ndarray]:
+    """X L for a lower triangular L, as LOWER_BLOCKS column blocks X L[:, c0:c1] (C-ordered; side by side they
+    are X L). Block j needs only X's columns from c0 on (L is zero above its diagonal), so four blocks cost 5/8
+    of a general product's flops, in NumPy products, which release the interpreter lock: the two threads of a
+    pass over the chunks (:mod:`.parallel`) run theirs side by side. SciPy's triangular product (dtrmm, half
+    the flops) holds the lock, and two threads calling it ran one after the other."""
+    k = L.shape[0]
+    bounds = np.linspace(0, k, max(min(LOWER_BLOCKS, k), 1) + 1).round().astype(int)
+    with shared_product(0.5 * X.shape[0] * k ** 2):
+        return [X[:, c0:] @ L[c0:, c0:c1] for c0, c1 in zip(bounds[:-1], bounds[1:])]
+
+
+#: column blocks of times_lower
+LOWER_BLOCKS = 4
+
+
+def _block_grams(blocks: list[np.ndarray], n: int) -> np.ndarray:
+    """The 3x3 Gram matrices of each point's three rows of the matrix whose column blocks are ``blocks``."""
+    out = np.zeros((n, 3, 3))
+    for block in blocks:
+        rows = block.reshape(n, 3, -1)
+        out += rows @ rows.transpose(0, 2, 1)
+    return out
 
 
 def camera_quadratic(Z: np.ndarray, Q: np.ndarray, L: np.ndarray | None) -> np.ndarray:
@@ -141,5 +157,4 @@ def camera_quadratic(Z: np.ndarray, Q: np.ndarray, L: np.ndarray | None) -> np.n
     n = Z.shape[0] // 3
     if L is None:
         return (Z @ Q).reshape(n, 3, -1) @ Z.reshape(n, 3, -1).transpose(0, 2, 1)
-    ZL = times_lower(Z, L).reshape(n, 3, -1)
-    return ZL @ ZL.transpose(0, 2, 1)
+    return _block_grams(times_lower(Z, L), n)

@@ -128,9 +128,9 @@ def _image_leverage(problem, state, lin, v_inv, Q, Q_points=None):
             else:
                 # with Q_dd = L L^T: j_d Q_dd Z^T = (j_d L)(Z L)^T and j_d Q_dd j_d^T = |j_d L|^2, two triangular
                 # products instead of a general one and a second pass
-                XL = times_lower(j_d.reshape(2 * m, n_d), L_dd)
-                jp_term += rows_dot_blocks(XL.reshape(m, 2, n_d), ptl, terms.ZL.reshape(n_pc, 3, n_d))
-                h += np.einsum("rd,rd->r", XL, XL).reshape(m, 2)
+                for XL, ZL in zip(times_lower(j_d.reshape(2 * m, n_d), L_dd), terms.ZL):   # column blocks
+                    jp_term += rows_dot_blocks(XL.reshape(m, 2, -1), ptl, ZL.reshape(n_pc, 3, -1))
+                    h += np.einsum("rd,rd->r", XL, XL).reshape(m, 2)
         h -= 2.0 * np.einsum("okj,okj->ok", jp_term, j_p)
         h += np.einsum("oki,oij,okj->ok", j_p, points[ch.points[ptl]], j_p)
         h_all[cs.o0:cs.o1] = h
