@@ -27,6 +27,13 @@ def test_each_thread_takes_alternate_chunks_into_sums_of_its_own(monkeypatch):
     assert results == [0, 10, 20, 30, 40, 50, 60]
     assert parts == [[0, 2, 4, 6], [1, 3, 5]]
     assert len(set(seen)) == 2
+    # on one thread: the same groups, one after the other
+    monkeypatch.setattr(parallel, "workers", lambda: 1)
+    seen.clear()
+    results, parts = parallel.over_chunks(list(range(7)), work, list)
+    assert results == [0, 10, 20, 30, 40, 50, 60]
+    assert parts == [[0, 2, 4, 6], [1, 3, 5]]
+    assert set(seen) == {threading.get_ident()}
 
 
 def test_a_failing_chunk_raises_after_both_threads_are_done(monkeypatch):
@@ -56,7 +63,8 @@ def test_selfcal_threads_sets_the_threads(monkeypatch):
 
 def test_an_adjustment_on_two_threads_equals_one_on_one(monkeypatch):
     """The seed-000 block with Brown APs, data snooping and the tests: the same rejections, estimate and
-    redundancy numbers on two threads as on one, to rounding."""
+    redundancy numbers on two threads as on one, bit for bit (the Dask batch, one thread per worker, must
+    equal the serial run)."""
     from selfcal.adjust import AdjustOptions
     from selfcal.workflows.tested import adjust_with_tests
 
@@ -69,10 +77,11 @@ def test_an_adjustment_on_two_threads_equals_one_on_one(monkeypatch):
     assert len(one.result.problem.chunks) >= 2
     np.testing.assert_array_equal(one.rejected_rows, two.rejected_rows)
     assert one.rejected_rows.size > 0
-    np.testing.assert_allclose(two.result.state.points, one.result.state.points, rtol=0, atol=1e-8)
-    np.testing.assert_allclose(two.result.state.image, one.result.state.image, rtol=0, atol=1e-9)
-    np.testing.assert_allclose(two.tests.image_redundancy, one.tests.image_redundancy, rtol=0, atol=1e-10)
-    assert abs(two.result.sigma0_px - one.result.sigma0_px) < 1e-10
+    # the same sums in the same order (two groups of chunks, whichever thread runs them): bit for bit
+    np.testing.assert_array_equal(two.result.state.points, one.result.state.points)
+    np.testing.assert_array_equal(two.result.state.image, one.result.state.image)
+    np.testing.assert_array_equal(two.tests.image_redundancy, one.tests.image_redundancy)
+    assert two.result.sigma0_px == one.result.sigma0_px
 
 
 def test_selfcal_sets_openblas_thread_timeout_unless_the_user_did():
@@ -109,7 +118,7 @@ def test_a_pass_inside_a_pass_runs_on_its_callers_thread(monkeypatch):
 
 def test_a_pushbroom_block_in_small_chunks_adjusts_alike_on_two_threads(monkeypatch):
     """The pushbroom sensor's predictions on two threads (the PRISM triplet cut into six chunks): the same
-    adjustment as on one, to rounding."""
+    adjustment as on one, bit for bit."""
     import selfcal.adjust.problem as problem_module
     from selfcal.adjust import AdjustOptions, adjust
     from selfcal.simulate.prism import prism_block, simulate_prism
@@ -123,9 +132,9 @@ def test_a_pushbroom_block_in_small_chunks_adjusts_alike_on_two_threads(monkeypa
         runs[threads] = adjust(block, AdjustOptions())
     one, two = runs["1"], runs["2"]
     assert len(one.problem.chunks) >= 4 and one.iterations == two.iterations
-    np.testing.assert_allclose(two.state.points, one.state.points, rtol=0, atol=1e-6)        # ECEF metres
-    np.testing.assert_allclose(two.Q_points, one.Q_points, rtol=1e-9, atol=1e-15)
-    assert abs(two.sigma0_px - one.sigma0_px) < 1e-9
+    np.testing.assert_array_equal(two.state.points, one.state.points)
+    np.testing.assert_array_equal(two.Q_points, one.Q_points)
+    assert two.sigma0_px == one.sigma0_px
 
 
 def _forked_pass(queue) -> None:

@@ -4,9 +4,10 @@ The linearisation, the reduction, the residuals, the leverages, the point cofact
 AP columns go over the points (observations) in chunks (``Problem.chunks``); the first two sum each chunk's
 products into a few arrays (the image blocks, the camera-parameter blocks), the others write their own rows. The work of a
 chunk is NumPy, BLAS and Numba kernels compiled with ``nogil``, which release the interpreter lock, so two
-threads that take alternate chunks run side by side. Each thread sums into arrays of its own, added at the
-end in a fixed order: the result does not depend on which thread ran first, and differs from one thread's
-sums only by rounding. Inside the pass every BLAS call runs on one thread (the threads are the parallelism).
+threads that take alternate chunks run side by side. Each of two groups of chunks sums into arrays of its own,
+added at the end in a fixed order, whether the groups ran on two threads or one after the other: the result
+is the same bit for bit on one thread as on two, in whatever order the threads ran (the Dask batch, one
+thread per worker, equals the serial run). Inside the pass every BLAS call runs on one thread.
 """
 from __future__ import annotations
 
@@ -56,30 +57,36 @@ if hasattr(os, "register_at_fork"):
 
 
 def over_chunks(chunks: Sequence, work: Callable, new_sums: Callable) -> tuple[list, list]:
-    """``work(chunk, sums)`` of every chunk, thread t taking chunks t, t + n, ... (n threads) with its own
-    ``sums = new_sums()``. Returns the results in chunk order and the sums of each thread (thread order).
-    A pass started inside another one runs on its caller's thread (the pool's thread may be the caller)."""
-    n = 1 if getattr(_state, "inside", False) else min(workers(), len(chunks))
+    """``work(chunk, sums)`` of every chunk. The chunks go to MAX_WORKERS groups (group g takes chunks g, g + n,
+    ...), each with its own ``sums = new_sums()``, and the groups to the threads: the sums, and so the result,
+    are the same bit for bit on one thread as on two. Returns the results in chunk order and each group's sums
+    (group order). A pass started inside another one runs on its caller's thread (the pool's thread may be the
+    caller)."""
+    n = min(MAX_WORKERS, len(chunks))
     if n <= 1:
         sums = new_sums()
         return [work(chunk, sums) for chunk in chunks], [sums]
     parts = [new_sums() for _ in range(n)]
 
-    def run(t: int) -> list:
+    def run(group: int) -> list:
+        inside = getattr(_state, "inside", False)
         _state.inside = True
         try:
-            return [work(chunks[i], parts[t]) for i in range(t, len(chunks), n)]
+            return [work(chunks[i], parts[group]) for i in range(group, len(chunks), n)]
         finally:
-            _state.inside = False
+            _state.inside = inside
 
     results: list = [None] * len(chunks)
-    with linalg.blas_on_one_thread():          # the pass's threads are the parallelism
-        others = [_pool().submit(run, t) for t in range(1, n)]
-        try:
-            mine = run(0)
-        finally:
-            concurrent.futures.wait(others)         # no worker outlives the pass, whatever happened here
-        done = [future.result() for future in others]
-    for t, part in enumerate([mine] + done):
-        results[t::n] = part
+    with linalg.blas_on_one_thread():          # the pass's threads are the parallelism; on one, the same calls
+        if getattr(_state, "inside", False) or workers() < n:
+            done = [run(group) for group in range(n)]
+        else:
+            others = [_pool().submit(run, group) for group in range(1, n)]
+            try:
+                mine = run(0)
+            finally:
+                concurrent.futures.wait(others)     # no worker outlives the pass, whatever happened here
+            done = [mine] + [future.result() for future in others]
+    for group, part in enumerate(done):
+        results[group::n] = part
     return results, parts
