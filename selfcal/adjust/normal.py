@@ -30,7 +30,7 @@ from .kernels import (accumulate_observations, camera_couplings, camera_coupling
                       point_blocks_times, schur_image_blocks, spd_inverse_3x3,
                       subtract_image_couplings)
 from .parallel import over_chunks
-from .problem import Problem, State
+from .problem import Problem, State, row_positions
 
 __all__ = [
     "ChunkLinearisation",
@@ -195,13 +195,9 @@ def carry_ap_columns(problem: Problem, rows: np.ndarray, previous: Problem, prev
     problem's arrays are taken over and compacted in place (it is not used again, or evaluates its
     columns afresh if it is).
     """
-    lookup = np.argsort(previous_rows)
-    if np.any(np.diff(previous_rows[lookup]) == 0):
-        return                                                  # row numbers do not name observations
-    where = np.searchsorted(previous_rows, rows, sorter=lookup)
-    if np.any(where >= len(previous_rows)) or np.any(previous_rows[lookup[np.minimum(where, len(lookup) - 1)]] != rows):
+    source = row_positions(previous_rows, rows)                 # previous observation of each observation
+    if source is None:
         return                                                  # not a subset of the previous observations
-    source = lookup[where]                                      # previous observation of each observation
     for k, cam in enumerate(problem.cameras):
         old_k = next((j for j, c in enumerate(previous.cameras) if c.camera_id == cam.camera_id), None)
         if old_k is None or previous.cameras[old_k].ap is not cam.ap or not cam.ap.n_params:

@@ -2,12 +2,12 @@
 
 The linearisation, the reduction, the residuals, the leverages, the point cofactors and the evaluation of the
 AP columns go over the points (observations) in chunks (``Problem.chunks``); the first two sum each chunk's
-products into a few arrays (the image blocks, the camera-parameter blocks), the others write their own rows. The work of a
-chunk is NumPy, BLAS and Numba kernels compiled with ``nogil``, which release the interpreter lock, so two
-threads that take alternate chunks run side by side. Each of two groups of chunks sums into arrays of its own,
-added at the end in a fixed order, whether the groups ran on two threads or one after the other: the result
-is the same bit for bit on one thread as on two, in whatever order the threads ran (the Dask batch, one
-thread per worker, equals the serial run). Inside the pass every BLAS call runs on one thread.
+products into a few arrays (the image blocks, the camera-parameter blocks), the others write their own rows.
+The work of a chunk is NumPy, BLAS and Numba kernels compiled with ``nogil``, which release the interpreter
+lock, so two threads that take alternate chunks run side by side. Each of two groups of chunks sums into
+arrays of its own, added at the end in a fixed order, whether the groups ran on two threads or one after the
+other: the result is the same bit for bit on one thread as on two, in whatever order the threads ran (the
+Dask batch, one thread per worker, equals the serial run). Inside the pass every BLAS call runs on one thread.
 """
 from __future__ import annotations
 

@@ -421,6 +421,18 @@ def _point_order(image_index: np.ndarray, point_index: np.ndarray, n_points: int
     return np.argsort(key, kind="stable")
 
 
+def row_positions(old_rows: np.ndarray, new_rows: np.ndarray) -> np.ndarray | None:
+    """The position in ``old_rows`` of each of ``new_rows`` (observations named by their block row, ``row``), or
+    None when ``old_rows`` repeat a row or a new row is not among them (not a subset of the old observations)."""
+    if not len(old_rows):
+        return None if len(new_rows) else np.zeros(0, np.int64)
+    order = np.argsort(old_rows, kind="stable")
+    if np.any(np.diff(old_rows[order]) == 0):
+        return None
+    where = order[np.minimum(np.searchsorted(old_rows, new_rows, sorter=order), len(old_rows) - 1)]
+    return where if np.array_equal(old_rows[where], new_rows) else None
+
+
 def inherited_point_key(block: Block, previous_block: Block, previous: "Problem") -> np.ndarray | None:
     """A key that puts the points of ``block`` (a subset of the observations of ``previous_block``, as after
     data snooping) in the order they had in ``previous``, or None if the observations are not such a subset.
@@ -428,12 +440,8 @@ def inherited_point_key(block: Block, previous_block: Block, previous: "Problem"
     The first image of a point changes when that observation is rejected; a re-adjustment that kept its
     predecessor's order for the other points only would reorder it, and the arrays it carries over (the AP
     columns, hundreds of MB) could not be compacted in place."""
-    old_rows, new_rows = previous_block.observations.row, block.observations.row
-    if not len(new_rows) or not len(old_rows):
-        return None
-    order = np.argsort(old_rows, kind="stable")
-    where = order[np.minimum(np.searchsorted(old_rows, new_rows, sorter=order), len(old_rows) - 1)]
-    if np.any(old_rows[where] != new_rows):
+    where = row_positions(previous_block.observations.row, block.observations.row)
+    if where is None:
         return None
     key = np.full(len(block.points), np.iinfo(np.int64).max)
     key[block.observations.point_index] = previous.point_positions()[previous_block.observations.point_index[where]]

@@ -33,7 +33,7 @@ import numpy as np
 from .linalg import SingularSystem, factorise, pseudo_factorise
 from .covariance import observation_columns
 from .normal import SingularPoints, ap_displacement, back_substitute, evaluate_cost, observation_rows, point_rows
-from .problem import Problem, State
+from .problem import Problem, State, row_positions
 
 __all__ = ["downdated_start"]
 
@@ -96,11 +96,8 @@ def downdated_start(previous, problem: Problem, block, free_network: bool = Fals
         return None
     # the new block's observations among the previous problem's (problem order), by block row
     old_rows = old_block.observations.row[old.obs_order]
-    order = np.argsort(old_rows, kind="stable")
-    new_rows = block.observations.row
-    where = np.minimum(np.searchsorted(old_rows, new_rows, sorter=order), len(old_rows) - 1)
-    kept = order[where]
-    if np.any(old_rows[kept] != new_rows) or np.any(np.diff(old_rows[order]) == 0):
+    kept = row_positions(old_rows, block.observations.row)
+    if kept is None:
         return None
     if np.any(old_block.observations.sigma_px[old.obs_order][kept] != block.observations.sigma_px):
         return None
