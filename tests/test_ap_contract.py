@@ -1,4 +1,6 @@
 """Contract tests over the AP registry: every family, every example spec."""
+import functools
+
 import numpy as np
 import pytest
 
@@ -11,7 +13,9 @@ SAMPLE = np.column_stack([RNG.uniform(-FRAME.width_mm / 2, FRAME.width_mm / 2, 6
                           RNG.uniform(-FRAME.height_mm / 2, FRAME.height_mm / 2, 6000)])
 
 
+@functools.cache
 def _model(spec):
+    """The model of ``spec`` on SAMPLE, built once (sym4+details takes seconds); the tests only read it."""
     return create_ap(spec, FRAME, SAMPLE)
 
 
@@ -80,3 +84,28 @@ def test_unknown_options_are_rejected(family):
 def test_unknown_family_lists_the_known_ones():
     with pytest.raises(ValueError, match="known families: none, brown"):
         create_ap("zernike", FRAME)
+
+
+@pytest.mark.parametrize("spec", SPECS)
+def test_sparse_rows_rebuild_the_basis(spec):
+    """Where a family gives its basis as sparse rows (wavelets of compact support: a window of translations
+    per axis, the same for every point of a cell), the rows times their map are the basis, also at the nodes of
+    the translation grid (where the window's edge values vanish) and at the corners of the frame; the
+    compactly supported ones have far fewer non-zeros per row than parameters."""
+    ap = _model(spec)
+    w, h = FRAME.width_mm / 2, FRAME.height_mm / 2
+    nodes = np.column_stack([np.linspace(-w, w, 19), np.linspace(-h, h, 19)])     # every 1/9 of x, 1/9 of y
+    corners = np.array([[-w, -h], [w, h], [-w, h], [w, -h], [0.0, 0.0]])
+    xy = np.vstack([SAMPLE[:500], nodes, corners])
+    sparse = ap.sparse_basis(xy[:, 0], xy[:, 1])
+    compact = spec.startswith("wavelet:") and "+" not in spec and spec.split(":")[1][:2] in ("db", "sy")
+    if sparse is None:
+        assert not compact
+        return
+    bx, by = ap.basis(xy[:, 0], xy[:, 1])
+    dx, dy = sparse.dense()
+    np.testing.assert_allclose(dx, bx, rtol=0, atol=1e-13)
+    np.testing.assert_allclose(dy, by, rtol=0, atol=1e-13)
+    assert sparse.values.shape == (len(xy), 2, sparse.columns.shape[2])
+    if compact:
+        assert sparse.columns.shape[2] < 0.3 * ap.n_params

@@ -314,10 +314,44 @@ def test_point_cofactors_from_the_tests_pass_equal_their_own():
     np.testing.assert_allclose(lazy.Q_points, own, rtol=0, atol=1e-12 * np.abs(own).max())
 
 
-def test_camera_quadratic_with_and_without_the_cholesky_factor():
-    """Z[p] Q Z[p]^T per point: the triangular path (Q = L L^T) and the plain product (Q not positive definite,
-    L None) both equal the blocks computed one by one."""
-    from selfcal.adjust.covariance import camera_quadratic, lower_cholesky
+def test_leverages_through_the_sparse_wavelet_rows_equal_the_dense_ones(monkeypatch):
+    """A one-camera block with sym4 WAPs, snooped and screened: its last problem's sparse AP rows were carried
+    through the re-adjustments and equal rows evaluated afresh, they rebuild its dense AP columns (a subset of
+    the APs free), and the leverages through them equal those through the dense columns."""
+    import selfcal.stats.reliability as reliability
+    from selfcal.adjust import AdjustOptions
+    from selfcal.adjust.normal import _camera_jacobian, sparse_ap_rows
+    from selfcal.stats.screening import ScreeningOptions
+    from selfcal.workflows.tested import adjust_with_tests
+
+    block = pruned(simulation(seed=5, distortion="local+brown", points_per_mm2=0.04, blunder_rate=0.003), "type3")
+    tested = adjust_with_tests(block, AdjustOptions(ap="wavelet:sym4"), screening=ScreeningOptions())
+    result = tested.result
+    problem = result.problem
+    cam = problem.cameras[0]
+    assert tested.rounds and not cam.free[cam.n_core:].all()        # re-adjusted, and some WAPs held
+    sparse = sparse_ap_rows(problem)
+    o = np.arange(problem.n_image_observations)
+    fresh = problem.sensors[0].bound.sparse_ap_columns(0, o, cam.ap)
+    np.testing.assert_array_equal(sparse.pattern, fresh.pattern)
+    np.testing.assert_allclose(sparse.values, fresh.values / problem.obs_sigma[:, :, None], rtol=1e-15, atol=0)
+    bx, by = sparse.dense()
+    dense = _camera_jacobian(problem, 0)[:, :, cam.n_core:]
+    scale = np.abs(dense).max()
+    np.testing.assert_allclose(np.stack([bx, by], axis=1), dense, rtol=0, atol=1e-13 * scale)
+    args = (problem, result.state, result.linearisation, result.v_inv, result.Q_theta)
+    h_sparse, _, points_sparse = reliability._image_leverage(*args)
+    monkeypatch.setattr(reliability, "sparse_ap_rows", lambda problem: None)
+    h_dense, _, points_dense = reliability._image_leverage(*args)
+    assert 0.0 < h_dense.min() and h_dense.max() < 1.0
+    np.testing.assert_allclose(h_sparse, h_dense, rtol=0, atol=1e-10)      # rounding: h sums terms larger than 1
+    np.testing.assert_allclose(points_sparse, points_dense, rtol=1e-9, atol=1e-12 * np.abs(points_dense).max())
+
+
+def test_point_quadratic_through_the_cholesky_factor():
+    """Z[p] Q Z[p]^T per point through Q = L L^T (the Gram matrices of the column blocks of Z L) equals the
+    blocks computed one by one; a Q that is not positive definite has no factor (the plain product Z Q then)."""
+    from selfcal.adjust.covariance import _block_grams, lower_cholesky, times_lower
 
     rng = np.random.default_rng(3)
     Z = rng.normal(size=(3 * 40, 17))
@@ -326,8 +360,8 @@ def test_camera_quadratic_with_and_without_the_cholesky_factor():
     expected = np.array([Z[3 * p:3 * p + 3] @ Q @ Z[3 * p:3 * p + 3].T for p in range(40)])
     L = lower_cholesky(Q)
     assert L is not None and lower_cholesky(-Q) is None
-    np.testing.assert_allclose(camera_quadratic(Z, Q, L), expected, rtol=1e-12, atol=1e-12 * np.abs(expected).max())
-    np.testing.assert_allclose(camera_quadratic(Z, Q, None), expected, rtol=1e-12, atol=1e-12 * np.abs(expected).max())
+    np.testing.assert_allclose(_block_grams(times_lower(Z, L), 40), expected, rtol=1e-12,
+                               atol=1e-12 * np.abs(expected).max())
 
 
 @pytest.mark.parametrize("environment, expected", [(None, "False"), ("1", "True")])

@@ -25,8 +25,7 @@ from .normal import Linearisation
 from .problem import Problem
 from .kernels import add_point_image_products, point_blocks_times, point_cofactor_pairs
 
-__all__ = ["point_cofactors", "PointCofactors", "PointTerms", "image_blocks", "observation_columns", "lower_cholesky", "times_lower",
-           "camera_quadratic"]
+__all__ = ["point_cofactors", "PointCofactors", "PointTerms", "image_blocks", "observation_columns", "lower_cholesky", "times_lower"]
 
 
 def image_blocks(Q, problem: Problem, columns: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -64,7 +63,8 @@ class PointTerms:
     Z_e: np.ndarray              # (m, w, 3) each observation's image (and compact camera) coupling times V^-1
     Z: np.ndarray | None         # (3 n_pc, n_d) V^-1 W_pd per point, None without camera parameters
     A: np.ndarray | None         # (3 n_pc, n_d) per point: sum over its observations of Z_e^T Q_ed(image)
-    ZL: list | None              # Z L_dd (Q_dd = L_dd L_dd^T) in column blocks (times_lower), None without that factor
+    ZL: list | None              # Z L_dd (Q_dd = L_dd L_dd^T) in column blocks (times_lower), or None and:
+    ZQ: np.ndarray | None        # (3 n_pc, n_d) Z Q_dd, without that factor or when asked for (``full_product``)
     Q_pp: np.ndarray             # (n_pc, 3, 3) the points' cofactor blocks
 
 
@@ -72,7 +72,7 @@ class PointCofactors:
     """The parts of Q_theta that the object points need (module docstring), read once, and per chunk of
     points their cofactor blocks with the products they are made of (:class:`PointTerms`)."""
 
-    def __init__(self, problem: Problem, Q):
+    def __init__(self, problem: Problem, Q, full_product: bool = False):
         n_e, n_d = problem.n_e, problem.n_d
         self.problem = problem
         # compact cameras (BAL: one camera of 3 parameters per image): an observation touches its image's and its
@@ -84,7 +84,8 @@ class PointCofactors:
         if n_d and not self.compact:
             self.Q_dd = Q[n_e:n_e + n_d, n_e:n_e + n_d]
             self.Q_ed = np.ascontiguousarray(Q[:n_e, n_e:n_e + n_d])          # (n_e, n_d)
-            self.L_dd = lower_cholesky(self.Q_dd)
+            # Q_dd = L L^T: the products with Q_dd are triangular ones, unless the caller needs Z Q_dd itself
+            self.L_dd = None if full_product else lower_cholesky(self.Q_dd)
 
     def chunk(self, ch, cs, Vi: np.ndarray) -> PointTerms:
         n_d = self.problem.n_d
@@ -92,19 +93,20 @@ class PointCofactors:
         Z_e = (ch.couplings() if self.compact else ch.w_e) @ Vi[cs.ptl]                                             # (m, w, 3)
         Qp = Vi.copy()
         point_cofactor_pairs(Z_e, cs.img, cs.ptl, cs.pair_a, cs.pair_b, cs.pair_key, self.Q_diag, self.Q_pair, Qp)
-        Z = A = ZL = None
+        Z = A = ZL = ZQ = None
         if n_d and not self.compact:
             Z = point_blocks_times(Vi, ch.W_pd, False)                     # Z[p] = Vi[p] W_pd[p]
             A = np.zeros((3 * n_pc, n_d))
             add_point_image_products(Z_e, cs.img, cs.ptl, self.Q_ed, A)
             cross = A.reshape(n_pc, 3, n_d) @ Z.reshape(n_pc, 3, n_d).transpose(0, 2, 1)
             if self.L_dd is None:
-                quadratic = camera_quadratic(Z, self.Q_dd, None)
+                ZQ = Z @ self.Q_dd
+                quadratic = ZQ.reshape(n_pc, 3, n_d) @ Z.reshape(n_pc, 3, n_d).transpose(0, 2, 1)
             else:
                 ZL = times_lower(Z, self.L_dd)
                 quadratic = _block_grams(ZL, n_pc)
             Qp += quadratic.reshape(n_pc, 3, 3) + cross + cross.transpose(0, 2, 1)
-        return PointTerms(Z_e, Z, A, ZL, 0.5 * (Qp + Qp.transpose(0, 2, 1)))
+        return PointTerms(Z_e, Z, A, ZL, ZQ, 0.5 * (Qp + Qp.transpose(0, 2, 1)))
 
 
 def point_cofactors(problem: Problem, lin: Linearisation, v_inv: list, Q) -> np.ndarray:
@@ -151,10 +153,3 @@ def _block_grams(blocks: list[np.ndarray], n: int) -> np.ndarray:
         out += rows @ rows.transpose(0, 2, 1)
     return out
 
-
-def camera_quadratic(Z: np.ndarray, Q: np.ndarray, L: np.ndarray | None) -> np.ndarray:
-    """The 3x3 blocks Z[p] Q Z[p]^T of Z (3 n, k): with Q = L L^T, Gram matrices of the rows of Z L."""
-    n = Z.shape[0] // 3
-    if L is None:
-        return (Z @ Q).reshape(n, 3, -1) @ Z.reshape(n, 3, -1).transpose(0, 2, 1)
-    return _block_grams(times_lower(Z, L), n)

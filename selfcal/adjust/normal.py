@@ -19,7 +19,7 @@ changes.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import scipy.sparse as sp
@@ -47,6 +47,7 @@ __all__ = [
     "carry_ap_columns",
     "chunk_rows",
     "evaluate_ap_columns",
+    "sparse_ap_rows",
     "parameter_observation_groups",
     "parameter_observations",
 ]
@@ -155,6 +156,41 @@ def evaluate_ap_columns(problem: Problem) -> None:
 AP_COLUMN_BLOCK = 8192
 
 
+def sparse_ap_rows(problem: Problem):
+    """The whitened AP columns of a one-camera problem as sparse rows (:class:`selfcal.ap.base.SparseBasis`,
+    in problem order, ``to_params`` mapping to the camera's free APs), or None: several cameras, a core
+    parameter held, or rows that the AP model or the sensor gives dense only.
+
+    Kept per problem like the dense columns (:func:`_camera_jacobian`), evaluated block by block on the
+    threads of a pass, or taken over from the adjustment this one re-runs (:func:`carry_ap_columns`)."""
+    if len(problem.cameras) != 1:
+        return None
+    cam = problem.cameras[0]
+    if not cam.ap.n_params or not cam.free[:cam.n_core].all():
+        return None
+    key = ("sparse", 0)
+    if key not in problem._ap_columns:
+        o = np.arange(problem.n_image_observations)
+        bound = _bound_of(problem, o) if o.size else None
+        parts = {}
+
+        def evaluate(start: int, _) -> None:
+            part = o[start:start + AP_COLUMN_BLOCK]
+            parts[start] = bound.sparse_ap_columns(0, part, cam.ap)
+        if bound is not None:
+            over_chunks(range(0, o.size, AP_COLUMN_BLOCK), evaluate, lambda: None)
+        blocks = [parts[start] for start in sorted(parts)]
+        sparse = None
+        if blocks and all(b is not None for b in blocks):
+            sparse = replace(blocks[0], pattern=np.concatenate([b.pattern for b in blocks]),
+                             values=np.concatenate([b.values for b in blocks]) / problem.obs_sigma[:, :, None])
+        problem._ap_columns[key] = sparse
+    sparse = problem._ap_columns[key]
+    if sparse is None:
+        return None
+    return replace(sparse, to_params=sparse.to_params[:, cam.free[cam.n_core:]])
+
+
 def _bound_of(problem: Problem, o: np.ndarray):
     """The bound sensor of observations ``o`` (of one camera, hence one sensor)."""
     return problem.sensors[int(problem.obs_sensor[o[0]])].bound
@@ -228,6 +264,12 @@ def carry_ap_columns(problem: Problem, rows: np.ndarray, previous: Problem, prev
         if np.any(ratio != 1.0):
             columns *= ratio[:, :, None]
         problem._ap_columns[(k, free.tobytes())] = columns
+        sparse = previous._ap_columns.get(("sparse", old_k))
+        if sparse is not None and len(problem.cameras) == 1:
+            values = sparse.values[take]
+            if np.any(ratio != 1.0):
+                values *= ratio[:, :, None]
+            problem._ap_columns[("sparse", 0)] = replace(sparse, pattern=sparse.pattern[take], values=values)
 
 
 def _carried_gram(previous: Problem, old_columns: np.ndarray, source: np.ndarray, keep: np.ndarray):

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["ImageFrame", "APModel", "parse_ap_spec"]
+__all__ = ["ImageFrame", "APModel", "SparseBasis", "parse_ap_spec"]
 
 
 @dataclass(frozen=True)
@@ -38,6 +38,28 @@ class ImageFrame:
     def normalised(self, x_mm: np.ndarray, y_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Photo coordinates scaled to [-1, 1] over the frame."""
         return 2.0 * np.asarray(x_mm) / self.width_mm, 2.0 * np.asarray(y_mm) / self.height_mm
+
+
+@dataclass(frozen=True)
+class SparseBasis:
+    """The basis matrices of a family whose functions have local support, as sparse rows times a fixed map:
+    row i of Bx is the vector with ``values[i, 0]`` at the raw columns ``columns[pattern[i], 0]`` (zero
+    elsewhere) times ``to_params``; By likewise with index 1. Observations of one pattern share their raw
+    columns (for a wavelet basis: those in one cell of the translations), so products over them are dense
+    blocks of a few raw columns instead of all parameters."""
+
+    pattern: np.ndarray          # (n,) int: each observation's pattern
+    columns: np.ndarray          # (n_patterns, 2, K) int: the raw columns of a pattern's x and y rows
+    values: np.ndarray           # (n, 2, K): each observation's x and y rows at them
+    to_params: np.ndarray        # (n_raw, n_params): raw columns to the parameters
+
+    def dense(self) -> tuple[np.ndarray, np.ndarray]:
+        """(Bx, By), each (n, n_params), rebuilt (for checks: the point of the sparse form is not to)."""
+        n = len(self.pattern)
+        raw = np.zeros((n, 2, self.to_params.shape[0]))
+        np.add.at(raw, (np.arange(n)[:, None, None], np.arange(2)[None, :, None], self.columns[self.pattern]),
+                  self.values)
+        return raw[:, 0] @ self.to_params, raw[:, 1] @ self.to_params
 
 
 def parse_ap_spec(spec: str) -> tuple[str, str | None]:
@@ -78,6 +100,10 @@ class APModel(ABC):
     @abstractmethod
     def basis(self, x_mm: np.ndarray, y_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Basis matrices (Bx, By), each of shape (n, n_params), at photo coordinates."""
+
+    def sparse_basis(self, x_mm: np.ndarray, y_mm: np.ndarray) -> SparseBasis | None:
+        """The basis at photo coordinates as a :class:`SparseBasis`, or None: the rows are dense (the default)."""
+        return None
 
     def basis_derivatives(self, x_mm: np.ndarray, y_mm: np.ndarray):
         """Derivatives of the basis per millimetre of photo coordinate.

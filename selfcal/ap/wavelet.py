@@ -66,7 +66,7 @@ import numpy as np
 import scipy.linalg
 
 from ..wavelets import check_wavelet_name, get_wavelet
-from .base import APModel, ImageFrame
+from .base import APModel, ImageFrame, SparseBasis
 
 __all__ = ["WaveletAP", "MIN_OBSERVATIONS"]
 
@@ -274,6 +274,46 @@ class WaveletAP(APModel):
         Bx[:, :n_x] += B[:, keep_x]
         By[:, n_x:] += B[:, keep_y]
         return Bx, By
+
+    def sparse_basis(self, x_mm, y_mm) -> SparseBasis | None:
+        """The scaling-function basis as sparse rows: phi(t + k) vanishes outside phi's table, so at a
+        point only a window of consecutive translations per axis is non-zero (7 of 13 for sym4), the
+        same window for every point of one cell of the translation grid; the camera fields are six more
+        raw columns, which ``to_params`` maps through -M (:meth:`basis`). None for the detail formulation."""
+        if self.formulation != "scaling":
+            return None
+        x_mm, y_mm = np.asarray(x_mm, float), np.asarray(y_mm, float)
+        xw, yw = self._domain(x_mm, y_mm)
+        w = self.wavelet
+        span = float(w.x[-1] - w.x[0])
+
+        def window(t, k):
+            """Each point's first translation of a window of consecutive ones that holds all its non-zero
+            phi(t + k) (the open interval (x0 - t, x1 - t)), and phi there: (n,) positions into k, (n, K)."""
+            size = min(len(k), int(np.ceil(span)))
+            first = np.clip(np.floor(w.x[0] - t).astype(np.int64) + 1 - k[0], 0, len(k) - size)
+            return first, size, w.phi(t[:, None] + k[first][:, None] + np.arange(size)[None, :])
+        fx, kx, vx = window(xw, self.kx)
+        fy, ky, vy = window(yw, self.ky)
+        n_x, n = len(self.kx), len(xw)
+        n_raw = n_x * len(self.ky)
+        starts_x, starts_y = n_x - kx + 1, len(self.ky) - ky + 1
+        # every window pair is a pattern, numbered alike wherever the basis is evaluated: (first ky) * starts_x +
+        # (first kx); its raw columns (ky index) * n_kx + (kx index), then the fields, for the x and the y rows
+        first_y, first_x = np.divmod(np.arange(starts_x * starts_y), starts_x)
+        cells = ((first_y[:, None, None] + np.arange(ky)[None, :, None]) * n_x
+                 + first_x[:, None, None] + np.arange(kx)[None, None, :]).reshape(len(first_x), ky * kx)
+        fields = np.broadcast_to(2 * n_raw + np.arange(6), (len(first_x), 6))
+        columns = np.stack([np.concatenate([cells, fields], axis=1), np.concatenate([n_raw + cells, fields], axis=1)],
+                           axis=1)
+        pattern = fy * starts_x + fx
+        products = (vy[:, :, None] * vx[:, None, :]).reshape(n, ky * kx)
+        Fx, Fy = _camera_fields(self.frame, x_mm, y_mm)
+        values = np.stack([np.concatenate([products, Fx], axis=1), np.concatenate([products, Fy], axis=1)], axis=1)
+        to_params = np.zeros((2 * n_raw + 6, int(self._kept.sum())))
+        to_params[np.flatnonzero(self._kept), np.arange(to_params.shape[1])] = 1.0
+        to_params[2 * n_raw:] = -self._field_projection
+        return SparseBasis(pattern.reshape(-1), columns, values, to_params)
 
     def basis_derivatives(self, x_mm, y_mm):
         x_mm, y_mm = np.asarray(x_mm, float), np.asarray(y_mm, float)

@@ -135,6 +135,11 @@ class BoundSensor(ABC):
         (n, 2, n_ap, possibly a strided view), written there and returned."""
         raise NotImplementedError(f"{type(self).__name__} takes no additional parameters")
 
+    def sparse_ap_columns(self, camera: int, o: np.ndarray, ap):
+        """:meth:`ap_columns` as a :class:`selfcal.ap.base.SparseBasis` (values in observation units), or None
+        where ``ap``'s rows are dense or the sensor does not give them so (the default)."""
+        return None
+
     @abstractmethod
     def rays(self, context, img: np.ndarray, pixel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Origins (m, 3) and unit directions (m, 3) of the rays of image points (col, row) in images ``img``

@@ -15,6 +15,8 @@ orientation rows are (c, x0, y0).
 """
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 from numba import njit
 
@@ -235,6 +237,12 @@ class FrameBound(BoundSensor):
         np.multiply(bx, pixel, out=out[:, 0])
         np.multiply(by, pixel, out=out[:, 1])
         return out
+
+    def sparse_ap_columns(self, camera, o, ap):
+        sparse = ap.sparse_basis(self.xy_mm[o, 0], self.xy_mm[o, 1])
+        if sparse is None:
+            return None
+        return replace(sparse, values=sparse.values * self.pixel_size_mm[o][:, None, None])
 
     def rays(self, context, img, pixel):
         image, iop, rotation, _ = context

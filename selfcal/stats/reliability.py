@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import norm
 
-from ..adjust.normal import chunk_rows, contexts, evaluate_ap_columns, parameter_observations
+from ..adjust.normal import chunk_rows, contexts, evaluate_ap_columns, parameter_observations, sparse_ap_rows
 from ..adjust.parallel import over_chunks
 from ..adjust.covariance import PointCofactors, times_lower
 from ..adjust.linalg import blas_threads
@@ -91,9 +91,19 @@ def _image_leverage(problem, state, lin, v_inv, Q, Q_points=None):
     """h (m, 2) of every image coordinate (sorted order), whitened residuals l - f, and the points' cofactor
     blocks: ``Q_points`` if given, else computed in the same pass (they share its products)."""
     n_img, n_d, width = problem.n_images, problem.n_d, problem.image_width
-    parts = PointCofactors(problem, Q)                  # Q_theta on the reduced matrix's pattern only
+    sparse = sparse_ap_rows(problem) if n_d else None
+    parts = PointCofactors(problem, Q, full_product=sparse is not None)  # Q_theta on the reduced matrix's pattern only
     Q_diag, L_dd = parts.Q_diag, parts.L_dd
     dense = n_d and not parts.compact                   # compact cameras are part of each observation's block
+    G_sparse = None
+    if sparse is not None:
+        # j_d = [core, a] blockdiag(I, T) with a the sparse rows, T sparse.to_params: j_d Q_dd j_d^T = x G x^T
+        # over each observation's few non-zeros x, G = blockdiag(I, T) Q_dd blockdiag(I, T)^T
+        n_core = problem.cameras[0].n_core
+        T = np.zeros((n_core + sparse.to_params.shape[0], n_d))
+        T[:n_core, :n_core] = np.eye(n_core)
+        T[n_core:, n_core:] = sparse.to_params
+        G_sparse = T @ parts.Q_dd @ T.T
     Q_ed = parts.Q_ed.reshape(n_img, width, n_d) if dense else None
     context = contexts(problem, state)
     h_all = np.zeros((problem.n_image_observations, 2))
@@ -121,11 +131,15 @@ def _image_leverage(problem, state, lin, v_inv, Q, Q_points=None):
             Z = terms.Z.reshape(n_pc, 3, n_d)
             leverage_camera_cross(j_e, j_d, img, ptl, Q_ed, Z, jp_term, h)   # j_e Q_ed terms
             # H_p = Q_dd Z_d(p) + sum over the point's observations of Q_ed(image)^T Z_e, H_p^T stored
-            jp_term += rows_dot_blocks(j_d, ptl, terms.A.reshape(n_pc, 3, n_d))
             if terms.ZL is None:
-                jp_term += rows_dot_blocks(j_d, ptl, (terms.Z @ parts.Q_dd).reshape(n_pc, 3, n_d))
-                h += np.einsum("rd,rd->r", j_d.reshape(2 * m, n_d) @ parts.Q_dd, j_d.reshape(2 * m, n_d)).reshape(m, 2)
+                jp_term += rows_dot_blocks(j_d, ptl, (terms.A + terms.ZQ).reshape(n_pc, 3, n_d))
+                if sparse is None:
+                    h += np.einsum("rd,rd->r", j_d.reshape(2 * m, n_d) @ parts.Q_dd,
+                                   j_d.reshape(2 * m, n_d)).reshape(m, 2)
+                else:
+                    h += _sparse_quadratic(j_d[:, :, :n_core], sparse, cs.o0, cs.o1, G_sparse)
             else:
+                jp_term += rows_dot_blocks(j_d, ptl, terms.A.reshape(n_pc, 3, n_d))
                 # with Q_dd = L L^T: j_d Q_dd Z^T = (j_d L)(Z L)^T and j_d Q_dd j_d^T = |j_d L|^2, two triangular
                 # products instead of a general one and a second pass
                 for XL, ZL in zip(times_lower(j_d.reshape(2 * m, n_d), L_dd), terms.ZL):   # column blocks
@@ -138,6 +152,23 @@ def _image_leverage(problem, state, lin, v_inv, Q, Q_points=None):
 
     over_chunks(list(zip(lin.chunks, structure.chunks, v_inv)), work, lambda: None)
     return h_all, r_all, points
+
+
+def _sparse_quadratic(core: np.ndarray, sparse, o0: int, o1: int, G: np.ndarray) -> np.ndarray:
+    """x G x^T of each x and y row of observations o0:o1, x = [core, sparse values] at the columns
+    [0..n_core), n_core + the raw columns of the observation's pattern: one dense product per pattern and
+    axis over its observations (a few dozen columns each, where j_d has hundreds)."""
+    m, _, n_core = core.shape
+    out = np.empty((m, 2))
+    pattern = sparse.pattern[o0:o1]
+    order = np.argsort(pattern, kind="stable")
+    first = np.flatnonzero(np.r_[True, pattern[order][1:] != pattern[order][:-1]])
+    for rows in np.split(order, first[1:]):
+        for k in range(2):
+            cols = np.concatenate([np.arange(n_core), n_core + sparse.columns[pattern[rows[0]], k]])
+            X = np.concatenate([core[rows, k], sparse.values[o0 + rows, k]], axis=1)
+            out[rows, k] = np.einsum("rd,rd->r", X @ G[np.ix_(cols, cols)], X)
+    return out
 
 
 def observation_tests(result, critical: float = 3.0) -> ObservationTests:
