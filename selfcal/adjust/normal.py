@@ -48,6 +48,7 @@ __all__ = [
     "chunk_rows",
     "evaluate_ap_columns",
     "sparse_ap_rows",
+    "pattern_groups",
     "parameter_observation_groups",
     "parameter_observations",
 ]
@@ -154,6 +155,28 @@ def evaluate_ap_columns(problem: Problem) -> None:
 
 #: observations per block when a camera's AP columns are evaluated
 AP_COLUMN_BLOCK = 8192
+
+
+def pattern_groups(pattern: np.ndarray) -> list[np.ndarray]:
+    """The positions of each pattern's rows in ``pattern`` (a chunk's patterns of :func:`sparse_ap_rows`), one
+    array per pattern present, in pattern order."""
+    order = np.argsort(pattern, kind="stable")
+    first = np.flatnonzero(np.r_[True, pattern[order][1:] != pattern[order][:-1]])
+    return np.split(order, first[1:])
+
+
+def _sparse_gram(sparse, o0: int, o1: int) -> np.ndarray:
+    """The Gram matrix of the sparse rows of observations o0:o1 over the raw columns (n_raw, n_raw): one
+    product per pattern and axis over its few columns."""
+    n_raw = sparse.to_params.shape[0]
+    out = np.zeros((n_raw, n_raw))
+    pattern = sparse.pattern[o0:o1]
+    for rows in pattern_groups(pattern):
+        for k in range(2):
+            cols = sparse.columns[pattern[rows[0]], k]
+            X = sparse.values[o0 + rows, k]
+            out[np.ix_(cols, cols)] += X.T @ X
+    return out
 
 
 def sparse_ap_rows(problem: Problem):
@@ -264,7 +287,7 @@ def carry_ap_columns(problem: Problem, rows: np.ndarray, previous: Problem, prev
         if np.any(ratio != 1.0):
             columns *= ratio[:, :, None]
         problem._ap_columns[(k, free.tobytes())] = columns
-        sparse = previous._ap_columns.get(("sparse", old_k))
+        sparse = (previous._ap_columns.pop if consume else previous._ap_columns.get)(("sparse", old_k), None)
         if sparse is not None and len(problem.cameras) == 1:
             values = sparse.values[take]
             if np.any(ratio != 1.0):
@@ -668,12 +691,18 @@ def linearise(problem: Problem, state: State) -> Linearisation:
         varying = np.arange(n_d)
     gram = problem._ap_gram
     build_gram = gram is None and constant.size > 0
+    # one camera: the AP columns are its sparse rows times a map, where the model gives them so; their Gram
+    # matrix is summed over each row's few raw columns, then mapped (T^T R T)
+    sparse = sparse_ap_rows(problem) if build_gram else None
+    if sparse is not None and not np.array_equal(constant, np.arange(problem.cameras[0].n_core, n_d)):
+        sparse = None
+    gram_size = sparse.to_params.shape[0] if sparse is not None else constant.size
     evaluate_ap_columns(problem)
 
     def new_sums() -> dict:
         return {"U_ee": np.zeros((n_img, width, width)), "U_ed": np.zeros((n_e, n_d)), "U_dd": np.zeros((n_d, n_d)),
                 "g_e": np.zeros((n_img, width)), "g_d": np.zeros(n_d), "cost": np.zeros(1),
-                "gram": np.zeros((constant.size, constant.size)) if build_gram else None}
+                "gram": np.zeros((gram_size, gram_size)) if build_gram else None}
 
     def work(cs, sums: dict) -> ChunkLinearisation:
         p0, p1, o0, o1 = cs.p0, cs.p1, cs.o0, cs.o1
@@ -697,7 +726,8 @@ def linearise(problem: Problem, state: State) -> Linearisation:
                 U_dd[varying, :] += U_vd
                 U_dd[np.ix_(constant, varying)] += U_vd[:, constant].T
                 if build_gram:
-                    sums["gram"] += _gram(j_d.reshape(2 * m, n_d), constant)
+                    sums["gram"] += (_gram(j_d.reshape(2 * m, n_d), constant) if sparse is None else
+                                     _sparse_gram(sparse, o0, o1))
             else:
                 U_dd += U_vd
 
@@ -717,6 +747,8 @@ def linearise(problem: Problem, state: State) -> Linearisation:
     cost = float(cost[0])
     if build_gram:
         gram = sum(part["gram"] for part in parts)
+        if sparse is not None:
+            gram = sparse.to_params.T @ gram @ sparse.to_params
 
     if constant.size:
         if build_gram:

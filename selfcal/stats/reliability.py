@@ -31,7 +31,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import norm
 
-from ..adjust.normal import chunk_rows, contexts, evaluate_ap_columns, parameter_observations, sparse_ap_rows
+from ..adjust.normal import (chunk_rows, contexts, evaluate_ap_columns, parameter_observations, pattern_groups,
+                             sparse_ap_rows)
 from ..adjust.parallel import over_chunks
 from ..adjust.covariance import PointCofactors, times_lower
 from ..adjust.linalg import blas_threads
@@ -161,9 +162,7 @@ def _sparse_quadratic(core: np.ndarray, sparse, o0: int, o1: int, G: np.ndarray)
     m, _, n_core = core.shape
     out = np.empty((m, 2))
     pattern = sparse.pattern[o0:o1]
-    order = np.argsort(pattern, kind="stable")
-    first = np.flatnonzero(np.r_[True, pattern[order][1:] != pattern[order][:-1]])
-    for rows in np.split(order, first[1:]):
+    for rows in pattern_groups(pattern):
         for k in range(2):
             cols = np.concatenate([np.arange(n_core), n_core + sparse.columns[pattern[rows[0]], k]])
             X = np.concatenate([core[rows, k], sparse.values[o0 + rows, k]], axis=1)
