@@ -20,7 +20,7 @@ import numpy as np
 
 __all__ = ["control_on_a_line", "control_far_away", "undetermined_points", "behind_camera",
            "points_not_determined_by_rays", "LINE_FRACTION", "POINT_SIGMA_RATIO", "FAR_FACTOR", "POINT_BLOCK_RCOND",
-           "FREE_POINT_SIGMA_RATIO"]
+           "FREE_POINT_SIGMA_RATIO", "similarity_directions"]
 
 #: control whose RMS distance from its best-fitting line is below this share of the block's extent is on a line
 LINE_FRACTION = 0.01
@@ -159,3 +159,36 @@ def points_not_determined_by_rays(V: np.ndarray, ratio: float = POINT_SIGMA_RATI
         sigma[ok] = np.sqrt(minors[ok] / det[ok])                  # trace(V^-1) = sum of the minors / det
     median = float(np.median(sigma[ok])) if ok.any() else np.inf
     return np.flatnonzero(singular | (sigma > ratio * median)), sigma
+
+
+def similarity_directions(problem, state, lin) -> np.ndarray | None:
+    """(n_theta, 7), or None where an image's block is singular: the directions of theta along which a free network's reduced normal equations are singular,
+    as a shift, a rotation and a change of scale of the object frame move them.
+
+    The points move by t + w x (X - c) + s (X - c) (c their centroid). Each image's parameters move by what keeps
+    its observations where they are: the least-squares fit of its rows of the Jacobian to the points' move,
+    U_ee^-1 sum_o w_e[o] dX (exact wherever the sensor's image parameters absorb a similarity, as a frame
+    camera's position and attitude do). The camera parameters do not move. A guess for
+    :func:`selfcal.adjust.linalg.pseudo_factorise`, which checks it and finds the directions by an
+    eigendecomposition where the guess is not a null space (another sensor, another defect)."""
+    d = state.points - state.points[np.isfinite(state.points).all(axis=1)].mean(axis=0)
+    moves = np.zeros((len(d), 3, 7))                      # per point: dX of each direction
+    moves[:, [0, 1, 2], [0, 1, 2]] = 1.0
+    for j in range(3):
+        axis = np.zeros(3)
+        axis[j] = 1.0
+        moves[:, :, 3 + j] = np.cross(axis, d)
+    moves[:, :, 6] = d
+    moves[~np.isfinite(moves)] = 0.0
+    rhs = np.zeros((problem.n_images, problem.image_width, 7))
+    for ch, cs in zip(lin.chunks, problem.structure().chunks):
+        shifted = ch.w_e @ moves[ch.points[cs.ptl]]                             # (m, width, 7)
+        rhs -= (cs.sum_by_image @ shifted.reshape(len(shifted), -1)).reshape(rhs.shape)
+    try:
+        fitted = np.linalg.solve(lin.U_ee, rhs)
+    except np.linalg.LinAlgError:                         # an image that its observations do not determine
+        return None
+    out = np.zeros((problem.n_theta, 7))
+    out[problem.image_theta().ravel()] = fitted.reshape(-1, 7)
+    return out
+

@@ -235,7 +235,8 @@ def pseudo_factorise(S, null: np.ndarray | None = None, defect_tol: float = DEFE
     of them in S's own units, to pass back as ``null`` in the next iteration.
 
     Without ``null``: a dense eigendecomposition of the scaled S, whose eigenvalues below ``defect_tol`` times
-    the largest are the datum defect. With ``null`` (a basis of the previous iteration's): a Cholesky
+    the largest are the datum defect. With ``null`` (a basis of the previous iteration's, or the similarity's
+    directions, :func:`selfcal.adjust.datum.similarity_directions`): a Cholesky
     factorisation of S_s + Z Z^T, Z that basis orthonormalised in the current scaling, and the solution's Z
     part removed; exact when Z spans S's null space, as (S_s + Z Z^T)^-1 is then S_s's pseudo-inverse on
     Z's complement, where the gradient lies. Ten times cheaper than the eigendecomposition (0.03 s against
