@@ -25,7 +25,8 @@ from .normal import Linearisation
 from .problem import Problem
 from .kernels import add_point_image_products, point_blocks_times, point_cofactor_pairs
 
-__all__ = ["point_cofactors", "PointCofactors", "PointTerms", "image_blocks", "observation_columns", "lower_cholesky", "times_lower"]
+__all__ = ["point_cofactors", "PointCofactors", "PointTerms", "image_blocks", "observation_columns", "lower_cholesky",
+           "times_lower"]
 
 
 def image_blocks(Q, problem: Problem, columns: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:

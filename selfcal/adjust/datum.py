@@ -9,6 +9,8 @@
   start values: observations of a point behind its camera (a central projection still gives them a residual,
   through the mirrored point), and points whose rays alone do not fix them (their 3 x 3 block of the normal
   equations near-singular, or their sigma with the orientations held orders of magnitude above the median).
+* :func:`similarity_directions` — a free network's datum directions (a shift, rotation and scale of the object
+  frame) in the reduced unknowns, the first guess of its minimum-norm steps.
 
 The weakly determined *parameters* are :func:`selfcal.adjust.weakly_determined`'s, and exactly singular
 directions :func:`selfcal.adjust.linalg.null_directions`'; these two add what the normal equations hide when
@@ -162,8 +164,9 @@ def points_not_determined_by_rays(V: np.ndarray, ratio: float = POINT_SIGMA_RATI
 
 
 def similarity_directions(problem, state, lin) -> np.ndarray | None:
-    """(n_theta, 7), or None where an image's block is singular: the directions of theta along which a free network's reduced normal equations are singular,
-    as a shift, a rotation and a change of scale of the object frame move them.
+    """(n_theta, 7): the directions of theta along which a free network's reduced normal equations are singular,
+    as a shift, a rotation and a change of scale of the object frame move them; None where an image's block is
+    singular.
 
     The points move by t + w x (X - c) + s (X - c) (c their centroid). Each image's parameters move by what keeps
     its observations where they are: the least-squares fit of its rows of the Jacobian to the points' move,
