@@ -78,6 +78,11 @@ class Calibration:
         if len(values) != ap.n_params:
             raise ValueError(f"camera {camera_id}: {len(values)} AP coefficients for {ap.spec}, which has "
                              f"{ap.n_params}")
+        written = [c.get("name") for c in entry["ap"]["coefficients"]]
+        wrong = next((k for k, name in enumerate(written) if name is not None and name != ap.parameter_names[k]), None)
+        if wrong is not None:
+            raise ValueError(f"camera {camera_id}: AP coefficient {wrong + 1} is '{written[wrong]}', but {ap.spec} "
+                             f"rebuilt from the file has '{ap.parameter_names[wrong]}' there")
         names = ("c", "x0", "y0") + tuple(ap.parameter_names)
         covariance = None
         if entry.get("covariance"):

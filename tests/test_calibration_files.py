@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 import yaml
 
-from selfcal.ap import ImageFrame, create_ap
+from selfcal.ap import ImageFrame, ap_from_dict, create_ap
 from selfcal.calibration import Calibration
 from selfcal.calibration_models import MODELS, fit_camera_model
 
@@ -269,6 +269,31 @@ def test_wap_misfit_is_reported_and_warned(tmp_path, capsys):
     # the stated misfit is the real one (measured on the export's 121-node grid, this grid's nodes fall between)
     assert 0.9 * worst < miss.max() <= 1.01 * worst
     assert root.find("covariance") is None and "no covariance" in err
+
+
+def test_wap_calibration_reads_back_the_functions_it_left_out():
+    """The dependent WAP functions are chosen by a pivoted QR among functions whose residual norms tie up to
+    rounding, so another machine may choose others: camera.json names those it left out and a calibration read
+    back keeps exactly the others, in the order of its coefficients. Told another set (as another machine's
+    choice), the model keeps that set; coefficients whose names do not match the rebuilt model, and an unknown
+    function, are errors."""
+    frame = ImageFrame(WIDTH * PIXEL_MM, HEIGHT * PIXEL_MM, PIXEL_MM)
+    ap = create_ap("wavelet:db4", frame, grid=(5, 4))
+    written = ap.to_dict()
+    assert len(written["left_out"]) == written["n_dependent"] > 0
+    values = np.random.default_rng(5).normal(0.0, 1.0, ap.n_params)
+    cal = Calibration.from_camera_json(CAMERA_ID, camera_entry(values, ap=ap))
+    assert cal.ap.parameter_names == ap.parameter_names and np.array_equal(cal.coefficients_px, values)
+    # another machine's choice: its first kept function left out instead of the first one left out here
+    other = dict(written, left_out=[ap.parameter_names[0]] + written["left_out"][1:])
+    theirs = ap_from_dict(other, frame)
+    assert written["left_out"][0] in theirs.parameter_names and ap.parameter_names[0] not in theirs.parameter_names
+    entry = camera_entry(values, ap=ap)
+    entry["ap"]["left_out"] = other["left_out"]                  # the names of the coefficients no longer match
+    with pytest.raises(ValueError, match="AP coefficient 1 is"):
+        Calibration.from_camera_json(CAMERA_ID, entry)
+    with pytest.raises(ValueError, match="unknown function 'ax\\[\\+99"):
+        ap_from_dict(dict(written, left_out=["ax[+99,+0]"]), frame)
 
 
 # --- IN ----------------------------------------------------------------------------------------------------

@@ -152,7 +152,7 @@ class WaveletAP(APModel):
     examples = ("wavelet:db4", "wavelet:sym4", "wavelet:meyer", "wavelet:bl4", "wavelet:sym4+details")
 
     def __init__(self, frame: ImageFrame, wavelet: str, grid: tuple[int, int], ranges: tuple[int, int, int, int],
-                 formulation: str = "scaling"):
+                 formulation: str = "scaling", left_out: list[str] | None = None):
         super().__init__(frame)
         if formulation not in ("scaling", "details"):
             raise ValueError(f"WAP formulation must be 'scaling' or 'details', found '{formulation}'")
@@ -179,14 +179,23 @@ class WaveletAP(APModel):
                 prefix = f"a{axis}" if part == "phi" else f"a{axis}{part}"
                 kxs, kys = uses[part]
                 names += [f"{prefix}[{kx:+d},{ky:+d}]" for ky in kys for kx in kxs]
-        self._kept, self._field_projection = self._orthogonalise()
+        if left_out is None:
+            self._kept, self._field_projection = self._orthogonalise()
+        else:
+            # as written by to_dict: the pivots among (nearly) tied functions depend on the rounding of the machine
+            # that chose them, and a file's coefficients are in the order of the functions it kept
+            unknown = sorted(set(left_out) - set(names))
+            if unknown:
+                raise ValueError(f"{self.spec}: unknown function '{unknown[0]}' among those left out")
+            self._kept, self._field_projection = self._orthogonalise(~np.isin(names, left_out))
         self._names = [n for n, k in zip(names, self._kept) if k]
+        self._left_out = [n for n, k in zip(names, self._kept) if not k]
 
-    def _orthogonalise(self) -> tuple[np.ndarray, np.ndarray]:
+    def _orthogonalise(self, kept: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Which raw basis functions are kept (bool, n), and the coefficients M (6, n_kept) of the
         least-squares projection of each kept function on the camera fields over a
         dense midpoint sample of the frame. Functions are left out when the orthogonalised basis
-        is (nearly) dependent with them."""
+        is (nearly) dependent with them, unless ``kept`` says which (a model read from a file)."""
         gx, gy = self.grid
         nx, ny = ORTHO_SAMPLES * gx, ORTHO_SAMPLES * gy
         x = (np.arange(nx) + 0.5) / nx * self.frame.width_mm - 0.5 * self.frame.width_mm
@@ -196,6 +205,8 @@ class WaveletAP(APModel):
         Fx, Fy = _camera_fields(self.frame, xs, ys)
         B, F = np.vstack([Bx, By]), np.vstack([Fx, Fy])
         M = np.linalg.solve(F.T @ F, F.T @ B)
+        if kept is not None:
+            return kept, M[:, kept]
         # each camera field the raw span reproduces costs one dimension. B is block diagonal with the
         # same scalar basis in both blocks: the fit separates into one for x and one for y (8x fewer flops)
         scalar = Bx[:, :Bx.shape[1] // 2]
@@ -346,12 +357,13 @@ class WaveletAP(APModel):
     def to_dict(self) -> dict:
         return {"spec": self.spec, "wavelet": self.wavelet.name, "grid": list(self.grid),
                 "ranges": list(self.ranges), "formulation": self.formulation,
-                "truncation": self.wavelet.threshold, "n_dependent": int((~self._kept).sum())}
+                "truncation": self.wavelet.threshold, "n_dependent": int((~self._kept).sum()),
+                "left_out": list(self._left_out)}
 
     @classmethod
     def from_dict(cls, data: dict, frame: ImageFrame) -> "WaveletAP":
         return cls(frame, data["wavelet"], tuple(data["grid"]), tuple(data["ranges"]),
-                   data.get("formulation", "scaling"))
+                   data.get("formulation", "scaling"), data.get("left_out"))
 
     @classmethod
     def check_option(cls, option) -> None:
