@@ -69,3 +69,22 @@ def test_unknown_names_are_rejected():
         get_wavelet("haar2")
     with pytest.raises(ValueError, match="PyWavelets has no"):
         get_wavelet("db99")
+
+
+@pytest.mark.parametrize("name", ["db4", "sym4", "meyer", "bl4"])
+def test_evaluation_gives_np_interp_bits(name):
+    """phi, psi and their derivatives find each point's interval by index arithmetic: the values are np.interp's
+    to the last bit (the WAP basis' choice of its dependent functions rounds like its sample), also at the
+    table's nodes, one ulp either side of them, outside the table and in any shape."""
+    w = get_wavelet(name)
+    rng = np.random.default_rng(7)
+    x = w.x
+    t = np.concatenate([rng.uniform(x[0] - 2, x[-1] + 2, 200_000), x[::7], x[::7] + STEP / 3,
+                        np.nextafter(x[::7], -np.inf), np.nextafter(x[::7], np.inf), x[[0, -1]],
+                        rng.uniform(-1, 1, 20_000) * STEP, [np.inf, -np.inf]])
+    for function, table in ((w.phi, w.phi_table), (w.psi, w.psi_table), (w.dphi, w.dphi_table),
+                            (w.dpsi, w.dpsi_table)):
+        want = np.interp(t, x, table, left=0.0, right=0.0)
+        np.testing.assert_array_equal(function(t), want)
+        np.testing.assert_array_equal(function(t[:12].reshape(3, 4)), want[:12].reshape(3, 4))
+        assert function(float(t[5])) == want[5]

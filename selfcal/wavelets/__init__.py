@@ -70,19 +70,44 @@ class OrthogonalWavelet:
 
     def phi(self, t) -> np.ndarray:
         """Scaling function at points t (0 outside the table)."""
-        return np.interp(t, self.x, self.phi_table, left=0.0, right=0.0)
+        return _linear(t, self.x, self.phi_table, self._slopes[0])
 
     def psi(self, t) -> np.ndarray:
         """Wavelet at points t (0 outside the table)."""
-        return np.interp(t, self.x, self.psi_table, left=0.0, right=0.0)
+        return _linear(t, self.x, self.psi_table, self._slopes[1])
 
     def dphi(self, t) -> np.ndarray:
         """Derivative of the scaling function at points t (central differences of the table)."""
-        return np.interp(t, self.x, self.dphi_table, left=0.0, right=0.0)
+        return _linear(t, self.x, self.dphi_table, self._slopes[2])
 
     def dpsi(self, t) -> np.ndarray:
         """Derivative of the wavelet at points t."""
-        return np.interp(t, self.x, self.dpsi_table, left=0.0, right=0.0)
+        return _linear(t, self.x, self.dpsi_table, self._slopes[3])
+
+    @functools.cached_property
+    def _slopes(self) -> tuple[np.ndarray, ...]:
+        """Each table's slope on each interval, as np.interp computes it."""
+        step = self.x[1:] - self.x[:-1]
+        return tuple((v[1:] - v[:-1]) / step for v in (self.phi_table, self.psi_table, self.dphi_table,
+                                                         self.dpsi_table))
+
+
+def _linear(t, x: np.ndarray, values: np.ndarray, slope: np.ndarray) -> np.ndarray:
+    """``np.interp(t, x, values, left=0.0, right=0.0)`` for the x of a table (x0 + j 2^-LEVEL), by the same
+    operations (so to the same bits), with each point's interval found by index arithmetic instead of a
+    binary search: 3x faster (the WAP basis evaluates phi at 13 translations per axis of every observation)."""
+    t = np.asarray(t, float)
+    points = t.reshape(-1)
+    last = len(x) - 2
+    j = np.floor(np.clip((points - x[0]) * (1.0 / (x[1] - x[0])), 0, last)).astype(np.intp)
+    # h is a power of two and x0 + j h exact: only t - x0 rounds, and rounding is monotone, so the index can be
+    # one too large (t just below a node rounded up onto it), never too small
+    j -= points < x[j]
+    np.clip(j, 0, last, out=j)
+    out = slope[j] * (points - x[j]) + values[j]
+    out[(points < x[0]) | (points > x[-1])] = 0.0
+    out[points == x[-1]] = values[-1]
+    return out.reshape(t.shape) if t.ndim else out[0]
 
 
 def _parse(name: str) -> tuple[str, int | None]:
