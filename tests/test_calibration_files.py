@@ -276,7 +276,7 @@ def test_wap_calibration_reads_back_the_functions_it_left_out():
     rounding, so another machine may choose others: camera.json names those it left out and a calibration read
     back keeps exactly the others, in the order of its coefficients. Told another set (as another machine's
     choice), the model keeps that set; coefficients whose names do not match the rebuilt model, and an unknown
-    function, are errors."""
+    function, are errors. A file from before left_out was written keeps the functions its coefficients name."""
     frame = ImageFrame(WIDTH * PIXEL_MM, HEIGHT * PIXEL_MM, PIXEL_MM)
     ap = create_ap("wavelet:db4", frame, grid=(5, 4))
     written = ap.to_dict()
@@ -294,6 +294,15 @@ def test_wap_calibration_reads_back_the_functions_it_left_out():
         Calibration.from_camera_json(CAMERA_ID, entry)
     with pytest.raises(ValueError, match="unknown function 'ax\\[\\+99"):
         ap_from_dict(dict(written, left_out=["ax[+99,+0]"]), frame)
+    # a file from before left_out was written, by the other machine: its coefficients' names say what it kept
+    entry = camera_entry(values, ap=theirs)
+    del entry["ap"]["left_out"]
+    cal = Calibration.from_camera_json(CAMERA_ID, entry)
+    assert cal.ap.parameter_names == theirs.parameter_names and np.array_equal(cal.coefficients_px, values)
+    # and without the names, the model chooses again
+    for coefficient in entry["ap"]["coefficients"]:
+        del coefficient["name"]
+    assert Calibration.from_camera_json(CAMERA_ID, entry).ap.parameter_names == ap.parameter_names
 
 
 # --- IN ----------------------------------------------------------------------------------------------------

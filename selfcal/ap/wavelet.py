@@ -362,8 +362,14 @@ class WaveletAP(APModel):
 
     @classmethod
     def from_dict(cls, data: dict, frame: ImageFrame) -> "WaveletAP":
-        return cls(frame, data["wavelet"], tuple(data["grid"]), tuple(data["ranges"]),
-                   data.get("formulation", "scaling"), data.get("left_out"))
+        args = (frame, data["wavelet"], tuple(data["grid"]), tuple(data["ranges"]), data.get("formulation", "scaling"))
+        left_out = data.get("left_out")
+        written = [c.get("name") for c in data.get("coefficients", ())]
+        if left_out is None and written and all(written):
+            # a camera.json from before left_out was written: its coefficients name the functions it kept
+            every = cls(*args, left_out=[]).parameter_names
+            left_out = [name for name in every if name not in set(written)]
+        return cls(*args, left_out=left_out)
 
     @classmethod
     def check_option(cls, option) -> None:
