@@ -133,7 +133,7 @@ def _image_leverage(problem, state, lin, v_inv, Q, Q_points=None):
             leverage_camera_cross(j_e, j_d, img, ptl, Q_ed, Z, jp_term, h)   # j_e Q_ed terms
             # H_p = Q_dd Z_d(p) + sum over the point's observations of Q_ed(image)^T Z_e, H_p^T stored
             if terms.ZL is None:
-                jp_term += rows_dot_blocks(j_d, ptl, (terms.A + terms.ZQ).reshape(n_pc, 3, n_d))
+                jp_term += rows_dot_blocks(j_d, ptl, terms.H.reshape(n_pc, 3, n_d))
                 if sparse is None:
                     h += np.einsum("rd,rd->r", j_d.reshape(2 * m, n_d) @ parts.Q_dd,
                                    j_d.reshape(2 * m, n_d)).reshape(m, 2)
