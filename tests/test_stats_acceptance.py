@@ -26,23 +26,29 @@ def chk_rmsd(result) -> np.ndarray:
 
 def test_snooping_with_waps_finds_the_blunders():
     """0.3 % blunders of 4-15 px on the local+Brown field: recall >= 95 %, false rejections <= 1 %,
-    and the check-point RMSD within 10 % of the run on the same block without the blunders."""
-    sim = simulation(seed=1, distortion="local+brown", blunder_rate=0.003)
-    block = pruned(sim, "type3")
-    tests = (SnoopingOptions(3.0), ScreeningOptions())
-    tested = adjust_with_tests(block, WAP, *tests)
-    used = set(tested.result.block.observations.row.tolist())
-    blunders = set(sim.truth.blunder_obs.tolist())
-    assert len(blunders) > 200
-    recall = len(blunders - used) / len(blunders)
-    false = len(set(block.observations.row.tolist()) - used - blunders) / len(block.observations)
-    assert recall >= 0.95 and false <= 0.01, (recall, false)
-    # the blunder-free run: the same noise, the blundered observations taken out
-    clean_obs = np.flatnonzero(~np.isin(block.observations.row, sim.truth.blunder_obs))
-    clean = prune(replace(block, observations=block.observations.take(clean_obs)))
-    reference = adjust_with_tests(clean, WAP, *tests)
-    assert np.all(chk_rmsd(tested.result) <= 1.10 * chk_rmsd(reference.result)), (
-        chk_rmsd(tested.result), chk_rmsd(reference.result))
+    and the check-point RMSD within 10 % of the run on the same block without the blunders, pooled over eight
+    seeds (12 check points each). One seed alone ranged 0.96-1.19 in height over equally valid choices of the
+    WAP functions left out as dependent (which LAPACK's pivoted QR made by the rounding of the machine); pooled
+    over the eight, two of those choices gave 1.00 and 1.03."""
+    squares = np.zeros((2, 2))                   # (with blunders, without) x (XY, Z)
+    for seed in range(1, 9):
+        # (not kept in the simulations' cache: eight blocks of 80,000 observations)
+        sim = simulation.__wrapped__(seed=seed, distortion="local+brown", blunder_rate=0.003)
+        block = pruned(sim, "type3")
+        tests = (SnoopingOptions(3.0), ScreeningOptions())
+        tested = adjust_with_tests(block, WAP, *tests)
+        used = set(tested.result.block.observations.row.tolist())
+        blunders = set(sim.truth.blunder_obs.tolist())
+        assert len(blunders) > 200
+        recall = len(blunders - used) / len(blunders)
+        false = len(set(block.observations.row.tolist()) - used - blunders) / len(block.observations)
+        assert recall >= 0.95 and false <= 0.01, (seed, recall, false)
+        # the blunder-free run: the same noise, the blundered observations taken out
+        clean_obs = np.flatnonzero(~np.isin(block.observations.row, sim.truth.blunder_obs))
+        clean = prune(replace(block, observations=block.observations.take(clean_obs)))
+        reference = adjust_with_tests(clean, WAP, *tests)
+        squares += np.array([chk_rmsd(tested.result), chk_rmsd(reference.result)]) ** 2
+    assert np.all(squares[0] <= 1.10 ** 2 * squares[1]), np.sqrt(squares / 8)
 
 
 def test_screening_of_waps_on_the_brown_field():

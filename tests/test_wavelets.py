@@ -74,8 +74,8 @@ def test_unknown_names_are_rejected():
 @pytest.mark.parametrize("name", ["db4", "sym4", "meyer", "bl4"])
 def test_evaluation_gives_np_interp_bits(name):
     """phi, psi and their derivatives find each point's interval by index arithmetic: the values are np.interp's
-    to the last bit (the WAP basis' choice of its dependent functions rounds like its sample), also at the
-    table's nodes, one ulp either side of them, outside the table and in any shape."""
+    to the last bit, also at the table's nodes, one ulp either side of them, outside the table and in any
+    shape."""
     w = get_wavelet(name)
     rng = np.random.default_rng(7)
     x = w.x

@@ -335,7 +335,7 @@ def _adjust(block: Block, options: AdjustOptions, progress, start, free, ap_mode
         return problem, state, notes
 
     problem, state, notes = setup(block, start, ap_models)
-    # small blocks on one BLAS thread from here on; the AP basis above keeps them all (a WAP basis's pivoted QR)
+    # small blocks on one BLAS thread from here on; the AP basis above keeps them all (a WAP basis's frame sample)
     threads.enter_context(blas_threads(len(block.images)))
     solver_options = options.solver
     free_network = block.datum == "free" or solver_options.free_network

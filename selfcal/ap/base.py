@@ -23,7 +23,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["ImageFrame", "APModel", "SparseBasis", "parse_ap_spec"]
+__all__ = ["ImageFrame", "APModel", "SparseBasis", "parse_ap_spec", "independent_functions", "TIE_TOLERANCE"]
+
+#: two functions whose norms orthogonal to the ones kept so far agree to this share are tied
+#: (:func:`independent_functions`); rounding moves them by about 1e-13
+TIE_TOLERANCE = 1e-9
 
 
 @dataclass(frozen=True)
@@ -60,6 +64,37 @@ class SparseBasis:
         np.add.at(raw, (np.arange(n)[:, None, None], np.arange(2)[None, :, None], self.columns[self.pattern]),
                   self.values)
         return raw[:, 0] @ self.to_params, raw[:, 1] @ self.to_params
+
+
+def independent_functions(gram: np.ndarray, n_dependent: int) -> np.ndarray:
+    """Which of n functions to keep (bool, n) when ``n_dependent`` of them are (nearly) dependent on the others.
+
+    ``gram`` is their (n, n) Gram matrix. The functions are scaled to unit norm and orthogonalised greedily:
+    each step keeps the function with the largest norm orthogonal to those kept so far (a pivoted Cholesky
+    factorisation of the Gram matrix), and the last ``n_dependent`` are left out. Norms that agree to
+    :data:`TIE_TOLERANCE` are tied, and the function listed first is kept. In exact arithmetic LAPACK's pivoted
+    QR (geqp3, which also takes the first of equal norms) chooses the same functions. In floating point its
+    choice among functions whose norms tie up to rounding depends on the machine's BLAS and the order of its
+    sums; this choice does not, so an adjustment names the same parameters on every machine."""
+    n = gram.shape[0]
+    kept = np.zeros(n, bool)
+    n_kept = n - max(int(n_dependent), 0)
+    norms = np.sqrt(np.maximum(np.diag(gram), 0.0))
+    scale = np.where(norms > 0, 1.0 / np.where(norms > 0, norms, 1.0), 0.0)
+    G = gram * scale[:, None] * scale[None, :]
+    remaining = np.diag(G).copy()               # squared norms orthogonal to the kept functions
+    L = np.zeros((n, n_kept))
+    for step in range(n_kept):
+        candidates = np.where(kept, -np.inf, remaining)
+        best = candidates.max()
+        j = int(np.flatnonzero(candidates >= best * (1.0 - TIE_TOLERANCE))[0])
+        kept[j] = True
+        if best <= 0.0:
+            continue
+        column = (G[:, j] - L[:, :step] @ L[j, :step]) / np.sqrt(best)
+        L[:, step] = column
+        remaining -= column * column
+    return kept
 
 
 def parse_ap_spec(spec: str) -> tuple[str, str | None]:

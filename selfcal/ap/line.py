@@ -17,7 +17,8 @@ Datum: a constant and a linear function along the line are in the span of every 
 line (a constant along-track offset is pitch, along-track linear yaw, across-track constant roll,
 across-track linear the focal length). Every basis function is therefore made orthogonal, over
 the line, to {1, s} (s = (col - centre) / columns), as the frame WAPs are to the camera fields,
-and the functions that become dependent are left out (pivoted QR of the sampled basis,
+and the functions that become dependent are left out (the last of a greedy orthogonalisation of the
+sampled basis, ties to the first listed: :func:`selfcal.ap.base.independent_functions`;
 ``REPRODUCTION_TOLERANCE``). The attitude keeps the constant and linear parts.
 """
 from __future__ import annotations
@@ -25,16 +26,16 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-import scipy.linalg
 
 from ..wavelets import check_wavelet_name, get_wavelet
+from .base import independent_functions
 
 __all__ = ["LineWaveletAP", "create_line_ap", "SAMPLES_PER_CELL", "REPRODUCTION_TOLERANCE"]
 
 #: the line is sampled this densely (per grid cell) for the orthogonalisation
 SAMPLES_PER_CELL = 64
 #: a field of {1, s} that the raw basis reproduces to this relative RMS over the line makes one
-#: orthogonalised function (nearly) dependent: the last pivot of a pivoted QR is left out for it
+#: orthogonalised function (nearly) dependent: the last of a greedy orthogonalisation is left out for it
 REPRODUCTION_TOLERANCE = 0.01
 
 
@@ -137,8 +138,6 @@ def create_line_ap(spec: str, columns: int, center_col: float, chip_starts=(), g
     fit = np.linalg.lstsq(raw, F, rcond=None)[0]
     misfit = np.linalg.norm(F - raw @ fit, axis=0) / np.linalg.norm(F, axis=0)
     n_dependent = int(np.sum(misfit < REPRODUCTION_TOLERANCE))
-    orthogonal /= np.maximum(np.linalg.norm(orthogonal, axis=0), np.finfo(float).tiny)
-    pivots = scipy.linalg.qr(orthogonal, mode="r", pivoting=True)[1]
-    keep = np.sort(pivots[:len(pivots) - n_dependent])
+    keep = np.flatnonzero(independent_functions(orthogonal.T @ orthogonal, n_dependent))
     return LineWaveletAP(name, int(columns), float(center_col), chips, cells, translations, keep, projection)
 

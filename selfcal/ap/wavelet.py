@@ -46,9 +46,11 @@ over the frame, to these six fields F:
 computed once from a dense sample of the frame (``ORTHO_SAMPLES``). When the
 translations cover the frame, the raw span contains those fields (exactly or
 to a fraction of a percent at the edges) and as many orthogonalised functions
-become (near) combinations of the others; the last pivots of a pivoted QR of
-the sampled basis are left out (``n_dependent`` in :meth:`WaveletAP.to_dict`,
-usually 6). The construction depends only on the frame, the wavelet, the grid
+become (near) combinations of the others; the last functions of a greedy
+orthogonalisation of the sampled basis are left out (``n_dependent`` in
+:meth:`WaveletAP.to_dict`, usually 6), the first listed of tied ones kept
+(:func:`selfcal.ap.base.independent_functions`: the same choice on every
+machine). The construction depends only on the frame, the wavelet, the grid
 and the ranges, so it is recreated exactly when a model is reloaded. The
 correction field keeps every local shape of the wavelets, c, x0, y0 stay
 estimable and the attitudes are fixed by the block, not by the APs. What the
@@ -63,10 +65,9 @@ values of Table 4 of seed 000 are not reproduced.
 from __future__ import annotations
 
 import numpy as np
-import scipy.linalg
 
 from ..wavelets import check_wavelet_name, get_wavelet
-from .base import APModel, ImageFrame, SparseBasis
+from .base import APModel, ImageFrame, SparseBasis, independent_functions
 
 __all__ = ["WaveletAP", "MIN_OBSERVATIONS"]
 
@@ -182,8 +183,8 @@ class WaveletAP(APModel):
         if left_out is None:
             self._kept, self._field_projection = self._orthogonalise()
         else:
-            # as written by to_dict: the pivots among (nearly) tied functions depend on the rounding of the machine
-            # that chose them, and a file's coefficients are in the order of the functions it kept
+            # as written by to_dict: a file's coefficients are in the order of the functions it kept (and a file
+            # from before the choice was made the same on every machine may have kept others)
             unknown = sorted(set(left_out) - set(names))
             if unknown:
                 raise ValueError(f"{self.spec}: unknown function '{unknown[0]}' among those left out")
@@ -201,26 +202,31 @@ class WaveletAP(APModel):
         x = (np.arange(nx) + 0.5) / nx * self.frame.width_mm - 0.5 * self.frame.width_mm
         y = (np.arange(ny) + 0.5) / ny * self.frame.height_mm - 0.5 * self.frame.height_mm
         xs, ys = (a.ravel() for a in np.meshgrid(x, y))
-        Bx, By = self._raw_basis(xs, ys)
+        # the raw basis is [B, 0] in the x rows and [0, B] in the y rows, with one scalar basis B
+        scalar = self._blocks(*self._domain(xs, ys))
         Fx, Fy = _camera_fields(self.frame, xs, ys)
-        B, F = np.vstack([Bx, By]), np.vstack([Fx, Fy])
-        M = np.linalg.solve(F.T @ F, F.T @ B)
+        fields_raw = np.hstack([Fx.T @ scalar, Fy.T @ scalar])                   # F^T [B_x; B_y], (6, n)
+        M = np.linalg.solve(Fx.T @ Fx + Fy.T @ Fy, fields_raw)
         if kept is not None:
             return kept, M[:, kept]
-        # each camera field the raw span reproduces costs one dimension. B is block diagonal with the
-        # same scalar basis in both blocks: the fit separates into one for x and one for y (8x fewer flops)
-        scalar = Bx[:, :Bx.shape[1] // 2]
+        # each camera field the raw span reproduces costs one dimension. The fit separates into one for x and
+        # one for y (8x fewer flops)
         fit = np.linalg.lstsq(scalar, np.hstack([Fx, Fy]), rcond=None)[0]
         n_fields = Fx.shape[1]
         misfit = np.hypot(np.linalg.norm(Fx - scalar @ fit[:, :n_fields], axis=0),
-                          np.linalg.norm(Fy - scalar @ fit[:, n_fields:], axis=0)) / np.linalg.norm(F, axis=0)
+                          np.linalg.norm(Fy - scalar @ fit[:, n_fields:], axis=0)) / np.hypot(
+                              np.linalg.norm(Fx, axis=0), np.linalg.norm(Fy, axis=0))
         n_dependent = int(np.sum(misfit < REPRODUCTION_TOLERANCE))
-        kept = np.ones(B.shape[1], bool)
+        kept = np.ones(2 * scalar.shape[1], bool)
         if n_dependent:
-            A = B - F @ M
-            A /= np.maximum(np.linalg.norm(A, axis=0), np.finfo(float).tiny)
-            pivots = scipy.linalg.qr(A, mode="r", pivoting=True)[1]
-            kept[pivots[len(pivots) - n_dependent:]] = False
+            # the Gram matrix of the raw functions less their projection on the fields, A = B - F M:
+            # A^T A = B^T B - (F^T B)^T M, and B^T B is block diagonal with the scalar basis' Gram matrix twice
+            n = scalar.shape[1]
+            gram = -fields_raw.T @ M
+            own = scalar.T @ scalar
+            gram[:n, :n] += own
+            gram[n:, n:] += own
+            kept = independent_functions(gram, n_dependent)
         return kept, M[:, kept]
 
     @property
@@ -257,20 +263,6 @@ class WaveletAP(APModel):
                 cache[("y", sy)] = self._factors(yw, kys, fy[sy])
             out.append((cache[("y", sy)][:, :, None] * cache[("x", sx)][:, None, :]).reshape(n, -1))
         return np.concatenate(out, axis=1)
-
-    def _raw_basis(self, x_mm, y_mm, kept_only: bool = False):
-        """The raw x and y displacement columns: [B, 0] and [0, B] (only the kept functions if asked)."""
-        xw, yw = self._domain(x_mm, y_mm)
-        B = self._blocks(xw, yw)
-        n = B.shape[1]
-        keep_x, keep_y = (self._kept[:n], self._kept[n:]) if kept_only else (slice(None), slice(None))
-        Bx_part, By_part = B[:, keep_x], B[:, keep_y]
-        n_x = Bx_part.shape[1]
-        Bx = np.zeros((B.shape[0], n_x + By_part.shape[1]))
-        By = np.zeros_like(Bx)
-        Bx[:, :n_x] = Bx_part
-        By[:, n_x:] = By_part
-        return Bx, By
 
     def basis(self, x_mm, y_mm):
         x_mm, y_mm = np.asarray(x_mm, float), np.asarray(y_mm, float)
