@@ -140,6 +140,9 @@ def test_independent_functions_keep_the_first_of_tied_ones():
     np.testing.assert_array_equal(kept, [True, True, False, True, False, False])
     noise = 1.0 + 1e-13 * np.random.default_rng(1).standard_normal(gram.shape)
     np.testing.assert_array_equal(independent_functions(gram * (noise + noise.T) / 2, 3), kept)
+    # asked to keep more than are independent: the first listed of the dependent ones, whose remaining norms are
+    # rounding (of either sign)
+    assert independent_functions(gram, 1).sum() == 5 and independent_functions(gram, 0).all()
 
 
 @pytest.mark.parametrize("spec", ["wavelet:sym4", "wavelet:db4", "wavelet:meyer", "wavelet:bl4"])

@@ -25,7 +25,7 @@ import numpy as np
 
 __all__ = ["ImageFrame", "APModel", "SparseBasis", "parse_ap_spec", "independent_functions", "TIE_TOLERANCE"]
 
-#: two functions whose norms orthogonal to the ones kept so far agree to this share are tied
+#: two functions whose squared norms orthogonal to the ones kept so far agree to this share are tied
 #: (:func:`independent_functions`); rounding moves them by about 1e-13
 TIE_TOLERANCE = 1e-9
 
@@ -71,14 +71,16 @@ def independent_functions(gram: np.ndarray, n_dependent: int) -> np.ndarray:
 
     ``gram`` is their (n, n) Gram matrix. The functions are scaled to unit norm and orthogonalised greedily:
     each step keeps the function with the largest norm orthogonal to those kept so far (a pivoted Cholesky
-    factorisation of the Gram matrix), and the last ``n_dependent`` are left out. Norms that agree to
-    :data:`TIE_TOLERANCE` are tied, and the function listed first is kept. In exact arithmetic LAPACK's pivoted
+    factorisation of the Gram matrix), and the last ``n_dependent`` are left out. Squared norms that agree to
+    :data:`TIE_TOLERANCE` (relative) are tied, and the function listed first is kept. In exact arithmetic LAPACK's pivoted
     QR (geqp3, which also takes the first of equal norms) chooses the same functions. In floating point its
     choice among functions whose norms tie up to rounding depends on the machine's BLAS and the order of its
     sums; this choice does not, so an adjustment names the same parameters on every machine."""
     n = gram.shape[0]
-    kept = np.zeros(n, bool)
     n_kept = n - max(int(n_dependent), 0)
+    if n_kept >= n:
+        return np.ones(n, bool)
+    kept = np.zeros(n, bool)
     norms = np.sqrt(np.maximum(np.diag(gram), 0.0))
     scale = np.where(norms > 0, 1.0 / np.where(norms > 0, norms, 1.0), 0.0)
     G = gram * scale[:, None] * scale[None, :]
@@ -87,7 +89,7 @@ def independent_functions(gram: np.ndarray, n_dependent: int) -> np.ndarray:
     for step in range(n_kept):
         candidates = np.where(kept, -np.inf, remaining)
         best = candidates.max()
-        j = int(np.flatnonzero(candidates >= best * (1.0 - TIE_TOLERANCE))[0])
+        j = int(np.flatnonzero(candidates >= best - TIE_TOLERANCE * abs(best))[0])
         kept[j] = True
         if best <= 0.0:
             continue
