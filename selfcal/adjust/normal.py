@@ -126,7 +126,6 @@ def _camera_jacobian(problem: Problem, k: int) -> np.ndarray:
         # np.empty, then every entry written: calloc's lazily zeroed pages take no transparent huge
         # pages, and faulting in hundreds of MB of 4 KiB pages costs more than the writes
         columns = np.empty((mine.size, 2, nc + n_free))
-        columns[:, :, :nc] = 0.0
         if n_free and mine.size:
             bound = _bound_of(problem, mine)
 
@@ -134,13 +133,16 @@ def _camera_jacobian(problem: Problem, k: int) -> np.ndarray:
             # size), the blocks on the threads of a pass (the wavelets' table look-ups release the interpreter lock)
             def evaluate(start: int, _) -> None:
                 o = mine[start:start + AP_COLUMN_BLOCK]
-                part = columns[start:start + o.size, :, nc:]
+                columns[start:start + o.size, :, :nc] = 0.0       # the core slots: the block's pages are first
+                part = columns[start:start + o.size, :, nc:]     # touched on its thread, not all on one
                 if free.all():
                     bound.ap_columns(k, o, cam.ap, out=part)           # written in place, then whitened
                     part /= problem.obs_sigma[o][:, :, None]
                 else:
                     np.divide(bound.ap_columns(k, o, cam.ap)[:, :, free], problem.obs_sigma[o][:, :, None], out=part)
             over_chunks(range(0, mine.size, AP_COLUMN_BLOCK), evaluate, lambda: None)
+        else:
+            columns[:, :, :nc] = 0.0
         problem._ap_columns[key] = columns
     return columns
 
@@ -199,14 +201,16 @@ def sparse_ap_rows(problem: Problem):
 
         def evaluate(start: int, _) -> None:
             part = o[start:start + AP_COLUMN_BLOCK]
-            parts[start] = bound.sparse_ap_columns(0, part, cam.ap)
+            rows = parts[start] = bound.sparse_ap_columns(0, part, cam.ap)
+            if rows is not None:
+                np.divide(rows.values, problem.obs_sigma[part][:, :, None], out=rows.values)   # whitened here
         if bound is not None:
             over_chunks(range(0, o.size, AP_COLUMN_BLOCK), evaluate, lambda: None)
         blocks = [parts[start] for start in sorted(parts)]
         sparse = None
         if blocks and all(b is not None for b in blocks):
             sparse = replace(blocks[0], pattern=np.concatenate([b.pattern for b in blocks]),
-                             values=np.concatenate([b.values for b in blocks]) / problem.obs_sigma[:, :, None])
+                             values=np.concatenate([b.values for b in blocks]))
         problem._ap_columns[key] = sparse
     sparse = problem._ap_columns[key]
     if sparse is None:
