@@ -133,8 +133,9 @@ def _camera_jacobian(problem: Problem, k: int) -> np.ndarray:
             # size), the blocks on the threads of a pass (the wavelets' table look-ups release the interpreter lock)
             def evaluate(start: int, _) -> None:
                 o = mine[start:start + AP_COLUMN_BLOCK]
-                columns[start:start + o.size, :, :nc] = 0.0       # the core slots: the block's pages are first
-                part = columns[start:start + o.size, :, nc:]     # touched on its thread, not all on one
+                # the core slots too: each block's pages are first touched on its own thread, not all on one
+                columns[start:start + o.size, :, :nc] = 0.0
+                part = columns[start:start + o.size, :, nc:]
                 if free.all():
                     bound.ap_columns(k, o, cam.ap, out=part)           # written in place, then whitened
                     part /= problem.obs_sigma[o][:, :, None]
