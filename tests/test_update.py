@@ -183,3 +183,20 @@ def test_touched_points_are_intersected_again(previous):
     assert np.max(np.abs(state.points[points] - previous.state.points[points]) / sigma) < 1e-3
     untouched = np.setdiff1d(np.arange(problem.n_points), points)
     np.testing.assert_array_equal(state.points[untouched], previous.state.points[untouched])
+
+
+def test_row_positions_finds_each_kept_observation_or_declines():
+    """The previous position of each observation a re-adjustment keeps (rows in any order, as in a problem's),
+    and None when the previous rows repeat one or a kept row was not among them."""
+    from selfcal.adjust.problem import row_positions
+    rng = np.random.default_rng(2)
+    old = rng.permutation(5000)[:4000]
+    new = rng.choice(old, 3000, replace=False)
+    where = row_positions(old, new)
+    np.testing.assert_array_equal(old[where], new)
+    assert row_positions(np.array([4, 2, 2]), np.array([4])) is None            # a repeated row
+    assert row_positions(np.array([4, 2, 3]), np.array([5])) is None            # beyond the previous rows
+    assert row_positions(np.array([4, 2, 3]), np.array([1])) is None            # below them
+    assert row_positions(np.array([4, 2, 3]), np.array([-1])) is None
+    assert row_positions(np.zeros(0, np.int64), np.array([1])) is None
+    assert row_positions(np.array([4]), np.zeros(0, np.int64)).size == 0

@@ -947,16 +947,20 @@ def back_substitute(problem: Problem, lin: Linearisation, v_inv: list, d_theta: 
     d_e = d_theta[:n_e].reshape(-1, problem.image_width)
     d_d = d_theta[n_e:n_e + n_d]
     d_p = np.zeros((problem.n_points, 3))
-    for ch, Vi in zip(lin.chunks, v_inv):
+    columns = problem.camera_columns() if n_d else None
+
+    def work(chunk, _) -> None:                 # each chunk writes its own points
+        ch, Vi = chunk
         img = problem.obs_image[ch.o0:ch.o1]
         starts = problem.point_start[ch.p0:ch.p1] - ch.o0
         wt = np.add.reduceat(np.einsum("oik,oi->ok", ch.w_e, d_e[img]), starts, axis=0)
         if n_d and ch.w_d is not None:
-            d_own = np.append(d_d, 0.0)[problem.camera_columns()[problem.image_camera[img]]]   # -1 pads: 0
+            d_own = np.append(d_d, 0.0)[columns[problem.image_camera[img]]]   # -1 pads: 0
             wt += np.add.reduceat(np.einsum("okc,oc->ok", ch.w_d, d_own), starts, axis=0)
         elif n_d:
             wt += (ch.W_pd @ d_d).reshape(-1, 3)
         d_p[ch.points] = np.einsum("pij,pj->pi", Vi, ch.g_p - wt)
+    over_chunks(list(zip(lin.chunks, v_inv)), work, lambda: None)
     return d_p
 
 

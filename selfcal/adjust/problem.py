@@ -423,14 +423,22 @@ def _point_order(image_index: np.ndarray, point_index: np.ndarray, n_points: int
 
 def row_positions(old_rows: np.ndarray, new_rows: np.ndarray) -> np.ndarray | None:
     """The position in ``old_rows`` of each of ``new_rows`` (observations named by their block row, ``row``), or
-    None when ``old_rows`` repeat a row or a new row is not among them (not a subset of the old observations)."""
+    None when ``old_rows`` repeat a row or a new row is not among them (not a subset of the old observations).
+
+    A row is a position in the block as read, so a table over the rows is no larger than that block: one scatter
+    and one gather (a sort and a binary search of 80,000 rows took 6 ms, in every re-adjustment three times)."""
     if not len(old_rows):
         return None if len(new_rows) else np.zeros(0, np.int64)
-    order = np.argsort(old_rows, kind="stable")
-    if np.any(np.diff(old_rows[order]) == 0):
+    if old_rows.min() < 0 or (len(new_rows) and new_rows.min() < 0):
         return None
-    where = order[np.minimum(np.searchsorted(old_rows, new_rows, sorter=order), len(old_rows) - 1)]
-    return where if np.array_equal(old_rows[where], new_rows) else None
+    size = int(max(old_rows.max(), new_rows.max() if len(new_rows) else 0)) + 1
+    table = np.full(size, -1, np.int64)
+    position = np.arange(len(old_rows))
+    table[old_rows] = position
+    if not np.array_equal(table[old_rows], position):               # a row repeated: the last one stayed
+        return None
+    where = table[new_rows]
+    return None if len(where) and where.min() < 0 else where
 
 
 def inherited_point_key(block: Block, previous_block: Block, previous: "Problem") -> np.ndarray | None:
