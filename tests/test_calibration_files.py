@@ -274,9 +274,10 @@ def test_wap_misfit_is_reported_and_warned(tmp_path, capsys):
 def test_wap_calibration_reads_back_the_functions_it_left_out():
     """The dependent WAP functions were chosen by a pivoted QR among functions whose residual norms tie up to
     rounding, so a file from another machine or an older version may have left out others: camera.json names
-    those it left out and a calibration read back keeps exactly the others, in the order of its coefficients. Told another set (as another machine's
-    choice), the model keeps that set; coefficients whose names do not match the rebuilt model, and an unknown
-    function, are errors. A file from before left_out was written keeps the functions its coefficients name."""
+    those it left out and a calibration read back keeps exactly the others, in the order of its coefficients.
+    Told another set (as another machine's choice), the model keeps that set; coefficients whose names do not
+    match the rebuilt model, and an unknown function, are errors. A file from before left_out was written keeps
+    the functions its coefficients name."""
     frame = ImageFrame(WIDTH * PIXEL_MM, HEIGHT * PIXEL_MM, PIXEL_MM)
     ap = create_ap("wavelet:db4", frame, grid=(5, 4))
     written = ap.to_dict()

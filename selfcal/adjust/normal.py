@@ -202,9 +202,11 @@ def sparse_ap_rows(problem: Problem):
 
         def evaluate(start: int, _) -> None:
             part = o[start:start + AP_COLUMN_BLOCK]
-            rows = parts[start] = bound.sparse_ap_columns(0, part, cam.ap)
+            rows = bound.sparse_ap_columns(0, part, cam.ap)
+            # whitened on the block's thread (a new array: the sensor's may be one it keeps)
             if rows is not None:
-                np.divide(rows.values, problem.obs_sigma[part][:, :, None], out=rows.values)   # whitened here
+                rows = replace(rows, values=rows.values / problem.obs_sigma[part][:, :, None])
+            parts[start] = rows
         if bound is not None:
             over_chunks(range(0, o.size, AP_COLUMN_BLOCK), evaluate, lambda: None)
         blocks = [parts[start] for start in sorted(parts)]

@@ -72,10 +72,10 @@ def independent_functions(gram: np.ndarray, n_dependent: int) -> np.ndarray:
     ``gram`` is their (n, n) Gram matrix. The functions are scaled to unit norm and orthogonalised greedily:
     each step keeps the function with the largest norm orthogonal to those kept so far (a pivoted Cholesky
     factorisation of the Gram matrix), and the last ``n_dependent`` are left out. Squared norms that agree to
-    :data:`TIE_TOLERANCE` (relative) are tied, and the function listed first is kept. In exact arithmetic LAPACK's pivoted
-    QR (geqp3, which also takes the first of equal norms) chooses the same functions. In floating point its
-    choice among functions whose norms tie up to rounding depends on the machine's BLAS and the order of its
-    sums; this choice does not, so an adjustment names the same parameters on every machine."""
+    :data:`TIE_TOLERANCE` (relative) are tied, and the function listed first is kept. In exact arithmetic
+    LAPACK's pivoted QR (geqp3, which also takes the first of equal norms) chooses the same functions. In
+    floating point its choice among functions whose norms tie up to rounding depends on the machine's BLAS and
+    the order of its sums; this choice does not, so an adjustment names the same parameters on every machine."""
     n = gram.shape[0]
     n_kept = n - max(int(n_dependent), 0)
     if n_kept >= n:
