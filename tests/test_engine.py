@@ -348,6 +348,26 @@ def test_leverages_through_the_sparse_wavelet_rows_equal_the_dense_ones(monkeypa
     np.testing.assert_allclose(points_sparse, points_dense, rtol=1e-9, atol=1e-12 * np.abs(points_dense).max())
 
 
+def test_dense_ap_columns_from_the_sparse_rows_equal_the_basis():
+    """Where the AP model gives sparse rows, the kept dense AP columns are those rows times their map (one
+    product per pattern); they equal the whitened basis evaluated afresh, with all WAPs free and with some held."""
+    from selfcal.adjust.normal import _camera_jacobian
+
+    block = pruned(simulation(seed=5, distortion="local+brown", points_per_mm2=0.04), "type3")
+    for held in (0, 40):
+        columns = {}
+        for source in ("sparse rows", "basis"):
+            problem = build_problem(block, "wavelet:sym4")
+            cam = problem.cameras[0]
+            cam.free[cam.n_core + np.arange(held) * 3] = False
+            if source == "basis":
+                problem._ap_columns[("sparse", 0)] = None            # the model's rows withheld
+            columns[source] = _camera_jacobian(problem, 0)[:, :, cam.n_core:]
+        basis = columns["basis"]
+        assert basis.shape[2] == 254 - held and np.count_nonzero(basis) > 0.9 * basis.size
+        np.testing.assert_allclose(columns["sparse rows"], basis, rtol=0, atol=1e-14 * np.abs(basis).max())
+
+
 def test_point_quadratic_through_the_cholesky_factor():
     """Z[p] Q Z[p]^T per point through Q = L L^T (the Gram matrices of the column blocks of Z L) equals the
     blocks computed one by one; a Q that is not positive definite has no factor (the plain product Z Q then)."""

@@ -126,7 +126,16 @@ def _camera_jacobian(problem: Problem, k: int) -> np.ndarray:
         # np.empty, then every entry written: calloc's lazily zeroed pages take no transparent huge
         # pages, and faulting in hundreds of MB of 4 KiB pages costs more than the writes
         columns = np.empty((mine.size, 2, nc + n_free))
-        if n_free and mine.size:
+        # where the model gives sparse rows, the columns are those rows times their map (a product per pattern of a
+        # few dozen raw columns), not a second evaluation of the basis
+        sparse = sparse_ap_rows(problem) if n_free and mine.size else None
+        if sparse is not None:
+            def evaluate(start: int, _) -> None:
+                stop = min(start + AP_COLUMN_BLOCK, mine.size)
+                columns[start:stop, :, :nc] = 0.0
+                _sparse_times_map(sparse, start, stop, columns[start:stop, :, nc:])
+            over_chunks(range(0, mine.size, AP_COLUMN_BLOCK), evaluate, lambda: None)
+        elif n_free and mine.size:
             bound = _bound_of(problem, mine)
 
             # block by block into the kept array (a basis evaluation makes several temporaries of the array's
@@ -166,6 +175,16 @@ def pattern_groups(pattern: np.ndarray) -> list[np.ndarray]:
     order = np.argsort(pattern, kind="stable")
     first = np.flatnonzero(np.r_[True, pattern[order][1:] != pattern[order][:-1]])
     return np.split(order, first[1:])
+
+
+def _sparse_times_map(sparse, o0: int, o1: int, out: np.ndarray) -> None:
+    """The AP columns of observations o0:o1 from their sparse rows, written into ``out`` (o1 - o0, 2, n_params):
+    each pattern's rows (a few dozen raw columns) times the map's rows of those columns, one product per pattern
+    and axis."""
+    pattern = sparse.pattern[o0:o1]
+    for rows in pattern_groups(pattern):
+        for k in range(2):
+            out[rows, k] = sparse.values[o0 + rows, k] @ sparse.to_params[sparse.columns[pattern[rows[0]], k]]
 
 
 def _sparse_gram(sparse, o0: int, o1: int) -> np.ndarray:
