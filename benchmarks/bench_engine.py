@@ -369,8 +369,23 @@ def run_cli(snoop: str) -> dict:
     return {"exit": code, "seconds": summary["seconds"], "wall": wall, "rejected": summary["n_obs_rejected"]}
 
 
+def run_numba_setup(_target=None) -> dict:
+    """Seconds of the first call of one of selfcal's cached Numba kernels in a fresh process (its module already
+    imported): Numba's one-off set-up of its compiler context (the registries of its typing and lowering
+    modules) plus the loading of that one kernel from the cache; and of a second call."""
+    from selfcal.adjust.kernels import spd_inverse_3x3
+
+    V = np.eye(3)[None].copy()
+    out = np.empty_like(V)
+    t0 = time.perf_counter()
+    spd_inverse_3x3(V, out)
+    t1 = time.perf_counter()
+    spd_inverse_3x3(V, out)
+    return {"first": t1 - t0, "second": time.perf_counter() - t1}
+
+
 RUNNERS = {"selfcal": run_selfcal, "pycolmap": run_pycolmap, "pycolmap-kept": run_pycolmap, "scipy": run_scipy,
-           "selfcal-frame": run_selfcal_frame, "pycolmap-frame": run_pycolmap_frame}
+           "selfcal-frame": run_selfcal_frame, "pycolmap-frame": run_pycolmap_frame, "numba-setup": run_numba_setup}
 
 
 def _cli_child(snoop: str) -> dict:
@@ -400,7 +415,7 @@ def main() -> None:
         if args.child == "cli":
             print(json.dumps(run_cli(args.target)))
             return
-        if args.child.endswith("-frame"):
+        if args.child.endswith("-frame") or args.child == "numba-setup":
             print(json.dumps(RUNNERS[args.child](int(args.target))))
             return
         target = None if args.target == "None" else float(args.target)
@@ -456,8 +471,10 @@ def main() -> None:
     sizes = [int(v) for v in args.images.split(",") if v]
     if sizes:
         print("\nsynthetic frame blocks (free network, c, x0, y0 free, no APs; cost = 1/2 sum of squared px)")
-        print("selfcal s: the first adjustment in its process (Numba loads its compiled kernels, 0.2-0.4 s once per "
-              "process); warm: the same adjustment again")
+        setup = _child("numba-setup", 0)
+        print(f"selfcal s: the first adjustment in its process; warm: the same adjustment again. Numba's one-off set-up "
+              f"in a process, measured in a fresh one: {setup['first']:.2f} s for the first call of one cached kernel "
+              f"({1e6 * setup['second']:.0f} us the second time); each further kernel then loads in a few ms")
         print(f"{'images':>7}{'observations':>14}{'selfcal s':>10}{'warm':>7}{'(+cov.)':>9}{'iter.':>6}{'pycolmap s':>11}"
               f"{'selfcal cost':>15}{'pycolmap cost':>15}{'ratio':>7}{'warm':>6}")
         for n in sizes:
