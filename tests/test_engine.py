@@ -363,6 +363,7 @@ def test_dense_ap_columns_from_the_sparse_rows_equal_the_basis():
             if source == "basis":
                 problem._ap_columns[("sparse", 0)] = None            # the model's rows withheld
             columns[source] = _camera_jacobian(problem, 0)[:, :, cam.n_core:]
+            assert (problem._ap_columns[("sparse", 0)] is None) == (source == "basis")   # the path meant was taken
         basis = columns["basis"]
         assert basis.shape[2] == 254 - held and np.count_nonzero(basis) > 0.9 * basis.size
         np.testing.assert_allclose(columns["sparse rows"], basis, rtol=0, atol=1e-14 * np.abs(basis).max())
