@@ -24,6 +24,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import scipy.sparse as sp
 
+from ..ap.base import pattern_groups
 from ..errors import AdjustmentError
 from ..geometry.rotation import matrix_from_opk_with_derivatives, opk_from_matrix_with_derivatives
 from .kernels import (accumulate_observations, camera_couplings, camera_couplings_compact, compact_rows,
@@ -48,7 +49,6 @@ __all__ = [
     "chunk_rows",
     "evaluate_ap_columns",
     "sparse_ap_rows",
-    "pattern_groups",
     "parameter_observation_groups",
     "parameter_observations",
 ]
@@ -133,7 +133,7 @@ def _camera_jacobian(problem: Problem, k: int) -> np.ndarray:
             def evaluate(start: int, _) -> None:
                 stop = min(start + AP_COLUMN_BLOCK, mine.size)
                 columns[start:stop, :, :nc] = 0.0
-                _sparse_times_map(sparse, start, stop, columns[start:stop, :, nc:])
+                sparse.times_map(start, stop, out=columns[start:stop, :, nc:])
             over_chunks(range(0, mine.size, AP_COLUMN_BLOCK), evaluate, lambda: None)
         elif n_free and mine.size:
             bound = _bound_of(problem, mine)
@@ -167,24 +167,6 @@ def evaluate_ap_columns(problem: Problem) -> None:
 
 #: observations per block when a camera's AP columns are evaluated
 AP_COLUMN_BLOCK = 8192
-
-
-def pattern_groups(pattern: np.ndarray) -> list[np.ndarray]:
-    """The positions of each pattern's rows in ``pattern`` (a chunk's patterns of :func:`sparse_ap_rows`), one
-    array per pattern present, in pattern order."""
-    order = np.argsort(pattern, kind="stable")
-    first = np.flatnonzero(np.r_[True, pattern[order][1:] != pattern[order][:-1]])
-    return np.split(order, first[1:])
-
-
-def _sparse_times_map(sparse, o0: int, o1: int, out: np.ndarray) -> None:
-    """The AP columns of observations o0:o1 from their sparse rows, written into ``out`` (o1 - o0, 2, n_params):
-    each pattern's rows (a few dozen raw columns) times the map's rows of those columns, one product per pattern
-    and axis."""
-    pattern = sparse.pattern[o0:o1]
-    for rows in pattern_groups(pattern):
-        for k in range(2):
-            out[rows, k] = sparse.values[o0 + rows, k] @ sparse.to_params[sparse.columns[pattern[rows[0]], k]]
 
 
 def _sparse_gram(sparse, o0: int, o1: int) -> np.ndarray:

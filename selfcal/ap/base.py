@@ -23,7 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["ImageFrame", "APModel", "SparseBasis", "parse_ap_spec", "independent_functions", "TIE_TOLERANCE"]
+__all__ = ["ImageFrame", "APModel", "SparseBasis", "pattern_groups", "parse_ap_spec", "independent_functions",
+           "TIE_TOLERANCE"]
 
 #: two functions whose squared norms orthogonal to the ones kept so far agree to this share are tied
 #: (:func:`independent_functions`); rounding moves them by about 1e-13
@@ -57,13 +58,29 @@ class SparseBasis:
     values: np.ndarray           # (n, 2, K): each observation's x and y rows at them
     to_params: np.ndarray        # (n_raw, n_params): raw columns to the parameters
 
+    def times_map(self, start: int = 0, stop: int | None = None, out: np.ndarray | None = None) -> np.ndarray:
+        """Rows start:stop of (Bx, By) as one (stop - start, 2, n_params) array, written into ``out`` if given:
+        each pattern's rows times the map's rows of its raw columns, one product per pattern and axis."""
+        stop = len(self.pattern) if stop is None else stop
+        out = np.empty((stop - start, 2, self.to_params.shape[1])) if out is None else out
+        pattern = self.pattern[start:stop]
+        for rows in pattern_groups(pattern):
+            for k in range(2):
+                out[rows, k] = self.values[start + rows, k] @ self.to_params[self.columns[pattern[rows[0]], k]]
+        return out
+
     def dense(self) -> tuple[np.ndarray, np.ndarray]:
-        """(Bx, By), each (n, n_params), rebuilt (for checks: the point of the sparse form is not to)."""
-        n = len(self.pattern)
-        raw = np.zeros((n, 2, self.to_params.shape[0]))
-        np.add.at(raw, (np.arange(n)[:, None, None], np.arange(2)[None, :, None], self.columns[self.pattern]),
-                  self.values)
-        return raw[:, 0] @ self.to_params, raw[:, 1] @ self.to_params
+        """(Bx, By), each (n, n_params)."""
+        rows = self.times_map()
+        return rows[:, 0], rows[:, 1]
+
+
+def pattern_groups(pattern: np.ndarray) -> list[np.ndarray]:
+    """The positions of each pattern's rows in ``pattern`` (a :class:`SparseBasis`'s, or a part of it), one
+    array per pattern present, in pattern order."""
+    order = np.argsort(pattern, kind="stable")
+    first = np.flatnonzero(np.r_[True, pattern[order][1:] != pattern[order][:-1]])
+    return np.split(order, first[1:])
 
 
 def independent_functions(gram: np.ndarray, n_dependent: int) -> np.ndarray:

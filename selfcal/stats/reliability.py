@@ -31,12 +31,13 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import norm
 
-from ..adjust.normal import (chunk_rows, contexts, evaluate_ap_columns, parameter_observations, pattern_groups,
+from ..adjust.normal import (chunk_rows, contexts, evaluate_ap_columns, parameter_observations,
                              sparse_ap_rows)
 from ..adjust.parallel import over_chunks
 from ..adjust.covariance import PointCofactors, times_lower
 from ..adjust.linalg import blas_threads
 from ..adjust.kernels import leverage_camera_cross, leverage_pairs, rows_dot_blocks
+from ..ap.base import pattern_groups
 
 __all__ = ["ObservationTests", "observation_tests", "noncentrality"]
 
