@@ -89,7 +89,7 @@ def _peak_mb() -> float:
 
 def run_selfcal(target: float | None) -> dict:
     from selfcal.adjust import AdjustOptions, adjust
-    from selfcal.adjust.normal import image_residuals
+    from selfcal.adjust.residuals.image import image_residuals
     from selfcal.convert import block_from_bal
 
     block = block_from_bal(_problem())

@@ -119,7 +119,7 @@ def _linalg_child(kind: str, a: int, b: int) -> dict:
     if kind == "strips":
         from selfcal.adjust import AdjustOptions
         from selfcal.adjust.initial import initial_state
-        from selfcal.adjust.normal import linearise, reduce
+        from selfcal.adjust.schur import linearise, reduce
         from selfcal.adjust.problem import build_problem
         from selfcal.ap import ap_settings
 

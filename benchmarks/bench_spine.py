@@ -50,7 +50,7 @@ def _problem(seed: int, density: float):
 
 
 def run_selfcal(seed: int, density: float) -> dict:
-    from selfcal.adjust.normal import evaluate_cost
+    from selfcal.adjust.schur import evaluate_cost
     from selfcal.adjust.solver import solve
 
     block, problem, state = _problem(seed, density)
@@ -68,7 +68,7 @@ def run_selfcal(seed: int, density: float) -> dict:
 def run_scipy(seed: int, density: float) -> dict:
     from scipy.optimize import least_squares
 
-    from selfcal.adjust.normal import evaluate_cost
+    from selfcal.adjust.schur import evaluate_cost
     from selfcal.geometry.rotation import matrix_from_opk_with_derivatives
     from selfcal.sensors.frame import project_with_jacobians
 

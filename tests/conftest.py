@@ -35,7 +35,8 @@ def truth_index(sim, block) -> np.ndarray:
 
 def residual_vector(problem, state):
     """All whitened residuals l - f of a problem: image, control and parameter observations."""
-    from selfcal.adjust.normal import image_residuals, parameter_observations
+    from selfcal.adjust.residuals import parameter_observations
+    from selfcal.adjust.residuals.image import image_residuals
     r = (image_residuals(problem, state) / problem.obs_sigma).ravel()
     rc = np.einsum("nij,nj->ni", problem.control_weight,
                    problem.control_xyz - state.points[problem.control_index]).ravel()

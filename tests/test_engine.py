@@ -9,7 +9,7 @@ import pytest
 from selfcal.adjust.covariance import point_cofactors
 from selfcal.adjust.initial import initial_state
 from selfcal.adjust.linalg import factorise
-from selfcal.adjust.normal import back_substitute, linearise, reduce
+from selfcal.adjust.schur import back_substitute, linearise, reduce
 from selfcal.adjust.problem import build_problem
 
 from conftest import pruned, residual_vector, simulation, unpack
@@ -173,19 +173,19 @@ def test_re_adjustment_carries_ap_columns_and_gram():
     models = {cam.camera_id: cam.ap}
     carried = adjust(sub, options, start=first, free=free, ap_models=models)
     fresh = adjust(sub, options, free=free, ap_models=models)
-    gram_c, gram_f = carried.problem._ap_gram, fresh.problem._ap_gram
+    gram_c, gram_f = carried.problem.ap_cache.gram, fresh.problem.ap_cache.gram
     assert gram_c is not None and gram_c.shape == (int(free[cam.camera_id].sum()),) * 2
     # the columns were compacted in place inside the first problem's array (no copy): the same values
     key = (0, free[cam.camera_id].tobytes())
-    columns_c, columns_f = carried.problem._ap_columns[key], fresh.problem._ap_columns[key]
-    assert columns_c.shape == columns_f.shape and not first.problem._ap_columns
+    columns_c, columns_f = carried.problem.ap_cache.columns[key], fresh.problem.ap_cache.columns[key]
+    assert columns_c.shape == columns_f.shape and not first.problem.ap_cache.columns
     # (the re-adjustment keeps the first one's point order, the fresh one orders its points afresh: compared
     # in the block's observation order)
     by_row_c, by_row_f = np.empty_like(columns_c), np.empty_like(columns_f)
     by_row_c[carried.problem.obs_order], by_row_f[fresh.problem.obs_order] = columns_c, columns_f
     np.testing.assert_allclose(by_row_c[:, :, 3:], by_row_f[:, :, 3:], rtol=1e-13, atol=0)
     # the first adjustment, whose array was taken over, evaluates its columns afresh when used again
-    from selfcal.adjust.normal import image_residuals
+    from selfcal.adjust.residuals.image import image_residuals
     v = -image_residuals(first.problem, first.state)
     np.testing.assert_allclose(v, first.residuals[first.problem.obs_order], rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(gram_c, gram_f, rtol=1e-9, atol=1e-12 * np.abs(gram_f).max())
@@ -320,7 +320,7 @@ def test_leverages_through_the_sparse_wavelet_rows_equal_the_dense_ones(monkeypa
     the APs free), and the leverages through them equal those through the dense columns."""
     import selfcal.stats.reliability as reliability
     from selfcal.adjust import AdjustOptions
-    from selfcal.adjust.normal import _camera_jacobian, sparse_ap_rows
+    from selfcal.adjust.ap_columns import camera_jacobian, sparse_ap_rows
     from selfcal.stats.screening import ScreeningOptions
     from selfcal.workflows.tested import adjust_with_tests
 
@@ -336,7 +336,7 @@ def test_leverages_through_the_sparse_wavelet_rows_equal_the_dense_ones(monkeypa
     np.testing.assert_array_equal(sparse.pattern, fresh.pattern)
     np.testing.assert_allclose(sparse.values, fresh.values / problem.obs_sigma[:, :, None], rtol=1e-15, atol=0)
     bx, by = sparse.dense()
-    dense = _camera_jacobian(problem, 0)[:, :, cam.n_core:]
+    dense = camera_jacobian(problem, 0)[:, :, cam.n_core:]
     scale = np.abs(dense).max()
     np.testing.assert_allclose(np.stack([bx, by], axis=1), dense, rtol=0, atol=1e-13 * scale)
     args = (problem, result.state, result.linearisation, result.v_inv, result.Q_theta)
@@ -351,7 +351,7 @@ def test_leverages_through_the_sparse_wavelet_rows_equal_the_dense_ones(monkeypa
 def test_dense_ap_columns_from_the_sparse_rows_equal_the_basis():
     """Where the AP model gives sparse rows, the kept dense AP columns are those rows times their map (one
     product per pattern); they equal the whitened basis evaluated afresh, with all WAPs free and with some held."""
-    from selfcal.adjust.normal import _camera_jacobian
+    from selfcal.adjust.ap_columns import camera_jacobian
 
     block = pruned(simulation(seed=5, distortion="local+brown", points_per_mm2=0.04), "type3")
     for held in (0, 40):
@@ -361,9 +361,9 @@ def test_dense_ap_columns_from_the_sparse_rows_equal_the_basis():
             cam = problem.cameras[0]
             cam.free[cam.n_core + np.arange(held) * 3] = False
             if source == "basis":
-                problem._ap_columns[("sparse", 0)] = None            # the model's rows withheld
-            columns[source] = _camera_jacobian(problem, 0)[:, :, cam.n_core:]
-            assert (problem._ap_columns[("sparse", 0)] is None) == (source == "basis")   # the path meant was taken
+                problem.ap_cache.columns[("sparse", 0)] = None            # the model's rows withheld
+            columns[source] = camera_jacobian(problem, 0)[:, :, cam.n_core:]
+            assert (problem.ap_cache.columns[("sparse", 0)] is None) == (source == "basis")   # the path meant was taken
         basis = columns["basis"]
         assert basis.shape[2] == 254 - held and np.count_nonzero(basis) > 0.9 * basis.size
         np.testing.assert_allclose(columns["sparse rows"], basis, rtol=0, atol=1e-14 * np.abs(basis).max())
@@ -410,7 +410,7 @@ def test_point_block_inverse_equals_lu_and_falls_back_where_not_positive_definit
     equal to LU to rounding times the condition, even for weakly intersected points (condition 1e10); a block
     that is not positive definite sends the whole batch to LU, which names the singular points."""
     from selfcal.adjust.kernels import spd_inverse_3x3
-    from selfcal.adjust.normal import SingularPoints, _damped_inverse
+    from selfcal.adjust.schur import SingularPoints, damped_inverse
 
     rng = np.random.default_rng(3)
     A = rng.normal(size=(500, 3, 3))
@@ -429,7 +429,7 @@ def test_point_block_inverse_equals_lu_and_falls_back_where_not_positive_definit
     singular[7] = np.outer([1.0, 2.0, 3.0], [1.0, 2.0, 3.0])
     assert spd_inverse_3x3(singular, np.empty_like(singular)) == 7
     with pytest.raises(SingularPoints) as error:
-        _damped_inverse(singular, 0.0, points=np.arange(100, 600))       # the block's point of each block
+        damped_inverse(singular, 0.0, points=np.arange(100, 600))       # the block's point of each block
     assert 107 in error.value.indices.tolist()
 
 

@@ -98,7 +98,7 @@ def test_similarity_directions_span_the_free_networks_null_space():
     from selfcal.adjust.datum import similarity_directions
     from selfcal.adjust.initial import initial_state
     from selfcal.adjust.linalg import pseudo_factorise
-    from selfcal.adjust.normal import linearise, reduce
+    from selfcal.adjust.schur import linearise, reduce
     from selfcal.adjust.problem import build_problem
     from selfcal.block import leave_out, prune
 

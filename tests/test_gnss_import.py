@@ -8,7 +8,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from selfcal.adjust.normal import parameter_observations
+from selfcal.adjust.residuals import parameter_observations
 from selfcal.adjust.initial import initial_state
 from selfcal.adjust.problem import build_problem
 from selfcal.block import prune

@@ -188,7 +188,7 @@ def test_bal_import_reproduces_the_initial_cost(tmp_path, capsys):
     import json
 
     from selfcal.adjust.initial import initial_state
-    from selfcal.adjust.normal import evaluate_cost
+    from selfcal.adjust.schur import evaluate_cost
     from selfcal.adjust.problem import build_problem
     from selfcal.io import read_block
 

@@ -16,7 +16,7 @@ from selfcal.adjust import AdjustOptions
 from selfcal.adjust.covariance import point_cofactors
 from selfcal.adjust.initial import initial_state
 from selfcal.adjust.linalg import CHOLMOD_AVAILABLE, band_structure, factorise
-from selfcal.adjust.normal import linearise, reduce
+from selfcal.adjust.schur import linearise, reduce
 from selfcal.adjust.problem import build_problem
 from selfcal.adjust.selected import BandedCofactor
 from selfcal.ap import ap_settings

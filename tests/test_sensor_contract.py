@@ -9,7 +9,7 @@ import pytest
 
 from selfcal.adjust import AdjustOptions
 from selfcal.adjust.initial import initial_state
-from selfcal.adjust.normal import contexts, predict
+from selfcal.adjust.residuals.image import contexts, predict
 from selfcal.adjust.problem import build_problem
 from selfcal.block import prune
 from selfcal.sensors import SENSORS

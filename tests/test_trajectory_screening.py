@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from selfcal.adjust import AdjustOptions, adjust
-from selfcal.adjust.normal import _wrap
+from selfcal.adjust.residuals.trajectory import wrap_angle as _wrap
 from selfcal.geometry.rotation import matrix_from_opk, matrix_from_rotation_vector, opk_from_matrix
 from selfcal.simulate import simulate_uav
 from selfcal.simulate.trajectory import TrajectoryErrors, true_terms_by_name

@@ -145,7 +145,7 @@ def test_downdated_start_of_a_free_network_closes_the_cost_gap():
     import os
 
     from selfcal.adjust.initial import initial_state
-    from selfcal.adjust.normal import evaluate_cost
+    from selfcal.adjust.schur import evaluate_cost
     from selfcal.adjust.problem import build_problem
     from selfcal.convert import block_from_bal
     from selfcal.io.bal import read_bal

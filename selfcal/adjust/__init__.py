@@ -27,11 +27,15 @@ from .datum import FREE_POINT_SIGMA_RATIO, behind_camera, points_not_determined_
 from .initial import initial_state
 from .linalg import (DENSE_LIMIT, EIGH_FLOPS, PSEUDO_INVERSE_LIMIT, SingularSystem, blas_threads, dense_assembly,
                      factorise, null_directions, shared_product)
-from .normal import Linearisation, SingularPoints, carry_ap_columns, image_residuals, reduce
+from .ap_columns import carry_ap_columns
+from .residuals.image import image_residuals
+from .schur import Linearisation, SingularPoints, reduce
 from .problem import Problem, State, build_problem, inherited_point_key
+from .robust import RobustOptions, RobustWeighting
 from .solver import IterationRecord, SolverOptions, solve
 
-__all__ = ["AdjustOptions", "AdjustmentResult", "IterationRecord", "adjust", "apply_free", "Problem", "State"]
+__all__ = ["AdjustOptions", "AdjustmentResult", "IterationRecord", "RobustOptions", "adjust", "apply_free", "Problem",
+           "State"]
 
 
 @dataclass(frozen=True)
@@ -109,6 +113,7 @@ class AdjustmentResult:
     point_cofactor_blocks: np.ndarray | None = field(repr=False, default=None)   # Q_points once computed
     reduced_matrix: np.ndarray | None = field(repr=False, default=None)   # S of the last linearisation (dense, small)
     datum_null: np.ndarray | None = field(repr=False, default=None)       # a free network's datum directions
+    robust: RobustWeighting | None = field(repr=False, default=None)      # the robust weights, where robust
 
     @property
     def Q_points(self) -> np.ndarray:
@@ -274,7 +279,7 @@ def weakly_determined(S, Q, names: list[str], problem: Problem, limit: float = W
 def adjust(block: Block, options: AdjustOptions = AdjustOptions(),
            progress: Callable[[IterationRecord], None] | None = None,
            start: "AdjustmentResult | None" = None, free: dict | None = None,
-           ap_models: dict | None = None) -> AdjustmentResult:
+           ap_models: dict | None = None, robust: RobustOptions | None = None) -> AdjustmentResult:
     """Adjust a block: estimate orientation, object points and camera parameters.
 
     Parameters
@@ -297,6 +302,9 @@ def adjust(block: Block, options: AdjustOptions = AdjustOptions(),
     ap_models : dict camera_id -> APModel, optional
         Use these AP models instead of building them from ``options.ap``
         (keeps a basis fixed across re-adjustments).
+    robust : RobustOptions, optional
+        Weight the image observations (and the control points) by a robust loss of their residuals,
+        re-computed at every accepted step (:mod:`.robust`); the result's ``robust`` holds the weights.
 
     Raises
     ------
@@ -305,10 +313,10 @@ def adjust(block: Block, options: AdjustOptions = AdjustOptions(),
         involved) or cannot be initialised.
     """
     with contextlib.ExitStack() as threads:
-        return _adjust(block, options, progress, start, free, ap_models, threads)
+        return _adjust(block, options, progress, start, free, ap_models, robust, threads)
 
 
-def _adjust(block: Block, options: AdjustOptions, progress, start, free, ap_models,
+def _adjust(block: Block, options: AdjustOptions, progress, start, free, ap_models, robust,
             threads: contextlib.ExitStack) -> AdjustmentResult:
     t0 = time.perf_counter()
     settings = ap_settings(options.ap, options.grid)
@@ -332,6 +340,7 @@ def _adjust(block: Block, options: AdjustOptions, progress, start, free, ap_mode
         state, notes = initial_state(problem, block, start)
         for slot in problem.sensors:
             slot.bound.refine_sigma(state, problem.obs_sigma)
+        problem.settle_sigma()
         return problem, state, notes
 
     problem, state, notes = setup(block, start, ap_models)
@@ -370,8 +379,10 @@ def _adjust(block: Block, options: AdjustOptions, progress, start, free, ap_mode
         def numbered(record: IterationRecord) -> None:
             if progress is not None:
                 progress(replace(record, iteration=record.iteration + done))
+        weighting = RobustWeighting(robust) if robust is not None else None
         try:
-            outcome = solve(problem, state, names, budget, numbered, datum_null)
+            outcome = solve(problem, state, names, budget, numbered, datum_null,
+                            None if weighting is None else weighting.update)
         except SingularPoints as exc:
             ids = ", ".join(f"'{block.points.point_id[i]}'" for i in exc.indices[:5])
             raise AdjustmentError(f"{exc} (e.g. {ids}): remove them or check their observations") from None
@@ -452,4 +463,5 @@ def _adjust(block: Block, options: AdjustOptions, progress, start, free, ap_mode
         v_inv=v_inv,
         reduced_matrix=(S if isinstance(S, np.ndarray) else S.toarray()) if S.shape[0] <= UPDATE_LIMIT else None,
         datum_null=outcome.datum_null,
+        robust=weighting,
     )

@@ -21,7 +21,7 @@ import numpy as np
 
 from .linalg import shared_product
 from .parallel import over_chunks
-from .normal import Linearisation
+from .schur import Linearisation
 from .problem import Problem
 from .kernels import add_point_image_products, point_blocks_times, point_cofactor_pairs
 

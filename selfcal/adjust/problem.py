@@ -36,9 +36,9 @@ import numpy as np
 from ..ap import APModel
 from ..block import Block
 from ..errors import UsageError
+from .residuals import ResidualSettings, build_residuals
 
-__all__ = ["CameraParameters", "Problem", "State", "SensorSlot", "TrajectoryTerms", "build_problem",
-           "trajectory_terms", "CHUNK_OBSERVATIONS"]
+__all__ = ["CameraParameters", "Problem", "State", "SensorSlot", "build_problem", "CHUNK_OBSERVATIONS"]
 
 #: observations per chunk of the normal-equation assembly (bounds memory)
 CHUNK_OBSERVATIONS = 16384
@@ -125,12 +125,6 @@ class Problem:
     point_order: np.ndarray         # (n_points,) the block's point at each position of the problem's order
     point_start: np.ndarray         # (n_points + 1,) first observation of the point at each position
     chunks: list[tuple[int, int]]   # position ranges [p0, p1) in point_order of the assembly chunks
-    # weighted point observations (gcp): W^T W = inverse covariance of the surveyed coordinates
-    control_index: np.ndarray
-    control_xyz: np.ndarray
-    control_weight: np.ndarray      # (n_gcp, 3, 3)
-    # trajectory observations of the images (GNSS positions, IMU attitudes) with their shift/drift
-    trajectory: list["TrajectoryTerms"]
     # layout of theta
     d_offset: list[int]             # start of each camera's free parameters in theta
     camera_ids: list[str] = field(default_factory=list)
@@ -140,7 +134,9 @@ class Problem:
     obs_sensor: np.ndarray = None   # (n_obs,) index into sensors
     obs_pixel: np.ndarray = None    # (n_obs, 2) the measured (col, row), px
     obs_value: np.ndarray = None    # (n_obs, 2) observation vector, the sensor's observation units
-    obs_sigma: np.ndarray = None    # (n_obs, 2) its a-priori standard deviation
+    obs_sigma: np.ndarray = None    # (n_obs, 2) the standard deviation its rows are whitened by: a-priori / sqrt(weight)
+    obs_sigma_apriori: np.ndarray = None    # (n_obs, 2) the a-priori standard deviation (observation units)
+    obs_weight: np.ndarray = None   # (n_obs,) weight factor of each observation (1; a robust weight below it)
     image_width: int = 6
     image_names: list = None        # per image: the names of its parameters
     image_units: list = None
@@ -148,11 +144,62 @@ class Problem:
     image_prior_value: np.ndarray = None    # (n_images, width) a-priori values, observed where the sigma is finite
     image_prior_sigma: np.ndarray = None    # (n_images, width) NaN: no prior
     image_screenable: np.ndarray = None     # (n_images, width) bool
+    # every other kind of observation (:mod:`selfcal.adjust.residuals`): control coordinates, priors, GNSS/IMU
+    residuals: list = field(default_factory=list)
+    # the AP columns kept for the problem (:mod:`selfcal.adjust.ap_columns`)
+    ap_cache: "APColumnCache" = field(default=None, repr=False)
     _structure: object = field(default=None, repr=False)
-    _ap_gram: object = field(default=None, repr=False)
     _layout: tuple | None = field(default=None, repr=False)
-    _ap_columns: dict = field(default_factory=dict, repr=False)
-    _ap_delta: dict = field(default_factory=dict, repr=False)     # (o0, o1) -> (AP values, their displacement)
+
+    def __post_init__(self):
+        if self.ap_cache is None:
+            from .ap_columns import APColumnCache
+            self.ap_cache = APColumnCache()
+
+    def settle_sigma(self) -> None:
+        """Take ``obs_sigma`` as the a-priori standard deviations (after the sensors refined them at the start
+        values), every weight factor 1."""
+        self.obs_sigma_apriori = self.obs_sigma.copy()
+        self.obs_weight = np.ones(len(self.obs_sigma))
+
+    @property
+    def point_residuals(self) -> list:
+        """The residual blocks of observations of points alone (:class:`~.residuals.base.PointResiduals`)."""
+        from .residuals import PointResiduals
+        return [b for b in self.residuals if isinstance(b, PointResiduals)]
+
+    @property
+    def parameter_residuals(self) -> list:
+        """The residual blocks of observations of theta alone (:class:`~.residuals.base.ParameterResiduals`)."""
+        from .residuals import ParameterResiduals
+        return [b for b in self.residuals if isinstance(b, ParameterResiduals)]
+
+    @property
+    def trajectory(self) -> list:
+        """The parameter blocks with parameters of their own (GNSS/IMU shift, drift, mounting), in the order of
+        theta's x part."""
+        return [b for b in self.parameter_residuals if b.owns_parameters]
+
+    @property
+    def control(self):
+        """The control coordinates' block (:class:`~.residuals.control.ControlCoordinates`)."""
+        from .residuals.control import ControlCoordinates
+        return next(b for b in self.residuals if isinstance(b, ControlCoordinates))
+
+    @property
+    def control_index(self) -> np.ndarray:
+        """The control points (the block's ``gcp``): their indices among the points."""
+        return self.control.index
+
+    @property
+    def control_xyz(self) -> np.ndarray:
+        """Their surveyed coordinates (n_gcp, 3), object frame."""
+        return self.control.xyz
+
+    @property
+    def control_weight(self) -> np.ndarray:
+        """W (n_gcp, 3, 3) with W^T W the inverse covariance of their surveyed coordinates."""
+        return self.control.W
 
     def d_varying(self) -> np.ndarray:
         """Columns of the camera part whose Jacobian changes between iterations.
@@ -265,11 +312,9 @@ class Problem:
 
     def n_observations(self) -> int:
         """Number of scalar observations (image coordinates, control coordinates, parameter observations)."""
-        n = 2 * len(self.obs_image) + 3 * len(self.control_index)
-        n += sum(3 * len(t.index) for t in self.trajectory)
-        n += int(sum(np.sum(c.free & np.isfinite(c.prior_sigma)) for c in self.cameras))
-        n += int(np.sum(self.image_free & np.isfinite(self.image_prior_sigma)))
-        return n
+        n = 2 * len(self.obs_image)
+        n += sum(b.width * len(b) for b in self.point_residuals)
+        return n + sum(b.n_rows(self) for b in self.parameter_residuals)
 
     def n_unknowns(self) -> int:
         return int(self.image_free.sum()) + self.n_d + self.n_extra + 3 * self.n_points
@@ -304,111 +349,6 @@ class Problem:
             new.extra[self.extra_free] += d_theta[self.n_theta - self.n_extra:]
         new.points += d_points
         return new
-
-
-@dataclass
-class TrajectoryTerms:
-    """Trajectory observations of one sensor with strip-wise shift and drift, Eq. (12) of seed 000:
-
-        P_observed = P0 + D0 + D1 dt + D2 dt^2
-
-    with P0 the image's exterior orientation (position for GNSS, attitude for
-    IMU) and dt the time since the strip's middle (half-way between its first and last
-    exposure), so that D0 is the strip's mean offset and D0, D1 are nearly uncorrelated
-    (counted from the first exposure they were correlated at -0.4 to -0.9 on the simulated
-    block, and the screening tested each against a partner that moved with it). ``order``
-    -1 means plain observations (no shift/drift); 0 a shift D0; 1 shift and drift; 2 adds D2.
-
-    The mounting of the sensor enters P0: the GNSS antenna sits at the lever arm
-    ``a`` (camera frame, metres), P0 = X0 + M^T a; the IMU body frame is turned by
-    the boresight angles ``b`` from the camera, P0 = opk(B(b)^T M) (M the camera's
-    object-to-image rotation). ``mounting`` holds a or b (radians) as given; with
-    ``estimate_mounting`` they are three more unknowns, starting from it.
-
-    Parameters are laid out per strip as [D0 (3), D1 (3), D2 (3)], then the mounting (3) if estimated.
-    """
-
-    sensor: str                 # "GNSS" or "IMU"
-    index: np.ndarray           # images with an observation
-    observed: np.ndarray        # (k, 3)
-    sigma: np.ndarray           # (k, 3) a-priori sigma of each observation, metres or radians (the image's own
-                                # from images.csv where given, else block.toml's)
-    offset: int                 # 0: X0 Y0 Z0, 3: omega phi kappa
-    order: int
-    strip_of: np.ndarray        # (k,) strip number of each observation
-    dt: np.ndarray              # (k,) seconds since the strip's middle (half-way between first and last exposure)
-    strips: list[str]
-    free: np.ndarray            # bool over the parameters (screening holds some at zero)
-    names: list[str]
-    mounting: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    estimate_mounting: bool = False
-
-    @property
-    def n_params(self) -> int:
-        return len(self.free)
-
-    @property
-    def n_strip_params(self) -> int:
-        return len(self.strips) * (self.order + 1) * 3 if self.order >= 0 else 0
-
-    @property
-    def wrap(self) -> bool:
-        return self.offset == 3
-
-    @property
-    def mounted(self) -> bool:
-        """Whether the mounting enters the model (estimated, or given and not zero)."""
-        return self.estimate_mounting or bool(np.any(self.mounting != 0))
-
-    def initial(self) -> np.ndarray:
-        """Initial values of the parameters: zero shift/drift, the given mounting."""
-        return np.concatenate([np.zeros(self.n_strip_params), self.mounting if self.estimate_mounting else []])
-
-    def mounting_of(self, values: np.ndarray) -> np.ndarray:
-        """The lever arm or boresight angles in effect, from this sensor's parameter values."""
-        if self.estimate_mounting:
-            return values[self.n_strip_params:self.n_strip_params + 3]
-        return self.mounting
-
-    def design(self) -> np.ndarray:
-        """(k, order + 1) powers of dt."""
-        return self.dt[:, None] ** np.arange(self.order + 1)[None, :] if self.order >= 0 else np.zeros((len(self.dt), 0))
-
-
-def trajectory_terms(sensor: str, images, index: np.ndarray, observed: np.ndarray, sigma: np.ndarray,
-                     offset: int, order: int, mounting=None, estimate_mounting: bool = False) -> TrajectoryTerms:
-    """Set up one sensor's trajectory observations with strip-wise shift/drift of ``order``.
-
-    ``sigma``: the a-priori sigma of each observation, (k, 3), or one (3,) for all of them.
-
-    ``mounting``: the lever arm (GNSS, metres) or boresight angles (IMU, radians); with
-    ``estimate_mounting`` they are unknowns. They cannot be told apart from strip-wise
-    shifts (the attitude is nearly constant along a strip), so estimating them needs ``order`` -1.
-    """
-    from ..errors import AdjustmentError
-    what = "lever arm" if offset == 0 else "boresight angles"
-    if estimate_mounting and order >= 0:
-        raise UsageError(f"the {sensor} {what} cannot be separated from strip-wise {sensor} shifts (the attitude "
-                         f"hardly changes along a strip): estimate them with --{sensor.lower()}-drift none")
-    strip_ids = images.strip_id[index]
-    strips = list(dict.fromkeys(strip_ids.tolist()))
-    strip_of = np.array([strips.index(s) for s in strip_ids], dtype=np.int64)
-    times = images.time_s[index]
-    if order >= 1 and np.isnan(times).any():
-        bad = ", ".join(images.image_id[index[np.isnan(times)]][:5])
-        raise AdjustmentError(f"{sensor} drift of order {order} needs time_s of every image; missing for {bad}")
-    t0 = np.array([0.5 * (np.nanmin(times[strip_of == s]) + np.nanmax(times[strip_of == s])) if order >= 1 else 0.0
-                   for s in range(len(strips))])
-    dt = np.nan_to_num(times - t0[strip_of]) if order >= 1 else np.zeros(len(index))
-    axes = ("X", "Y", "Z") if offset == 0 else ("omega", "phi", "kappa")
-    names = [f"{sensor} {strip} D{k} {a}" for strip in strips for k in range(order + 1) for a in axes]
-    if estimate_mounting:
-        names += [f"GNSS lever arm {a}" for a in "xyz"] if offset == 0 else \
-            [f"IMU boresight {a}" for a in ("omega", "phi", "kappa")]
-    sigma = np.broadcast_to(np.asarray(sigma, float), (len(index), 3)).copy()
-    return TrajectoryTerms(sensor, index, observed, sigma, offset, order, strip_of, dt, strips,
-                           np.ones(len(names), bool), names,
-                           np.zeros(3) if mounting is None else np.asarray(mounting, float), estimate_mounting)
 
 
 def _point_order(image_index: np.ndarray, point_index: np.ndarray, n_points: int,
@@ -476,28 +416,6 @@ def _chunks(point_start: np.ndarray, target: int) -> list[tuple[int, int]]:
     return [(a, b) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
 
 
-def _control_weights(block: Block, control: np.ndarray, object_frame: str) -> np.ndarray:
-    """W (n, 3, 3) with W^T W the inverse covariance of each control point: diagonal in the block's axes, or,
-    for points in an Earth- or body-fixed frame, diag(1 / sigma) times the local east, north and up (the WGS 84
-    normal on the Earth, the radial direction of a body: ``crs = "body-fixed"``) at the point, so that a
-    coordinate held loosely (sigma 1e6 m) and one held tightly do not meet in one inverted covariance."""
-    sigma = block.points.sigma_m[control]
-    if object_frame != "ECEF":
-        return np.einsum("ni,ij->nij", 1.0 / sigma, np.eye(3))
-    xyz = block.points.xyz_m[control]
-    if block.crs == "body-fixed":
-        from ..geometry.body import latlon_radius_from_xyz, north_east_radial
-        lat, lon, _ = latlon_radius_from_xyz(xyz)
-        frame = north_east_radial(lat, lon)[:, :, [1, 0, 2]]          # columns east, north, radial
-    else:
-        from ..geometry.earth import geodetic_from_ecef, local_up
-        lat, lon, _ = geodetic_from_ecef(xyz)
-        up = local_up(lat, lon)
-        east = np.stack([-np.sin(lon), np.cos(lon), np.zeros_like(lon)], -1)
-        frame = np.stack([east, np.cross(up, east), up], -1)
-    return np.einsum("ni,nki->nik", 1.0 / sigma, frame)
-
-
 def build_problem(block: Block, ap_spec: str = "none", ap_settings: dict | None = None,
                   chunk_observations: int = CHUNK_OBSERVATIONS, ap_models: dict | None = None,
                   gnss_drift: int = 1, imu_drift: int = 1, lever_arm: bool = False,
@@ -542,11 +460,10 @@ def build_problem(block: Block, ap_spec: str = "none", ap_settings: dict | None 
     if len(object_frames) > 1:
         raise UsageError("a block mixes sensors with different object frames: "
                          + ", ".join(sorted({s.name for s in sensors})))
-    pts = block.points
-    control = np.flatnonzero(pts.role == "gcp")
+    object_frame = object_frames.pop() if object_frames else "block"
     problem = Problem(
         n_images=len(block.images),
-        n_points=len(pts),
+        n_points=len(block.points),
         cameras=[],
         image_camera=image_camera,
         obs_image=obs.image_index[order],
@@ -555,10 +472,6 @@ def build_problem(block: Block, ap_spec: str = "none", ap_settings: dict | None 
         point_order=point_order,
         point_start=point_start,
         chunks=_chunks(point_start, chunk_observations),
-        control_index=control,
-        control_xyz=pts.xyz_m[control],
-        control_weight=_control_weights(block, control, object_frames.pop()),
-        trajectory=[],
         d_offset=[],
         camera_ids=camera_ids,
         image_ids=np.asarray(block.images.image_id),
@@ -632,22 +545,7 @@ def build_problem(block: Block, ap_spec: str = "none", ap_settings: dict | None 
         problem.d_offset.append(start)
         start += int(camera.free.sum())
 
-    images = block.images
-    if lever_arm and block.gnss_sigma_m is None:
-        raise UsageError("--lever-arm needs GNSS observations ([gnss] in block.toml)")
-    if boresight and block.imu_sigma_deg is None:
-        raise UsageError("--boresight needs IMU observations ([imu] in block.toml)")
-    if block.gnss_sigma_m is not None:
-        index = np.flatnonzero(np.isfinite(images.position_m).all(axis=1))
-        sigma = images.trajectory_sigma("GNSS", block.gnss_sigma_m)[index]
-        problem.trajectory.append(trajectory_terms("GNSS", images, index, images.position_m[index],
-                                                   sigma, 0, gnss_drift,
-                                                   block.gnss_lever_arm_m, lever_arm))
-    if block.imu_sigma_deg is not None:
-        index = np.flatnonzero(np.isfinite(images.attitude_rad).all(axis=1))
-        sigma = images.trajectory_sigma("IMU", np.radians(np.array(block.imu_sigma_deg, float)))[index]
-        problem.trajectory.append(trajectory_terms("IMU", images, index, images.attitude_rad[index],
-                                                   sigma, 3, imu_drift,
-                                                   None if block.imu_boresight_deg is None else
-                                                   np.radians(np.array(block.imu_boresight_deg, float)), boresight))
+    problem.residuals = build_residuals(block, problem, ResidualSettings(object_frame, gnss_drift, imu_drift,
+                                                                         lever_arm, boresight))
+    problem.settle_sigma()
     return problem

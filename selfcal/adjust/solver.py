@@ -19,7 +19,7 @@ import numpy as np
 from ..errors import AdjustmentError
 from .datum import points_not_determined_by_rays, similarity_directions
 from .linalg import PSEUDO_INVERSE_LIMIT, dense_assembly, SingularSystem, factorise, null_directions, pseudo_factorise
-from .normal import Linearisation, back_substitute, evaluate_cost, linearise, reduce
+from .schur import Linearisation, back_substitute, evaluate_cost, linearise, reduce
 from .problem import Problem, State
 
 __all__ = ["SolverOptions", "IterationRecord", "SolverOutcome", "solve"]
@@ -155,13 +155,30 @@ def _shortened(problem: Problem, state: State, cost: float, d_theta: np.ndarray,
     return share * d_theta, share * d_p, candidate, new_cost, 2.0 * predicted * (share - 0.5 * share * share)
 
 
+def _converged(options: SolverOptions, step_sigma: float, moved_sigma: float, cost: float, new_cost: float) -> str | None:
+    """Why an accepted step ends the iteration, or None."""
+    if step_sigma < options.step_tolerance:
+        return f"corrections below {options.step_tolerance:g} sigma"
+    # below the tolerance, no estimate moved by a visible share of its a-posteriori sigma (the conditional
+    # step_sigma above can stay large in a correlated block)
+    if moved_sigma < options.function_tolerance:
+        return f"no estimate moves by {options.function_tolerance:g} of its sigma"
+    if cost - new_cost <= options.cost_tolerance * max(new_cost, 1e-300):
+        return "cost no longer decreases"
+    return None
+
+
 def solve(problem: Problem, state: State, names: list[str], options: SolverOptions = SolverOptions(),
           progress: Callable[[IterationRecord], None] | None = None,
-          datum_null: np.ndarray | None = None) -> SolverOutcome:
+          datum_null: np.ndarray | None = None,
+          reweight: Callable[[Problem, State], bool] | None = None) -> SolverOutcome:
     """Iterate to the least-squares estimate.
 
     ``datum_null``: a free network's datum directions from an earlier solve of the same unknowns
     (``SolverOutcome.datum_null``), followed from there instead of found by an eigendecomposition.
+    ``reweight``: called with the problem and the state at the start and after every accepted step, it may
+    change the observations' weight factors (a robust loss: :mod:`selfcal.adjust.robust`) and says whether it
+    did; the estimate has converged only once a step passes the tests and no weight moved.
 
     Raises
     ------
@@ -171,6 +188,8 @@ def solve(problem: Problem, state: State, names: list[str], options: SolverOptio
     """
     pseudo = options.free_network and problem.n_theta <= PSEUDO_INVERSE_LIMIT
     dense = dense_assembly(problem.n_theta, pseudo)
+    if reweight is not None:
+        reweight(problem, state)
     lin = linearise(problem, state)
     if not np.isfinite(lin.cost):
         raise AdjustmentError("the initial residuals are not finite (points behind a camera?)")
@@ -252,15 +271,11 @@ def solve(problem: Problem, state: State, names: list[str], options: SolverOptio
             progress(record)
         if accepted:
             state = candidate
-            if step_sigma < options.step_tolerance:
-                converged, reason = True, f"corrections below {options.step_tolerance:g} sigma"
-            # below the tolerance, no estimate moved by a visible share of its a-posteriori sigma (the
-            # conditional step_sigma above can stay large in a correlated block)
-            elif moved_sigma < options.function_tolerance:
-                converged, reason = True, f"no estimate moves by {options.function_tolerance:g} of its sigma"
-            elif lin.cost - new_cost <= options.cost_tolerance * max(new_cost, 1e-300):
-                converged, reason = True, "cost no longer decreases"
-            if converged:
+            # the weights follow the estimate; while they move, the objective does, and nothing has converged
+            moved_weights = reweight is not None and reweight(problem, state)
+            done = None if moved_weights else _converged(options, step_sigma, moved_sigma, lin.cost, new_cost)
+            if done is not None:
+                converged, reason = True, done
                 if lam == 0.0:
                     reduction = (S, factor, v_inv)
                 return SolverOutcome(state, lin, converged, reason, iteration, history, new_cost, reduction,

@@ -32,7 +32,8 @@ import numpy as np
 
 from .linalg import SingularSystem, factorise, pseudo_factorise
 from .covariance import observation_columns
-from .normal import SingularPoints, ap_displacement, back_substitute, evaluate_cost, observation_rows, point_rows
+from .residuals.image import ap_displacement, observation_rows, point_rows
+from .schur import SingularPoints, back_substitute, evaluate_cost
 from .problem import Problem, State, row_positions
 
 __all__ = ["downdated_start"]
@@ -101,6 +102,8 @@ def downdated_start(previous, problem: Problem, block, free_network: bool = Fals
         return None
     if np.any(old_block.observations.sigma_px[old.obs_order][kept] != block.observations.sigma_px):
         return None
+    if np.any(old.obs_weight != 1.0) or np.any(old.control.weight != 1.0):
+        return None                         # a robust adjustment's rows were re-weighted
     left = np.ones(old.n_image_observations, bool)
     left[kept] = False
     removed = np.flatnonzero(left)

@@ -161,7 +161,7 @@ def simulate_uav(seed: int = 0, distortion: str = "local+brown", image_sigma_px:
         density; the 39 marks spread over the larger area (for performance studies).
     lever_arm_m, boresight_deg : 3 floats
         Mounting of the GNSS antenna (camera frame) and of the IMU: the GNSS observes
-        X0 + M^T a, the IMU the angles of B(b)^T M (selfcal.adjust.normal._mounted_sensor).
+        X0 + M^T a, the IMU the angles of B(b)^T M (selfcal.adjust.residuals.trajectory.mounted_sensor).
         The blocks do not give them (block.toml has no lever_arm_m / boresight_deg) unless
         ``declare_mounting``.
     trajectory_errors : TrajectoryErrors, optional

@@ -31,8 +31,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import norm
 
-from ..adjust.normal import (chunk_rows, contexts, evaluate_ap_columns, parameter_observations,
-                             sparse_ap_rows)
+from ..adjust.ap_columns import evaluate_ap_columns, sparse_ap_rows
+from ..adjust.residuals import parameter_observations
+from ..adjust.residuals.image import chunk_rows, contexts
 from ..adjust.parallel import over_chunks
 from ..adjust.covariance import PointCofactors, times_lower
 from ..adjust.linalg import blas_threads

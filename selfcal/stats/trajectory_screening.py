@@ -99,7 +99,7 @@ def group_of_parameters(problem, owner: dict) -> dict[int, tuple[str, str | None
 
 def trajectory_strips(problem, state) -> dict[str, StripObservations]:
     """The observations of every (sensor, strip) with their Jacobian and residuals at ``state``."""
-    from ..adjust.normal import parameter_observations, parameter_observation_groups
+    from ..adjust.residuals import parameter_observations, parameter_observation_groups
 
     J_x, r_x = parameter_observations(problem, state)
     if J_x.shape[0] == 0:

@@ -28,7 +28,7 @@ from typing import Callable
 import numpy as np
 
 from ..adjust import AdjustmentResult, AdjustOptions, adjust
-from ..adjust.normal import parameter_observation_groups
+from ..adjust.residuals import parameter_observation_groups
 from ..block import Block
 from .reliability import ObservationTests, observation_tests
 

@@ -1,0 +1,395 @@
+"""Normal equations with the object points eliminated (Schur complement).
+
+With the unknowns split into theta (orientation, camera, extra) and the object
+points p, the normal equations of the whitened problem are
+
+    [ U    W ] [d_theta]   [g_theta]
+    [ W^T  V ] [d_p    ] = [g_p    ]
+
+where V is block diagonal with one 3x3 block per point. Eliminating the points
+gives the reduced system
+
+    (U - W V^-1 W^T) d_theta = g_theta - W V^-1 g_p,      d_p = V^-1 (g_p - W^T d_theta).
+
+Everything is assembled chunk by chunk over the points (observations are sorted
+by point), with NumPy and sparse products and no Python loop over
+observations. The image observations (:mod:`.residuals.image`) give U, V and W;
+every other residual block (:mod:`.residuals`) adds to the points' blocks V
+(observations of points) or to theta's part (observations of parameters),
+whatever its kind. The linearisation (Jacobians, U, V, W) is computed once per
+iteration; the reduction is repeated only when the Levenberg-Marquardt damping
+changes.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+from ..errors import AdjustmentError
+from .ap_columns import evaluate_ap_columns, sparse_ap_rows, sparse_gram
+from .kernels import (accumulate_observations, camera_couplings, camera_couplings_compact, point_blocks_times,
+                      schur_image_blocks, spd_inverse_3x3, subtract_image_couplings)
+from .parallel import over_chunks
+from .problem import Problem, State
+from .residuals import parameter_observations
+from .residuals.image import chunk_rows, contexts, image_residuals
+
+__all__ = ["ChunkLinearisation", "Linearisation", "linearise", "reduce", "back_substitute", "evaluate_cost",
+           "SingularPoints", "damped_inverse"]
+
+
+@dataclass
+class ChunkLinearisation:
+    p0: int              # positions [p0, p1) in Problem.point_order
+    p1: int
+    o0: int
+    o1: int
+    points: np.ndarray   # (n_pc,) the block's point at each position
+    V: np.ndarray        # (n_pc, 3, 3) point normal blocks, control prior included
+    g_p: np.ndarray      # (n_pc, 3)
+    w_e: np.ndarray      # (m_c, width, 3) coupling of each observation's image with its point
+    W_pd: np.ndarray | None      # (3 n_pc, n_d) coupling of the points with the camera parameters (dense form)
+    w_d: np.ndarray | None = None  # (m_c, 3, width) its non-zero parts per observation (compact form)
+
+    def couplings(self, transposed: bool = False) -> np.ndarray:
+        """Each observation's coupling with its point over the columns it touches, (m_c, w, 3): its image's,
+        then (compact cameras) its camera's (:func:`selfcal.adjust.covariance.observation_columns` names them).
+        ``transposed``: (m_c, 3, w), C-contiguous."""
+        if transposed:
+            if self.w_d is None:
+                return np.ascontiguousarray(self.w_e.transpose(0, 2, 1))
+            return np.concatenate([self.w_e.transpose(0, 2, 1), self.w_d], axis=2)
+        return self.w_e if self.w_d is None else np.concatenate([self.w_e, self.w_d.transpose(0, 2, 1)], axis=1)
+
+
+@dataclass
+class Linearisation:
+    cost: float
+    U_ee: np.ndarray     # (n_images, width, width)
+    U_ed: np.ndarray     # (n_e, n_d)
+    U_dd: np.ndarray     # (n_d, n_d)
+    g_theta: np.ndarray  # (n_theta,) before elimination, parameter observations included
+    J_x: sp.csr_matrix   # parameter observations (whitened), (k, n_theta)
+    r_x: np.ndarray
+    chunks: list[ChunkLinearisation]
+    diag_theta: np.ndarray   # diagonal of U (parameter observations included)
+
+    def of_points(self, name: str) -> np.ndarray:
+        """A chunk quantity of every point (``"V"``, ``"g_p"``) in the block's point order."""
+        parts = [getattr(ch, name) for ch in self.chunks]
+        out = np.empty((sum(len(ch.points) for ch in self.chunks),) + parts[0].shape[1:])
+        for ch, part in zip(self.chunks, parts):
+            out[ch.points] = part
+        return out
+
+
+def _gram(rows: np.ndarray, columns: np.ndarray) -> np.ndarray:
+    """rows[:, columns]^T rows[:, columns]: the product of all columns, then the block of ``columns``. A
+    strided view or a gathered copy of the columns is several times slower than the few extra ones."""
+    return _self_product(rows)[np.ix_(columns, columns)]
+
+
+def _self_product(Z: np.ndarray) -> np.ndarray:
+    """Z^T Z. NumPy sees the transpose of the same array and takes BLAS's symmetric rank-k update (half the
+    flops of a general product), and releases the interpreter lock in it, so the threads of a pass
+    (:mod:`.parallel`) run theirs side by side; SciPy's BLAS wrappers (dsyrk) hold the lock."""
+    Z = np.ascontiguousarray(Z)
+    return Z.T @ Z
+
+
+def linearise(problem: Problem, state: State) -> Linearisation:
+    """Jacobians and normal-equation blocks at ``state``."""
+    n_img, n_e, n_d, width = problem.n_images, problem.n_e, problem.n_d, problem.image_width
+    structure = problem.structure()
+    context = contexts(problem, state)
+    point_blocks = [(b, b.position(problem.n_points)) for b in problem.point_residuals if len(b)]
+    varying = problem.d_varying()
+    constant = np.setdiff1d(np.arange(n_d), varying)
+    if not constant.size:
+        varying = np.arange(n_d)
+    compact = problem.compact_cameras
+    if compact:
+        cols = problem.camera_columns()
+        constant = constant[:0]                 # the camera blocks are summed in every iteration
+        varying = np.arange(n_d)
+    gram = problem.ap_cache.gram
+    build_gram = gram is None and constant.size > 0
+    # one camera: the AP columns are its sparse rows times a map, where the model gives them so; their Gram
+    # matrix is summed over each row's few raw columns, then mapped (T^T R T)
+    sparse = sparse_ap_rows(problem) if build_gram else None
+    if sparse is not None and not np.array_equal(constant, np.arange(problem.cameras[0].n_core, n_d)):
+        sparse = None
+    gram_size = sparse.to_params.shape[0] if sparse is not None else constant.size
+    evaluate_ap_columns(problem)
+
+    def new_sums() -> dict:
+        return {"U_ee": np.zeros((n_img, width, width)), "U_ed": np.zeros((n_e, n_d)), "U_dd": np.zeros((n_d, n_d)),
+                "g_e": np.zeros((n_img, width)), "g_d": np.zeros(n_d), "cost": np.zeros(1),
+                "gram": np.zeros((gram_size, gram_size)) if build_gram else None}
+
+    def work(cs, sums: dict) -> ChunkLinearisation:
+        p0, p1, o0, o1 = cs.p0, cs.p1, cs.o0, cs.o1
+        m, n_pc = o1 - o0, p1 - p0
+        r, j_e, j_p, j_d = chunk_rows(problem, state, cs, context, compact)
+        sums["cost"] += 0.5 * float(np.sum(r * r))
+
+        # image and point blocks, and the coupling of each observation's image and point
+        V, g_p, w_e = accumulate_observations(j_e, j_p, r, cs.img, cs.ptl, sums["U_ee"], sums["g_e"], n_pc)
+        W_pd, w_d = None, None
+        if n_d and compact:
+            w_d = camera_couplings_compact(j_d, j_e, j_p, r, cs.img, problem.image_camera[cs.img], cols,
+                                           sums["U_ed"], sums["U_dd"], sums["g_d"])
+        elif n_d:
+            W_pd = np.zeros((3 * n_pc, n_d))
+            U_vd = np.zeros((varying.size, n_d))
+            camera_couplings(j_d, j_e, j_p, r, cs.img, cs.ptl, varying, sums["U_ed"], W_pd, sums["g_d"], U_vd)
+            U_dd = sums["U_dd"]
+            if constant.size:
+                # the AP columns are constant: their Gram block is summed once per problem
+                U_dd[varying, :] += U_vd
+                U_dd[np.ix_(constant, varying)] += U_vd[:, constant].T
+                if build_gram:
+                    sums["gram"] += (_gram(j_d.reshape(2 * m, n_d), constant) if sparse is None else
+                                     sparse_gram(sparse, o0, o1))
+            else:
+                U_dd += U_vd
+
+        # the rows of every observation of points alone (control coordinates, ...) go into their blocks
+        for block, position in point_blocks:
+            sel = position[cs.points]
+            has = np.flatnonzero(sel >= 0)
+            if has.size:
+                rc, J = block.rows(state.points[cs.points[has]], sel[has])
+                sums["cost"] += 0.5 * float(np.sum(rc * rc))
+                V[has] += np.einsum("nki,nkj->nij", J, J)
+                g_p[has] += np.einsum("nki,nk->ni", J, rc)
+        return ChunkLinearisation(p0, p1, o0, o1, cs.points, V, g_p, w_e, W_pd, w_d)
+
+    chunks, parts = over_chunks(structure.chunks, work, new_sums)
+    U_ee, U_ed, U_dd, g_e, g_d, cost = (sum(part[name] for part in parts)
+                                        for name in ("U_ee", "U_ed", "U_dd", "g_e", "g_d", "cost"))
+    cost = float(cost[0])
+    if build_gram:
+        gram = sum(part["gram"] for part in parts)
+        if sparse is not None:
+            gram = sparse.to_params.T @ gram @ sparse.to_params
+
+    if constant.size:
+        if build_gram:
+            problem.ap_cache.gram = gram
+        U_dd[np.ix_(constant, constant)] += gram
+    if not problem.all_images_free:
+        # held image parameters: a unit diagonal and no coupling, so that their correction is zero
+        held_image, held_entry = np.nonzero(~problem.image_free)
+        U_ee[held_image, held_entry, held_entry] = 1.0
+    J_x, r_x = parameter_observations(problem, state)
+    cost += 0.5 * float(np.sum(r_x * r_x))
+    g_theta = np.concatenate([g_e.ravel(), g_d, np.zeros(problem.n_extra)])
+    if J_x.shape[0]:
+        g_theta += J_x.T @ r_x
+    diag_theta = np.concatenate([np.einsum("nii->ni", U_ee).ravel(), np.diag(U_dd).copy(),
+                                 np.zeros(problem.n_extra)])
+    if J_x.shape[0]:
+        diag_theta += np.asarray(J_x.multiply(J_x).sum(axis=0)).ravel()
+    return Linearisation(cost, U_ee, U_ed, U_dd, g_theta, J_x, r_x, chunks, diag_theta)
+
+
+class SingularPoints(AdjustmentError):
+    """Point blocks of the normal equations that cannot be inverted (``indices`` into the points)."""
+
+    def __init__(self, indices: np.ndarray):
+        self.indices = np.asarray(indices)
+        super().__init__(f"{len(self.indices)} object point(s) are not determined by their rays (parallel rays, "
+                         f"or a point gone to infinity or behind its cameras)")
+
+
+def damped_inverse(V: np.ndarray, lam: float, points: np.ndarray | None = None) -> np.ndarray:
+    """The inverse damped point blocks; a block that is singular raises SingularPoints naming its point
+    (``points``: the block's point of each block, by default its index)."""
+    if lam:
+        V = V + lam * np.einsum("nii,ij->nij", V, np.eye(3))
+    out = np.empty_like(V)
+    if spd_inverse_3x3(V, out) < 0:
+        return out
+    try:                                    # a block not positive definite: LU, which names singular ones
+        return np.linalg.inv(V)
+    except np.linalg.LinAlgError:
+        w = np.linalg.eigvalsh(V)
+        bad = np.flatnonzero(w[:, 0] <= 1e-14 * np.abs(w[:, 2]))
+        raise SingularPoints(bad if points is None else points[bad]) from None
+
+
+def _point_schur(Vi: np.ndarray, W_pd: np.ndarray) -> np.ndarray:
+    """W_pd^T blockdiag(Vi) W_pd, (n_d, n_d): with Vi = L L^T per point, Z = blockdiag(L^T) W_pd
+    and the product is Z^T Z, a symmetric rank-k update (half the flops of a general product)."""
+    try:
+        L = np.linalg.cholesky(Vi)
+    except np.linalg.LinAlgError:                       # a point block not positive definite: the plain product
+        return W_pd.T @ point_blocks_times(Vi, W_pd, False)
+    return _self_product(point_blocks_times(L, W_pd, True))
+
+
+def reduce(problem: Problem, lin: Linearisation, lam: float = 0.0, dense: bool = True):
+    """Reduced normal matrix S and right-hand side g of theta, with damping ``lam``.
+
+    The damping adds ``lam * diag(N)`` to the full normal matrix N
+    (Levenberg-Marquardt with Marquardt's scaling).
+
+    The image-image part of W V^-1 W^T is summed over the pairs of
+    observations of each point (one 6x6 block per pair of images that share
+    the point); the camera-parameter parts are dense products.
+
+    Returns
+    -------
+    S : ndarray or scipy.sparse.csc_matrix, (n_theta, n_theta)
+    g : ndarray (n_theta,)
+    v_inv : list of (n_pc, 3, 3) damped inverse point blocks per chunk
+    """
+    n_img, n_e, n_d, n_t = problem.n_images, problem.n_e, problem.n_d, problem.n_theta
+    w = problem.image_width
+    structure = problem.structure()
+    S_ed = lin.U_ed.copy()
+    S_dd = lin.U_dd.copy()
+    g = lin.g_theta.copy()
+    diag_blocks = lin.U_ee.copy()
+    off_blocks = np.zeros((len(structure.pair_keys), w, w))
+    # compact cameras: an observation's block is its image's columns and its camera's (one camera per
+    # image in BAL); the Schur terms of both are summed over the pairs of each point's observations at once
+    # and spread over S_ee, S_ed and S_dd afterwards
+    compact = bool(n_d) and bool(lin.chunks) and lin.chunks[0].w_d is not None
+    if compact:
+        own = problem.camera_columns()[problem.image_camera]               # (n_images, camera width), -1 pads
+        wide = w + own.shape[1]
+        wide_diag = np.zeros((n_img, wide, wide))
+        wide_off = np.zeros((len(structure.pair_keys), wide, wide))
+    n_pairs = len(structure.pair_keys)
+
+    def new_sums() -> dict:
+        wider = wide if compact else w
+        return {"diag": np.zeros((n_img, wider, wider)), "off": np.zeros((n_pairs, wider, wider)),
+                "g": np.zeros(n_t), "S_ed": np.zeros((n_e, n_d)), "S_dd": np.zeros((n_d, n_d))}
+
+    def work(pair, sums: dict) -> np.ndarray:
+        ch, cs = pair
+        Vi = damped_inverse(ch.V, lam, ch.points)
+        g = sums["g"]
+        Y_t = schur_image_blocks(Vi, cs.ptl, ch.couplings(transposed=True), cs.img, cs.pair_a, cs.pair_b,
+                                 cs.pair_key, sums["diag"], sums["off"])          # (m, 3, w or wide) = V^-1 W^T
+        if compact:
+            yg = np.einsum("oki,ok->oi", Y_t, ch.g_p[cs.ptl])
+            g[:n_e] -= (cs.sum_by_image @ yg[:, :w]).ravel()
+            cols = own[cs.img]
+            np.subtract.at(g, n_e + cols[cols >= 0], yg[:, w:][cols >= 0])
+            return Vi
+        g[:n_e] -= (cs.sum_by_image @ np.einsum("oki,ok->oi", Y_t, ch.g_p[cs.ptl])).ravel()
+        if n_d:
+            subtract_image_couplings(Y_t, ch.W_pd, cs.img, cs.ptl, sums["S_ed"])
+            sums["S_dd"] -= _point_schur(Vi, ch.W_pd)
+            g[n_e:n_e + n_d] -= ch.W_pd.T @ np.einsum("pij,pj->pi", Vi, ch.g_p).ravel()
+        return Vi
+
+    v_inv, parts = over_chunks(list(zip(lin.chunks, structure.chunks)), work, new_sums)
+    for part in parts:
+        g += part["g"]
+        S_ed += part["S_ed"]
+        S_dd += part["S_dd"]
+        if compact:
+            wide_diag += part["diag"]
+            wide_off += part["off"]
+        else:
+            diag_blocks += part["diag"]
+            off_blocks += part["off"]
+    ia, ib = structure.image_pair_a, structure.image_pair_b
+    if compact:
+        diag_blocks += wide_diag[:, :w, :w]
+        off_blocks += wide_off[:, :w, :w]
+        _spread_camera_blocks(wide_diag, wide_off, own, ia, ib, w, S_ed, S_dd)
+
+    damp = lam * lin.diag_theta
+    if dense:
+        S = np.zeros((n_t, n_t))
+        S_ee = np.zeros((n_img, n_img, w, w))
+        S_ee[np.arange(n_img), np.arange(n_img)] = diag_blocks
+        S_ee[ia, ib] = off_blocks
+        S_ee[ib, ia] = off_blocks.transpose(0, 2, 1)
+        S[:n_e, :n_e] = S_ee.transpose(0, 2, 1, 3).reshape(n_e, n_e)
+        S[:n_e, n_e:n_e + n_d] = S_ed
+        S[n_e:n_e + n_d, :n_e] = S_ed.T
+        S[n_e:n_e + n_d, n_e:n_e + n_d] = S_dd
+        if lin.J_x.shape[0]:
+            S += (lin.J_x.T @ lin.J_x).toarray()
+        S[np.diag_indices(n_t)] += damp
+        S = 0.5 * (S + S.T)
+    else:
+        bi = np.concatenate([np.arange(n_img), ia, ib])
+        bj = np.concatenate([np.arange(n_img), ib, ia])
+        blocks = np.concatenate([diag_blocks, off_blocks, off_blocks.transpose(0, 2, 1)])
+        rows = np.broadcast_to(w * bi[:, None, None] + np.arange(w)[None, :, None], blocks.shape)
+        cols = np.broadcast_to(w * bj[:, None, None] + np.arange(w)[None, None, :], blocks.shape)
+        S_ee = sp.csr_matrix((blocks.ravel(), (rows.ravel(), cols.ravel())), shape=(n_e, n_e))
+        top = sp.hstack([S_ee, sp.csr_matrix(S_ed), sp.csr_matrix((n_e, problem.n_extra))])
+        mid = sp.hstack([sp.csr_matrix(S_ed.T), sp.csr_matrix(S_dd), sp.csr_matrix((n_d, problem.n_extra))])
+        bot = sp.csr_matrix((problem.n_extra, n_t))
+        S = sp.vstack([top, mid, bot]).tocsc()
+        if lin.J_x.shape[0]:
+            S = S + (lin.J_x.T @ lin.J_x).tocsc()
+        S = S + sp.diags(damp)
+        S = (0.5 * (S + S.T)).tocsc()
+    return S, g, v_inv
+
+
+def _spread_camera_blocks(wide_diag, wide_off, own, ia, ib, w, S_ed, S_dd) -> None:
+    """Add the camera rows and columns of the per-image blocks (image then camera columns, ``own``: each
+    image's camera columns, -1 pads) to S_ed and S_dd: each image's own block, and each pair of images
+    (ia, ib) sharing a point with its transpose. Several images may share a camera: np.add.at sums them."""
+    rows = w * np.arange(len(own))[:, None] + np.arange(w)[None, :]            # (n_images, w) image rows
+
+    def add(image_rows, cams_a, cams_b, e_part, d_part):
+        keep = cams_b >= 0
+        r = np.broadcast_to(image_rows[:, :, None], e_part.shape)
+        c = np.broadcast_to(cams_b[:, None, :], e_part.shape)
+        mask = np.broadcast_to(keep[:, None, :], e_part.shape)
+        np.add.at(S_ed, (r[mask], c[mask]), e_part[mask])
+        both = (cams_a >= 0)[:, :, None] & keep[:, None, :]
+        ra = np.broadcast_to(cams_a[:, :, None], d_part.shape)
+        cb = np.broadcast_to(cams_b[:, None, :], d_part.shape)
+        np.add.at(S_dd, (ra[both], cb[both]), d_part[both])
+    add(rows, own, own, wide_diag[:, :w, w:], wide_diag[:, w:, w:])
+    if len(ia):
+        add(rows[ia], own[ia], own[ib], wide_off[:, :w, w:], wide_off[:, w:, w:])
+        add(rows[ib], own[ib], own[ia], wide_off[:, w:, :w].transpose(0, 2, 1), wide_off[:, w:, w:].transpose(0, 2, 1))
+
+
+def back_substitute(problem: Problem, lin: Linearisation, v_inv: list, d_theta: np.ndarray) -> np.ndarray:
+    """Point corrections d_p = V^-1 (g_p - W^T d_theta), shape (n_points, 3)."""
+    n_e, n_d = problem.n_e, problem.n_d
+    d_e = d_theta[:n_e].reshape(-1, problem.image_width)
+    d_d = d_theta[n_e:n_e + n_d]
+    d_p = np.zeros((problem.n_points, 3))
+    columns = problem.camera_columns() if n_d else None
+
+    def work(chunk, _) -> None:                 # each chunk writes its own points
+        ch, Vi = chunk
+        img = problem.obs_image[ch.o0:ch.o1]
+        starts = problem.point_start[ch.p0:ch.p1] - ch.o0
+        wt = np.add.reduceat(np.einsum("oik,oi->ok", ch.w_e, d_e[img]), starts, axis=0)
+        if n_d and ch.w_d is not None:
+            d_own = np.append(d_d, 0.0)[columns[problem.image_camera[img]]]   # -1 pads: 0
+            wt += np.add.reduceat(np.einsum("okc,oc->ok", ch.w_d, d_own), starts, axis=0)
+        elif n_d:
+            wt += (ch.W_pd @ d_d).reshape(-1, 3)
+        d_p[ch.points] = np.einsum("pij,pj->pi", Vi, ch.g_p - wt)
+    over_chunks(list(zip(lin.chunks, v_inv)), work, lambda: None)
+    return d_p
+
+
+def evaluate_cost(problem: Problem, state: State) -> float:
+    """0.5 v^T P v of all observation groups at ``state``."""
+    v = image_residuals(problem, state) / problem.obs_sigma
+    cost = 0.5 * float(np.sum(v * v))
+    cost += sum(block.cost(state.points) for block in problem.point_residuals)
+    _, r_x = parameter_observations(problem, state)
+    return cost + 0.5 * float(np.sum(r_x * r_x))
+
