@@ -50,6 +50,9 @@ import time
 import selfcal  # noqa: F401  (before NumPy, as on the command line: it sets OpenBLAS's thread timeout)
 import numpy as np
 
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from robust_peer import frame_colmap_model, write_points3d  # noqa: E402  (the COLMAP text model, written once)
+
 BAL = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "shared", "data", "bal",
                    "problem-49-7776-pre.txt")
 
@@ -146,14 +149,7 @@ def _colmap_model(problem, folder: str) -> None:
     for k in range(len(problem.cameras)):
         for j, i in enumerate(np.flatnonzero(problem.obs_camera == k)):
             track.setdefault(int(problem.obs_point[i]), []).append(f"{k + 1} {j}")
-    _write_points3d(folder, points, track)
-
-
-def _write_points3d(folder: str, points: list, track: dict[int, list[str]]) -> None:
-    """COLMAP's points3D.txt: id, X, Y, Z, colour (none), error (none), track (image id, 2-D index)."""
-    with open(os.path.join(folder, "points3D.txt"), "w") as f:
-        for p, xyz in enumerate(points):
-            f.write(f"{p + 1} {xyz[0]!r} {xyz[1]!r} {xyz[2]!r} 0 0 0 0 {' '.join(track.get(p, []))}\n")
+    write_points3d(folder, points, track)
 
 
 def _colmap_cost(reconstruction) -> float:
@@ -308,43 +304,12 @@ def run_selfcal_frame(images: int) -> dict:
             "observations": len(block.observations)}
 
 
-def _frame_colmap_model(block, folder: str) -> None:
-    """A frame block as a COLMAP text model: one SIMPLE_PINHOLE camera, poses turned from selfcal's
-    camera (looking along -z, y up) to COLMAP's (+z, y down)."""
-    from scipy.spatial.transform import Rotation
-    from selfcal.geometry.rotation import matrix_from_opk
-
-    cam = next(iter(block.cameras.values()))
-    f = cam.focal_mm / cam.pixel_size_mm
-    cx = cam.width_px / 2 + cam.x0_mm / cam.pixel_size_mm
-    cy = cam.height_px / 2 - cam.y0_mm / cam.pixel_size_mm
-    flip = np.diag([1.0, -1.0, -1.0])
-    R = flip @ matrix_from_opk(block.images.attitude_rad)
-    t = -np.einsum("nij,nj->ni", R, block.images.position_m)
-    q = Rotation.from_matrix(R).as_quat().tolist()
-    t = t.tolist()
-    obs = block.observations
-    pixel = obs.pixel.tolist()
-    with open(os.path.join(folder, "cameras.txt"), "w") as handle:
-        handle.write(f"1 SIMPLE_PINHOLE {cam.width_px} {cam.height_px} {float(f)!r} {float(cx)!r} {float(cy)!r}\n")
-    track: dict[int, list[str]] = {}
-    with open(os.path.join(folder, "images.txt"), "w") as handle:
-        for k in range(len(block.images)):
-            sel = np.flatnonzero(obs.image_index == k)
-            handle.write(f"{k + 1} {q[k][3]!r} {q[k][0]!r} {q[k][1]!r} {q[k][2]!r} {t[k][0]!r} {t[k][1]!r} "
-                         f"{t[k][2]!r} 1 img{k}\n")
-            handle.write(" ".join(f"{pixel[i][0]!r} {pixel[i][1]!r} {obs.point_index[i] + 1}" for i in sel) + "\n")
-            for j, i in enumerate(sel):
-                track.setdefault(int(obs.point_index[i]), []).append(f"{k + 1} {j}")
-    _write_points3d(folder, block.points.xyz_m.tolist(), track)
-
-
 def run_pycolmap_frame(images: int) -> dict:
     import pycolmap
 
     block = _synthetic_block(images)
     with tempfile.TemporaryDirectory() as folder:
-        _frame_colmap_model(block, folder)
+        frame_colmap_model(block, folder)          # SIMPLE_PINHOLE at the block's nominal camera
         reconstruction = pycolmap.Reconstruction(folder)
     seconds = _pycolmap_adjust(reconstruction, refine_principal_point=True)
     return {"seconds": seconds, "iterations": 0, "cost": _colmap_cost(reconstruction), "converged": True,

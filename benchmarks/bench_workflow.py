@@ -116,7 +116,8 @@ def run_pycolmap(block, repeat: int) -> list[float]:
     from dataclasses import replace
 
     import pycolmap
-    from bench_engine import _frame_colmap_model, _pycolmap_adjust
+    from bench_engine import _pycolmap_adjust
+    from robust_peer import frame_colmap_model
     from selfcal.adjust.initial import initial_state
     from selfcal.adjust.problem import build_problem
 
@@ -124,7 +125,7 @@ def run_pycolmap(block, repeat: int) -> list[float]:
     start = replace(block, points=replace(block.points, xyz_m=state.points),
                     images=replace(block.images, position_m=state.image[:, :3], attitude_rad=state.image[:, 3:]))
     with tempfile.TemporaryDirectory() as folder:
-        _frame_colmap_model(start, folder)
+        frame_colmap_model(start, folder)
         model = pycolmap.Reconstruction(folder)
     return sorted(_pycolmap_adjust(pycolmap.Reconstruction(model), refine_principal_point=True)
                   for _ in range(repeat))
