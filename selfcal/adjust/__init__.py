@@ -337,7 +337,7 @@ def _adjust(block: Block, options: AdjustOptions, progress, start, free, ap_mode
                                         block.datum == "free" or options.solver.free_network) or start
             carry_ap_columns(problem, block.observations.row[problem.obs_order],
                              start.problem, start.block.observations.row[start.problem.obs_order], consume=True)
-        state, notes = initial_state(problem, block, start)
+        state, notes = initial_state(problem, block, start, robust is not None)
         for slot in problem.sensors:
             slot.bound.refine_sigma(state, problem.obs_sigma)
         problem.settle_sigma()
@@ -349,8 +349,11 @@ def _adjust(block: Block, options: AdjustOptions, progress, start, free, ap_mode
     solver_options = options.solver
     free_network = block.datum == "free" or solver_options.free_network
     left_out: list[str] = []
-    if free_network:
-        solver_options = replace(solver_options, free_network=True,
+    if free_network or robust is not None:
+        # a free network, or a robust adjustment of matcher output: points that their rays do not determine (or
+        # whose rays the weights took away) are left out as they appear, observations behind their camera at the
+        # start go
+        solver_options = replace(solver_options, free_network=free_network or solver_options.free_network,
                                  point_sigma_ratio=solver_options.point_sigma_ratio or FREE_POINT_SIGMA_RATIO)
         # at the start values; a warm start comes from an adjustment that left them out already
         behind = behind_camera(problem, state) if start is None else np.zeros(problem.n_image_observations, bool)
@@ -359,7 +362,8 @@ def _adjust(block: Block, options: AdjustOptions, progress, start, free, ap_mode
             flagged[problem.obs_order[behind]] = True
             text = (f"left out {int(behind.sum())} observations of {len(np.unique(problem.obs_point[behind]))} "
                     f"points behind their camera at the start values (a central projection fits their mirror "
-                    f"image; COLMAP's cost gives them no residual)")
+                    f"image; " + ("COLMAP's cost gives them no residual)" if free_network else
+                                  "wrong matches, or points intersected from them)"))
             block = _leave_out(block, flagged, None, text, behind=int(behind.sum()))
             left_out.append(text)
             problem, state, notes = setup(block, start, ap_models)
@@ -385,7 +389,17 @@ def _adjust(block: Block, options: AdjustOptions, progress, start, free, ap_mode
                             None if weighting is None else weighting.update)
         except SingularPoints as exc:
             ids = ", ".join(f"'{block.points.point_id[i]}'" for i in exc.indices[:5])
-            raise AdjustmentError(f"{exc} (e.g. {ids}): remove them or check their observations") from None
+            if robust is None:
+                raise AdjustmentError(f"{exc} (e.g. {ids}): remove them or check their observations") from None
+            # a robust adjustment: points whose rays are all gross errors go, and it starts again from its start
+            flagged = np.zeros(len(block.points), bool)
+            flagged[exc.indices] = True
+            text = f"left out {int(flagged.sum())} points whose rays do not determine them (e.g. {ids})"
+            left_out.append(text)
+            previous = SimpleNamespace(block=block, state=state, problem=problem)
+            block = _leave_out(block, None, flagged, text, undetermined=int(flagged.sum()))
+            problem, state, notes = setup(block, previous, {cam.camera_id: cam.ap for cam in problem.cameras})
+            continue
         history += [replace(record, iteration=record.iteration + done) for record in outcome.history]
         datum_null = outcome.datum_null
         if outcome.undetermined is None or len(history) >= options.solver.max_iterations:

@@ -210,7 +210,7 @@ def solve(problem: Problem, state: State, names: list[str], options: SolverOptio
         # null space): 0.17 s of a 200-image block's first iteration
         null = similarity_directions(problem, state, lin)
     for iteration in range(1, options.max_iterations + 1):
-        if options.point_sigma_ratio and options.free_network and checked is not lin:
+        if options.point_sigma_ratio and checked is not lin:
             checked = lin
             bad = points_not_determined_by_rays(lin.of_points("V"),
                                                 options.point_sigma_ratio)[0]

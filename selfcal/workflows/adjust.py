@@ -14,7 +14,7 @@ from typing import Callable
 
 import numpy as np
 
-from ..adjust import AdjustOptions
+from ..adjust import AdjustOptions, RobustOptions
 from ..adjust.datum import control_far_away, control_on_a_line, undetermined_points
 from ..ap import takes_grid
 from ..block import Block
@@ -40,6 +40,7 @@ class AdjustRequest:
     snooping: SnoopingOptions | None = field(default_factory=SnoopingOptions)
     screening: ScreeningOptions | None = None
     variance: VarianceOptions | None = None
+    robust: RobustOptions | None = None     # robust cleaning before the tests (None: least squares throughout)
     candidates: list | None = None          # (model, grid) of --ap auto: choose the AP model by BIC
     # seed 001 (sensors with sensor models)
     image_ids: tuple[str, ...] | None = None
@@ -82,7 +83,7 @@ def adjust_block(block: Block, request: AdjustRequest, progress: Callable | None
             "model_choice.csv)")
     _check_control(block)
     tested = adjust_with_tests(block, options, request.snooping, request.screening, progress=progress,
-                               report=report, variance=request.variance)
+                               report=report, variance=request.variance, robust=request.robust)
     return Adjusted(tested, block, check_points.intersected(tested.result), _check_points_determined(block, tested),
                     choice=choice)
 
@@ -142,7 +143,7 @@ def _seed001(block: Block, request: AdjustRequest, progress, report, say, scores
         options = replace(options, ap=choice.model, grid=choice.grid)
         say(f"chosen AP model: {choice.model} (smallest BIC; scores in model_choice.csv)")
     case = seed001.run_case(block, model, gcps, image_set, request.height, "+".join(chosen), options,
-                            request.snooping, request.screening, progress, report, request.variance)
+                            request.snooping, request.screening, progress, report, request.variance, request.robust)
     if case.tested is None:
         from ..errors import AdjustmentError
         raise AdjustmentError(case.failure)

@@ -8,7 +8,7 @@ import os
 import time
 from dataclasses import dataclass, replace
 
-from ..adjust import AdjustOptions
+from ..adjust import AdjustOptions, RobustOptions
 from ..adjust.solver import SolverOptions
 from ..block import Block
 from ..stats.screening import ScreeningOptions
@@ -48,12 +48,14 @@ class Outcome:
 
 
 def bundle_adjust(block: Block | str | os.PathLike, ap: str = "none", *, snoop: float = 3.0, screen: bool = False,
-                  variance_components: bool = False, max_iterations: int = 50, **options) -> Outcome:
+                  variance_components: bool = False, max_iterations: int = 50, robust: str = "none",
+                  **options) -> Outcome:
     """The tested adjustment of ``block`` (a :class:`~selfcal.block.Block` or a block folder).
 
     ``ap``: the AP model (``"brown"``, ``"wavelet:db4"``...); ``snoop``: Baarda's critical value (0: none);
     ``screen``: drop insignificant and highly correlated APs; ``variance_components``: estimate each
-    observation group's sigma; other keywords are :class:`selfcal.adjust.AdjustOptions` fields (``grid``,
+    observation group's sigma; ``robust``: the loss of the robust cleaning before the tests (``"danish"``,
+    ``"huber"``, ``"cauchy"``; ``"none"``: least squares throughout); other keywords are :class:`selfcal.adjust.AdjustOptions` fields (``grid``,
     ``gnss_drift``, ``sensor_model``...). Pushbroom blocks get seed 001's sensor model ``M6`` unless told.
     """
     from ..io.block_folder import read_block
@@ -66,7 +68,8 @@ def bundle_adjust(block: Block | str | os.PathLike, ap: str = "none", *, snoop: 
     adjust_options = replace(AdjustOptions(ap=ap, solver=SolverOptions(max_iterations=max_iterations)), **options)
     screening = ScreeningOptions() if screen else None
     request = AdjustRequest(adjust_options, SnoopingOptions(critical=snoop), screening,
-                            VarianceOptions() if variance_components else None)
+                            VarianceOptions() if variance_components else None,
+                            None if robust == "none" else RobustOptions(loss=robust))
     LOG.info(f"{block.name}: {len(block.images)} images, {len(block.points)} points, {len(block.observations)} "
              f"image observations; AP model {ap}")
     adjusted = adjust_block(block, request, progress=logging_progress(block.image_sigma_px),

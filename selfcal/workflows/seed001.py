@@ -178,7 +178,7 @@ def track_frame(block: Block) -> tuple[np.ndarray, np.ndarray]:
 def run_case(block: Block, model: str, gcps: np.ndarray, image_set, height=None, label: str = "",
              options: AdjustOptions | None = None, snooping: SnoopingOptions | None = None,
              screening: ScreeningOptions | None = None, progress=None, report=None,
-             variance=None) -> PushbroomCase:
+             variance=None, robust=None) -> PushbroomCase:
     """One adjustment with ``gcps`` (point indices) as control on the images ``image_set``; check points
     are the other points with reference coordinates, restituted on ``height`` (a DEM callable or metres;
     mono) or intersected (stereo). ``options`` gives the AP model and weights; its ``sensor_model`` is
@@ -198,7 +198,7 @@ def run_case(block: Block, model: str, gcps: np.ndarray, image_set, height=None,
                 track_centre=centre)
     try:
         tested = adjust_with_tests(sub, options, snooping, screening, progress=progress, report=report,
-                                   variance=variance)
+                                   variance=variance, robust=robust)
     except AdjustmentError as exc:
         return PushbroomCase(tested=None, checks=None, failure=str(exc), **base)
     result = tested.result

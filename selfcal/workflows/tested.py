@@ -23,8 +23,9 @@ from typing import Callable
 
 import numpy as np
 
-from ..adjust import AdjustmentResult, AdjustOptions, adjust
+from ..adjust import AdjustmentResult, AdjustOptions, RobustOptions, adjust
 from ..block import Block, prune
+from ..stats.cleaning import Cleaning, clean, readmissible
 from ..stats.reliability import ObservationTests, observation_tests
 from ..stats.screening import ScreeningDecision, ScreeningOptions, ScreeningRound, screen_once, screening_masks
 from ..stats.snooping import SnoopingOptions, SnoopingRound, image_w, reject_candidates
@@ -74,6 +75,12 @@ class TestedAdjustment:
     variance_components: list[VarianceComponent] | None = None
     variance_converged: bool | None = None
     failure: str = ""                                # why the tests stopped short, if they did
+    cleaning: Cleaning | None = None                 # the robust cleaning before the tests, if there was one
+
+    @property
+    def robust_rows(self) -> np.ndarray:
+        """The rows rejected by the robust cleaning (the others of ``rejected_rows`` by data snooping)."""
+        return np.zeros(0, np.int64) if self.cleaning is None else self.cleaning.rejected_rows
 
     @property
     def n_ap_significant(self) -> int:
@@ -86,8 +93,12 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
                       screening: ScreeningOptions | None = None,
                       progress: Callable | None = None,
                       report: Callable[[SnoopingRound], None] | None = None,
-                      variance: VarianceOptions | None = None, ap_models: dict | None = None) -> TestedAdjustment:
+                      variance: VarianceOptions | None = None, ap_models: dict | None = None,
+                      robust: RobustOptions | None = None) -> TestedAdjustment:
     """Adjust ``block`` (pruned, as read) with data snooping and AP screening.
+
+    With ``robust``, the block is first adjusted with that robust loss and cleaned of what it finds to be gross
+    errors (:mod:`selfcal.stats.cleaning`); the screening and the tests then see only the cleaned observations.
 
     ``snooping=None`` (or a critical value of 0) disables snooping;
     ``screening=None`` disables screening. With ``variance``, a variance
@@ -103,7 +114,21 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
     # ROUND_TOLERANCE of its sigma; the adjustment the tests end with is converged to the caller's tolerance
     rough = options if not max_rounds else replace(options, solver=replace(
         options.solver, function_tolerance=max(options.solver.function_tolerance, ROUND_TOLERANCE)))
-    result = adjust(block, rough, progress=progress, ap_models=ap_models)
+    cleaning = None
+    if robust is not None:
+        first = adjust(block, rough, progress=progress, ap_models=ap_models, robust=robust)
+        read, (block, cleaning) = first.block, clean(first, robust.reject, prune_for)
+        models = {cam.camera_id: cam.ap for cam in first.problem.cameras}
+        result = adjust(block, rough, progress=progress, start=first, ap_models=models)
+        del first
+        # the good rays pulled along by a point's blunder in the robust adjustment fit the cleaned one: taken back
+        back = readmissible(cleaning, read, result)
+        if back.size:
+            cleaning.readmit(back)
+            block = cleaning.apply(read, prune_for)
+            result = adjust(block, rough, progress=progress, start=result, ap_models=models)
+    else:
+        result = adjust(block, rough, progress=progress, ap_models=ap_models)
     finished = rough is options or _meets(result, options)
     block = result.block                # a free network's adjustment leaves out what it cannot determine
     models = {cam.camera_id: cam.ap for cam in result.problem.cameras}
@@ -111,9 +136,10 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
     n_ap_initial = int(sum(cam.ap.n_params for cam in result.problem.cameras))
     screenable = sum(int(v.sum()) for v in free.values())
     tests = observation_tests(result, critical)
-    rejected = np.zeros(0, np.int64)
-    rejected_w = np.zeros(0)
-    rejected_mdb = np.zeros((0, 2))
+    rejected = np.zeros(0, np.int64) if cleaning is None else cleaning.rejected_rows
+    rejected_w = np.full(len(rejected), np.nan)          # (no w-test: the robust cleaning's u is in cleaning)
+    rejected_mdb = np.full((len(rejected), 2), np.nan)
+    snooped = 0
     rounds: list[SnoopingRound] = []
     log: list[tuple[int, ScreeningDecision]] = []
     joint_tests: list[tuple[int, ScreeningRound]] = []
@@ -136,11 +162,10 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
             w = image_w(tests, snooping.min_redundancy)
             largest = float(w.max()) if w.size else 0.0
             picks = reject_candidates(result.block, w, critical, snooping.mode)
-            if picks.size and len(rejected) + picks.size > limit:
-                failure = (f"data snooping would reject more than {MAX_REJECTED_SHARE:.0%} of the image observations "
-                           f"(|w| up to {largest:.1f} after {len(rejected)} rejected): the model does not fit the data "
-                           f"(a focal length not calibrated? too few parameters?)")
+            if picks.size and snooped + picks.size > limit:
+                failure = _too_many(tests, largest, snooped, robust is not None)
                 break
+            snooped += picks.size
             rejected = np.concatenate([rejected, result.block.observations.row[picks]])
             rejected_w = np.concatenate([rejected_w, w[picks]])
             rejected_mdb = np.concatenate([rejected_mdb, tests.image_mdb_px[picks]])
@@ -172,4 +197,22 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
             progress=progress)
     order = np.argsort(rejected)
     return TestedAdjustment(result, tests, rejected[order], rejected_w[order], rejected_mdb[order], free, n_ap_initial,
-                            rounds, log, joint_tests, components, converged, failure)
+                            rounds, log, joint_tests, components, converged, failure, cleaning)
+
+
+def _too_many(tests: ObservationTests, largest: float, snooped: int, cleaned: bool) -> str:
+    """Why data snooping stops: the bulk of the observations fitting (their w's robust sigma near 1: a block
+    contaminated with gross errors), or not (a model that misses something)."""
+    w = np.abs(tests.image_w[tests.image_redundancy >= 0.01])
+    bulk = float(np.median(w) / 0.6745) if w.size else float("nan")
+    share = f"{MAX_REJECTED_SHARE:.0%}"
+    if bulk <= 1.5:
+        advice = ("after the robust cleaning: lower --robust-reject" if cleaned else
+                  "clean it first with a robust loss (--robust danish)")
+        return (f"data snooping would reject more than {share} of the image observations (|w| up to {largest:.1f} "
+                f"after {snooped} rejected), while the bulk of them fits the model (robust sigma of w {bulk:.2f}): "
+                f"the block is contaminated with gross errors; {advice}")
+    return (f"data snooping would reject more than {share} of the image observations (|w| up to {largest:.1f} after "
+            f"{snooped} rejected), and the bulk of them does not fit either (robust sigma of w {bulk:.2f}): the model "
+            f"does not fit the data (a focal length not calibrated? too few parameters?) or the a-priori sigma of "
+            f"the image coordinates is too small")
