@@ -322,12 +322,15 @@ def test_bad_input_names_file_line_and_reason(tmp_path, sim, capsys, fmt, name, 
 
 # -------------------------------------------------------------------------------------------------- Pix4D
 
-def write_pix4d(folder, sim, project="proj"):
+def write_pix4d(folder, sim, project="proj", bingo_label=str, gcp_label=str, northing_first=False):
     """A Pix4D params folder as Pix4D documents it: the BINGO file ("What is the bingo file": mm from the image
     centre, one block per image closed by -99), the .cam (F, Px, Py in mm, Px/Py from the sensor's upper-left
     corner, the sensor size in the comment), the external parameters (imageName X Y Z Omega Phi Kappa, degrees,
     PATB convention) and the calibrated camera parameters (fileName imageWidth imageHeight, K, ...), and a GCP
-    file in PIX4D's import format (label, X, Y, Z, horizontal accuracy, vertical accuracy)."""
+    file in PIX4D's import format (label, X, Y, Z, horizontal accuracy, vertical accuracy).
+
+    ``bingo_label``, ``gcp_label``: the label of a marked point (gcp, chk) in the BINGO and the GCP file;
+    ``northing_first``: the GCP file in the order label, Y, X, Z (a survey file in northing, easting order)."""
     block, cam = sim.blocks["type1"], sim.truth.camera
     p, w, h = cam.pixel_size_mm, cam.width_px, cam.height_px
     params = os.path.join(folder, "1_initial", "params")
@@ -338,7 +341,10 @@ def write_pix4d(folder, sim, project="proj"):
             f.write(f"{image} ilce7m3_20.96_35.4\n")
             for k in np.flatnonzero(ob.image_index == i):
                 col, row = ob.pixel[k]
-                f.write(f"{block.points.point_id[ob.point_index[k]]} {(col - w / 2) * p:.10f} {(h / 2 - row) * p:.10f}\n")
+                pid = block.points.point_id[ob.point_index[k]]
+                if block.points.role[ob.point_index[k]] != "tie":
+                    pid = bingo_label(pid)
+                f.write(f"{pid} {(col - w / 2) * p:.10f} {(h / 2 - row) * p:.10f}\n")
             f.write("-99\n\n")
     with open(os.path.join(params, f"{project}_pix4d_calibrated_internal_camera_parameters.cam"), "w") as f:
         f.write(f"Pix4D camera calibration file 0\n#Focal Length mm assuming a sensor width of {w * p:g}x{h * p:g}mm\n"
@@ -365,7 +371,8 @@ def write_pix4d(folder, sim, project="proj"):
     gcp = os.path.join(folder, "gcp.csv")
     with open(gcp, "w") as f:
         for k, xyz in zip(marks, coords):
-            f.write(f"{block.points.point_id[k]},{xyz[0]:.3f},{xyz[1]:.3f},{xyz[2]:.3f},0.0167,0.0289\n")
+            first, second = (xyz[1], xyz[0]) if northing_first else (xyz[0], xyz[1])
+            f.write(f"{gcp_label(block.points.point_id[k])},{first:.3f},{second:.3f},{xyz[2]:.3f},0.0167,0.0289\n")
     return dict(zip(block.points.point_id[marks], coords)), gcp
 
 
@@ -557,3 +564,150 @@ def test_pix4d_radial_distortion_becomes_initial_brown_values(tmp_path, sim):
     print(f"largest difference to Pix4D's radial model: {np.max(err):.4f} px (distortion up to "
           f"{np.max(np.hypot(*(want - np.column_stack([col.ravel(), row.ravel()])).T)):.1f} px)")
     assert np.max(err) < 0.05
+
+
+# ------------------------------------------------------------------- control of real files (issue 39, item 5)
+# A 581-image DJI P1 block exported by Pix4D: the survey file says GCP05 where BINGO says GCP_GCP05, and a survey
+# file in northing, easting order was read as X = northing. Labels are joined after the normalisations a real
+# pair of files needs (and the import says which); control that lies swapped against the cameras is refused.
+
+#: a projected CRS's easting and northing of the block (TWD97 / TM2 in Taiwan: northings far above eastings)
+EAST, NORTH = 251000.0, 2690000.0
+
+
+@pytest.fixture(scope="module")
+def geo_sim(sim):
+    """``sim`` moved to EAST, NORTH: a block whose cameras know where they are (Pix4D's external parameters)."""
+    from dataclasses import replace
+    from types import SimpleNamespace
+    d = np.array([EAST, NORTH, 0.0])
+    block = sim.blocks["type1"]
+    block = replace(block, crs="EPSG:3826", points=replace(block.points, xyz_m=block.points.xyz_m + d),
+                    images=replace(block.images, position_m=block.images.position_m + d))
+    eop = sim.truth.eop.copy()
+    eop[:, :3] += d
+    return SimpleNamespace(blocks={"type1": block}, truth=replace(sim.truth, eop=eop, xyz=sim.truth.xyz + d))
+
+
+def pix4d_import(tmp_path, sim, *extra, **labels):
+    """(exit code, stderr, block folder) of ``selfcal import pix4d`` of ``sim`` written by write_pix4d."""
+    control, gcp = write_pix4d(str(tmp_path / "project"), sim, **labels)
+    out = str(tmp_path / "block")
+    return control, gcp, out, ["import", "pix4d", str(tmp_path / "project"), "--gcp", gcp, "--out", out, *extra]
+
+
+def renamed_truth(sim, name):
+    """The simulated block with its marked points renamed by ``name`` (what the import should give)."""
+    from dataclasses import replace
+    block = sim.blocks["type1"]
+    ids = np.array([name(p) if r != "tie" else p for p, r in zip(block.points.point_id, block.points.role)], object)
+    return replace(block, points=replace(block.points, point_id=ids))
+
+
+def test_pix4d_control_labels_with_a_prefix_of_bingo(tmp_path, sim, capsys):
+    """The user's files: GCP05 in the survey file, GCP_GCP05 in BINGO. The import joins them after removing the
+    prefix BINGO adds (found from the labels, not from a list), says so, and keeps the survey's labels."""
+    control, gcp, out, argv = pix4d_import(tmp_path, sim, "--check", "GCP_GCP07",
+                                           gcp_label=lambda p: "GCP" + p[1:], bingo_label=lambda p: "GCP_GCP" + p[1:])
+    assert run_cli(*argv) == 0
+    err = capsys.readouterr().err
+    n = len(control)
+    assert (f"warning: control labels matched after removing the prefix 'GCP_' of proj_tp_bingo.txt's labels "
+            f"(gcp.csv to proj_tp_bingo.txt): {n} of {n} (GCP01 = GCP_GCP01, GCP02 = GCP_GCP02, GCP03 = GCP_GCP03, "
+            f"...)") in err, err
+    block = read_block(out)
+    assert_same_measurements(block, renamed_truth(sim, lambda p: "GCP" + p[1:]))
+    index = {p: k for k, p in enumerate(block.points.point_id)}
+    for name, xyz in control.items():
+        k = index["GCP" + name[1:]]
+        assert np.array_equal(block.points.xyz_m[k], xyz)
+        assert block.points.role[k] == ("chk" if name == "M07" else "gcp")      # --check by BINGO's label
+    assert not any(p.startswith("GCP_") for p in block.points.point_id)
+
+
+def test_pix4d_control_labels_in_other_case_and_without_leading_zeros(tmp_path, sim, capsys):
+    """gcp7 in the survey file, M07 in BINGO: joined ignoring case and leading zeros (one message per rule that
+    was needed, with its count)."""
+    control, gcp, out, argv = pix4d_import(tmp_path, sim, gcp_label=lambda p: "m" + str(int(p[1:])))
+    assert run_cli(*argv) == 0
+    err = capsys.readouterr().err
+    n = len(control)
+    small = sum(int(p[1:]) < 10 for p in control)
+    assert (f"warning: control labels matched ignoring case and leading zeros (gcp.csv to proj_tp_bingo.txt): "
+            f"{small} of {n} (m1 = M01, m2 = M02, m3 = M03, ...)") in err, err
+    assert (f"warning: control labels matched ignoring case (gcp.csv to proj_tp_bingo.txt): {n - small} of {n} "
+            f"(m10 = M10, m11 = M11, m12 = M12, ...)") in err, err
+    block = read_block(out)
+    assert_same_measurements(block, renamed_truth(sim, lambda p: "m" + str(int(p[1:]))))
+    assert int(np.sum(block.points.role == "gcp")) == n                     # every surveyed point is control
+
+
+def test_pix4d_control_labels_that_match_nothing(tmp_path, sim, capsys):
+    """GPC05 in BINGO for the survey's GCP05 (a typo in the project): no normalisation joins them. Exit 2 naming
+    the GCP file, the count of labels on each side and, for a few control labels, the nearest BINGO labels;
+    nothing is written."""
+    control, gcp, out, argv = pix4d_import(tmp_path, sim, gcp_label=lambda p: "GCP" + p[1:],
+                                           bingo_label=lambda p: "GPC" + p[1:])
+    assert run_cli(*argv) == 2
+    err = capsys.readouterr().err
+    n_bingo = len(set(sim.blocks["type1"].points.point_id[sim.blocks["type1"].observations.point_index]))
+    assert f"{gcp}: none of its {len(control)} control labels matches one of the {n_bingo} labels of " \
+           f"proj_tp_bingo.txt" in err, err
+    assert "'GCP01' (nearest there: 'GPC01'" in err and "'GCP02' (nearest there: 'GPC02'" in err, err
+    assert f"and {len(control) - 5} more" in err and "Rename the labels" in err, err
+    assert "usable gcp" not in err and not os.path.exists(out)
+
+
+def test_pix4d_control_labels_partly_matched(tmp_path, sim, capsys):
+    """A typo in the project (MO5 for M05) and a surveyed point that Pix4D did not measure: the import goes on and
+    names both (with the nearest BINGO labels); the others are joined as before, MO5 is a tie point."""
+    typo = {"M05": "MO5"}
+    control, gcp, out, argv = pix4d_import(tmp_path, sim, bingo_label=lambda p: typo.get(p, p))
+    with open(gcp, "a") as f:
+        f.write("BM-Church,5.000,6.000,7.000\n")
+    assert run_cli(*argv) == 0
+    err = capsys.readouterr().err
+    assert (f"warning: 2 of the {len(control) + 1} control labels of gcp.csv match nothing in proj_tp_bingo.txt: "
+            f"'M05' (nearest there: 'MO5'), 'BM-Church' (nothing alike there)") in err, err
+    block = read_block(out)
+    index = {p: k for k, p in enumerate(block.points.point_id)}
+    assert "M05" not in index and "BM-Church" not in index     # no image measurement: not a usable gcp
+    assert block.points.role[index["MO5"]] == "tie"
+    assert_same_measurements(block, renamed_truth(sim, lambda p: typo.get(p, p)))
+
+
+def test_pix4d_control_in_northing_easting_order(tmp_path, geo_sim, capsys):
+    """The survey file in northing, easting order: exit 2 before anything is written, naming the file, the columns
+    and the distances from the cameras in either order (before: exit 0, and the adjustment stopped on a point
+    "1.26e+06 m from the block's centre")."""
+    control, gcp, out, argv = pix4d_import(tmp_path, geo_sim, "--crs", "EPSG:3826", northing_first=True)
+    assert run_cli(*argv) == 2
+    err = capsys.readouterr().err
+    assert f"{gcp}: the control points' X and Y look swapped (the file in northing, easting order?): as given " \
+           f"they lie " in err, err
+    import re
+    far, size, near = (float(v) for v in re.search(r"they lie (\S+) m from the 6 camera positions \(the median "
+                                                    r"distance from their extent, (\S+) m across\), with X and Y "
+                                                    r"swapped (\S+) m\.", err).groups())
+    assert far == pytest.approx(np.sqrt(2) * (NORTH - EAST), rel=0.01)   # the mirror image across X = Y
+    cams = geo_sim.truth.eop[:, :3]              # the block's size: its diagonal, or the cameras' height if larger
+    height = np.median(cams[:, 2]) - np.median(np.array(list(control.values()))[:, 2])
+    assert size == pytest.approx(max(np.hypot(*np.ptp(cams[:, :2], axis=0)), height), rel=0.01) and near < size
+    with open(gcp) as f:
+        label, x, y = f.readline().split(",")[:3]
+    assert f"selfcal reads X as the easting and Y as the northing; swap the two columns (point '{label}', line 1: " \
+           f"X {x}, Y {y})" in err, err
+    assert not os.path.exists(out)
+
+
+def test_pix4d_control_in_easting_northing_order_imports_as_before(tmp_path, geo_sim, capsys):
+    """The same files in the right order: exit 0, no warning, the numbers exactly as written."""
+    control, gcp, out, argv = pix4d_import(tmp_path, geo_sim, "--crs", "EPSG:3826")
+    assert run_cli(*argv) == 0
+    assert "warning" not in capsys.readouterr().err
+    block = read_block(out)
+    assert_same_measurements(block, geo_sim.blocks["type1"])
+    assert_same_orientations(block, geo_sim)
+    index = {p: k for k, p in enumerate(block.points.point_id)}
+    for name, xyz in control.items():
+        assert np.array_equal(block.points.xyz_m[index[name]], xyz)

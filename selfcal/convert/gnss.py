@@ -104,7 +104,7 @@ def _match(block_ids: np.ndarray, names: np.ndarray) -> tuple[np.ndarray, list[i
 
 def block_with_gnss(block: Block, positions: CameraPositions, sigma_m=None, heights: str = "ellipsoidal",
                     turn_deg: float = STRIP_TURN_DEG, gap_factor: float = STRIP_GAP_FACTOR,
-                    imu_sigma_deg=None) -> GnssImport:
+                    imu_sigma_deg=None, points_path: str = "points.csv", positions_path: str = "") -> GnssImport:
     """``block`` with the camera positions as its GNSS observations.
 
     * positions converted into the block's CRS (:func:`selfcal.geometry.gnss.positions_in_crs`, ``heights``);
@@ -120,7 +120,10 @@ def block_with_gnss(block: Block, positions: CameraPositions, sigma_m=None, heig
 
     An image of the block without a position gets none (NaN, oriented by resection); a position of an image not
     in the block is left out. Both are warnings. Raises ValueError (the CLI's exit 2) when the block's CRS cannot
-    take GNSS positions, pyproj cannot convert them, or no image of the block has one.
+    take GNSS positions, pyproj cannot convert them, or no image of the block has one; a BlockError naming
+    ``points_path`` (the block's points.csv) when the block's control looks swapped (X and Y) against the positions,
+    or naming ``positions_path`` when the positions' longitude and latitude do
+    (:func:`selfcal.convert.control.swapped_axes`).
     """
     reason = check_block_crs(block.crs)
     if reason:
@@ -160,6 +163,7 @@ def block_with_gnss(block: Block, positions: CameraPositions, sigma_m=None, heig
     has = np.isfinite(position).all(axis=1)
     if not has.any():
         raise ValueError("no image of the block has a complete GNSS position (longitude, latitude and height)")
+    _check_axes(block, positions, ok, position, points_path, positions_path)
     strips = np.full(n, "", dtype=object)
     order_time = np.where(np.isfinite(time), time, np.nan)
     if not np.isfinite(order_time[has]).all():
@@ -177,6 +181,34 @@ def block_with_gnss(block: Block, positions: CameraPositions, sigma_m=None, heig
         new, n_attitude = _with_attitude(new, positions, index, ok, imu_sigma_deg, warnings)
     return GnssImport(new, int(has.sum()), int(np.isfinite(own[has]).all(axis=1).sum()), int(number.max()) + 1,
                       tuple(warnings), n_attitude)
+
+
+def _check_axes(block: Block, positions: CameraPositions, ok, position, points_path: str, positions_path: str) -> None:
+    """The block's control against the GNSS positions (both in the block's CRS): its X and Y swapped is a BlockError
+    naming points.csv; the positions' longitude and latitude swapped (a geographic source: the swapped reading
+    converted lands on the control) one naming the positions' file."""
+    from ..errors import BlockError
+    from .control import swapped_axes
+    points = block.points
+    control = np.flatnonzero(np.isin(points.role, ("gcp", "chk")) & np.isfinite(points.xyz_m[:, :2]).all(axis=1))
+    if not control.size:
+        return
+    xyz, ids, lines = points.xyz_m[control], points.point_id[control], points.line[control]
+    reason = swapped_axes(xyz, position, point_ids=ids, lines=lines, reference="GNSS positions of the images")
+    if reason:
+        raise BlockError(points_path, reason)
+    from pyproj import CRS
+    given = positions.xyz[ok]
+    if not CRS.from_user_input(positions.crs).is_geographic or np.any(np.abs(given[:, 0]) > 90.0):
+        return
+    try:
+        control_geo = positions_in_crs(xyz, block.crs, positions.crs, "orthometric")
+    except ValueError:
+        return
+    reason = swapped_axes(given, control_geo, geographic=True, point_ids=positions.names[ok],
+                          what="GNSS positions", reference="control points of the block")
+    if reason:
+        raise BlockError(positions_path or str(positions.where[ok][0]), reason)
 
 
 def _with_attitude(block: Block, positions: CameraPositions, index, ok, imu_sigma_deg, warnings):

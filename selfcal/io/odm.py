@@ -49,6 +49,7 @@ class GroundControl:
     obs_image: np.ndarray          # (m,) image file name
     obs_pixel: np.ndarray          # (m, 2) col, row
     obs_line: np.ndarray           # (m,) line in the file
+    path: str = "gcp_list.txt"     # the file read
 
 
 def _crs(path: str, text: str, geographic: bool = False) -> tuple[str, str]:
@@ -130,7 +131,7 @@ def read_gcp_list(path: str | os.PathLike) -> GroundControl:
                          o_line[len(pairs) - 1 - pairs[::-1].index(dup)])
     return GroundControl(crs, crs_name, np.array(names, dtype=object), np.array(xyz),
                          np.array(o_pt, np.int64), np.array(o_img, dtype=object), np.array(o_pix, float),
-                         np.array(o_line, np.int64))
+                         np.array(o_line, np.int64), path)
 
 
 
