@@ -396,10 +396,11 @@ def test_pix4d_import_recovers_the_block(tmp_path, sim):
 
 # ------------------------------------------------------------------------------------------ Metashape markers
 
-def write_markers(folder, sim, disabled="M03"):
+def write_markers(folder, sim, disabled="M03", ref_label=str, northing_first=False):
     """Metashape's markers XML (chunk layout: <cameras>, <markers> with <reference>, and the projections in
     <frames><frame><markers><marker marker_id><location camera_id x y/>, pixels with the image centre at
-    (w/2, h/2)) and a reference CSV (label, X, Y, Z, X/Y/Z accuracy)."""
+    (w/2, h/2)) and a reference CSV (label, X, Y, Z, X/Y/Z accuracy); ``ref_label``: a marker's label in the CSV,
+    ``northing_first``: the CSV in the order label, Y, X, Z."""
     block = sim.blocks["type1"]
     ob = block.observations
     marks = np.flatnonzero(block.points.role != "tie")
@@ -430,7 +431,8 @@ def write_markers(folder, sim, disabled="M03"):
     with open(ref, "w") as f:
         f.write("# Label,X,Y,Z,X_acc,Y_acc,Z_acc\n")
         for k, xyz in zip(marks[:20], coords[:20]):        # the others keep the XML's reference
-            f.write(f"{block.points.point_id[k]},{xyz[0]:.3f},{xyz[1]:.3f},{xyz[2]:.3f},0.012,0.012,0.025\n")
+            first, second = (xyz[1], xyz[0]) if northing_first else (xyz[0], xyz[1])
+            f.write(f"{ref_label(block.points.point_id[k])},{first:.3f},{second:.3f},{xyz[2]:.3f},0.012,0.012,0.025\n")
     return dict(zip(block.points.point_id[marks], coords)), xml, ref, set(block.points.point_id[marks[:20]])
 
 
@@ -711,3 +713,130 @@ def test_pix4d_control_in_easting_northing_order_imports_as_before(tmp_path, geo
     index = {p: k for k, p in enumerate(block.points.point_id)}
     for name, xyz in control.items():
         assert np.array_equal(block.points.xyz_m[index[name]], xyz)
+
+
+def test_metashape_reference_labels_with_a_prefix_of_their_own(tmp_path, sim, tie_block, capsys):
+    """A survey CSV that names marker M05 'CP_M05': joined after removing the prefix the CSV adds (the CSV's
+    coordinates and accuracies are the markers'), said in a warning; the points keep the survey's labels."""
+    control, xml, ref, in_csv = write_markers(str(tmp_path), sim, ref_label=lambda p: "CP_" + p)
+    out = str(tmp_path / "with_markers")
+    assert run_cli("import", "metashape-markers", xml, "--block", tie_block, "--reference", ref, "--check", "M10",
+                   "--out", out) == 0
+    err = capsys.readouterr().err
+    assert (f"warning: control labels matched after removing the prefix 'CP_' of reference.csv's labels "
+            f"(reference.csv to markers.xml): {len(in_csv)} of {len(in_csv)} (CP_M01 = M01, CP_M02 = M02, "
+            f"CP_M03 = M03, ...)") in err, err
+    block = read_block(out)
+    index = {p: k for k, p in enumerate(block.points.point_id)}
+    for name, xyz in control.items():
+        k = index["CP_" + name if name in in_csv else name]
+        assert np.array_equal(block.points.xyz_m[k], xyz)
+        assert tuple(block.points.sigma_m[k]) == ((0.012, 0.012, 0.025) if name in in_csv else (0.01, 0.01, 0.02))
+        assert block.points.role[k] == ("chk" if name in ("M03", "M10") else "gcp"), name
+    assert_same_measurements(block, renamed_truth(sim, lambda p: "CP_" + p if p in in_csv else p))
+
+
+def test_metashape_reference_that_matches_no_marker(tmp_path, sim, tie_block, capsys):
+    _, xml, ref, in_csv = write_markers(str(tmp_path), sim, ref_label=lambda p: "Target " + p[1:])
+    out = str(tmp_path / "out")
+    assert run_cli("import", "metashape-markers", xml, "--block", tie_block, "--reference", ref, "--out", out) == 2
+    err = capsys.readouterr().err
+    n_markers = int(np.sum(sim.blocks["type1"].points.role != "tie"))
+    assert f"{ref}: none of its {len(in_csv)} control labels matches one of the {n_markers} labels of markers.xml" \
+           in err, err
+    assert "'Target 01' (nothing alike there)" in err and "the labels of markers.xml: 'M01', 'M02'" in err, err
+    assert not os.path.exists(out)
+
+
+@pytest.fixture
+def positioned_block(tmp_path, geo_sim):
+    """geo_sim's images with their GNSS positions ([gnss]) and tie points only: a block that knows where it is."""
+    from dataclasses import replace
+    from selfcal.io.block_folder import write_block
+    block = geo_sim.blocks["type1"]
+    ties = np.flatnonzero(block.points.role == "tie")
+    new_index = np.full(len(block.points), -1)
+    new_index[ties] = np.arange(len(ties))
+    keep = new_index[block.observations.point_index] >= 0
+    ob = block.observations
+    from selfcal.block import Observations
+    obs = Observations(ob.image_index[keep], new_index[ob.point_index[keep]], ob.pixel[keep], ob.sigma_px[keep],
+                       np.arange(1, keep.sum() + 1))
+    folder = str(tmp_path / "positioned")
+    write_block(replace(block, points=block.points.take(ties), observations=obs, gnss_sigma_m=(0.05, 0.05, 0.1)),
+                folder)
+    return folder
+
+
+def test_metashape_reference_in_northing_easting_order(tmp_path, geo_sim, positioned_block, capsys):
+    """The reference CSV in northing, easting order against a block with camera GNSS: exit 2 naming the CSV;
+    in the right order the markers import with the CSV's numbers."""
+    _, xml, ref, _ = write_markers(str(tmp_path), geo_sim, northing_first=True)
+    out = str(tmp_path / "out")
+    argv = ["import", "metashape-markers", xml, "--block", positioned_block, "--reference", ref, "--out", out]
+    assert run_cli(*argv) == 2
+    err = capsys.readouterr().err
+    assert f"{ref}: the control points' X and Y look swapped (the file in northing, easting order?): as given they " \
+           f"lie 3.45e+06 m from the 6 camera positions" in err, err
+    assert not os.path.exists(out)
+    control, xml, ref, in_csv = write_markers(str(tmp_path), geo_sim)
+    assert run_cli(*argv) == 0
+    assert "warning" not in capsys.readouterr().err
+    block = read_block(out)
+    index = {p: k for k, p in enumerate(block.points.point_id)}
+    for name, xyz in control.items():
+        assert np.array_equal(block.points.xyz_m[index[name]], xyz)
+
+
+def test_metashape_markers_on_a_free_network_say_nothing_of_axes(tmp_path, sim, tie_block):
+    """A free network has no position of its own: control in any order is imported (its datum is the control)."""
+    _, xml, ref, _ = write_markers(str(tmp_path), sim, northing_first=True)
+    assert run_cli("import", "metashape-markers", xml, "--block", tie_block, "--reference", ref, "--out",
+                   str(tmp_path / "out")) == 0
+
+
+def test_patb_control_in_northing_easting_order(tmp_path, geo_sim, capsys):
+    """PAT-B's .con in northing, easting order against the .ori's perspective centres: exit 2 naming the .con."""
+    src = tmp_path / "src"
+    src.mkdir()
+    write_patb(str(src), geo_sim)
+    con = os.path.join(src, "block.con")
+    with open(con) as f:
+        lines = f.read().splitlines()
+    with open(con, "w") as f:
+        for line in lines:
+            t = line.split()
+            f.write(f"{t[0]:>10} {t[2]:>14} {t[1]:>14} {t[3]:>12}\n" if len(t) == 4 else line + "\n")
+    out = str(tmp_path / "block")
+    assert run_cli(*patb_argv(str(src), out, "--crs", "EPSG:3826")) == 2
+    err = capsys.readouterr().err
+    assert f"{con}: the control points' X and Y look swapped (the file in northing, easting order?)" in err, err
+    assert not os.path.exists(out)
+
+
+def test_adjust_refuses_control_swapped_against_the_images_before_any_work(tmp_path, geo_sim, capsys, monkeypatch):
+    """A block folder whose points.csv holds northing, easting against the images.csv positions: selfcal adjust
+    exits 2 naming points.csv before any adjustment (the AP model choice and the tested adjustment are never
+    called); the same block with the columns in order passes the check."""
+    from dataclasses import replace
+    from selfcal.convert.control import block_control_swapped
+    from selfcal.io.block_folder import write_block
+    import selfcal.workflows.adjust as workflow
+
+    def never(*args, **kwargs):
+        raise AssertionError("an adjustment started")
+    monkeypatch.setattr(workflow, "adjust_with_tests", never)
+    monkeypatch.setattr(workflow, "choose_ap_model", never)
+    block = geo_sim.blocks["type1"]
+    assert block_control_swapped(block) is None
+    xyz = block.points.xyz_m.copy()
+    marked = block.points.role != "tie"
+    xyz[marked] = xyz[marked][:, [1, 0, 2]]
+    folder, results = str(tmp_path / "swapped"), str(tmp_path / "results")
+    write_block(replace(block, points=replace(block.points, xyz_m=xyz)), folder)
+    assert run_cli("adjust", folder, "--out", results, "--ap", "auto:none,brown", "--no-report", "--quiet") == 2
+    err = capsys.readouterr().err
+    assert "points.csv: the control points' X and Y look swapped (the file in northing, easting order?): as given " \
+           "they lie 3.45e+06 m from the 6 camera positions" in err, err
+    assert "point 'M01', line 2: X 2689945.424" in err, err
+    assert not os.path.exists(results)

@@ -140,6 +140,7 @@ def block_with_gnss(block: Block, positions: CameraPositions, sigma_m=None, heig
     if not ok.any():
         raise ValueError(f"none of the {len(positions.names)} positions is of an image of the block (image ids such "
                          f"as '{block.images.image_id[0]}', positions of '{positions.names[0]}')")
+    _check_source_axes(block, positions, ok, positions_path)
     xyz = positions_in_crs(positions.xyz[ok], positions.crs, block.crs, heights)
     n = len(block.images)
     position = np.full((n, 3), np.nan)
@@ -163,7 +164,7 @@ def block_with_gnss(block: Block, positions: CameraPositions, sigma_m=None, heig
     has = np.isfinite(position).all(axis=1)
     if not has.any():
         raise ValueError("no image of the block has a complete GNSS position (longitude, latitude and height)")
-    _check_axes(block, positions, ok, position, points_path, positions_path)
+    _check_control_axes(block, position, points_path)
     strips = np.full(n, "", dtype=object)
     order_time = np.where(np.isfinite(time), time, np.nan)
     if not np.isfinite(order_time[has]).all():
@@ -183,32 +184,42 @@ def block_with_gnss(block: Block, positions: CameraPositions, sigma_m=None, heig
                       tuple(warnings), n_attitude)
 
 
-def _check_axes(block: Block, positions: CameraPositions, ok, position, points_path: str, positions_path: str) -> None:
-    """The block's control against the GNSS positions (both in the block's CRS): its X and Y swapped is a BlockError
-    naming points.csv; the positions' longitude and latitude swapped (a geographic source: the swapped reading
-    converted lands on the control) one naming the positions' file."""
+def _block_control(block: Block):
+    """xyz, ids, lines of the block's control points (gcp, chk) with plan coordinates."""
+    points = block.points
+    k = np.flatnonzero(np.isin(points.role, ("gcp", "chk")) & np.isfinite(points.xyz_m[:, :2]).all(axis=1))
+    return points.xyz_m[k], points.point_id[k], points.line[k]
+
+
+def _check_source_axes(block: Block, positions: CameraPositions, ok, positions_path: str) -> None:
+    """Geographic positions whose longitude and latitude look swapped against the block's control (both in the
+    positions' CRS, before any conversion): a BlockError naming the positions' file."""
+    from pyproj import CRS
+
     from ..errors import BlockError
     from .control import swapped_axes
-    points = block.points
-    control = np.flatnonzero(np.isin(points.role, ("gcp", "chk")) & np.isfinite(points.xyz_m[:, :2]).all(axis=1))
-    if not control.size:
-        return
-    xyz, ids, lines = points.xyz_m[control], points.point_id[control], points.line[control]
-    reason = swapped_axes(xyz, position, point_ids=ids, lines=lines, reference="GNSS positions of the images")
-    if reason:
-        raise BlockError(points_path, reason)
-    from pyproj import CRS
-    given = positions.xyz[ok]
-    if not CRS.from_user_input(positions.crs).is_geographic or np.any(np.abs(given[:, 0]) > 90.0):
+    xyz, _, _ = _block_control(block)
+    if not len(xyz) or not CRS.from_user_input(positions.crs).is_geographic:
         return
     try:
-        control_geo = positions_in_crs(xyz, block.crs, positions.crs, "orthometric")
+        control = positions_in_crs(xyz, block.crs, positions.crs, "orthometric")
     except ValueError:
         return
-    reason = swapped_axes(given, control_geo, geographic=True, point_ids=positions.names[ok],
+    reason = swapped_axes(positions.xyz[ok], control, geographic=True, point_ids=positions.names[ok],
                           what="GNSS positions", reference="control points of the block")
     if reason:
         raise BlockError(positions_path or str(positions.where[ok][0]), reason)
+
+
+def _check_control_axes(block: Block, position, points_path: str) -> None:
+    """The block's control whose X and Y look swapped against the GNSS positions (in the block's CRS): a
+    BlockError naming points.csv."""
+    from ..errors import BlockError
+    from .control import swapped_axes
+    xyz, ids, lines = _block_control(block)
+    reason = swapped_axes(xyz, position, point_ids=ids, lines=lines, reference="GNSS positions of the images")
+    if reason:
+        raise BlockError(points_path, reason)
 
 
 def _with_attitude(block: Block, positions: CameraPositions, index, ok, imu_sigma_deg, warnings):
