@@ -814,6 +814,31 @@ def test_patb_control_in_northing_easting_order(tmp_path, geo_sim, capsys):
     assert not os.path.exists(out)
 
 
+def test_patb_control_labels_in_lower_case(tmp_path, sim, capsys):
+    """A .con written by another program in lower case: joined to the .im's labels, said, numbers as written."""
+    src = tmp_path / "src"
+    src.mkdir()
+    control = write_patb(str(src), sim)
+    con = os.path.join(src, "block.con")
+    with open(con) as f:
+        text = f.read()
+    with open(con, "w") as f:
+        f.write(text.replace(" M", " m"))
+    out = str(tmp_path / "block")
+    assert run_cli(*patb_argv(str(src), out, "--check", "M05")) == 0
+    err = capsys.readouterr().err
+    n = len(control)
+    assert f"warning: control labels matched ignoring case (block.con to block.im): {n} of {n} (m01 = M01, " \
+           f"m02 = M02, m03 = M03, ...)" in err, err
+    block = read_block(out)
+    index = {p: k for k, p in enumerate(block.points.point_id)}
+    for name, xyz in control.items():
+        k = index["m" + name[1:]]
+        assert np.array_equal(block.points.xyz_m[k], xyz)
+        assert block.points.role[k] == ("chk" if name == "M05" else "gcp")
+    assert_same_measurements(block, renamed_truth(sim, lambda p: "m" + p[1:]))
+
+
 def test_adjust_refuses_control_swapped_against_the_images_before_any_work(tmp_path, geo_sim, capsys, monkeypatch):
     """A block folder whose points.csv holds northing, easting against the images.csv positions: selfcal adjust
     exits 2 naming points.csv before any adjustment (the AP model choice and the tested adjustment are never

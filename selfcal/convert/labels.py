@@ -44,6 +44,8 @@ _LISTED = 5
 
 def _lower(text: str) -> str:
     """Lower case, character by character (the length stays, so that an affix found here cuts the original)."""
+    if text.isascii():
+        return text.lower()
     return "".join(c.lower() if len(c.lower()) == 1 else c for c in text)
 
 
@@ -69,7 +71,7 @@ def _key(text: str) -> str:
 
 
 def _is_number(text: str) -> bool:
-    return _without_separators(text).isdigit()
+    return text.isdigit() or _without_separators(text).isdigit()
 
 
 def _rules_needed(a: str, b: str) -> tuple[str, ...]:
@@ -107,17 +109,30 @@ class LabelMatch:
 
 def nearest_labels(label: str, candidates, n: int = 3) -> list[str]:
     """Up to ``n`` labels of ``candidates`` that look like ``label`` (:func:`difflib.get_close_matches`, ignoring
-    case)."""
-    lowered: dict[str, str] = {}
-    for c in candidates:
-        lowered.setdefault(_lower(str(c)), str(c))
-    return [lowered[f] for f in difflib.get_close_matches(_lower(str(label)), list(lowered), n=n, cutoff=0.6)]
+    case; among the labels that are numbers for a number, among the others for a name)."""
+    return _Nearest(candidates)(label, n)
+
+
+class _Nearest:
+    """:func:`nearest_labels` over one set of candidates, prepared once."""
+
+    def __init__(self, candidates):
+        self.lowered: dict = {True: {}, False: {}}
+        for c in candidates:
+            self.lowered[_is_number(str(c))].setdefault(_lower(str(c)), str(c))
+        self.keys = {k: list(v) for k, v in self.lowered.items()}
+
+    def __call__(self, label: str, n: int = 3) -> list[str]:
+        kind = _is_number(str(label))
+        found = difflib.get_close_matches(_lower(str(label)), self.keys[kind], n=n, cutoff=0.6)
+        return [self.lowered[kind][f] for f in found]
 
 
 def _listed(labels, candidates, limit: int = _LISTED) -> str:
+    nearest = _Nearest(candidates)
     parts = []
     for label in labels[:limit]:
-        near = nearest_labels(label, candidates)
+        near = nearest(label)
         parts.append(f"'{label}' (nearest there: {', '.join(repr(x) for x in near)})" if near else
                      f"'{label}' (nothing alike there)")
     return ", ".join(parts) + (f" and {len(labels) - limit} more" if len(labels) > limit else "")
@@ -171,18 +186,20 @@ def _affix(left: list, right: list, all_left: list, all_right: list):
         targets = {_key(x) for x in other if not _is_number(x)}
         if not targets:
             continue
-        longest = max(len(t) for t in targets)
         for label in having:
             if _is_number(label):
                 continue                            # every cut of a number leaves a number or has one as affix
+            key = _key(label)
+            # a cut that matches has its key at the end (a prefix removed) or the start (a suffix) of the label's
+            hits = [("prefix", t) for t in (key[j:] for j in range(1, len(key))) if t in targets] + \
+                   [("suffix", t) for t in (key[:j] for j in range(1, len(key))) if t in targets]
+            if not hits:
+                continue
             low = _lower(label)
             for i in range(1, len(low)):
                 for kind, affix, rest in (("prefix", low[:i], low[i:]), ("suffix", low[i:], low[:i])):
-                    if len(_without_separators(rest)) > 3 * longest + 8 or _is_number(rest):
-                        continue
-                    key = _key(rest)
-                    if key in targets:
-                        scores.setdefault((side, kind, affix), set()).add(key)
+                    if (kind, _key(rest)) in hits and not _is_number(rest):
+                        scores.setdefault((side, kind, affix), set()).add(_key(rest))
     best = None
     for (side, kind, affix), keys in scores.items():
         if not _without_separators(affix) or _is_number(affix):
