@@ -400,6 +400,24 @@ def test_block_control_in_northing_easting_order_against_camera_gnss(drone, cli,
     assert not out.exists()
 
 
+def test_geo_txt_in_northing_easting_order_in_the_block_crs(drone, cli, capsys, tmp_path):
+    """A geo.txt in the block's UTM with northing, easting: against the control it is the same mismatch as a
+    swapped points.csv, but the block's own image positions say which file it is: exit 2 naming geo.txt."""
+    sim, root, gnss_utm = drone
+    block = read_block(root / "block")
+    lines = [CRS] + [f"{image_id}.JPG {y:.4f} {x:.4f} {z:.4f}"
+                     for image_id, (x, y, z) in zip(block.images.image_id, gnss_utm)]
+    bad = tmp_path / "geo.txt"
+    bad.write_text("\n".join(lines) + "\n")
+    out = tmp_path / "out"
+    assert cli("import", "gnss", str(bad), "--block", str(root / "block"), "--out", str(out)) == 2
+    err = capsys.readouterr().err
+    assert f"{bad}: the GNSS positions' X and Y look swapped (the file in northing, easting order?): as given they " \
+           f"lie " in err, err
+    assert f"m from the {len(block.images)} positions of the block's images.csv" in err, err
+    assert not out.exists()
+
+
 def test_gcp_list_in_latitude_longitude_order(tmp_path, capsys):
     """ODM's gcp_list.txt in EPSG:4326 with the latitude first, in Taiwan (121.5 E): 121.5 is no latitude. Exit 2
     naming the file, the line and geo_y, and that the columns look swapped."""

@@ -164,7 +164,7 @@ def block_with_gnss(block: Block, positions: CameraPositions, sigma_m=None, heig
     has = np.isfinite(position).all(axis=1)
     if not has.any():
         raise ValueError("no image of the block has a complete GNSS position (longitude, latitude and height)")
-    _check_control_axes(block, position, points_path)
+    _check_control_axes(block, position, points_path, positions_path)
     strips = np.full(n, "", dtype=object)
     order_time = np.where(np.isfinite(time), time, np.nan)
     if not np.isfinite(order_time[has]).all():
@@ -211,15 +211,25 @@ def _check_source_axes(block: Block, positions: CameraPositions, ok, positions_p
         raise BlockError(positions_path or str(positions.where[ok][0]), reason)
 
 
-def _check_control_axes(block: Block, position, points_path: str) -> None:
-    """The block's control whose X and Y look swapped against the GNSS positions (in the block's CRS): a
-    BlockError naming points.csv."""
+def _check_control_axes(block: Block, position, points_path: str, positions_path: str) -> None:
+    """The block's control and the GNSS positions (both in the block's CRS) in other X, Y orders: a BlockError
+    naming the positions' file when they are also swapped against the block's own image positions (images.csv),
+    else naming points.csv (and, without image positions to tell, saying that it may be the positions' file)."""
     from ..errors import BlockError
     from .control import swapped_axes
     xyz, ids, lines = _block_control(block)
     reason = swapped_axes(xyz, position, point_ids=ids, lines=lines, reference="GNSS positions of the images")
-    if reason:
+    if not reason:
+        return
+    prior = block.images.position_m
+    if np.isfinite(prior[:, :2]).all(axis=1).any():
+        own = swapped_axes(position, prior, point_ids=block.images.image_id, what="GNSS positions",
+                           reference="positions of the block's images.csv")
+        if own:
+            raise BlockError(positions_path or "the GNSS positions", own)
         raise BlockError(points_path, reason)
+    raise BlockError(points_path, f"{reason}. If points.csv is right, {positions_path or 'the GNSS positions'} is "
+                                  f"the file in northing, easting order (the block has no image positions to tell)")
 
 
 def _with_attitude(block: Block, positions: CameraPositions, index, ok, imu_sigma_deg, warnings):
