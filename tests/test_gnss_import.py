@@ -361,6 +361,77 @@ def test_bad_input_exits_2_naming_the_file_and_line(drone, cli, capsys, tmp_path
     assert not (tmp_path / "o").exists()
 
 
+def test_geo_txt_in_latitude_longitude_order(drone, cli, capsys, tmp_path):
+    """A geo.txt in EPSG:4326 with the latitude first (47.0 9.0, both valid either way): against the block's
+    control it lies thousands of km off, swapped on it. Exit 2 naming geo.txt and the swapped columns, before
+    any conversion; nothing is written."""
+    sim, root, gnss_utm = drone
+    block = read_block(root / "block")
+    geo = geodetic(gnss_utm)
+    lines = ["EPSG:4326"] + [f"{image_id}.JPG {lat:.11f} {lon:.11f} {h:.5f}"
+                             for image_id, (lon, lat, h) in zip(block.images.image_id, geo)]
+    bad = tmp_path / "geo.txt"
+    bad.write_text("\n".join(lines) + "\n")
+    out = tmp_path / "out"
+    assert cli("import", "gnss", str(bad), "--block", str(root / "block"), "--out", str(out)) == 2
+    err = capsys.readouterr().err
+    assert f"{bad}: the GNSS positions' longitude and latitude look swapped (the file in latitude, longitude " \
+           f"order?): as given they lie " in err, err
+    assert "m from the " in err and "control points of the block" in err, err
+    assert "selfcal reads X as the longitude and Y as the latitude; swap the two columns (point 'S1_01.JPG'" in err
+    assert not out.exists()
+
+
+def test_block_control_in_northing_easting_order_against_camera_gnss(drone, cli, capsys, tmp_path):
+    """The block's points.csv with its control in northing, easting order: the images' GNSS positions show it.
+    Exit 2 naming the block's points.csv (the positions' file is right)."""
+    sim, root, gnss_utm = drone
+    block = read_block(root / "block")
+    xyz = block.points.xyz_m.copy()
+    marked = block.points.role != "tie"
+    xyz[marked] = xyz[marked][:, [1, 0, 2]]
+    write_block(replace(block, points=replace(block.points, xyz_m=xyz)), tmp_path / "swapped")
+    out = tmp_path / "out"
+    assert cli("import", "gnss", str(root / "images"), "--block", str(tmp_path / "swapped"), "--out", str(out)) == 2
+    err = capsys.readouterr().err
+    assert f"{tmp_path / 'swapped' / 'points.csv'}: the control points' X and Y look swapped (the file in " \
+           f"northing, easting order?): as given they lie " in err, err
+    assert f"m from the {len(block.images)} GNSS positions of the images" in err, err
+    assert not out.exists()
+
+
+def test_geo_txt_in_northing_easting_order_in_the_block_crs(drone, cli, capsys, tmp_path):
+    """A geo.txt in the block's UTM with northing, easting: against the control it is the same mismatch as a
+    swapped points.csv, but the block's own image positions say which file it is: exit 2 naming geo.txt."""
+    sim, root, gnss_utm = drone
+    block = read_block(root / "block")
+    lines = [CRS] + [f"{image_id}.JPG {y:.4f} {x:.4f} {z:.4f}"
+                     for image_id, (x, y, z) in zip(block.images.image_id, gnss_utm)]
+    bad = tmp_path / "geo.txt"
+    bad.write_text("\n".join(lines) + "\n")
+    out = tmp_path / "out"
+    assert cli("import", "gnss", str(bad), "--block", str(root / "block"), "--out", str(out)) == 2
+    err = capsys.readouterr().err
+    assert f"{bad}: the GNSS positions' X and Y look swapped (the file in northing, easting order?): as given they " \
+           f"lie " in err, err
+    assert f"m from the {len(block.images)} positions of the block's images.csv" in err, err
+    assert not out.exists()
+
+
+def test_gcp_list_in_latitude_longitude_order(tmp_path, capsys):
+    """ODM's gcp_list.txt in EPSG:4326 with the latitude first, in Taiwan (121.5 E): 121.5 is no latitude. Exit 2
+    naming the file, the line and geo_y, and that the columns look swapped."""
+    from selfcal.io.odm import read_gcp_list
+    bad = tmp_path / "gcp_list.txt"
+    bad.write_text("EPSG:4326\n25.0301 121.5651 10.0 1000 800 DJI_0001.JPG gcp1\n")
+    with pytest.raises(BlockError) as info:
+        read_gcp_list(bad)
+    assert info.value.line == 2 and info.value.column == "geo_y"
+    assert "latitude 121.565 is outside -90..90 degrees" in info.value.reason
+    assert "geo_x and geo_y look swapped (geo_x 25.0301 would be a latitude); swap the two columns" in \
+        info.value.reason
+
+
 # ---------------------------------------------------------------------------- ODM gcp_list.txt: longitude/latitude, NaN heights
 
 COPR = os.path.join(os.path.dirname(__file__), "..", "..", "shared", "data", "copr")

@@ -89,6 +89,55 @@ def test_georeference_rejects_the_inconsistent_target(models):
     assert sum("misidentified" in n for n in notes) == 1
 
 
+def _renamed_gcp_list(tmp_path, rename):
+    """COPR's gcp_list.txt with its image names changed by ``rename``."""
+    with open(os.path.join(COPR, "gcp_list.txt")) as handle:
+        lines = handle.read().splitlines()
+    out = [lines[0]]
+    for line in lines[1:]:
+        f = line.split("\t")
+        if len(f) >= 6:
+            f[5] = rename(f[5])
+        out.append("\t".join(f))
+    path = tmp_path / "gcp_list.txt"
+    path.write_text("\n".join(out) + "\n")
+    return path
+
+
+def test_gcp_list_image_names_joined_after_a_folder_prefix_and_case(models, tmp_path):
+    """gcp_list.txt naming the images 'images/IMG_0037.JPG' where the model says 'IMG_0037.jpg': the measurements
+    are joined to the model's images after removing the folder and ignoring case (said in a note), and the block
+    is the one of the original file, number for number."""
+    control = read_gcp_list(_renamed_gcp_list(tmp_path, lambda name: "images/" + name.upper()))
+    original = read_gcp_list(os.path.join(COPR, "gcp_list.txt"))
+    block, notes = block_from_colmap(models[0], control, pixel_size_mm=0.0052)
+    want, want_notes = block_from_colmap(models[0], original, pixel_size_mm=0.0052)
+    n = len(set(original.obs_image))
+    assert (f"warning: image names matched after removing the prefix 'images/' of gcp_list.txt's labels and "
+            f"ignoring case (gcp_list.txt to the model): {n} of {n} (images/IMG_0037.JPG = IMG_0037.jpg, ") in notes[1]
+    assert notes[:1] + notes[2:] == want_notes
+    for field in ("point_id", "role", "xyz_m", "sigma_m"):
+        np.testing.assert_array_equal(getattr(block.points, field), getattr(want.points, field))
+    np.testing.assert_array_equal(block.images.position_m, want.images.position_m)
+    np.testing.assert_array_equal(block.observations.pixel, want.observations.pixel)
+    np.testing.assert_array_equal(block.observations.point_index, want.observations.point_index)
+
+
+def test_gcp_list_image_names_that_match_no_image_of_the_model(models, tmp_path):
+    """A gcp_list.txt of other images ('DSC0037.jpg'): exit 2 naming the file, with the nearest image names of
+    the model (before: "only 0 ground control points are seen", naming no file)."""
+    path = _renamed_gcp_list(tmp_path, lambda name: name.replace("IMG_", "DSC"))
+    with pytest.raises(BlockError) as info:
+        block_from_colmap(models[0], read_gcp_list(path), pixel_size_mm=0.0052)
+    n = len(set(read_gcp_list(path).obs_image))
+    assert info.value.path == str(path)
+    assert info.value.reason.startswith(f"none of its {n} image names matches one of the 38 labels of the model")
+    assert "'DSC0037.jpg' (nearest there: 'IMG_0037.jpg'" in info.value.reason
+    assert run_cli("import", "colmap", os.path.join(COPR, "sparse"), "--gcp", str(path), "--out",
+                   str(tmp_path / "b")) == 2
+    assert not os.path.exists(tmp_path / "b")
+
+
 def test_colmap_distortion_becomes_initial_brown_values(models):
     """selfcal's Delta is a function of the measured position, COLMAP's of the ideal one: the Brown values
     the import writes take a measured pixel to COLMAP's ideal position within 0.2 px over the image."""

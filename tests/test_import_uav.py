@@ -322,12 +322,15 @@ def test_bad_input_names_file_line_and_reason(tmp_path, sim, capsys, fmt, name, 
 
 # -------------------------------------------------------------------------------------------------- Pix4D
 
-def write_pix4d(folder, sim, project="proj"):
+def write_pix4d(folder, sim, project="proj", bingo_label=str, gcp_label=str, northing_first=False):
     """A Pix4D params folder as Pix4D documents it: the BINGO file ("What is the bingo file": mm from the image
     centre, one block per image closed by -99), the .cam (F, Px, Py in mm, Px/Py from the sensor's upper-left
     corner, the sensor size in the comment), the external parameters (imageName X Y Z Omega Phi Kappa, degrees,
     PATB convention) and the calibrated camera parameters (fileName imageWidth imageHeight, K, ...), and a GCP
-    file in PIX4D's import format (label, X, Y, Z, horizontal accuracy, vertical accuracy)."""
+    file in PIX4D's import format (label, X, Y, Z, horizontal accuracy, vertical accuracy).
+
+    ``bingo_label``, ``gcp_label``: the label of a marked point (gcp, chk) in the BINGO and the GCP file;
+    ``northing_first``: the GCP file in the order label, Y, X, Z (a survey file in northing, easting order)."""
     block, cam = sim.blocks["type1"], sim.truth.camera
     p, w, h = cam.pixel_size_mm, cam.width_px, cam.height_px
     params = os.path.join(folder, "1_initial", "params")
@@ -338,7 +341,10 @@ def write_pix4d(folder, sim, project="proj"):
             f.write(f"{image} ilce7m3_20.96_35.4\n")
             for k in np.flatnonzero(ob.image_index == i):
                 col, row = ob.pixel[k]
-                f.write(f"{block.points.point_id[ob.point_index[k]]} {(col - w / 2) * p:.10f} {(h / 2 - row) * p:.10f}\n")
+                pid = block.points.point_id[ob.point_index[k]]
+                if block.points.role[ob.point_index[k]] != "tie":
+                    pid = bingo_label(pid)
+                f.write(f"{pid} {(col - w / 2) * p:.10f} {(h / 2 - row) * p:.10f}\n")
             f.write("-99\n\n")
     with open(os.path.join(params, f"{project}_pix4d_calibrated_internal_camera_parameters.cam"), "w") as f:
         f.write(f"Pix4D camera calibration file 0\n#Focal Length mm assuming a sensor width of {w * p:g}x{h * p:g}mm\n"
@@ -365,7 +371,8 @@ def write_pix4d(folder, sim, project="proj"):
     gcp = os.path.join(folder, "gcp.csv")
     with open(gcp, "w") as f:
         for k, xyz in zip(marks, coords):
-            f.write(f"{block.points.point_id[k]},{xyz[0]:.3f},{xyz[1]:.3f},{xyz[2]:.3f},0.0167,0.0289\n")
+            first, second = (xyz[1], xyz[0]) if northing_first else (xyz[0], xyz[1])
+            f.write(f"{gcp_label(block.points.point_id[k])},{first:.3f},{second:.3f},{xyz[2]:.3f},0.0167,0.0289\n")
     return dict(zip(block.points.point_id[marks], coords)), gcp
 
 
@@ -389,10 +396,11 @@ def test_pix4d_import_recovers_the_block(tmp_path, sim):
 
 # ------------------------------------------------------------------------------------------ Metashape markers
 
-def write_markers(folder, sim, disabled="M03"):
+def write_markers(folder, sim, disabled="M03", ref_label=str, northing_first=False):
     """Metashape's markers XML (chunk layout: <cameras>, <markers> with <reference>, and the projections in
     <frames><frame><markers><marker marker_id><location camera_id x y/>, pixels with the image centre at
-    (w/2, h/2)) and a reference CSV (label, X, Y, Z, X/Y/Z accuracy)."""
+    (w/2, h/2)) and a reference CSV (label, X, Y, Z, X/Y/Z accuracy); ``ref_label``: a marker's label in the CSV,
+    ``northing_first``: the CSV in the order label, Y, X, Z."""
     block = sim.blocks["type1"]
     ob = block.observations
     marks = np.flatnonzero(block.points.role != "tie")
@@ -423,7 +431,8 @@ def write_markers(folder, sim, disabled="M03"):
     with open(ref, "w") as f:
         f.write("# Label,X,Y,Z,X_acc,Y_acc,Z_acc\n")
         for k, xyz in zip(marks[:20], coords[:20]):        # the others keep the XML's reference
-            f.write(f"{block.points.point_id[k]},{xyz[0]:.3f},{xyz[1]:.3f},{xyz[2]:.3f},0.012,0.012,0.025\n")
+            first, second = (xyz[1], xyz[0]) if northing_first else (xyz[0], xyz[1])
+            f.write(f"{ref_label(block.points.point_id[k])},{first:.3f},{second:.3f},{xyz[2]:.3f},0.012,0.012,0.025\n")
     return dict(zip(block.points.point_id[marks], coords)), xml, ref, set(block.points.point_id[marks[:20]])
 
 
@@ -557,3 +566,302 @@ def test_pix4d_radial_distortion_becomes_initial_brown_values(tmp_path, sim):
     print(f"largest difference to Pix4D's radial model: {np.max(err):.4f} px (distortion up to "
           f"{np.max(np.hypot(*(want - np.column_stack([col.ravel(), row.ravel()])).T)):.1f} px)")
     assert np.max(err) < 0.05
+
+
+# ------------------------------------------------------------------- control of real files (issue 39, item 5)
+# A 581-image DJI P1 block exported by Pix4D: the survey file says GCP05 where BINGO says GCP_GCP05, and a survey
+# file in northing, easting order was read as X = northing. Labels are joined after the normalisations a real
+# pair of files needs (and the import says which); control that lies swapped against the cameras is refused.
+
+#: a projected CRS's easting and northing of the block (TWD97 / TM2 in Taiwan: northings far above eastings)
+EAST, NORTH = 251000.0, 2690000.0
+
+
+@pytest.fixture(scope="module")
+def geo_sim(sim):
+    """``sim`` moved to EAST, NORTH: a block whose cameras know where they are (Pix4D's external parameters)."""
+    from dataclasses import replace
+    from types import SimpleNamespace
+    d = np.array([EAST, NORTH, 0.0])
+    block = sim.blocks["type1"]
+    block = replace(block, crs="EPSG:3826", points=replace(block.points, xyz_m=block.points.xyz_m + d),
+                    images=replace(block.images, position_m=block.images.position_m + d))
+    eop = sim.truth.eop.copy()
+    eop[:, :3] += d
+    return SimpleNamespace(blocks={"type1": block}, truth=replace(sim.truth, eop=eop, xyz=sim.truth.xyz + d))
+
+
+def pix4d_import(tmp_path, sim, *extra, **labels):
+    """(exit code, stderr, block folder) of ``selfcal import pix4d`` of ``sim`` written by write_pix4d."""
+    control, gcp = write_pix4d(str(tmp_path / "project"), sim, **labels)
+    out = str(tmp_path / "block")
+    return control, gcp, out, ["import", "pix4d", str(tmp_path / "project"), "--gcp", gcp, "--out", out, *extra]
+
+
+def renamed_truth(sim, name):
+    """The simulated block with its marked points renamed by ``name`` (what the import should give)."""
+    from dataclasses import replace
+    block = sim.blocks["type1"]
+    ids = np.array([name(p) if r != "tie" else p for p, r in zip(block.points.point_id, block.points.role)], object)
+    return replace(block, points=replace(block.points, point_id=ids))
+
+
+def test_pix4d_control_labels_with_a_prefix_of_bingo(tmp_path, sim, capsys):
+    """The user's files: GCP05 in the survey file, GCP_GCP05 in BINGO. The import joins them after removing the
+    prefix BINGO adds (found from the labels, not from a list), says so, and keeps the survey's labels."""
+    control, gcp, out, argv = pix4d_import(tmp_path, sim, "--check", "GCP_GCP07",
+                                           gcp_label=lambda p: "GCP" + p[1:], bingo_label=lambda p: "GCP_GCP" + p[1:])
+    assert run_cli(*argv) == 0
+    err = capsys.readouterr().err
+    n = len(control)
+    assert (f"warning: control labels matched after removing the prefix 'GCP_' of proj_tp_bingo.txt's labels "
+            f"(gcp.csv to proj_tp_bingo.txt): {n} of {n} (GCP01 = GCP_GCP01, GCP02 = GCP_GCP02, GCP03 = GCP_GCP03, "
+            f"...)") in err, err
+    block = read_block(out)
+    assert_same_measurements(block, renamed_truth(sim, lambda p: "GCP" + p[1:]))
+    index = {p: k for k, p in enumerate(block.points.point_id)}
+    for name, xyz in control.items():
+        k = index["GCP" + name[1:]]
+        assert np.array_equal(block.points.xyz_m[k], xyz)
+        assert block.points.role[k] == ("chk" if name == "M07" else "gcp")      # --check by BINGO's label
+    assert not any(p.startswith("GCP_") for p in block.points.point_id)
+
+
+def test_pix4d_control_labels_in_other_case_and_without_leading_zeros(tmp_path, sim, capsys):
+    """gcp7 in the survey file, M07 in BINGO: joined ignoring case and leading zeros (one message per rule that
+    was needed, with its count)."""
+    control, gcp, out, argv = pix4d_import(tmp_path, sim, gcp_label=lambda p: "m" + str(int(p[1:])))
+    assert run_cli(*argv) == 0
+    err = capsys.readouterr().err
+    n = len(control)
+    small = sum(int(p[1:]) < 10 for p in control)
+    assert (f"warning: control labels matched ignoring case and leading zeros (gcp.csv to proj_tp_bingo.txt): "
+            f"{small} of {n} (m1 = M01, m2 = M02, m3 = M03, ...)") in err, err
+    assert (f"warning: control labels matched ignoring case (gcp.csv to proj_tp_bingo.txt): {n - small} of {n} "
+            f"(m10 = M10, m11 = M11, m12 = M12, ...)") in err, err
+    block = read_block(out)
+    assert_same_measurements(block, renamed_truth(sim, lambda p: "m" + str(int(p[1:]))))
+    assert int(np.sum(block.points.role == "gcp")) == n                     # every surveyed point is control
+
+
+def test_pix4d_control_labels_that_match_nothing(tmp_path, sim, capsys):
+    """GPC05 in BINGO for the survey's GCP05 (a typo in the project): no normalisation joins them. Exit 2 naming
+    the GCP file, the count of labels on each side and, for a few control labels, the nearest BINGO labels;
+    nothing is written."""
+    control, gcp, out, argv = pix4d_import(tmp_path, sim, gcp_label=lambda p: "GCP" + p[1:],
+                                           bingo_label=lambda p: "GPC" + p[1:])
+    assert run_cli(*argv) == 2
+    err = capsys.readouterr().err
+    n_bingo = len(set(sim.blocks["type1"].points.point_id[sim.blocks["type1"].observations.point_index]))
+    assert f"{gcp}: none of its {len(control)} control labels matches one of the {n_bingo} labels of " \
+           f"proj_tp_bingo.txt" in err, err
+    assert "'GCP01' (nearest there: 'GPC01'" in err and "'GCP02' (nearest there: 'GPC02'" in err, err
+    assert f"and {len(control) - 5} more" in err and "Rename the labels" in err, err
+    assert "usable gcp" not in err and not os.path.exists(out)
+
+
+def test_pix4d_control_labels_partly_matched(tmp_path, sim, capsys):
+    """A typo in the project (MO5 for M05) and a surveyed point that Pix4D did not measure: the import goes on and
+    names both (with the nearest BINGO labels); the others are joined as before, MO5 is a tie point."""
+    typo = {"M05": "MO5"}
+    control, gcp, out, argv = pix4d_import(tmp_path, sim, bingo_label=lambda p: typo.get(p, p))
+    with open(gcp, "a") as f:
+        f.write("BM-Church,5.000,6.000,7.000\n")
+    assert run_cli(*argv) == 0
+    err = capsys.readouterr().err
+    assert (f"warning: 2 of the {len(control) + 1} control labels of gcp.csv match nothing in proj_tp_bingo.txt: "
+            f"'M05' (nearest there: 'MO5'), 'BM-Church' (nothing alike there)") in err, err
+    block = read_block(out)
+    index = {p: k for k, p in enumerate(block.points.point_id)}
+    assert "M05" not in index and "BM-Church" not in index     # no image measurement: not a usable gcp
+    assert block.points.role[index["MO5"]] == "tie"
+    assert_same_measurements(block, renamed_truth(sim, lambda p: typo.get(p, p)))
+
+
+def test_pix4d_control_in_northing_easting_order(tmp_path, geo_sim, capsys):
+    """The survey file in northing, easting order: exit 2 before anything is written, naming the file, the columns
+    and the distances from the cameras in either order (before: exit 0, and the adjustment stopped on a point
+    "1.26e+06 m from the block's centre")."""
+    control, gcp, out, argv = pix4d_import(tmp_path, geo_sim, "--crs", "EPSG:3826", northing_first=True)
+    assert run_cli(*argv) == 2
+    err = capsys.readouterr().err
+    assert f"{gcp}: the control points' X and Y look swapped (the file in northing, easting order?): as given " \
+           f"they lie " in err, err
+    import re
+    far, size, near = (float(v) for v in re.search(r"they lie (\S+) m from the 6 camera positions \(the median "
+                                                    r"distance from their extent, (\S+) m across\), with X and Y "
+                                                    r"swapped (\S+) m\.", err).groups())
+    assert far == pytest.approx(np.sqrt(2) * (NORTH - EAST), rel=0.01)   # the mirror image across X = Y
+    cams = geo_sim.truth.eop[:, :3]              # the block's size: its diagonal, or the cameras' height if larger
+    height = np.median(cams[:, 2]) - np.median(np.array(list(control.values()))[:, 2])
+    assert size == pytest.approx(max(np.hypot(*np.ptp(cams[:, :2], axis=0)), height), rel=0.01) and near < size
+    with open(gcp) as f:
+        label, x, y = f.readline().split(",")[:3]
+    assert f"selfcal reads X as the easting and Y as the northing; swap the two columns (point '{label}', line 1: " \
+           f"X {x}, Y {y})" in err, err
+    assert not os.path.exists(out)
+
+
+def test_pix4d_control_in_easting_northing_order_imports_as_before(tmp_path, geo_sim, capsys):
+    """The same files in the right order: exit 0, no warning, the numbers exactly as written."""
+    control, gcp, out, argv = pix4d_import(tmp_path, geo_sim, "--crs", "EPSG:3826")
+    assert run_cli(*argv) == 0
+    assert "warning" not in capsys.readouterr().err
+    block = read_block(out)
+    assert_same_measurements(block, geo_sim.blocks["type1"])
+    assert_same_orientations(block, geo_sim)
+    index = {p: k for k, p in enumerate(block.points.point_id)}
+    for name, xyz in control.items():
+        assert np.array_equal(block.points.xyz_m[index[name]], xyz)
+
+
+def test_metashape_reference_labels_with_a_prefix_of_their_own(tmp_path, sim, tie_block, capsys):
+    """A survey CSV that names marker M05 'CP_M05': joined after removing the prefix the CSV adds (the CSV's
+    coordinates and accuracies are the markers'), said in a warning; the points keep the survey's labels."""
+    control, xml, ref, in_csv = write_markers(str(tmp_path), sim, ref_label=lambda p: "CP_" + p)
+    out = str(tmp_path / "with_markers")
+    assert run_cli("import", "metashape-markers", xml, "--block", tie_block, "--reference", ref, "--check", "M10",
+                   "--out", out) == 0
+    err = capsys.readouterr().err
+    assert (f"warning: control labels matched after removing the prefix 'CP_' of reference.csv's labels "
+            f"(reference.csv to markers.xml): {len(in_csv)} of {len(in_csv)} (CP_M01 = M01, CP_M02 = M02, "
+            f"CP_M03 = M03, ...)") in err, err
+    block = read_block(out)
+    index = {p: k for k, p in enumerate(block.points.point_id)}
+    for name, xyz in control.items():
+        k = index["CP_" + name if name in in_csv else name]
+        assert np.array_equal(block.points.xyz_m[k], xyz)
+        assert tuple(block.points.sigma_m[k]) == ((0.012, 0.012, 0.025) if name in in_csv else (0.01, 0.01, 0.02))
+        assert block.points.role[k] == ("chk" if name in ("M03", "M10") else "gcp"), name
+    assert_same_measurements(block, renamed_truth(sim, lambda p: "CP_" + p if p in in_csv else p))
+
+
+def test_metashape_reference_that_matches_no_marker(tmp_path, sim, tie_block, capsys):
+    _, xml, ref, in_csv = write_markers(str(tmp_path), sim, ref_label=lambda p: "Target " + p[1:])
+    out = str(tmp_path / "out")
+    assert run_cli("import", "metashape-markers", xml, "--block", tie_block, "--reference", ref, "--out", out) == 2
+    err = capsys.readouterr().err
+    n_markers = int(np.sum(sim.blocks["type1"].points.role != "tie"))
+    assert f"{ref}: none of its {len(in_csv)} control labels matches one of the {n_markers} labels of markers.xml" \
+           in err, err
+    assert "'Target 01' (nothing alike there)" in err and "the labels of markers.xml: 'M01', 'M02'" in err, err
+    assert not os.path.exists(out)
+
+
+@pytest.fixture
+def positioned_block(tmp_path, geo_sim):
+    """geo_sim's images with their GNSS positions ([gnss]) and tie points only: a block that knows where it is."""
+    from dataclasses import replace
+    from selfcal.io.block_folder import write_block
+    block = geo_sim.blocks["type1"]
+    ties = np.flatnonzero(block.points.role == "tie")
+    new_index = np.full(len(block.points), -1)
+    new_index[ties] = np.arange(len(ties))
+    keep = new_index[block.observations.point_index] >= 0
+    ob = block.observations
+    from selfcal.block import Observations
+    obs = Observations(ob.image_index[keep], new_index[ob.point_index[keep]], ob.pixel[keep], ob.sigma_px[keep],
+                       np.arange(1, keep.sum() + 1))
+    folder = str(tmp_path / "positioned")
+    write_block(replace(block, points=block.points.take(ties), observations=obs, gnss_sigma_m=(0.05, 0.05, 0.1)),
+                folder)
+    return folder
+
+
+def test_metashape_reference_in_northing_easting_order(tmp_path, geo_sim, positioned_block, capsys):
+    """The reference CSV in northing, easting order against a block with camera GNSS: exit 2 naming the CSV;
+    in the right order the markers import with the CSV's numbers."""
+    _, xml, ref, _ = write_markers(str(tmp_path), geo_sim, northing_first=True)
+    out = str(tmp_path / "out")
+    argv = ["import", "metashape-markers", xml, "--block", positioned_block, "--reference", ref, "--out", out]
+    assert run_cli(*argv) == 2
+    err = capsys.readouterr().err
+    assert f"{ref}: the control points' X and Y look swapped (the file in northing, easting order?): as given they " \
+           f"lie 3.45e+06 m from the 6 camera positions" in err, err
+    assert not os.path.exists(out)
+    control, xml, ref, in_csv = write_markers(str(tmp_path), geo_sim)
+    assert run_cli(*argv) == 0
+    assert "warning" not in capsys.readouterr().err
+    block = read_block(out)
+    index = {p: k for k, p in enumerate(block.points.point_id)}
+    for name, xyz in control.items():
+        assert np.array_equal(block.points.xyz_m[index[name]], xyz)
+
+
+def test_metashape_markers_on_a_free_network_say_nothing_of_axes(tmp_path, sim, tie_block):
+    """A free network has no position of its own: control in any order is imported (its datum is the control)."""
+    _, xml, ref, _ = write_markers(str(tmp_path), sim, northing_first=True)
+    assert run_cli("import", "metashape-markers", xml, "--block", tie_block, "--reference", ref, "--out",
+                   str(tmp_path / "out")) == 0
+
+
+def test_patb_control_in_northing_easting_order(tmp_path, geo_sim, capsys):
+    """PAT-B's .con in northing, easting order against the .ori's perspective centres: exit 2 naming the .con."""
+    src = tmp_path / "src"
+    src.mkdir()
+    write_patb(str(src), geo_sim)
+    con = os.path.join(src, "block.con")
+    with open(con) as f:
+        lines = f.read().splitlines()
+    with open(con, "w") as f:
+        for line in lines:
+            t = line.split()
+            f.write(f"{t[0]:>10} {t[2]:>14} {t[1]:>14} {t[3]:>12}\n" if len(t) == 4 else line + "\n")
+    out = str(tmp_path / "block")
+    assert run_cli(*patb_argv(str(src), out, "--crs", "EPSG:3826")) == 2
+    err = capsys.readouterr().err
+    assert f"{con}: the control points' X and Y look swapped (the file in northing, easting order?)" in err, err
+    assert not os.path.exists(out)
+
+
+def test_patb_control_labels_in_lower_case(tmp_path, sim, capsys):
+    """A .con written by another program in lower case: joined to the .im's labels, said, numbers as written."""
+    src = tmp_path / "src"
+    src.mkdir()
+    control = write_patb(str(src), sim)
+    con = os.path.join(src, "block.con")
+    with open(con) as f:
+        text = f.read()
+    with open(con, "w") as f:
+        f.write(text.replace(" M", " m"))
+    out = str(tmp_path / "block")
+    assert run_cli(*patb_argv(str(src), out, "--check", "M05")) == 0
+    err = capsys.readouterr().err
+    n = len(control)
+    assert f"warning: control labels matched ignoring case (block.con to block.im): {n} of {n} (m01 = M01, " \
+           f"m02 = M02, m03 = M03, ...)" in err, err
+    block = read_block(out)
+    index = {p: k for k, p in enumerate(block.points.point_id)}
+    for name, xyz in control.items():
+        k = index["m" + name[1:]]
+        assert np.array_equal(block.points.xyz_m[k], xyz)
+        assert block.points.role[k] == ("chk" if name == "M05" else "gcp")
+    assert_same_measurements(block, renamed_truth(sim, lambda p: "m" + p[1:]))
+
+
+def test_adjust_refuses_control_swapped_against_the_images_before_any_work(tmp_path, geo_sim, capsys, monkeypatch):
+    """A block folder whose points.csv holds northing, easting against the images.csv positions: selfcal adjust
+    exits 2 naming points.csv before any adjustment (the AP model choice and the tested adjustment are never
+    called); the same block with the columns in order passes the check."""
+    from dataclasses import replace
+    from selfcal.convert.control import block_control_swapped
+    from selfcal.io.block_folder import write_block
+    import selfcal.workflows.adjust as workflow
+
+    def never(*args, **kwargs):
+        raise AssertionError("an adjustment started")
+    monkeypatch.setattr(workflow, "adjust_with_tests", never)
+    monkeypatch.setattr(workflow, "choose_ap_model", never)
+    block = geo_sim.blocks["type1"]
+    assert block_control_swapped(block) is None
+    xyz = block.points.xyz_m.copy()
+    marked = block.points.role != "tie"
+    xyz[marked] = xyz[marked][:, [1, 0, 2]]
+    folder, results = str(tmp_path / "swapped"), str(tmp_path / "results")
+    write_block(replace(block, points=replace(block.points, xyz_m=xyz)), folder)
+    assert run_cli("adjust", folder, "--out", results, "--ap", "auto:none,brown", "--no-report", "--quiet") == 2
+    err = capsys.readouterr().err
+    assert "points.csv: the control points' X and Y look swapped (the file in northing, easting order?): as given " \
+           "they lie 3.45e+06 m from the 6 camera positions" in err, err
+    assert "point 'M01', line 2: X 2689945.424" in err, err
+    assert not os.path.exists(results)

@@ -5,7 +5,10 @@ conventions of each source are translated here, once, one module per source.
   similarity); :mod:`.workspace`: a results folder as a COLMAP dense workspace's sparse model;
 * :mod:`.bal`: Bundle Adjustment in the Large; :mod:`.isis`: ISIS control networks with usgscsm/ALE ISDs;
 * :mod:`.uav`: PAT-B, Pix4D, OpenSfM and Metashape markers; :mod:`.gnss`: camera GNSS/attitude from the images;
-* :mod:`.calibration`: another tool's camera calibration as a block camera.
+* :mod:`.calibration`: another tool's camera calibration as a block camera;
+* :mod:`.labels`: control labels joined to measured points (exact, then the normalisations real files need);
+  :mod:`.control`: control checked against the block's own position (X and Y, latitude and longitude swapped),
+  also by ``selfcal adjust`` before any work.
 """
 from .bal import bal_behind_camera, block_from_bal
 from .calibration import camera_from_calibration

@@ -18,6 +18,7 @@ from ..block import Block, FrameCamera, Images, InitialAP, Observations, Points
 from ..errors import BlockError
 from ..geometry.rotation import matrix_from_quaternion, opk_from_matrix
 from ..geometry.similarity import fit_similarity, intersect_rays
+from .labels import match_labels
 from ..sensors.frame import pixel_from_photo
 
 
@@ -88,7 +89,7 @@ MEASUREMENT_MISS_SIGMAS = 3.0
 MAX_RAY_MISS_DEG = 1.0
 
 
-def _robust_similarity(local, target, ok, names, notes, factor: float = 3.0):
+def _robust_similarity(local, target, ok, names, notes, factor: float = 3.0, path: str = "gcp_list.txt"):
     """Similarity from the usable control points, dropping the worst while it stands out.
 
     A point is dropped when its residual exceeds ``factor`` times the median
@@ -96,7 +97,7 @@ def _robust_similarity(local, target, ok, names, notes, factor: float = 3.0):
     """
     ok = ok.copy()
     if ok.sum() < 3:
-        raise BlockError("gcp_list.txt", f"only {int(ok.sum())} ground control points are seen consistently in two "
+        raise BlockError(path, f"only {int(ok.sum())} ground control points are seen consistently in two "
                                          f"or more images of the model; 3 are needed to georeference it")
     while True:
         sim, residual = fit_similarity(local[ok], target[ok])
@@ -168,7 +169,13 @@ def block_from_colmap(model, control=None, pixel_size_mm: float = 0.005, image_s
 
     gcp_xyz = gcp_obs = None
     if control is not None:
+        # the images of the measurements joined to the model's by name (exactly, else after the normalisations of
+        # selfcal.convert.labels: case, a folder prefix, ...); none at all is a BlockError naming the file
+        match = match_labels(control.obs_image, model.image_names, path=control.path, other_path="the model",
+                             what="image names")
+        notes.extend(f"warning: {m}" for m in match.messages if m != match.unmatched_message)
         index_of = {n: k for k, n in enumerate(model.image_names)}
+        index_of = {name: index_of[other] for name, other in match.partner.items()}
         known = np.array([img in index_of for img in control.obs_image])
         for img in sorted(set(control.obs_image[~known])):
             notes.append(f"ground control measurements in image '{img}' dropped: the image is not in the model")
@@ -201,7 +208,8 @@ def block_from_colmap(model, control=None, pixel_size_mm: float = 0.005, image_s
         for k in np.flatnonzero(plan_only & ok):
             notes.append(f"gcp '{control.point_names[k]}' has no height (NaN): plan control only, not used for the "
                          f"3-D georeference")
-        sim, used = _robust_similarity(local, control.xyz, ok & ~plan_only, control.point_names, notes)
+        sim, used = _robust_similarity(local, control.xyz, ok & ~plan_only, control.point_names, notes,
+                                       path=control.path)
         centres = sim.apply(centres)
         xyz = sim.apply(xyz)
         M = M @ sim.rotation.T
@@ -244,14 +252,14 @@ def block_from_colmap(model, control=None, pixel_size_mm: float = 0.005, image_s
         checks = set(check_points)
         unknown = checks - set(control.point_names)
         if unknown:
-            raise BlockError("gcp_list.txt", f"check point(s) {', '.join(sorted(unknown))} not in the file")
+            raise BlockError(control.path, f"check point(s) {', '.join(sorted(unknown))} not in the file")
         for k, pname in enumerate(control.point_names):
             names.append(str(pname))
             roles.append("chk" if pname in checks else "gcp")
             coords.append(gcp_xyz[k])
             plan = not np.isfinite(control.xyz[k, 2])
             if plan and pname in checks:
-                raise BlockError("gcp_list.txt", f"check point '{pname}' has no height (NaN): a check point needs "
+                raise BlockError(control.path, f"check point '{pname}' has no height (NaN): a check point needs "
                                                  f"all three coordinates")
             sigmas.append([control_sigma_m[0], control_sigma_m[0], PLAN_ONLY_SIGMA_Z_M if plan else control_sigma_m[1]])
     n_ctl = len(names)

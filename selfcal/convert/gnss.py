@@ -104,7 +104,7 @@ def _match(block_ids: np.ndarray, names: np.ndarray) -> tuple[np.ndarray, list[i
 
 def block_with_gnss(block: Block, positions: CameraPositions, sigma_m=None, heights: str = "ellipsoidal",
                     turn_deg: float = STRIP_TURN_DEG, gap_factor: float = STRIP_GAP_FACTOR,
-                    imu_sigma_deg=None) -> GnssImport:
+                    imu_sigma_deg=None, points_path: str = "points.csv", positions_path: str = "") -> GnssImport:
     """``block`` with the camera positions as its GNSS observations.
 
     * positions converted into the block's CRS (:func:`selfcal.geometry.gnss.positions_in_crs`, ``heights``);
@@ -120,7 +120,10 @@ def block_with_gnss(block: Block, positions: CameraPositions, sigma_m=None, heig
 
     An image of the block without a position gets none (NaN, oriented by resection); a position of an image not
     in the block is left out. Both are warnings. Raises ValueError (the CLI's exit 2) when the block's CRS cannot
-    take GNSS positions, pyproj cannot convert them, or no image of the block has one.
+    take GNSS positions, pyproj cannot convert them, or no image of the block has one; a BlockError naming
+    ``points_path`` (the block's points.csv) when the block's control looks swapped (X and Y) against the positions,
+    or naming ``positions_path`` when the positions' longitude and latitude do
+    (:func:`selfcal.convert.control.swapped_axes`).
     """
     reason = check_block_crs(block.crs)
     if reason:
@@ -137,6 +140,7 @@ def block_with_gnss(block: Block, positions: CameraPositions, sigma_m=None, heig
     if not ok.any():
         raise ValueError(f"none of the {len(positions.names)} positions is of an image of the block (image ids such "
                          f"as '{block.images.image_id[0]}', positions of '{positions.names[0]}')")
+    _check_source_axes(block, positions, ok, positions_path)
     xyz = positions_in_crs(positions.xyz[ok], positions.crs, block.crs, heights)
     n = len(block.images)
     position = np.full((n, 3), np.nan)
@@ -160,6 +164,7 @@ def block_with_gnss(block: Block, positions: CameraPositions, sigma_m=None, heig
     has = np.isfinite(position).all(axis=1)
     if not has.any():
         raise ValueError("no image of the block has a complete GNSS position (longitude, latitude and height)")
+    _check_control_axes(block, position, points_path, positions_path)
     strips = np.full(n, "", dtype=object)
     order_time = np.where(np.isfinite(time), time, np.nan)
     if not np.isfinite(order_time[has]).all():
@@ -177,6 +182,54 @@ def block_with_gnss(block: Block, positions: CameraPositions, sigma_m=None, heig
         new, n_attitude = _with_attitude(new, positions, index, ok, imu_sigma_deg, warnings)
     return GnssImport(new, int(has.sum()), int(np.isfinite(own[has]).all(axis=1).sum()), int(number.max()) + 1,
                       tuple(warnings), n_attitude)
+
+
+def _block_control(block: Block):
+    """xyz, ids, lines of the block's control points (gcp, chk) with plan coordinates."""
+    points = block.points
+    k = np.flatnonzero(np.isin(points.role, ("gcp", "chk")) & np.isfinite(points.xyz_m[:, :2]).all(axis=1))
+    return points.xyz_m[k], points.point_id[k], points.line[k]
+
+
+def _check_source_axes(block: Block, positions: CameraPositions, ok, positions_path: str) -> None:
+    """Geographic positions whose longitude and latitude look swapped against the block's control (both in the
+    positions' CRS, before any conversion): a BlockError naming the positions' file."""
+    from pyproj import CRS
+
+    from ..errors import BlockError
+    from .control import swapped_axes
+    xyz, _, _ = _block_control(block)
+    if not len(xyz) or not CRS.from_user_input(positions.crs).is_geographic:
+        return
+    try:
+        control = positions_in_crs(xyz, block.crs, positions.crs, "orthometric")
+    except ValueError:
+        return
+    reason = swapped_axes(positions.xyz[ok], control, geographic=True, point_ids=positions.names[ok],
+                          what="GNSS positions", reference="control points of the block")
+    if reason:
+        raise BlockError(positions_path or str(positions.where[ok][0]), reason)
+
+
+def _check_control_axes(block: Block, position, points_path: str, positions_path: str) -> None:
+    """The block's control and the GNSS positions (both in the block's CRS) in other X, Y orders: a BlockError
+    naming the positions' file when they are also swapped against the block's own image positions (images.csv),
+    else naming points.csv (and, without image positions to tell, saying that it may be the positions' file)."""
+    from ..errors import BlockError
+    from .control import swapped_axes
+    xyz, ids, lines = _block_control(block)
+    reason = swapped_axes(xyz, position, point_ids=ids, lines=lines, reference="GNSS positions of the images")
+    if not reason:
+        return
+    prior = block.images.position_m
+    if np.isfinite(prior[:, :2]).all(axis=1).any():
+        own = swapped_axes(position, prior, point_ids=block.images.image_id, what="GNSS positions",
+                           reference="positions of the block's images.csv")
+        if own:
+            raise BlockError(positions_path or "the GNSS positions", own)
+        raise BlockError(points_path, reason)
+    raise BlockError(points_path, f"{reason}. If points.csv is right, {positions_path or 'the GNSS positions'} is "
+                                  f"the file in northing, easting order (the block has no image positions to tell)")
 
 
 def _with_attitude(block: Block, positions: CameraPositions, index, ok, imu_sigma_deg, warnings):

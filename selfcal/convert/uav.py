@@ -27,6 +27,8 @@ import numpy as np
 from ..block import Block, FrameCamera, Images, Observations, Points
 from ..errors import BlockError, UsageError
 from ..geometry.rotation import matrix_from_rotation_vector, opk_from_matrix
+from .control import crs_kind, swapped_axes
+from .labels import match_labels
 
 __all__ = ["block_from_opensfm", "block_from_patb", "block_from_pix4d", "block_with_markers", "camera_key"]
 
@@ -59,6 +61,17 @@ def _assemble(name, crs, cameras, image_ids, image_camera, position, opk, point_
                  image_sigma_px=image_sigma_px, datum=datum)
 
 
+def _check_axes(control, positions, crs: str) -> None:
+    """A BlockError naming the control file when its X and Y look swapped against the camera positions
+    (:func:`selfcal.convert.control.swapped_axes`)."""
+    if control is None or positions is None:
+        return
+    reason = swapped_axes(control.xyz_m, positions, geographic=crs_kind(crs) == "geographic",
+                          point_ids=control.point_id, lines=control.line)
+    if reason:
+        raise BlockError(control.path, reason)
+
+
 def _control_points(control, checks, default_sigma_m, notes):
     """ids, roles, xyz, sigma of a :class:`selfcal.io.patb.ControlPoints`: ``chk`` where named in ``checks`` or
     disabled in the file, ``gcp`` otherwise; sigma from the file where given, else ``default_sigma_m``."""
@@ -78,14 +91,26 @@ def _control_points(control, checks, default_sigma_m, notes):
 
 
 def _points_and_observations(measurements, control, checks, control_sigma_m, to_pixel, image_index, notes):
-    """Points (control first, then tie points in the order of the file) and observations of photo measurements."""
+    """Points (control first, then tie points in the order of the file) and observations of photo measurements.
+
+    Control labels are joined to the measured points by :func:`selfcal.convert.labels.match_labels` (a measured
+    point matched after a normalisation takes the control file's label); none matching is a BlockError naming the
+    control file."""
     ids, roles, xyz, sigma = [], [], np.zeros((0, 3)), np.zeros((0, 3))
+    measured = np.asarray(measurements.point, object)
     if control is not None:
+        match = match_labels(control.point_id, dict.fromkeys(measured), path=control.path,
+                             other_path=measurements.path, what="control labels")
+        notes.extend(f"warning: {m}" for m in match.messages)
+        renamed = match.renamed
+        if renamed:
+            measured = np.array([renamed.get(p, p) for p in measured], object)
+            checks = [renamed.get(c, c) for c in checks]
         ids, roles, xyz, sigma = _control_points(control, checks, control_sigma_m, notes)
     elif checks:
         raise UsageError("--check needs control points (a control file)")
     index = {p: i for i, p in enumerate(ids)}
-    ties = [p for p in dict.fromkeys(measurements.point) if p not in index]
+    ties = [p for p in dict.fromkeys(measured) if p not in index]
     for p in ties:
         index[p] = len(index)
     n_tie = len(ties)
@@ -94,7 +119,7 @@ def _points_and_observations(measurements, control, checks, control_sigma_m, to_
     xyz = np.vstack([xyz, np.full((n_tie, 3), np.nan)])
     sigma = np.vstack([sigma, np.full((n_tie, 3), np.nan)])
     obs_img = np.array([image_index[i] for i in measurements.image], np.int64)
-    obs_pt = np.array([index[p] for p in measurements.point], np.int64)
+    obs_pt = np.array([index[p] for p in measured], np.int64)
     pixel = to_pixel(measurements.xy_mm, obs_img)
     return ids, roles, xyz, sigma, obs_img, obs_pt, pixel
 
@@ -156,6 +181,7 @@ def block_from_patb(measurements, control=None, orientations=None, *, width_px: 
     the export's ``.pro`` may state). Returns the block and notes of what was done.
     """
     notes: list[str] = []
+    _check_axes(control, None if orientations is None else orientations.position_m, crs)
     if focal_mm is None:
         constants = {}
         for photo in measurements.photos:
@@ -202,6 +228,7 @@ def block_from_pix4d(params, control=None, *, image_sigma_px: float = 1.0, contr
     (``control``: a :class:`selfcal.io.patb.ControlPoints`, e.g. from a GCP file) matches BINGO point ids.
     """
     notes: list[str] = []
+    _check_axes(control, None if params.external is None else params.external.position_m, crs)
     cam = params.camera
     p = cam.sensor_width_mm / cam.width_px
     if abs(cam.sensor_height_mm / cam.height_px - p) > 1e-6 * p:
@@ -335,13 +362,11 @@ def block_with_markers(block: Block, markers, reference=None, *, marker_sigma_px
     Measurements of cameras the block does not have are a BlockError naming the file and the camera.
     """
     notes: list[str] = []
+    if not (block.datum == "free" and not block.has_trajectory):       # a free network has no position of its own
+        for control in (reference, markers.reference):
+            _check_axes(control, block.images.position_m, block.crs)
     sigma_px = block.image_sigma_px if marker_sigma_px is None else marker_sigma_px
     labels = list(dict.fromkeys(markers.marker))
-    existing = set(block.points.point_id)
-    clash = [m for m in labels if m in existing]
-    if clash:
-        raise BlockError(markers.path, f"marker(s) {', '.join(clash[:5])} have the name of a point the block "
-                                       f"already has", markers.marker_line.get(clash[0]))
     image_index = {str(i): k for k, i in enumerate(block.images.image_id)}
     stem_index = {_stem(i): k for k, i in enumerate(block.images.image_id)}
     obs_img = []
@@ -352,27 +377,37 @@ def block_with_markers(block: Block, markers, reference=None, *, marker_sigma_px
                                            f"({len(block.images)} images, e.g. {block.images.image_id[0]})",
                              int(line) if line else None)
         obs_img.append(k)
-    coords = {}
+    coords = {}                                             # marker label -> xyz, sigma, enabled
     if markers.reference is not None:
         ref = markers.reference
         for k, label in enumerate(ref.point_id):
             coords[label] = (ref.xyz_m[k], ref.sigma_m[k], ref.enabled[k])
+    name_of = {}                                            # marker label -> the reference CSV's label of it
     if reference is not None:
-        unknown = [p for p in reference.point_id if p not in labels]
-        if unknown:
-            notes.append(f"{len(unknown)} point(s) of {reference.path} have no marker measurement: "
-                         f"{', '.join(unknown[:5])}" + (" ..." if len(unknown) > 5 else ""))
+        match = match_labels(reference.point_id, labels, path=reference.path, other_path=markers.path,
+                             what="control labels")
+        notes.extend(f"warning: {m}" for m in match.messages)
         for k, label in enumerate(reference.point_id):      # the file's coordinates, the project's check state
-            enabled = coords[label][2] if label in coords else reference.enabled[k]
-            coords[label] = (reference.xyz_m[k], reference.sigma_m[k], enabled)
-    checks = set(check_points)
+            marker = match.partner.get(label)
+            if marker is None:
+                continue
+            enabled = coords[marker][2] if marker in coords else reference.enabled[k]
+            coords[marker] = (reference.xyz_m[k], reference.sigma_m[k], enabled)
+            name_of[marker] = label
+    marker_of = {v: k for k, v in name_of.items()}
+    checks = {marker_of.get(c, c) for c in check_points}
     unknown = checks - set(coords)
     if unknown:
         raise UsageError(f"--check names marker(s) without reference coordinates: {', '.join(sorted(unknown))}")
+    existing = set(block.points.point_id)
+    clash = [m for m in labels if name_of.get(m, m) in existing]
+    if clash:
+        raise BlockError(markers.path, f"marker(s) {', '.join(name_of.get(m, m) for m in clash[:5])} have the name "
+                                       f"of a point the block already has", markers.marker_line.get(clash[0]))
     default = np.array([control_sigma_m[0], control_sigma_m[0], control_sigma_m[1]])
     ids, roles, xyz, sigma = [], [], [], []
     for label in labels:
-        ids.append(label)
+        ids.append(name_of.get(label, label))
         if label in coords:
             c, s, enabled = coords[label]
             roles.append("chk" if label in checks or not enabled else "gcp")
@@ -384,7 +419,7 @@ def block_with_markers(block: Block, markers, reference=None, *, marker_sigma_px
             sigma.append(np.full(3, np.nan))
             notes.append(f"marker '{label}' has no reference coordinates: a tie point")
     n0 = len(block.points)
-    index = {label: n0 + k for k, label in enumerate(ids)}
+    index = {label: n0 + k for k, label in enumerate(labels)}
     pts = block.points
     points = Points(np.concatenate([pts.point_id, np.array(ids, object)]),
                     np.concatenate([pts.role, np.array(roles, object)]),

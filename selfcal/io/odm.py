@@ -49,6 +49,7 @@ class GroundControl:
     obs_image: np.ndarray          # (m,) image file name
     obs_pixel: np.ndarray          # (m, 2) col, row
     obs_line: np.ndarray           # (m,) line in the file
+    path: str = "gcp_list.txt"     # the file read
 
 
 def _crs(path: str, text: str, geographic: bool = False) -> tuple[str, str]:
@@ -130,7 +131,7 @@ def read_gcp_list(path: str | os.PathLike) -> GroundControl:
                          o_line[len(pairs) - 1 - pairs[::-1].index(dup)])
     return GroundControl(crs, crs_name, np.array(names, dtype=object), np.array(xyz),
                          np.array(o_pt, np.int64), np.array(o_img, dtype=object), np.array(o_pix, float),
-                         np.array(o_line, np.int64))
+                         np.array(o_line, np.int64), path)
 
 
 
@@ -141,8 +142,10 @@ def _is_geographic(crs: str) -> bool:
 
 def _check_lon_lat(path: str, lon: float, lat: float, line: int) -> None:
     if not -90.0 <= lat <= 90.0:
+        swapped = (f": geo_x and geo_y look swapped (geo_x {lon:g} would be a latitude); swap the two columns"
+                   if -90.0 <= lon <= 90.0 else "")
         raise BlockError(path, f"latitude {lat:g} is outside -90..90 degrees; in a geographic CRS geo_x is the "
-                               f"longitude and geo_y the latitude (ODM's order)", line, "geo_y")
+                               f"longitude and geo_y the latitude (ODM's order){swapped}", line, "geo_y")
     if not -180.0 <= lon <= 360.0:
         raise BlockError(path, f"longitude {lon:g} is outside -180..360 degrees", line, "geo_x")
 

@@ -18,7 +18,8 @@ from ..adjust import AdjustOptions, RobustOptions
 from ..adjust.datum import control_far_away, control_on_a_line, undetermined_points
 from ..ap import takes_grid
 from ..block import Block
-from ..errors import AdjustmentError, UsageError
+from ..convert.control import block_control_swapped
+from ..errors import AdjustmentError, BlockError, UsageError
 from ..sensors import sensor_of
 from ..stats.screening import ScreeningOptions
 from ..stats.snooping import SnoopingOptions
@@ -70,6 +71,7 @@ def adjust_block(block: Block, request: AdjustRequest, progress: Callable | None
     """The tested adjustment of ``block`` as ``request`` asks (module docstring); ``say`` receives one-line
     messages on the way (the focal lengths, the chosen model), ``scores`` each candidate of ``--ap auto``."""
     say = say or (lambda text: None)
+    _check_control_axes(block)
     block = object_frame_block(block)
     if offers_sensor_models(block):
         return _seed001(block, request, progress, report, say, scores)
@@ -86,6 +88,14 @@ def adjust_block(block: Block, request: AdjustRequest, progress: Callable | None
                                report=report, variance=request.variance, robust=request.robust)
     return Adjusted(tested, block, check_points.intersected(tested.result), _check_points_determined(block, tested),
                     choice=choice)
+
+
+def _check_control_axes(block: Block) -> None:
+    """BlockError (exit 2, before any work) when points.csv's control looks swapped (northing, easting; latitude,
+    longitude) against the images' positions (:func:`selfcal.convert.control.block_control_swapped`)."""
+    reason = block_control_swapped(block)
+    if reason:
+        raise BlockError("points.csv", reason)
 
 
 def _check_control(block: Block) -> None:

@@ -65,7 +65,10 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"{args.source} is neither a folder of JPEGs nor a geo.txt file")
     try:
         result = block_with_gnss(block, positions, args.sigma_m, args.heights, args.strip_turn_deg, args.strip_gap,
-                                 args.imu_sigma_deg)
+                                 args.imu_sigma_deg, points_path=os.path.join(args.block, "points.csv"),
+                                 positions_path=args.source)
+    except BlockError:
+        raise
     except ValueError as exc:
         raise BlockError(args.source, str(exc)) from None
     write_block(result.block, args.out, source=args.source)
