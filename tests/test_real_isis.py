@@ -42,7 +42,7 @@ def jigsaw_run(tmp_path_factory):
     assert counts == {"ignored_points": 0, "ignored_measures": 0, "measures_without_image": 0}
     write_block(block, tmp / "block")
     block = read_block(tmp / "block")
-    adjusted = adjust_block(block, AdjustRequest(snooping=None))
+    adjusted = adjust_block(block, AdjustRequest(snooping=None, robust=None))
     files = result_files(adjusted.block, adjusted.tested, {}, None, adjusted.checks)
     write_results(tmp / "jigsaw", files)
     return tmp / "jigsaw", adjusted
@@ -89,7 +89,7 @@ def test_data_snooping_finds_cube7s_inconsistent_measures(jigsaw_run):
     _, adjusted = jigsaw_run
     block = adjusted.block
     from selfcal.stats import SnoopingOptions
-    snooped = adjust_block(block, AdjustRequest(snooping=SnoopingOptions(3.0))).tested
+    snooped = adjust_block(block, AdjustRequest(snooping=SnoopingOptions(3.0), robust=None)).tested
     rows = np.isin(block.observations.row, snooped.rejected_rows)
     cube7 = block.images.image_id[block.observations.image_index] == "apolloImage7"
     assert int(rows[cube7].sum()) >= 7 and rows[~cube7].mean() < 0.02
@@ -117,7 +117,7 @@ def lro_runs(tmp_path_factory):
         assert counts == {"ignored_points": 0, "ignored_measures": 0, "measures_without_image": 0}
         write_block(block, tmp / f"block_{name}")
         block = hold_radii(read_block(tmp / f"block_{name}"), 0.001)
-        request = AdjustRequest(AdjustOptions(solver=SolverOptions(max_iterations=200)), snooping=None)
+        request = AdjustRequest(AdjustOptions(solver=SolverOptions(max_iterations=200)), snooping=None, robust=None)
         adjusted = adjust_block(block, request)
         write_results(tmp / name, result_files(adjusted.block, adjusted.tested, {}, None, adjusted.checks))
         runs[name] = (tmp / name, adjusted)
@@ -219,9 +219,9 @@ def test_lro_pair_with_the_radii_free(tmp_path):
         block = read_block(tmp_path / f"d{degree}")
         if degree == 3:
             with pytest.raises(AdjustmentError, match=r"(ra|dec)_[0-3]"):
-                adjust_block(block, AdjustRequest(snooping=None))
+                adjust_block(block, AdjustRequest(snooping=None, robust=None))
             continue
-        adjusted = adjust_block(block, AdjustRequest(snooping=None))
+        adjusted = adjust_block(block, AdjustRequest(snooping=None, robust=None))
         assert adjusted.tested.result.converged
         write_results(tmp_path / "res", result_files(adjusted.block, adjusted.tested, {}, None, adjusted.checks))
         values = _lro_values(tmp_path / "res")

@@ -17,7 +17,8 @@ from selfcal.report.figures import grid_mean_vectors, nice_length
 
 from conftest import pruned, run_cli, simulation
 
-FIGURES = ["distortion", "residual-grid", "residual-histogram", "control-errors", "tie-precision", "correlation"]
+FIGURES = ["distortion", "residual-grid", "residual-histogram", "control-errors", "tie-precision", "correlation",
+           "robust-weights", "rejection-map"]
 #: every summary.json key that the summary section must print
 PRINTED = ["sigma0_px", "variance_factor", "iterations", "redundancy", "n_observations", "n_unknowns",
            "rmsd_chk_xy_m", "rmsd_chk_z_m", "rmsd_chk_xy_gsd", "rmsd_chk_z_gsd", "ce90_chk_m", "le90_chk_m",
@@ -134,14 +135,25 @@ def test_tables_list_points_flags_and_rejections(adjusted):
     with open(adjusted / "summary.json") as handle:
         summary = json.load(handle)
     report = _parse(adjusted / "report.html")
-    # the rejected observations, largest |w| first, up to the 200-row cap (all are in residuals.csv)
+    # the rejected observations: data snooping's, largest |w| first, then the robust cleaning's, largest u first, up
+    # to the 200-row cap (all are in residuals.csv)
     assert summary["n_obs_rejected"] > 0
-    w = [abs(float(row["cells"][6])) for row in report.tables["rejected"]]
-    assert len(w) == min(summary["n_obs_rejected"], 200)
+    rejected = report.tables["rejected"]
+    assert len(rejected) == min(summary["n_obs_rejected"], 200)
+    by = [row["cells"][2] for row in rejected]
+    assert by == sorted(by, key=lambda b: b == "robust") and "snooping" in by
+    w = [abs(float(row["cells"][7])) for row in rejected if row["cells"][2] == "snooping"]
     assert min(w) > 3.0 and w == sorted(w, reverse=True)
-    residuals = _text(adjusted / "residuals.csv").strip().split("\n")[1:]
-    w_file = sorted((abs(float(r.split(",")[4])) for r in residuals if r.split(",")[5] == "1"), reverse=True)
+    u = [float(row["cells"][8]) for row in rejected if row["cells"][2] == "robust"]
+    assert all(x > summary["robust"]["reject_u"] for x in u) and u == sorted(u, reverse=True)
+    lines = _text(adjusted / "residuals.csv").strip().split("\n")
+    col_of = {h: i for i, h in enumerate(lines[0].split(","))}
+    residuals = [r.split(",") for r in lines[1:]]
+    w_file = sorted((abs(float(r[col_of["w_test"]])) for r in residuals if r[col_of["rejected_by"]] == "snooping"),
+                    reverse=True)
     np.testing.assert_allclose(w, w_file[:len(w)], atol=0.006)
+    n_robust = sum(r[col_of["rejected_by"]] == "robust" for r in residuals)
+    assert n_robust == summary["robust"]["n_rejected"] and len(w_file) + n_robust == summary["n_obs_rejected"]
     # control and check points with their errors; a check point is flagged exactly when |d| > 3 sigma
     lines = _text(adjusted / "points.csv").strip().split("\n")
     header, data = lines[0].split(","), [line.split(",") for line in lines[1:]]
@@ -171,7 +183,7 @@ def test_report_command_renders_again_from_the_files(adjusted, tmp_path, capsys)
     with open(copy / "figures-stale.txt", "w") as handle:   # not in figures/: left alone
         handle.write("x")
     assert run_cli("report", str(copy)) == 0
-    assert "6 figures" in capsys.readouterr().err
+    assert f"{len(FIGURES)} figures" in capsys.readouterr().err
     first, again = _parse(adjusted / "report.html"), _parse(copy / "report.html")
     assert again.cells == first.cells
     assert sorted(os.listdir(copy / "figures")) == sorted(os.listdir(adjusted / "figures"))

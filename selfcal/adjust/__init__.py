@@ -349,12 +349,12 @@ def _adjust(block: Block, options: AdjustOptions, progress, start, free, ap_mode
     solver_options = options.solver
     free_network = block.datum == "free" or solver_options.free_network
     left_out: list[str] = []
-    if free_network or robust is not None:
-        # a free network, or a robust adjustment of matcher output: points that their rays do not determine (or
-        # whose rays the weights took away) are left out as they appear, observations behind their camera at the
-        # start go
-        solver_options = replace(solver_options, free_network=free_network or solver_options.free_network,
+    if free_network:
+        solver_options = replace(solver_options, free_network=True,
                                  point_sigma_ratio=solver_options.point_sigma_ratio or FREE_POINT_SIGMA_RATIO)
+    if free_network or robust is not None:
+        # a free network, or a robust adjustment of matcher output: observations behind their camera at the start
+        # go (a robust adjustment also leaves out points whose rays turn out singular, below)
         # at the start values; a warm start comes from an adjustment that left them out already
         behind = behind_camera(problem, state) if start is None else np.zeros(problem.n_image_observations, bool)
         if behind.any():

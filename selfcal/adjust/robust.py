@@ -163,16 +163,27 @@ class RobustOptions:
         return cls() if self.c is None else cls(self.c)
 
 
-def robust_scale(u: np.ndarray, trim: float = 3.0, iterations: int = 5) -> float:
-    """The scale of normalised 2-D residual sizes ``u`` (module docstring): the median over those below
-    ``trim`` scales, divided by the truncated Rayleigh median, from the plain median on."""
+def _rays(problem) -> np.ndarray:
+    """The number of rays of each image observation's point (problem order); a control point's counts as many (its
+    coordinates are observed: each ray is checked by them, not only by the others)."""
+    rays = np.bincount(problem.obs_point, minlength=problem.n_points)
+    rays[problem.control_index] = np.iinfo(np.int64).max // 4
+    return rays[problem.obs_point]
+
+
+def robust_scale(u: np.ndarray, trim: float = 3.0, iterations: int = 5, dof: int = 2) -> float:
+    """The scale of normalised residual sizes ``u`` (module docstring): the median over those below ``trim``
+    scales, divided by the truncated median of their distribution, from the plain median on. ``dof``: 2 for the
+    sizes of image points (Rayleigh), 1 for those of two-ray points, whose rays share one parallax (half-normal)."""
+    from scipy.stats import chi
     u = np.asarray(u, float)
     u = u[np.isfinite(u)]
     if not u.size:
         return 1.0
-    scale = float(np.median(u)) / RAYLEIGH_MEDIAN
-    # the median of a Rayleigh variable truncated at `trim` scales, in units of its scale
-    truncated = float(np.sqrt(-2.0 * np.log(1.0 - 0.5 * (1.0 - np.exp(-0.5 * trim * trim)))))
+    law = chi(dof)
+    scale = float(np.median(u)) / float(law.median())
+    # the median of the distribution truncated at `trim` scales, in units of its scale
+    truncated = float(law.ppf(0.5 * law.cdf(trim)))
     for _ in range(iterations):
         inside = u[u <= trim * scale]
         if inside.size < 10:
@@ -204,10 +215,13 @@ class RobustWeighting:
         self.loss = self.options.make_loss()
 
     def sizes(self, problem, state) -> tuple[np.ndarray, np.ndarray]:
-        """u * scale of every image point (a-priori sigmas) and control point at ``state``."""
+        """u * scale of every image point and control point at ``state``: the length of its whitened residuals
+        (a-priori sigmas), an image point's over the square root of its point's share of redundancy, 1 - 3 / (2 n)
+        for n rays (a two-ray point's rays share one parallax: 1/4; a point seen ten times: 0.85), as the w-test
+        divides by the redundancy number."""
         from .residuals.image import image_residuals
         v = image_residuals(problem, state) / problem.obs_sigma_apriori
-        image = np.sqrt(np.sum(v * v, axis=1))
+        image = np.sqrt(np.sum(v * v, axis=1) / (1.0 - 1.5 / np.maximum(_rays(problem), 2)))
         control = np.zeros(0)
         block = problem.control
         if len(block):
@@ -222,8 +236,22 @@ class RobustWeighting:
         if len(self.history) >= MAX_UPDATES:
             return False
         image, control = self.sizes(problem, state)
-        scale = robust_scale(image) if self.options.scale == "mad" else 1.0
+        rays = _rays(problem)
+        scale = 1.0
+        if self.options.scale == "mad":
+            # from the points with three rays or more where there are enough: a two-ray point's residuals are one
+            # parallax shared by its rays, in any split a robust weight gives them
+            many = rays >= 3
+            scale = robust_scale(image[many]) if many.sum() >= 50 else robust_scale(image, dof=1)
         new = np.maximum(self.loss.weight(image / scale), MIN_WEIGHT)
+        # the rays of a two-ray point share the smaller weight: the data cannot tell which of them is wrong, and
+        # weights of their own would move the point onto the heavier ray, its residual onto the lighter one (and
+        # the scale with it, towards zero: a redescending loss makes the even split unstable)
+        pair = np.flatnonzero(rays == 2)
+        if pair.size:
+            lowest = np.full(problem.n_points, np.inf)
+            np.minimum.at(lowest, problem.obs_point[pair], new[pair])
+            new[pair] = lowest[problem.obs_point[pair]]
         tolerance = self.options.tolerance
         block = problem.control
         weigh_control = self.options.control and control.size > 0

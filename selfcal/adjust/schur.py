@@ -205,13 +205,28 @@ class SingularPoints(AdjustmentError):
                          f"or a point gone to infinity or behind its cameras)")
 
 
+#: a point block whose condition number is beyond this is singular in double precision
+SINGULAR_CONDITION = 1e16
+
+
 def damped_inverse(V: np.ndarray, lam: float, points: np.ndarray | None = None) -> np.ndarray:
     """The inverse damped point blocks; a block that is singular raises SingularPoints naming its point
     (``points``: the block's point of each block, by default its index)."""
     if lam:
         V = V + lam * np.einsum("nii,ij->nij", V, np.eye(3))
+    finite = np.isfinite(V).all(axis=(1, 2))
+    if not finite.all():                    # a point gone to infinity (least squares pulled by wrong rays)
+        bad = np.flatnonzero(~finite)
+        raise SingularPoints(bad if points is None else points[bad])
     out = np.empty_like(V)
     if spd_inverse_3x3(V, out) < 0:
+        # positive pivots, but a block as good as singular (two rays of wrong matches meeting at infinity): its
+        # condition number is at least trace(V) trace(V^-1) / 9
+        condition = np.einsum("nii->n", V) * np.einsum("nii->n", out)
+        singular = ~(condition < SINGULAR_CONDITION)
+        if singular.any():
+            bad = np.flatnonzero(singular)
+            raise SingularPoints(bad if points is None else points[bad])
         return out
     try:                                    # a block not positive definite: LU, which names singular ones
         return np.linalg.inv(V)

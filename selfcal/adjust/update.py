@@ -104,6 +104,8 @@ def downdated_start(previous, problem: Problem, block, free_network: bool = Fals
         return None
     if np.any(old.obs_weight != 1.0) or np.any(old.control.weight != 1.0):
         return None                         # a robust adjustment's rows were re-weighted
+    if not np.array_equal(old_block.points.point_id[old.control_index], block.points.point_id[problem.control_index]):
+        return None                         # a control point became a check point
     left = np.ones(old.n_image_observations, bool)
     left[kept] = False
     removed = np.flatnonzero(left)

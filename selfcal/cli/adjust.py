@@ -18,8 +18,8 @@ from ..stats import SnoopingOptions, VarianceOptions
 from ..workflows import parse_candidate
 from ..workflows.adjust import AdjustRequest, adjust_block, offers_sensor_models
 from ..workflows.seed001 import ATTITUDE_FREE_SIGMA
-from .options import (ap_option, count, force_option, grid_option, number, progress_printer, round_printer,
-                      screening_options, test_options, trajectory_options)
+from .options import (ap_option, count, force_option, grid_option, number, progress_printer, robust_options,
+                      round_printer, screening_options, test_options, trajectory_options)
 
 #: options that only blocks whose sensors offer seed 001's sensor models take (dest -> flag)
 _SEED001_OPTIONS = {"sensor_model": "--sensor-model", "images": "--images", "gcps": "--gcps",
@@ -163,7 +163,7 @@ def run(args: argparse.Namespace) -> int:
                             solver=SolverOptions(max_iterations=args.max_iterations))
     screening = screening_options(args) if args.screen else None
     request = AdjustRequest(options, SnoopingOptions(critical=args.snoop, mode=args.snoop_mode), screening,
-                            VarianceOptions() if args.variance_components else None,
+                            VarianceOptions() if args.variance_components else None, robust_options(args),
                             _candidates(args) if auto else None,
                             tuple(v.strip() for v in args.images.split(",") if v.strip()) if args.images else None,
                             args.gcps, args.keep_focal, height)
@@ -205,6 +205,16 @@ def run(args: argparse.Namespace) -> int:
     for note in s.get("notes", []):
         if note.startswith(("weakly determined", "object points not determined")) and note != failure:
             print(f"warning: {note}", file=sys.stderr)
+    # what the robust cleaning and the control group's test found (images and control left out, the diagnosis)
+    messages = (tested.cleaning.messages if tested.cleaning is not None else []) + \
+        [n for n in tested.result.notes if n.startswith("control point") and "fails the test" in n]
+    for message in dict.fromkeys(messages):
+        print(f"warning: {message}", file=sys.stderr)
+    robust = s.get("robust")
+    if robust and not args.quiet:
+        print(f"robust cleaning ({robust['loss']}): {robust['n_rejected']} gross errors rejected "
+              f"({100 * robust['share_rejected']:.1f} %), {robust.get('n_readmitted', 0)} taken back; diagnosis "
+              f"{robust['diagnosis']}", file=sys.stderr)
     if failure:
         print(f"selfcal adjust: error: {failure}", file=sys.stderr)
         return 1

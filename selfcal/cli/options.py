@@ -5,10 +5,11 @@ import argparse
 import math
 import sys
 
+from ..adjust.robust import LOSSES, RobustOptions
 from ..workflows.progress import LOG, iteration_line, round_line
 
 __all__ = ["grid", "ap_option", "grid_option", "progress_printer", "test_options", "round_printer",
-           "trajectory_options", "drift_order", "screening_options", "number", "count", "ap_spec", "ap_list",
+           "trajectory_options", "drift_order", "screening_options", "robust_options", "number", "count", "ap_spec", "ap_list",
            "force_option"]
 
 
@@ -137,9 +138,20 @@ def test_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--trajectory-significance", type=number(0.0), default=None, metavar="T",
                         help="screening: drop a GNSS/IMU shift/drift term only with t < T before the screening "
                              "and at the drop (default 1.355 = 3 - z(0.95): shown smaller than 3 sigma)")
+    parser.add_argument("--robust", choices=["none", *LOSSES], default=RobustOptions.loss, metavar="LOSS",
+                        help=f"robust cleaning before the tests: {', '.join(LOSSES)} (default {RobustOptions.loss}: "
+                             "gross errors of matcher output rejected first), or none (least squares throughout)")
+    parser.add_argument("--robust-reject", type=number(0.0, low_open=True), default=RobustOptions.reject, metavar="U",
+                        help=f"robust cleaning: reject image points more than U robust sigmas off (default "
+                             f"{RobustOptions.reject:g}); the rest face data snooping")
     parser.add_argument("--variance-components", action="store_true",
                         help="estimate a variance factor per observation group (image, GCP, GNSS, IMU) and "
                              "report the a-posteriori sigmas next to the a-priori ones")
+
+
+def robust_options(args: argparse.Namespace):
+    """RobustOptions from the command line, or None for ``--robust none``."""
+    return None if args.robust == "none" else RobustOptions(loss=args.robust, reject=args.robust_reject)
 
 
 def screening_options(args: argparse.Namespace):

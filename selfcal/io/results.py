@@ -39,7 +39,7 @@ OPTIONAL_TABLES = {"parameters": "parameters.csv", "distortion_grid": "distortio
                    "check_points": "check_points.csv", "attitude_corrections": "attitude_corrections.csv"}
 #: columns that hold names, not numbers
 _TEXT_COLUMNS = {"image_id", "camera_id", "strip_id", "point_id", "role", "parameter", "sensor", "term", "axis",
-                 "unit", "owner", "group"}
+                 "unit", "owner", "group", "rejected_by"}
 
 
 def to_jsonable(value):

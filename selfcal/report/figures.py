@@ -15,6 +15,7 @@ from matplotlib.figure import Figure
 
 __all__ = ["distortion_figure", "residual_grid_figure", "residual_histogram_figure", "control_error_figure",
            "correlation_figure", "precision_map_figure", "comparison_figure", "grid_mean_vectors",
+           "robust_weight_figure", "rejection_map_figure",
            "nice_length", "length_unit"]
 
 _WIDTH_IN = 7.5   # fits an A4 page with margins
@@ -293,3 +294,54 @@ def attitude_correction_figure(series: list[tuple[str, np.ndarray, np.ndarray, n
     panels[0].set_title(title, loc="left", fontsize=10)
     return fig
 
+
+
+def robust_weight_figure(weight: np.ndarray, u: np.ndarray, reject: float, title: str) -> Figure:
+    """The robust cleaning's weights (left: how many observations ended with which weight, logarithmic counts) and
+    the residual sizes u in robust sigmas (right), with the rejection threshold."""
+    fig = Figure(figsize=(_WIDTH_IN, 2.8), layout="constrained")
+    left, right = fig.subplots(1, 2)
+    w = weight[np.isfinite(weight)]
+    left.hist(np.clip(w, 0.0, 1.0), bins=np.linspace(0.0, 1.0, 21), color="C0", edgecolor="white")
+    left.set_yscale("log")
+    left.set_xlabel("weight at the end of the robust adjustment")
+    left.set_ylabel("observations")
+    left.set_title(f"{np.mean(w >= 0.999) * 100:.1f} % at full weight", fontsize=9)
+    size = u[np.isfinite(u)]
+    top = max(2.0 * reject, 1.0)
+    right.hist(np.clip(size, 0.0, top), bins=np.linspace(0.0, top, 41), color="C0", edgecolor="white")
+    right.axvline(reject, color="C3", lw=1.2, label=f"rejected beyond {reject:g}")
+    right.set_yscale("log")
+    right.set_xlabel(f"u = |v| / robust σ (beyond {top:g} counted in the last bin)")
+    right.legend(fontsize=7)
+    right.set_title(f"{int(np.sum(size > reject))} beyond the threshold", fontsize=9)
+    fig.suptitle(title, x=0.01, ha="left", fontsize=10)
+    return fig
+
+
+def rejection_map_figure(images: list[tuple[str, np.ndarray, np.ndarray, np.ndarray]], width_px: float,
+                         height_px: float, title: str) -> Figure:
+    """Where the rejected observations lie in the images with the most of them: each panel an image frame,
+    ``images`` (name, kept (col, row), robust rejections (col, row), snooping rejections (col, row)); a patch of
+    consistently wrong matches shows as a patch."""
+    n = max(len(images), 1)
+    columns = min(n, 3)
+    rows = -(-n // columns)
+    fig = Figure(figsize=(_WIDTH_IN, 1.9 * rows + 0.6), layout="constrained")
+    axes = np.atleast_1d(fig.subplots(rows, columns)).ravel()
+    for ax, (name, kept, robust, snooped) in zip(axes, images):
+        ax.scatter(kept[:, 0], kept[:, 1], s=0.3, color="0.75", rasterized=True)
+        ax.scatter(robust[:, 0], robust[:, 1], s=3, color="C3", label="robust cleaning")
+        ax.scatter(snooped[:, 0], snooped[:, 1], s=3, color="C0", marker="x", label="data snooping")
+        ax.set_xlim(0, width_px)
+        ax.set_ylim(height_px, 0)
+        ax.set_aspect("equal")
+        ax.set_xticks([])
+        ax.set_yticks([])
+        ax.set_title(f"{name}: {len(robust) + len(snooped)} of {len(kept) + len(robust) + len(snooped)}", fontsize=8)
+    for ax in axes[len(images):]:
+        ax.set_axis_off()
+    if images:
+        axes[0].legend(fontsize=6, loc="lower left", markerscale=2)
+    fig.suptitle(title, x=0.01, ha="left", fontsize=10)
+    return fig

@@ -134,6 +134,8 @@ def summary(tested, extra: dict | None = None, checks=None) -> dict:
         "datum_detail": datum(block, result.problem, int(gcp.sum()))[1],
         "n_chk_used": int(len(checks)),
         "n_obs_rejected": int(len(tested.rejected_rows)),
+        "robust": None if tested.cleaning is None else tested.cleaning.as_dict(),
+        "control_demoted": [{"point_id": p, "w": w} for p, w in tested.control_demoted],
         "n_ap_initial": int(tested.n_ap_initial),
         "n_ap_significant": int(tested.n_ap_significant),
         "failure": tested.failure or None,
@@ -326,7 +328,10 @@ def residual_table(block_read, tested):
     minimal detectable blunder (px) and Baarda's external reliability factor per
     coordinate. For a rejected observation, v is computed at the final estimate
     (NaN if its image or point left the adjustment), and w_test and the MDB are
-    those of the adjustment that rejected it.
+    those of the adjustment that rejected it (none for the robust cleaning's).
+    ``robust_weight``, ``robust_u``: its weight at the end of the robust cleaning and
+    its residual's size there in robust sigmas (:mod:`selfcal.stats.cleaning`);
+    ``rejected_by``: ``robust`` or ``snooping``.
     """
     result, tests = tested.result, tested.tests
     ob = block_read.observations
@@ -359,12 +364,25 @@ def residual_table(block_read, tested):
     rej_pos = np.searchsorted(tested.rejected_rows, ob.row[rejected])
     w_test[rejected] = tested.rejected_w[rej_pos]
     mdb[rejected] = tested.rejected_mdb_px[rej_pos]
+    # the robust cleaning: each observation's weight at its end and its normalised size u (1 and empty without it)
+    weight, size = np.ones(n), np.full(n, np.nan)
+    by = np.where(rejected, "snooping", "")
+    cleaning = tested.cleaning
+    if cleaning is not None:
+        at = np.full(ob.row.max() + 1 if n else 0, -1)
+        at[cleaning.rows] = np.arange(len(cleaning.rows))
+        k = at[ob.row] if n else np.zeros(0, np.int64)
+        seen = k >= 0
+        weight[seen], size[seen] = cleaning.weight[k[seen]], cleaning.u[k[seen]]
+        by[np.isin(ob.row, cleaning.rejected_rows)] = "robust"
     header = ["image_id", "point_id", "vx_px", "vy_px", "w_test", "rejected", "col_px", "row_px", "w_x", "w_y",
-              "redundancy_x", "redundancy_y", "mdb_x_px", "mdb_y_px", "external_x", "external_y"]
+              "redundancy_x", "redundancy_y", "mdb_x_px", "mdb_y_px", "external_x", "external_y", "robust_weight",
+              "robust_u", "rejected_by"]
     cols = [block_read.images.image_id[ob.image_index], block_read.points.point_id[ob.point_index],
             v[:, 0], v[:, 1], w_test, rejected.astype(int), ob.pixel[:, 0], ob.pixel[:, 1], w[:, 0], w[:, 1],
-            red[:, 0], red[:, 1], mdb[:, 0], mdb[:, 1], ext[:, 0], ext[:, 1]]
-    fmts = ["", "", ".4f", ".4f", ".3f", "d", ".3f", ".3f", ".3f", ".3f", ".4f", ".4f", ".3f", ".3f", ".3f", ".3f"]
+            red[:, 0], red[:, 1], mdb[:, 0], mdb[:, 1], ext[:, 0], ext[:, 1], weight, size, by]
+    fmts = ["", "", ".4f", ".4f", ".3f", "d", ".3f", ".3f", ".3f", ".3f", ".4f", ".4f", ".3f", ".3f", ".3f", ".3f",
+            ".4g", ".3f", ""]
     return header, cols, fmts
 
 

@@ -24,6 +24,8 @@ __all__ = ["render_report", "render_comparison_report", "best_cells", "FIGURE_DP
 FIGURE_DPI = 110
 #: image-space figures are drawn for this many cameras at most (those with the most observations)
 MAX_CAMERA_FIGURES = 4
+#: images drawn in the map of rejected observations (most rejections first)
+MAX_REJECTION_PANELS = 6
 #: rejected observations listed in the report (largest |w| first); all of them are in residuals.csv
 MAX_REJECTED_ROWS = 200
 
@@ -382,6 +384,52 @@ def _parameters_section(page: Page, results) -> None:
                ident="parameters")
 
 
+def _robust_section(page: Page, files: dict, results) -> None:
+    """The robust cleaning: its loss and scale, the weights, and where the rejected observations lie."""
+    s = results.summary
+    robust = s.get("robust")
+    if not robust:
+        page.paragraph("No robust cleaning: least squares throughout (--robust none).", "note")
+        return
+    res = results.tables["residuals"]
+    by = res.get("rejected_by", np.array([""] * len(res["image_id"]), dtype=object))
+    page.paragraph(
+        f"Robust cleaning before the tests: loss {robust['loss']} (c = {fmt(robust['c'], 'g')}), scale "
+        f"{fmt(robust['scale'], '.3f')} × the a-priori σ (diagnosis: {robust['diagnosis']}); "
+        f"{robust['n_rejected']} image observations ({fmt(100 * robust['share_rejected'], '.2f')} %) rejected as "
+        f"gross errors (more than {fmt(robust['reject_u'], 'g')} robust σ), {robust.get('n_readmitted', 0)} taken "
+        f"back after they fitted the cleaned adjustment; images left out: "
+        f"{', '.join(robust.get('images_left_out') or []) or 'none'}; control checked instead: "
+        f"{', '.join(d['point_id'] for d in robust.get('control_demoted') or []) or 'none'}; control or check points "
+        f"lost: {', '.join(robust.get('control_lost') or []) or 'none'}.", "note")
+    weight = np.asarray(res.get("robust_weight", np.ones(len(by))), float)
+    u = np.asarray(res.get("robust_u", np.full(len(by), np.nan)), float)
+    _add_figure(page, files, figures.robust_weight_figure(weight, u, float(robust["reject_u"]),
+                                                          "Weights and residual sizes of the robust adjustment"),
+                "robust-weights", "The robust adjustment's final weights (logarithmic counts) and each image "
+                                  "point's residual size in robust σ with the rejection threshold.")
+    cameras = _residual_cameras(results)
+    rejected = res["rejected"] == 1
+    names, counts = np.unique(res["image_id"][rejected].astype(str), return_counts=True)
+    worst = [str(n) for n in names[np.argsort(-counts)][:MAX_REJECTION_PANELS]]
+    if not worst:
+        return
+    camera = results.camera.get("cameras", {}).get(cameras[np.flatnonzero(res["image_id"] == worst[0])[0]], {})
+    panels = []
+    for name in worst:
+        mine = res["image_id"] == name
+        xy = np.column_stack([res["col_px"], res["row_px"]])
+        panels.append((name, xy[mine & ~rejected], xy[mine & rejected & (by == "robust")],
+                       xy[mine & rejected & (by != "robust")]))
+    _add_figure(page, files, figures.rejection_map_figure(panels, float(camera.get("width_px", 1.0)),
+                                                          float(camera.get("height_px", 1.0)),
+                                                          "Where the rejected observations lie"),
+                "rejection-map", f"The {len(worst)} images with the most rejected observations (red: robust "
+                                 "cleaning, blue: data snooping, grey: kept); per image in residuals.csv.")
+    rows = [[n, int(c)] for n, c in sorted(zip(names, counts), key=lambda x: -x[1])]
+    page.table(["image", "rejected"], rows, text_columns=0, ident="rejected-per-image")
+
+
 def _rejected_section(page: Page, results) -> None:
     res = results.tables["residuals"]
     rejected = np.flatnonzero(res["rejected"] == 1)
@@ -389,18 +437,28 @@ def _rejected_section(page: Page, results) -> None:
     if rejected.size == 0:
         page.paragraph("No observation was rejected.", "note")
         return
-    order = rejected[np.argsort(-np.abs(np.nan_to_num(res["w_test"][rejected])))]
+    by = np.asarray(res.get("rejected_by", np.full(len(res["rejected"]), "snooping", dtype=object)), dtype=object)
+    robust = rejected[by[rejected] == "robust"]
+    snooped = rejected[by[rejected] != "robust"]
+    # data snooping's rejections by |w|, then the robust cleaning's by their size u
+    order = np.concatenate([snooped[np.argsort(-np.abs(np.nan_to_num(res["w_test"][snooped])))],
+                            robust[np.argsort(-np.nan_to_num(np.asarray(res.get("robust_u", np.zeros(0)),
+                                                                        float)[robust] if robust.size else []))]])
     shown = order[:MAX_REJECTED_ROWS]
-    rows = [[res["image_id"][i], res["point_id"][i], fmt(res["col_px"][i], ".1f"), fmt(res["row_px"][i], ".1f"),
-             fmt(res["vx_px"][i], ".2f"), fmt(res["vy_px"][i], ".2f"), fmt(res["w_test"][i], ".2f"),
+    u = np.asarray(res.get("robust_u", np.full(len(by), np.nan)), float)
+    rows = [[res["image_id"][i], res["point_id"][i], "robust" if by[i] == "robust" else "snooping",
+             fmt(res["col_px"][i], ".1f"), fmt(res["row_px"][i], ".1f"), fmt(res["vx_px"][i], ".2f"),
+             fmt(res["vy_px"][i], ".2f"), fmt(res["w_test"][i], ".2f"), fmt(u[i], ".1f"),
              fmt(res["mdb_x_px"][i], ".2f"), fmt(res["mdb_y_px"][i], ".2f")] for i in shown]
     critical = (s.get("snooping") or {}).get("critical")
-    page.paragraph(f"{rejected.size} image observations rejected by data snooping (|w| > {fmt(critical, 'g')}), "
-                   f"largest |w| first{f'; the first {len(shown)} shown, all in residuals.csv' if len(shown) < rejected.size else ''}. "
-                   "v at the final estimate; w and the minimal detectable blunder (MDB) of the adjustment that "
-                   "rejected it.", "note")
-    page.table(["image", "point", "col [px]", "row [px]", "v_x [px]", "v_y [px]", "|w|", "MDB x [px]",
-                "MDB y [px]"], rows, text_columns=2, ident="rejected")
+    cut = (s.get("robust") or {}).get("reject_u")
+    page.paragraph(f"{snooped.size} image observations rejected by data snooping (|w| > {fmt(critical, 'g')}), "
+                   f"largest |w| first, then {robust.size} by the robust cleaning (u > {fmt(cut, 'g')} robust σ), "
+                   f"largest u first{f'; the first {len(shown)} shown, all in residuals.csv' if len(shown) < rejected.size else ''}. "
+                   "v at the final estimate (empty where its point left the adjustment); w and the minimal "
+                   "detectable blunder (MDB) of the adjustment that rejected it.", "note")
+    page.table(["image", "point", "by", "col [px]", "row [px]", "v_x [px]", "v_y [px]", "|w|", "u", "MDB x [px]",
+                "MDB y [px]"], rows, text_columns=3, ident="rejected")
 
 
 def _notes_section(page: Page, s: dict) -> None:
@@ -458,6 +516,7 @@ def render_report(results, title: str | None = None) -> dict:
     _trajectory_section(page, results)
     _joint_tests_section(page, results)
     page.heading("Rejected observations", anchor="rejected")
+    _robust_section(page, files, results)
     _rejected_section(page, results)
     _notes_section(page, s)
     files["report.html"] = page.html()

@@ -60,6 +60,9 @@ class Parameter:
     group: str
     screened: bool = False
     key: str | None = None          # its column / key in the results files (default: name and display unit)
+    #: how far it can move from its start, as a share of it, before the solution is absurd (None: no bound;
+    #: :mod:`selfcal.stats.plausibility`)
+    plausible: float | None = None
 
     @property
     def display(self) -> tuple[str, float]:

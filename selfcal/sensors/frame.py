@@ -298,7 +298,10 @@ class FrameSensor(Sensor):
     name = "frame"
     image_parameters = tuple(Parameter(n, u, "EOP", key=n if u == "m" else None)
                              for n, u in zip(EOP_NAMES, ("m", "m", "m", "rad", "rad", "rad")))
-    camera_parameters = tuple(Parameter(n, "mm", "IOP", key="focal_mm" if n == "c" else None) for n in IOP_NAMES)
+    # a real camera's principal distance is known to half of itself (the focal length on the lens; a start 30 % off is
+    # recovered by a block that determines it, a collapse takes it to a few per cent of itself)
+    camera_parameters = tuple(Parameter(n, "mm", "IOP", key="focal_mm" if n == "c" else None,
+                                        plausible=0.5 if n == "c" else None) for n in IOP_NAMES)
     ap_domain = "frame"
     supports_resection = True
     camera_type = FrameCamera

@@ -9,8 +9,9 @@ residual's length over the robust scale) and a weight. The cleaning, before Baar
   face Baarda's tests afterwards;
 * an image with most of its observations rejected (more than :data:`IMAGE_SHARE`) is left out: its
   orientation cannot come from the rest, and what is left of it would hold the others;
-* a control point whose surveyed coordinates are more than ``reject`` robust sigmas off (a misidentified target,
-  a typed 1 m) no longer controls the block: it is checked instead (its role becomes ``chk``), named;
+* a control point whose surveyed coordinates are grossly off (more than :data:`CONTROL_FACTOR` times ``reject``
+  sigmas of the control: a misidentified target, a typed 1 m) no longer controls the block: it is checked instead
+  (its role becomes ``chk``), named; a moderate error is left to the tests of the control group;
 * the diagnosis tells contamination from a model that does not fit: the robust scale s (the bulk of the
   residuals in units of their a-priori sigma) against the share of gross errors. A bulk at the a-priori sigma
   with many gross errors is a contaminated block (matcher output); a bulk far above it is a model that misses
@@ -33,6 +34,12 @@ IMAGE_SHARE = 0.5
 MISFIT_SCALE = 2.0
 #: a share of gross errors above this is reported as heavy contamination
 HEAVY_SHARE = 0.1
+#: control is checked instead of used only this many times further off than an image point is rejected: a misfit of
+#: the model shows at control points too, and a control point whose error is only moderate is left to the w-test of
+#: the control group in the tests (:mod:`selfcal.workflows.tested`)
+CONTROL_FACTOR = 3.0
+#: a point none of whose rays kept this much weight in the robust adjustment is not determined by it
+HOPELESS_WEIGHT = 0.01
 
 
 @dataclass
@@ -109,6 +116,12 @@ def clean(result, reject: float, prune: Callable[[Block], Block]) -> tuple[Block
     weight = np.empty(len(obs))
     weight[problem.obs_order] = problem.obs_weight
     gross = u > reject
+    # a point that none of its rays determined in the robust adjustment (every weight below HOPELESS_WEIGHT: its
+    # estimate floated along them) goes with all its rays: where it ended says nothing
+    n_points = len(result.block.points)
+    strongest = np.zeros(n_points)
+    np.maximum.at(strongest, obs.point_index, weight)
+    gross |= strongest[obs.point_index] < HOPELESS_WEIGHT
     messages: list[str] = []
     # images with most of their observations wrong
     n_img = len(result.block.images)
@@ -124,7 +137,8 @@ def clean(result, reject: float, prune: Callable[[Block], Block]) -> tuple[Block
     demoted: list[tuple[str, float]] = []
     points = result.block.points
     control = problem.control_index
-    bad_control = np.flatnonzero(u_control > reject) if weighting.options.control else np.zeros(0, np.int64)
+    bad_control = np.flatnonzero(u_control > CONTROL_FACTOR * reject) if weighting.options.control else \
+        np.zeros(0, np.int64)
     roles = np.asarray(points.role).copy()
     for k in bad_control:
         p = control[k]

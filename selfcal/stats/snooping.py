@@ -52,6 +52,7 @@ class SnoopingRound:
     dropped_aps: int
     largest_w: float
     sigma0_px: float
+    control_w: float | None = None      # |w| of the control point checked instead in this round, if one was
 
 
 def image_w(tests: ObservationTests, min_redundancy: float) -> np.ndarray:

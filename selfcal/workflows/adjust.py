@@ -25,6 +25,7 @@ from ..stats.screening import ScreeningOptions
 from ..stats.snooping import SnoopingOptions
 from ..stats.variance import VarianceOptions
 from ..stats import checks as check_points
+from ..stats.plausibility import collapse
 from . import seed001
 from .frames import object_frame_block
 from .model_choice import ModelChoice, choose_ap_model
@@ -41,7 +42,8 @@ class AdjustRequest:
     snooping: SnoopingOptions | None = field(default_factory=SnoopingOptions)
     screening: ScreeningOptions | None = None
     variance: VarianceOptions | None = None
-    robust: RobustOptions | None = None     # robust cleaning before the tests (None: least squares throughout)
+    # robust cleaning before the tests (None: least squares throughout)
+    robust: RobustOptions | None = field(default_factory=RobustOptions)
     candidates: list | None = None          # (model, grid) of --ap auto: choose the AP model by BIC
     # seed 001 (sensors with sensor models)
     image_ids: tuple[str, ...] | None = None
@@ -86,6 +88,7 @@ def adjust_block(block: Block, request: AdjustRequest, progress: Callable | None
     _check_control(block)
     tested = adjust_with_tests(block, options, request.snooping, request.screening, progress=progress,
                                report=report, variance=request.variance, robust=request.robust)
+    _check_collapse(tested)
     return Adjusted(tested, block, check_points.intersected(tested.result), _check_points_determined(block, tested),
                     choice=choice)
 
@@ -96,6 +99,16 @@ def _check_control_axes(block: Block) -> None:
     reason = block_control_swapped(block)
     if reason:
         raise BlockError("points.csv", reason)
+
+
+def _check_collapse(tested: TestedAdjustment) -> None:
+    """A solution that collapsed (:func:`selfcal.stats.plausibility.collapse`) has not converged: it fails, and says
+    what collapsed and where it started."""
+    reason = collapse(tested.result)
+    if reason:
+        tested.result.converged = False
+        tested.result.reason = reason
+        tested.failure = tested.failure or reason
 
 
 def _check_control(block: Block) -> None:
@@ -157,6 +170,7 @@ def _seed001(block: Block, request: AdjustRequest, progress, report, say, scores
     if case.tested is None:
         from ..errors import AdjustmentError
         raise AdjustmentError(case.failure)
+    _check_collapse(case.tested)
     rmse = case.rmse_m
     extra |= {"images": chosen, "gcp_ids": [str(block.points.point_id[p]) for p in gcps],
               "rmse_chk_across_m": None if rmse is None else float(rmse[0]),

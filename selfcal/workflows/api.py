@@ -48,7 +48,7 @@ class Outcome:
 
 
 def bundle_adjust(block: Block | str | os.PathLike, ap: str = "none", *, snoop: float = 3.0, screen: bool = False,
-                  variance_components: bool = False, max_iterations: int = 50, robust: str = "none",
+                  variance_components: bool = False, max_iterations: int = 50, robust: str = "danish",
                   **options) -> Outcome:
     """The tested adjustment of ``block`` (a :class:`~selfcal.block.Block` or a block folder).
 

@@ -19,6 +19,10 @@ def iteration_line(record, image_sigma_px: float, prefix: str = "") -> str:
 def round_line(record) -> str:
     """One round of data snooping and screening (a round that removed nothing: its adjustment, stopped at the
     rounds' tolerance, is taken on to the full one and tested again)."""
+    control = getattr(record, "control_w", None)
+    if control is not None:
+        return (f"tests round {record.round}: a control point fails the test of the control group (|w| "
+                f"{control:.1f}); checked instead of used as control, dropped {record.dropped_aps} APs; re-adjusting")
     if not record.rejected and not record.dropped_aps:
         return (f"tests round {record.round}: nothing to remove (largest |w| {record.largest_w:.1f}); converging "
                 f"the adjustment to the full tolerance and testing it again")

@@ -76,6 +76,7 @@ class TestedAdjustment:
     variance_converged: bool | None = None
     failure: str = ""                                # why the tests stopped short, if they did
     cleaning: Cleaning | None = None                 # the robust cleaning before the tests, if there was one
+    control_demoted: list[tuple[str, float]] = field(default_factory=list)   # (point id, |w|) checked instead
 
     @property
     def robust_rows(self) -> np.ndarray:
@@ -140,6 +141,7 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
     rejected_w = np.full(len(rejected), np.nan)          # (no w-test: the robust cleaning's u is in cleaning)
     rejected_mdb = np.full((len(rejected), 2), np.nan)
     snooped = 0
+    control_demoted: list[tuple[str, float]] = []
     rounds: list[SnoopingRound] = []
     log: list[tuple[int, ScreeningDecision]] = []
     joint_tests: list[tuple[int, ScreeningRound]] = []
@@ -158,10 +160,15 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
                 joint_tests.append((k, joint))
         picks = np.zeros(0, np.int64)
         largest = 0.0
+        demoted = None
         if snoop_on:
             w = image_w(tests, snooping.min_redundancy)
             largest = float(w.max()) if w.size else 0.0
-            picks = reject_candidates(result.block, w, critical, snooping.mode)
+            # the control group is tested too: a control point whose coordinates fail the test, worse than any
+            # image observation, is checked instead (alone in its round: it pulls the image observations near it)
+            demoted = control_candidate(result, tests, critical, snooping.min_redundancy, largest)
+            picks = np.zeros(0, np.int64) if demoted is not None else \
+                reject_candidates(result.block, w, critical, snooping.mode)
             if picks.size and snooped + picks.size > limit:
                 failure = _too_many(tests, largest, snooped, robust is not None)
                 break
@@ -169,7 +176,18 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
             rejected = np.concatenate([rejected, result.block.observations.row[picks]])
             rejected_w = np.concatenate([rejected_w, w[picks]])
             rejected_mdb = np.concatenate([rejected_mdb, tests.image_mdb_px[picks]])
-        if dropped == 0 and picks.size == 0:
+        if demoted is not None:
+            point, w_control = demoted
+            name = str(result.block.points.point_id[point])
+            control_demoted.append((name, w_control))
+            result.notes.append(f"control point '{name}' fails the test of the control group (|w| {w_control:.1f}): "
+                                f"its surveyed coordinates do not fit the block (a misidentified target? a typing "
+                                f"error?); it is checked instead of used as control")
+            where = np.flatnonzero(block.points.point_id == name)
+            roles = np.asarray(block.points.role).copy()
+            roles[where] = "chk"
+            block = replace(block, points=replace(block.points, role=roles))
+        if dropped == 0 and picks.size == 0 and demoted is None:
             if finished:
                 break
             # the rough adjustment passed the tests: converge it, and test again (reported, not a round of its own)
@@ -178,7 +196,8 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
             result, tests = _converge(result, options, critical, progress, free, models)
             block, finished = result.block, True
             continue
-        record = SnoopingRound(k, int(picks.size), dropped, largest, result.sigma0_px)
+        record = SnoopingRound(k, int(picks.size), dropped, largest, result.sigma0_px,
+                               demoted[1] if demoted is not None else None)
         rounds.append(record)
         if report is not None:
             report(record)
@@ -195,9 +214,32 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
         result, tests, components, converged = estimate_variance_components(
             result.block, options, variance, start=result, free=free, ap_models=models, critical=critical,
             progress=progress)
+    if cleaning is not None:
+        result.notes[:0] = cleaning.messages
     order = np.argsort(rejected)
     return TestedAdjustment(result, tests, rejected[order], rejected_w[order], rejected_mdb[order], free, n_ap_initial,
-                            rounds, log, joint_tests, components, converged, failure, cleaning)
+                            rounds, log, joint_tests, components, converged, failure, cleaning, control_demoted)
+
+
+#: the control group is tested only while at least this many control points remain (a datum and redundancy)
+MIN_CONTROL = 4
+
+
+def control_candidate(result: AdjustmentResult, tests: ObservationTests, critical: float, min_redundancy: float,
+                      largest_image_w: float) -> tuple[int, float] | None:
+    """The control point (its index among the block's points) whose coordinates fail Baarda's test worst, with
+    its |w|, if that is above ``critical`` and above every image observation's; None otherwise, or when no more
+    than :data:`MIN_CONTROL` control points are left."""
+    index = result.problem.control_index
+    if len(index) <= MIN_CONTROL or not tests.control_w.size:
+        return None
+    w = np.abs(tests.control_w)
+    w[tests.control_redundancy < min_redundancy] = 0.0
+    worst = w.max(axis=1)
+    k = int(np.argmax(worst))
+    if worst[k] > critical and worst[k] > largest_image_w:
+        return int(index[k]), float(worst[k])
+    return None
 
 
 def _too_many(tests: ObservationTests, largest: float, snooped: int, cleaned: bool) -> str:
