@@ -12,6 +12,7 @@ points seen nowhere, images with too few points) and records what it removed.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 
@@ -211,8 +212,9 @@ class Images:
         return len(self.image_id)
 
     def take(self, index: np.ndarray) -> "Images":
-        return Images(*(None if getattr(self, f) is None else getattr(self, f)[index]
-                        for f in self.__dataclass_fields__))
+        fields: list[Any] = [None if getattr(self, f) is None else getattr(self, f)[index]
+                             for f in self.__dataclass_fields__]
+        return Images(*fields)
 
     def trajectory_sigma(self, sensor: str, default) -> np.ndarray:
         """(n, 3) a-priori sigma of each image's ``"GNSS"`` (m) or ``"IMU"`` (rad) observation: the image's own
@@ -306,7 +308,9 @@ class Block:
 
     name: str
     crs: str
-    cameras: dict[str, "FrameCamera | BalCamera | PushbroomCamera"]
+    #: camera id -> its camera: the ``camera_type`` of its sensor (selfcal.sensors): FrameCamera, BalCamera,
+    #: PushbroomCamera here, UsgscsmCamera, RpcCamera, DimapCamera ... of the satellite sensors; no common base
+    cameras: dict[str, Any]
     images: Images
     points: Points
     observations: Observations
