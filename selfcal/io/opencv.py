@@ -84,13 +84,13 @@ def read_opencv_calibration(path: str | os.PathLike):
             raise BlockError(path, "OpenCV FileStorage cannot read it")
         K = storage.getNode("camera_matrix").mat()
         dist = storage.getNode("distortion_coefficients").mat()
-        width = storage.getNode("image_width")
-        height = storage.getNode("image_height")
+        width_node = storage.getNode("image_width")
+        height_node = storage.getNode("image_height")
         if K is None or K.shape != (3, 3):
             raise BlockError(path, "camera_matrix (3 x 3) is missing")
-        if width.empty() or height.empty():
+        if width_node.empty() or height_node.empty():
             raise BlockError(path, "image_width and image_height are missing (the size the calibration is for)")
-        width, height = int(width.real()), int(height.real())
+        width, height = int(width_node.real()), int(height_node.real())
         dist = np.zeros(0) if dist is None else dist.ravel().astype(float)
         model_node = storage.getNode("distortion_model")
         model = model_node.string() if not model_node.empty() and model_node.isString() else ""

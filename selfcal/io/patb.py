@@ -100,7 +100,9 @@ def read_photo_blocks(path: str | os.PathLike, what: str = "PAT-B image coordina
     """Photo blocks: a header record (photo id [more tokens]), ``point_id x y`` records, ``-99``."""
     path = os.fspath(path)
     image, point, xy, lines = [], [], [], []
-    photos, header, header_line = [], {}, {}
+    photos: list[str] = []
+    header: dict[str, tuple[str, ...]] = {}
+    header_line: dict[str, int] = {}
     current = None
     seen: set = set()
     last = 0

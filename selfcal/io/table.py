@@ -139,12 +139,12 @@ def _columns_at_once(header: list[str], texts: list[tuple], spec: dict) -> dict[
         if spec[name].kind == STR:
             out[name] = np.array([text.strip() for text in column], dtype=object)
             continue
-        texts = np.array(column, dtype=object)
+        cells = np.array(column, dtype=object)
         if spec[name].kind == OPT_NUM:
             empty = np.array([text.strip() == "" for text in column], dtype=bool)
-            texts[empty] = "nan"
+            cells[empty] = "nan"
         try:
-            values = texts.astype(float)
+            values = cells.astype(float)
         except (ValueError, TypeError):
             return None
         if spec[name].kind == OPT_NUM:
