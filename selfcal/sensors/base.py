@@ -111,8 +111,8 @@ class BoundSensor(ABC):
 
     @abstractmethod
     def observations(self) -> tuple[np.ndarray, np.ndarray]:
-        """(l, sigma): the observation vector (n_obs, 2) of every observation of the problem (rows of
-        other sensors are left at zero) and its standard deviation (n_obs, 2), observation units."""
+        """(l, sigma): the observation vector (m, 2) of the observations it was bound to (``o`` of
+        :meth:`Sensor.bind`, in that order) and its standard deviation (m, 2), observation units."""
 
     def refine_sigma(self, state, sigma: np.ndarray) -> None:
         """Give observations whose standard deviation in observation units depends on the geometry
@@ -186,7 +186,7 @@ class Sensor(ABC):
     min_points_per_image: int = 6
     #: its camera in a block (a plain dataclass) and the block.toml keys of ``[cameras.ID]``: key -> (type,
     #: required), types as selfcal.io.block_folder checks them ("str", "int", "pos", "num", "nonneg", ...)
-    camera_type: type = None
+    camera_type: type
     camera_keys: dict = {}
     #: sub-tables ``[cameras.ID.NAME]`` its cameras take (a frame camera's ``initial_ap``)
     camera_tables: tuple[str, ...] = ()
@@ -205,10 +205,10 @@ class Sensor(ABC):
         return tuple(p.name for p in self.camera_parameters)
 
     @abstractmethod
-    def bind(self, problem, block, image_index: np.ndarray, observation_index: np.ndarray,
-             options) -> BoundSensor:
-        """Bind the images ``image_index`` of ``block`` (with their observations ``observation_index``,
-        positions in the problem's sorted order) to ``problem``."""
+    def bind(self, problem, block, o: np.ndarray, pixel: np.ndarray, sigma_px: np.ndarray, options) -> BoundSensor:
+        """Bind to ``problem`` its observations ``o`` (positions in the problem's sorted order) in the images that
+        use this sensor: measured at ``pixel`` (m, 2; col, row) with standard deviations ``sigma_px`` (m,, pixels).
+        ``block`` gives their cameras and sensor descriptions, ``options`` are the adjustment's."""
 
     def result_files(self, result, slot) -> dict:
         """Files of its own for the results folder (DESIGN.md §4: a sensor adds, never renames): name -> a dict

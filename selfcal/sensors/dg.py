@@ -33,6 +33,7 @@ import numpy as np
 
 from ..geometry.rotation import matrix_from_quaternion, quaternion_from_matrix
 from .pushbroom import LineCamera, LineImage, Trajectory, fit_focal_plane, line_of_sight
+from .pushbroom.model import TimeFunction
 from .usgscsm import LagrangeSeries
 from .vendor import LineTimes, OnLineTime, OrbitAttitude
 
@@ -126,6 +127,9 @@ def _build(sensor, image_id: str, quaternions: LagrangeSeries, line_times: LineT
         return matrix_from_quaternion(quaternions(t), scalar_first=False) @ R_CAMERA_FROM_TELESCOPE
 
     tau0 = float(line_times.time(0.0))
+    pos: TimeFunction
+    vel: TimeFunction
+    rot: TimeFunction
     if line_times.linear:
         pos, vel, rot = position, velocity, rotation
     else:

@@ -301,8 +301,8 @@ class FrameSensor(Sensor):
     camera_parameters = tuple(Parameter(n, "mm", "IOP", key="focal_mm" if n == "c" else None) for n in IOP_NAMES)
     ap_domain = "frame"
     supports_resection = True
-    camera_type = FrameCamera
-    camera_tables = ("initial_ap",)
+    camera_type: type = FrameCamera
+    camera_tables: tuple[str, ...] = ("initial_ap",)
     camera_keys = {
     "model": ("str", True),
     "width_px": ("int", True),

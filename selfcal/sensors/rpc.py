@@ -286,7 +286,7 @@ class RpcBias:
         """Bias-corrected image coordinates (row, col) in px of ground points."""
         return self.apply(*model.project(lon_deg, lat_deg, h_m))
 
-    def remove(self, row_px, col_px):
+    def remove(self, row_px, col_px) -> tuple[np.ndarray, np.ndarray]:
         """The RPC's (row_rpc, col_rpc) of corrected image coordinates: :meth:`apply` inverted."""
         A = np.array([[1.0 + self.a[1], self.a[2]], [self.b[1], 1.0 + self.b[2]]])
         row, col = np.broadcast_arrays(np.asarray(row_px, float) - self.a[0], np.asarray(col_px, float) - self.b[0])
@@ -372,7 +372,7 @@ class RpcBound(BoundSensor):
         for i in np.unique(img):
             sel = np.flatnonzero(img == i)
             model = self.models[int(i)]
-            if jacobians:
+            if J is not None and geodetic is not None:                       # jacobians
                 row, col, J_llh = model.project(np.degrees(lon[sel]), np.degrees(lat[sel]), h[sel], jacobian=True)
                 # (row, col) per (lon_deg, lat_deg, h) -> per (lat_rad, lon_rad, h) -> per ECEF
                 J_rad = np.stack([J_llh[:, :, 1] * np.degrees(1.0), J_llh[:, :, 0] * np.degrees(1.0),

@@ -125,6 +125,8 @@ def _solve(terms: np.ndarray, r: np.ndarray, ridge: float, iterations: int):
             break
         previous = misfit
         weight = 1.0 / np.abs(d)
+    if best is None:
+        raise ValueError(f"the fit needs at least one reweighting iteration, found iterations={iterations}")
     return best[1], best[2]
 
 

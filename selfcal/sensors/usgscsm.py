@@ -235,19 +235,20 @@ def line_scan_from_isd(isd, image_id: str | None = None) -> LineScan:
     # ephemeris: Hermite-resampled on >= 25 equally spaced nodes, rotated to the body frame
     tp = isd.position_times_s
     nodes = _equally_spaced(tp[0], tp[-1], max(len(tp), MIN_EPHEMERIS_NODES))
-    position, velocity = hermite(tp, isd.positions_m, isd.velocities_m_s, nodes)
+    position_j, velocity_j = hermite(tp, isd.positions_m, isd.velocities_m_s, nodes)
     R_bj = _body_from_j2000(isd, nodes)
     step = nodes[1] - nodes[0]
-    position = LagrangeSeries(float(nodes[0]), float(step), np.einsum("nij,nj->ni", R_bj, position))
-    velocity = LagrangeSeries(float(nodes[0]), float(step), np.einsum("nij,nj->ni", R_bj, velocity))
+    position = LagrangeSeries(float(nodes[0]), float(step), np.einsum("nij,nj->ni", R_bj, position_j))
+    velocity = LagrangeSeries(float(nodes[0]), float(step), np.einsum("nij,nj->ni", R_bj, velocity_j))
     # attitude: sensor -> body on the merged times, resampled equally spaced
     tq = np.union1d(isd.pointing_times_s, isd.body_times_s)
     quat_nodes = _equally_spaced(tq[0], tq[-1], len(tq))
     quaternions = LagrangeSeries(float(quat_nodes[0]), float(quat_nodes[1] - quat_nodes[0]),
                                  _pointing_to_body(isd, quat_nodes))
-    trajectory = Trajectory("ECEF", "", position, velocity, _OrbitAttitude(position, velocity, quaternions))
+    attitude = _OrbitAttitude(position, velocity, quaternions)
+    trajectory = Trajectory("ECEF", "", position, velocity, attitude)
     image = LineImage.nominal(image_id or camera.camera_id, camera, trajectory, t_first, isd.image_lines)
-    axes = _jigsaw_axes(isd, trajectory.attitude, float(image.t_ref))
+    axes = _jigsaw_axes(isd, attitude, float(image.t_ref))
     body = _body_from_j2000(isd, np.array([float(image.t_ref)]))[0]
     return LineScan(image, isd.semi_major_m, isd.semi_minor_m, misfit, axes, body)
 

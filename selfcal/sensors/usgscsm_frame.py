@@ -596,10 +596,11 @@ def isis_image_table(result, slot) -> tuple:
     sigma = result.image_sigma()
     v = result.residuals_px                                    # cube px, photo axes (x: sample, y: -line)
     img_of_obs = result.block.observations.image_index
-    cols = {k: [] for k in ("image_id", "X_km", "dX_km", "sigma_X_km", "Y_km", "dY_km", "sigma_Y_km", "Z_km",
-                             "dZ_km", "sigma_Z_km", "RA_deg", "dRA_deg", "sigma_RA_deg", "DEC_deg", "dDEC_deg",
-                             "sigma_DEC_deg", "TWIST_deg", "dTWIST_deg", "sigma_TWIST_deg", "rms_sample_px",
-                             "rms_line_px", "rms_px", "n_measures")}
+    cols: dict[str, list] = {
+        k: [] for k in ("image_id", "X_km", "dX_km", "sigma_X_km", "Y_km", "dY_km", "sigma_Y_km", "Z_km", "dZ_km",
+                        "sigma_Z_km", "RA_deg", "dRA_deg", "sigma_RA_deg", "DEC_deg", "dDEC_deg", "sigma_DEC_deg",
+                        "TWIST_deg", "dTWIST_deg", "sigma_TWIST_deg", "rms_sample_px", "rms_line_px", "rms_px",
+                        "n_measures")}
     for i in slot.images:
         isd, form = bound.isds[int(i)], bound.forms[int(i)]
         scale = np.array([1e-3] * 3 + [np.degrees(1.0)] * 3)

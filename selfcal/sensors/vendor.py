@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..geometry.earth import orbit_frame
-from .pushbroom import angles_from_body_to_orbit
+from .pushbroom.model import TimeFunction, angles_from_body_to_orbit
 
 __all__ = ["LineTimes", "OnLineTime", "OrbitAttitude", "line_image_from_file", "line_image_from_record", "DimapCamera",
            "DgCamera", "VendorLineSensor", "DIMAP_SENSOR", "DG_SENSOR"]
@@ -67,7 +67,7 @@ class LineTimes:
 class OnLineTime:
     """A callable of true time evaluated at the true time of a pseudo time (module docstring)."""
 
-    function: object
+    function: TimeFunction
     line_times: LineTimes
     tau0_s: float
 
@@ -81,9 +81,9 @@ class OrbitAttitude:
     """Roll, pitch, yaw (n, 3) of the telescope frame in the orbit frame, evaluated from callables of time:
     ``position`` and ``velocity`` (Earth-fixed), ``rotation`` (n, 3, 3) telescope -> Earth-fixed."""
 
-    position: object
-    velocity: object
-    rotation: object
+    position: TimeFunction
+    velocity: TimeFunction
+    rotation: TimeFunction
 
     def __call__(self, t) -> np.ndarray:
         t = np.atleast_1d(np.asarray(t, float))

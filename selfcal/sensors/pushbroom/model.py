@@ -35,6 +35,7 @@ residual (y_d - y) / p). Ground-to-image solves x(t) = x_d for t by Newton's met
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from typing import Any, Callable
 
 import numpy as np
 
@@ -152,7 +153,7 @@ class LineCamera:
     view_pitch_deg: float = 0.0
     chip_starts: tuple[int, ...] = ()
     chip_offsets_px: tuple[tuple[float, float], ...] = ()
-    focal_plane_mm: tuple[tuple[float, ...], tuple[float, ...]] = ()
+    focal_plane_mm: tuple[tuple[float, ...], ...] = ()      # (x coefficients, y coefficients); (): the ideal line
 
     def __post_init__(self):
         if self.chip_offsets_px and len(self.chip_offsets_px) != len(self.chip_starts) + 1:
@@ -215,15 +216,21 @@ def fit_polynomial(t: np.ndarray, values: np.ndarray, order: int, t_ref: float |
     return Polynomial(t_ref, t_scale, coefficients), values - V @ coefficients
 
 
+#: a function of time: t (s from the epoch; a scalar or (n,)) -> values (n, k): a fitted :class:`Polynomial`, or
+#: the interpolated or evaluated telemetry of a sensor description (usgscsm's Lagrange series, a vendor's model)
+TimeFunction = Callable[[Any], np.ndarray]
+
+
 @dataclass(frozen=True)
 class Trajectory:
-    """An image's fitted telemetry: position and velocity (frame F), roll/pitch/yaw (orbit frame)."""
+    """An image's telemetry: position and velocity (frame F), roll/pitch/yaw (orbit frame), each a function of
+    time (fitted polynomials of the ephemeris and attitude, Eq. 5 of seed 001, or a sensor description's own)."""
 
     frame: str                   # "ECI" or "ECEF": the frame of position, velocity and quaternions
     epoch_utc: str               # times count from here
-    position: Polynomial         # m
-    velocity: Polynomial         # m/s
-    attitude: Polynomial         # rad: roll, pitch, yaw
+    position: TimeFunction       # m
+    velocity: TimeFunction       # m/s
+    attitude: TimeFunction       # rad: roll, pitch, yaw
     fit_rms: dict = field(default_factory=dict)   # residual RMS of each fit (m, m/s, rad)
 
     def frame_to_ecef(self, t) -> np.ndarray:
@@ -614,7 +621,7 @@ def image_to_ground(image: LineImage, row, col, height, tolerance_m: float = 1e-
     dem = height if callable(height) else None
     target = None if dem else np.broadcast_to(np.asarray(height, float), (len(S),))
     # start: the range to a sphere of the mean Earth radius
-    radius = 6371000.0 + (0.0 if dem else float(np.mean(target)))
+    radius = 6371000.0 + (0.0 if target is None else float(np.mean(target)))
     b = np.einsum("ni,ni->n", S, d)
     c = np.einsum("ni,ni->n", S, S) - radius ** 2
     s = -b - np.sqrt(np.maximum(b * b - c, 0.0))
@@ -639,12 +646,12 @@ def intersect(images: list[LineImage], image_index: np.ndarray, rows: np.ndarray
     in m², for image coordinates of standard deviation ``sigma_px``.
     """
     image_index = np.asarray(image_index)
-    origins, directions = [], []
+    origin_rows, direction_rows = [], []
     for k, r, c in zip(image_index, rows, cols):
         S, d = line_of_sight(images[k], r, c)
-        origins.append(S[0])
-        directions.append(d[0])
-    origins, directions = np.array(origins), np.array(directions)
+        origin_rows.append(S[0])
+        direction_rows.append(d[0])
+    origins, directions = np.array(origin_rows), np.array(direction_rows)
     A = np.zeros((3, 3))
     b = np.zeros(3)
     for S, d in zip(origins, directions):
@@ -652,7 +659,7 @@ def intersect(images: list[LineImage], image_index: np.ndarray, rows: np.ndarray
         A += proj
         b += proj @ S
     X = np.linalg.solve(A, b)
-    scales = []
+    scales: list[np.ndarray] = []
     for _ in range(iterations):
         N = np.zeros((3, 3))
         g = np.zeros(3)
