@@ -240,7 +240,7 @@ def fit_opencv(calibration: Calibration, models=tuple(OPENCV_MODELS), tolerance_
     if unknown or not models:
         raise ValueError(f"unknown OpenCV distortion model '{unknown[0] if unknown else ''}' "
                          f"(known: {', '.join(OPENCV_MODELS)})")
-    fitted = fit_best(calibration, "opencv", sorted(models, key=OPENCV_MODELS.get), tolerance_px, nodes_x)
+    fitted = fit_best(calibration, "opencv", sorted(models, key=OPENCV_MODELS.__getitem__), tolerance_px, nodes_x)
     q = fitted.values
     return OpenCVCamera(fitted.model.name, np.array([[q[0], 0, q[2]], [0, q[1], q[3]], [0, 0, 1]]), q[4:].copy(),
                         fitted.misfit_rms_px, fitted.misfit_max_px, calibration.width_px, calibration.height_px)

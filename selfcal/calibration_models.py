@@ -278,6 +278,7 @@ def fit_best(calibration, tool: str, names=None, tolerance_px: float = 0.01, nod
             return fitted
         if best is None or fitted.misfit_max_px < best.misfit_max_px:
             best = fitted
+    assert best is not None                     # names is not empty
     return best
 
 

@@ -167,7 +167,7 @@ def run(args: argparse.Namespace) -> int:
                             _candidates(args) if auto else None,
                             tuple(v.strip() for v in args.images.split(",") if v.strip()) if args.images else None,
                             args.gcps, args.keep_focal, height)
-    if auto and not args.quiet:
+    if request.candidates is not None and not args.quiet:         # --ap auto
         print(f"choosing the AP model among {len(request.candidates)} candidates by BIC (blunders first, with the "
               f"richest candidate) ...", file=sys.stderr)
     adjusted = adjust_block(block, request, progress=None if args.quiet else progress_printer(block.image_sigma_px),

@@ -82,13 +82,13 @@ def grid(text: str) -> tuple[int, int]:
     """Parse ``GxXGy`` (e.g. ``9x6``), or one number N: N x N over a frame, N cells along a pushbroom line."""
     try:
         parts = [int(v) for v in text.lower().split("x")]
-        gx, gy = parts if len(parts) == 2 else (parts[0], parts[0]) if len(parts) == 1 else (None, None)
-        if gx is not None and max(gx, gy) > 1000:
-            raise argparse.ArgumentTypeError(f"grid sizes of at most 1000 cells, found '{text}'")
-        if gx is None:
-            raise ValueError
     except ValueError:
-        raise argparse.ArgumentTypeError(f"grid must look like 9x6, found '{text}'") from None
+        parts = []
+    if len(parts) not in (1, 2):
+        raise argparse.ArgumentTypeError(f"grid must look like 9x6, found '{text}'")
+    gx, gy = parts if len(parts) == 2 else (parts[0], parts[0])
+    if max(gx, gy) > 1000:
+        raise argparse.ArgumentTypeError(f"grid sizes of at most 1000 cells, found '{text}'")
     if gx < 1 or gy < 1:
         raise argparse.ArgumentTypeError(f"grid sizes must be positive, found '{text}'")
     return gx, gy

@@ -7,6 +7,7 @@ Nothing here reads files: the readers hand over plain data (:class:`CameraPositi
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -95,16 +96,16 @@ def _match(block_ids: np.ndarray, names: np.ndarray) -> tuple[np.ndarray, list[i
     """Block image index of each name (-1: not in the block): the same name, else the same name without its
     extension (image id ``S1_01`` for ``S1_01.JPG``)."""
     exact = {str(i): k for k, i in enumerate(block_ids)}
-    stem = {}
+    stem: dict[str, int] = {}
     for k, i in enumerate(block_ids):
         stem.setdefault(os.path.splitext(str(i))[0], k)
     index = np.array([exact.get(str(n), stem.get(os.path.splitext(str(n))[0], -1)) for n in names], np.int64)
     return index, [k for k in range(len(names)) if index[k] < 0]
 
 
-def block_with_gnss(block: Block, positions: CameraPositions, sigma_m=None, heights: str = "ellipsoidal",
-                    turn_deg: float = STRIP_TURN_DEG, gap_factor: float = STRIP_GAP_FACTOR,
-                    imu_sigma_deg=None) -> GnssImport:
+def block_with_gnss(block: Block, positions: CameraPositions, sigma_m: Sequence[float] | None = None,
+                    heights: str = "ellipsoidal", turn_deg: float = STRIP_TURN_DEG,
+                    gap_factor: float = STRIP_GAP_FACTOR, imu_sigma_deg: Sequence[float] | None = None) -> GnssImport:
     """``block`` with the camera positions as its GNSS observations.
 
     * positions converted into the block's CRS (:func:`selfcal.geometry.gnss.positions_in_crs`, ``heights``);
@@ -171,12 +172,18 @@ def block_with_gnss(block: Block, positions: CameraPositions, sigma_m=None, heig
         sigma_m = block.gnss_sigma_m if block.gnss_sigma_m is not None else (3.0, 3.0, 5.0)
     images = replace(block.images, position_m=position, time_s=time, strip_id=strips,
                      gnss_sigma_m=own if np.isfinite(own).any() else None)
-    new = replace(block, images=images, gnss_sigma_m=tuple(float(s) for s in sigma_m), datum="control")
+    new = replace(block, images=images, gnss_sigma_m=_three(sigma_m), datum="control")
     n_attitude = 0
     if imu_sigma_deg is not None:
         new, n_attitude = _with_attitude(new, positions, index, ok, imu_sigma_deg, warnings)
     return GnssImport(new, int(has.sum()), int(np.isfinite(own[has]).all(axis=1).sum()), int(number.max()) + 1,
                       tuple(warnings), n_attitude)
+
+
+def _three(values: Sequence[float]) -> tuple[float, float, float]:
+    """Three sigmas (X, Y, Z or omega, phi, kappa) as floats."""
+    x, y, z = (float(v) for v in values)
+    return x, y, z
 
 
 def _with_attitude(block: Block, positions: CameraPositions, index, ok, imu_sigma_deg, warnings):
@@ -193,14 +200,15 @@ def _with_attitude(block: Block, positions: CameraPositions, index, ok, imu_sigm
     crs = CRS.from_user_input(block.crs)
     horizontal = crs.sub_crs_list[0] if crs.is_compound else crs
     beta = grid_bearing_of_north(positions.xyz[given, 0], positions.xyz[given, 1], horizontal.to_string())
-    opk = opk_from_yaw_pitch_roll(*np.radians(ypr[given].T), beta)
+    yaw, pitch, roll = np.radians(ypr[given].T)
+    opk = opk_from_yaw_pitch_roll(yaw, pitch, roll, beta)
     attitude = np.full((len(block.images), 3), np.nan)
     attitude[index[given]] = opk
     for i in np.setdiff1d(np.arange(len(block.images)), index[given]):
         warnings.append(f"image '{block.images.image_id[i]}' has no gimbal angles; no IMU observation (it is "
                         f"oriented by resection)")
     images = replace(block.images, attitude_rad=attitude, imu_sigma_rad=None)
-    return replace(block, images=images, imu_sigma_deg=tuple(float(s) for s in imu_sigma_deg),
+    return replace(block, images=images, imu_sigma_deg=_three(imu_sigma_deg),
                    imu_boresight_deg=None), int(given.sum())
 
 

@@ -358,10 +358,10 @@ def block_with_markers(block: Block, markers, reference=None, *, marker_sigma_px
         for k, label in enumerate(ref.point_id):
             coords[label] = (ref.xyz_m[k], ref.sigma_m[k], ref.enabled[k])
     if reference is not None:
-        unknown = [p for p in reference.point_id if p not in labels]
-        if unknown:
-            notes.append(f"{len(unknown)} point(s) of {reference.path} have no marker measurement: "
-                         f"{', '.join(unknown[:5])}" + (" ..." if len(unknown) > 5 else ""))
+        unmeasured = [p for p in reference.point_id if p not in labels]
+        if unmeasured:
+            notes.append(f"{len(unmeasured)} point(s) of {reference.path} have no marker measurement: "
+                         f"{', '.join(unmeasured[:5])}" + (" ..." if len(unmeasured) > 5 else ""))
         for k, label in enumerate(reference.point_id):      # the file's coordinates, the project's check state
             enabled = coords[label][2] if label in coords else reference.enabled[k]
             coords[label] = (reference.xyz_m[k], reference.sigma_m[k], enabled)

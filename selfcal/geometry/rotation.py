@@ -169,9 +169,9 @@ def slerp(times: np.ndarray, quaternions: np.ndarray, t: np.ndarray) -> np.ndarr
         if q[k] @ q[k - 1] < 0:
             q[k] = -q[k]
     t = np.atleast_1d(np.asarray(t, float))
-    k = np.clip(np.searchsorted(times, t, side="right") - 1, 0, len(times) - 2)
-    u = (t - times[k]) / (times[k + 1] - times[k])
-    q0, q1 = q[k], q[k + 1]
+    i = np.clip(np.searchsorted(times, t, side="right") - 1, 0, len(times) - 2)
+    u = (t - times[i]) / (times[i + 1] - times[i])
+    q0, q1 = q[i], q[i + 1]
     cos = np.clip(np.einsum("ni,ni->n", q0, q1), -1.0, 1.0)
     angle = np.arccos(cos)
     small = angle < 1e-12

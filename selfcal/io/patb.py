@@ -24,6 +24,7 @@ from __future__ import annotations
 import math
 import os
 from dataclasses import dataclass
+from typing import TypedDict
 
 import numpy as np
 
@@ -31,7 +32,7 @@ from ..errors import BlockError
 from .text import read_text
 
 __all__ = ["PhotoMeasurements", "ControlPoints", "Orientations", "read_photo_blocks", "read_con", "read_ori",
-           "find_patb", "numbers"]
+           "find_patb", "PatbFiles", "numbers"]
 
 END = "-99"
 
@@ -207,7 +208,15 @@ def read_ori(path: str | os.PathLike) -> Orientations:
                         np.array(lines, np.int64))
 
 
-def find_patb(source: str) -> dict[str, str | None]:
+class PatbFiles(TypedDict):
+    """The files of a PAT-B export: the image coordinates, and the control and orientations where present."""
+
+    im: str
+    con: str | None
+    ori: str | None
+
+
+def find_patb(source: str) -> PatbFiles:
     """The ``.im``, ``.con`` and ``.ori`` files of a PAT-B export: ``source`` is one of them or their stem
     (``export`` for ``export.im``...), or a folder holding exactly one ``.im``. Missing ``.con``/``.ori`` are None."""
     if os.path.isdir(source):
@@ -220,10 +229,11 @@ def find_patb(source: str) -> dict[str, str | None]:
         stem, ext = os.path.splitext(source)
         if ext.lower() not in (".im", ".con", ".ori"):
             stem = source
-    files = {}
-    for ext in (".im", ".con", ".ori"):
-        candidates = [stem + ext, stem + ext.upper()]
-        files[ext[1:]] = next((c for c in candidates if os.path.isfile(c)), None)
-    if files["im"] is None:
+
+    def existing(ext: str) -> str | None:
+        return next((c for c in (stem + ext, stem + ext.upper()) if os.path.isfile(c)), None)
+
+    im = existing(".im")
+    if im is None:
         raise BlockError(stem + ".im", "file not found: a PAT-B import needs the image coordinates (.im)")
-    return files
+    return {"im": im, "con": existing(".con"), "ori": existing(".ori")}

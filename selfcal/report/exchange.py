@@ -28,7 +28,7 @@ def check_points_geojson(checks, crs: str, earth_fixed: bool) -> dict | None:
         return None
     d = checks.errors_m
     position = checks.reference
-    doc = {"type": "FeatureCollection", "name": "check_points"}
+    doc: dict[str, object] = {"type": "FeatureCollection", "name": "check_points"}
     if earth_fixed:
         from ..geometry.earth import geodetic_from_ecef
         lat, lon, h = geodetic_from_ecef(position)

@@ -9,6 +9,7 @@ draw easting to the right and northing up, in metres.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 from matplotlib.figure import Figure
@@ -199,7 +200,8 @@ def control_error_figure(xy_m, d_m, role, names, title: str) -> Figure:
     return fig
 
 
-def correlation_figure(names: list[str], rho: np.ndarray, title: str, groups: list[tuple[int, str]] = ()) -> Figure:
+def correlation_figure(names: list[str], rho: np.ndarray, title: str,
+                       groups: Sequence[tuple[int, str]] = ()) -> Figure:
     """Correlation matrix as a heat map (−1 blue … +1 red); ``groups`` = (first index, label) separators."""
     n = len(names)
     fig = Figure(figsize=(_WIDTH_IN, _WIDTH_IN * 0.82), layout="constrained")

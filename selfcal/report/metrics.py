@@ -243,7 +243,8 @@ def parameter_table(result):
     files' units: ``owner`` (image or camera id), ``parameter``, ``group`` (EOP, IOP, AP), ``value``, ``sigma``
     (empty where held), ``start``, ``unit``, ``active`` (0: held, by the sensor model or screening)."""
     problem, state = result.problem, result.state
-    cols = {k: [] for k in ("owner", "parameter", "group", "value", "sigma", "start", "unit", "active")}
+    cols: dict[str, list] = {k: [] for k in ("owner", "parameter", "group", "value", "sigma", "start", "unit",
+                                             "active")}
 
     def add(owner, parameter, group, value, sigma, start, unit, active):
         for key, v in zip(cols, (owner, parameter, group, value, sigma, start, unit, int(active))):
@@ -423,7 +424,7 @@ def distortion_grid_table(block, result, nodes_x: int = 61):
     if not framed:
         return None
     multi = len(framed) > 1
-    cols_out = {k: [] for k in ("camera_id", "col", "row", "dcol", "drow")}
+    cols_out: dict[str, list] = {k: [] for k in ("camera_id", "col", "row", "dcol", "drow")}
     for cam, values in framed:
         cfg = block.cameras[cam.camera_id]
         x, y = frame_nodes_mm(cam.ap.frame, nodes_x)
@@ -480,7 +481,7 @@ def trajectory_table(result):
     """
     problem, state = result.problem, result.state
     diag = result.Q_theta.diagonal()
-    cols = {k: [] for k in ("sensor", "strip_id", "term", "axis", "value", "sigma", "unit", "active")}
+    cols: dict[str, list] = {k: [] for k in ("sensor", "strip_id", "term", "axis", "value", "sigma", "unit", "active")}
     full, free_col = 0, problem.n_e + problem.n_d
     for t in problem.trajectory:
         gnss = t.offset == 0

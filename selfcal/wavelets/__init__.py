@@ -110,12 +110,13 @@ def _linear(t, x: np.ndarray, values: np.ndarray, slope: np.ndarray) -> np.ndarr
     return out.reshape(t.shape) if t.ndim else out[0]
 
 
-def _parse(name: str) -> tuple[str, int | None]:
+def _parse(name: str) -> tuple[str, int]:
+    """(family, order) of a wavelet name: ``("db", 4)``; Meyer's has no order (0)."""
     match = re.fullmatch(r"(db|sym|bl)(\d+)|(meyer)", name.strip().lower())
     if not match:
         raise ValueError(f"unknown wavelet '{name}' (known: dbN, symN, blN for an order N, and meyer)")
     if match.group(3):
-        return "meyer", None
+        return "meyer", 0
     return match.group(1), int(match.group(2))
 
 
