@@ -15,6 +15,7 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 __all__ = [
     "ROLES",
@@ -216,7 +217,7 @@ class Images:
                              for f in self.__dataclass_fields__]
         return Images(*fields)
 
-    def trajectory_sigma(self, sensor: str, default) -> np.ndarray:
+    def trajectory_sigma(self, sensor: str, default: ArrayLike) -> np.ndarray:
         """(n, 3) a-priori sigma of each image's ``"GNSS"`` (m) or ``"IMU"`` (rad) observation: the image's own
         where given, else ``default`` (block.toml's, in the same units)."""
         own = self.gnss_sigma_m if sensor == "GNSS" else self.imu_sigma_rad

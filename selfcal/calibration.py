@@ -23,6 +23,7 @@ up, so (X, Y, Z)_opencv = (X, -Y, -Z)_selfcal.
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -218,7 +219,7 @@ def opencv_project(normalised: np.ndarray, camera_matrix: np.ndarray, coefficien
     return np.column_stack([K[0, 0] * d[:, 0] + K[0, 2], K[1, 1] * d[:, 1] + K[1, 2]])
 
 
-def fit_opencv(calibration: Calibration, models=tuple(OPENCV_MODELS), tolerance_px: float = 0.01,
+def fit_opencv(calibration: Calibration, models: Sequence[str] = tuple(OPENCV_MODELS), tolerance_px: float = 0.01,
                nodes_x: int = 121) -> OpenCVCamera:
     """The OpenCV camera that projects like ``calibration`` over its image.
 

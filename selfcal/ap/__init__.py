@@ -5,6 +5,8 @@ The registry below is the single place a family is made known: the CLI's
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 from .base import APModel, ImageFrame, parse_ap_spec
@@ -47,7 +49,7 @@ def takes_grid(spec: str) -> bool:
     return cls is not None and "grid" in cls.settings
 
 
-def ap_settings(spec: str, grid) -> dict:
+def ap_settings(spec: str, grid: Sequence[int]) -> dict:
     """The settings the family of ``spec`` takes, from the options given (``grid``)."""
     return {"grid": tuple(grid)} if takes_grid(spec) else {}
 

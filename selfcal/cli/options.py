@@ -4,8 +4,12 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+from typing import TYPE_CHECKING, Any, Callable
 
 from ..workflows.progress import LOG, iteration_line, round_line
+
+if TYPE_CHECKING:
+    from ..stats import ScreeningOptions
 
 __all__ = ["grid", "ap_option", "grid_option", "progress_printer", "test_options", "round_printer",
            "trajectory_options", "drift_order", "screening_options", "number", "count", "ap_spec", "ap_list",
@@ -20,7 +24,8 @@ def _range_text(low, high, low_open, high_open) -> str:
     return f"{'<' if high_open else '<='} {high:g}"
 
 
-def number(low: float | None = None, high: float | None = None, low_open: bool = False, high_open: bool = False):
+def number(low: float | None = None, high: float | None = None, low_open: bool = False,
+           high_open: bool = False) -> Callable[[str], float]:
     """An argparse type: a finite number within [low, high] (open ends as asked); NaN and infinity are refused."""
     def parse(text: str) -> float:
         try:
@@ -36,7 +41,7 @@ def number(low: float | None = None, high: float | None = None, low_open: bool =
     return parse
 
 
-def count(low: int = 0, high: int | None = None):
+def count(low: int = 0, high: int | None = None) -> Callable[[str], int]:
     """An argparse type: an integer within [low, high]."""
     def parse(text: str) -> int:
         try:
@@ -107,7 +112,7 @@ def grid_option(parser: argparse.ArgumentParser) -> None:
                              "block, one number: cells along the detector line")
 
 
-def progress_printer(image_sigma_px: float, prefix: str = ""):
+def progress_printer(image_sigma_px: float, prefix: str = "") -> Callable[[Any], None]:
     """A callback printing one line per iteration to stderr (and logging it: selfcal.workflows.progress)."""
     def show(record) -> None:
         line = iteration_line(record, image_sigma_px, prefix)
@@ -142,7 +147,7 @@ def test_options(parser: argparse.ArgumentParser) -> None:
                              "report the a-posteriori sigmas next to the a-priori ones")
 
 
-def screening_options(args: argparse.Namespace):
+def screening_options(args: argparse.Namespace) -> ScreeningOptions:
     """ScreeningOptions from the command line (the thresholds apply wherever screening is on)."""
     from ..stats import ScreeningOptions
     extra = {} if args.trajectory_significance is None else {"trajectory_significance": args.trajectory_significance}
@@ -150,7 +155,7 @@ def screening_options(args: argparse.Namespace):
                             joint_alpha=args.joint_alpha if args.joint_alpha > 0 else None, **extra)
 
 
-def round_printer():
+def round_printer() -> Callable[[Any], None]:
     """A callback printing one line per snooping/screening round to stderr (and logging it)."""
     def show(record) -> None:
         line = round_line(record)

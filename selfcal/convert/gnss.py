@@ -9,11 +9,16 @@ from __future__ import annotations
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..block import Block
 from ..geometry.gnss import STRIP_GAP_FACTOR, STRIP_TURN_DEG, check_block_crs, detect_strips, positions_in_crs
+
+if TYPE_CHECKING:
+    from ..io.exif import ImageGnss
+    from ..io.odm import GroundControl, ImagePositions
 
 __all__ = ["CameraPositions", "positions_from_images", "positions_from_geo", "block_with_gnss", "GnssImport",
            "projected_control", "utm_crs"]
@@ -49,7 +54,7 @@ class GnssImport:
     n_with_attitude: int = 0
 
 
-def positions_from_images(records) -> tuple[CameraPositions, list[str]]:
+def positions_from_images(records: Sequence[ImageGnss]) -> tuple[CameraPositions, list[str]]:
     """CameraPositions (EPSG:4326 longitude, latitude, height) from :class:`selfcal.io.exif.ImageGnss` records;
     records without a position are left out with a warning naming the file. The time of every image comes from
     one clock: the GPS time stamps when every image has one, else the camera clock when every image has it,
@@ -84,7 +89,7 @@ def positions_from_images(records) -> tuple[CameraPositions, list[str]]:
     return positions, warnings
 
 
-def positions_from_geo(geo, path: str) -> CameraPositions:
+def positions_from_geo(geo: ImagePositions, path: str) -> CameraPositions:
     """CameraPositions from an ODM geo.txt (:class:`selfcal.io.odm.ImagePositions`): its horizontal and
     vertical accuracies become the sigmas east, north (both the horizontal one) and up; it has no times."""
     sigma = np.column_stack([geo.accuracy_m[:, 0], geo.accuracy_m[:, 0], geo.accuracy_m[:, 1]])
@@ -218,7 +223,7 @@ def utm_crs(lon_deg: float, lat_deg: float) -> str:
     return f"EPSG:{(32600 if lat_deg >= 0 else 32700) + zone}"
 
 
-def projected_control(control) -> tuple[object, str]:
+def projected_control(control: GroundControl) -> tuple[GroundControl, str]:
     """Ground control (:class:`selfcal.io.odm.GroundControl`) in a projected CRS: one in a geographic CRS
     (longitude, latitude, height) is converted into the UTM zone of its mean position (heights kept: a UTM
     CRS has no vertical datum); a NaN height stays NaN. Returns the control and a note ("" when unchanged)."""

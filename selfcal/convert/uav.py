@@ -20,13 +20,21 @@ from __future__ import annotations
 
 import os
 import re
+from collections.abc import Iterable
 from dataclasses import replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..block import Block, FrameCamera, Images, Observations, Points
 from ..errors import BlockError, UsageError
 from ..geometry.rotation import matrix_from_rotation_vector, opk_from_matrix
+
+if TYPE_CHECKING:
+    from ..io.metashape import Markers
+    from ..io.opensfm import OpenSfmReconstruction, OpenSfmTracks
+    from ..io.patb import ControlPoints, Orientations, PhotoMeasurements
+    from ..io.pix4d import Pix4dParams
 
 __all__ = ["block_from_opensfm", "block_from_patb", "block_from_pix4d", "block_with_markers", "camera_key"]
 
@@ -141,11 +149,13 @@ def _orientations(orientations, photos, image_index, notes, angles=False):
     return position, opk
 
 
-def block_from_patb(measurements, control=None, orientations=None, *, width_px: int, height_px: int,
-                    pixel_size_mm: float, focal_mm: float | None = None, principal_point_mm=(0.0, 0.0),
-                    image_unit_mm: float = 1.0,
-                    image_sigma_px: float = 1.0, control_sigma_m=(0.01, 0.02), check_points=(),
-                    crs: str = "local", name: str = "patb") -> tuple[Block, list[str]]:
+def block_from_patb(measurements: PhotoMeasurements, control: ControlPoints | None = None,
+                    orientations: Orientations | None = None, *, width_px: int, height_px: int,
+                    pixel_size_mm: float, focal_mm: float | None = None,
+                    principal_point_mm: tuple[float, float] = (0.0, 0.0), image_unit_mm: float = 1.0,
+                    image_sigma_px: float = 1.0, control_sigma_m: tuple[float, float] = (0.01, 0.02),
+                    check_points: Iterable[str] = (), crs: str = "local", name: str = "patb"
+                    ) -> tuple[Block, list[str]]:
     """A block from PAT-B files (:mod:`selfcal.io.patb`): one frame camera, the photos of the ``.im``.
 
     ``principal_point_mm``: (x0, y0) of the principal point from the image centre (selfcal's photo coordinates);
@@ -191,8 +201,9 @@ def block_from_patb(measurements, control=None, orientations=None, *, width_px: 
     return block, notes
 
 
-def block_from_pix4d(params, control=None, *, image_sigma_px: float = 1.0, control_sigma_m=(0.01, 0.02),
-                     check_points=(), crs: str = "local", name: str = "pix4d") -> tuple[Block, list[str]]:
+def block_from_pix4d(params: Pix4dParams, control: ControlPoints | None = None, *, image_sigma_px: float = 1.0,
+                     control_sigma_m: tuple[float, float] = (0.01, 0.02), check_points: Iterable[str] = (),
+                     crs: str = "local", name: str = "pix4d") -> tuple[Block, list[str]]:
     """A block from Pix4D's ``params/`` folder (:class:`selfcal.io.pix4d.Pix4dParams`).
 
     BINGO image coordinates (mm from the image centre, y up) become pixels with the pixel size of the
@@ -267,8 +278,8 @@ def _opensfm_camera(cam, pixel_size_mm: float):
     return camera, colmap
 
 
-def block_from_opensfm(reconstruction, tracks, pixel_size_mm: float = 0.005, image_sigma_px: float = 1.0,
-                       name: str = "opensfm") -> tuple[Block, list[str]]:
+def block_from_opensfm(reconstruction: OpenSfmReconstruction, tracks: OpenSfmTracks, pixel_size_mm: float = 0.005,
+                       image_sigma_px: float = 1.0, name: str = "opensfm") -> tuple[Block, list[str]]:
     """A block (a free network in the reconstruction's frame) from an OpenSfM reconstruction and its tracks.
 
     Every observation of a reconstructed point (a track id among the reconstruction's points) in a
@@ -325,8 +336,9 @@ def block_from_opensfm(reconstruction, tracks, pixel_size_mm: float = 0.005, ima
     return block, notes
 
 
-def block_with_markers(block: Block, markers, reference=None, *, marker_sigma_px: float | None = None,
-                       control_sigma_m=(0.01, 0.02), check_points=()) -> tuple[Block, list[str]]:
+def block_with_markers(block: Block, markers: Markers, reference: ControlPoints | None = None, *,
+                       marker_sigma_px: float | None = None, control_sigma_m: tuple[float, float] = (0.01, 0.02),
+                       check_points: Iterable[str] = ()) -> tuple[Block, list[str]]:
     """``block`` with Metashape markers added: their image measurements (:class:`selfcal.io.metashape.Markers`,
     pixels as selfcal's) and their coordinates from ``reference`` (a :class:`selfcal.io.patb.ControlPoints`
     read from the reference CSV; markers not in it take the XML's reference, if any). A marker with coordinates

@@ -46,7 +46,7 @@ def matrix_from_opk(opk: np.ndarray) -> np.ndarray:
     return r3 @ r2 @ r1
 
 
-def matrix_from_opk_with_derivatives(opk: np.ndarray):
+def matrix_from_opk_with_derivatives(opk: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """M and its partial derivatives dM/d(omega), dM/d(phi), dM/d(kappa).
 
     Returns
@@ -72,7 +72,7 @@ def opk_from_matrix(m: np.ndarray) -> np.ndarray:
     return np.stack([omega, phi, kappa], axis=-1)
 
 
-def opk_from_matrix_with_derivatives(m: np.ndarray):
+def opk_from_matrix_with_derivatives(m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Angles of M (as :func:`opk_from_matrix`) and their derivatives with respect to its elements.
 
     Returns

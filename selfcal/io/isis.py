@@ -33,6 +33,7 @@ import math
 import os
 import re
 from collections import Counter
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -407,7 +408,7 @@ def read_cube_label(path: str | os.PathLike) -> CubeLabel:
                      alpha_cube=_alpha_cube(cube, samples, lines, path), naif_frame_code=code_value)
 
 
-def match_serials(network: ControlNetwork, labels) -> dict[str, CubeLabel]:
+def match_serials(network: ControlNetwork, labels: Iterable[CubeLabel]) -> dict[str, CubeLabel]:
     """The label of every serial number the network measures (ignored measures included). Two labels with
     one serial number, and a measured serial number no label has, are errors (the latter names the
     network's line)."""
@@ -426,7 +427,7 @@ def match_serials(network: ControlNetwork, labels) -> dict[str, CubeLabel]:
     return {s: by_serial[s] for s in sorted(used)}
 
 
-def read_image_folder(folder: str | os.PathLike, sensor_extensions=(".isd", ".json")
+def read_image_folder(folder: str | os.PathLike, sensor_extensions: Sequence[str] = (".isd", ".json")
                       ) -> dict[str, tuple[CubeLabel, str]]:
     """Serial number -> (label, sensor file) of the ISIS cube labels in a folder: every ``*.pvl`` with an
     ``IsisCube`` object (control networks and PDS labels beside them are passed over), each with the file

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TypedDict
 
@@ -75,7 +76,7 @@ class Orientations:
     line: np.ndarray             # (n,)
 
 
-def numbers(path: str, number: int, tokens, names) -> list[float]:
+def numbers(path: str, number: int, tokens: Sequence[str], names: Sequence[str]) -> list[float]:
     """``tokens`` as finite floats; a token that is not one is a BlockError naming the line and field."""
     values = []
     for token, name in zip(tokens, names):

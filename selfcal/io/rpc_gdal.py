@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import os
 import re
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -39,6 +40,9 @@ from ..errors import BlockError, UsageError
 from .atomic import atomic_write
 from .text import read_text
 from ..sensors.rpc import RpcModel
+
+if TYPE_CHECKING:
+    from rasterio.rpc import RPC
 
 __all__ = ["GDAL_PIXEL_ORIGIN", "read_rpb", "read_dg_xml_rpc", "read_rpc_txt", "read_geotiff_rpc", "write_rpb",
            "write_rpc_txt", "rasterio_rpcs", "RPC00A_TO_RPC00B", "is_rpb", "is_rpc_txt", "is_tiff", "is_nitf",
@@ -256,7 +260,7 @@ def write_rpc_file(model: RpcModel, path: str | os.PathLike) -> None:
 
 # --- GeoTIFF ---------------------------------------------------------------------------------------
 
-def rasterio_rpcs(model: RpcModel):
+def rasterio_rpcs(model: RpcModel) -> RPC:
     """``rasterio.rpc.RPC`` of ``model`` in the GDAL convention (to write a GeoTIFF with ``rpcs=``)."""
     from rasterio.rpc import RPC
     values = _file_values(model)

@@ -15,6 +15,7 @@ import io
 import math
 import os
 from dataclasses import dataclass
+from typing import TextIO
 
 import numpy as np
 
@@ -184,7 +185,7 @@ def _column_text(column, fmt: str) -> list[str]:
     return ["" if isinstance(v, float) and not math.isfinite(v) else format(v, fmt) for v in values]
 
 
-def write_table(handle, header: list[str], columns: list, formats: list[str]) -> None:
+def write_table(handle: TextIO, header: list[str], columns: list, formats: list[str]) -> None:
     """Write columns (equal-length sequences) as CSV to an open text handle.
 
     ``formats`` are ``format()`` specifications per column (``""`` for

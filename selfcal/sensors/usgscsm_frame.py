@@ -454,6 +454,7 @@ class UsgscsmFrameBound(FrameBound):
 
     def context(self, state, jacobians: bool = True):
         iop = np.array([c[:3] if len(c) >= 3 else np.zeros(3) for c in state.cameras]).reshape(-1, 3)
+        rotation: np.ndarray | tuple[np.ndarray, np.ndarray]     # M, or (M, dM) with the Jacobians
         if jacobians:
             eop, d_position, d_angles = self.eop(state.image, derivatives=True)
             rotation = matrix_from_opk_with_derivatives(eop[:, 3:])
