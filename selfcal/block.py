@@ -262,7 +262,7 @@ class Observations:
     pixel: np.ndarray
     sigma_px: np.ndarray
     line: np.ndarray
-    row: np.ndarray | None = None
+    row: np.ndarray = None  # type: ignore[assignment]  # None: 0 .. n - 1, set by __post_init__
 
     def __post_init__(self):
         if self.row is None:

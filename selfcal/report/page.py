@@ -45,7 +45,7 @@ window.addEventListener("load", function () {
 """
 
 
-def fmt(value, spec: str = ".4f") -> str:
+def fmt(value: object, spec: str = ".4f") -> str:
     """A number as text; empty for None/NaN, integers and booleans as they are."""
     if value is None or (isinstance(value, float) and not math.isfinite(value)):
         return "–"

@@ -16,6 +16,7 @@ import math
 
 import numpy as np
 
+from ..io.results import ResultsFolder
 from . import figures
 from .page import Page, fmt, summary_cell
 
@@ -429,7 +430,7 @@ def _join(values) -> str:
     return fmt(values, ".4g")
 
 
-def render_report(results, title: str | None = None) -> dict:
+def render_report(results: ResultsFolder, title: str | None = None) -> dict:
     """The report of one adjustment: ``report.html`` and its figures, as data."""
     s = results.summary
     title = title or f"selfcal adjustment report: {s.get('block', '')}, {s.get('ap_model', '')}"
