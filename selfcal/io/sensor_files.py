@@ -4,10 +4,16 @@ image support data file)."""
 from __future__ import annotations
 
 import os
+from typing import TYPE_CHECKING
 
 from ..errors import BlockError
 from .text import read_json
 from .rpc import read_rpc
+
+if TYPE_CHECKING:
+    from .dg import DgSensor
+    from .dimap import DimapSensor
+    from .spot import Spot5Sensor
 
 __all__ = ["SENSOR_FILE_READERS", "read_usgscsm", "read_vendor_line"]
 
@@ -51,7 +57,7 @@ def _sniff(path: str) -> str:
                            "(PHR_Dimap_Document or SPOT Dimap_Document)")
 
 
-def read_vendor_line(path: str):
+def read_vendor_line(path: str) -> DgSensor | DimapSensor | Spot5Sensor:
     """The physical model of a vendor line camera, the format found from the content: a DigitalGlobe / Maxar XML
     (:class:`~selfcal.io.dg.DgSensor`), a Pleiades DIMAP (:class:`~selfcal.io.dimap.DimapSensor`) or a SPOT 5
     DIMAP (:class:`~selfcal.io.spot.Spot5Sensor`)."""

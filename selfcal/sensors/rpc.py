@@ -40,6 +40,7 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ..geometry.earth import ecef_from_geodetic, geodetic_from_ecef, geodetic_jacobian
 from .base import BoundSensor, ImageGeometry, Parameter, Sensor
@@ -254,7 +255,7 @@ class RpcBias:
             raise ValueError("a shift-only bias has a1 = a2 = b1 = b2 = 0")
 
     @classmethod
-    def from_parameters(cls, kind: str, parameters) -> "RpcBias":
+    def from_parameters(cls, kind: str, parameters: ArrayLike) -> "RpcBias":
         """The bias of a parameter vector in the order of ``BIAS_PARAMETERS[kind]``."""
         _check_kind(kind)
         x = np.asarray(parameters, float).ravel()
@@ -271,29 +272,31 @@ class RpcBias:
             return np.array([self.a[0], self.b[0]])
         return np.array(self.a + self.b)
 
-    def correction(self, row_rpc_px, col_rpc_px):
+    def correction(self, row_rpc_px: ArrayLike, col_rpc_px: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """(d_row, d_col) in px added to the RPC's image coordinates."""
         row, col = np.asarray(row_rpc_px, float), np.asarray(col_rpc_px, float)
         return (self.a[0] + self.a[1] * row + self.a[2] * col,
                 self.b[0] + self.b[1] * row + self.b[2] * col)
 
-    def apply(self, row_rpc_px, col_rpc_px):
+    def apply(self, row_rpc_px: ArrayLike, col_rpc_px: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """Corrected (row, col) in px of the RPC's image coordinates."""
         d_row, d_col = self.correction(row_rpc_px, col_rpc_px)
         return np.asarray(row_rpc_px, float) + d_row, np.asarray(col_rpc_px, float) + d_col
 
-    def project(self, model: RpcModel, lon_deg, lat_deg, h_m):
+    def project(self, model: RpcModel, lon_deg: ArrayLike, lat_deg: ArrayLike, h_m: ArrayLike
+                ) -> tuple[np.ndarray, np.ndarray]:
         """Bias-corrected image coordinates (row, col) in px of ground points."""
         return self.apply(*model.project(lon_deg, lat_deg, h_m))
 
-    def remove(self, row_px, col_px) -> tuple[np.ndarray, np.ndarray]:
+    def remove(self, row_px: ArrayLike, col_px: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """The RPC's (row_rpc, col_rpc) of corrected image coordinates: :meth:`apply` inverted."""
         A = np.array([[1.0 + self.a[1], self.a[2]], [self.b[1], 1.0 + self.b[2]]])
         row, col = np.broadcast_arrays(np.asarray(row_px, float) - self.a[0], np.asarray(col_px, float) - self.b[0])
         out = np.linalg.solve(A, np.stack([row.ravel(), col.ravel()]))
         return out[0].reshape(row.shape), out[1].reshape(row.shape)
 
-    def localize(self, model: RpcModel, row_px, col_px, h_m):
+    def localize(self, model: RpcModel, row_px: ArrayLike, col_px: ArrayLike, h_m: ArrayLike
+                 ) -> tuple[np.ndarray, np.ndarray]:
         """Ground (lon_deg, lat_deg) of bias-corrected image coordinates at heights h_m."""
         return model.localize(*self.remove(row_px, col_px), h_m)
 
@@ -320,7 +323,7 @@ def rpc_extent_px(model: RpcModel) -> tuple[float, float]:
             model.samp_off + model.pixel_shift + abs(model.samp_scale))
 
 
-def bias_design(kind: str, row_rpc_px, col_rpc_px) -> np.ndarray:
+def bias_design(kind: str, row_rpc_px: ArrayLike, col_rpc_px: ArrayLike) -> np.ndarray:
     """Design matrix (n, 2, u): the derivatives of (row, col) of each point with respect to the
     parameters of ``kind`` (order of ``BIAS_PARAMETERS[kind]``)."""
     _check_kind(kind)

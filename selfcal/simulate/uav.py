@@ -29,6 +29,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ..block import Block, Dropped, FrameCamera, Images, Observations, Points
 from ..geometry.rotation import matrix_from_opk, opk_from_matrix
@@ -58,7 +59,7 @@ class TrueDistortion:
     brown: dict | None = None
     bumps: tuple[tuple[float, float, float, float, float], ...] = ()
 
-    def displacement_px(self, x_mm, y_mm) -> tuple[np.ndarray, np.ndarray]:
+    def displacement_px(self, x_mm: ArrayLike, y_mm: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         x_mm, y_mm = np.asarray(x_mm, float), np.asarray(y_mm, float)
         dx = np.zeros_like(x_mm)
         dy = np.zeros_like(y_mm)
@@ -132,10 +133,11 @@ def _distortion(name: str, pixel_size_mm: float, pp: tuple[float, float], scale:
 
 def simulate_uav(seed: int = 0, distortion: str = "local+brown", image_sigma_px: float = 0.5,
                  blunder_rate: float = 0.0, points_per_mm2: float = 3.5,
-                 gnss_sigma_m=(0.05, 0.05, 0.10), imu_sigma_deg=(0.02, 0.02, 0.05),
+                 gnss_sigma_m: tuple[float, float, float] = (0.05, 0.05, 0.10),
+                 imu_sigma_deg: tuple[float, float, float] = (0.02, 0.02, 0.05),
                  gnss_shift_m: float = 0.2, gnss_drift_mm_s: float = 5.0, imu_shift_deg: float = 0.05,
-                 distortion_scale: float = 1.0, lever_arm_m=(0.0, 0.0, 0.0),
-                 boresight_deg=(0.0, 0.0, 0.0), n_strips: int = 4, images_per_strip: int = 7,
+                 distortion_scale: float = 1.0, lever_arm_m: tuple[float, float, float] = (0.0, 0.0, 0.0),
+                 boresight_deg: tuple[float, float, float] = (0.0, 0.0, 0.0), n_strips: int = 4, images_per_strip: int = 7,
                  trajectory_errors: TrajectoryErrors | None = None, exposure_interval_s: float | None = None,
                  declare_mounting: bool = False) -> UAVSimulation:
     """Simulate the seed-000 block; returns the four scenario blocks and the truth.

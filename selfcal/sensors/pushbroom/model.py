@@ -40,6 +40,7 @@ from typing import Any, Callable
 import numpy as np
 
 from numba import njit
+from numpy.typing import ArrayLike
 
 from ...geometry.earth import ecef_from_geodetic, geodetic_from_ecef, itrs_from_gcrs, local_up, orbit_frame
 
@@ -62,21 +63,21 @@ _MAX_NEWTON = 30
 
 # --- elementary rotations --------------------------------------------------------------------------
 
-def rotation_x(angle) -> np.ndarray:
+def rotation_x(angle: ArrayLike) -> np.ndarray:
     """Rx(a) (..., 3, 3): turns +y towards +z."""
     c, s = np.cos(angle), np.sin(angle)
     o, z = np.ones_like(c), np.zeros_like(c)
     return np.stack([np.stack([o, z, z], -1), np.stack([z, c, -s], -1), np.stack([z, s, c], -1)], -2)
 
 
-def rotation_y(angle) -> np.ndarray:
+def rotation_y(angle: ArrayLike) -> np.ndarray:
     """Ry(a) (..., 3, 3): turns +z towards +x (a positive view pitch looks forward)."""
     c, s = np.cos(angle), np.sin(angle)
     o, z = np.ones_like(c), np.zeros_like(c)
     return np.stack([np.stack([c, z, s], -1), np.stack([z, o, z], -1), np.stack([-s, z, c], -1)], -2)
 
 
-def rotation_z(angle) -> np.ndarray:
+def rotation_z(angle: ArrayLike) -> np.ndarray:
     """Rz(a) (..., 3, 3): turns +x towards +y."""
     c, s = np.cos(angle), np.sin(angle)
     o, z = np.ones_like(c), np.zeros_like(c)
@@ -108,7 +109,7 @@ def angles_from_body_to_orbit(R_OB: np.ndarray) -> np.ndarray:
     return np.stack([roll, pitch, yaw], -1)
 
 
-def fit_focal_plane(positions_mm, columns: int, center_col: float, tolerance_mm: float = 1e-10,
+def fit_focal_plane(positions_mm: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]], columns: int, center_col: float, tolerance_mm: float = 1e-10,
                     max_degree: int = 11) -> tuple[tuple[tuple[float, ...], tuple[float, ...]], float]:
     """The :attr:`LineCamera.focal_plane_mm` polynomials of a detector line given by ``positions_mm(col) ->
     (x, y)`` (mm, telescope frame), of the lowest degree that reproduces it within ``tolerance_mm`` on
@@ -162,7 +163,7 @@ class LineCamera:
         if self.focal_plane_mm and len(self.focal_plane_mm) != 2:
             raise ValueError("focal_plane_mm is (x coefficients, y coefficients)")
 
-    def offsets_px(self, col) -> np.ndarray:
+    def offsets_px(self, col: ArrayLike) -> np.ndarray:
         """(along, across) offset in pixels of the chip of each column, (n, 2)."""
         col = np.atleast_1d(np.asarray(col, float))
         if not self.chip_offsets_px:
@@ -191,7 +192,7 @@ class Polynomial:
         return np.polynomial.polynomial.polyval(tau, self.coefficients).T if np.ndim(tau) else \
             np.polynomial.polynomial.polyval(tau, self.coefficients)
 
-    def rate(self, t) -> np.ndarray:
+    def rate(self, t: ArrayLike) -> np.ndarray:
         """d/dt of the polynomial."""
         d = np.polynomial.polynomial.polyder(self.coefficients, axis=0) / self.t_scale
         tau = self._tau(t)
@@ -233,7 +234,7 @@ class Trajectory:
     attitude: TimeFunction       # rad: roll, pitch, yaw
     fit_rms: dict = field(default_factory=dict)   # residual RMS of each fit (m, m/s, rad)
 
-    def frame_to_ecef(self, t) -> np.ndarray:
+    def frame_to_ecef(self, t: ArrayLike) -> np.ndarray:
         """R_EF (n, 3, 3) at times t."""
         t = np.atleast_1d(np.asarray(t, float))
         if self.frame == "ECEF":
@@ -289,7 +290,8 @@ class LineImage:
     attitude_terms: np.ndarray | None = None
 
     @classmethod
-    def nominal(cls, image_id: str, camera: LineCamera, trajectory: Trajectory, t_first_s: float, rows: int):
+    def nominal(cls, image_id: str, camera: LineCamera, trajectory: Trajectory, t_first_s: float,
+                rows: int) -> "LineImage":
         parameters = np.zeros(len(PARAMETER_NAMES))
         parameters[PARAMETER_NAMES.index("focal")] = camera.focal_mm
         return cls(image_id, camera, trajectory, float(t_first_s), int(rows), parameters)
@@ -308,7 +310,7 @@ class LineImage:
         return replace(self, parameters=np.asarray(parameters, float).copy(),
                        attitude_terms=self.attitude_terms if attitude_terms is None else attitude_terms)
 
-    def attitude_correction(self, t) -> np.ndarray:
+    def attitude_correction(self, t: ArrayLike) -> np.ndarray:
         """The corrections (n, 3) of roll, pitch, yaw at times t: Eq. 6 and the higher-order terms."""
         a = self.parameters
         tau = np.atleast_1d(np.asarray(t, float)) - self.t_ref
@@ -319,13 +321,13 @@ class LineImage:
             out = out + powers @ np.asarray(self.attitude_terms, float).T
         return out
 
-    def time_of_row(self, row) -> np.ndarray:
+    def time_of_row(self, row: ArrayLike) -> np.ndarray:
         return self.t_first_s + np.asarray(row, float) * self.camera.line_period_s
 
-    def row_of_time(self, t) -> np.ndarray:
+    def row_of_time(self, t: ArrayLike) -> np.ndarray:
         return (np.asarray(t, float) - self.t_first_s) / self.camera.line_period_s
 
-    def detector_mm(self, col) -> np.ndarray:
+    def detector_mm(self, col: ArrayLike) -> np.ndarray:
         """Focal-plane position (x, y) in mm (n, 2) of the detector of each column: (0, ys) on the
         ideal line, displaced by its chip's offset."""
         col = np.atleast_1d(np.asarray(col, float))
@@ -338,7 +340,7 @@ class LineImage:
             return line + offset * p
         return np.stack([offset[:, 0] * p, (col - cam.center_col + offset[:, 1]) * p], -1)
 
-    def col_of_y(self, y_mm) -> np.ndarray:
+    def col_of_y(self, y_mm: ArrayLike) -> np.ndarray:
         """The column whose detector has the focal-plane y (its chip's across offset taken off)."""
         if self.camera.focal_plane_mm:
             y_mm = np.atleast_1d(np.asarray(y_mm, float))
@@ -401,12 +403,12 @@ class Track:
     frame_to_ecef: np.ndarray     # (n, 3, 3) R_EF; (0, 3, 3) when F is Earth-fixed
     attitude: np.ndarray          # (n, 3) fitted roll, pitch, yaw (before the corrections of Eq. 6)
 
-    def take(self, index) -> "Track":
+    def take(self, index: np.ndarray) -> "Track":
         earth = self.frame_to_ecef if not len(self.frame_to_ecef) else self.frame_to_ecef[index]
         return Track(self.t[index], self.position[index], self.orbit_frame[index], earth, self.attitude[index])
 
 
-def track(image: LineImage, t) -> Track:
+def track(image: LineImage, t: ArrayLike) -> Track:
     """The telemetry of ``image`` at times ``t``."""
     traj = image.trajectory
     t = np.atleast_1d(np.asarray(t, float))
@@ -530,7 +532,7 @@ def _collinearity(P, S, R_EF, R_FO, angles, tau, R_BT, d_BT, f, earth_fixed, jac
     return (xy, d_par, d_pt) if jacobians else xy
 
 
-def image_scales(image: LineImage, points_ecef: np.ndarray, row, col) -> np.ndarray:
+def image_scales(image: LineImage, points_ecef: np.ndarray, row: ArrayLike, col: ArrayLike) -> np.ndarray:
     """(n, 2): the image motion per line along track dx/drow (central differences over one line) and
     the detector spacing dy/dcol across track, in mm, at image points of ground points."""
     P = np.atleast_2d(np.asarray(points_ecef, float))
@@ -546,7 +548,7 @@ def _along_per_line_mm(image: LineImage, P: np.ndarray, t: np.ndarray) -> np.nda
     return (photo_coordinates(image, P, t + period)[:, 0] - photo_coordinates(image, P, t - period)[:, 0]) / 2
 
 
-def image_residuals(image: LineImage, points_ecef: np.ndarray, row, col, jacobians: bool = False,
+def image_residuals(image: LineImage, points_ecef: np.ndarray, row: ArrayLike, col: ArrayLike, jacobians: bool = False,
                     scales: np.ndarray | None = None, detector_offset_mm: np.ndarray | None = None):
     """Residuals (n, 2) of image points in image units, observed minus computed row and column, to
     first order: the along-track misfit x - x_d over the image motion per line, the across-track
@@ -596,7 +598,7 @@ def ground_to_image(image: LineImage, points_ecef: np.ndarray) -> tuple[np.ndarr
     return row, col
 
 
-def line_of_sight(image: LineImage, row, col) -> tuple[np.ndarray, np.ndarray]:
+def line_of_sight(image: LineImage, row: ArrayLike, col: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
     """Perspective centre (n, 3) and unit line-of-sight direction (n, 3), ECEF, of image points."""
     row, col = np.broadcast_arrays(np.atleast_1d(np.asarray(row, float)), np.atleast_1d(np.asarray(col, float)))
     t = image.time_of_row(row)
@@ -609,8 +611,9 @@ def line_of_sight(image: LineImage, row, col) -> tuple[np.ndarray, np.ndarray]:
     return (R_EF @ S[:, :, None])[:, :, 0], (R_EF @ d_F[:, :, None])[:, :, 0]
 
 
-def image_to_ground(image: LineImage, row, col, height, tolerance_m: float = 1e-4, max_iterations: int = 30
-                    ) -> np.ndarray:
+def image_to_ground(image: LineImage, row: ArrayLike, col: ArrayLike,
+                    height: ArrayLike | Callable[[np.ndarray, np.ndarray], np.ndarray], tolerance_m: float = 1e-4,
+                    max_iterations: int = 30) -> np.ndarray:
     """Mono restitution: the ECEF point (n, 3) where the line of sight of (row, col) meets a height.
 
     ``height`` is an ellipsoidal height in metres (scalar or per point) or a callable
@@ -694,6 +697,6 @@ def track_frame(image: LineImage) -> tuple[np.ndarray, np.ndarray]:
     return ground.mean(axis=0), np.stack([across, along, up])
 
 
-def ecef_of(lat_deg, lon_deg, height_m) -> np.ndarray:
+def ecef_of(lat_deg: ArrayLike, lon_deg: ArrayLike, height_m: ArrayLike) -> np.ndarray:
     """ECEF metres of geodetic degrees and ellipsoidal metres (a shorthand for callers in degrees)."""
     return ecef_from_geodetic(np.radians(lat_deg), np.radians(lon_deg), height_m)
