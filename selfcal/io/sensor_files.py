@@ -14,11 +14,13 @@ if TYPE_CHECKING:
     from .dg import DgSensor
     from .dimap import DimapSensor
     from .spot import Spot5Sensor
+    from .usgscsm import LineScanIsd
+    from .usgscsm_frame import FrameIsd
 
 __all__ = ["SENSOR_FILE_READERS", "read_usgscsm", "read_vendor_line"]
 
 
-def read_usgscsm(path: str):
+def read_usgscsm(path: str) -> FrameIsd | LineScanIsd:
     """A usgscsm / ALE ISD, frame or line scanner by its ``name_model``. A frame ISD of a reduced ISIS cube
     takes the cube's AlphaCube from the ISIS label beside it (same name, ``.pvl``), as ISIS pairs them."""
     from .usgscsm import LINE_SCANNER_MODEL, read_usgscsm_isd

@@ -38,6 +38,7 @@ others held at zero). a0, b0 are in px, a1, a2, b1, b2 unitless (px per px). Obj
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import Literal, overload
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -60,7 +61,7 @@ LOCALIZE_STEP_TOLERANCE_DEG = 1e-12
 LOCALIZE_MAX_ITERATIONS = 30
 
 
-def rpc00b_terms(L, P, H, derivatives: bool = False):
+def rpc00b_terms(L: ArrayLike, P: ArrayLike, H: ArrayLike, derivatives: bool = False):
     """The 20 RPC00B monomials (..., 20) at normalised (L, P, H); with ``derivatives`` also their
     partial derivatives with respect to L, P and H, each (..., 20)."""
     L, P, H = np.broadcast_arrays(*(np.asarray(v, float) for v in (L, P, H)))
@@ -145,13 +146,23 @@ class RpcModel:
         """selfcal coordinate minus file coordinate: 0.5 - pixel_origin (px)."""
         return 0.5 - float(self.pixel_origin)
 
-    def normalised_ground(self, lon_deg, lat_deg, h_m):
+    def normalised_ground(self, lon_deg: ArrayLike, lat_deg: ArrayLike, h_m: ArrayLike
+                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(L, P, H): longitude, latitude and height normalised by the model's offsets and scales."""
         return ((np.asarray(lon_deg, float) - self.long_off) / self.long_scale,
                 (np.asarray(lat_deg, float) - self.lat_off) / self.lat_scale,
                 (np.asarray(h_m, float) - self.height_off) / self.height_scale)
 
-    def project(self, lon_deg, lat_deg, h_m, jacobian: bool = False):
+    @overload
+    def project(self, lon_deg: ArrayLike, lat_deg: ArrayLike, h_m: ArrayLike,
+                jacobian: Literal[False] = False) -> tuple[np.ndarray, np.ndarray]: ...
+
+    @overload
+    def project(self, lon_deg: ArrayLike, lat_deg: ArrayLike, h_m: ArrayLike,
+                jacobian: Literal[True]) -> tuple[np.ndarray, np.ndarray, np.ndarray]: ...
+
+    def project(self, lon_deg: ArrayLike, lat_deg: ArrayLike, h_m: ArrayLike, jacobian: bool = False
+                ) -> tuple[np.ndarray, np.ndarray] | tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Image coordinates (row, col) in px (selfcal convention) of ground points (broadcast arrays).
 
         With ``jacobian=True`` also returns J (..., 2, 3): the derivatives of (row, col) with respect
@@ -171,12 +182,13 @@ class RpcModel:
         row, col = self._image(r, c)
         return row, col, J
 
-    def _image(self, r, c):
+    def _image(self, r: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         shift = self.pixel_shift
         return r * self.line_scale + self.line_off + shift, c * self.samp_scale + self.samp_off + shift
 
-    def localize(self, row_px, col_px, h_m, tolerance_px: float = LOCALIZE_TOLERANCE_PX,
-                 max_iterations: int = LOCALIZE_MAX_ITERATIONS):
+    def localize(self, row_px: ArrayLike, col_px: ArrayLike, h_m: ArrayLike,
+                 tolerance_px: float = LOCALIZE_TOLERANCE_PX, max_iterations: int = LOCALIZE_MAX_ITERATIONS
+                 ) -> tuple[np.ndarray, np.ndarray]:
         """Ground (lon_deg, lat_deg) of image points (row, col) (selfcal convention) at heights h_m.
 
         Newton's method on the forward model, started at (long_off, lat_off): each point stops when
