@@ -6,7 +6,7 @@ STAMP  := $(VENV)/.installed-stamp
 # glibc keeps freed memory instead of re-mapping (and re-zeroing) it every iteration (selfcal/allocator.py)
 MALLOC := MALLOC_MMAP_THRESHOLD_=33554432 MALLOC_TRIM_THRESHOLD_=2147483647 MALLOC_TOP_PAD_=268435456
 
-.PHONY: install suitesparse browser colmap test demo bench clean
+.PHONY: install suitesparse browser colmap test typecheck demo bench clean
 
 install: suitesparse $(STAMP)
 
@@ -48,6 +48,10 @@ colmap:
 test: install browser colmap
 	# one BLAS thread per test worker: two workers on two cores, not four threads fighting
 	OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 MKL_NUM_THREADS=1 $(MALLOC) $(PY) -m pytest -q -n 2 --durations=15
+
+# mypy with the checks chosen in pyproject.toml ([tool.mypy]) over the whole package
+typecheck: install
+	$(PY) -m mypy
 
 demo: install
 	$(VENV)/bin/selfcal demo --out demo-results

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import ctypes
 import ctypes.util
+import importlib
 import os
 
 __all__ = ["keep_freed_memory"]
@@ -51,11 +52,11 @@ def _small_pages() -> None:
     """Stop NumPy's madvise for transparent huge pages (module docstring), unless the environment decides."""
     if "NUMPY_MADVISE_HUGEPAGE" in os.environ:
         return
-    try:
-        from numpy._core.multiarray import _set_madvise_hugepage
-    except ImportError:                          # NumPy < 2
+    # a private function of NumPy (not in its type stubs): looked up by name, NumPy >= 2's module first
+    for module in ("numpy._core.multiarray", "numpy.core.multiarray"):
         try:
-            from numpy.core.multiarray import _set_madvise_hugepage
-        except ImportError:
-            return
-    _set_madvise_hugepage(False)
+            set_madvise_hugepage = getattr(importlib.import_module(module), "_set_madvise_hugepage")
+        except (ImportError, AttributeError):
+            continue
+        set_madvise_hugepage(False)
+        return

@@ -12,8 +12,10 @@ points seen nowhere, images with too few points) and records what it removed.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 __all__ = [
     "ROLES",
@@ -211,10 +213,11 @@ class Images:
         return len(self.image_id)
 
     def take(self, index: np.ndarray) -> "Images":
-        return Images(*(None if getattr(self, f) is None else getattr(self, f)[index]
-                        for f in self.__dataclass_fields__))
+        fields: list[Any] = [None if getattr(self, f) is None else getattr(self, f)[index]
+                             for f in self.__dataclass_fields__]
+        return Images(*fields)
 
-    def trajectory_sigma(self, sensor: str, default) -> np.ndarray:
+    def trajectory_sigma(self, sensor: str, default: ArrayLike) -> np.ndarray:
         """(n, 3) a-priori sigma of each image's ``"GNSS"`` (m) or ``"IMU"`` (rad) observation: the image's own
         where given, else ``default`` (block.toml's, in the same units)."""
         own = self.gnss_sigma_m if sensor == "GNSS" else self.imu_sigma_rad
@@ -259,7 +262,7 @@ class Observations:
     pixel: np.ndarray
     sigma_px: np.ndarray
     line: np.ndarray
-    row: np.ndarray | None = None
+    row: np.ndarray = None  # type: ignore[assignment]  # None: 0 .. n - 1, set by __post_init__
 
     def __post_init__(self):
         if self.row is None:
@@ -306,7 +309,9 @@ class Block:
 
     name: str
     crs: str
-    cameras: dict[str, "FrameCamera | BalCamera | PushbroomCamera"]
+    #: camera id -> its camera: the ``camera_type`` of its sensor (selfcal.sensors): FrameCamera, BalCamera,
+    #: PushbroomCamera here, UsgscsmCamera, RpcCamera, DimapCamera ... of the satellite sensors; no common base
+    cameras: dict[str, Any]
     images: Images
     points: Points
     observations: Observations

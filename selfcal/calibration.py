@@ -23,6 +23,7 @@ up, so (X, Y, Z)_opencv = (X, -Y, -Z)_selfcal.
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -218,7 +219,7 @@ def opencv_project(normalised: np.ndarray, camera_matrix: np.ndarray, coefficien
     return np.column_stack([K[0, 0] * d[:, 0] + K[0, 2], K[1, 1] * d[:, 1] + K[1, 2]])
 
 
-def fit_opencv(calibration: Calibration, models=tuple(OPENCV_MODELS), tolerance_px: float = 0.01,
+def fit_opencv(calibration: Calibration, models: Sequence[str] = tuple(OPENCV_MODELS), tolerance_px: float = 0.01,
                nodes_x: int = 121) -> OpenCVCamera:
     """The OpenCV camera that projects like ``calibration`` over its image.
 
@@ -240,7 +241,7 @@ def fit_opencv(calibration: Calibration, models=tuple(OPENCV_MODELS), tolerance_
     if unknown or not models:
         raise ValueError(f"unknown OpenCV distortion model '{unknown[0] if unknown else ''}' "
                          f"(known: {', '.join(OPENCV_MODELS)})")
-    fitted = fit_best(calibration, "opencv", sorted(models, key=OPENCV_MODELS.get), tolerance_px, nodes_x)
+    fitted = fit_best(calibration, "opencv", sorted(models, key=OPENCV_MODELS.__getitem__), tolerance_px, nodes_x)
     q = fitted.values
     return OpenCVCamera(fitted.model.name, np.array([[q[0], 0, q[2]], [0, q[1], q[3]], [0, 0, 1]]), q[4:].copy(),
                         fitted.misfit_rms_px, fitted.misfit_max_px, calibration.width_px, calibration.height_px)

@@ -16,14 +16,19 @@ initial values of an AP model (a least-squares fit of its distortion field).
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.optimize import least_squares
 
 from .ap import ImageFrame, create_ap, fit_displacement, frame_nodes_mm
 from .sensors.frame import photo_from_pixel, pixel_from_photo
+
+if TYPE_CHECKING:
+    from .calibration import Calibration
 
 __all__ = ["CameraModel", "FittedModel", "InitialCalibration", "MODELS", "FAMILIES", "fit_camera_model", "fit_best",
            "propagate", "ideal_from_pixel", "initial_from_model", "opencv_radial_tangential"]
@@ -128,7 +133,7 @@ class CameraModel:
     start: Callable            # (f_px, (col, row), w, h) -> q0
     scale: Callable            # (f_px, w, h) -> typical size of each parameter (least_squares x_scale)
 
-    def project(self, n: np.ndarray, q, width_px: int, height_px: int) -> np.ndarray:
+    def project(self, n: np.ndarray, q: ArrayLike, width_px: int, height_px: int) -> np.ndarray:
         return self.projection(np.atleast_2d(np.asarray(n, float)), np.asarray(q, float), width_px, height_px)
 
 
@@ -215,7 +220,8 @@ def _theta_jacobian_normalised(calibration, measured: np.ndarray, n: np.ndarray)
     return jx, jy
 
 
-def fit_camera_model(calibration, model: CameraModel, nodes_x: int = 121, start=None) -> FittedModel:
+def fit_camera_model(calibration: Calibration, model: CameraModel, nodes_x: int = 121,
+                     start: np.ndarray | None = None) -> FittedModel:
     """The parameters of ``model`` that project like ``calibration`` over its image, by nonlinear least
     squares on a grid of ``nodes_x`` measured positions across (selfcal gives their ideal normalised
     coordinates), with the sensitivity dq/dtheta of the result (module docstring)."""
@@ -255,7 +261,8 @@ def fit_camera_model(calibration, model: CameraModel, nodes_x: int = 121, start=
                        tuple(calibration.theta_names))
 
 
-def fit_best(calibration, tool: str, names=None, tolerance_px: float = 0.01, nodes_x: int = 121) -> FittedModel:
+def fit_best(calibration: Calibration, tool: str, names: Sequence[str] | None = None, tolerance_px: float = 0.01,
+             nodes_x: int = 121) -> FittedModel:
     """The first of a tool's models (``names``, default all of :data:`FAMILIES` [tool], simplest first) that
     reproduces ``calibration`` within ``tolerance_px`` over the image, else the one with the smallest
     largest misfit."""
@@ -278,6 +285,7 @@ def fit_best(calibration, tool: str, names=None, tolerance_px: float = 0.01, nod
             return fitted
         if best is None or fitted.misfit_max_px < best.misfit_max_px:
             best = fitted
+    assert best is not None                     # names is not empty
     return best
 
 
@@ -288,7 +296,7 @@ def propagate(fitted: FittedModel, covariance_theta: np.ndarray) -> np.ndarray:
     return L @ np.asarray(covariance_theta, float) @ L.T
 
 
-def ideal_from_pixel(model: CameraModel, values, width_px: int, height_px: int, pixel: np.ndarray,
+def ideal_from_pixel(model: CameraModel, values: ArrayLike, width_px: int, height_px: int, pixel: np.ndarray,
                      iterations: int = 50) -> np.ndarray:
     """Normalised ideal coordinates whose projection by ``model`` is ``pixel`` (selfcal's convention):
     Newton's method with a numerical 2 x 2 Jacobian per point. Raises ArithmeticError where it fails."""
@@ -329,7 +337,7 @@ class InitialCalibration:
     misfit_max_px: float
 
 
-def initial_from_model(model: CameraModel, values, width_px: int, height_px: int, pixel_size_mm: float,
+def initial_from_model(model: CameraModel, values: ArrayLike, width_px: int, height_px: int, pixel_size_mm: float,
                        ap_spec: str = "brown", nodes_x: int = 61) -> InitialCalibration:
     """The calibration ``model(values)`` as selfcal's c, x0, y0 and the coefficients of ``ap_spec``.
 

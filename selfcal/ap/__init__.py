@@ -5,6 +5,8 @@ The registry below is the single place a family is made known: the CLI's
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 from .base import APModel, ImageFrame, parse_ap_spec
@@ -24,8 +26,12 @@ __all__ = ["AP_FAMILIES", "APModel", "ImageFrame", "create_ap", "ap_from_dict", 
 ALL_MODELS = ("none", "brown", "ebner", "gruen", "legendre", "fourier",
               "wavelet:db4", "wavelet:sym4", "wavelet:meyer", "wavelet:bl4")
 
+#: a family's class: a frame family's :class:`APModel` subclass, or the family along a detector line (no APModel: it
+#: has no image frame)
+APFamily = type[APModel] | type[LineWaveletAP]
+
 #: family name -> model class; a family says its domain (frame or detector line) and the settings it takes
-AP_FAMILIES: dict[str, type] = {
+AP_FAMILIES: dict[str, APFamily] = {
     "none": NoAP,
     "brown": BrownAP,
     "ebner": EbnerAP,
@@ -43,18 +49,27 @@ def takes_grid(spec: str) -> bool:
     return cls is not None and "grid" in cls.settings
 
 
-def ap_settings(spec: str, grid) -> dict:
+def ap_settings(spec: str, grid: Sequence[int]) -> dict:
     """The settings the family of ``spec`` takes, from the options given (``grid``)."""
     return {"grid": tuple(grid)} if takes_grid(spec) else {}
 
 
-def _family(spec: str) -> tuple[type[APModel], str | None]:
+def _family(spec: str) -> tuple[APFamily, str | None]:
     family, option = parse_ap_spec(spec)
     try:
         return AP_FAMILIES[family], option
     except KeyError:
         known = ", ".join(AP_FAMILIES)
         raise ValueError(f"unknown AP model '{spec}' (known families: {known})") from None
+
+
+def _frame_family(spec: str) -> tuple[type[APModel], str | None]:
+    """:func:`_family` of a family that lives on an image frame; another domain (a detector line): ValueError."""
+    cls, option = _family(spec)
+    if cls.domain != "frame" or not issubclass(cls, APModel):
+        raise ValueError(f"AP model '{spec}' lives on a {cls.domain}, not on a frame (frame families: "
+                         f"{', '.join(n for n, c in AP_FAMILIES.items() if c.domain == 'frame')})")
+    return cls, option
 
 
 def check_ap_spec(spec: str) -> str:
@@ -68,16 +83,13 @@ def check_ap_spec(spec: str) -> str:
 
 def create_ap(spec: str, frame: ImageFrame, observed_xy_mm: np.ndarray | None = None, **settings) -> APModel:
     """Build an AP model from its name, e.g. ``create_ap("wavelet:db4", frame, xy, grid=(9, 6))``."""
-    cls, option = _family(spec)
-    if cls.domain != "frame":
-        raise ValueError(f"AP model '{spec}' lives on a {cls.domain}, not on a frame (frame families: "
-                         f"{', '.join(n for n, c in AP_FAMILIES.items() if c.domain == 'frame')})")
+    cls, option = _frame_family(spec)
     return cls.from_spec(option, frame, observed_xy_mm, **settings)
 
 
 def ap_from_dict(data: dict, frame: ImageFrame) -> APModel:
-    """Rebuild an AP model from :meth:`APModel.to_dict` output."""
-    cls, _ = _family(data["spec"])
+    """Rebuild an AP model from :meth:`APModel.to_dict` output (of a frame family)."""
+    cls, _ = _frame_family(data["spec"])
     return cls.from_dict(data, frame)
 
 

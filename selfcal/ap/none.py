@@ -10,6 +10,12 @@ class NoAP(APModel):
     family = "none"
     examples = ("none",)
 
+    def __init__(self, frame: ImageFrame | None = None):
+        """No additional parameters on ``frame``; None for a sensor whose images have no frame (a detector line,
+        an RPC image), and then the model has no :attr:`frame` at all."""
+        if frame is not None:
+            super().__init__(frame)
+
     @property
     def spec(self) -> str:
         return "none"

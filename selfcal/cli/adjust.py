@@ -162,12 +162,14 @@ def run(args: argparse.Namespace) -> int:
                             attitude_telemetry=not args.no_attitude,
                             solver=SolverOptions(max_iterations=args.max_iterations))
     screening = screening_options(args) if args.screen else None
-    request = AdjustRequest(options, SnoopingOptions(critical=args.snoop, mode=args.snoop_mode), screening,
-                            VarianceOptions() if args.variance_components else None, robust_options(args),
-                            _candidates(args) if auto else None,
-                            tuple(v.strip() for v in args.images.split(",") if v.strip()) if args.images else None,
-                            args.gcps, args.keep_focal, height)
-    if auto and not args.quiet:
+    image_ids = tuple(v.strip() for v in args.images.split(",") if v.strip()) if args.images else None
+    # by keyword, so that a field added to AdjustRequest does not shift the others
+    request = AdjustRequest(options=options, snooping=SnoopingOptions(critical=args.snoop, mode=args.snoop_mode),
+                            screening=screening, variance=VarianceOptions() if args.variance_components else None,
+                            candidates=_candidates(args) if auto else None, image_ids=image_ids, n_gcp=args.gcps,
+                            keep_focal=args.keep_focal, height=height,
+                            robust=robust_options(args))
+    if request.candidates is not None and not args.quiet:         # --ap auto
         print(f"choosing the AP model among {len(request.candidates)} candidates by BIC (blunders first, with the "
               f"richest candidate) ...", file=sys.stderr)
     adjusted = adjust_block(block, request, progress=None if args.quiet else progress_printer(block.image_sigma_px),

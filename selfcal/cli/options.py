@@ -4,13 +4,17 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+from typing import TYPE_CHECKING, Any, Callable
 
 from ..adjust.robust import LOSSES, RobustOptions
 from ..workflows.progress import LOG, iteration_line, round_line
 
+if TYPE_CHECKING:
+    from ..stats import ScreeningOptions
+
 __all__ = ["grid", "ap_option", "grid_option", "progress_printer", "test_options", "round_printer",
-           "trajectory_options", "drift_order", "screening_options", "robust_options", "number", "count", "ap_spec", "ap_list",
-           "force_option"]
+           "trajectory_options", "drift_order", "screening_options", "robust_options", "number", "count", "ap_spec",
+           "ap_list", "force_option"]
 
 
 def _range_text(low, high, low_open, high_open) -> str:
@@ -21,7 +25,8 @@ def _range_text(low, high, low_open, high_open) -> str:
     return f"{'<' if high_open else '<='} {high:g}"
 
 
-def number(low: float | None = None, high: float | None = None, low_open: bool = False, high_open: bool = False):
+def number(low: float | None = None, high: float | None = None, low_open: bool = False,
+           high_open: bool = False) -> Callable[[str], float]:
     """An argparse type: a finite number within [low, high] (open ends as asked); NaN and infinity are refused."""
     def parse(text: str) -> float:
         try:
@@ -37,7 +42,7 @@ def number(low: float | None = None, high: float | None = None, low_open: bool =
     return parse
 
 
-def count(low: int = 0, high: int | None = None):
+def count(low: int = 0, high: int | None = None) -> Callable[[str], int]:
     """An argparse type: an integer within [low, high]."""
     def parse(text: str) -> int:
         try:
@@ -83,13 +88,13 @@ def grid(text: str) -> tuple[int, int]:
     """Parse ``GxXGy`` (e.g. ``9x6``), or one number N: N x N over a frame, N cells along a pushbroom line."""
     try:
         parts = [int(v) for v in text.lower().split("x")]
-        gx, gy = parts if len(parts) == 2 else (parts[0], parts[0]) if len(parts) == 1 else (None, None)
-        if gx is not None and max(gx, gy) > 1000:
-            raise argparse.ArgumentTypeError(f"grid sizes of at most 1000 cells, found '{text}'")
-        if gx is None:
-            raise ValueError
     except ValueError:
-        raise argparse.ArgumentTypeError(f"grid must look like 9x6, found '{text}'") from None
+        parts = []
+    if len(parts) not in (1, 2):
+        raise argparse.ArgumentTypeError(f"grid must look like 9x6, found '{text}'")
+    gx, gy = parts if len(parts) == 2 else (parts[0], parts[0])
+    if max(gx, gy) > 1000:
+        raise argparse.ArgumentTypeError(f"grid sizes of at most 1000 cells, found '{text}'")
     if gx < 1 or gy < 1:
         raise argparse.ArgumentTypeError(f"grid sizes must be positive, found '{text}'")
     return gx, gy
@@ -108,7 +113,7 @@ def grid_option(parser: argparse.ArgumentParser) -> None:
                              "block, one number: cells along the detector line")
 
 
-def progress_printer(image_sigma_px: float, prefix: str = ""):
+def progress_printer(image_sigma_px: float, prefix: str = "") -> Callable[[Any], None]:
     """A callback printing one line per iteration to stderr (and logging it: selfcal.workflows.progress)."""
     def show(record) -> None:
         line = iteration_line(record, image_sigma_px, prefix)
@@ -149,12 +154,12 @@ def test_options(parser: argparse.ArgumentParser) -> None:
                              "report the a-posteriori sigmas next to the a-priori ones")
 
 
-def robust_options(args: argparse.Namespace):
+def robust_options(args: argparse.Namespace) -> RobustOptions | None:
     """RobustOptions from the command line, or None for ``--robust none``."""
     return None if args.robust == "none" else RobustOptions(loss=args.robust, reject=args.robust_reject)
 
 
-def screening_options(args: argparse.Namespace):
+def screening_options(args: argparse.Namespace) -> ScreeningOptions:
     """ScreeningOptions from the command line (the thresholds apply wherever screening is on)."""
     from ..stats import ScreeningOptions
     extra = {} if args.trajectory_significance is None else {"trajectory_significance": args.trajectory_significance}
@@ -162,7 +167,7 @@ def screening_options(args: argparse.Namespace):
                             joint_alpha=args.joint_alpha if args.joint_alpha > 0 else None, **extra)
 
 
-def round_printer():
+def round_printer() -> Callable[[Any], None]:
     """A callback printing one line per snooping/screening round to stderr (and logging it)."""
     def show(record) -> None:
         line = round_line(record)

@@ -183,9 +183,9 @@ def block_from_colmap(model, control=None, pixel_size_mm: float = 0.005, image_s
         pt = control.obs_point[known]
         pix = control.obs_pixel[known]
         rays_cam = np.column_stack([np.zeros(len(img)), np.zeros(len(img)), np.ones(len(img))])
-        for k, im in enumerate(img):
+        for j, im in enumerate(img):
             cam = model.cameras[int(model.image_camera[im])]
-            rays_cam[k, :2] = colmap_undistort(cam, pix[k:k + 1])[0]
+            rays_cam[j, :2] = colmap_undistort(cam, pix[j:j + 1])[0]
         directions = np.einsum("nji,nj->ni", R[img], rays_cam)   # R^T ray
         local = intersect_rays(centres[img], directions, pt, len(control.point_names))
         ok = np.isfinite(local).all(axis=1)
@@ -253,11 +253,11 @@ def block_from_colmap(model, control=None, pixel_size_mm: float = 0.005, image_s
         unknown = checks - set(control.point_names)
         if unknown:
             raise BlockError(control.path, f"check point(s) {', '.join(sorted(unknown))} not in the file")
-        for k, pname in enumerate(control.point_names):
+        for g, pname in enumerate(control.point_names):
             names.append(str(pname))
             roles.append("chk" if pname in checks else "gcp")
-            coords.append(gcp_xyz[k])
-            plan = not np.isfinite(control.xyz[k, 2])
+            coords.append(gcp_xyz[g])
+            plan = not np.isfinite(control.xyz[g, 2])
             if plan and pname in checks:
                 raise BlockError(control.path, f"check point '{pname}' has no height (NaN): a check point needs "
                                                  f"all three coordinates")

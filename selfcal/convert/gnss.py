@@ -7,12 +7,18 @@ Nothing here reads files: the readers hand over plain data (:class:`CameraPositi
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..block import Block
 from ..geometry.gnss import STRIP_GAP_FACTOR, STRIP_TURN_DEG, check_block_crs, detect_strips, positions_in_crs
+
+if TYPE_CHECKING:
+    from ..io.exif import ImageGnss
+    from ..io.odm import GroundControl, ImagePositions
 
 __all__ = ["CameraPositions", "positions_from_images", "positions_from_geo", "block_with_gnss", "GnssImport",
            "projected_control", "utm_crs"]
@@ -48,7 +54,7 @@ class GnssImport:
     n_with_attitude: int = 0
 
 
-def positions_from_images(records) -> tuple[CameraPositions, list[str]]:
+def positions_from_images(records: Sequence[ImageGnss]) -> tuple[CameraPositions, list[str]]:
     """CameraPositions (EPSG:4326 longitude, latitude, height) from :class:`selfcal.io.exif.ImageGnss` records;
     records without a position are left out with a warning naming the file. The time of every image comes from
     one clock: the GPS time stamps when every image has one, else the camera clock when every image has it,
@@ -83,7 +89,7 @@ def positions_from_images(records) -> tuple[CameraPositions, list[str]]:
     return positions, warnings
 
 
-def positions_from_geo(geo, path: str) -> CameraPositions:
+def positions_from_geo(geo: ImagePositions, path: str) -> CameraPositions:
     """CameraPositions from an ODM geo.txt (:class:`selfcal.io.odm.ImagePositions`): its horizontal and
     vertical accuracies become the sigmas east, north (both the horizontal one) and up; it has no times."""
     sigma = np.column_stack([geo.accuracy_m[:, 0], geo.accuracy_m[:, 0], geo.accuracy_m[:, 1]])
@@ -95,16 +101,17 @@ def _match(block_ids: np.ndarray, names: np.ndarray) -> tuple[np.ndarray, list[i
     """Block image index of each name (-1: not in the block): the same name, else the same name without its
     extension (image id ``S1_01`` for ``S1_01.JPG``)."""
     exact = {str(i): k for k, i in enumerate(block_ids)}
-    stem = {}
+    stem: dict[str, int] = {}
     for k, i in enumerate(block_ids):
         stem.setdefault(os.path.splitext(str(i))[0], k)
     index = np.array([exact.get(str(n), stem.get(os.path.splitext(str(n))[0], -1)) for n in names], np.int64)
     return index, [k for k in range(len(names)) if index[k] < 0]
 
 
-def block_with_gnss(block: Block, positions: CameraPositions, sigma_m=None, heights: str = "ellipsoidal",
-                    turn_deg: float = STRIP_TURN_DEG, gap_factor: float = STRIP_GAP_FACTOR,
-                    imu_sigma_deg=None, points_path: str = "points.csv", positions_path: str = "") -> GnssImport:
+def block_with_gnss(block: Block, positions: CameraPositions, sigma_m: Sequence[float] | None = None,
+                    heights: str = "ellipsoidal", turn_deg: float = STRIP_TURN_DEG,
+                    gap_factor: float = STRIP_GAP_FACTOR, imu_sigma_deg: Sequence[float] | None = None,
+                    points_path: str = "points.csv", positions_path: str = "") -> GnssImport:
     """``block`` with the camera positions as its GNSS observations.
 
     * positions converted into the block's CRS (:func:`selfcal.geometry.gnss.positions_in_crs`, ``heights``);
@@ -176,7 +183,7 @@ def block_with_gnss(block: Block, positions: CameraPositions, sigma_m=None, heig
         sigma_m = block.gnss_sigma_m if block.gnss_sigma_m is not None else (3.0, 3.0, 5.0)
     images = replace(block.images, position_m=position, time_s=time, strip_id=strips,
                      gnss_sigma_m=own if np.isfinite(own).any() else None)
-    new = replace(block, images=images, gnss_sigma_m=tuple(float(s) for s in sigma_m), datum="control")
+    new = replace(block, images=images, gnss_sigma_m=_three(sigma_m), datum="control")
     n_attitude = 0
     if imu_sigma_deg is not None:
         new, n_attitude = _with_attitude(new, positions, index, ok, imu_sigma_deg, warnings)
@@ -230,6 +237,10 @@ def _check_control_axes(block: Block, position, points_path: str, positions_path
         raise BlockError(points_path, reason)
     raise BlockError(points_path, f"{reason}. If points.csv is right, {positions_path or 'the GNSS positions'} is "
                                   f"the file in northing, easting order (the block has no image positions to tell)")
+def _three(values: Sequence[float]) -> tuple[float, float, float]:
+    """Three sigmas (X, Y, Z or omega, phi, kappa) as floats."""
+    x, y, z = (float(v) for v in values)
+    return x, y, z
 
 
 def _with_attitude(block: Block, positions: CameraPositions, index, ok, imu_sigma_deg, warnings):
@@ -246,14 +257,15 @@ def _with_attitude(block: Block, positions: CameraPositions, index, ok, imu_sigm
     crs = CRS.from_user_input(block.crs)
     horizontal = crs.sub_crs_list[0] if crs.is_compound else crs
     beta = grid_bearing_of_north(positions.xyz[given, 0], positions.xyz[given, 1], horizontal.to_string())
-    opk = opk_from_yaw_pitch_roll(*np.radians(ypr[given].T), beta)
+    yaw, pitch, roll = np.radians(ypr[given].T)
+    opk = opk_from_yaw_pitch_roll(yaw, pitch, roll, beta)
     attitude = np.full((len(block.images), 3), np.nan)
     attitude[index[given]] = opk
     for i in np.setdiff1d(np.arange(len(block.images)), index[given]):
         warnings.append(f"image '{block.images.image_id[i]}' has no gimbal angles; no IMU observation (it is "
                         f"oriented by resection)")
     images = replace(block.images, attitude_rad=attitude, imu_sigma_rad=None)
-    return replace(block, images=images, imu_sigma_deg=tuple(float(s) for s in imu_sigma_deg),
+    return replace(block, images=images, imu_sigma_deg=_three(imu_sigma_deg),
                    imu_boresight_deg=None), int(given.sum())
 
 
@@ -263,7 +275,7 @@ def utm_crs(lon_deg: float, lat_deg: float) -> str:
     return f"EPSG:{(32600 if lat_deg >= 0 else 32700) + zone}"
 
 
-def projected_control(control) -> tuple[object, str]:
+def projected_control(control: GroundControl) -> tuple[GroundControl, str]:
     """Ground control (:class:`selfcal.io.odm.GroundControl`) in a projected CRS: one in a geographic CRS
     (longitude, latitude, height) is converted into the UTM zone of its mean position (heights kept: a UTM
     CRS has no vertical datum); a NaN height stays NaN. Returns the control and a note ("" when unchanged)."""

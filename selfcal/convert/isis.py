@@ -30,7 +30,7 @@ def block_from_isis(network, images: dict, image_sigma_px: float = 0.35, name: s
     from ..sensors.usgscsm_frame import UsgscsmCamera
 
     counts = {"ignored_points": 0, "ignored_measures": 0, "measures_without_image": 0}
-    used = {}
+    used: dict[str, int] = {}
     for point in network.points:
         if point.ignored:
             counts["ignored_points"] += 1
@@ -52,8 +52,14 @@ def block_from_isis(network, images: dict, image_sigma_px: float = 0.35, name: s
     nan3 = np.full((n_img, 3), np.nan)
     block_images = Images(np.array(image_ids, object), np.array([instrument[s] for s in serials], object),
                           np.full(n_img, "", object), np.full(n_img, np.nan), nan3, nan3.copy(), np.arange(2, n_img + 2))
-    ids, roles, xyz, sigma, lines = [], [], [], [], []
-    obs_img, obs_pt, pixel = [], [], []
+    ids: list[str] = []
+    roles: list[str] = []
+    xyz: list[np.ndarray] = []
+    sigma: list[list[float]] = []
+    lines: list[int] = []
+    obs_img: list[int] = []
+    obs_pt: list[int] = []
+    pixel: list[tuple[float, float]] = []
     for point in network.points:
         measures = [m for m in point.measures if not point.ignored and not m.ignored and m.serial_number in index]
         if point.ignored or not measures:

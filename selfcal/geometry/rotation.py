@@ -46,7 +46,7 @@ def matrix_from_opk(opk: np.ndarray) -> np.ndarray:
     return r3 @ r2 @ r1
 
 
-def matrix_from_opk_with_derivatives(opk: np.ndarray):
+def matrix_from_opk_with_derivatives(opk: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """M and its partial derivatives dM/d(omega), dM/d(phi), dM/d(kappa).
 
     Returns
@@ -72,7 +72,7 @@ def opk_from_matrix(m: np.ndarray) -> np.ndarray:
     return np.stack([omega, phi, kappa], axis=-1)
 
 
-def opk_from_matrix_with_derivatives(m: np.ndarray):
+def opk_from_matrix_with_derivatives(m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Angles of M (as :func:`opk_from_matrix`) and their derivatives with respect to its elements.
 
     Returns
@@ -169,9 +169,9 @@ def slerp(times: np.ndarray, quaternions: np.ndarray, t: np.ndarray) -> np.ndarr
         if q[k] @ q[k - 1] < 0:
             q[k] = -q[k]
     t = np.atleast_1d(np.asarray(t, float))
-    k = np.clip(np.searchsorted(times, t, side="right") - 1, 0, len(times) - 2)
-    u = (t - times[k]) / (times[k + 1] - times[k])
-    q0, q1 = q[k], q[k + 1]
+    i = np.clip(np.searchsorted(times, t, side="right") - 1, 0, len(times) - 2)
+    u = (t - times[i]) / (times[i + 1] - times[i])
+    q0, q1 = q[i], q[i + 1]
     cos = np.clip(np.einsum("ni,ni->n", q0, q1), -1.0, 1.0)
     angle = np.arccos(cos)
     small = angle < 1e-12

@@ -82,9 +82,9 @@ def read_bal(path: str | os.PathLike) -> BalProblem:
     if wrong.any():
         raise BlockError(path, "camera and point indices must be integers", int(obs_line[np.argmax(wrong)]))
     cam, pt = obs[:, 0].astype(np.int64), obs[:, 1].astype(np.int64)
-    bad = np.flatnonzero((cam < 0) | (cam >= n_cam) | (pt < 0) | (pt >= n_pt))
-    if bad.size:
-        raise BlockError(path, f"observation refers to camera {cam[bad[0]]} / point {pt[bad[0]]} outside the "
-                               f"header's counts", int(obs_line[bad[0]]))
+    outside = np.flatnonzero((cam < 0) | (cam >= n_cam) | (pt < 0) | (pt >= n_pt))
+    if outside.size:
+        raise BlockError(path, f"observation refers to camera {cam[outside[0]]} / point {pt[outside[0]]} outside "
+                               f"the header's counts", int(obs_line[outside[0]]))
     return BalProblem(values[:9 * n_cam].reshape(n_cam, 9), values[9 * n_cam:].reshape(n_pt, 3), cam, pt,
                       obs[:, 2:4].copy())

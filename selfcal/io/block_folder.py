@@ -11,6 +11,7 @@ import math
 import os
 import re
 import tomllib
+from typing import Any
 
 import numpy as np
 import tomli_w
@@ -69,8 +70,9 @@ _SECTIONS = {
 }
 
 
-def _key_line(text: str, section: str | None, key: str) -> int | None:
-    """Line of ``key = ...`` inside ``[section]`` of a TOML text (best effort)."""
+def _key_line(text: str, section: str | None, key: str | None) -> int | None:
+    """Line of ``key = ...`` inside ``[section]`` of a TOML text (best effort); ``key`` None: of the
+    ``[section]`` header."""
     current = None
     for number, raw in enumerate(text.splitlines(), start=1):
         stripped = raw.split("#", 1)[0].strip()
@@ -390,17 +392,17 @@ def _read_observations(folder, images, image_index, point_index, cameras, defaul
     messages = []
     if unit_mistake.size:
         # most of an image's observations outside its frame: a unit mistake (mm, normalised), not blunders
-        first = np.flatnonzero(outside & (img == unit_mistake[0]))[0]
-        name, values, limit = ("col_px", col, width) if outside_col[first] else ("row_px", row, height)
+        first_out = int(np.flatnonzero(outside & (img == unit_mistake[0]))[0])
+        name, values, limit = ("col_px", col, width) if outside_col[first_out] else ("row_px", row, height)
         raise BlockError(table.path,
-                         f"{values[first]:g} px is outside the image (0 .. {limit[first]:g} px), and so are "
+                         f"{values[first_out]:g} px is outside the image (0 .. {limit[first_out]:g} px), and so are "
                          f"{int(outside_per_image[unit_mistake[0]])} of the {per_image[unit_mistake[0]]} observations "
                          f"of image '{images.image_id[unit_mistake[0]]}': are the units pixels?",
-                         int(table.line[first]), name)
-    for i in np.flatnonzero(outside):
-        messages.append(f"dropped observation of point '{table['point_id'][i]}' in image '{table['image_id'][i]}' "
-                        f"(observations.csv line {table.line[i]}): ({col[i]:g}, {row[i]:g}) px is outside the "
-                        f"{width[i]:g} x {height[i]:g} px frame")
+                         int(table.line[first_out]), name)
+    for k in np.flatnonzero(outside):
+        messages.append(f"dropped observation of point '{table['point_id'][k]}' in image '{table['image_id'][k]}' "
+                        f"(observations.csv line {table.line[k]}): ({col[k]:g}, {row[k]:g}) px is outside the "
+                        f"{width[k]:g} x {height[k]:g} px frame")
     sigma = np.full(n, default_sigma)
     if "sigma_px" in table:
         given = table["sigma_px"]
@@ -533,7 +535,7 @@ def _toml_value(value):
 
 def block_toml_document(block: Block) -> dict:
     """block.toml as a dict, in the order of DESIGN.md §3."""
-    doc = {"name": block.name, "crs": block.crs}
+    doc: dict[str, Any] = {"name": block.name, "crs": block.crs}
     if block.datum != "control":
         doc["datum"] = block.datum
     cameras = doc["cameras"] = {}

@@ -130,7 +130,8 @@ def read_metashape_xml(path: str | os.PathLike) -> ToolCalibration:
     if calib.find("f") is None:
         raise BlockError(path, "<f> is missing (the focal length in pixels)")
     values = {name: number(name, calib.findtext(name), 0.0) for name in METASHAPE_NAMES}
-    names, matrix = (), None
+    names: tuple[str, ...] = ()
+    matrix = None
     if cov is not None:
         names = tuple((cov.findtext("params") or "").split())
         try:

@@ -163,7 +163,8 @@ def read_dg(path: str | os.PathLike) -> DgSensor:
                         "isd/GEO/OPTICAL_DISTORTION")
     centre = doc.node(geo, "PERSPECTIVE_CENTER")
     attitude_node = doc.node(geo, "CAMERA_ATTITUDE")
-    qcs = tuple(doc.number(attitude_node, f"QCS{k}") for k in (1, 2, 3, 4))
+    qcs = (doc.number(attitude_node, "QCS1"), doc.number(attitude_node, "QCS2"), doc.number(attitude_node, "QCS3"),
+           doc.number(attitude_node, "QCS4"))
     if abs(np.linalg.norm(qcs) - 1.0) > 1e-6:
         raise doc.error(attitude_node, "CAMERA_ATTITUDE QCS1..QCS4 must be a unit quaternion",
                         "isd/GEO/CAMERA_ATTITUDE")
@@ -194,7 +195,7 @@ def read_dg(path: str | os.PathLike) -> DgSensor:
         quaternions=q / norm[:, None], quaternion_covariance=attitude[:, 4:14],
         principal_distance_mm=pd, detector_origin_mm=(origin_x, origin_y), detector_rotation_deg=rotation,
         detector_pitch_mm=pitch, camera_attitude=qcs,
-        perspective_center_m=tuple(doc.number(centre, key) for key in ("CX", "CY", "CZ")),
+        perspective_center_m=(doc.number(centre, "CX"), doc.number(centre, "CY"), doc.number(centre, "CZ")),
         has_rpb=doc.find(root, "RPB") is not None)
 
 

@@ -33,6 +33,7 @@ import math
 import os
 import re
 from collections import Counter
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -188,7 +189,8 @@ def _number(k: PvlKeyword, path: str, index: int = 0, units=None, unit_name: str
     if not math.isfinite(value):
         raise BlockError(path, f"'{k.name}' must be finite, found {k.values[index]!r}", k.line, k.name)
     if units is not None:
-        unit = k.units[index].lower() if index < len(k.units) and k.units[index] else None
+        given = k.units[index] if index < len(k.units) else None
+        unit = given.lower() if given else None
         if unit not in units:
             raise BlockError(path, f"'{k.name}' is in <{k.units[index]}>; expected {unit_name}", k.line, k.name)
     return value
@@ -264,7 +266,7 @@ def _xyz(block: PvlBlock, prefix: str, path: str) -> np.ndarray | None:
         missing = prefix + "XYZ"[present.index(False)]
         raise BlockError(path, f"point '{block.name}' has only some of {prefix}X/Y/Z (no '{missing}')",
                          block.line, missing)
-    return np.array([_number(k, path, 0, _METRES, "<meters>") for k in keys])
+    return np.array([_number(k, path, 0, _METRES, "<meters>") for k in keys if k is not None])
 
 
 def _covariance(block: PvlBlock, key: str, path: str) -> np.ndarray | None:
@@ -290,7 +292,7 @@ def _point(obj: PvlBlock, path: str) -> ControlPoint:
                                    "are read", block.line, block.name)
     named = PvlBlock(obj.kind, point_id, obj.line, obj.keywords)
     measures = tuple(_measure(g, point_id, path) for g in obj.blocks)
-    seen = {}
+    seen: dict[str, int] = {}
     for m in measures:
         if m.serial_number in seen:
             raise BlockError(path, f"point '{point_id}' is measured twice in '{m.serial_number}' (also at line "
@@ -300,7 +302,8 @@ def _point(obj: PvlBlock, path: str) -> ControlPoint:
         point_id=point_id, point_type=point_type, ignored=_flag(obj, "Ignore", path),
         edit_lock=_flag(obj, "EditLock", path), apriori_xyz_m=_xyz(named, "Apriori", path),
         apriori_covariance_m2=_covariance(obj, "AprioriCovarianceMatrix", path),
-        constrained=tuple(_flag(obj, f"{c}Constrained", path) for c in ("Latitude", "Longitude", "Radius")),
+        constrained=(_flag(obj, "LatitudeConstrained", path), _flag(obj, "LongitudeConstrained", path),
+                     _flag(obj, "RadiusConstrained", path)),
         adjusted_xyz_m=_xyz(named, "Adjusted", path), apriori_source=_text(obj, "AprioriXYZSource", path, False),
         measures=measures, source_line=obj.line)
 
@@ -321,7 +324,8 @@ def read_control_network(path: str | os.PathLike) -> ControlNetwork:
         k = net.keyword("Version")
         raise BlockError(path, f"control network version {version} is not read (versions 3-5: run ISIS cnetbin2pvl "
                                "on it to write the current one)", k.line if k else net.line, "Version")
-    points, seen = [], {}
+    points: list[ControlPoint] = []
+    seen: dict[str, int] = {}
     for obj in net.blocks:
         if obj.kind != "Object" or obj.name.lower() != "controlpoint":
             raise BlockError(path, f"unexpected {obj.kind} '{obj.name}' in the ControlNetwork", obj.line, obj.name)
@@ -345,7 +349,8 @@ def serial_number(label: PvlBlock, path: str) -> str:
     craft = instrument.keyword("SpacecraftName")
     inst = instrument.keyword("InstrumentId")
     mission = _MISSION.get(craft.value.upper()) if craft else None
-    rule = SERIAL_RULES.get((mission, _INSTRUMENT.get(inst.value.upper()) if inst else None))
+    instrument_name = _INSTRUMENT.get(inst.value.upper()) if inst else None
+    rule = SERIAL_RULES.get((mission, instrument_name)) if mission and instrument_name else None
     if rule is None:
         known = ", ".join(f"{m} {i}" for m, i in SERIAL_RULES)
         raise BlockError(path, f"no ISIS serial-number rule for SpacecraftName {craft.value if craft else None!r}, "
@@ -393,11 +398,9 @@ def read_cube_label(path: str | os.PathLike) -> CubeLabel:
     samples, lines = _integer(dims, "Samples", path), _integer(dims, "Lines", path)
     instrument = cube.find("Group", "Instrument")
     kernels = cube.find("Group", "Kernels")
-    code = kernels.keyword("NaifFrameCode") if kernels is not None else None
-    if code is not None:
+    code_value = None
+    if kernels is not None and kernels.keyword("NaifFrameCode") is not None:
         code_value = _integer(kernels, "NaifFrameCode", path)
-    else:
-        code_value = None
     text = (lambda key: _text(instrument, key, path, False)) if instrument is not None else (lambda key: "")
     return CubeLabel(path=path, serial_number=serial_number(root, path), spacecraft_name=text("SpacecraftName"),
                      instrument_id=text("InstrumentId"), target_name=text("TargetName"),
@@ -405,7 +408,7 @@ def read_cube_label(path: str | os.PathLike) -> CubeLabel:
                      alpha_cube=_alpha_cube(cube, samples, lines, path), naif_frame_code=code_value)
 
 
-def match_serials(network: ControlNetwork, labels) -> dict[str, CubeLabel]:
+def match_serials(network: ControlNetwork, labels: Iterable[CubeLabel]) -> dict[str, CubeLabel]:
     """The label of every serial number the network measures (ignored measures included). Two labels with
     one serial number, and a measured serial number no label has, are errors (the latter names the
     network's line)."""
@@ -424,7 +427,7 @@ def match_serials(network: ControlNetwork, labels) -> dict[str, CubeLabel]:
     return {s: by_serial[s] for s in sorted(used)}
 
 
-def read_image_folder(folder: str | os.PathLike, sensor_extensions=(".isd", ".json")
+def read_image_folder(folder: str | os.PathLike, sensor_extensions: Sequence[str] = (".isd", ".json")
                       ) -> dict[str, tuple[CubeLabel, str]]:
     """Serial number -> (label, sensor file) of the ISIS cube labels in a folder: every ``*.pvl`` with an
     ``IsisCube`` object (control networks and PDS labels beside them are passed over), each with the file

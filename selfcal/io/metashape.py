@@ -64,25 +64,28 @@ def read_markers_xml(path: str | os.PathLike) -> Markers:
     text = read_text(path, "Metashape markers XML")
     root = xml_root(path, "Metashape markers XML")
     line_of = _line_finder(text)
-    cameras = {}
+    cameras: dict[str, str] = {}          # camera id -> label
     for cams in root.iter("cameras"):
-        for camera in cams.iter("camera"):
-            if camera.get("id") is not None:
-                cameras[camera.get("id")] = camera.get("label") or camera.get("id")
-    labels, marker_line = {}, {}
+        for element in cams.iter("camera"):
+            camera_id = element.get("id")
+            if camera_id is not None:
+                cameras[camera_id] = element.get("label") or camera_id
+    labels: dict[str, str] = {}           # marker id -> label
+    marker_line: dict[str, int] = {}
     ref_ids, ref_xyz, ref_sigma, ref_line, ref_enabled = [], [], [], [], []
     cursor = 0
     for markers in root.iter("markers"):
-        for marker in markers.findall("marker"):
-            if marker.get("id") is None or marker.get("marker_id") is not None:
+        for definition in markers.findall("marker"):
+            marker_id = definition.get("id")
+            if marker_id is None or definition.get("marker_id") is not None:
                 continue
-            label = marker.get("label") or f"marker{marker.get('id')}"
-            line, cursor = line_of(r'<marker\b[^>]*\bid="' + re.escape(marker.get("id")) + '"', cursor)
+            label = definition.get("label") or f"marker{marker_id}"
+            line, cursor = line_of(r'<marker\b[^>]*\bid="' + re.escape(marker_id) + '"', cursor)
             if label in marker_line:
                 raise BlockError(path, f"two markers are labelled '{label}' (first on line {marker_line[label]})", line)
-            labels[marker.get("id")] = label
+            labels[marker_id] = label
             marker_line[label] = line
-            ref = marker.find("reference")
+            ref = definition.find("reference")
             if ref is not None and ref.get("x") is not None:
                 line = line_of(r"<reference\b", cursor)[0] or line
                 xyz = [_float(path, line, ref, k) for k in ("x", "y", "z")]
@@ -94,9 +97,12 @@ def read_markers_xml(path: str | os.PathLike) -> Markers:
                 ref_sigma.append([np.nan if s is None else s for s in sigma])
                 ref_line.append(line)
                 ref_enabled.append(ref.get("enabled", "true").lower() not in ("false", "0"))
-    marker, camera, pixel, lines = [], [], [], []
+    marker: list[str] = []
+    camera: list[str] = []
+    pixel: list[tuple[float, float]] = []
+    lines: list[int] = []
     cursor = 0
-    seen = {}
+    seen: dict[tuple[str, str], int] = {}
     for element in root.iter("marker"):
         mid = element.get("marker_id")
         if mid is None and element.find("location") is None:

@@ -86,7 +86,8 @@ def read_gcp_list(path: str | os.PathLike) -> GroundControl:
         raise BlockError(path, "the first line must name the CRS", 1)
     crs, crs_name = _crs(path, header[1], geographic=True)
     geographic = _is_geographic(crs)
-    names, xyz = [], []
+    names: list[str] = []
+    xyz: list[np.ndarray] = []
     by_name: dict[str, int] = {}
     o_pt, o_img, o_pix, o_line = [], [], [], []
     for number, line in enumerate(lines[1:], start=2):

@@ -10,11 +10,16 @@ covariance, ``parameter_names`` with ``parameter_sigma`` (1 x n) and ``parameter
 from __future__ import annotations
 
 import os
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..errors import BlockError
 from .atomic import atomic_write
+
+if TYPE_CHECKING:
+    from ..calibration import OpenCVCamera
+    from .calibration_files import ToolCalibration
 
 __all__ = ["OPENCV_EXTENSIONS", "opencv_file_text", "write_opencv_file", "read_opencv_calibration",
            "write_undistortion_maps", "read_undistortion_maps", "read_image", "write_image"]
@@ -34,7 +39,7 @@ def _extension(path) -> str:
     return ext
 
 
-def opencv_file_text(camera, ext: str = ".yaml", source: str = "", camera_id: str = "",
+def opencv_file_text(camera: OpenCVCamera, ext: str = ".yaml", source: str = "", camera_id: str = "",
                      covariance: np.ndarray | None = None) -> str:
     """The FileStorage text of an :class:`selfcal.calibration.OpenCVCamera` (``ext`` selects the format)."""
     import cv2
@@ -60,14 +65,14 @@ def opencv_file_text(camera, ext: str = ".yaml", source: str = "", camera_id: st
     return storage.releaseAndGetString()
 
 
-def write_opencv_file(camera, path: str | os.PathLike, source: str = "", camera_id: str = "",
+def write_opencv_file(camera: OpenCVCamera, path: str | os.PathLike, source: str = "", camera_id: str = "",
                       covariance: np.ndarray | None = None) -> None:
     text = opencv_file_text(camera, _extension(path), source, camera_id, covariance)
     with atomic_write(path) as handle:
         handle.write(text)
 
 
-def read_opencv_calibration(path: str | os.PathLike):
+def read_opencv_calibration(path: str | os.PathLike) -> ToolCalibration:
     """An OpenCV camera file (any FileStorage format) as a
     :class:`selfcal.io.calibration_files.ToolCalibration` (tool ``opencv``; values fx, fy, cx, cy and the
     distortion coefficients by OpenCV's names; the model from ``distortion_model`` or the count)."""
@@ -84,13 +89,13 @@ def read_opencv_calibration(path: str | os.PathLike):
             raise BlockError(path, "OpenCV FileStorage cannot read it")
         K = storage.getNode("camera_matrix").mat()
         dist = storage.getNode("distortion_coefficients").mat()
-        width = storage.getNode("image_width")
-        height = storage.getNode("image_height")
+        width_node = storage.getNode("image_width")
+        height_node = storage.getNode("image_height")
         if K is None or K.shape != (3, 3):
             raise BlockError(path, "camera_matrix (3 x 3) is missing")
-        if width.empty() or height.empty():
+        if width_node.empty() or height_node.empty():
             raise BlockError(path, "image_width and image_height are missing (the size the calibration is for)")
-        width, height = int(width.real()), int(height.real())
+        width, height = int(width_node.real()), int(height_node.real())
         dist = np.zeros(0) if dist is None else dist.ravel().astype(float)
         model_node = storage.getNode("distortion_model")
         model = model_node.string() if not model_node.empty() and model_node.isString() else ""

@@ -19,6 +19,7 @@ from __future__ import annotations
 import math
 import os
 from dataclasses import dataclass
+from typing import TypeGuard
 
 import numpy as np
 
@@ -76,6 +77,11 @@ class OpenSfmTracks:
     line: np.ndarray              # (m,)
 
 
+def _positive_int(value: object) -> TypeGuard[int]:
+    """A JSON integer above zero (not a boolean, which Python counts as an int)."""
+    return isinstance(value, int) and not isinstance(value, bool) and value > 0
+
+
 def _number(path, value, where) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
         raise BlockError(path, f"{where}: {value!r} is not a number")
@@ -109,9 +115,9 @@ def read_reconstruction(path: str | os.PathLike) -> OpenSfmReconstruction:
         if kind not in CAMERA_PARAMETERS:
             raise BlockError(path, f"{where}: projection type '{kind}' is not a perspective model selfcal takes "
                                    f"({', '.join(CAMERA_PARAMETERS)})")
-        size = [cam.get("width"), cam.get("height")]
-        if not all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in size):
-            raise BlockError(path, f"{where}: width and height must be positive integers, found {size}")
+        width, height = cam.get("width"), cam.get("height")
+        if not (_positive_int(width) and _positive_int(height)):
+            raise BlockError(path, f"{where}: width and height must be positive integers, found {[width, height]}")
         params = {}
         for name in CAMERA_PARAMETERS[kind]:
             if name not in cam:
@@ -120,7 +126,7 @@ def read_reconstruction(path: str | os.PathLike) -> OpenSfmReconstruction:
                     continue
                 raise BlockError(path, f"{where} ({kind}) has no '{name}'")
             params[name] = _number(path, cam[name], f"{where}, '{name}'")
-        cameras[cid] = OpenSfmCamera(cid, kind, size[0], size[1], params)
+        cameras[cid] = OpenSfmCamera(cid, kind, width, height, params)
     ids, cams, rot, trans = [], [], [], []
     for sid, shot in rec["shots"].items():
         where = f"shot '{sid}'"

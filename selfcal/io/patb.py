@@ -23,7 +23,9 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TypedDict
 
 import numpy as np
 
@@ -31,7 +33,7 @@ from ..errors import BlockError
 from .text import read_text
 
 __all__ = ["PhotoMeasurements", "ControlPoints", "Orientations", "read_photo_blocks", "read_con", "read_ori",
-           "find_patb", "numbers"]
+           "find_patb", "PatbFiles", "numbers"]
 
 END = "-99"
 
@@ -74,7 +76,7 @@ class Orientations:
     line: np.ndarray             # (n,)
 
 
-def numbers(path: str, number: int, tokens, names) -> list[float]:
+def numbers(path: str, number: int, tokens: Sequence[str], names: Sequence[str]) -> list[float]:
     """``tokens`` as finite floats; a token that is not one is a BlockError naming the line and field."""
     values = []
     for token, name in zip(tokens, names):
@@ -100,7 +102,9 @@ def read_photo_blocks(path: str | os.PathLike, what: str = "PAT-B image coordina
     """Photo blocks: a header record (photo id [more tokens]), ``point_id x y`` records, ``-99``."""
     path = os.fspath(path)
     image, point, xy, lines = [], [], [], []
-    photos, header, header_line = [], {}, {}
+    photos: list[str] = []
+    header: dict[str, tuple[str, ...]] = {}
+    header_line: dict[str, int] = {}
     current = None
     seen: set = set()
     last = 0
@@ -205,7 +209,15 @@ def read_ori(path: str | os.PathLike) -> Orientations:
                         np.array(lines, np.int64))
 
 
-def find_patb(source: str) -> dict[str, str | None]:
+class PatbFiles(TypedDict):
+    """The files of a PAT-B export: the image coordinates, and the control and orientations where present."""
+
+    im: str
+    con: str | None
+    ori: str | None
+
+
+def find_patb(source: str) -> PatbFiles:
     """The ``.im``, ``.con`` and ``.ori`` files of a PAT-B export: ``source`` is one of them or their stem
     (``export`` for ``export.im``...), or a folder holding exactly one ``.im``. Missing ``.con``/``.ori`` are None."""
     if os.path.isdir(source):
@@ -218,10 +230,11 @@ def find_patb(source: str) -> dict[str, str | None]:
         stem, ext = os.path.splitext(source)
         if ext.lower() not in (".im", ".con", ".ori"):
             stem = source
-    files = {}
-    for ext in (".im", ".con", ".ori"):
-        candidates = [stem + ext, stem + ext.upper()]
-        files[ext[1:]] = next((c for c in candidates if os.path.isfile(c)), None)
-    if files["im"] is None:
+
+    def existing(ext: str) -> str | None:
+        return next((c for c in (stem + ext, stem + ext.upper()) if os.path.isfile(c)), None)
+
+    im = existing(".im")
+    if im is None:
         raise BlockError(stem + ".im", "file not found: a PAT-B import needs the image coordinates (.im)")
-    return files
+    return {"im": im, "con": existing(".con"), "ori": existing(".ori")}

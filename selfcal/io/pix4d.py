@@ -72,15 +72,22 @@ def params_folder(source: str) -> str:
     return source
 
 
-def _one(folder: str, patterns, what: str, required: bool = True, exclude: str | None = None) -> str | None:
-    found = []
+def _one(folder: str, patterns: tuple[str, ...], what: str) -> str:
+    """The one file of the folder matching the first of ``patterns`` that any file matches; none: an error."""
+    found = _one_or_none(folder, patterns)
+    if found is None:
+        raise BlockError(folder, f"no {what} ({' or '.join(patterns)}) in the params folder")
+    return found
+
+
+def _one_or_none(folder: str, patterns: tuple[str, ...], exclude: str | None = None) -> str | None:
+    """As :func:`_one`, None where no file matches (names holding ``exclude`` left out)."""
+    found: list[str] = []
     for pattern in patterns:
         found = sorted(f for f in glob.glob(os.path.join(folder, pattern)) if not (exclude and exclude in f))
         if found:
             break
     if not found:
-        if required:
-            raise BlockError(folder, f"no {what} ({' or '.join(patterns)}) in the params folder")
         return None
     if len(found) > 1:
         raise BlockError(folder, f"{len(found)} files match {patterns[0]}: {', '.join(map(os.path.basename, found))}")
@@ -88,7 +95,7 @@ def _one(folder: str, patterns, what: str, required: bool = True, exclude: str |
 
 
 def _image_size(path: str) -> tuple[int, int]:
-    sizes = {}
+    sizes: dict[tuple[int, int], int] = {}
     for number, line in enumerate(read_text(path, "Pix4D calibrated camera parameters").splitlines(), start=1):
         tokens = line.split()
         if len(tokens) == 3 and tokens[1].isdigit() and tokens[2].isdigit() and not is_number(tokens[0]):
@@ -97,9 +104,9 @@ def _image_size(path: str) -> tuple[int, int]:
         raise BlockError(path, "no 'fileName imageWidth imageHeight' record: the image size is unknown (give "
                                "--image-size)")
     if len(sizes) > 1:
-        (a, _), (b, line) = list(sizes.items())[:2]
+        (a, _), (b, second) = list(sizes.items())[:2]
         raise BlockError(path, f"images of two sizes ({a[0]}x{a[1]} and {b[0]}x{b[1]}); selfcal imports one camera",
-                         line)
+                         second)
     return next(iter(sizes))
 
 
@@ -166,6 +173,5 @@ def read_pix4d_params(source: str, image_size: tuple[int, int] | None = None) ->
         size_file = _one(folder, ("*_calibrated_camera_parameters.txt",), "calibrated camera parameters (image size)")
         image_size = _image_size(size_file)
     camera = read_cam(cam_path, *image_size)
-    ext_path = _one(folder, ("*_calibrated_external_camera_parameters.txt",), "external parameters", required=False,
-                    exclude="wgs84")
+    ext_path = _one_or_none(folder, ("*_calibrated_external_camera_parameters.txt",), exclude="wgs84")
     return Pix4dParams(folder, bingo, camera, read_external(ext_path) if ext_path else None)

@@ -189,7 +189,7 @@ def read_ossim_geom_rpc(path: str | os.PathLike) -> RpcModel:
             raise BlockError(path, f"key {key} must be finite", line=number)
         return result
 
-    fields = {name: number_of(name) for name in _NORMALISATION}
+    fields: dict[str, float | np.ndarray] = {name: number_of(name) for name in _NORMALISATION}
     for name in _POLYNOMIALS:
         fields[name] = np.array([number_of(f"{name}_coeff_{k:02d}") for k in range(20)])
     return _model(path, fields, OSSIM_PIXEL_ORIGIN)

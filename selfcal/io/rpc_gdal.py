@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import os
 import re
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -39,6 +40,9 @@ from ..errors import BlockError, UsageError
 from .atomic import atomic_write
 from .text import read_text
 from ..sensors.rpc import RpcModel
+
+if TYPE_CHECKING:
+    from rasterio.rpc import RPC
 
 __all__ = ["GDAL_PIXEL_ORIGIN", "read_rpb", "read_dg_xml_rpc", "read_rpc_txt", "read_geotiff_rpc", "write_rpb",
            "write_rpc_txt", "rasterio_rpcs", "RPC00A_TO_RPC00B", "is_rpb", "is_rpc_txt", "is_tiff", "is_nitf",
@@ -134,21 +138,21 @@ def read_rpb(path: str | os.PathLike) -> RpcModel:
     if statement:
         raise BlockError(path, f"statement not closed by ';': {statement.strip()[:60]!r}", line=start)
 
-    fields = {}
+    fields: dict[str, float | np.ndarray] = {}
     for name, key in _RPB_KEYS.items():
         if key.lower() not in entries:
             raise BlockError(path, f"missing key {key}", column=key)
-        value, line = entries[key.lower()]
+        value, at = entries[key.lower()]
         if name in _POLYNOMIALS:
             inner = value.strip()
             if not (inner.startswith("(") and inner.endswith(")")):
-                raise BlockError(path, f"{key} must be a list ( c1, ..., c20 )", line=line, column=key)
+                raise BlockError(path, f"{key} must be a list ( c1, ..., c20 )", line=at, column=key)
             items = [item for item in inner[1:-1].replace("\n", " ").split(",")]
             if len(items) != 20:
-                raise BlockError(path, f"{key} must hold 20 coefficients, found {len(items)}", line=line, column=key)
-            fields[name] = np.array([_float(path, item, key, line) for item in items])
+                raise BlockError(path, f"{key} must hold 20 coefficients, found {len(items)}", line=at, column=key)
+            fields[name] = np.array([_float(path, item, key, at) for item in items])
         else:
-            fields[name] = _float(path, value, key, line)
+            fields[name] = _float(path, value, key, at)
     spec = entries.get("specid", (None, None))[0]
     return _model(path, fields, spec)
 
@@ -170,7 +174,7 @@ def write_rpb(model: RpcModel, path: str | os.PathLike, satellite: str = "unknow
 
 def _file_values(model: RpcModel) -> dict:
     """The model's fields in the GDAL convention (offsets moved by the pixel origin)."""
-    values = {name: float(getattr(model, name)) for name in _NORMALISATION}
+    values: dict[str, float | np.ndarray] = {name: float(getattr(model, name)) for name in _NORMALISATION}
     values["line_off"] -= model.pixel_origin - GDAL_PIXEL_ORIGIN
     values["samp_off"] -= model.pixel_origin - GDAL_PIXEL_ORIGIN
     for name in _POLYNOMIALS:
@@ -191,7 +195,7 @@ def read_dg_xml_rpc(path: str | os.PathLike) -> RpcModel:
     doc = XmlDocument(path, "DigitalGlobe XML file")
     rpb = doc.node(doc.root, "RPB")
     image = doc.node(rpb, "IMAGE")
-    fields = {name: doc.number(image, key) for name, key in _DG_KEYS.items()}
+    fields: dict[str, float | np.ndarray] = {name: doc.number(image, key) for name, key in _DG_KEYS.items()}
     for name in _POLYNOMIALS:
         key = _RPB_KEYS[name].upper()                        # LINENUMCOEF
         fields[name] = doc.numbers(doc.node(image, f"{key}List"), key, 20)
@@ -219,7 +223,7 @@ def read_rpc_txt(path: str | os.PathLike) -> RpcModel:
         value, line = entries[key]
         return _float(path, value, key, line)
 
-    fields = {name: number_of(_TXT_KEYS[name]) for name in _NORMALISATION}
+    fields: dict[str, float | np.ndarray] = {name: number_of(_TXT_KEYS[name]) for name in _NORMALISATION}
     for name in _POLYNOMIALS:
         fields[name] = np.array([number_of(f"{_TXT_KEYS[name]}_{k}") for k in range(1, 21)])
     return _model(path, fields)
@@ -256,7 +260,7 @@ def write_rpc_file(model: RpcModel, path: str | os.PathLike) -> None:
 
 # --- GeoTIFF ---------------------------------------------------------------------------------------
 
-def rasterio_rpcs(model: RpcModel):
+def rasterio_rpcs(model: RpcModel) -> RPC:
     """``rasterio.rpc.RPC`` of ``model`` in the GDAL convention (to write a GeoTIFF with ``rpcs=``)."""
     from rasterio.rpc import RPC
     values = _file_values(model)
@@ -285,7 +289,7 @@ def read_raster_rpc(path: str | os.PathLike, what: str = "GeoTIFF") -> RpcModel:
     if rpcs is None:
         where = "no RPC00B TRE" if what == "NITF" else "no RPCCoefficientTag, .RPB or _RPC.TXT"
         raise BlockError(path, f"the {what} has no RPC ({where})")
-    fields = {name: float(getattr(rpcs, name)) for name in _NORMALISATION}
+    fields: dict[str, float | np.ndarray] = {name: float(getattr(rpcs, name)) for name in _NORMALISATION}
     for name in _POLYNOMIALS:
         values = np.asarray(getattr(rpcs, f"{name}_coeff"), float)
         if values.shape != (20,):

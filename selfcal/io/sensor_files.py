@@ -4,15 +4,23 @@ image support data file)."""
 from __future__ import annotations
 
 import os
+from typing import TYPE_CHECKING
 
 from ..errors import BlockError
 from .text import read_json
 from .rpc import read_rpc
 
+if TYPE_CHECKING:
+    from .dg import DgSensor
+    from .dimap import DimapSensor
+    from .spot import Spot5Sensor
+    from .usgscsm import LineScanIsd
+    from .usgscsm_frame import FrameIsd
+
 __all__ = ["SENSOR_FILE_READERS", "read_usgscsm", "read_vendor_line"]
 
 
-def read_usgscsm(path: str):
+def read_usgscsm(path: str) -> FrameIsd | LineScanIsd:
     """A usgscsm / ALE ISD, frame or line scanner by its ``name_model``. A frame ISD of a reduced ISIS cube
     takes the cube's AlphaCube from the ISIS label beside it (same name, ``.pvl``), as ISIS pairs them."""
     from .usgscsm import LINE_SCANNER_MODEL, read_usgscsm_isd
@@ -51,7 +59,7 @@ def _sniff(path: str) -> str:
                            "(PHR_Dimap_Document or SPOT Dimap_Document)")
 
 
-def read_vendor_line(path: str):
+def read_vendor_line(path: str) -> DgSensor | DimapSensor | Spot5Sensor:
     """The physical model of a vendor line camera, the format found from the content: a DigitalGlobe / Maxar XML
     (:class:`~selfcal.io.dg.DgSensor`), a Pleiades DIMAP (:class:`~selfcal.io.dimap.DimapSensor`) or a SPOT 5
     DIMAP (:class:`~selfcal.io.spot.Spot5Sensor`)."""

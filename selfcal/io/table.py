@@ -15,6 +15,7 @@ import io
 import math
 import os
 from dataclasses import dataclass
+from typing import TextIO
 
 import numpy as np
 
@@ -139,12 +140,12 @@ def _columns_at_once(header: list[str], texts: list[tuple], spec: dict) -> dict[
         if spec[name].kind == STR:
             out[name] = np.array([text.strip() for text in column], dtype=object)
             continue
-        texts = np.array(column, dtype=object)
+        cells = np.array(column, dtype=object)
         if spec[name].kind == OPT_NUM:
             empty = np.array([text.strip() == "" for text in column], dtype=bool)
-            texts[empty] = "nan"
+            cells[empty] = "nan"
         try:
-            values = texts.astype(float)
+            values = cells.astype(float)
         except (ValueError, TypeError):
             return None
         if spec[name].kind == OPT_NUM:
@@ -184,7 +185,7 @@ def _column_text(column, fmt: str) -> list[str]:
     return ["" if isinstance(v, float) and not math.isfinite(v) else format(v, fmt) for v in values]
 
 
-def write_table(handle, header: list[str], columns: list, formats: list[str]) -> None:
+def write_table(handle: TextIO, header: list[str], columns: list, formats: list[str]) -> None:
     """Write columns (equal-length sequences) as CSV to an open text handle.
 
     ``formats`` are ``format()`` specifications per column (``""`` for

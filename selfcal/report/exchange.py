@@ -11,7 +11,12 @@ from __future__ import annotations
 
 import re
 
+from typing import TYPE_CHECKING
+
 import numpy as np
+
+if TYPE_CHECKING:
+    from ..stats.checks import CheckPoints
 
 __all__ = ["check_points_geojson", "object_points_ply", "PLY_ROLES"]
 
@@ -19,7 +24,7 @@ __all__ = ["check_points_geojson", "object_points_ply", "PLY_ROLES"]
 PLY_ROLES = {"tie": 0, "gcp": 1, "chk": 2}
 
 
-def check_points_geojson(checks, crs: str, earth_fixed: bool) -> dict | None:
+def check_points_geojson(checks: CheckPoints, crs: str, earth_fixed: bool) -> dict | None:
     """check_points.geojson: one Point feature per check point at its reference position, with its errors
     d = adjusted - reference (``d1_m, d2_m, d3_m`` along ``axes``: east, north, up for an Earth-fixed frame,
     else X, Y, Z) and ``error_xy_m``. ``earth_fixed``: the frame is ECEF (the sensors' object frame). None
@@ -28,7 +33,7 @@ def check_points_geojson(checks, crs: str, earth_fixed: bool) -> dict | None:
         return None
     d = checks.errors_m
     position = checks.reference
-    doc = {"type": "FeatureCollection", "name": "check_points"}
+    doc: dict[str, object] = {"type": "FeatureCollection", "name": "check_points"}
     if earth_fixed:
         from ..geometry.earth import geodetic_from_ecef
         lat, lon, h = geodetic_from_ecef(position)

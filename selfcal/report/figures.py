@@ -9,6 +9,7 @@ draw easting to the right and northing up, in metres.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 from matplotlib.figure import Figure
@@ -69,7 +70,7 @@ def _vectors(ax, x, y, u, v, spacing: float, unit: str, color="C0", key_pos=(0.8
     ax.quiverkey(q, *key_pos, key, f"{key:g} {unit}", labelpos="E", coordinates="axes")
 
 
-def distortion_figure(col, row, dcol, drow, width_px: float, height_px: float, title: str,
+def distortion_figure(col: np.ndarray, row: np.ndarray, dcol: np.ndarray, drow: np.ndarray, width_px: float, height_px: float, title: str,
                       step: int = 4) -> Figure:
     """Estimated distortion Δ on the regular grid of distortion_grid.csv (Fig. 6 of seed 000).
 
@@ -85,9 +86,9 @@ def distortion_figure(col, row, dcol, drow, width_px: float, height_px: float, t
         mesh = ax.pcolormesh(col.reshape(ny, nx), row.reshape(ny, nx), magnitude.reshape(ny, nx),
                              shading="gouraud", cmap="viridis", rasterized=True)
         fig.colorbar(mesh, ax=ax, label="|Δ| [px]", shrink=0.85)
-        pick = np.zeros((ny, nx), bool)
-        pick[::step, ::step] = True
-        pick = pick.ravel()
+        every = np.zeros((ny, nx), bool)
+        every[::step, ::step] = True
+        pick = every.ravel()
         spacing = step * width_px / (nx - 1)
     else:
         pick = np.ones(col.size, bool)
@@ -99,7 +100,9 @@ def distortion_figure(col, row, dcol, drow, width_px: float, height_px: float, t
     return fig
 
 
-def grid_mean_vectors(col, row, vcol, vrow, width_px: float, height_px: float, grid: tuple[int, int]):
+def grid_mean_vectors(col: np.ndarray, row: np.ndarray, vcol: np.ndarray, vrow: np.ndarray, width_px: float,
+                      height_px: float, grid: tuple[int, int]
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Mean residual vector and count in each cell of a ``grid`` = (Gx, Gy) partition of the frame.
 
     Returns cell-centre columns and rows, mean vectors and counts, each (Gy, Gx).
@@ -117,7 +120,7 @@ def grid_mean_vectors(col, row, vcol, vrow, width_px: float, height_px: float, g
     return cx, cy, mean_c.reshape(shape), mean_r.reshape(shape), count.reshape(shape)
 
 
-def residual_grid_figure(col, row, vcol, vrow, width_px: float, height_px: float, grid: tuple[int, int],
+def residual_grid_figure(col: np.ndarray, row: np.ndarray, vcol: np.ndarray, vrow: np.ndarray, width_px: float, height_px: float, grid: tuple[int, int],
                          title: str) -> Figure:
     """Image residuals averaged in the cells of a Gx x Gy grid (Fig. 7 of seed 000): what the model left."""
     cx, cy, mc, mr, count = grid_mean_vectors(col, row, vcol, vrow, width_px, height_px, grid)
@@ -136,7 +139,7 @@ def residual_grid_figure(col, row, vcol, vrow, width_px: float, height_px: float
     return fig
 
 
-def residual_histogram_figure(vx, vy, sigma0_px: float, mean_redundancy: float, title: str,
+def residual_histogram_figure(vx: np.ndarray, vy: np.ndarray, sigma0_px: float, mean_redundancy: float, title: str,
                               half_width: float = 5.0) -> Figure:
     """Histograms of v_x and v_y with bins of width σ̂0 (Fig. 8 of seed 000).
 
@@ -169,7 +172,8 @@ def residual_histogram_figure(vx, vy, sigma0_px: float, mean_redundancy: float, 
     return fig
 
 
-def control_error_figure(xy_m, d_m, role, names, title: str) -> Figure:
+def control_error_figure(xy_m: np.ndarray, d_m: np.ndarray, role: np.ndarray, names: Sequence[str],
+                         title: str) -> Figure:
     """Errors at control (triangles) and check points (circles): plan vectors and height arrows.
 
     ``d_m`` = adjusted - reference (n, 3); ``role`` "gcp" or "chk".
@@ -200,7 +204,8 @@ def control_error_figure(xy_m, d_m, role, names, title: str) -> Figure:
     return fig
 
 
-def correlation_figure(names: list[str], rho: np.ndarray, title: str, groups: list[tuple[int, str]] = ()) -> Figure:
+def correlation_figure(names: list[str], rho: np.ndarray, title: str,
+                       groups: Sequence[tuple[int, str]] = ()) -> Figure:
     """Correlation matrix as a heat map (−1 blue … +1 red); ``groups`` = (first index, label) separators."""
     n = len(names)
     fig = Figure(figsize=(_WIDTH_IN, _WIDTH_IN * 0.82), layout="constrained")
@@ -223,7 +228,7 @@ def correlation_figure(names: list[str], rho: np.ndarray, title: str, groups: li
     return fig
 
 
-def precision_map_figure(xy_m, sigma_m, title: str) -> Figure:
+def precision_map_figure(xy_m: np.ndarray, sigma_m: np.ndarray, title: str) -> Figure:
     """A-posteriori σ_XY = sqrt(σX² + σY²) and σ_Z of the tie points, in plan."""
     fig = Figure(figsize=(_WIDTH_IN, 3.6), layout="constrained")
     axes = fig.subplots(1, 2, sharex=True, sharey=True)

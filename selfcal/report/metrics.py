@@ -18,10 +18,11 @@ from __future__ import annotations
 import numpy as np
 
 from .. import __version__
+from ..block import Block
 from ..ap import frame_nodes_mm, takes_grid
 from ..sensors.frame import pixel_from_photo
 from ..stats.accuracy import ce90, le90
-from ..stats.checks import intersected
+from ..stats.checks import CheckPoints, intersected
 from ..stats.correlation import max_abs_correlation_by_group
 from .exchange import check_points_geojson, object_points_ply
 
@@ -29,13 +30,17 @@ __all__ = ["SCHEMA_VERSION", "ground_sample_distance", "model_choice_table", "su
            "point_table", "residual_table", "screening_json", "correlation_table", "distortion_grid_table",
            "trajectory_table", "parameter_table", "detector_line_table", "check_point_table", "result_files"]
 
+#: a CSV file of the results folder as data: header, columns (equal-length sequences), format of each column
+#: (:func:`selfcal.io.table.write_table`)
+CsvTable = tuple[list[str], list, list[str]]
+
 #: version of the results schema (DESIGN.md §4); 2: one schema for every sensor (parameters.csv, sensors)
 SCHEMA_VERSION = 2
 #: detector_line.csv samples the estimated line APs every this many columns
 DETECTOR_LINE_STEP = 16
 
 
-def ground_sample_distance(block, result) -> float | None:
+def ground_sample_distance(block: Block, result) -> float | None:
     """Mean ground sample distance of the block in metres (None where the sensors do not say)."""
     values = [slot.bound.ground_sample_distance(result.state) for slot in result.problem.sensors]
     values = [v for v in values if v is not None]
@@ -167,7 +172,7 @@ def _sensor(result, camera_index: int):
                 if np.any(problem.image_camera[slot.images] == camera_index))
 
 
-def camera_json(block, result) -> dict:
+def camera_json(block: Block, result) -> dict:
     """camera.json: each camera's sensor parameters and AP coefficients with sigma (files' units)."""
     sigmas = result.camera_sigma()
     cameras = {}
@@ -219,7 +224,7 @@ def _image_parameters(result):
     return result.problem.sensors[0].sensor.image_parameters if result.problem.sensors else ()
 
 
-def image_table(block, result):
+def image_table(block: Block, result) -> CsvTable:
     """images.csv: each image's parameters (a frame image's exterior orientation) and their sigma, in the
     files' units (angles in degrees, wrapped to (-180, 180])."""
     im = block.images
@@ -240,12 +245,13 @@ def image_table(block, result):
     return header, cols, fmts
 
 
-def parameter_table(result):
+def parameter_table(result) -> CsvTable:
     """parameters.csv: every image and camera parameter with its start value and a-posteriori sigma, in the
     files' units: ``owner`` (image or camera id), ``parameter``, ``group`` (EOP, IOP, AP), ``value``, ``sigma``
     (empty where held), ``start``, ``unit``, ``active`` (0: held, by the sensor model or screening)."""
     problem, state = result.problem, result.state
-    cols = {k: [] for k in ("owner", "parameter", "group", "value", "sigma", "start", "unit", "active")}
+    cols: dict[str, list] = {k: [] for k in ("owner", "parameter", "group", "value", "sigma", "start", "unit",
+                                             "active")}
 
     def add(owner, parameter, group, value, sigma, start, unit, active):
         for key, v in zip(cols, (owner, parameter, group, value, sigma, start, unit, int(active))):
@@ -270,7 +276,7 @@ def parameter_table(result):
     return header, columns, ["", "", "", ".9g", ".3g", ".9g", "", "d"]
 
 
-def detector_line_table(result):
+def detector_line_table(result) -> CsvTable | None:
     """detector_line.csv: the estimated displacement of the detectors (along, across track, px) of every
     camera with line APs, every DETECTOR_LINE_STEP columns."""
     ids, cols, along, across = [], [], [], []
@@ -290,7 +296,7 @@ def detector_line_table(result):
             ["", ".1f", ".4f", ".4f"])
 
 
-def check_point_table(checks, axes: np.ndarray, centre: np.ndarray):
+def check_point_table(checks: CheckPoints, axes: np.ndarray, centre: np.ndarray) -> CsvTable:
     """check_points.csv: each check point's position (km, along ``axes`` from ``centre``) and its error
     d = estimate - reference along the axes (seed 001: across track, along track, up)."""
     where = (checks.reference - centre) @ axes.T / 1000.0
@@ -300,7 +306,7 @@ def check_point_table(checks, axes: np.ndarray, centre: np.ndarray):
              e[:, 2]], ["", "", ".3f", ".3f", ".4f", ".4f", ".4f"])
 
 
-def point_table(block, result, tests=None):
+def point_table(block: Block, result, tests=None) -> CsvTable:
     """points.csv: adjusted points with sigma; for control and check points d = adjusted - reference.
 
     For weighted control points, ``w_X, w_Y, w_Z`` are Baarda's w of the control
@@ -321,7 +327,7 @@ def point_table(block, result, tests=None):
     return header, cols, fmts
 
 
-def residual_table(block_read, tested):
+def residual_table(block_read: Block, tested) -> CsvTable:
     """residuals.csv: every observation of the block as read, rejected ones included.
 
     v = adjusted - observed in pixels along the photo axes; w, redundancy numbers,
@@ -407,7 +413,7 @@ def screening_json(tested, options=None) -> dict:
     }
 
 
-def correlation_table(result):
+def correlation_table(result) -> CsvTable:
     """correlation.csv: correlation matrix of the calibration parameters: the images' parameters that their
     sensor screens (seed 001's attitude corrections), each camera's core parameters and its active APs."""
     from ..stats.correlation import correlation_matrix
@@ -430,7 +436,7 @@ def correlation_table(result):
             [""] + [".4f"] * len(names))
 
 
-def distortion_grid_table(block, result, nodes_x: int = 61):
+def distortion_grid_table(block: Block, result, nodes_x: int = 61) -> CsvTable | None:
     """Estimated Delta in pixels on a regular grid over each camera's frame.
 
     The grid has ``nodes_x`` nodes across and as many down as keep the cells
@@ -441,7 +447,7 @@ def distortion_grid_table(block, result, nodes_x: int = 61):
     if not framed:
         return None
     multi = len(framed) > 1
-    cols_out = {k: [] for k in ("camera_id", "col", "row", "dcol", "drow")}
+    cols_out: dict[str, list] = {k: [] for k in ("camera_id", "col", "row", "dcol", "drow")}
     for cam, values in framed:
         cfg = block.cameras[cam.camera_id]
         x, y = frame_nodes_mm(cam.ap.frame, nodes_x)
@@ -458,7 +464,7 @@ def distortion_grid_table(block, result, nodes_x: int = 61):
     return header, cols, fmts
 
 
-def result_files(block_read, tested, summary_extra: dict | None = None, screening_options=None, checks=None,
+def result_files(block_read: Block, tested, summary_extra: dict | None = None, screening_options=None, checks=None,
                  track=None) -> dict:
     """Every file of the results folder as data: dicts become JSON, tuples CSV. ``checks``: the check points
     (default: intersected in the adjustment); ``track`` = (centre, axes) adds check_points.csv across /
@@ -488,7 +494,7 @@ def result_files(block_read, tested, summary_extra: dict | None = None, screenin
     return files | {k: v for k, v in optional.items() if v is not None}
 
 
-def trajectory_table(result):
+def trajectory_table(result) -> CsvTable:
     """trajectory.csv: the strip-wise shift/drift (Eq. 12 of seed 000) and the mounting of each trajectory sensor.
 
     One row per parameter: ``sensor`` (GNSS, IMU), ``strip_id`` (empty for the mounting),
@@ -498,7 +504,7 @@ def trajectory_table(result):
     """
     problem, state = result.problem, result.state
     diag = result.Q_theta.diagonal()
-    cols = {k: [] for k in ("sensor", "strip_id", "term", "axis", "value", "sigma", "unit", "active")}
+    cols: dict[str, list] = {k: [] for k in ("sensor", "strip_id", "term", "axis", "value", "sigma", "unit", "active")}
     full, free_col = 0, problem.n_e + problem.n_d
     for t in problem.trajectory:
         gnss = t.offset == 0
@@ -524,7 +530,7 @@ def trajectory_table(result):
     return header, columns, ["", "", "", "", ".6f", ".6f", "", "d"]
 
 
-def model_choice_table(choice) -> tuple:
+def model_choice_table(choice) -> CsvTable:
     """model_choice.csv: every candidate of ``--ap auto`` with its score (selfcal.workflows.model_choice)."""
     header = ["model", "grid", "n_camera_parameters", "n_observations", "n_unknowns", "omega", "sigma0_px",
               "bic", "delta_bic", "chosen", "rmsd_chk_xy_m", "rmsd_chk_z_m", "error"]

@@ -45,7 +45,7 @@ window.addEventListener("load", function () {
 """
 
 
-def fmt(value, spec: str = ".4f") -> str:
+def fmt(value: object, spec: str = ".4f") -> str:
     """A number as text; empty for None/NaN, integers and booleans as they are."""
     if value is None or (isinstance(value, float) and not math.isfinite(value)):
         return "–"
@@ -58,7 +58,7 @@ def fmt(value, spec: str = ".4f") -> str:
 
 def summary_cell(summary: dict, key: str, spec: str = ".4f") -> str:
     """A table cell with the value of ``summary[key]`` (dotted keys reach into nested dicts)."""
-    value = summary
+    value: object = summary
     for part in key.split("."):
         value = value.get(part) if isinstance(value, dict) else None
     exact = "" if value is None else html.escape(repr(value), quote=True)

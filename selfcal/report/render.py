@@ -16,6 +16,7 @@ import math
 
 import numpy as np
 
+from ..io.results import ResultsFolder
 from . import figures
 from .page import Page, fmt, summary_cell
 
@@ -77,10 +78,10 @@ def _summary_section(page: Page, s: dict) -> None:
     corr = s.get("max_abs_corr") or {}
     if corr:
         head = "".join(f"<th>{html.escape(k)}</th>" for k in corr)
-        cells = "".join(summary_cell(s, f"max_abs_corr.{k}", ".3f") for k in corr)
+        corr_cells = "".join(summary_cell(s, f"max_abs_corr.{k}", ".3f") for k in corr)
         page.add('<p class="note">Largest |correlation| of the camera parameters with each group '
                  "(Table 4 of seed 000):</p>"
-                 f"<table><thead><tr>{head}</tr></thead><tbody><tr>{cells}</tr></tbody></table>")
+                 f"<table><thead><tr>{head}</tr></thead><tbody><tr>{corr_cells}</tr></tbody></table>")
 
 
 def _residual_cameras(results) -> np.ndarray:
@@ -487,7 +488,7 @@ def _join(values) -> str:
     return fmt(values, ".4g")
 
 
-def render_report(results, title: str | None = None) -> dict:
+def render_report(results: ResultsFolder, title: str | None = None) -> dict:
     """The report of one adjustment: ``report.html`` and its figures, as data."""
     s = results.summary
     title = title or f"selfcal adjustment report: {s.get('block', '')}, {s.get('ap_model', '')}"
@@ -529,7 +530,7 @@ def _scenario_text(s: dict) -> str:
 
 def best_cells(rows: list[dict]) -> dict[str, dict]:
     """Per scenario, the row with the smallest check-point RMSD sqrt(XY² + Z²) (rows of report.compare)."""
-    best: dict[str, dict] = {}
+    best: dict[str, tuple[float, dict]] = {}
     for row in rows:
         if row.get("error") or row.get("rmsd_xy_m") is None or row.get("rmsd_z_m") is None:
             continue

@@ -29,9 +29,13 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
-from typing import Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from ..ap.base import SparseBasis
+    from ..block import Block
 
 __all__ = ["Parameter", "Sensor", "BoundSensor", "ImageGeometry", "display_unit"]
 
@@ -114,46 +118,46 @@ class BoundSensor(ABC):
 
     @abstractmethod
     def observations(self) -> tuple[np.ndarray, np.ndarray]:
-        """(l, sigma): the observation vector (n_obs, 2) of every observation of the problem (rows of
-        other sensors are left at zero) and its standard deviation (n_obs, 2), observation units."""
+        """(l, sigma): the observation vector (m, 2) of the observations it was bound to (``o`` of
+        :meth:`Sensor.bind`, in that order) and its standard deviation (m, 2), observation units."""
 
-    def refine_sigma(self, state, sigma: np.ndarray) -> None:
+    def refine_sigma(self, state: Any, sigma: np.ndarray) -> None:
         """Give observations whose standard deviation in observation units depends on the geometry
         (a pushbroom image's motion per line) their value at ``state`` (the start values), in place."""
 
     @abstractmethod
-    def context(self, state):
+    def context(self, state: Any) -> Any:
         """What :meth:`predict` needs of the current estimate, computed once per evaluation (rotations...)."""
 
     @abstractmethod
-    def predict(self, context, o: np.ndarray, img: np.ndarray, cam: np.ndarray, points: np.ndarray,
-                jacobians: bool):
+    def predict(self, context: Any, o: np.ndarray, img: np.ndarray, cam: np.ndarray, points: np.ndarray,
+                jacobians: bool) -> Any:
         """f (m, 2) of observations ``o``; with ``jacobians`` also (f, j_image (m, 2, width), j_point (m, 2, 3),
         j_core (m, 2, n_core)): derivatives with respect to the image's parameters, the object point and
         the camera's core parameters."""
 
-    def ap_columns(self, camera: int, o: np.ndarray, ap, out: np.ndarray | None = None) -> np.ndarray:
+    def ap_columns(self, camera: int, o: np.ndarray, ap: Any, out: np.ndarray | None = None) -> np.ndarray:
         """Delta per unit coefficient (n, 2, n_ap) of ``ap`` (the camera's additional parameters) at
         observations ``o`` of that camera, in observation units. Constant over the adjustment. With ``out``
         (n, 2, n_ap, possibly a strided view), written there and returned."""
         raise NotImplementedError(f"{type(self).__name__} takes no additional parameters")
 
-    def sparse_ap_columns(self, camera: int, o: np.ndarray, ap):
+    def sparse_ap_columns(self, camera: int, o: np.ndarray, ap: Any) -> SparseBasis | None:
         """:meth:`ap_columns` as a :class:`selfcal.ap.base.SparseBasis` (values in observation units), or None
         where ``ap``'s rows are dense or the sensor does not give them so (the default)."""
         return None
 
     @abstractmethod
-    def rays(self, context, img: np.ndarray, pixel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def rays(self, context: Any, img: np.ndarray, pixel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Origins (m, 3) and unit directions (m, 3) of the rays of image points (col, row) in images ``img``
         (object frame; the additional parameters left out)."""
 
     @abstractmethod
-    def pixels(self, context, img: np.ndarray, points: np.ndarray) -> np.ndarray:
+    def pixels(self, context: Any, img: np.ndarray, points: np.ndarray) -> np.ndarray:
         """(col, row) (m, 2) of object points in images ``img``, additional parameters excluded (NaN
         where a point does not image)."""
 
-    def ground_sample_distance(self, state) -> float | None:
+    def ground_sample_distance(self, state: Any) -> float | None:
         """Mean ground sample distance (m) of its images at ``state``; None where it has no meaning."""
         return None
 
@@ -161,7 +165,8 @@ class BoundSensor(ABC):
         """Heights (m) of object points above the reference surface :meth:`ground` takes heights on."""
         raise NotImplementedError(f"{type(self).__name__} has no reference surface")
 
-    def ground(self, context, img: np.ndarray, pixel: np.ndarray, height) -> np.ndarray:
+    def ground(self, context: Any, img: np.ndarray, pixel: np.ndarray,
+               height: float | Callable[[np.ndarray, np.ndarray], np.ndarray]) -> np.ndarray:
         """Mono restitution: object points (m, 3) where the rays of image points (col, row) in images ``img``
         meet ``height`` (metres above the ellipsoid, or a callable ``height(lat_deg, lon_deg)``: a DEM)."""
         raise NotImplementedError(f"{type(self).__name__} has no mono restitution")
@@ -189,7 +194,7 @@ class Sensor(ABC):
     min_points_per_image: int = 6
     #: its camera in a block (a plain dataclass) and the block.toml keys of ``[cameras.ID]``: key -> (type,
     #: required), types as selfcal.io.block_folder checks them ("str", "int", "pos", "num", "nonneg", ...)
-    camera_type: type = None
+    camera_type: type
     camera_keys: dict = {}
     #: sub-tables ``[cameras.ID.NAME]`` its cameras take (a frame camera's ``initial_ap``)
     camera_tables: tuple[str, ...] = ()
@@ -208,17 +213,18 @@ class Sensor(ABC):
         return tuple(p.name for p in self.camera_parameters)
 
     @abstractmethod
-    def bind(self, problem, block, image_index: np.ndarray, observation_index: np.ndarray,
-             options) -> BoundSensor:
-        """Bind the images ``image_index`` of ``block`` (with their observations ``observation_index``,
-        positions in the problem's sorted order) to ``problem``."""
+    def bind(self, problem: Any, block: Block, o: np.ndarray, pixel: np.ndarray, sigma_px: np.ndarray,
+             options: Any) -> BoundSensor:
+        """Bind to ``problem`` its observations ``o`` (positions in the problem's sorted order) in the images that
+        use this sensor: measured at ``pixel`` (m, 2; col, row) with standard deviations ``sigma_px`` (m,, pixels).
+        ``block`` gives their cameras and sensor descriptions, ``options`` are the adjustment's."""
 
-    def result_files(self, result, slot) -> dict:
+    def result_files(self, result: Any, slot: Any) -> dict:
         """Files of its own for the results folder (DESIGN.md §4: a sensor adds, never renames): name -> a dict
         (JSON) or a (header, columns, formats) table, from the adjustment ``result`` of the images ``slot``."""
         return {}
 
-    def configure_camera(self, camera, image_models: list):
+    def configure_camera(self, camera: Any, image_models: list) -> Any:
         """The camera completed from its images' sensor descriptions (sensor_file), as read."""
         return camera
 
@@ -226,17 +232,18 @@ class Sensor(ABC):
         """Defects of a camera's block.toml values that the key types do not catch: (key, reason) each."""
         return []
 
-    def initial_images(self, bound: BoundSensor, block, image_index: np.ndarray) -> np.ndarray:
+    def initial_images(self, bound: BoundSensor, block: Block, image_index: np.ndarray) -> np.ndarray:
         """Start values (n, width) of the image parameters; NaN where the sensor cannot give one (a
         frame image without orientation, oriented later by space resection)."""
         return np.zeros((len(image_index), len(self.image_parameters)))
 
-    def camera_setup(self, camera, options) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def camera_setup(self, camera: Any, options: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(start value, free, a-priori sigma) of the camera's core parameters (NaN sigma: no prior)."""
         n = len(self.camera_parameters)
         return np.zeros(n), np.ones(n, bool), np.full(n, np.nan)
 
-    def create_ap(self, spec: str, camera, observed: np.ndarray, settings: dict, model=None):
+    def create_ap(self, spec: str, camera: Any, observed: np.ndarray, settings: dict,
+                  model: Any = None) -> tuple[Any, np.ndarray]:
         """(the additional-parameter model ``spec`` of ``camera`` (a block camera), or ``model`` when given,
         and its initial coefficients); ``observed`` are the camera's observation vectors (adaptive bases).
         Sensors without additional parameters take ``none`` only."""
@@ -248,12 +255,12 @@ class Sensor(ABC):
             raise UsageError(f"--ap {spec}: {self.name} cameras take no additional parameters")
         return NoAP(None), np.zeros(0)
 
-    def image_setup(self, block, image_index: np.ndarray, options) -> tuple[np.ndarray, np.ndarray]:
+    def image_setup(self, block: Block, image_index: np.ndarray, options: Any) -> tuple[np.ndarray, np.ndarray]:
         """(free (n, width), a-priori sigma (n, width)) of the image parameters; NaN sigma: no prior."""
         shape = (len(image_index), len(self.image_parameters))
         return np.ones(shape, bool), np.full(shape, np.nan)
 
-    def image_geometry(self, block, k: int, image_parameters: np.ndarray,
+    def image_geometry(self, block: Block, k: int, image_parameters: np.ndarray,
                        camera_parameters: np.ndarray) -> ImageGeometry:
         """Image ``k`` of ``block`` with the adjusted values of its :attr:`image_parameters` and of its camera's
         :attr:`camera_parameters` (code units, in their order) as an :class:`ImageGeometry`. Sensors whose images

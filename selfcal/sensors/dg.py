@@ -29,12 +29,19 @@ length apply to them unchanged.
 """
 from __future__ import annotations
 
+from collections.abc import Iterable
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from ..geometry.rotation import matrix_from_quaternion, quaternion_from_matrix
 from .pushbroom import LineCamera, LineImage, Trajectory, fit_focal_plane, line_of_sight
+from .pushbroom.model import TimeFunction
 from .usgscsm import LagrangeSeries
 from .vendor import LineTimes, OnLineTime, OrbitAttitude
+
+if TYPE_CHECKING:
+    from ..io.dg import DgSensor
 
 __all__ = ["line_image_from_dg", "dg_line_times", "CORRECTIONS", "ASP_EARTH_RADIUS_M", "ASP_TERRAIN_HEIGHT_M",
            "saastamoinen_rad", "refraction_rotation", "aberration_rotation", "R_CAMERA_FROM_TELESCOPE"]
@@ -51,7 +58,7 @@ EARTH_RATE_RAD_S = 2.0 * np.pi / 86164.0905
 R_CAMERA_FROM_TELESCOPE = np.eye(3)
 
 
-def dg_line_times(sensor) -> LineTimes:
+def dg_line_times(sensor: DgSensor) -> LineTimes:
     """selfcal rows and their times from the TLC list (module docstring)."""
     lines, times = np.asarray(sensor.tlc_lines, float), np.asarray(sensor.tlc_times_s, float)
     if len(lines) == 1:
@@ -72,7 +79,8 @@ def _unit(v: np.ndarray) -> np.ndarray:
     return v / np.linalg.norm(v, axis=-1, keepdims=True)
 
 
-def saastamoinen_rad(camera_height_m, terrain_height_m, off_nadir_rad) -> np.ndarray:
+def saastamoinen_rad(camera_height_m: float | np.ndarray, terrain_height_m: float | np.ndarray,
+                     off_nadir_rad: float | np.ndarray) -> np.ndarray:
     """The refraction angle (rad) of Saastamoinen (1972) as ASP evaluates it: K tan(alpha), with K from the
     camera and terrain heights in km."""
     H, h = np.asarray(camera_height_m, float) / 1000.0, terrain_height_m / 1000.0
@@ -81,7 +89,8 @@ def saastamoinen_rad(camera_height_m, terrain_height_m, off_nadir_rad) -> np.nda
     return (p1 - p2) * 1e-6 * np.tan(off_nadir_rad)
 
 
-def refraction_rotation(centre: np.ndarray, ray: np.ndarray, earth_radius_m: float, terrain_height_m: float):
+def refraction_rotation(centre: np.ndarray, ray: np.ndarray, earth_radius_m: float, terrain_height_m: float
+                        ) -> tuple[np.ndarray, np.ndarray]:
     """ASP's atmospheric refraction correction of rays (n, 3) from camera centres (n, 3): the rotation (n, 3, 3)
     turning each ray towards the nadir by the Saastamoinen angle, and the corrected rays."""
     ray = _unit(ray)
@@ -92,7 +101,8 @@ def refraction_rotation(centre: np.ndarray, ray: np.ndarray, earth_radius_m: flo
     return R, np.einsum("nij,nj->ni", R, ray)
 
 
-def aberration_rotation(centre: np.ndarray, velocity: np.ndarray, ray: np.ndarray, earth_radius_m: float):
+def aberration_rotation(centre: np.ndarray, velocity: np.ndarray, ray: np.ndarray, earth_radius_m: float
+                        ) -> tuple[np.ndarray, np.ndarray]:
     """ASP's velocity aberration correction: the camera velocity (Earth-fixed) less the surface's rotation
     velocity at the ray's range to the sphere, its part across the ray over c added to the ray; the rotation
     (n, 3, 3) doing that and the corrected rays."""
@@ -126,6 +136,9 @@ def _build(sensor, image_id: str, quaternions: LagrangeSeries, line_times: LineT
         return matrix_from_quaternion(quaternions(t), scalar_first=False) @ R_CAMERA_FROM_TELESCOPE
 
     tau0 = float(line_times.time(0.0))
+    pos: TimeFunction
+    vel: TimeFunction
+    rot: TimeFunction
     if line_times.linear:
         pos, vel, rot = position, velocity, rotation
     else:
@@ -134,7 +147,7 @@ def _build(sensor, image_id: str, quaternions: LagrangeSeries, line_times: LineT
     return LineImage.nominal(image_id, camera, trajectory, tau0, sensor.rows)
 
 
-def line_image_from_dg(sensor, image_id: str | None = None, corrections=CORRECTIONS,
+def line_image_from_dg(sensor: DgSensor, image_id: str | None = None, corrections: Iterable[str] = CORRECTIONS,
                        earth_radius_m: float = ASP_EARTH_RADIUS_M,
                        terrain_height_m: float = ASP_TERRAIN_HEIGHT_M) -> LineImage:
     """The selfcal line camera of a :class:`~selfcal.io.dg.DgSensor` (module docstring). ``corrections`` is a

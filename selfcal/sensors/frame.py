@@ -42,7 +42,8 @@ EOP_NAMES = ("X0", "Y0", "Z0", "omega", "phi", "kappa")
 IOP_NAMES = ("c", "x0", "y0")
 
 
-def photo_from_pixel(pixel: np.ndarray, width_px, height_px, pixel_size_mm) -> np.ndarray:
+def photo_from_pixel(pixel: np.ndarray, width_px: float | np.ndarray, height_px: float | np.ndarray,
+                     pixel_size_mm: float | np.ndarray) -> np.ndarray:
     """Photo coordinates (mm, y up, origin at the image centre) of pixel positions (col, row)."""
     pixel = np.asarray(pixel, float)
     x = (pixel[..., 0] - np.asarray(width_px) / 2.0) * pixel_size_mm
@@ -50,7 +51,8 @@ def photo_from_pixel(pixel: np.ndarray, width_px, height_px, pixel_size_mm) -> n
     return np.stack([x, y], axis=-1)
 
 
-def pixel_from_photo(xy_mm: np.ndarray, width_px, height_px, pixel_size_mm) -> np.ndarray:
+def pixel_from_photo(xy_mm: np.ndarray, width_px: float | np.ndarray, height_px: float | np.ndarray,
+                     pixel_size_mm: float | np.ndarray) -> np.ndarray:
     """Inverse of :func:`photo_from_pixel`."""
     xy_mm = np.asarray(xy_mm, float)
     col = xy_mm[..., 0] / pixel_size_mm + np.asarray(width_px) / 2.0
@@ -78,7 +80,8 @@ def project(points_m: np.ndarray, eop: np.ndarray, iop: np.ndarray, rotation: np
 
 
 def project_with_jacobians(points_m: np.ndarray, eop: np.ndarray, iop: np.ndarray,
-                           rotation=None):
+                           rotation: tuple[np.ndarray, np.ndarray] | None = None
+                           ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Ideal photo coordinates and their partial derivatives.
 
     Parameters
@@ -162,7 +165,8 @@ def _project_indexed(points, eop, iop, m_img, dm_img, img, cam):
 
 
 def project_with_jacobians_indexed(points_m: np.ndarray, eop_images: np.ndarray, iop_cameras: np.ndarray,
-                                   rotation, image_index: np.ndarray, camera_index: np.ndarray):
+                                   rotation: tuple[np.ndarray, np.ndarray], image_index: np.ndarray,
+                                   camera_index: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """:func:`project_with_jacobians` for observations given by image and camera index.
 
     Parameters
@@ -304,8 +308,8 @@ class FrameSensor(Sensor):
                                         plausible=0.5 if n == "c" else None) for n in IOP_NAMES)
     ap_domain = "frame"
     supports_resection = True
-    camera_type = FrameCamera
-    camera_tables = ("initial_ap",)
+    camera_type: type = FrameCamera
+    camera_tables: tuple[str, ...] = ("initial_ap",)
     camera_keys = {
     "model": ("str", True),
     "width_px": ("int", True),

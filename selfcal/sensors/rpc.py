@@ -38,8 +38,10 @@ others held at zero). a0, b0 are in px, a1, a2, b1, b2 unitless (px per px). Obj
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import Literal, overload
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ..geometry.earth import ecef_from_geodetic, geodetic_from_ecef, geodetic_jacobian
 from .base import BoundSensor, ImageGeometry, Parameter, Sensor
@@ -59,7 +61,7 @@ LOCALIZE_STEP_TOLERANCE_DEG = 1e-12
 LOCALIZE_MAX_ITERATIONS = 30
 
 
-def rpc00b_terms(L, P, H, derivatives: bool = False):
+def rpc00b_terms(L: ArrayLike, P: ArrayLike, H: ArrayLike, derivatives: bool = False):
     """The 20 RPC00B monomials (..., 20) at normalised (L, P, H); with ``derivatives`` also their
     partial derivatives with respect to L, P and H, each (..., 20)."""
     L, P, H = np.broadcast_arrays(*(np.asarray(v, float) for v in (L, P, H)))
@@ -144,13 +146,23 @@ class RpcModel:
         """selfcal coordinate minus file coordinate: 0.5 - pixel_origin (px)."""
         return 0.5 - float(self.pixel_origin)
 
-    def normalised_ground(self, lon_deg, lat_deg, h_m):
+    def normalised_ground(self, lon_deg: ArrayLike, lat_deg: ArrayLike, h_m: ArrayLike
+                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(L, P, H): longitude, latitude and height normalised by the model's offsets and scales."""
         return ((np.asarray(lon_deg, float) - self.long_off) / self.long_scale,
                 (np.asarray(lat_deg, float) - self.lat_off) / self.lat_scale,
                 (np.asarray(h_m, float) - self.height_off) / self.height_scale)
 
-    def project(self, lon_deg, lat_deg, h_m, jacobian: bool = False):
+    @overload
+    def project(self, lon_deg: ArrayLike, lat_deg: ArrayLike, h_m: ArrayLike,
+                jacobian: Literal[False] = False) -> tuple[np.ndarray, np.ndarray]: ...
+
+    @overload
+    def project(self, lon_deg: ArrayLike, lat_deg: ArrayLike, h_m: ArrayLike,
+                jacobian: Literal[True]) -> tuple[np.ndarray, np.ndarray, np.ndarray]: ...
+
+    def project(self, lon_deg: ArrayLike, lat_deg: ArrayLike, h_m: ArrayLike, jacobian: bool = False
+                ) -> tuple[np.ndarray, np.ndarray] | tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Image coordinates (row, col) in px (selfcal convention) of ground points (broadcast arrays).
 
         With ``jacobian=True`` also returns J (..., 2, 3): the derivatives of (row, col) with respect
@@ -170,12 +182,13 @@ class RpcModel:
         row, col = self._image(r, c)
         return row, col, J
 
-    def _image(self, r, c):
+    def _image(self, r: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         shift = self.pixel_shift
         return r * self.line_scale + self.line_off + shift, c * self.samp_scale + self.samp_off + shift
 
-    def localize(self, row_px, col_px, h_m, tolerance_px: float = LOCALIZE_TOLERANCE_PX,
-                 max_iterations: int = LOCALIZE_MAX_ITERATIONS):
+    def localize(self, row_px: ArrayLike, col_px: ArrayLike, h_m: ArrayLike,
+                 tolerance_px: float = LOCALIZE_TOLERANCE_PX, max_iterations: int = LOCALIZE_MAX_ITERATIONS
+                 ) -> tuple[np.ndarray, np.ndarray]:
         """Ground (lon_deg, lat_deg) of image points (row, col) (selfcal convention) at heights h_m.
 
         Newton's method on the forward model, started at (long_off, lat_off): each point stops when
@@ -254,7 +267,7 @@ class RpcBias:
             raise ValueError("a shift-only bias has a1 = a2 = b1 = b2 = 0")
 
     @classmethod
-    def from_parameters(cls, kind: str, parameters) -> "RpcBias":
+    def from_parameters(cls, kind: str, parameters: ArrayLike) -> "RpcBias":
         """The bias of a parameter vector in the order of ``BIAS_PARAMETERS[kind]``."""
         _check_kind(kind)
         x = np.asarray(parameters, float).ravel()
@@ -271,29 +284,31 @@ class RpcBias:
             return np.array([self.a[0], self.b[0]])
         return np.array(self.a + self.b)
 
-    def correction(self, row_rpc_px, col_rpc_px):
+    def correction(self, row_rpc_px: ArrayLike, col_rpc_px: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """(d_row, d_col) in px added to the RPC's image coordinates."""
         row, col = np.asarray(row_rpc_px, float), np.asarray(col_rpc_px, float)
         return (self.a[0] + self.a[1] * row + self.a[2] * col,
                 self.b[0] + self.b[1] * row + self.b[2] * col)
 
-    def apply(self, row_rpc_px, col_rpc_px):
+    def apply(self, row_rpc_px: ArrayLike, col_rpc_px: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """Corrected (row, col) in px of the RPC's image coordinates."""
         d_row, d_col = self.correction(row_rpc_px, col_rpc_px)
         return np.asarray(row_rpc_px, float) + d_row, np.asarray(col_rpc_px, float) + d_col
 
-    def project(self, model: RpcModel, lon_deg, lat_deg, h_m):
+    def project(self, model: RpcModel, lon_deg: ArrayLike, lat_deg: ArrayLike, h_m: ArrayLike
+                ) -> tuple[np.ndarray, np.ndarray]:
         """Bias-corrected image coordinates (row, col) in px of ground points."""
         return self.apply(*model.project(lon_deg, lat_deg, h_m))
 
-    def remove(self, row_px, col_px):
+    def remove(self, row_px: ArrayLike, col_px: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """The RPC's (row_rpc, col_rpc) of corrected image coordinates: :meth:`apply` inverted."""
         A = np.array([[1.0 + self.a[1], self.a[2]], [self.b[1], 1.0 + self.b[2]]])
         row, col = np.broadcast_arrays(np.asarray(row_px, float) - self.a[0], np.asarray(col_px, float) - self.b[0])
         out = np.linalg.solve(A, np.stack([row.ravel(), col.ravel()]))
         return out[0].reshape(row.shape), out[1].reshape(row.shape)
 
-    def localize(self, model: RpcModel, row_px, col_px, h_m):
+    def localize(self, model: RpcModel, row_px: ArrayLike, col_px: ArrayLike, h_m: ArrayLike
+                 ) -> tuple[np.ndarray, np.ndarray]:
         """Ground (lon_deg, lat_deg) of bias-corrected image coordinates at heights h_m."""
         return model.localize(*self.remove(row_px, col_px), h_m)
 
@@ -320,7 +335,7 @@ def rpc_extent_px(model: RpcModel) -> tuple[float, float]:
             model.samp_off + model.pixel_shift + abs(model.samp_scale))
 
 
-def bias_design(kind: str, row_rpc_px, col_rpc_px) -> np.ndarray:
+def bias_design(kind: str, row_rpc_px: ArrayLike, col_rpc_px: ArrayLike) -> np.ndarray:
     """Design matrix (n, 2, u): the derivatives of (row, col) of each point with respect to the
     parameters of ``kind`` (order of ``BIAS_PARAMETERS[kind]``)."""
     _check_kind(kind)
@@ -372,7 +387,7 @@ class RpcBound(BoundSensor):
         for i in np.unique(img):
             sel = np.flatnonzero(img == i)
             model = self.models[int(i)]
-            if jacobians:
+            if J is not None and geodetic is not None:                       # jacobians
                 row, col, J_llh = model.project(np.degrees(lon[sel]), np.degrees(lat[sel]), h[sel], jacobian=True)
                 # (row, col) per (lon_deg, lat_deg, h) -> per (lat_rad, lon_rad, h) -> per ECEF
                 J_rad = np.stack([J_llh[:, :, 1] * np.degrees(1.0), J_llh[:, :, 0] * np.degrees(1.0),

@@ -31,9 +31,11 @@ column; a writer moves its offsets to its format's convention. Ground coordinate
 from __future__ import annotations
 
 from dataclasses import dataclass
+from collections.abc import Sequence
 from typing import Callable
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from .rpc import RpcModel, rpc00b_terms
 
@@ -69,7 +71,8 @@ def _nodes(extent: float, n: int, centres: bool) -> np.ndarray:
     return 0.5 * (edges[1:] + edges[:-1]) if centres else edges
 
 
-def fit_grid(rows_px: float, cols_px: float, heights_m, grid=FIT_GRID):
+def fit_grid(rows_px: float, cols_px: float, heights_m: Sequence[float], grid: Sequence[int] = FIT_GRID
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(row, col, h) of the fit grid: ``grid`` = (rows, columns, layers) nodes from image edge to edge and from the
     lowest to the highest height, flattened."""
     lo, hi = (float(v) for v in heights_m)
@@ -78,7 +81,8 @@ def fit_grid(rows_px: float, cols_px: float, heights_m, grid=FIT_GRID):
     return row.ravel(), col.ravel(), h.ravel()
 
 
-def check_grid(rows_px: float, cols_px: float, heights_m, grid=FIT_GRID):
+def check_grid(rows_px: float, cols_px: float, heights_m: Sequence[float], grid: Sequence[int] = FIT_GRID
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(row, col, h) of the check grid: the centres of the fit grid's cells, at the heights half-way between its
     layers (none of its points is a fit point), flattened."""
     lo, hi = (float(v) for v in heights_m)
@@ -88,7 +92,8 @@ def check_grid(rows_px: float, cols_px: float, heights_m, grid=FIT_GRID):
     return row.ravel(), col.ravel(), h.ravel()
 
 
-def misfit_px(model: RpcModel, lon_deg, lat_deg, h_m, row_px, col_px) -> tuple[float, float]:
+def misfit_px(model: RpcModel, lon_deg: ArrayLike, lat_deg: ArrayLike, h_m: ArrayLike, row_px: ArrayLike,
+              col_px: ArrayLike) -> tuple[float, float]:
     """(rms, max) of the 2-D distance (px) between ``model``'s projection of ground points and (row, col)."""
     row, col = model.project(lon_deg, lat_deg, h_m)
     d = np.hypot(row - np.asarray(row_px, float), col - np.asarray(col_px, float))
@@ -125,11 +130,13 @@ def _solve(terms: np.ndarray, r: np.ndarray, ridge: float, iterations: int):
             break
         previous = misfit
         weight = 1.0 / np.abs(d)
+    if best is None:
+        raise ValueError(f"the fit needs at least one reweighting iteration, found iterations={iterations}")
     return best[1], best[2]
 
 
-def fit_rpc(project: Callable, localize: Callable, rows_px: float, cols_px: float, heights_m,
-            grid=FIT_GRID, ridge: float = RIDGE, iterations: int = ITERATIONS) -> RpcFit:
+def fit_rpc(project: Callable, localize: Callable, rows_px: float, cols_px: float, heights_m: Sequence[float],
+            grid: Sequence[int] = FIT_GRID, ridge: float = RIDGE, iterations: int = ITERATIONS) -> RpcFit:
     """The RPC00B of a sensor model, fitted on a 3-D grid (module docstring: Tao & Hu 2001).
 
     Parameters

@@ -33,13 +33,18 @@ time are not applied (usgscsm's ``imageToGround`` does not either).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ..geometry.earth import orbit_frame
 from ..geometry.rotation import matrix_from_quaternion, quaternion_from_matrix, slerp
 from .pushbroom import (LineCamera, LineImage, Trajectory, angles_from_body_to_orbit, fit_focal_plane, ground_to_image,
                         line_of_sight, rotation_x)
+
+if TYPE_CHECKING:
+    from ..io.usgscsm import LineScanIsd
 
 __all__ = ["UsgscsmLineSensor", "SENSOR", "IMAGE_PARAMETERS", "LineScan", "line_scan_from_isd", "undistort", "LagrangeSeries", "hermite", "usgscsm_ellipsoid_point",
            "FOCAL_PLANE_TOLERANCE_MM", "DISTORTION_MODELS", "MIN_EPHEMERIS_NODES"]
@@ -53,7 +58,7 @@ MIN_EPHEMERIS_NODES = 25
 
 # --- interpolation as usgscsm and ALE do it ------------------------------------------------------
 
-def hermite(times: np.ndarray, values: np.ndarray, rates: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def hermite(times: np.ndarray, values: np.ndarray, rates: np.ndarray, t: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
     """Piecewise cubic Hermite interpolation of ``values`` (n, k) with derivatives ``rates`` at increasing
     ``times``; returns the values and derivatives at ``t`` (the end intervals extend beyond the ends)."""
     t = np.atleast_1d(np.asarray(t, float))
@@ -124,7 +129,8 @@ class _OrbitAttitude:
 
 # --- focal plane ----------------------------------------------------------------------------------
 
-def undistort(x_mm: np.ndarray, y_mm: np.ndarray, model: str, coefficients: np.ndarray):
+def undistort(x_mm: np.ndarray, y_mm: np.ndarray, model: str, coefficients: np.ndarray
+              ) -> tuple[np.ndarray, np.ndarray]:
     """Undistorted focal-plane coordinates of usgscsm's ``radial`` and ``lrolrocnac`` models."""
     k = np.asarray(coefficients, float)
     if model == "radial":
@@ -151,8 +157,8 @@ def _focal_plane(isd, samples: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 # --- the model ------------------------------------------------------------------------------------
 
-def usgscsm_ellipsoid_point(origins: np.ndarray, directions: np.ndarray, semi_major_m,
-                            semi_minor_m) -> np.ndarray:
+def usgscsm_ellipsoid_point(origins: np.ndarray, directions: np.ndarray, semi_major_m: float | np.ndarray,
+                            semi_minor_m: float | np.ndarray) -> np.ndarray:
     """usgscsm's ``losEllipsoidIntersect``: of the two points where the *line* S + s d meets the
     ellipsoid, the one with the smaller |s| (it may lie behind the sensor); a line that misses gives
     s = -b / 2a, its point nearest the ellipsoid in the scaled metric. The semi-axes (m) may be one per line."""
@@ -183,17 +189,17 @@ class LineScan:
     #: (3, 3) J2000 -> body-fixed at the image centre: a J2000 position offset in the body frame
     body_from_j2000: np.ndarray | None = None
 
-    def image_to_ground(self, line, sample, height_m=0.0) -> np.ndarray:
+    def image_to_ground(self, line: ArrayLike, sample: ArrayLike, height_m: float | np.ndarray = 0.0) -> np.ndarray:
         """Body-fixed points (n, 3) of image points at ``height_m`` above the ellipsoid, as usgscsm's
         ``imageToGround`` (:func:`usgscsm_ellipsoid_point` with a + h, b + h)."""
         S, d = line_of_sight(self.image, line, sample)
         return usgscsm_ellipsoid_point(S, d, self.semi_major_m + height_m, self.semi_minor_m + height_m)
 
-    def ground_to_image(self, points_m) -> tuple[np.ndarray, np.ndarray]:
+    def ground_to_image(self, points_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(line, sample) of body-fixed points."""
         return ground_to_image(self.image, points_m)
 
-    def sensor_position(self, line) -> np.ndarray:
+    def sensor_position(self, line: ArrayLike) -> np.ndarray:
         line = np.atleast_1d(np.asarray(line, float))
         return line_of_sight(self.image, line, np.zeros_like(line))[0]
 
@@ -212,7 +218,7 @@ def _pointing_to_body(isd, t: np.ndarray) -> np.ndarray:
     return q
 
 
-def line_scan_from_isd(isd, image_id: str | None = None) -> LineScan:
+def line_scan_from_isd(isd: LineScanIsd, image_id: str | None = None) -> LineScan:
     """Build the selfcal line camera of a :class:`~selfcal.io.usgscsm.LineScanIsd` (module docstring).
     Times are relative to the ISD's centre ephemeris time."""
     if len(isd.line_scan_rate) != 1:
@@ -235,19 +241,20 @@ def line_scan_from_isd(isd, image_id: str | None = None) -> LineScan:
     # ephemeris: Hermite-resampled on >= 25 equally spaced nodes, rotated to the body frame
     tp = isd.position_times_s
     nodes = _equally_spaced(tp[0], tp[-1], max(len(tp), MIN_EPHEMERIS_NODES))
-    position, velocity = hermite(tp, isd.positions_m, isd.velocities_m_s, nodes)
+    position_j, velocity_j = hermite(tp, isd.positions_m, isd.velocities_m_s, nodes)
     R_bj = _body_from_j2000(isd, nodes)
     step = nodes[1] - nodes[0]
-    position = LagrangeSeries(float(nodes[0]), float(step), np.einsum("nij,nj->ni", R_bj, position))
-    velocity = LagrangeSeries(float(nodes[0]), float(step), np.einsum("nij,nj->ni", R_bj, velocity))
+    position = LagrangeSeries(float(nodes[0]), float(step), np.einsum("nij,nj->ni", R_bj, position_j))
+    velocity = LagrangeSeries(float(nodes[0]), float(step), np.einsum("nij,nj->ni", R_bj, velocity_j))
     # attitude: sensor -> body on the merged times, resampled equally spaced
     tq = np.union1d(isd.pointing_times_s, isd.body_times_s)
     quat_nodes = _equally_spaced(tq[0], tq[-1], len(tq))
     quaternions = LagrangeSeries(float(quat_nodes[0]), float(quat_nodes[1] - quat_nodes[0]),
                                  _pointing_to_body(isd, quat_nodes))
-    trajectory = Trajectory("ECEF", "", position, velocity, _OrbitAttitude(position, velocity, quaternions))
+    attitude = _OrbitAttitude(position, velocity, quaternions)
+    trajectory = Trajectory("ECEF", "", position, velocity, attitude)
     image = LineImage.nominal(image_id or camera.camera_id, camera, trajectory, t_first, isd.image_lines)
-    axes = _jigsaw_axes(isd, trajectory.attitude, float(image.t_ref))
+    axes = _jigsaw_axes(isd, attitude, float(image.t_ref))
     body = _body_from_j2000(isd, np.array([float(image.t_ref)]))[0]
     return LineScan(image, isd.semi_major_m, isd.semi_minor_m, misfit, axes, body)
 

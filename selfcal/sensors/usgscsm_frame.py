@@ -50,8 +50,10 @@ The camera's distortion is then Δ = observed - ideal = Jᵀ (focal_distorted - 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ..geometry.earth import intersect_ellipsoid
 from ..geometry.rotation import matrix_from_opk, matrix_from_opk_with_derivatives
@@ -59,6 +61,9 @@ from .base import Parameter
 from .frame import FrameBound, FrameSensor
 from ..geometry.rotation import matrix_from_quaternion, opk_from_matrix, slerp
 from .usgscsm import hermite
+
+if TYPE_CHECKING:
+    from ..io.usgscsm_frame import FrameIsd
 
 __all__ = ["UsgscsmCamera", "UsgscsmFrameSensor", "SENSOR", "FrameForm", "sensor_position_m", "body_from_j2000", "camera_from_j2000", "camera_from_body",
            "isis_angles_deg", "detector_from_pixel", "pixel_from_detector", "focal_plane_from_pixel",
@@ -78,22 +83,22 @@ def _rotation_at(times, quaternions, constant, t) -> np.ndarray:
     return constant @ matrix_from_quaternion(q)
 
 
-def body_from_j2000(isd) -> np.ndarray:
+def body_from_j2000(isd: FrameIsd) -> np.ndarray:
     """B (3, 3): J2000 vectors -> body-fixed vectors at the image time."""
     return _rotation_at(isd.body_times_s, isd.body_quaternions, isd.body_constant, isd.center_time_s)
 
 
-def camera_from_j2000(isd) -> np.ndarray:
+def camera_from_j2000(isd: FrameIsd) -> np.ndarray:
     """C (3, 3): J2000 vectors -> camera-frame vectors (ISIS's instrument rotation, the CK C-matrix)."""
     return _rotation_at(isd.pointing_times_s, isd.pointing_quaternions, isd.pointing_constant, isd.center_time_s)
 
 
-def camera_from_body(isd) -> np.ndarray:
+def camera_from_body(isd: FrameIsd) -> np.ndarray:
     """R (3, 3): body-fixed vectors -> camera-frame vectors, R = C Bᵀ."""
     return camera_from_j2000(isd) @ body_from_j2000(isd).T
 
 
-def sensor_position_m(isd) -> np.ndarray:
+def sensor_position_m(isd: FrameIsd) -> np.ndarray:
     """Perspective centre (3,) in the body-fixed frame, metres."""
     if len(isd.positions_m) == 1:
         p = isd.positions_m[0]
@@ -102,7 +107,7 @@ def sensor_position_m(isd) -> np.ndarray:
     return body_from_j2000(isd) @ p
 
 
-def isis_angles_deg(isd) -> np.ndarray:
+def isis_angles_deg(isd: FrameIsd) -> np.ndarray:
     """(RA, DEC, TWIST) in degrees as jigsaw reports a frame camera's pointing: the z-x-z Euler angles of
     C (J2000 -> camera), C = R3(TWIST) R1(DEC) R3(RA) with passive elementary rotations (SPICE ``m2eul``
     with axes 3, 1, 3). RA - 90° and 90° - DEC are right ascension and declination of the camera's +z."""
@@ -121,7 +126,7 @@ def _slopes(isd) -> tuple[float, float]:
             (a.alpha_ending_line - a.alpha_starting_line) / a.beta_lines)
 
 
-def detector_from_pixel(isd, col, row) -> tuple[np.ndarray, np.ndarray]:
+def detector_from_pixel(isd: FrameIsd, col: ArrayLike, row: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
     """ISIS detector (sample, line) of the full frame (1-based, pixel centres) of selfcal cube pixels."""
     ss, sl = _slopes(isd)
     a = isd.alpha_cube
@@ -129,7 +134,7 @@ def detector_from_pixel(isd, col, row) -> tuple[np.ndarray, np.ndarray]:
             sl * np.asarray(row, float) + a.alpha_starting_line)
 
 
-def pixel_from_detector(isd, sample, line) -> tuple[np.ndarray, np.ndarray]:
+def pixel_from_detector(isd: FrameIsd, sample: ArrayLike, line: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
     """Inverse of :func:`detector_from_pixel`."""
     ss, sl = _slopes(isd)
     a = isd.alpha_cube
@@ -137,7 +142,7 @@ def pixel_from_detector(isd, sample, line) -> tuple[np.ndarray, np.ndarray]:
             (np.asarray(line, float) - a.alpha_starting_line) / sl)
 
 
-def focal_plane_from_pixel(isd, col, row) -> tuple[np.ndarray, np.ndarray]:
+def focal_plane_from_pixel(isd: FrameIsd, col: ArrayLike, row: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
     """ISIS's distorted focal-plane (x, y), mm, of selfcal cube pixels (TRANSX / TRANSY)."""
     s, l = detector_from_pixel(isd, col, row)
     cs, cl = s - isd.alpha_cube.alpha_samples / 2.0, l - isd.alpha_cube.alpha_lines / 2.0
@@ -145,7 +150,7 @@ def focal_plane_from_pixel(isd, col, row) -> tuple[np.ndarray, np.ndarray]:
     return tx[0] + tx[1] * cs + tx[2] * cl, ty[0] + ty[1] * cs + ty[2] * cl
 
 
-def pixel_from_focal_plane(isd, x_mm, y_mm) -> tuple[np.ndarray, np.ndarray]:
+def pixel_from_focal_plane(isd: FrameIsd, x_mm: ArrayLike, y_mm: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
     """selfcal cube pixels (col, row) of distorted focal-plane points (ITRANSS / ITRANSL, as ISIS)."""
     x, y = np.asarray(x_mm, float), np.asarray(y_mm, float)
     i_s, i_l = isd.itrans_s, isd.itrans_l
@@ -165,7 +170,7 @@ def _distortion(isd, x, y):
     return radial, -dt * np.sin(t0), dt * np.cos(t0)
 
 
-def undistort(isd, x_mm, y_mm) -> tuple[np.ndarray, np.ndarray]:
+def undistort(isd: FrameIsd, x_mm: ArrayLike, y_mm: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
     """Undistorted focal-plane (u, v), mm *relative to the principal point*, of distorted (x, y) mm
     (ISIS ``ApolloMetricDistortionMap::SetFocalPlane``)."""
     x = np.asarray(x_mm, float) - isd.principal_point_mm[0]
@@ -174,7 +179,8 @@ def undistort(isd, x_mm, y_mm) -> tuple[np.ndarray, np.ndarray]:
     return x * (1.0 + radial) + ex, y * (1.0 + radial) + ey
 
 
-def distort(isd, u_mm, v_mm, tolerance_mm: float = DISTORT_TOLERANCE_MM) -> tuple[np.ndarray, np.ndarray]:
+def distort(isd: FrameIsd, u_mm: ArrayLike, v_mm: ArrayLike, tolerance_mm: float = DISTORT_TOLERANCE_MM
+            ) -> tuple[np.ndarray, np.ndarray]:
     """Distorted focal-plane (x, y), mm, of undistorted (u, v) relative to the principal point: the inverse
     of :func:`undistort` by ISIS's fixed-point iteration (``SetUndistortedFocalPlane``), to ``tolerance_mm``;
     NaN where it does not converge in 50 steps (ISIS fails there too)."""
@@ -195,7 +201,7 @@ def distort(isd, u_mm, v_mm, tolerance_mm: float = DISTORT_TOLERANCE_MM) -> tupl
 
 # --- ground <-> image ------------------------------------------------------------------------------
 
-def ground_to_focal_plane(isd, points_m) -> tuple[np.ndarray, np.ndarray]:
+def ground_to_focal_plane(isd: FrameIsd, points_m: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
     """ISIS's undistorted focal-plane (u, v), mm relative to the principal point, of body-fixed points (n, 3)
     (``CameraGroundMap::GetXY``: the look vector in the camera frame scaled to z = -f). NaN for points behind
     the camera."""
@@ -208,13 +214,13 @@ def ground_to_focal_plane(isd, points_m) -> tuple[np.ndarray, np.ndarray]:
     return np.where(behind, np.nan, u), np.where(behind, np.nan, v)
 
 
-def ground_to_image(isd, points_m) -> tuple[np.ndarray, np.ndarray]:
+def ground_to_image(isd: FrameIsd, points_m: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
     """selfcal cube pixels (col, row) of body-fixed points (n, 3); NaN behind the camera."""
     u, v = ground_to_focal_plane(isd, points_m)
     return pixel_from_focal_plane(isd, *distort(isd, u, v))
 
 
-def look_directions(isd, col, row) -> np.ndarray:
+def look_directions(isd: FrameIsd, col: ArrayLike, row: ArrayLike) -> np.ndarray:
     """Unit look vectors (n, 3) in the body-fixed frame of selfcal cube pixels."""
     u, v = undistort(isd, *focal_plane_from_pixel(isd, np.atleast_1d(col), np.atleast_1d(row)))
     look = np.stack([u, v, np.full_like(u, -isd.focal_length_mm)], axis=-1)
@@ -222,7 +228,7 @@ def look_directions(isd, col, row) -> np.ndarray:
     return d / np.linalg.norm(d, axis=-1, keepdims=True)
 
 
-def image_to_ground(isd, col, row, radius_m=None) -> np.ndarray:
+def image_to_ground(isd: FrameIsd, col: ArrayLike, row: ArrayLike, radius_m: ArrayLike | None = None) -> np.ndarray:
     """Body-fixed points (n, 3) where the rays of selfcal cube pixels first meet a sphere of ``radius_m``
     about the body's centre (a number or one per pixel), or without it the ISD's ellipsoid (the Moon: a
     sphere of 1737.4 km). NaN where a ray misses."""
@@ -268,7 +274,7 @@ class FrameForm:
         return np.array([self.c_mm, self.x0_mm, self.y0_mm])
 
 
-def frame_form(isd) -> FrameForm:
+def frame_form(isd: FrameIsd) -> FrameForm:
     """The image as a selfcal frame image: ``frame.project(X, eop, iop)`` is ISIS's undistorted focal-plane
     point of X in selfcal's photo axes, (x0, y0) + Jᵀ (u, v). Raises ValueError when the ISD's TRANSX/
     TRANSY mirror the image (photo axes then cannot be reached by a rotation)."""
@@ -290,7 +296,7 @@ def frame_form(isd) -> FrameForm:
                      pixel_size_mm=pixel, focal_from_photo=J, focal_offset_mm=b)
 
 
-def photo_from_focal_plane(form: FrameForm, x_mm, y_mm) -> tuple[np.ndarray, np.ndarray]:
+def photo_from_focal_plane(form: FrameForm, x_mm: ArrayLike, y_mm: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
     """selfcal photo coordinates (mm) of ISIS focal-plane points (absolute, not relative to the principal
     point): Jᵀ (focal - b)."""
     dx = np.asarray(x_mm, float) - form.focal_offset_mm[0]
@@ -299,14 +305,15 @@ def photo_from_focal_plane(form: FrameForm, x_mm, y_mm) -> tuple[np.ndarray, np.
     return J[0, 0] * dx + J[1, 0] * dy, J[0, 1] * dx + J[1, 1] * dy
 
 
-def focal_plane_from_photo(form: FrameForm, x_mm, y_mm) -> tuple[np.ndarray, np.ndarray]:
+def focal_plane_from_photo(form: FrameForm, x_mm: ArrayLike, y_mm: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
     """Inverse of :func:`photo_from_focal_plane`: b + J photo."""
     x, y = np.asarray(x_mm, float), np.asarray(y_mm, float)
     J = form.focal_from_photo
     return form.focal_offset_mm[0] + J[0, 0] * x + J[0, 1] * y, form.focal_offset_mm[1] + J[1, 0] * x + J[1, 1] * y
 
 
-def ideal_photo_from_pixel(isd, form: FrameForm, col, row) -> tuple[np.ndarray, np.ndarray]:
+def ideal_photo_from_pixel(isd: FrameIsd, form: FrameForm, col: ArrayLike, row: ArrayLike
+                           ) -> tuple[np.ndarray, np.ndarray]:
     """The ideal (undistorted) photo coordinates (mm) of measured cube pixels: what ``frame.project`` of the
     imaged point gives with :func:`frame_form`'s orientation. The observed photo coordinates are selfcal's
     x = (col - W/2) p, y = (H/2 - row) p; their difference is the camera's Δ (observed - ideal)."""
@@ -315,7 +322,8 @@ def ideal_photo_from_pixel(isd, form: FrameForm, col, row) -> tuple[np.ndarray, 
     return photo_from_focal_plane(form, u + pp[0], v + pp[1])
 
 
-def isis_residuals_px(isd, col, row, points_m) -> tuple[np.ndarray, np.ndarray]:
+def isis_residuals_px(isd: FrameIsd, col: ArrayLike, row: ArrayLike, points_m: ArrayLike
+                      ) -> tuple[np.ndarray, np.ndarray]:
     """(sample, line) residuals, measured - computed, of measured cube pixels against body-fixed points as
     ISIS jigsaw reports them (``ControlPoint::ComputeResiduals`` for framing cameras): both undistorted
     focal-plane points taken to the detector by ITRANSS/ITRANSL, so the unit is a *detector* pixel of the
@@ -454,6 +462,7 @@ class UsgscsmFrameBound(FrameBound):
 
     def context(self, state, jacobians: bool = True):
         iop = np.array([c[:3] if len(c) >= 3 else np.zeros(3) for c in state.cameras]).reshape(-1, 3)
+        rotation: np.ndarray | tuple[np.ndarray, np.ndarray]     # M, or (M, dM) with the Jacobians
         if jacobians:
             eop, d_position, d_angles = self.eop(state.image, derivatives=True)
             rotation = matrix_from_opk_with_derivatives(eop[:, 3:])
@@ -596,10 +605,11 @@ def isis_image_table(result, slot) -> tuple:
     sigma = result.image_sigma()
     v = result.residuals_px                                    # cube px, photo axes (x: sample, y: -line)
     img_of_obs = result.block.observations.image_index
-    cols = {k: [] for k in ("image_id", "X_km", "dX_km", "sigma_X_km", "Y_km", "dY_km", "sigma_Y_km", "Z_km",
-                             "dZ_km", "sigma_Z_km", "RA_deg", "dRA_deg", "sigma_RA_deg", "DEC_deg", "dDEC_deg",
-                             "sigma_DEC_deg", "TWIST_deg", "dTWIST_deg", "sigma_TWIST_deg", "rms_sample_px",
-                             "rms_line_px", "rms_px", "n_measures")}
+    cols: dict[str, list] = {
+        k: [] for k in ("image_id", "X_km", "dX_km", "sigma_X_km", "Y_km", "dY_km", "sigma_Y_km", "Z_km", "dZ_km",
+                        "sigma_Z_km", "RA_deg", "dRA_deg", "sigma_RA_deg", "DEC_deg", "dDEC_deg", "sigma_DEC_deg",
+                        "TWIST_deg", "dTWIST_deg", "sigma_TWIST_deg", "rms_sample_px", "rms_line_px", "rms_px",
+                        "n_measures")}
     for i in slot.images:
         isd, form = bound.isds[int(i)], bound.forms[int(i)]
         scale = np.array([1e-3] * 3 + [np.degrees(1.0)] * 3)

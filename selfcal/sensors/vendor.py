@@ -16,11 +16,18 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ..geometry.earth import orbit_frame
-from .pushbroom import angles_from_body_to_orbit
+from .pushbroom.model import LineImage, TimeFunction, angles_from_body_to_orbit
+
+if TYPE_CHECKING:
+    from ..io.dg import DgSensor
+    from ..io.dimap import DimapSensor
+    from ..io.spot import Spot5Sensor
 
 __all__ = ["LineTimes", "OnLineTime", "OrbitAttitude", "line_image_from_file", "line_image_from_record", "DimapCamera",
            "DgCamera", "VendorLineSensor", "DIMAP_SENSOR", "DG_SENSOR"]
@@ -51,13 +58,13 @@ class LineTimes:
         fit = self.times_s[0] + (self.rows - self.rows[0]) * self.period_s
         return bool(np.all(np.abs(fit - self.times_s) < 1e-12) and self.times_s[-1] > self.times_s[0])
 
-    def time(self, row) -> np.ndarray:
+    def time(self, row: ArrayLike) -> np.ndarray:
         row = np.asarray(row, float)
         k = np.clip(np.searchsorted(self.rows, row, side="right") - 1, 0, len(self.rows) - 2)
         slope = (self.times_s[k + 1] - self.times_s[k]) / (self.rows[k + 1] - self.rows[k])
         return self.times_s[k] + slope * (row - self.rows[k])
 
-    def row(self, time_s) -> np.ndarray:
+    def row(self, time_s: ArrayLike) -> np.ndarray:
         """Inverse of :meth:`time`."""
         order = np.argsort(self.times_s)
         return LineTimes(self.times_s[order], self.rows[order]).time(time_s)
@@ -67,7 +74,7 @@ class LineTimes:
 class OnLineTime:
     """A callable of true time evaluated at the true time of a pseudo time (module docstring)."""
 
-    function: object
+    function: TimeFunction
     line_times: LineTimes
     tau0_s: float
 
@@ -81,9 +88,9 @@ class OrbitAttitude:
     """Roll, pitch, yaw (n, 3) of the telescope frame in the orbit frame, evaluated from callables of time:
     ``position`` and ``velocity`` (Earth-fixed), ``rotation`` (n, 3, 3) telescope -> Earth-fixed."""
 
-    position: object
-    velocity: object
-    rotation: object
+    position: TimeFunction
+    velocity: TimeFunction
+    rotation: TimeFunction
 
     def __call__(self, t) -> np.ndarray:
         t = np.atleast_1d(np.asarray(t, float))
@@ -91,7 +98,7 @@ class OrbitAttitude:
         return angles_from_body_to_orbit(np.swapaxes(R_FO, -1, -2) @ self.rotation(t))
 
 
-def line_image_from_record(record, image_id: str | None = None):
+def line_image_from_record(record: DgSensor | DimapSensor | Spot5Sensor, image_id: str | None = None) -> LineImage:
     """The selfcal line camera of a vendor's physical model as read (:func:`selfcal.io.sensor_files.read_vendor_line`:
     a DigitalGlobe / Maxar, Pleiades DIMAP or SPOT 5 DIMAP record)."""
     from ..io.dg import DgSensor
@@ -106,7 +113,7 @@ def line_image_from_record(record, image_id: str | None = None):
     return line_image_from_spot5(record, image_id)
 
 
-def line_image_from_file(path: str | os.PathLike, image_id: str | None = None):
+def line_image_from_file(path: str | os.PathLike, image_id: str | None = None) -> LineImage:
     """The selfcal line camera of a vendor sensor file, the format found from the content: a DigitalGlobe /
     Maxar XML (root ``isd``), a SPOT 5 DIMAP (root ``Dimap_Document`` with ``Data_Strip``) or a Pleiades DIMAP
     (root ``PHR_Dimap_Document``). Reader errors are :class:`~selfcal.errors.BlockError`."""

@@ -29,6 +29,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ..block import Block, Dropped, FrameCamera, Images, Observations, Points
 from ..geometry.rotation import matrix_from_opk, opk_from_matrix
@@ -58,7 +59,7 @@ class TrueDistortion:
     brown: dict | None = None
     bumps: tuple[tuple[float, float, float, float, float], ...] = ()
 
-    def displacement_px(self, x_mm, y_mm) -> tuple[np.ndarray, np.ndarray]:
+    def displacement_px(self, x_mm: ArrayLike, y_mm: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         x_mm, y_mm = np.asarray(x_mm, float), np.asarray(y_mm, float)
         dx = np.zeros_like(x_mm)
         dy = np.zeros_like(y_mm)
@@ -132,10 +133,11 @@ def _distortion(name: str, pixel_size_mm: float, pp: tuple[float, float], scale:
 
 def simulate_uav(seed: int = 0, distortion: str = "local+brown", image_sigma_px: float = 0.5,
                  blunder_rate: float = 0.0, points_per_mm2: float = 3.5,
-                 gnss_sigma_m=(0.05, 0.05, 0.10), imu_sigma_deg=(0.02, 0.02, 0.05),
+                 gnss_sigma_m: tuple[float, float, float] = (0.05, 0.05, 0.10),
+                 imu_sigma_deg: tuple[float, float, float] = (0.02, 0.02, 0.05),
                  gnss_shift_m: float = 0.2, gnss_drift_mm_s: float = 5.0, imu_shift_deg: float = 0.05,
-                 distortion_scale: float = 1.0, lever_arm_m=(0.0, 0.0, 0.0),
-                 boresight_deg=(0.0, 0.0, 0.0), n_strips: int = 4, images_per_strip: int = 7,
+                 distortion_scale: float = 1.0, lever_arm_m: tuple[float, float, float] = (0.0, 0.0, 0.0),
+                 boresight_deg: tuple[float, float, float] = (0.0, 0.0, 0.0), n_strips: int = 4, images_per_strip: int = 7,
                  trajectory_errors: TrajectoryErrors | None = None, exposure_interval_s: float | None = None,
                  declare_mounting: bool = False) -> UAVSimulation:
     """Simulate the seed-000 block; returns the four scenario blocks and the truth.
@@ -191,7 +193,10 @@ def simulate_uav(seed: int = 0, distortion: str = "local+brown", image_sigma_px:
     interval = base / speed if exposure_interval_s is None else float(exposure_interval_s)
 
     # --- exterior orientation (true)
-    image_id, strip_of, times, eop = [], [], [], []
+    image_id: list[str] = []
+    strip_rows: list[int] = []
+    time_rows: list[float] = []
+    eop_rows: list[list[float]] = []
     for s in range(n_strips):
         eastbound = s % 2 == 0
         for k in range(per_strip):
@@ -200,14 +205,14 @@ def simulate_uav(seed: int = 0, distortion: str = "local+brown", image_sigma_px:
             y = s * spacing + rng.normal(0, 1.5)
             z = 30.0 + agl + rng.normal(0, 1.0)            # constant flying height
             kappa = (0.0 if eastbound else np.pi) + np.radians(rng.normal(0, 1.5))
-            eop.append([x, y, z, np.radians(rng.normal(0, 1.2)), np.radians(rng.normal(0, 1.2)), kappa])
+            eop_rows.append([x, y, z, np.radians(rng.normal(0, 1.2)), np.radians(rng.normal(0, 1.2)), kappa])
             image_id.append(f"S{s + 1}_{k + 1:02d}")
-            strip_of.append(s)
-            times.append(s * max(150.0, per_strip * interval + 60.0) + k * interval)
-    eop = np.array(eop)
+            strip_rows.append(s)
+            time_rows.append(s * max(150.0, per_strip * interval + 60.0) + k * interval)
+    eop = np.array(eop_rows)
     eop[:, 5] = (eop[:, 5] + np.pi) % (2 * np.pi) - np.pi
-    times = np.array(times)
-    strip_of = np.array(strip_of)
+    times = np.array(time_rows)
+    strip_of = np.array(strip_rows)
     n_img = len(image_id)
 
     # --- object points: tie points over the covered area, and 39 marks
@@ -243,7 +248,9 @@ def simulate_uav(seed: int = 0, distortion: str = "local+brown", image_sigma_px:
     # --- project every point into every image
     iop = np.array([true_cam.focal_mm, true_cam.x0_mm, true_cam.y0_mm])
     n_pts = len(xyz_true)
-    obs_img, obs_pt, obs_pix = [], [], []
+    img_parts: list[np.ndarray] = []
+    pt_parts: list[np.ndarray] = []
+    pix_parts: list[np.ndarray] = []
     half = 0.75 * max(foot_x, foot_y)                # beyond any footprint (tilts of a few degrees)
     order = np.argsort(xyz_true[:, 0], kind="stable")
     x_sorted = xyz_true[order, 0]
@@ -258,12 +265,12 @@ def simulate_uav(seed: int = 0, distortion: str = "local+brown", image_sigma_px:
         inside = ((pix[:, 0] > 1) & (pix[:, 0] < width_px - 1) & (pix[:, 1] > 1) & (pix[:, 1] < height_px - 1))
         idx = near[inside]
         pix = pix[inside]
-        obs_img.append(np.full(idx.size, i))
-        obs_pt.append(idx)
-        obs_pix.append(pix)
-    obs_img = np.concatenate(obs_img)
-    obs_pt = np.concatenate(obs_pt)
-    obs_pix = np.concatenate(obs_pix)
+        img_parts.append(np.full(idx.size, i))
+        pt_parts.append(idx)
+        pix_parts.append(pix)
+    obs_img = np.concatenate(img_parts)
+    obs_pt = np.concatenate(pt_parts)
+    obs_pix = np.concatenate(pix_parts)
     # keep tie points seen at least twice, marks seen at least twice
     rays = np.bincount(obs_pt, minlength=n_pts)
     keep_pt = rays >= 2
@@ -372,8 +379,8 @@ def truth_files(truth: UAVTruth, nodes_x: int = 61) -> dict:
     """The truth of a simulation as data files (dicts become JSON, tuples CSV)."""
     cam = truth.camera
     nodes_y = int(round((nodes_x - 1) * cam.height_px / cam.width_px)) + 1
-    col, row = np.meshgrid(np.linspace(0, cam.width_px, nodes_x), np.linspace(0, cam.height_px, nodes_y))
-    col, row = col.ravel(), row.ravel()
+    col_grid, row_grid = np.meshgrid(np.linspace(0, cam.width_px, nodes_x), np.linspace(0, cam.height_px, nodes_y))
+    col, row = col_grid.ravel(), row_grid.ravel()
     x = (col - cam.width_px / 2) * cam.pixel_size_mm
     y = (cam.height_px / 2 - row) * cam.pixel_size_mm
     dx, dy = truth.distortion.displacement_px(x, y)

@@ -20,7 +20,7 @@ __all__ = ["daubechies_tables", "meyer_tables", "battle_lemarie_tables", "LEVEL"
 LEVEL = 12
 
 
-def daubechies_tables(h: np.ndarray, g: np.ndarray, level: int = LEVEL):
+def daubechies_tables(h: np.ndarray, g: np.ndarray, level: int = LEVEL) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """phi and psi of an orthogonal compactly supported family on [0, len(h) - 1].
 
     Returns x, phi, psi with x = i / 2**level.
@@ -81,7 +81,7 @@ def _inverse_fourier(spectrum_fn, half_width: float, level: int):
     return x, f
 
 
-def meyer_tables(level: int = LEVEL, half_width: float = 32.0):
+def meyer_tables(level: int = LEVEL, half_width: float = 32.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Meyer's phi (symmetric about 0) and psi (symmetric about 1/2) on x = i / 2**level."""
     def phi_hat(w):
         a = np.abs(w)
@@ -122,7 +122,8 @@ def _bspline_autocorrelation(w: np.ndarray, order: int, terms: int = 2000) -> np
     return total[inverse.reshape(wr.shape)]
 
 
-def battle_lemarie_tables(order: int, level: int = LEVEL, half_width: float = 32.0):
+def battle_lemarie_tables(order: int, level: int = LEVEL, half_width: float = 32.0
+                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Battle-Lemarié phi (symmetric about 0) and psi of spline order ``order``.
 
     phi_hat = B_hat / sqrt(sum_k |B_hat(w + 2 pi k)|^2) with the centred B-spline

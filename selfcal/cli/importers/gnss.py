@@ -18,7 +18,8 @@ def _three(text: str) -> tuple[float, float, float]:
     parts = text.split(",")
     if len(parts) != 3:
         raise argparse.ArgumentTypeError(f"give three positive sigmas separated by commas, found '{text}'")
-    return tuple(parse(p) for p in parts)
+    x, y, z = (parse(p) for p in parts)
+    return x, y, z
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

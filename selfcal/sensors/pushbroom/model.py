@@ -35,10 +35,12 @@ residual (y_d - y) / p). Ground-to-image solves x(t) = x_d for t by Newton's met
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from typing import Any, Callable
 
 import numpy as np
 
 from numba import njit
+from numpy.typing import ArrayLike
 
 from ...geometry.earth import ecef_from_geodetic, geodetic_from_ecef, itrs_from_gcrs, local_up, orbit_frame
 
@@ -61,21 +63,21 @@ _MAX_NEWTON = 30
 
 # --- elementary rotations --------------------------------------------------------------------------
 
-def rotation_x(angle) -> np.ndarray:
+def rotation_x(angle: ArrayLike) -> np.ndarray:
     """Rx(a) (..., 3, 3): turns +y towards +z."""
     c, s = np.cos(angle), np.sin(angle)
     o, z = np.ones_like(c), np.zeros_like(c)
     return np.stack([np.stack([o, z, z], -1), np.stack([z, c, -s], -1), np.stack([z, s, c], -1)], -2)
 
 
-def rotation_y(angle) -> np.ndarray:
+def rotation_y(angle: ArrayLike) -> np.ndarray:
     """Ry(a) (..., 3, 3): turns +z towards +x (a positive view pitch looks forward)."""
     c, s = np.cos(angle), np.sin(angle)
     o, z = np.ones_like(c), np.zeros_like(c)
     return np.stack([np.stack([c, z, s], -1), np.stack([z, o, z], -1), np.stack([-s, z, c], -1)], -2)
 
 
-def rotation_z(angle) -> np.ndarray:
+def rotation_z(angle: ArrayLike) -> np.ndarray:
     """Rz(a) (..., 3, 3): turns +x towards +y."""
     c, s = np.cos(angle), np.sin(angle)
     o, z = np.ones_like(c), np.zeros_like(c)
@@ -107,7 +109,7 @@ def angles_from_body_to_orbit(R_OB: np.ndarray) -> np.ndarray:
     return np.stack([roll, pitch, yaw], -1)
 
 
-def fit_focal_plane(positions_mm, columns: int, center_col: float, tolerance_mm: float = 1e-10,
+def fit_focal_plane(positions_mm: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]], columns: int, center_col: float, tolerance_mm: float = 1e-10,
                     max_degree: int = 11) -> tuple[tuple[tuple[float, ...], tuple[float, ...]], float]:
     """The :attr:`LineCamera.focal_plane_mm` polynomials of a detector line given by ``positions_mm(col) ->
     (x, y)`` (mm, telescope frame), of the lowest degree that reproduces it within ``tolerance_mm`` on
@@ -152,7 +154,7 @@ class LineCamera:
     view_pitch_deg: float = 0.0
     chip_starts: tuple[int, ...] = ()
     chip_offsets_px: tuple[tuple[float, float], ...] = ()
-    focal_plane_mm: tuple[tuple[float, ...], tuple[float, ...]] = ()
+    focal_plane_mm: tuple[tuple[float, ...], ...] = ()      # (x coefficients, y coefficients); (): the ideal line
 
     def __post_init__(self):
         if self.chip_offsets_px and len(self.chip_offsets_px) != len(self.chip_starts) + 1:
@@ -161,7 +163,7 @@ class LineCamera:
         if self.focal_plane_mm and len(self.focal_plane_mm) != 2:
             raise ValueError("focal_plane_mm is (x coefficients, y coefficients)")
 
-    def offsets_px(self, col) -> np.ndarray:
+    def offsets_px(self, col: ArrayLike) -> np.ndarray:
         """(along, across) offset in pixels of the chip of each column, (n, 2)."""
         col = np.atleast_1d(np.asarray(col, float))
         if not self.chip_offsets_px:
@@ -190,7 +192,7 @@ class Polynomial:
         return np.polynomial.polynomial.polyval(tau, self.coefficients).T if np.ndim(tau) else \
             np.polynomial.polynomial.polyval(tau, self.coefficients)
 
-    def rate(self, t) -> np.ndarray:
+    def rate(self, t: ArrayLike) -> np.ndarray:
         """d/dt of the polynomial."""
         d = np.polynomial.polynomial.polyder(self.coefficients, axis=0) / self.t_scale
         tau = self._tau(t)
@@ -215,18 +217,24 @@ def fit_polynomial(t: np.ndarray, values: np.ndarray, order: int, t_ref: float |
     return Polynomial(t_ref, t_scale, coefficients), values - V @ coefficients
 
 
+#: a function of time: t (s from the epoch; a scalar or (n,)) -> values (n, k): a fitted :class:`Polynomial`, or
+#: the interpolated or evaluated telemetry of a sensor description (usgscsm's Lagrange series, a vendor's model)
+TimeFunction = Callable[[Any], np.ndarray]
+
+
 @dataclass(frozen=True)
 class Trajectory:
-    """An image's fitted telemetry: position and velocity (frame F), roll/pitch/yaw (orbit frame)."""
+    """An image's telemetry: position and velocity (frame F), roll/pitch/yaw (orbit frame), each a function of
+    time (fitted polynomials of the ephemeris and attitude, Eq. 5 of seed 001, or a sensor description's own)."""
 
     frame: str                   # "ECI" or "ECEF": the frame of position, velocity and quaternions
     epoch_utc: str               # times count from here
-    position: Polynomial         # m
-    velocity: Polynomial         # m/s
-    attitude: Polynomial         # rad: roll, pitch, yaw
+    position: TimeFunction       # m
+    velocity: TimeFunction       # m/s
+    attitude: TimeFunction       # rad: roll, pitch, yaw
     fit_rms: dict = field(default_factory=dict)   # residual RMS of each fit (m, m/s, rad)
 
-    def frame_to_ecef(self, t) -> np.ndarray:
+    def frame_to_ecef(self, t: ArrayLike) -> np.ndarray:
         """R_EF (n, 3, 3) at times t."""
         t = np.atleast_1d(np.asarray(t, float))
         if self.frame == "ECEF":
@@ -282,7 +290,8 @@ class LineImage:
     attitude_terms: np.ndarray | None = None
 
     @classmethod
-    def nominal(cls, image_id: str, camera: LineCamera, trajectory: Trajectory, t_first_s: float, rows: int):
+    def nominal(cls, image_id: str, camera: LineCamera, trajectory: Trajectory, t_first_s: float,
+                rows: int) -> "LineImage":
         parameters = np.zeros(len(PARAMETER_NAMES))
         parameters[PARAMETER_NAMES.index("focal")] = camera.focal_mm
         return cls(image_id, camera, trajectory, float(t_first_s), int(rows), parameters)
@@ -301,7 +310,7 @@ class LineImage:
         return replace(self, parameters=np.asarray(parameters, float).copy(),
                        attitude_terms=self.attitude_terms if attitude_terms is None else attitude_terms)
 
-    def attitude_correction(self, t) -> np.ndarray:
+    def attitude_correction(self, t: ArrayLike) -> np.ndarray:
         """The corrections (n, 3) of roll, pitch, yaw at times t: Eq. 6 and the higher-order terms."""
         a = self.parameters
         tau = np.atleast_1d(np.asarray(t, float)) - self.t_ref
@@ -312,13 +321,13 @@ class LineImage:
             out = out + powers @ np.asarray(self.attitude_terms, float).T
         return out
 
-    def time_of_row(self, row) -> np.ndarray:
+    def time_of_row(self, row: ArrayLike) -> np.ndarray:
         return self.t_first_s + np.asarray(row, float) * self.camera.line_period_s
 
-    def row_of_time(self, t) -> np.ndarray:
+    def row_of_time(self, t: ArrayLike) -> np.ndarray:
         return (np.asarray(t, float) - self.t_first_s) / self.camera.line_period_s
 
-    def detector_mm(self, col) -> np.ndarray:
+    def detector_mm(self, col: ArrayLike) -> np.ndarray:
         """Focal-plane position (x, y) in mm (n, 2) of the detector of each column: (0, ys) on the
         ideal line, displaced by its chip's offset."""
         col = np.atleast_1d(np.asarray(col, float))
@@ -331,7 +340,7 @@ class LineImage:
             return line + offset * p
         return np.stack([offset[:, 0] * p, (col - cam.center_col + offset[:, 1]) * p], -1)
 
-    def col_of_y(self, y_mm) -> np.ndarray:
+    def col_of_y(self, y_mm: ArrayLike) -> np.ndarray:
         """The column whose detector has the focal-plane y (its chip's across offset taken off)."""
         if self.camera.focal_plane_mm:
             y_mm = np.atleast_1d(np.asarray(y_mm, float))
@@ -394,12 +403,12 @@ class Track:
     frame_to_ecef: np.ndarray     # (n, 3, 3) R_EF; (0, 3, 3) when F is Earth-fixed
     attitude: np.ndarray          # (n, 3) fitted roll, pitch, yaw (before the corrections of Eq. 6)
 
-    def take(self, index) -> "Track":
+    def take(self, index: np.ndarray) -> "Track":
         earth = self.frame_to_ecef if not len(self.frame_to_ecef) else self.frame_to_ecef[index]
         return Track(self.t[index], self.position[index], self.orbit_frame[index], earth, self.attitude[index])
 
 
-def track(image: LineImage, t) -> Track:
+def track(image: LineImage, t: ArrayLike) -> Track:
     """The telemetry of ``image`` at times ``t``."""
     traj = image.trajectory
     t = np.atleast_1d(np.asarray(t, float))
@@ -523,7 +532,7 @@ def _collinearity(P, S, R_EF, R_FO, angles, tau, R_BT, d_BT, f, earth_fixed, jac
     return (xy, d_par, d_pt) if jacobians else xy
 
 
-def image_scales(image: LineImage, points_ecef: np.ndarray, row, col) -> np.ndarray:
+def image_scales(image: LineImage, points_ecef: np.ndarray, row: ArrayLike, col: ArrayLike) -> np.ndarray:
     """(n, 2): the image motion per line along track dx/drow (central differences over one line) and
     the detector spacing dy/dcol across track, in mm, at image points of ground points."""
     P = np.atleast_2d(np.asarray(points_ecef, float))
@@ -539,7 +548,7 @@ def _along_per_line_mm(image: LineImage, P: np.ndarray, t: np.ndarray) -> np.nda
     return (photo_coordinates(image, P, t + period)[:, 0] - photo_coordinates(image, P, t - period)[:, 0]) / 2
 
 
-def image_residuals(image: LineImage, points_ecef: np.ndarray, row, col, jacobians: bool = False,
+def image_residuals(image: LineImage, points_ecef: np.ndarray, row: ArrayLike, col: ArrayLike, jacobians: bool = False,
                     scales: np.ndarray | None = None, detector_offset_mm: np.ndarray | None = None):
     """Residuals (n, 2) of image points in image units, observed minus computed row and column, to
     first order: the along-track misfit x - x_d over the image motion per line, the across-track
@@ -589,7 +598,7 @@ def ground_to_image(image: LineImage, points_ecef: np.ndarray) -> tuple[np.ndarr
     return row, col
 
 
-def line_of_sight(image: LineImage, row, col) -> tuple[np.ndarray, np.ndarray]:
+def line_of_sight(image: LineImage, row: ArrayLike, col: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
     """Perspective centre (n, 3) and unit line-of-sight direction (n, 3), ECEF, of image points."""
     row, col = np.broadcast_arrays(np.atleast_1d(np.asarray(row, float)), np.atleast_1d(np.asarray(col, float)))
     t = image.time_of_row(row)
@@ -602,8 +611,9 @@ def line_of_sight(image: LineImage, row, col) -> tuple[np.ndarray, np.ndarray]:
     return (R_EF @ S[:, :, None])[:, :, 0], (R_EF @ d_F[:, :, None])[:, :, 0]
 
 
-def image_to_ground(image: LineImage, row, col, height, tolerance_m: float = 1e-4, max_iterations: int = 30
-                    ) -> np.ndarray:
+def image_to_ground(image: LineImage, row: ArrayLike, col: ArrayLike,
+                    height: ArrayLike | Callable[[np.ndarray, np.ndarray], np.ndarray], tolerance_m: float = 1e-4,
+                    max_iterations: int = 30) -> np.ndarray:
     """Mono restitution: the ECEF point (n, 3) where the line of sight of (row, col) meets a height.
 
     ``height`` is an ellipsoidal height in metres (scalar or per point) or a callable
@@ -614,7 +624,7 @@ def image_to_ground(image: LineImage, row, col, height, tolerance_m: float = 1e-
     dem = height if callable(height) else None
     target = None if dem else np.broadcast_to(np.asarray(height, float), (len(S),))
     # start: the range to a sphere of the mean Earth radius
-    radius = 6371000.0 + (0.0 if dem else float(np.mean(target)))
+    radius = 6371000.0 + (0.0 if target is None else float(np.mean(target)))
     b = np.einsum("ni,ni->n", S, d)
     c = np.einsum("ni,ni->n", S, S) - radius ** 2
     s = -b - np.sqrt(np.maximum(b * b - c, 0.0))
@@ -639,12 +649,12 @@ def intersect(images: list[LineImage], image_index: np.ndarray, rows: np.ndarray
     in m², for image coordinates of standard deviation ``sigma_px``.
     """
     image_index = np.asarray(image_index)
-    origins, directions = [], []
+    origin_rows, direction_rows = [], []
     for k, r, c in zip(image_index, rows, cols):
         S, d = line_of_sight(images[k], r, c)
-        origins.append(S[0])
-        directions.append(d[0])
-    origins, directions = np.array(origins), np.array(directions)
+        origin_rows.append(S[0])
+        direction_rows.append(d[0])
+    origins, directions = np.array(origin_rows), np.array(direction_rows)
     A = np.zeros((3, 3))
     b = np.zeros(3)
     for S, d in zip(origins, directions):
@@ -652,7 +662,7 @@ def intersect(images: list[LineImage], image_index: np.ndarray, rows: np.ndarray
         A += proj
         b += proj @ S
     X = np.linalg.solve(A, b)
-    scales = []
+    scales: list[np.ndarray] = []
     for _ in range(iterations):
         N = np.zeros((3, 3))
         g = np.zeros(3)
@@ -687,6 +697,6 @@ def track_frame(image: LineImage) -> tuple[np.ndarray, np.ndarray]:
     return ground.mean(axis=0), np.stack([across, along, up])
 
 
-def ecef_of(lat_deg, lon_deg, height_m) -> np.ndarray:
+def ecef_of(lat_deg: ArrayLike, lon_deg: ArrayLike, height_m: ArrayLike) -> np.ndarray:
     """ECEF metres of geodetic degrees and ellipsoidal metres (a shorthand for callers in degrees)."""
     return ecef_from_geodetic(np.radians(lat_deg), np.radians(lon_deg), height_m)
