@@ -229,6 +229,7 @@ class BalSensor(Sensor):
     """The camera of Bundle Adjustment in the Large: each image its own camera (f, k1, k2)."""
 
     name = "bal"
+    central_projection = True
     #: BAL problems come with their points: they are not intersected (BAL's rays need its distortion inverted)
     given_points_only = True
     image_parameters = tuple(Parameter(n, "rad" if n[0] == "r" else "m", "EOP") for n in IMAGE_NAMES)

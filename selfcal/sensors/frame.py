@@ -308,6 +308,7 @@ class FrameSensor(Sensor):
                                         plausible=0.5 if n == "c" else None) for n in IOP_NAMES)
     ap_domain = "frame"
     supports_resection = True
+    central_projection = True
     camera_type: type = FrameCamera
     camera_tables: tuple[str, ...] = ("initial_ap",)
     camera_keys = {

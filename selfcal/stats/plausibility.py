@@ -4,9 +4,9 @@ Least squares can converge to an absurd state when the data cannot hold it: matc
 wrong observations, a principal distance left free over flat ground without camera positions. Two signs,
 for every sensor:
 
-* object points behind the cameras that observe them (:func:`selfcal.adjust.datum.behind_camera`): a block
-  folded through its projection centres (a central projection fits a point's mirror image), cameras on or
-  under the terrain they look at;
+* object points behind the cameras that observe them (:func:`selfcal.adjust.datum.behind_camera`), for sensors
+  that are central projections (``Sensor.central_projection``): a block folded through its projection centres
+  (a central projection fits a point's mirror image), cameras on or under the terrain they look at;
 * a camera parameter that moved further than its sensor says it can (``Parameter.plausible``: a frame camera's
   principal distance by half of itself; the principal distance of a real camera is known to that), or, with
   an a-priori sigma, by more than :data:`PRIOR_SIGMAS` of it.
@@ -41,6 +41,9 @@ def collapse(result) -> str | None:
                 reasons.append(f"camera '{cam.camera_id}': {parameter.name} moved from {start:.6g} {parameter.unit} "
                                f"(start) to {now:.6g} {parameter.unit}, more than {parameter.plausible:.0%} of itself")
     behind = behind_camera(problem, state)
+    for slot in problem.sensors:
+        if not slot.sensor.central_projection:       # (a line scanner's rays say nothing of sides here)
+            behind[slot.observations] = False
     if behind.sum() > max(10, BEHIND_SHARE * len(behind)):
         points = np.unique(problem.obs_point[behind])
         names = ", ".join(f"'{block.points.point_id[p]}'" for p in points[:5])

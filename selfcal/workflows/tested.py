@@ -223,13 +223,17 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
 
 #: the control group is tested only while at least this many control points remain (a datum and redundancy)
 MIN_CONTROL = 4
+#: a control point is checked instead only when a coordinate's |w| is beyond this (and the critical value): a
+#: false alarm of 6e-5 per coordinate, one block in 200 with 27 control points, where 3.0 took a good one in one
+#: block of four (seed 000's Type 3, eight seeds); good control lost costs more than a small control error kept
+CONTROL_CRITICAL = 4.0
 
 
 def control_candidate(result: AdjustmentResult, tests: ObservationTests, critical: float, min_redundancy: float,
                       largest_image_w: float) -> tuple[int, float] | None:
     """The control point (its index among the block's points) whose coordinates fail Baarda's test worst, with
-    its |w|, if that is above ``critical`` and above every image observation's; None otherwise, or when no more
-    than :data:`MIN_CONTROL` control points are left."""
+    its |w|, if that is above ``critical`` and :data:`CONTROL_CRITICAL` and above every image observation's; None
+    otherwise, or when no more than :data:`MIN_CONTROL` control points are left."""
     index = result.problem.control_index
     if len(index) <= MIN_CONTROL or not tests.control_w.size:
         return None
@@ -237,7 +241,7 @@ def control_candidate(result: AdjustmentResult, tests: ObservationTests, critica
     w[tests.control_redundancy < min_redundancy] = 0.0
     worst = w.max(axis=1)
     k = int(np.argmax(worst))
-    if worst[k] > critical and worst[k] > largest_image_w:
+    if worst[k] > max(critical, CONTROL_CRITICAL) and worst[k] > largest_image_w:
         return int(index[k]), float(worst[k])
     return None
 
