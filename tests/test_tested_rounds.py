@@ -32,6 +32,7 @@ def _run(block, options):
     return result, records
 
 
+@pytest.mark.slow
 def test_rough_rounds_end_where_full_rounds_end(bal_subset, monkeypatch):
     options = AdjustOptions()
     rough, rough_records = _run(bal_subset, options)

@@ -160,6 +160,7 @@ def test_joint_tests_per_group(type2_screened):
     assert groups["GNSS"].n_dropped + groups["IMU"].n_dropped == n_traj
 
 
+@pytest.mark.slow
 def test_screening_drops_no_real_trajectory_term():
     """Pooled over 3 seeds of the independent simulation (Types 2 and 4, wavelet APs): no dropped term is larger
     than 3 sigma of its unscreened estimate (the truth in the model's own parametrisation), at least 80 % of the
