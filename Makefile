@@ -55,10 +55,11 @@ test: install browser colmap
 test-fast: install browser colmap
 	$(TEST_ENV) $(PY) -m pytest -q -n 2 --durations=15 -m "not slow"
 
-# the API reference from the docstrings (docs/api), then its examples run as doctests; a warning fails the build
+# the API reference from the docstrings (docs/api), then its examples run as doctests; a warning or a failed
+# example fails the build (-E: a fresh environment every time, so that no warning hides in a page read before)
 docs: install
-	$(PY) -m sphinx -W --keep-going -q -b html docs/api docs/_build/html
-	$(PY) -m sphinx -W --keep-going -q -b doctest docs/api docs/_build/doctest
+	$(PY) -m sphinx -E -W --keep-going -q -b html docs/api docs/_build/html
+	$(PY) -m sphinx -E -W --keep-going -q -b doctest docs/api docs/_build/doctest
 
 demo: install
 	$(VENV)/bin/selfcal demo --out demo-results
