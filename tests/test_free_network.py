@@ -5,7 +5,6 @@ network against its simulation; a BAL problem against Ceres (pycolmap's bundle a
 observations from the same start.
 """
 from __future__ import annotations
-import pytest
 
 import importlib.util
 import json
@@ -14,6 +13,7 @@ import tempfile
 from dataclasses import replace
 
 import numpy as np
+import pytest
 
 from conftest import SHARED_DATA, run_cli, simulation
 
