@@ -234,8 +234,9 @@ def _bytes(path: str) -> bytes:
         return handle.read()
 
 
-#: the readers whose 200 mutated files take seconds each (the vendors' XML files are large)
-SLOW_READERS = ("dimap physical model", "digitalglobe xml", "spot5 dimap")
+#: the readers whose 200 mutated files take more than a second (the vendors' XML files, the larger inputs)
+SLOW_READERS = ("dimap physical model", "digitalglobe xml", "spot5 dimap", "isis control network", "isis cube label",
+                "opensfm tracks")
 
 
 @pytest.mark.parametrize("name", [pytest.param(name, marks=pytest.mark.slow) if name in SLOW_READERS else name
