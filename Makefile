@@ -6,7 +6,7 @@ STAMP  := $(VENV)/.installed-stamp
 # glibc keeps freed memory instead of re-mapping (and re-zeroing) it every iteration (selfcal/allocator.py)
 MALLOC := MALLOC_MMAP_THRESHOLD_=33554432 MALLOC_TRIM_THRESHOLD_=2147483647 MALLOC_TOP_PAD_=268435456
 
-.PHONY: install suitesparse browser colmap test typecheck demo bench clean
+.PHONY: install suitesparse browser colmap test test-fast docs typecheck demo bench clean
 
 install: suitesparse $(STAMP)
 
@@ -45,9 +45,21 @@ colmap:
 	  SUDO=$$(command -v sudo >/dev/null 2>&1 && [ "$$(id -u)" != 0 ] && echo sudo); \
 	  $$SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq colmap >/dev/null; }
 
+# one BLAS thread per test worker: two workers on two cores, not four threads fighting
+TEST_ENV := OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 MKL_NUM_THREADS=1 $(MALLOC)
+
 test: install browser colmap
-	# one BLAS thread per test worker: two workers on two cores, not four threads fighting
-	OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 MKL_NUM_THREADS=1 $(MALLOC) $(PY) -m pytest -q -n 2 --durations=15
+	$(TEST_ENV) $(PY) -m pytest -q -n 2 --durations=15
+
+# the tests not marked slow (pyproject.toml: whole-block adjustments and the like), for the edit-test loop
+test-fast: install browser colmap
+	$(TEST_ENV) $(PY) -m pytest -q -n 2 --durations=15 -m "not slow"
+
+# the API reference from the docstrings (docs/api), then its examples run as doctests; a warning or a failed
+# example fails the build (-E: a fresh environment every time, so that no warning hides in a page read before)
+docs: install
+	$(PY) -m sphinx -E -W --keep-going -q -b html docs/api docs/_build/html
+	$(PY) -m sphinx -E -W --keep-going -q -b doctest docs/api docs/_build/doctest
 
 # mypy with the checks chosen in pyproject.toml ([tool.mypy]) over the whole package
 typecheck: install
@@ -71,4 +83,4 @@ bench: install
 	$(PY) benchmarks/study_trajectory.py --processes 2
 
 clean:
-	rm -rf $(VENV) demo-results .pytest_cache
+	rm -rf $(VENV) demo-results .pytest_cache docs/_build

@@ -93,7 +93,7 @@ class FrameCamera:
 @dataclass(frozen=True)
 class BalCamera:
     """A camera of Bundle Adjustment in the Large (``model = "bal"``): f, k1, k2 of
-    pixel = f (1 + k1 |p|^2 + k2 |p|^4) p (see :mod:`selfcal.sensors.bal`).
+    ``pixel = f (1 + k1 |p|^2 + k2 |p|^4) p`` (see :mod:`selfcal.sensors.bal`).
 
     BAL has no physical units: the pixel size is 1 "mm", so photo coordinates
     are BAL's centred pixel coordinates (y up).

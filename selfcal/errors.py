@@ -1,6 +1,6 @@
 """Exceptions of selfcal.
 
-Two kinds of failure reach the user, each with its own exit code (DESIGN.md §5):
+Three kinds of failure reach the user, each with its own exit code (DESIGN.md §5):
 
 * :class:`BlockError` — bad input. It names the file, the line and the column
   where the defect is, and why it is one. Exit code 2.

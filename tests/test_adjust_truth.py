@@ -11,6 +11,8 @@ from selfcal.adjust import AdjustOptions, adjust
 
 from conftest import pruned, simulation, truth_index
 
+pytestmark = pytest.mark.slow
+
 SEED = 1
 
 

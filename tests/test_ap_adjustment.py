@@ -13,6 +13,8 @@ from selfcal.adjust.solver import SolverOptions
 
 from conftest import pruned, simulation
 
+pytestmark = pytest.mark.slow
+
 WAPS = ["wavelet:db4", "wavelet:sym4", "wavelet:meyer", "wavelet:bl4"]
 
 

@@ -54,12 +54,14 @@ def test_brown_recovers_a_brown_field():
     assert fit_rms("brown", "brown") < 0.01
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("spec", WAPS)
 def test_every_wap_family_recovers_the_local_field(spec):
     assert fit_rms(spec, "local") < 0.1
     assert fit_rms(spec, "local+brown") < 0.1
 
 
+@pytest.mark.slow
 def test_classic_families_fall_short_on_the_local_field(capsys):
     """Global models cannot follow a local bump: recorded for the closing note."""
     shortfall = {spec: fit_rms(spec, "local") for spec in CLASSIC}

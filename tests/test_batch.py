@@ -14,6 +14,7 @@ def blocks():
     return {name: pruned(sim, name) for name in ("type1", "type2")}
 
 
+@pytest.mark.slow
 def test_dask_matrix_equals_serial(blocks):
     settings = CellSettings()
     serial = run_matrix(blocks, ["none"], settings, scheduler=None)

@@ -38,6 +38,7 @@ def test_simulate_writes_four_scenarios_and_truth(simulated):
     assert set(os.listdir(simulated / "truth")) >= {"camera.json", "images.csv", "points.csv", "distortion_grid.csv"}
 
 
+@pytest.mark.slow
 def test_adjust_writes_the_results_contract(simulated, tmp_path, capsys):
     out = tmp_path / "res"
     assert run_cli("adjust", str(simulated / "type3"), "--out", str(out), "--snoop", "0") == 0
@@ -108,6 +109,7 @@ def test_console_script_runs(selfcal_exe, tmp_path):
     assert done.returncode == 0 and "adjust" in done.stdout
 
 
+@pytest.mark.slow
 def test_adjust_with_screening_and_variance_components(simulated, tmp_path):
     out = tmp_path / "res"
     assert run_cli("adjust", str(simulated / "type4"), "--out", str(out), "--snoop", "0", "--screen",
@@ -131,6 +133,7 @@ def test_adjust_with_screening_and_variance_components(simulated, tmp_path):
     assert f"dropped in round {first['round']} (t = {first['t']:.2f})" in report
 
 
+@pytest.mark.slow
 def test_adjust_auto_chooses_the_model_and_logs_the_candidates(simulated, tmp_path, capsys):
     """No distortion simulated: BIC keeps the model without APs; every candidate is in model_choice.csv."""
     out = tmp_path / "res"

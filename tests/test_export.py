@@ -138,6 +138,7 @@ def wavelet_calibration():
     return camera_entry(ap=ap, values=values)
 
 
+@pytest.mark.slow
 def test_undistortion_maps_invert_a_wavelet_calibration(wavelet_calibration):
     """At every node and between nodes, the ideal position of the map's source pixel is the target pixel
     within 0.01 px (the model's Delta reproduced by the map)."""
@@ -160,6 +161,7 @@ def test_undistortion_maps_invert_a_wavelet_calibration(wavelet_calibration):
     assert fit_opencv(cal).misfit_max_px > 0.1
 
 
+@pytest.mark.slow
 def test_undistort_moves_image_features_to_their_ideal_positions(tmp_path, wavelet_calibration):
     """Render Gaussian dots where the camera measures known ideal positions; after `selfcal undistort` the
     dots' centroids are at their ideal positions (OpenCV convention): no bias above 0.01 px, none off by more

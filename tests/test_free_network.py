@@ -13,6 +13,7 @@ import tempfile
 from dataclasses import replace
 
 import numpy as np
+import pytest
 
 from conftest import SHARED_DATA, run_cli, simulation
 
@@ -130,6 +131,7 @@ def _bench_engine():
     return module
 
 
+@pytest.mark.slow
 def test_bal_subset_from_the_command_line_converges_to_ceres_cost(tmp_path, capsys):
     """``selfcal import bal`` + ``selfcal adjust --snoop 0`` on the 1,800-point BAL subset: exit 0, converged;
     the 31 observations behind their camera (BAL's own test, P_z > 0 at the file's values) are left out, and

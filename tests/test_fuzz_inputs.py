@@ -234,7 +234,13 @@ def _bytes(path: str) -> bytes:
         return handle.read()
 
 
-@pytest.mark.parametrize("name", list(READERS))
+#: the readers whose 200 mutated files take more than a second (the vendors' XML files, the larger inputs)
+SLOW_READERS = ("dimap physical model", "digitalglobe xml", "spot5 dimap", "isis control network", "isis cube label",
+                "opensfm tracks")
+
+
+@pytest.mark.parametrize("name", [pytest.param(name, marks=pytest.mark.slow) if name in SLOW_READERS else name
+                                  for name in READERS])
 def test_mutated_files_are_read_or_refused_with_their_name(ws, name):
     read, source_of, members = READERS[name]
     source = source_of(ws)

@@ -1,10 +1,13 @@
 """``--ap auto``: the model chosen by BIC against the check points of all ten candidates."""
 import numpy as np
+import pytest
 
 from selfcal.batch import ALL_MODELS
 from selfcal.workflows import choose_ap_model
 
 from conftest import pruned, simulation
+
+pytestmark = pytest.mark.slow
 
 
 def test_auto_picks_a_model_within_ten_percent_of_the_best_of_the_ten():

@@ -181,6 +181,7 @@ def test_sensor_model_presets_are_those_of_seed_001():
         sensor_model("M8")
 
 
+@pytest.mark.slow
 def test_cli_simulate_adjust_and_compare(tmp_path, capsys):
     """Through the files: simulate the triplet, adjust the nadir image with M6 and 4 GCPs after the
     focal-length step, recover the simulated attitude bias and drift, and tabulate M1 against M6."""

@@ -168,6 +168,7 @@ def test_lro_pair_with_twist_reaches_jigsaws_residuals(lro_runs):
     assert abs(ours / theirs - 1) < 0.10, (ours, theirs)
 
 
+@pytest.mark.slow
 def test_lro_pair_bias_and_drift_are_determined_and_points_land_where_jigsaws_do(lro_runs):
     """RA and DEC of degree 1: every coefficient determined to 1 arcsec (measured 0.3"), biases RA 0.31 deg and
     DEC 0.57 deg alike in L and R (the two Fixed points sit 1.7 km from where the ISDs put them); the adjusted

@@ -100,6 +100,7 @@ def adjusted(tmp_path_factory):
     return out
 
 
+@pytest.mark.slow
 def test_every_figure_is_written_and_embedded(adjusted):
     for name in FIGURES:
         for ext, magic in (("png", b"\x89PNG"), ("svg", b"<?xml")):
@@ -112,6 +113,7 @@ def test_every_figure_is_written_and_embedded(adjusted):
     assert all(src.startswith("data:image/png;base64,") and len(src) > 10_000 for src in report.images)
 
 
+@pytest.mark.slow
 def test_report_numbers_equal_summary_json(adjusted):
     with open(adjusted / "summary.json") as handle:
         summary = json.load(handle)
@@ -131,6 +133,7 @@ def test_report_numbers_equal_summary_json(adjusted):
         assert float(text) == pytest.approx(value, abs=0.5 * 10.0 ** -decimals + 1e-12), key
 
 
+@pytest.mark.slow
 def test_tables_list_points_flags_and_rejections(adjusted):
     with open(adjusted / "summary.json") as handle:
         summary = json.load(handle)
@@ -175,6 +178,7 @@ def test_tables_list_points_flags_and_rejections(adjusted):
     assert len(report.tables["images"]) == summary["n_images"]
 
 
+@pytest.mark.slow
 def test_report_command_renders_again_from_the_files(adjusted, tmp_path, capsys):
     copy = tmp_path / "copy"
     shutil.copytree(adjusted, copy)
@@ -189,6 +193,7 @@ def test_report_command_renders_again_from_the_files(adjusted, tmp_path, capsys)
     assert sorted(os.listdir(copy / "figures")) == sorted(os.listdir(adjusted / "figures"))
 
 
+@pytest.mark.slow
 def test_report_of_a_bad_folder_exits_2_naming_the_file(adjusted, tmp_path, capsys):
     assert run_cli("report", str(tmp_path / "nowhere")) == 2
     assert "no such results folder" in capsys.readouterr().err
@@ -208,6 +213,7 @@ def test_report_of_a_bad_folder_exits_2_naming_the_file(adjusted, tmp_path, caps
     assert "camera.json: missing" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_no_report_option_writes_no_report(adjusted, tmp_path):
     block = adjusted.parent / "block" / "type3"
     out = tmp_path / "res"
@@ -223,6 +229,7 @@ def _chromium():
     return exe
 
 
+@pytest.mark.slow
 def test_report_opens_in_headless_chromium(adjusted, tmp_path):
     exe = _chromium()
     url = (adjusted / "report.html").as_uri()
@@ -263,6 +270,7 @@ def test_grid_mean_vectors_average_each_cell():
     assert [nice_length(x) for x in (0.7, 3.4, 12.0, 0.05)] == [0.5, 2.0, 10.0, 0.05]
 
 
+@pytest.mark.slow
 def test_comparison_report_links_the_best_model_of_each_scenario(tmp_path):
     sim = simulation(seed=6, distortion="brown", points_per_mm2=0.25)
     blocks = {name: pruned(sim, name) for name in ("type1", "type3")}

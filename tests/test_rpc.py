@@ -349,6 +349,7 @@ def test_too_few_or_collinear_gcps_are_refused():
         adjust_rpc_bias(model, lon[line], lat[line], h[line], measured[0, line], measured[1, line])
 
 
+@pytest.mark.slow
 def test_bias_statistics_over_noise_draws():
     """200 noise draws on the 6 GCPs: sigma0² is unbiased (mean within 0.15 of 1: its standard error is
     0.04; measured 1.00), and the scatter of the estimates matches the a-priori covariance (each parameter's

@@ -19,6 +19,7 @@ def small_result(request):
     return adjust(block, AdjustOptions(ap=request.param, gnss_drift=1, imu_drift=0))
 
 
+@pytest.mark.slow
 def test_redundancy_numbers_equal_dense_reference(small_result):
     result = small_result
     problem, state = result.problem, result.state
@@ -80,6 +81,7 @@ def test_reliability_follows_baarda(full_result):
     assert 1.8 < np.median(tests.image_mdb_px) < 3.0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("mode", ["batch", "single"])
 def test_data_snooping_finds_blunders(mode):
     """0.3 % blunders of 4-15 px: recall and false rejections against the simulated truth.
@@ -143,6 +145,7 @@ def test_backward_elimination_equals_the_constrained_least_squares_solution():
     assert state.redundancy == 60 - 6 and state.theta[[2, 5]].tolist() == [0.0, 0.0]
 
 
+@pytest.mark.slow
 def test_screening_keeps_the_simulated_brown_terms_and_drops_the_absent_ones():
     """The Brown-only field has k1, k2, p1, p2 and no affinity or shear (b1 = b2 = 0)."""
     block = pruned(simulation(seed=1, distortion="brown"), "type3")

@@ -6,6 +6,7 @@ the marks' reference coordinates (the way a surveyor measures it).
 from dataclasses import replace
 
 import numpy as np
+import pytest
 
 from selfcal.adjust import AdjustOptions, adjust
 from selfcal.block import prune
@@ -13,6 +14,8 @@ from selfcal.stats import ScreeningOptions, SnoopingOptions
 from selfcal.workflows import adjust_with_tests
 
 from conftest import pruned, simulation
+
+pytestmark = pytest.mark.slow
 
 WAP = AdjustOptions(ap="wavelet:sym4")
 

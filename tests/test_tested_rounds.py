@@ -32,6 +32,7 @@ def _run(block, options):
     return result, records
 
 
+@pytest.mark.slow
 def test_rough_rounds_end_where_full_rounds_end(bal_subset, monkeypatch):
     options = AdjustOptions()
     rough, rough_records = _run(bal_subset, options)
@@ -53,6 +54,7 @@ def test_rough_rounds_end_where_full_rounds_end(bal_subset, monkeypatch):
     assert len(rough_records) < len(full_records), (len(rough_records), len(full_records))
 
 
+@pytest.mark.slow
 def test_the_converging_round_is_reported_not_counted(bal_subset, monkeypatch):
     """The adjustment taken on to the full tolerance is announced by a line of its own (a progress display would
     otherwise show its iterations as if a round had started); it is not a round of the result. (This subset's last

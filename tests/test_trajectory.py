@@ -61,6 +61,7 @@ def test_imu_shift_within_three_sigma(adjusted):
     assert_recovered(*estimates(result, "IMU", 0), sim.truth.imu_shift_rad, np.radians([0.012, 0.012, 0.025]))
 
 
+@pytest.mark.slow
 def test_trajectory_data_improve_the_check_points():
     """Types 2 and 4 add GNSS/IMU (with strip-wise shift and drift free) to Types 1 and 3.
 

@@ -116,6 +116,7 @@ def type2_screened():
     return (sim,) + screened(sim, "type2")
 
 
+@pytest.mark.slow
 def test_trajectory_terms_significant_before_screening_are_kept(type2_screened):
     """A trajectory term is dropped only when its t is below 1.355 (= 3 - z(0.95)) in the unscreened adjustment
     as well as at the drop; the values and sigmas logged are those of the drop."""
@@ -129,6 +130,7 @@ def test_trajectory_terms_significant_before_screening_are_kept(type2_screened):
         assert d.t == pytest.approx(abs(d.value) / d.sigma, rel=1e-9)
 
 
+@pytest.mark.slow
 def test_gnss_heights_confounded_with_the_principal_distance_are_kept(type2_screened):
     """Every strip's GNSS height shift is mostly the principal distance (R^2 on c, x0, y0 > 0.5): none is dropped,
     though some are individually insignificant."""
@@ -147,6 +149,7 @@ def test_gnss_heights_confounded_with_the_principal_distance_are_kept(type2_scre
     assert guards.shared_with_interior_orientation(names.index("GNSS S1 D0 X")) < 0.5
 
 
+@pytest.mark.slow
 def test_joint_tests_per_group(type2_screened):
     """The APs, each sensor and each sensor's strip have their own joint test, none significant; the WAPs are
     screened as well."""
@@ -160,6 +163,7 @@ def test_joint_tests_per_group(type2_screened):
     assert groups["GNSS"].n_dropped + groups["IMU"].n_dropped == n_traj
 
 
+@pytest.mark.slow
 def test_screening_drops_no_real_trajectory_term():
     """Pooled over 3 seeds of the independent simulation (Types 2 and 4, wavelet APs): no dropped term is larger
     than 3 sigma of its unscreened estimate (the truth in the model's own parametrisation), at least 80 % of the

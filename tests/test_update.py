@@ -106,6 +106,7 @@ def test_downdated_start_declines_what_it_cannot_do(previous):
     assert downdated_start(replace(previous, reduced_matrix=None), problem, block) is None
 
 
+@pytest.mark.slow
 def test_downdated_start_serves_a_free_networks_snooping(monkeypatch):
     """BAL's 1,800-point subset (a free network: minimum-norm steps) with data snooping: the rounds start from
     the downdated step where it lowers the cost, and end where they end without it (the same rejections, the

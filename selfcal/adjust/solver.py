@@ -34,7 +34,7 @@ class SolverOptions:
     max_iterations : int
     step_tolerance : float
         Converged when every correction is below this share of its conditional
-        standard deviation (|dx_i| · sqrt(N_ii) < tol, unit variance), ...
+        standard deviation (``|dx_i| · sqrt(N_ii) < tol``, unit variance), ...
     function_tolerance : float
         ... or when an undamped step moves no function of the unknowns by more
         than this share of its a-posteriori standard deviation (sqrt(d^T N d) <

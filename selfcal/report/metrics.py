@@ -76,7 +76,7 @@ def datum(block, problem, n_gcp: int) -> tuple[str, str]:
 
 def summary(tested, extra: dict | None = None, checks=None) -> dict:
     """summary.json of DESIGN.md §4 for a (tested) adjustment. ``checks``: the check points
-    (:mod:`selfcal.workflows.checks`), by default those intersected in the adjustment. Errors and
+    (:mod:`selfcal.stats.checks`), by default those intersected in the adjustment. Errors and
     precision are along the object frame's axes, or east, north, up for ECEF."""
     from ..stats.checks import intersected, local_axes
     result = tested.result

@@ -55,7 +55,7 @@ class Parameter:
     ``group`` names the kind of unknown for correlation tables and the report: ``"EOP"`` for an
     image's orientation (or its corrections), ``"IOP"`` for a camera's interior orientation and
     calibration. ``screened``: whether AP screening may hold it at its start value (tested as
-    t = |x - x_start| / sigma(x)); a frame camera's orientation is never screened, seed 001's
+    ``t = |x - x_start| / sigma(x)``); a frame camera's orientation is never screened, seed 001's
     calibration parameters are.
     """
 

@@ -37,7 +37,7 @@ def correlation_matrix(Q: np.ndarray, index: np.ndarray) -> np.ndarray:
 
 
 def max_abs_correlation_by_group(problem, Q) -> dict[str, float | None]:
-    """max |rho| between the APs and each group; None where a group is empty or there are no APs."""
+    """max ``|rho|`` between the APs and each group; None where a group is empty or there are no APs."""
     groups = parameter_groups(problem)
     ap = groups["AP"]
     out: dict[str, float | None] = {name: None for name in GROUPS}

@@ -70,7 +70,7 @@ class ObservationTests:
         return float(self.image_redundancy.sum() + self.control_redundancy.sum() + self.parameter_redundancy.sum())
 
     def image_w_max(self) -> np.ndarray:
-        """Per image observation, the w of the coordinate with the larger |w| (sign kept)."""
+        """Per image observation, the w of the coordinate with the larger ``|w|`` (sign kept)."""
         w = self.image_w
         pick = np.argmax(np.abs(w), axis=1)
         return w[np.arange(len(w)), pick]
