@@ -155,6 +155,18 @@ def _shortened(problem: Problem, state: State, cost: float, d_theta: np.ndarray,
     return share * d_theta, share * d_p, candidate, new_cost, 2.0 * predicted * (share - 0.5 * share * share)
 
 
+def _geometric_blocks(problem: Problem, lin: Linearisation) -> np.ndarray:
+    """The points' normal blocks as their rays' geometry makes them: each divided by its strongest ray's weight
+    factor (a robust weighting takes weight from a point's rays, not geometry from the point: a point whose rays
+    all weigh little is not undetermined but doubtful, and the cleaning decides about it)."""
+    V = lin.of_points("V")
+    if problem.obs_weight is None or np.all(problem.obs_weight == 1.0):
+        return V
+    strongest = np.zeros(problem.n_points)
+    np.maximum.at(strongest, problem.obs_point, problem.obs_weight)
+    return V / np.maximum(strongest, 1e-300)[:, None, None]
+
+
 def _converged(options: SolverOptions, step_sigma: float, moved_sigma: float, cost: float, new_cost: float) -> str | None:
     """Why an accepted step ends the iteration, or None."""
     if step_sigma < options.step_tolerance:
@@ -212,8 +224,7 @@ def solve(problem: Problem, state: State, names: list[str], options: SolverOptio
     for iteration in range(1, options.max_iterations + 1):
         if options.point_sigma_ratio and checked is not lin:
             checked = lin
-            bad = points_not_determined_by_rays(lin.of_points("V"),
-                                                options.point_sigma_ratio)[0]
+            bad = points_not_determined_by_rays(_geometric_blocks(problem, lin), options.point_sigma_ratio)[0]
             if bad.size:
                 return SolverOutcome(state, lin, False, f"{bad.size} points not determined by their rays",
                                      iteration - 1, history, lin.cost, undetermined=bad, datum_null=null)

@@ -40,6 +40,15 @@ class Contamination:
         return out
 
 
+def _frame(camera) -> tuple[float, float]:
+    """(columns, rows) of a camera's images: a frame camera's width and height, a line camera's detectors and
+    lines."""
+    for width, height in (("width_px", "height_px"), ("columns", "rows")):
+        if getattr(camera, width, None) and getattr(camera, height, None):
+            return float(getattr(camera, width)), float(getattr(camera, height))
+    raise ValueError(f"camera '{camera.camera_id}' states no image size: give ``frame_px``")
+
+
 def contaminate(block: Block, rate: float, anywhere_share: float = 0.5, patch: int = 0, seed: int = 0,
                 small_px: tuple[float, float] = (4.0, 15.0), patch_shift_px: tuple[float, float] = (20.0, 60.0),
                 patch_image: int | None = None) -> tuple[Block, Contamination]:
@@ -54,8 +63,8 @@ def contaminate(block: Block, rate: float, anywhere_share: float = 0.5, patch: i
     obs = block.observations
     n = len(obs)
     pixel = obs.pixel.copy()
-    size = np.array([(block.cameras[c].width_px, block.cameras[c].height_px)
-                     for c in block.images.camera_id[obs.image_index]], float) if n else np.zeros((0, 2))
+    frame = {c: _frame(cam) for c, cam in block.cameras.items()}
+    size = np.array([frame[c] for c in block.images.camera_id[obs.image_index]], float) if n else np.zeros((0, 2))
     wrong = rng.choice(n, int(round(rate * n)), replace=False)
     n_any = int(round(anywhere_share * len(wrong)))
     anywhere, small = wrong[:n_any], wrong[n_any:]

@@ -4,7 +4,7 @@ After the robust adjustment every image point and control point has a normalised
 residual's length over the robust scale) and a weight. The cleaning, before Baarda's tests of what is left:
 
 * image observations with u above ``reject`` (5 robust sigmas by default: a blunder-free image point exceeds it
-  with probability exp(-12.5) = 4e-6) are rejected; those that then fit the least-squares adjustment of the
+  with probability exp(-12.5) = 4e-6; the robust scale is never below the a-priori sigma) are rejected; those that then fit the least-squares adjustment of the
   cleaned block (the good rays a point's blunder pulled along) are taken back (:func:`readmissible`), and all
   face Baarda's tests afterwards;
 * an image with most of its observations rejected (more than :data:`IMAGE_SHARE`) is left out: its
@@ -49,6 +49,7 @@ class Cleaning:
     loss: str
     c: float
     scale: float                                    # the robust scale at the end (1 = the a-priori sigmas)
+    residual_scale: float                           # the residuals' own scale (trimmed MAD), below 1 where they fit
     reject: float                                   # the threshold, in robust sigmas
     rows: np.ndarray                                # every observation of the robust adjustment
     weight: np.ndarray                              # its final weight factor
@@ -87,7 +88,8 @@ class Cleaning:
 
     def as_dict(self) -> dict:
         """summary.json ``robust``."""
-        return {"loss": self.loss, "c": self.c, "scale": self.scale, "reject_u": self.reject,
+        return {"loss": self.loss, "c": self.c, "scale": self.scale, "residual_scale": self.residual_scale,
+                "reject_u": self.reject,
                 "n_rejected": int(len(self.rejected_rows)), "share_rejected": self.share,
                 "images_left_out": list(self.images_left_out),
                 "control_demoted": [{"point_id": p, "u": u} for p, u in self.control_demoted],
@@ -147,7 +149,8 @@ def clean(result, reject: float, prune: Callable[[Block], Block]) -> tuple[Block
         messages.append(f"control point '{points.point_id[p]}' does not fit the block: its surveyed coordinates are "
                         f"{u_control[k]:.1f} robust sigmas off (a misidentified target? a typing error?); it is "
                         f"checked instead of used as control")
-    cleaning = Cleaning(weighting.loss.name, weighting.loss.c, weighting.scale, reject, obs.row.copy(), weight, u,
+    cleaning = Cleaning(weighting.loss.name, weighting.loss.c, weighting.scale, weighting.residual_scale, reject,
+                        obs.row.copy(), weight, u,
                         np.sort(obs.row[gross]), roles, image_ids, demoted, [], result.iterations, messages)
     pruned = cleaning.apply(result.block, prune)
     lost = [str(p) for p, r in zip(points.point_id, points.role) if r in ("gcp", "chk")

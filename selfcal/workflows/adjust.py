@@ -145,7 +145,7 @@ def _seed001(block: Block, request: AdjustRequest, progress, report, say, scores
     model = options.sensor_model or "M6"
     extra: dict = {"sensor_model": model}
     if not request.keep_focal and seed001.needs_focal_step(model):
-        focal, sigma = seed001.calibrate_focal(block, options=options)
+        focal, sigma = seed001.calibrate_focal(block, options=options, robust=request.robust)
         block = seed001.with_focal(block, focal)
         extra["calibrated_focal_mm"] = {k: {"value": v, "sigma": sigma[k]} for k, v in focal.items()}
         say("focal lengths (M7 on all images): " + ", ".join(f"{k} {v:.3f} ± {sigma[k]:.3f} mm"

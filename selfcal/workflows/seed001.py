@@ -148,15 +148,16 @@ def needs_focal_step(sensor_model: str) -> bool:
     return "focal" not in parse(sensor_model).free
 
 
-def calibrate_focal(block: Block, gcps: np.ndarray | None = None, options: AdjustOptions | None = None
-                    ) -> tuple[dict[str, float], dict[str, float]]:
+def calibrate_focal(block: Block, gcps: np.ndarray | None = None, options: AdjustOptions | None = None,
+                    robust=None) -> tuple[dict[str, float], dict[str, float]]:
     """Step 1 of seed 001: each camera's focal length (mm) and its sigma, from M7 on all images and
-    every gcp (``gcps``: indices of the block's points; default all its gcp)."""
+    every gcp (``gcps``: indices of the block's points; default all its gcp); ``robust``: the robust cleaning
+    of the adjustment it is a step of (:class:`~selfcal.adjust.RobustOptions`), else least squares."""
     gcps = np.flatnonzero(block.points.role == "gcp") if gcps is None else gcps
     options = replace(options or AdjustOptions(), sensor_model="M7", parameter_sigma=None)
     sub = case_block(block, tuple(range(len(block.images))), gcps, mono=False)
     try:
-        tested = adjust_with_tests(sub, options, snooping=None)
+        tested = adjust_with_tests(sub, options, snooping=None, robust=robust)
     except AdjustmentError as exc:
         raise AdjustmentError(f"focal-length calibration (M7 on all images) failed: {exc}") from None
     result = tested.result
