@@ -37,7 +37,7 @@ def _unit_distance(result, a, b) -> float:
 
 
 def _readjust(previous, block, free, downdate: bool, monkeypatch):
-    import selfcal.adjust as adjust_module
+    import selfcal.adjust.engine as adjust_module
     monkeypatch.setattr(adjust_module, "downdated_start", downdated_start if downdate else lambda *a, **k: None)
     return adjust(block, AdjustOptions(ap="brown"), start=previous, free=free,
                   ap_models={c.camera_id: c.ap for c in previous.problem.cameras})
@@ -113,7 +113,7 @@ def test_downdated_start_serves_a_free_networks_snooping(monkeypatch):
     same final cost to 1e-9)."""
     import os
 
-    import selfcal.adjust as adjust_module
+    import selfcal.adjust.engine as adjust_module
     import selfcal.adjust.update as update
     from selfcal.convert import block_from_bal
     from selfcal.io.bal import read_bal

@@ -12,7 +12,7 @@
 * :func:`similarity_directions` — a free network's datum directions (a shift, rotation and scale of the object
   frame) in the reduced unknowns, the first guess of its minimum-norm steps.
 
-The weakly determined *parameters* are :func:`selfcal.adjust.weakly_determined`'s, and exactly singular
+The weakly determined *parameters* are :func:`selfcal.adjust.engine.weakly_determined`'s, and exactly singular
 directions :func:`selfcal.adjust.linalg.null_directions`'; these two add what the normal equations hide when
 priors or noise keep them positive definite.
 """

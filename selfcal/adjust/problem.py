@@ -36,6 +36,7 @@ import numpy as np
 from ..ap import APModel
 from ..block import Block
 from ..errors import UsageError
+from .parameters import CameraParameters
 from .residuals import ResidualSettings, build_residuals
 
 __all__ = ["CameraParameters", "Problem", "State", "SensorSlot", "build_problem", "CHUNK_OBSERVATIONS"]
@@ -45,39 +46,6 @@ CHUNK_OBSERVATIONS = 16384
 
 #: widest camera (free parameters) kept in compact form, see Problem.compact_cameras
 COMPACT_CAMERA_WIDTH = 32
-
-
-@dataclass
-class CameraParameters:
-    """One camera's parameter vector [core parameters of its sensor | AP coefficients] and its settings."""
-
-    camera_id: str
-    ap: APModel
-    pixel_size_mm: float
-    free: np.ndarray          # bool, which entries are unknowns
-    prior_value: np.ndarray   # a-priori (start) values (observed where prior_sigma is finite)
-    prior_sigma: np.ndarray   # NaN: no prior observation
-    names: list[str]
-    sensor: str = "frame"     # name of the camera's sensor model (selfcal.sensors.SENSORS)
-    n_core: int = 3           # the sensor's own parameters, before the AP coefficients
-    core_screened: tuple = (False, False, False)   # which core parameters screening may hold at their start
-    units: tuple = ()         # unit of every entry
-
-    @property
-    def size(self) -> int:
-        return len(self.free)
-
-    @property
-    def screenable(self) -> np.ndarray:
-        """Which entries screening may hold: the flagged core parameters and every AP coefficient."""
-        return np.concatenate([np.asarray(self.core_screened, bool), np.ones(self.size - self.n_core, bool)])
-
-    @property
-    def reference(self) -> np.ndarray:
-        """What screening tests an entry against and holds it at: the start value of a core
-        parameter, zero for an AP coefficient (its given value for one held by block.toml, sigma 0)."""
-        ap = np.where(self.prior_sigma[self.n_core:] == 0, self.prior_value[self.n_core:], 0.0)
-        return np.concatenate([self.prior_value[:self.n_core], ap])
 
 
 @dataclass

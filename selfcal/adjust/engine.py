@@ -1,0 +1,296 @@
+"""The adjustment engine's entry: :func:`adjust` sets up the problem (:mod:`.problem`), finds initial values
+(:mod:`.initial`), iterates (:mod:`.solver`), weights robustly where asked (:mod:`.robust`) and extracts the
+cofactor matrices (:mod:`.covariance`) into one :class:`~selfcal.adjust.result.AdjustmentResult`. It never reads
+files and never prints; progress goes to an optional callback."""
+from __future__ import annotations
+
+import contextlib
+import time
+from dataclasses import replace
+from types import SimpleNamespace
+from typing import Callable
+
+import numpy as np
+
+from ..ap import ap_settings
+from ..block import Block, leave_out, prune
+from ..errors import AdjustmentError
+from .ap_columns import carry_ap_columns
+from .datum import FREE_POINT_SIGMA_RATIO, behind_camera, points_not_determined_by_rays
+from .initial import initial_state
+from .linalg import (DENSE_LIMIT, EIGH_FLOPS, PSEUDO_INVERSE_LIMIT, SingularSystem, blas_threads, dense_assembly,
+                     factorise, null_directions, shared_product)
+from .options import AdjustOptions
+from .parameters import apply_free
+from .problem import Problem, build_problem, inherited_point_key
+from .residuals.image import image_residuals
+from .result import AdjustmentResult
+from .robust import RobustOptions, RobustWeighting
+from .schur import SingularPoints, reduce
+from .solver import IterationRecord, solve
+from .update import UPDATE_LIMIT, downdated_start
+
+__all__ = ["adjust", "weakly_determined", "WEAK_INFLATION"]
+
+
+def _leave_out(block: Block, observations, points, text: str, behind: int = 0, undetermined: int = 0) -> Block:
+    """``block`` without the flagged observations / points, pruned (a point left with one ray, an image with too
+    few points), its ``dropped`` record counting them and saying ``text``."""
+    from ..sensors import sensor_of
+
+    dropped = replace(block.dropped, observations_behind_camera=block.dropped.observations_behind_camera + behind,
+                      points_undetermined=block.dropped.points_undetermined + undetermined,
+                      messages=block.dropped.messages + (text,))
+    need = min((sensor_of(c).min_points_per_image for c in block.cameras.values()), default=6)
+    return prune(leave_out(block, observations, points, dropped), min_points_per_image=need)
+
+
+def _free_network_cofactor(S, notes: list[str], defect_tol: float = 1e-10) -> np.ndarray:
+    """Cofactor of theta in a free network: the pseudo-inverse of S (minimum-trace datum).
+
+    The eigenvalues of the scaled S below ``defect_tol`` times the largest are
+    the datum defect and are left out.
+    """
+    S = S.toarray() if hasattr(S, "toarray") else np.asarray(S)
+    if S.shape[0] > DENSE_LIMIT:
+        raise AdjustmentError("free-network covariance is implemented for up to "
+                              f"{DENSE_LIMIT} orientation and camera unknowns")
+    d = np.sqrt(np.clip(np.diag(S), 1e-300, None))
+    with shared_product(EIGH_FLOPS * S.shape[0] ** 3):
+        w, V = np.linalg.eigh(S / d[:, None] / d[None, :])
+    keep = w > defect_tol * w.max()
+    notes.append(f"free network: datum defect {int((~keep).sum())}; precision in the minimum-trace datum")
+    Q = (V[:, keep] / w[keep]) @ V[:, keep].T
+    return Q / d[:, None] / d[None, :]
+
+
+#: a parameter whose sigma its correlation with the others inflates by more than this (sqrt(Q_kk S_kk), the square
+#: root of the variance inflation factor) is determined by the data only in combination with others. Measured:
+#: simulated UAV blocks with Brown APs up to 80, the PRISM triplet with M7 35, the LRO NAC pair with degree-3
+#: attitude polynomials 2.4e4 - 6.7e4 (bias and drift alone: 2.5)
+WEAK_INFLATION = 1000.0
+
+
+def weakly_determined(S, Q, names: list[str], problem: Problem, limit: float = WEAK_INFLATION,
+                      top: int = 4) -> str | None:
+    """A note naming the free parameters whose a-posteriori sigma is more than ``limit`` times the sigma they
+    would have if the others were known (sqrt of Q_kk times the reduced normal matrix's S_kk); None if none is."""
+    diag = np.asarray(S.diagonal() if hasattr(S, "diagonal") else np.diag(S), float).ravel()
+    inflation = np.sqrt(np.abs(Q.diagonal() * diag))
+    free = np.ones(len(inflation), bool)
+    free[:problem.n_e] = problem.image_free.ravel()
+    weak = np.flatnonzero(free & (inflation > limit))
+    if not weak.size:
+        return None
+    worst = weak[np.argsort(inflation[weak])[::-1]][:top]
+    listed = ", ".join(f"{names[k]} ({inflation[k]:.3g}x)" for k in worst)
+    return (f"weakly determined: {weak.size} parameters have sigmas inflated more than {limit:g}x by their "
+            f"correlation with others ({listed}{', ...' if weak.size > top else ''}): the data fix them only in "
+            f"combination; their values lean on the priors, the datum or the start. Add observations or priors, "
+            f"or estimate fewer parameters")
+
+
+def adjust(block: Block, options: AdjustOptions = AdjustOptions(),
+           progress: Callable[[IterationRecord], None] | None = None,
+           start: "AdjustmentResult | None" = None, free: dict | None = None,
+           ap_models: dict | None = None, robust: RobustOptions | None = None) -> AdjustmentResult:
+    """Adjust a block: estimate orientation, object points and camera parameters.
+
+    Parameters
+    ----------
+    block : Block
+        A pruned block (as :func:`selfcal.io.read_block` returns it).
+    options : AdjustOptions
+    progress : callable, optional
+        Called with an :class:`IterationRecord` after every iteration.
+    start : AdjustmentResult, optional
+        A previous adjustment of (a superset or subset of) this block: its
+        estimates are the initial values wherever the ids match (warm start,
+        used by data snooping and AP screening). Its kept AP columns are taken
+        over, not copied: it stays valid, but would evaluate them afresh if
+        linearised again.
+    free : dict, optional
+        Which screenable parameters are estimated, by owner: a camera id maps to
+        a bool array over its AP coefficients, "GNSS" or "IMU" to one over that
+        sensor's shift/drift parameters. The others are held at zero.
+    ap_models : dict camera_id -> APModel, optional
+        Use these AP models instead of building them from ``options.ap``
+        (keeps a basis fixed across re-adjustments).
+    robust : RobustOptions, optional
+        Weight the image observations (and the control points) by a robust loss of their residuals,
+        re-computed at every accepted step (:mod:`.robust`); the result's ``robust`` holds the weights.
+
+    Raises
+    ------
+    AdjustmentError
+        When the block has a rank defect (the message names the unknowns
+        involved) or cannot be initialised.
+    """
+    with contextlib.ExitStack() as threads:
+        return _adjust(block, options, progress, start, free, ap_models, robust, threads)
+
+
+def _adjust(block: Block, options: AdjustOptions, progress, start, free, ap_models, robust,
+            threads: contextlib.ExitStack) -> AdjustmentResult:
+    t0 = time.perf_counter()
+    settings = ap_settings(options.ap, options.grid)
+
+    def setup(block: Block, start, ap_models):
+        key = None if start is None else inherited_point_key(block, start.block, start.problem)
+        problem = build_problem(block, options.ap, settings, ap_models=ap_models,
+                                gnss_drift=options.gnss_drift, imu_drift=options.imu_drift,
+                                lever_arm=options.lever_arm, boresight=options.boresight, options=options,
+                                point_key=key)
+        if free:
+            apply_free(problem, free)
+        if start is not None:
+            # the previous estimate moved by the downdated step, before its AP columns are carried away
+            with blas_threads(len(block.images)):   # (two BLAS runtimes' threads on two cores: a 350x350
+                # Cholesky took 100 ms on two threads just after NumPy's, 1 ms on one)
+                start = downdated_start(start, problem, block,
+                                        block.datum == "free" or options.solver.free_network) or start
+            carry_ap_columns(problem, block.observations.row[problem.obs_order],
+                             start.problem, start.block.observations.row[start.problem.obs_order], consume=True)
+        state, notes = initial_state(problem, block, start, robust is not None)
+        for slot in problem.sensors:
+            slot.bound.refine_sigma(state, problem.obs_sigma)
+        problem.settle_sigma()
+        return problem, state, notes
+
+    problem, state, notes = setup(block, start, ap_models)
+    # small blocks on one BLAS thread from here on; the AP basis above keeps them all (a WAP basis's frame sample)
+    threads.enter_context(blas_threads(len(block.images)))
+    solver_options = options.solver
+    free_network = block.datum == "free" or solver_options.free_network
+    left_out: list[str] = []
+    if free_network:
+        solver_options = replace(solver_options, free_network=True,
+                                 point_sigma_ratio=solver_options.point_sigma_ratio or FREE_POINT_SIGMA_RATIO)
+    if free_network or robust is not None:
+        # a free network, or a robust adjustment of matcher output: observations behind their camera at the start
+        # go (a robust adjustment also leaves out points whose rays turn out singular, below)
+        # at the start values; a warm start comes from an adjustment that left them out already
+        behind = behind_camera(problem, state) if start is None else np.zeros(problem.n_image_observations, bool)
+        if behind.any():
+            flagged = np.zeros(len(block.observations), bool)
+            flagged[problem.obs_order[behind]] = True
+            text = (f"left out {int(behind.sum())} observations of {len(np.unique(problem.obs_point[behind]))} "
+                    f"points behind their camera at the start values (a central projection fits their mirror "
+                    f"image; " + ("COLMAP's cost gives them no residual)" if free_network else
+                                  "wrong matches, or points intersected from them)"))
+            block = _leave_out(block, flagged, None, text, behind=int(behind.sum()))
+            left_out.append(text)
+            problem, state, notes = setup(block, start, ap_models)
+    history: list[IterationRecord] = []
+    # a free network's datum directions, carried over a leave-out and from the adjustment this one re-runs (the
+    # solver checks they still fit the unknowns and finds them afresh if not)
+    datum_null = getattr(start, "datum_null", None)
+    while True:
+        names = problem.theta_names(block.images.image_id)
+        n_obs, n_unk = problem.n_observations(), problem.n_unknowns()
+        if n_obs <= n_unk:
+            raise AdjustmentError(f"no redundancy: {n_obs} observations for {n_unk} unknowns")
+        budget = replace(solver_options, max_iterations=max(1, options.solver.max_iterations - len(history)),
+                         initial_damping=history[-1].damping if history else solver_options.initial_damping)
+        done = len(history)                 # iterations before a leave-out: the numbering goes on
+
+        def numbered(record: IterationRecord) -> None:
+            if progress is not None:
+                progress(replace(record, iteration=record.iteration + done))
+        weighting = RobustWeighting(robust) if robust is not None else None
+        try:
+            outcome = solve(problem, state, names, budget, numbered, datum_null,
+                            None if weighting is None else weighting.update)
+        except SingularPoints as exc:
+            ids = ", ".join(f"'{block.points.point_id[i]}'" for i in exc.indices[:5])
+            if robust is None:
+                raise AdjustmentError(f"{exc} (e.g. {ids}): remove them or check their observations") from None
+            # a robust adjustment: points whose rays are all gross errors go, and it starts again from its start
+            flagged = np.zeros(len(block.points), bool)
+            flagged[exc.indices] = True
+            text = f"left out {int(flagged.sum())} points whose rays do not determine them (e.g. {ids})"
+            left_out.append(text)
+            previous = SimpleNamespace(block=block, state=state, problem=problem)
+            block = _leave_out(block, None, flagged, text, undetermined=int(flagged.sum()))
+            problem, state, notes = setup(block, previous, {cam.camera_id: cam.ap for cam in problem.cameras})
+            continue
+        history += [replace(record, iteration=record.iteration + done) for record in outcome.history]
+        datum_null = outcome.datum_null
+        if outcome.undetermined is None or len(history) >= options.solver.max_iterations:
+            break
+        # a free network's points that their rays do not determine: left out, and on from the estimate so far
+        flagged = np.zeros(len(block.points), bool)
+        flagged[outcome.undetermined] = True
+        sigma = points_not_determined_by_rays(outcome.linearisation.of_points("V"),
+                                              solver_options.point_sigma_ratio)[1]
+        worst = outcome.undetermined[np.argsort(-sigma[outcome.undetermined])][:5]
+        listed = ", ".join(f"'{block.points.point_id[k]}' ({sigma[k]:.3g} m)" for k in worst)
+        text = (f"left out {int(flagged.sum())} points that their rays do not determine after {outcome.iterations} "
+                f"iteration(s) (sigma with the orientations held above {solver_options.point_sigma_ratio:g}x the median "
+                f"{np.median(sigma[np.isfinite(sigma)]):.3g} m, or a "
+                f"singular point block): {listed}{', ...' if flagged.sum() > 5 else ''}")
+        left_out.append(text)
+        previous = SimpleNamespace(block=block, state=outcome.state, problem=problem)
+        block = _leave_out(block, None, flagged, text, undetermined=int(flagged.sum()))
+        problem, state, notes = setup(block, previous, {cam.camera_id: cam.ap for cam in problem.cameras})
+    notes = left_out + notes
+    outcome.history = history
+    outcome.iterations = len(history)
+    try:
+        lin = outcome.linearisation
+        dense = dense_assembly(problem.n_theta,
+                               solver_options.free_network and problem.n_theta <= PSEUDO_INVERSE_LIMIT)
+        if outcome.reduction is not None:
+            S, factor, v_inv = outcome.reduction
+        else:
+            S, _, v_inv = reduce(problem, lin, 0.0, dense)
+            factor = None
+    except SingularPoints as exc:
+        ids = ", ".join(f"'{block.points.point_id[i]}'" for i in exc.indices[:5])
+        raise AdjustmentError(f"{exc} (e.g. {ids}): remove them or check their observations") from None
+    if solver_options.free_network:
+        Q = _free_network_cofactor(S, notes)
+    else:
+        try:
+            factor = factor or factorise(S)
+        except SingularSystem as exc:
+            directions = null_directions(S, names)
+            raise AdjustmentError(f"the normal equations are singular at the solution ({exc}):\n  "
+                                  + "\n  ".join(directions)) from None
+        Q = factor.cofactor()
+        if factor.method == "superlu":
+            notes.append("sparse factorisation by SciPy's SuperLU: CHOLMOD (scikit-sparse) is not installed; "
+                         "`make install` or `pip install selfcal[cholmod]` installs it (1-2x faster)")
+    if not solver_options.free_network:
+        note = weakly_determined(S, Q, names, problem)
+        if note:
+            notes.append(note)
+    variance_factor = 2.0 * outcome.cost / (n_obs - n_unk)
+    v_sorted = -image_residuals(problem, outcome.state)
+    residuals = np.empty_like(v_sorted)
+    residuals[problem.obs_order] = v_sorted
+    return AdjustmentResult(
+        problem=problem,
+        state=outcome.state,
+        block=block,
+        converged=outcome.converged,
+        reason=outcome.reason,
+        iterations=outcome.iterations,
+        history=outcome.history,
+        cost=outcome.cost,
+        n_observations=n_obs,
+        n_unknowns=n_unk,
+        variance_factor=variance_factor,
+        image_sigma_px=block.image_sigma_px,
+        theta_names=names,
+        Q_theta=Q,
+        residuals=residuals,
+        notes=notes,
+        seconds=time.perf_counter() - t0,
+        linearisation=lin,
+        v_inv=v_inv,
+        reduced_matrix=(S if isinstance(S, np.ndarray) else S.toarray()) if S.shape[0] <= UPDATE_LIMIT else None,
+        datum_null=outcome.datum_null,
+        robust=weighting,
+    )
+

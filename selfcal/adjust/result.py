@@ -1,0 +1,127 @@
+"""The result of an adjustment: the estimate, its precision and how it was reached, as one object that the
+statistics, the reports and the workflows read (:class:`AdjustmentResult`)."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..block import Block
+from .covariance import point_cofactors
+from .linalg import blas_threads
+from .problem import Problem, State
+from .robust import RobustWeighting
+from .schur import Linearisation
+from .solver import IterationRecord
+
+__all__ = ["AdjustmentResult"]
+
+
+@dataclass
+class AdjustmentResult:
+    """The estimate, its precision and how it was reached.
+
+    Precision is a-posteriori: covariance = variance_factor · cofactor.
+    Residuals follow l + v = f(x): v = adjusted - observed, in the observation units of each
+    image's sensor (:attr:`residuals_px` in pixels).
+    """
+
+    problem: Problem
+    state: State
+    block: Block                   # the block actually adjusted (after pruning)
+    converged: bool
+    reason: str
+    iterations: int
+    history: list[IterationRecord]
+    cost: float
+    n_observations: int
+    n_unknowns: int
+    variance_factor: float
+    image_sigma_px: float
+    theta_names: list[str]
+    Q_theta: np.ndarray            # or a BandedCofactor beyond DENSE_LIMIT (Factor.cofactor): index it, .diagonal()
+    residuals: np.ndarray          # (m, 2) image residuals in ``block``'s observation order, observation units
+    notes: list[str]
+    seconds: float
+    linearisation: Linearisation = field(repr=False, default=None)
+    v_inv: list = field(repr=False, default=None)
+    point_cofactor_blocks: np.ndarray | None = field(repr=False, default=None)   # Q_points once computed
+    reduced_matrix: np.ndarray | None = field(repr=False, default=None)   # S of the last linearisation (dense, small)
+    datum_null: np.ndarray | None = field(repr=False, default=None)       # a free network's datum directions
+    robust: RobustWeighting | None = field(repr=False, default=None)      # the robust weights, where robust
+
+    @property
+    def Q_points(self) -> np.ndarray:
+        """Cofactor blocks of the object points, (n_points, 3, 3), computed on first use: the rounds of a tested
+        workflow get them from the observation tests, whose pass over the points shares their products."""
+        if self.point_cofactor_blocks is None:
+            with blas_threads(self.problem.n_images):
+                self.point_cofactor_blocks = point_cofactors(self.problem, self.linearisation, self.v_inv,
+                                                             self.Q_theta)
+        return self.point_cofactor_blocks
+
+    @property
+    def redundancy(self) -> int:
+        return self.n_observations - self.n_unknowns
+
+    @property
+    def sigma0_px(self) -> float:
+        """A-posteriori sigma of an image coordinate of unit weight, pixels."""
+        return self.image_sigma_px * float(np.sqrt(self.variance_factor))
+
+    @property
+    def residuals_px(self) -> np.ndarray:
+        """Image residuals (m, 2) in pixels along the photo axes (x right, y up), ``block``'s order."""
+        problem = self.problem
+        out = np.empty_like(self.residuals)
+        v = self.residuals[problem.obs_order]               # sorted order
+        for slot in problem.sensors:
+            col_row = slot.bound.pixel_residuals(slot.observations, v[slot.observations])
+            out[problem.obs_order[slot.observations]] = np.column_stack([col_row[:, 0], -col_row[:, 1]])
+        return out
+
+    def image_sigma(self) -> np.ndarray:
+        """A-posteriori standard deviations of the image parameters, (n_images, width) in code units
+        (a frame image's X0, Y0, Z0 in m, omega, phi, kappa in rad); NaN where held."""
+        n_e = self.problem.n_e
+        s = np.sqrt(self.variance_factor * self.Q_theta.diagonal()[:n_e]).reshape(self.problem.n_images, -1)
+        return np.where(self.problem.image_free, s, np.nan)
+
+    def camera_sigma(self) -> list[np.ndarray]:
+        """A-posteriori standard deviations of each camera's parameters (NaN where fixed)."""
+        out = []
+        diag = self.Q_theta.diagonal()
+        for cam, start in zip(self.problem.cameras, self.problem.d_offset):
+            s = np.full(cam.size, np.nan)
+            k = int(cam.free.sum())
+            s[cam.free] = np.sqrt(self.variance_factor * diag[start:start + k])
+            out.append(s)
+        return out
+
+    def predict_pixels(self, image_ids, point_ids) -> np.ndarray:
+        """Adjusted image positions (col, row) of arbitrary (image, point) pairs, by id.
+
+        NaN where the image or the point is not part of the adjustment (e.g. an
+        observation rejected together with its point).
+        """
+        img_lookup = {i: k for k, i in enumerate(self.block.images.image_id)}
+        pt_lookup = {p: k for k, p in enumerate(self.block.points.point_id)}
+        img = np.array([img_lookup.get(i, -1) for i in image_ids], dtype=np.int64)
+        pt = np.array([pt_lookup.get(p, -1) for p in point_ids], dtype=np.int64)
+        out = np.full((len(img), 2), np.nan)
+        ok = (img >= 0) & (pt >= 0)
+        problem = self.problem
+        image_slot = np.zeros(problem.n_images, np.int64)
+        for s, slot in enumerate(problem.sensors):
+            image_slot[slot.images] = s
+        for s, slot in enumerate(problem.sensors):
+            sel = np.flatnonzero(ok & (image_slot[np.maximum(img, 0)] == s))
+            if sel.size:
+                context = slot.bound.context(self.state, False)
+                out[sel] = slot.bound.pixels(context, img[sel], self.state.points[pt[sel]])
+        return out
+
+    def point_covariance(self) -> np.ndarray:
+        """A-posteriori covariance of every object point, (n_points, 3, 3) in m^2."""
+        return self.variance_factor * self.Q_points
+
