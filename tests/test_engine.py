@@ -264,9 +264,9 @@ def test_small_blocks_adjust_on_one_blas_thread(monkeypatch):
         result = adjust(block, AdjustOptions(ap="brown"), progress=lambda record: seen.append(blas_threads()))
         assert seen and all(threads == {1} for threads in seen)
         assert blas_threads() == {2}
-        import selfcal.stats.reliability as reliability
-        original, inside = reliability._image_leverage, []
-        monkeypatch.setattr(reliability, "_image_leverage", lambda *args: inside.append(blas_threads())
+        import selfcal.adjust.leverage as leverage
+        original, inside = leverage.image_leverages, []
+        monkeypatch.setattr(leverage, "image_leverages", lambda *args: inside.append(blas_threads())
                             or original(*args))
         observation_tests(result)
         assert inside == [{1}] and blas_threads() == {2}
@@ -293,7 +293,8 @@ def test_point_cofactors_from_the_tests_pass_equal_their_own():
     pass over the points (sharing its products) and leave them on the result: both ways give the same blocks,
     and the leverages are the same whether the tests are given the blocks or compute them."""
     from selfcal.adjust import AdjustOptions, adjust
-    from selfcal.stats.reliability import _image_leverage, observation_tests
+    from selfcal.adjust.leverage import image_leverages
+    from selfcal.stats.reliability import observation_tests
 
     block = pruned(simulation(seed=5, distortion="local+brown", points_per_mm2=0.04), "type3")
     result = adjust(block, AdjustOptions(ap="wavelet:db4"))
@@ -306,7 +307,7 @@ def test_point_cofactors_from_the_tests_pass_equal_their_own():
     # the two passes sum the same terms in another order: rounding, amplified by the WAPs' conditioning (1.5e-12
     # measured after the reduction's loops were reordered, below 1e-12 before)
     assert np.max(np.abs(fused - own) / (scale[:, :, None] * scale[:, None, :])) < 1e-11
-    h_given = _image_leverage(result.problem, result.state, result.linearisation, result.v_inv, result.Q_theta,
+    h_given = image_leverages(result.problem, result.state, result.linearisation, result.v_inv, result.Q_theta,
                               own)[0]
     h_sorted = 1.0 - tests.image_redundancy[result.problem.obs_order]
     np.testing.assert_allclose(h_given, h_sorted, rtol=0, atol=1e-10)      # rounding: h sums terms larger than 1
@@ -318,7 +319,7 @@ def test_leverages_through_the_sparse_wavelet_rows_equal_the_dense_ones(monkeypa
     """A one-camera block with sym4 WAPs, snooped and screened: its last problem's sparse AP rows were carried
     through the re-adjustments and equal rows evaluated afresh, they rebuild its dense AP columns (a subset of
     the APs free), and the leverages through them equal those through the dense columns."""
-    import selfcal.stats.reliability as reliability
+    import selfcal.adjust.leverage as leverage
     from selfcal.adjust import AdjustOptions
     from selfcal.adjust.ap_columns import camera_jacobian, sparse_ap_rows
     from selfcal.stats.screening import ScreeningOptions
@@ -340,9 +341,9 @@ def test_leverages_through_the_sparse_wavelet_rows_equal_the_dense_ones(monkeypa
     scale = np.abs(dense).max()
     np.testing.assert_allclose(np.stack([bx, by], axis=1), dense, rtol=0, atol=1e-13 * scale)
     args = (problem, result.state, result.linearisation, result.v_inv, result.Q_theta)
-    h_sparse, _, points_sparse = reliability._image_leverage(*args)
-    monkeypatch.setattr(reliability, "sparse_ap_rows", lambda problem: None)
-    h_dense, _, points_dense = reliability._image_leverage(*args)
+    h_sparse, _, points_sparse = leverage.image_leverages(*args)
+    monkeypatch.setattr(leverage, "sparse_ap_rows", lambda problem: None)
+    h_dense, _, points_dense = leverage.image_leverages(*args)
     assert 0.0 < h_dense.min() and h_dense.max() < 1.0
     np.testing.assert_allclose(h_sparse, h_dense, rtol=0, atol=1e-10)      # rounding: h sums terms larger than 1
     np.testing.assert_allclose(points_sparse, points_dense, rtol=1e-9, atol=1e-12 * np.abs(points_dense).max())

@@ -22,7 +22,7 @@ from selfcal.adjust.selected import BandedCofactor
 from selfcal.ap import ap_settings
 from selfcal.block import prune
 from selfcal.simulate import simulate_uav
-from selfcal.stats.reliability import _image_leverage
+from selfcal.adjust.leverage import image_leverages
 
 
 def _random_graph_system(n_img: int, links: int = 8, n_d: int = 3, seed: int = 0) -> sp.csc_matrix:
@@ -107,8 +107,8 @@ def test_selected_inverse_gives_the_dense_point_cofactors_and_leverages():
     Qp, Qp_dense = point_cofactors(problem, lin, v_inv, Q), point_cofactors(problem, lin, v_inv, Q_dense)
     scale = np.sqrt(np.einsum("pii->pi", Qp_dense))
     assert np.max(np.abs(Qp - Qp_dense) / (scale[:, :, None] * scale[:, None, :])) < 1e-9
-    h = _image_leverage(problem, state, lin, v_inv, Q, Qp)[0]
-    h_dense = _image_leverage(problem, state, lin, v_inv, Q_dense, Qp_dense)[0]
+    h = image_leverages(problem, state, lin, v_inv, Q, Qp)[0]
+    h_dense = image_leverages(problem, state, lin, v_inv, Q_dense, Qp_dense)[0]
     assert np.max(np.abs(h - h_dense)) < 1e-9 * np.max(np.abs(h_dense))
     assert 0.0 < h.min() and h.max() < 1.0
 

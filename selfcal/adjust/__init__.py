@@ -9,7 +9,8 @@
 (:mod:`.ap_columns`), the Schur complement on the points (:mod:`.schur`), the solver (:mod:`.solver`), robust weights
 (:mod:`.robust`), cofactors and leverages (:mod:`.covariance`, :mod:`.leverage`).
 """
-from .engine import adjust
+from .datum import behind_camera, control_far_away, control_on_a_line, undetermined_points
+from .engine import adjust, camera_models, start_values
 from .options import AdjustOptions
 from .parameters import CameraParameters, apply_free
 from .problem import Problem, State
@@ -18,4 +19,5 @@ from .robust import LOSSES, RobustOptions
 from .solver import IterationRecord, SolverOptions
 
 __all__ = ["AdjustOptions", "AdjustmentResult", "IterationRecord", "RobustOptions", "SolverOptions", "LOSSES",
-           "adjust", "apply_free", "Problem", "State", "CameraParameters"]
+           "adjust", "apply_free", "start_values", "camera_models", "Problem", "State", "CameraParameters",
+           "behind_camera", "control_far_away", "control_on_a_line", "undetermined_points"]

@@ -30,7 +30,23 @@ from .schur import SingularPoints, reduce
 from .solver import IterationRecord, solve
 from .update import UPDATE_LIMIT, downdated_start
 
-__all__ = ["adjust", "weakly_determined", "WEAK_INFLATION"]
+__all__ = ["adjust", "start_values", "camera_models", "weakly_determined", "WEAK_INFLATION"]
+
+
+def start_values(block: Block, options: AdjustOptions = AdjustOptions()):
+    """The initial values an adjustment of ``block`` starts from (:mod:`.initial`), as a
+    :class:`~selfcal.adjust.problem.State`: its images' orientations, and its points where the block gives them
+    or intersected from the rays."""
+    problem = build_problem(block, options.ap, ap_settings(options.ap, options.grid), options=options)
+    return initial_state(problem, block)[0]
+
+
+def camera_models(block: Block, options: AdjustOptions = AdjustOptions()) -> tuple[dict, int]:
+    """The additional-parameter model of each camera an adjustment of ``block`` with ``options`` builds
+    (camera id -> APModel: pass them to :func:`adjust` as ``ap_models`` to keep one basis), and the number of
+    camera parameters it estimates."""
+    problem = build_problem(block, options.ap, ap_settings(options.ap, options.grid), options=options)
+    return {cam.camera_id: cam.ap for cam in problem.cameras}, problem.n_d
 
 
 def _leave_out(block: Block, observations, points, text: str, behind: int = 0, undetermined: int = 0) -> Block:

@@ -121,6 +121,43 @@ class AdjustmentResult:
                 out[sel] = slot.bound.pixels(context, img[sel], self.state.points[pt[sel]])
         return out
 
+    def image_leverages(self) -> tuple[np.ndarray, np.ndarray]:
+        """The leverage h = j Q jᵀ (m, 2) and the whitened residual v = f - l (m, 2) of every image coordinate, in
+        ``block``'s observation order (the redundancy number is 1 - h; :mod:`.leverage`). The points' cofactor
+        blocks come out of the same pass and are kept (:attr:`Q_points`)."""
+        from .leverage import image_leverages
+        problem = self.problem
+        with blas_threads(problem.n_images):
+            h, r, Qp = image_leverages(problem, self.state, self.linearisation, self.v_inv, self.Q_theta,
+                                       self.point_cofactor_blocks)
+        self.point_cofactor_blocks = Qp
+        h_block, v_block = np.empty_like(h), np.empty_like(r)
+        h_block[problem.obs_order] = h
+        v_block[problem.obs_order] = -r
+        return h_block, v_block
+
+    def control_leverages(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The control points (indices among ``block``'s points), the leverage (n, 3) and the whitened residual
+        v = f - l (n, 3) of their surveyed coordinates."""
+        control = self.problem.control
+        r, J = control.rows(self.state.points[control.index])
+        h = np.einsum("nij,njk,nik->ni", J, self.Q_points[control.index], J)        # diag(J Q_pp J^T)
+        return control.index, h, -r
+
+    def parameter_observations(self):
+        """The whitened Jacobian (k, n_theta, sparse) and residuals l - f of the observations of parameters alone
+        (priors, GNSS/IMU with their shift and drift), and the group of each row."""
+        from .residuals import parameter_observation_groups, parameter_observations
+        J, r = parameter_observations(self.problem, self.state)
+        return J, r, parameter_observation_groups(self.problem)
+
+    def parameter_leverages(self) -> tuple[np.ndarray, np.ndarray]:
+        """The leverage (k,) and the whitened residual v = f - l (k,) of every parameter observation."""
+        from .leverage import parameter_leverages
+        J, r, _ = self.parameter_observations()
+        h = parameter_leverages(J.tocsr(), self.Q_theta) if J.shape[0] else np.zeros(0)
+        return h, -r
+
     def point_covariance(self) -> np.ndarray:
         """A-posteriori covariance of every object point, (n_points, 3, 3) in m^2."""
         return self.variance_factor * self.Q_points

@@ -6,7 +6,7 @@ import sys
 import time
 
 from ..adjust import AdjustOptions
-from ..adjust.solver import SolverOptions
+from ..adjust import SolverOptions
 from ..ap import ALL_MODELS, AP_FAMILIES, parse_ap_spec
 from ..errors import UsageError
 from ..io import read_block

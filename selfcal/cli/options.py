@@ -6,7 +6,7 @@ import math
 import sys
 from typing import TYPE_CHECKING, Any, Callable
 
-from ..adjust.robust import LOSSES, RobustOptions
+from ..adjust import LOSSES, RobustOptions
 from ..workflows.progress import LOG, iteration_line, round_line
 
 if TYPE_CHECKING:

@@ -25,7 +25,7 @@ BEHIND_SHARE = 0.005
 
 def collapse(result) -> str | None:
     """Why the solution of ``result`` (an :class:`~selfcal.adjust.AdjustmentResult`) is absurd, or None."""
-    from ..adjust.datum import behind_camera
+    from ..adjust import behind_camera
     problem, state, block = result.problem, result.state, result.block
     reasons = []
     for cam, values, slot in zip(problem.cameras, state.cameras, _slots(problem)):

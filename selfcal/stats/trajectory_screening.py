@@ -97,15 +97,13 @@ def group_of_parameters(problem, owner: dict) -> dict[int, tuple[str, str | None
     return out
 
 
-def trajectory_strips(problem, state) -> dict[str, StripObservations]:
-    """The observations of every (sensor, strip) with their Jacobian and residuals at ``state``."""
-    from ..adjust.residuals import parameter_observations, parameter_observation_groups
-
-    J_x, r_x = parameter_observations(problem, state)
+def trajectory_strips(result) -> dict[str, StripObservations]:
+    """The observations of every (sensor, strip) of the adjustment ``result`` with their Jacobian and residuals."""
+    problem = result.problem
+    J_x, r_x, labels = result.parameter_observations()
     if J_x.shape[0] == 0:
         return {}
     J_x = J_x.tocsr()
-    labels = parameter_observation_groups(problem)
     out: dict[str, StripObservations] = {}
     row0 = int(np.sum((labels == "camera") | (labels == "image")))     # the a-priori parameters come first
     start = problem.n_e + problem.n_d
@@ -185,7 +183,7 @@ class GroupGuards:
         self.ap_state = main
         if self.grouped:
             self.ap_state = type(main)(main.theta, main.Q, main.omega, main.redundancy)
-        self.strips = trajectory_strips(problem, result.state) if self.grouped else {}
+        self.strips = trajectory_strips(result) if self.grouped else {}
         from .correlation import parameter_groups
         self.iop = parameter_groups(problem)["IOP"]
         first = problem.n_e + problem.n_d

@@ -28,7 +28,6 @@ from typing import Callable
 import numpy as np
 
 from ..adjust import AdjustmentResult, AdjustOptions, adjust
-from ..adjust.residuals import parameter_observation_groups
 from ..block import Block
 from .reliability import ObservationTests, observation_tests
 
@@ -75,7 +74,7 @@ def group_redundancy(result: AdjustmentResult, tests: ObservationTests) -> dict[
     r = tests.control_redundancy
     if r.size:
         out["GCP"] = (r.size, float(np.sum(tests.control_w ** 2 * r)), float(r.sum()))
-    labels = parameter_observation_groups(result.problem)
+    labels = result.parameter_observations()[2]
     r = tests.parameter_redundancy
     for group in ("GNSS", "IMU"):
         sel = labels == group

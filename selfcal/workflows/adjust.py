@@ -14,8 +14,7 @@ from typing import Callable
 
 import numpy as np
 
-from ..adjust import AdjustOptions, RobustOptions
-from ..adjust.datum import control_far_away, control_on_a_line, undetermined_points
+from ..adjust import AdjustOptions, RobustOptions, control_far_away, control_on_a_line, undetermined_points
 from ..ap import takes_grid
 from ..block import Block
 from ..convert.control import block_control_swapped

@@ -9,7 +9,7 @@ import time
 from dataclasses import dataclass, replace
 
 from ..adjust import AdjustOptions, RobustOptions
-from ..adjust.solver import SolverOptions
+from ..adjust import SolverOptions
 from ..block import Block
 from ..stats.screening import ScreeningOptions
 from ..stats.snooping import SnoopingOptions

@@ -12,8 +12,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..adjust.initial import initial_state
-from ..adjust.problem import build_problem
+from ..adjust import start_values
 from ..block import Block
 from ..convert import FREE_SIGMA_M
 
@@ -23,8 +22,7 @@ __all__ = ["hold_radii"]
 def hold_radii(block: Block, sigma_m: float) -> Block:
     """``block`` (read, with its sensor descriptions) with every tie point a control point that keeps its start
     radius within ``sigma_m`` (m) and its latitude and longitude free (jigsaw's ``radius=no``)."""
-    problem = build_problem(block)
-    state, _ = initial_state(problem, block)
+    state = start_values(block)
     tie = block.points.role == "tie"
     xyz = np.where(tie[:, None], state.points, block.points.xyz_m)
     sigma = np.where(tie[:, None], np.array([FREE_SIGMA_M, FREE_SIGMA_M, sigma_m]), block.points.sigma_m)

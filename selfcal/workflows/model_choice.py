@@ -27,9 +27,8 @@ from typing import Callable
 
 import numpy as np
 
-from ..adjust import AdjustOptions, adjust
-from ..ap import ap_settings, takes_grid
-from ..adjust.problem import build_problem
+from ..adjust import AdjustOptions, adjust, camera_models
+from ..ap import takes_grid
 from ..block import Block
 from ..errors import AdjustmentError
 from ..stats.snooping import SnoopingOptions
@@ -96,13 +95,13 @@ def choose_ap_model(block: Block, candidates: list[tuple[str, tuple[int, int]]],
     models, sizes = [], []
     for model, grid in candidates:
         try:
-            problem = build_problem(block, model, ap_settings(model, grid), options=options)
+            built, n_camera = camera_models(block, replace(options, ap=model, grid=grid))
         except (AdjustmentError, ValueError) as exc:
             models.append(exc)
             sizes.append(-1)
         else:
-            models.append({cam.camera_id: cam.ap for cam in problem.cameras})
-            sizes.append(problem.n_d)
+            models.append(built)
+            sizes.append(n_camera)
     data = block
     n_blunders = 0
     if snooping is not None and snooping.critical > 0 and max(sizes) >= 0:
