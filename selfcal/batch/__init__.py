@@ -15,12 +15,12 @@ import time
 from dataclasses import dataclass, field
 from typing import Callable
 
-from ..adjust import AdjustOptions
+from ..adjust import AdjustOptions, RobustOptions
 from ..ap import ALL_MODELS, AP_FAMILIES, parse_ap_spec, takes_grid
 from ..errors import AdjustmentError
 from ..report import result_files
 from ..stats import ScreeningOptions, SnoopingOptions, VarianceOptions
-from ..workflows import adjust_with_tests
+from ..workflows.adjust import AdjustRequest, adjust_block
 from ..allocator import keep_freed_memory
 
 __all__ = ["Cell", "CellSettings", "run_cell", "run_matrix", "available_models", "PAPER_MODELS", "ALL_MODELS"]
@@ -48,6 +48,7 @@ class CellSettings:
     snooping: SnoopingOptions | None = field(default_factory=SnoopingOptions)
     screening: ScreeningOptions | None = field(default_factory=ScreeningOptions)
     variance: VarianceOptions | None = None
+    robust: RobustOptions | None = field(default_factory=RobustOptions)
 
 
 @dataclass
@@ -60,19 +61,21 @@ class Cell:
 
 
 def run_cell(scenario: str, block, model: str, settings: CellSettings = CellSettings()) -> Cell:
-    """Adjust one block with one AP model (with snooping and screening); failures are recorded, not raised."""
+    """Adjust one block with one AP model as ``selfcal adjust`` does (:func:`selfcal.workflows.adjust.adjust_block`:
+    its checks, the robust cleaning, snooping and screening); failures are recorded, not raised."""
     keep_freed_memory()
     t0 = time.perf_counter()
     options = AdjustOptions(ap=model, grid=settings.grid, gnss_drift=settings.gnss_drift,
                             imu_drift=settings.imu_drift, lever_arm=settings.lever_arm, boresight=settings.boresight)
+    request = AdjustRequest(options=options, snooping=settings.snooping, screening=settings.screening,
+                            variance=settings.variance, robust=settings.robust)
     try:
-        tested = adjust_with_tests(block, options, settings.snooping, settings.screening,
-                                   variance=settings.variance)
+        adjusted = adjust_block(block, request)
     except AdjustmentError as exc:
         return Cell(scenario, model, None, str(exc), time.perf_counter() - t0)
     seconds = time.perf_counter() - t0
-    files = result_files(block, tested, {"scenario": scenario, "seconds": seconds, "grid": list(settings.grid)},
-                         settings.screening)
+    extra = {"scenario": scenario, "seconds": seconds, "grid": list(settings.grid)} | adjusted.summary_extra
+    files = result_files(adjusted.block, adjusted.tested, extra, settings.screening, adjusted.checks, adjusted.track)
     return Cell(scenario, model, files, None, seconds)
 
 

@@ -255,7 +255,7 @@ class Sensor(ABC):
         if model is not None:
             return model, np.zeros(model.n_params)
         if spec.strip().lower() != "none":
-            raise UsageError(f"--ap {spec}: {self.name} cameras take no additional parameters")
+            raise UsageError(f"AP model {spec}: {self.name} cameras take no additional parameters")
         return NoAP(None), np.zeros(0)
 
     def image_setup(self, block: Block, image_index: np.ndarray, options: Any) -> tuple[np.ndarray, np.ndarray]:

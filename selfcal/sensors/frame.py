@@ -343,7 +343,7 @@ class FrameSensor(Sensor):
             try:
                 ap = create_ap(spec, frame, observed, **settings)
             except ValueError as exc:
-                raise UsageError(f"--ap {spec}: {exc}") from None
+                raise UsageError(f"AP model {spec}: {exc}") from None
         initial = np.zeros(ap.n_params)
         if camera.initial_ap is not None:
             initial = initial_coefficients(ap, camera.initial_ap, frame, observed, camera.camera_id)

@@ -383,13 +383,13 @@ class PushbroomSensor(Sensor):
         if spec.strip().lower() == "none":
             return NoAP(None), np.zeros(0)
         if AP_FAMILIES.get(parse_ap_spec(spec)[0], NoAP).domain != "line":
-            raise UsageError(f"--ap {spec}: a pushbroom block takes none or wavelet1d:NAME (NAME = dbN, symN, "
+            raise UsageError(f"AP model {spec}: a pushbroom block takes none or wavelet1d:NAME (NAME = dbN, symN, "
                              f"meyer, blN), the 1-D wavelet APs along the detector line")
         grid = settings.get("grid", (12, 12))
         try:
             ap = create_line_ap(spec, camera.columns, camera.center_col, camera.chip_starts or (), grid[0])
         except ValueError as exc:
-            raise UsageError(f"--ap {spec}: {exc}") from None
+            raise UsageError(f"AP model {spec}: {exc}") from None
         return ap, np.zeros(ap.n_params)
 
 
