@@ -12,7 +12,7 @@
 from .datum import behind_camera, control_far_away, control_on_a_line, undetermined_points
 from .engine import adjust, camera_models, start_values
 from .options import AdjustOptions
-from .parameters import CameraParameters, apply_free
+from .parameters import CameraParameters, ParameterTable, apply_free, parameter_table
 from .problem import Problem, State
 from .result import AdjustmentResult
 from .robust import LOSSES, RobustOptions
@@ -20,4 +20,5 @@ from .solver import IterationRecord, SolverOptions
 
 __all__ = ["AdjustOptions", "AdjustmentResult", "IterationRecord", "RobustOptions", "SolverOptions", "LOSSES",
            "adjust", "apply_free", "start_values", "camera_models", "Problem", "State", "CameraParameters",
+           "ParameterTable", "parameter_table",
            "behind_camera", "control_far_away", "control_on_a_line", "undetermined_points"]

@@ -158,6 +158,26 @@ class AdjustmentResult:
         h = parameter_leverages(J.tocsr(), self.Q_theta) if J.shape[0] else np.zeros(0)
         return h, -r
 
+    def parameters(self):
+        """Every parameter by name with its value and a-posteriori sigma (:class:`~.parameters.ParameterTable`)."""
+        from .parameters import parameter_table
+        sigma = np.sqrt(self.variance_factor * np.maximum(self.Q_theta.diagonal(), 0.0))
+        return parameter_table(self.problem, self.state, sigma)
+
+    def covariance(self, names: list[str]) -> np.ndarray:
+        """The a-posteriori covariance (k, k) of the estimated parameters ``names`` ("owner: name" as
+        :meth:`ParameterTable.labels` gives them), in code units; a name that is held or unknown is a KeyError."""
+        table = self.parameters()
+        where = {label: k for k, label in enumerate(table.labels())}
+        index = []
+        for name in names:
+            k = where[name]
+            if not table.free[k] or table.index[k] < 0:
+                raise KeyError(f"{name} is not estimated")
+            index.append(int(table.index[k]))
+        index = np.array(index, np.int64)
+        return self.variance_factor * np.asarray(self.Q_theta[index[:, None], index[None, :]])
+
     def point_covariance(self) -> np.ndarray:
         """A-posteriori covariance of every object point, (n_points, 3, 3) in m^2."""
         return self.variance_factor * self.Q_points

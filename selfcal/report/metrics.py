@@ -249,27 +249,15 @@ def parameter_table(result) -> CsvTable:
     """parameters.csv: every image and camera parameter with its start value and a-posteriori sigma, in the
     files' units: ``owner`` (image or camera id), ``parameter``, ``group`` (EOP, IOP, AP), ``value``, ``sigma``
     (empty where held), ``start``, ``unit``, ``active`` (0: held, by the sensor model or screening)."""
-    problem, state = result.problem, result.state
-    cols: dict[str, list] = {k: [] for k in ("owner", "parameter", "group", "value", "sigma", "start", "unit",
-                                             "active")}
-
-    def add(owner, parameter, group, value, sigma, start, unit, active):
-        for key, v in zip(cols, (owner, parameter, group, value, sigma, start, unit, int(active))):
-            cols[key].append(v)
-    image_sigma = result.image_sigma()
-    for slot in problem.sensors:
-        for i in slot.images:
-            for k, p in enumerate(slot.sensor.image_parameters):
-                unit, f = p.display
-                add(problem.image_ids[i], p.name, p.group, state.image[i, k] * f, image_sigma[i, k] * f,
-                    problem.image_prior_value[i, k] * f, unit, problem.image_free[i, k])
-    for k, (cam, values, sigma) in enumerate(zip(problem.cameras, state.cameras, result.camera_sigma())):
-        core = _sensor(result, k).camera_parameters
-        for i in range(cam.size):
-            unit, f = core[i].display if i < cam.n_core else ("px", 1.0)
-            group = core[i].group if i < cam.n_core else "AP"
-            add(cam.camera_id, cam.names[i], group, values[i] * f, sigma[i] * f, cam.prior_value[i] * f, unit,
-                cam.free[i])
+    from ..sensors.base import display_unit
+    table = result.parameters()
+    rows = np.flatnonzero(table.kind != "trajectory")          # (the trajectory terms: trajectory.csv)
+    shown = [display_unit(u) for u in table.unit[rows]]
+    factor = np.array([f for _, f in shown])
+    cols: dict[str, list] = {"owner": list(table.owner[rows]), "parameter": list(table.name[rows]),
+                             "group": list(table.group[rows]), "value": list(table.value[rows] * factor),
+                             "sigma": list(table.sigma[rows] * factor), "start": list(table.start[rows] * factor),
+                             "unit": [u for u, _ in shown], "active": list(table.free[rows].astype(int))}
     header = list(cols)
     columns = [np.array(cols[h], dtype=object) if h in ("owner", "parameter", "group", "unit")
                else np.array(cols[h], dtype=int if h == "active" else float) for h in header]

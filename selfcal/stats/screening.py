@@ -60,6 +60,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import f as f_distribution
 
+from ..adjust import parameter_table
 from .correlation import parameter_groups
 from .trajectory_screening import TRAJECTORY_SIGNIFICANCE, GroupGuards
 
@@ -140,33 +141,21 @@ def screening_masks(problem) -> dict:
 def _screenable(problem) -> tuple[dict[int, tuple], np.ndarray]:
     """theta index -> (owner key, position in the owner's mask, name, owner label, calibration) of every
     active screenable parameter, and the reference values of theta (what screening tests a parameter
-    against and holds it at: the start value of a sensor's parameter, zero for APs and trajectory terms).
-    ``calibration`` marks the parameters of the correlation test (not the trajectory terms)."""
+    against and holds it at: the start value of a sensor's parameter, zero for APs and trajectory terms), from
+    the problem's :class:`~selfcal.adjust.ParameterTable`. ``calibration`` marks the parameters of the correlation
+    test (not the trajectory terms)."""
+    table = parameter_table(problem)
     owner = {}
     reference = np.zeros(problem.n_theta)
-    theta = problem.image_theta()
-    reference[:problem.n_e] = np.nan_to_num(problem.image_prior_value).ravel()
-    for i, k in zip(*np.nonzero(problem.image_screenable & problem.image_free)):
-        image_id = str(problem.image_ids[i])
-        owner[int(theta[i, k])] = (("image", image_id), int(k), problem.image_names[i][k], image_id, True)
-    for cam, start in zip(problem.cameras, problem.d_offset):
-        pos = start + np.cumsum(cam.free) - 1
-        for i in range(cam.size):
-            if not cam.free[i]:
-                continue
-            reference[int(pos[i])] = cam.reference[i]
-            if i < cam.n_core:
-                if cam.core_screened[i]:
-                    owner[int(pos[i])] = (("core", cam.camera_id), i, cam.names[i], cam.camera_id, True)
-            else:
-                owner[int(pos[i])] = (cam.camera_id, i - cam.n_core, cam.ap.parameter_names[i - cam.n_core],
-                                      cam.camera_id, True)
-    start = problem.n_e + problem.n_d
-    for t in problem.trajectory:
-        pos = start + np.cumsum(t.free) - 1
-        for i in np.flatnonzero(t.free):
-            owner[int(pos[i])] = (t.sensor, int(i), t.names[i], t.sensor, False)
-        start += int(t.free.sum())
+    image = np.flatnonzero(table.kind == "image")
+    reference[table.index[image]] = table.reference[image]
+    for k in np.flatnonzero(table.free & (table.index >= 0)):
+        column = int(table.index[k])
+        if table.kind[k] in ("core", "ap"):
+            reference[column] = table.reference[k]
+        if table.screenable[k] and (table.kind[k] != "image" or table.free[k]):
+            owner[column] = (table.key[k], int(table.position[k]), str(table.name[k]), str(table.owner[k]),
+                             table.kind[k] != "trajectory")
     return owner, reference
 
 
