@@ -14,11 +14,11 @@ from .engine import adjust, camera_models, start_values
 from .options import AdjustOptions
 from .parameters import CameraParameters, ParameterTable, apply_free, parameter_table
 from .problem import Problem, State
-from .result import AdjustmentResult
+from .result import AdjustmentResult, Termination
 from .robust import LOSSES, RobustOptions
 from .solver import IterationRecord, SolverOptions
 
 __all__ = ["AdjustOptions", "AdjustmentResult", "IterationRecord", "RobustOptions", "SolverOptions", "LOSSES",
            "adjust", "apply_free", "start_values", "camera_models", "Problem", "State", "CameraParameters",
-           "ParameterTable", "parameter_table",
+           "ParameterTable", "parameter_table", "Termination",
            "behind_camera", "control_far_away", "control_on_a_line", "undetermined_points"]

@@ -2,7 +2,8 @@
 statistics, the reports and the workflows read (:class:`AdjustmentResult`)."""
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from enum import Enum
 
 import numpy as np
 
@@ -14,7 +15,16 @@ from .robust import RobustWeighting
 from .schur import Linearisation
 from .solver import IterationRecord
 
-__all__ = ["AdjustmentResult"]
+__all__ = ["AdjustmentResult", "Termination"]
+
+
+class Termination(str, Enum):
+    """How an adjustment ended (``AdjustmentResult.termination``)."""
+
+    CONVERGED = "converged"             # the tolerances met
+    ITERATION_LIMIT = "iteration limit"  # no convergence within the iterations allowed
+    DIVERGED = "diverged"               # no step lowered the cost
+    COLLAPSED = "collapsed"             # converged to an absurd solution (selfcal.stats.plausibility)
 
 
 @dataclass
@@ -177,6 +187,43 @@ class AdjustmentResult:
             index.append(int(table.index[k]))
         index = np.array(index, np.int64)
         return self.variance_factor * np.asarray(self.Q_theta[index[:, None], index[None, :]])
+
+    @property
+    def termination(self) -> Termination:
+        if self.converged:
+            return Termination.CONVERGED
+        if self.reason.startswith("the adjustment collapsed"):
+            return Termination.COLLAPSED
+        if self.reason.startswith("diverged"):
+            return Termination.DIVERGED
+        return Termination.ITERATION_LIMIT
+
+    def readjust(self, options, without_rows=(), hold=(), progress=None) -> "AdjustmentResult":
+        """This adjustment again, from its estimate, without the observations ``without_rows`` (their
+        ``Observations.row``) and with the parameters ``hold`` ("owner: name" labels of :meth:`parameters`) held at
+        their reference values; ``options``: its :class:`~selfcal.adjust.AdjustOptions`. The AP basis stays; a
+        point left with one ray and an image with too few points go (:func:`selfcal.block.prune`)."""
+        from ..block import prune
+        from ..sensors import sensor_of
+        from .engine import adjust
+        table = self.parameters()
+        free: dict = {}
+        for k in np.flatnonzero(table.screenable | (table.kind == "image")):
+            key = table.key[k]
+            if key not in free:
+                free[key] = np.array([table.free[j] for j in range(len(table)) if table.key[j] == key], bool)
+        labels = table.labels()
+        for name in hold:
+            k = labels.index(name)
+            if table.key[k] not in free:
+                raise KeyError(f"{name} cannot be held (its sensor does not screen it)")
+            free[table.key[k]][int(table.position[k])] = False
+        obs = self.block.observations
+        keep = np.flatnonzero(~np.isin(obs.row, np.asarray(without_rows, np.int64)))
+        need = min((sensor_of(c).min_points_per_image for c in self.block.cameras.values()), default=6)
+        block = prune(replace(self.block, observations=obs.take(keep)), min_points_per_image=need)
+        return adjust(block, options, progress=progress, start=self, free=free,
+                      ap_models={cam.camera_id: cam.ap for cam in self.problem.cameras})
 
     def point_covariance(self) -> np.ndarray:
         """A-posteriori covariance of every object point, (n_points, 3, 3) in m^2."""
