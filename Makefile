@@ -76,6 +76,7 @@ bench: install
 	$(PY) benchmarks/bench_report.py
 	$(PY) benchmarks/bench_colmap.py
 	$(PY) benchmarks/robust_peer.py
+	$(PY) benchmarks/bench_robust.py
 	$(PY) benchmarks/bench_engine.py
 	$(PY) benchmarks/bench_scaling.py
 	$(PY) benchmarks/bench_workflow.py
