@@ -17,7 +17,7 @@ from ..block import Block, leave_out, prune
 from ..errors import AdjustmentError
 from .ap_columns import carry_ap_columns
 from .datum import FREE_POINT_SIGMA_RATIO, behind_camera, points_not_determined_by_rays
-from .initial import initial_state
+from .initial import PointsNotIntersected, initial_state
 from .linalg import (DENSE_LIMIT, EIGH_FLOPS, PSEUDO_INVERSE_LIMIT, SingularSystem, blas_threads, dense_assembly,
                      factorise, null_directions, shared_product)
 from .options import AdjustOptions
@@ -173,12 +173,25 @@ def _adjust(block: Block, options: AdjustOptions, progress, start, free, ap_mode
         problem.settle_sigma()
         return problem, state, notes
 
-    problem, state, notes = setup(block, start, ap_models)
+    left_out: list[str] = []
+    try:
+        problem, state, notes = setup(block, start, ap_models)
+    except PointsNotIntersected as exc:
+        if robust is None:
+            raise
+        # a robust adjustment of matcher output: points whose (wrong) rays meet nowhere go, and the rest starts
+        flagged = np.zeros(len(block.points), bool)
+        flagged[exc.indices] = True
+        ids = ", ".join(f"'{block.points.point_id[i]}'" for i in exc.indices[:5])
+        text = (f"left out {int(flagged.sum())} points whose rays do not meet at a useful angle at the start "
+                f"(e.g. {ids})")
+        left_out.append(text)
+        block = _leave_out(block, None, flagged, text, undetermined=int(flagged.sum()))
+        problem, state, notes = setup(block, start, ap_models)
     # small blocks on one BLAS thread from here on; the AP basis above keeps them all (a WAP basis's frame sample)
     threads.enter_context(blas_threads(len(block.images)))
     solver_options = options.solver
     free_network = block.datum == "free" or solver_options.free_network
-    left_out: list[str] = []
     if free_network:
         solver_options = replace(solver_options, free_network=True,
                                  point_sigma_ratio=solver_options.point_sigma_ratio or FREE_POINT_SIGMA_RATIO)

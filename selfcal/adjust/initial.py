@@ -21,7 +21,15 @@ from ..geometry.rotation import opk_from_matrix
 from ..sensors.frame import project, project_with_jacobians
 from .problem import Problem, State
 
-__all__ = ["intersect", "resect", "resect_robust", "initial_state"]
+__all__ = ["intersect", "resect", "resect_robust", "initial_state", "PointsNotIntersected"]
+
+
+class PointsNotIntersected(AdjustmentError):
+    """Points (``indices`` among the block's) whose rays do not meet at a useful angle at the start values."""
+
+    def __init__(self, indices: np.ndarray, message: str):
+        self.indices = np.asarray(indices)
+        super().__init__(message)
 
 #: an image whose given orientation reprojects its control points worse than
 #: this share of the image diagonal is re-oriented by resection
@@ -447,8 +455,8 @@ def initial_state(problem: Problem, block, start=None, robust: bool = False) -> 
         _ground_the_rest(problem, state, np.flatnonzero(bad), notes)
         bad = ~np.isfinite(state.points).all(axis=1)
     if bad.any():
-        raise AdjustmentError(f"{int(bad.sum())} point(s) cannot be intersected (rays do not meet at a useful "
-                              f"angle), e.g. '{points.point_id[np.flatnonzero(bad)[0]]}'")
+        raise PointsNotIntersected(np.flatnonzero(bad), f"{int(bad.sum())} point(s) cannot be intersected (rays do "
+                                   f"not meet at a useful angle), e.g. '{points.point_id[np.flatnonzero(bad)[0]]}'")
     # angles into (-pi, pi] (frame images)
     state.image[resectable, 3:] = (state.image[resectable, 3:] + np.pi) % (2 * np.pi) - np.pi
     return state, notes
