@@ -105,6 +105,7 @@ class Problem:
     obs_sigma: np.ndarray = None    # (n_obs, 2) the standard deviation its rows are whitened by: a-priori / sqrt(weight)
     obs_sigma_apriori: np.ndarray = None    # (n_obs, 2) the a-priori standard deviation (observation units)
     obs_weight: np.ndarray = None   # (n_obs,) weight factor of each observation (1; a robust weight below it)
+    point_role: np.ndarray = None   # (n_points,) the block's role of each point: gcp, chk, tie
     image_width: int = 6
     image_names: list = None        # per image: the names of its parameters
     image_units: list = None
@@ -443,6 +444,7 @@ def build_problem(block: Block, ap_spec: str = "none", ap_settings: dict | None 
         d_offset=[],
         camera_ids=camera_ids,
         image_ids=np.asarray(block.images.image_id),
+        point_role=np.asarray(block.points.role, dtype=object),
     )
 
     # the sensors, bound to their images and observations

@@ -259,6 +259,10 @@ class RobustWeighting:
             lowest = np.full(problem.n_points, np.inf)
             np.minimum.at(lowest, problem.obs_point[pair], new[pair])
             new[pair] = lowest[problem.obs_point[pair]]
+        # the rays of control and check points are measured by hand (a target in each image), not matched: they keep
+        # their weight here, and the tests judge them
+        if problem.point_role is not None:
+            new[problem.point_role[problem.obs_point] != "tie"] = 1.0
         tolerance = self.options.tolerance
         block = problem.control
         weigh_control = self.options.control and control.size > 0

@@ -117,7 +117,8 @@ def clean(result, reject: float, prune: Callable[[Block], Block]) -> tuple[Block
     u[problem.obs_order] = u_problem
     weight = np.empty(len(obs))
     weight[problem.obs_order] = problem.obs_weight
-    gross = u > reject
+    # (the rays of control and check points, measured by hand, are left to the tests)
+    gross = (u > reject) & (result.block.points.role[obs.point_index] == "tie")
     # a point that none of its rays determined in the robust adjustment (every weight below HOPELESS_WEIGHT: its
     # estimate floated along them) goes with all its rays: where it ended says nothing
     n_points = len(result.block.points)
