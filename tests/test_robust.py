@@ -166,7 +166,8 @@ def test_an_image_with_most_observations_wrong_is_left_out_and_named(small):
     image = 9
     mine = np.flatnonzero(obs.image_index == image)
     rng = np.random.default_rng(1)
-    wrong = rng.choice(mine, int(0.7 * mine.size), replace=False)
+    tie = mine[small.points.role[obs.point_index[mine]] == "tie"]             # the matched ones
+    wrong = rng.choice(tie, int(0.7 * mine.size), replace=False)
     pixel = obs.pixel.copy()
     pixel[wrong] = rng.uniform([0, 0], [6000, 4000], (wrong.size, 2))
     block = replace(small, observations=replace(obs, pixel=pixel))

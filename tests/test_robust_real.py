@@ -20,10 +20,12 @@ BAL = os.path.join(SHARED_DATA, "bal", "problem-49-7776-pre.txt")
 
 def _moved(block, share: float, low_px: float, high_px: float, seed: int):
     """``block`` with ``share`` of its observations moved by ``low_px``-``high_px`` in a random direction (kept in
-    the frame), and which ones."""
+    the frame), and which ones: observations of tie points (matched; the targets of control and check points are
+    measured by hand)."""
     rng = np.random.default_rng(seed)
     obs = block.observations
-    rows = rng.choice(len(obs), int(round(share * len(obs))), replace=False)
+    tie = np.flatnonzero(block.points.role[obs.point_index] == "tie")
+    rows = rng.choice(tie, int(round(share * len(obs))), replace=False)
     length = rng.uniform(low_px, high_px, rows.size)
     angle = rng.uniform(0.0, 2.0 * np.pi, rows.size)
     pixel = obs.pixel.copy()
@@ -49,7 +51,7 @@ def copr():
 @pytest.mark.parametrize("share", [0.05, 0.20])
 def test_copr_camera_survives_wrong_observations(copr, share):
     """The real COPR block (a free network, 313,000 COLMAP observations, Brown APs) with 5 % and 20 % of its
-    observations moved by 20-500 px: every moved observation out; the adjusted camera (c, x0, y0 and every Brown
+    observations moved by 20-500 px: the moved observations out (99.9 %); the adjusted camera (c, x0, y0 and every Brown
     term) within 0.6 sigma of the least-squares adjustment of the observations that were not moved (what a perfect
     cleaning would give; measured at 20 %: 0.50 at most) and within 1.25 sigma of the clean run's (0.99 at most;
     the unmoved 80 % alone differ from the clean run by up to 1.08 sigma). Sigma: the clean run's."""
@@ -57,7 +59,8 @@ def test_copr_camera_survives_wrong_observations(copr, share):
     wrong, rows = _moved(block, share, 20.0, 500.0, seed=int(share * 100))
     tested = adjust_with_tests(wrong, AdjustOptions(ap="brown"), SnoopingOptions(), robust=RobustOptions())
     assert not tested.failure and tested.result.converged
-    assert not np.isin(wrong.observations.row[rows], tested.result.block.observations.row).any()
+    kept = np.isin(wrong.observations.row[rows], tested.result.block.observations.row)
+    assert kept.mean() < 1e-3, kept.sum()        # (one moved along its point's epipolar line fits: none can see it)
     unmoved = prune_for(replace(block, observations=block.observations.take(
         np.setdiff1d(np.arange(len(block.observations)), rows))))
     ideal = adjust_with_tests(unmoved, AdjustOptions(ap="brown"), SnoopingOptions(), robust=RobustOptions())
@@ -139,9 +142,11 @@ def test_pushbroom_triplet_with_ten_percent_wrong_tie_points():
     from selfcal.simulate.outliers import contaminate
     from selfcal.workflows.adjust import AdjustRequest, adjust_block
     block = prism_block(simulate_prism(seed=1, n_points=300), dem_file=None)
-    request = AdjustRequest(AdjustOptions(sensor_model="M6"), n_gcp=4)
+    # (its check points stand for matched points: their rays are not measured by hand)
+    request = AdjustRequest(AdjustOptions(sensor_model="M6"), n_gcp=4, robust=RobustOptions(hand=("gcp",)))
     clean = adjust_block(block, request)
-    wrong, truth = contaminate(block, 0.10, anywhere_share=0.5, seed=8)
+    # (the triplet's points are all control or check points: its check points are its matched points here)
+    wrong, truth = contaminate(block, 0.10, anywhere_share=0.5, seed=8, roles=("chk",))
     adjusted = adjust_block(wrong, request)
     assert not adjusted.tested.failure and adjusted.tested.result.converged
     ids = _untouched(block, truth.index, clean.checks, adjusted.checks)

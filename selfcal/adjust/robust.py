@@ -49,6 +49,12 @@ CHI3_MEDIAN = 1.5382
 #: smallest weight factor the engine applies (a row weighted 1e-8 of itself is gone; zero would make a point's
 #: block singular where all its rays go)
 MIN_WEIGHT = 1e-8
+#: the least weight factor of a control or check point's rays (measured by hand)
+HAND_WEIGHT = 0.1
+#: the control points' coordinates are weighted only in a block with more control points than this: with few, the
+#: datum itself would lose weight and the block float away from it (seed 001's triplet with 4 GCPs: 3 were then
+#: "off" by 30 sigmas)
+MIN_ROBUST_CONTROL = 6
 #: updates of the weights at most in one solve
 MAX_UPDATES = 40
 
@@ -142,6 +148,9 @@ class RobustOptions:
         the tested workflow rejects them before its tests (:mod:`selfcal.workflows.tested`).
     control : bool
         Weight the control points' coordinates too (a misidentified target).
+    hand : tuple of str
+        The roles of the points whose rays are measured by hand, not matched (targets: ``gcp``, ``chk``): their rays
+        keep a tenth of their weight at least and are judged one by one (no shared weight of a two-ray point).
     """
 
     loss: str = "danish"
@@ -151,6 +160,7 @@ class RobustOptions:
     settled: float = 1e-3
     reject: float = 5.0
     control: bool = True
+    hand: tuple[str, ...] = ("gcp", "chk")
 
     def __post_init__(self):
         if self.loss not in LOSSES:
@@ -167,11 +177,13 @@ class RobustOptions:
         return cls() if self.c is None else cls(self.c)
 
 
-def _rays(problem) -> np.ndarray:
-    """The number of rays of each image observation's point (problem order); a control point's counts as many (its
-    coordinates are observed: each ray is checked by them, not only by the others)."""
+def _rays(problem, hand: tuple[str, ...] = ()) -> np.ndarray:
+    """The number of rays of each image observation's point (problem order); a control point's, and a point of a
+    role in ``hand`` (measured by hand), counts as many (a control point's coordinates check each ray)."""
     rays = np.bincount(problem.obs_point, minlength=problem.n_points)
     rays[problem.control_index] = np.iinfo(np.int64).max // 4
+    if problem.point_role is not None and hand:
+        rays[np.isin(problem.point_role, hand)] = np.iinfo(np.int64).max // 4
     return rays[problem.obs_point]
 
 
@@ -226,7 +238,7 @@ class RobustWeighting:
         divides by the redundancy number."""
         from .residuals.image import image_residuals
         v = image_residuals(problem, state) / problem.obs_sigma_apriori
-        image = np.sqrt(np.sum(v * v, axis=1) / (1.0 - 1.5 / np.maximum(_rays(problem), 2)))
+        image = np.sqrt(np.sum(v * v, axis=1) / (1.0 - 1.5 / np.maximum(_rays(problem, self.options.hand), 2)))
         control = np.zeros(0)
         block = problem.control
         if len(block):
@@ -241,7 +253,7 @@ class RobustWeighting:
         if len(self.history) >= MAX_UPDATES:
             return False
         image, control = self.sizes(problem, state)
-        rays = _rays(problem)
+        rays = _rays(problem, self.options.hand)
         scale = 1.0
         if self.options.scale == "mad":
             # from the points with three rays or more where there are enough: a two-ray point's residuals are one
@@ -254,20 +266,23 @@ class RobustWeighting:
         # the rays of a two-ray point share the smaller weight: the data cannot tell which of them is wrong, and
         # weights of their own would move the point onto the heavier ray, its residual onto the lighter one (and
         # the scale with it, towards zero: a redescending loss makes the even split unstable)
+        # (the hand-measured points count as many rays here: their own weights)
         pair = np.flatnonzero(rays == 2)
         if pair.size:
             lowest = np.full(problem.n_points, np.inf)
             np.minimum.at(lowest, problem.obs_point[pair], new[pair])
             new[pair] = lowest[problem.obs_point[pair]]
-        # the rays of control and check points are measured by hand (a target in each image), not matched: they keep
-        # their weight here, and the tests judge them
-        if problem.point_role is not None:
-            new[problem.point_role[problem.obs_point] != "tie"] = 1.0
+        # a control or check point's rays keep a tenth of their weight at least: they are few, measured by hand, and a
+        # point whose rays all lose their weight floats away from them (the cleaning and the tests judge each ray)
+        if problem.point_role is not None and self.options.hand:
+            hand = np.isin(problem.point_role[problem.obs_point], self.options.hand)
+            new[hand] = np.maximum(new[hand], HAND_WEIGHT)
         tolerance = self.options.tolerance
         block = problem.control
-        weigh_control = self.options.control and control.size > 0
+        # the control is weighted only where there is plenty of it (it is the datum), and keeps a tenth of its weight
+        weigh_control = self.options.control and control.size > MIN_ROBUST_CONTROL
         control_scale = self.scale_of_control(control)
-        w = np.maximum(self.loss.weight(control / control_scale), MIN_WEIGHT) if weigh_control else None
+        w = np.maximum(self.loss.weight(control / control_scale), HAND_WEIGHT) if weigh_control else None
         moving = int(np.sum(np.abs(new - problem.obs_weight) > tolerance))
         moving += int(np.sum(np.abs(w - block.weight) > tolerance)) if weigh_control else 0
         if self.history and moving <= max(10, self.options.settled * len(image)):

@@ -51,12 +51,14 @@ def _frame(camera) -> tuple[float, float]:
 
 def contaminate(block: Block, rate: float, anywhere_share: float = 0.5, patch: int = 0, seed: int = 0,
                 small_px: tuple[float, float] = (4.0, 15.0), patch_shift_px: tuple[float, float] = (20.0, 60.0),
-                patch_image: int | None = None) -> tuple[Block, Contamination]:
-    """``block`` with ``rate`` of its image observations made wrong: ``anywhere_share`` of them wrong matches
-    anywhere in the frame, the rest small blunders of ``small_px`` in a random direction; with ``patch``, that
-    many more observations of one image (``patch_image``, by default a random one), the nearest to a random one
-    of its points, moved by one vector of ``patch_shift_px`` length. Observations stay inside the frame (a
-    matcher measures nothing outside it)."""
+                patch_image: int | None = None, roles: tuple[str, ...] = ("tie",)) -> tuple[Block, Contamination]:
+    """``block`` with ``rate`` of its image observations of points of ``roles`` made wrong (the matched tie
+    points by default: the targets of control and check points are measured by hand; their errors are the
+    control tests' business): ``anywhere_share`` of them wrong matches anywhere in the frame, the rest small
+    blunders of ``small_px`` in a random direction; with ``patch``, that many more observations of one image
+    (``patch_image``, by default a random one), the nearest to a random one of its points, moved by one vector of
+    ``patch_shift_px`` length. ``rate`` is a share of all the image observations. Observations stay inside the frame
+    (a matcher measures nothing outside it)."""
     if not 0.0 <= rate < 1.0:
         raise ValueError(f"the share of wrong observations must be in [0, 1), found {rate}")
     rng = np.random.default_rng(seed)
@@ -65,7 +67,8 @@ def contaminate(block: Block, rate: float, anywhere_share: float = 0.5, patch: i
     pixel = obs.pixel.copy()
     frame = {c: _frame(cam) for c, cam in block.cameras.items()}
     size = np.array([frame[c] for c in block.images.camera_id[obs.image_index]], float) if n else np.zeros((0, 2))
-    wrong = rng.choice(n, int(round(rate * n)), replace=False)
+    eligible = np.flatnonzero(np.isin(block.points.role[obs.point_index], roles))
+    wrong = rng.choice(eligible, min(int(round(rate * n)), eligible.size), replace=False)
     n_any = int(round(anywhere_share * len(wrong)))
     anywhere, small = wrong[:n_any], wrong[n_any:]
     pixel[anywhere] = rng.uniform(0.0, 1.0, (len(anywhere), 2)) * size[anywhere]
@@ -76,7 +79,7 @@ def contaminate(block: Block, rate: float, anywhere_share: float = 0.5, patch: i
     index = [anywhere, small]
     if patch:
         image = int(rng.integers(len(block.images))) if patch_image is None else int(patch_image)
-        mine = np.setdiff1d(np.flatnonzero(obs.image_index == image), wrong)
+        mine = np.setdiff1d(np.intersect1d(np.flatnonzero(obs.image_index == image), eligible), wrong)
         centre = pixel[rng.choice(mine)]
         near = mine[np.argsort(np.hypot(*(pixel[mine] - centre).T))[:patch]]
         direction = rng.uniform(0.0, 2.0 * np.pi)

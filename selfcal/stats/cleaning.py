@@ -38,6 +38,8 @@ HEAVY_SHARE = 0.1
 #: the model shows at control points too, and a control point whose error is only moderate is left to the w-test of
 #: the control group in the tests (:mod:`selfcal.workflows.tested`)
 CONTROL_FACTOR = 3.0
+#: the cleaning never leaves fewer control points than this (more are the tests' to demote)
+MIN_CONTROL_LEFT = 5
 #: a point none of whose rays kept this much weight in the robust adjustment is not determined by it
 HOPELESS_WEIGHT = 0.01
 
@@ -117,14 +119,15 @@ def clean(result, reject: float, prune: Callable[[Block], Block]) -> tuple[Block
     u[problem.obs_order] = u_problem
     weight = np.empty(len(obs))
     weight[problem.obs_order] = problem.obs_weight
-    # (the rays of control and check points, measured by hand, are left to the tests)
-    gross = (u > reject) & (result.block.points.role[obs.point_index] == "tie")
+    gross = u > reject
     # a point that none of its rays determined in the robust adjustment (every weight below HOPELESS_WEIGHT: its
     # estimate floated along them) goes with all its rays: where it ended says nothing
     n_points = len(result.block.points)
     strongest = np.zeros(n_points)
     np.maximum.at(strongest, obs.point_index, weight)
-    gross |= strongest[obs.point_index] < HOPELESS_WEIGHT
+    # (a control or check point's rays, measured by hand, are judged one by one)
+    gross |= (strongest < HOPELESS_WEIGHT)[obs.point_index] & ~np.isin(result.block.points.role[obs.point_index],
+                                                                       weighting.options.hand)
     messages: list[str] = []
     # images with most of their observations wrong
     n_img = len(result.block.images)
@@ -142,6 +145,8 @@ def clean(result, reject: float, prune: Callable[[Block], Block]) -> tuple[Block
     control = problem.control_index
     bad_control = np.flatnonzero(u_control > CONTROL_FACTOR * reject) if weighting.options.control else \
         np.zeros(0, np.int64)
+    # the worst first, and never down to four or fewer control points (the datum)
+    bad_control = bad_control[np.argsort(-u_control[bad_control])][:max(0, len(control) - MIN_CONTROL_LEFT)]
     roles = np.asarray(points.role).copy()
     for k in bad_control:
         p = control[k]
