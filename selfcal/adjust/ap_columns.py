@@ -12,6 +12,7 @@ All of this lives in one :class:`APColumnCache` per problem (``Problem.ap_cache`
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -19,6 +20,9 @@ from ..ap.base import pattern_groups
 from .kernels import compact_rows
 from .parallel import over_chunks
 from .problem import Problem, State, row_positions
+
+if TYPE_CHECKING:
+    from ..sensors.base import BoundSensor
 
 __all__ = ["APColumnCache", "AP_COLUMN_BLOCK", "camera_jacobian", "evaluate_ap_columns", "sparse_ap_rows",
            "sparse_gram", "carry_ap_columns", "camera_terms", "bound_of", "rows_times"]
@@ -176,6 +180,7 @@ def sparse_ap_rows(problem: Problem):
         parts = {}
 
         def evaluate(start: int, _) -> None:
+            assert bound is not None                    # (evaluated only where there is one)
             part = o[start:start + AP_COLUMN_BLOCK]
             rows = bound.sparse_ap_columns(0, part, cam.ap)
             # whitened on the block's thread (a new array: the sensor's may be one it keeps)
@@ -185,10 +190,11 @@ def sparse_ap_rows(problem: Problem):
         if bound is not None:
             over_chunks(range(0, o.size, AP_COLUMN_BLOCK), evaluate, lambda: None)
         blocks = [parts[start] for start in sorted(parts)]
+        given = [b for b in blocks if b is not None]
         sparse = None
-        if blocks and all(b is not None for b in blocks):
-            sparse = replace(blocks[0], pattern=np.concatenate([b.pattern for b in blocks]),
-                             values=np.concatenate([b.values for b in blocks]))
+        if blocks and len(given) == len(blocks):
+            sparse = replace(given[0], pattern=np.concatenate([b.pattern for b in given]),
+                             values=np.concatenate([b.values for b in given]))
         problem.ap_cache.columns[key] = sparse
     sparse = problem.ap_cache.columns[key]
     if sparse is None:
@@ -196,7 +202,7 @@ def sparse_ap_rows(problem: Problem):
     return replace(sparse, to_params=sparse.to_params[:, cam.free[cam.n_core:]])
 
 
-def bound_of(problem: Problem, o: np.ndarray):
+def bound_of(problem: Problem, o: np.ndarray) -> BoundSensor:
     """The bound sensor of observations ``o`` (of one camera, hence one sensor)."""
     return problem.sensors[int(problem.obs_sensor[o[0]])].bound
 
@@ -317,14 +323,14 @@ def camera_terms(problem: Problem, state: State, o0: int, o1: int, img: np.ndarr
     values = b"".join(v[c.n_core:].tobytes() for c, v in zip(problem.cameras, state.cameras))
     cached = problem.ap_cache.delta.get((o0, o1))
     known = cached is not None and cached[0] == values
-    delta = cached[1] if known else np.zeros((m, 2))
+    delta = cached[1] if known and cached is not None else np.zeros((m, 2))
     cam_of_obs = problem.image_camera[img]
     cam_cols = []  # (camera index, mask, whitened columns (n, 2, n_free_ap))
     single = len(problem.cameras) == 1
     sigma = problem.obs_sigma[o0:o1]
     for k, cam in enumerate(problem.cameras):
         mask = slice(None) if single else cam_of_obs == k
-        if not single and not mask.any():
+        if not isinstance(mask, slice) and not mask.any():
             continue
         nc = cam.n_core
         if cam.ap.n_params:
@@ -342,11 +348,11 @@ def camera_terms(problem: Problem, state: State, o0: int, o1: int, img: np.ndarr
                 if not known:
                     delta[mask] = rows_times(columns, a[free]) * sigma[mask]
             if not known and np.any(a[~free] != 0):          # APs held at a non-zero value
-                o = o0 + (np.arange(m) if single else np.flatnonzero(mask))
+                o = o0 + (np.arange(m) if isinstance(mask, slice) else np.flatnonzero(mask))
                 held = np.where(free, 0.0, a)
                 delta[mask] += bound_of(problem, o).ap_columns(k, o, cam.ap) @ held
         else:
-            columns = np.zeros((m if single else int(mask.sum()), 2, 0))
+            columns = np.zeros((m if isinstance(mask, slice) else int(mask.sum()), 2, 0))
         cam_cols.append((k, mask, columns))
     problem.ap_cache.delta[(o0, o1)] = (values, delta)
     return delta, cam_cols

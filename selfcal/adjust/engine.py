@@ -250,6 +250,7 @@ def _adjust(block: Block, options: AdjustOptions, progress, start, free, ap_mode
         # a free network's points that their rays do not determine: left out, and on from the estimate so far
         flagged = np.zeros(len(block.points), bool)
         flagged[outcome.undetermined] = True
+        assert solver_options.point_sigma_ratio is not None         # (the solver finds such points by it)
         sigma = points_not_determined_by_rays(outcome.linearisation.of_points("V"),
                                               solver_options.point_sigma_ratio)[1]
         worst = outcome.undetermined[np.argsort(-sigma[outcome.undetermined])][:5]

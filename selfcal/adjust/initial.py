@@ -88,16 +88,16 @@ def intersect(problem: Problem, state: State, use: np.ndarray | None = None,
             xyz = _best_pairs(point, origin, np.concatenate(directions), xyz, ok, 3.0 * typical)
         for _ in range(5):
             # each ray's angle from the point: its distance over the range
-            angles = []
+            ray_angles = []
             for point, origin, proj in rays:
                 offset = np.nan_to_num(xyz[point]) - origin
-                angles.append(np.linalg.norm(np.einsum("nij,nj->ni", proj, offset), axis=1) /
-                              np.maximum(np.linalg.norm(offset, axis=1), 1e-300))
-            every = np.concatenate(angles)[np.concatenate([ok[point] for point, _, _ in rays])]
+                ray_angles.append(np.linalg.norm(np.einsum("nij,nj->ni", proj, offset), axis=1) /
+                                  np.maximum(np.linalg.norm(offset, axis=1), 1e-300))
+            every = np.concatenate(ray_angles)[np.concatenate([ok[point] for point, _, _ in rays])]
             typical = float(np.median(every)) if every.size else 0.0
             if not typical > 0:
                 break
-            weights = [1.0 / (1.0 + (a / (3.0 * typical)) ** 2) for a in angles]
+            weights = [1.0 / (1.0 + (a / (3.0 * typical)) ** 2) for a in ray_angles]
             xyz, ok = _intersect_rays(problem.n_points, rays, n_rays, weights)
     return xyz, ok
 

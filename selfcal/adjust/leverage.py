@@ -55,7 +55,7 @@ def image_leverages(problem, state, lin, v_inv, Q, Q_points=None):
         T[:n_core, :n_core] = np.eye(n_core)
         T[n_core:, n_core:] = sparse.to_params
         G_sparse = T @ parts.Q_dd @ T.T
-    Q_ed = parts.Q_ed.reshape(n_img, width, n_d) if dense else None
+    Q_ed = parts.Q_ed.reshape(n_img, width, n_d) if parts.Q_ed is not None else None     # (dense: not None)
     context = contexts(problem, state)
     h_all = np.zeros((problem.n_image_observations, 2))
     r_all = np.zeros((problem.n_image_observations, 2))
@@ -79,17 +79,21 @@ def image_leverages(problem, state, lin, v_inv, Q, Q_points=None):
         h = np.einsum("oki,oij,okj->ok", j_e, Q_diag[img], j_e)
         jp_term = j_e @ G                                                   # (m, 2, 3), completed below
         if dense:
+            assert terms.Z is not None and terms.A is not None          # (the products of the dense camera part)
             Z = terms.Z.reshape(n_pc, 3, n_d)
             leverage_camera_cross(j_e, j_d, img, ptl, Q_ed, Z, jp_term, h)   # j_e Q_ed terms
             # H_p = Q_dd Z_d(p) + sum over the point's observations of Q_ed(image)^T Z_e, H_p^T stored
             if terms.ZL is None:
+                assert terms.H is not None                              # (H without the factor L_dd)
                 jp_term += rows_dot_blocks(j_d, ptl, terms.H.reshape(n_pc, 3, n_d))
                 if sparse is None:
                     h += np.einsum("rd,rd->r", j_d.reshape(2 * m, n_d) @ parts.Q_dd,
                                    j_d.reshape(2 * m, n_d)).reshape(m, 2)
                 else:
+                    assert G_sparse is not None                         # (made with the sparse rows)
                     h += _sparse_quadratic(j_d[:, :, :n_core], sparse, cs.o0, cs.o1, G_sparse)
             else:
+                assert L_dd is not None                                 # (ZL is Z L_dd)
                 jp_term += rows_dot_blocks(j_d, ptl, terms.A.reshape(n_pc, 3, n_d))
                 # with Q_dd = L L^T: j_d Q_dd Z^T = (j_d L)(Z L)^T and j_d Q_dd j_d^T = |j_d L|^2, two triangular
                 # products instead of a general one and a second pass

@@ -72,6 +72,11 @@ class Factor:
     there is one; ``scaled`` the scaled sparse S otherwise (for :meth:`inverse` and :meth:`cofactor`).
     """
 
+    #: a pseudo-inverse's (:func:`pseudo_factorise`): the number of datum directions of S, and a basis of them
+    #: (n, defect) in S's own units; 0 and None for a regular S
+    defect: int = 0
+    null: np.ndarray | None = None
+
     def __init__(self, solve, scale: np.ndarray, method: str, lower: np.ndarray | None = None, scaled=None):
         self._solve = solve
         self.scale = scale
@@ -135,7 +140,7 @@ class Factor:
         return inverse
 
 
-def factorise(S, rcond: float = 1e-13) -> Factor:
+def factorise(S: np.ndarray | sp.csr_matrix | sp.csc_matrix, rcond: float = 1e-13) -> Factor:
     """Cholesky factorisation of a symmetric positive definite S (dense or sparse).
 
     Raises
@@ -228,7 +233,8 @@ def _follow_null_space(Ss: np.ndarray, Z: np.ndarray, steps: int = 2) -> np.ndar
     return None
 
 
-def pseudo_factorise(S, null: np.ndarray | None = None, defect_tol: float = DEFECT_TOLERANCE) -> Factor:
+def pseudo_factorise(S: np.ndarray | sp.csr_matrix | sp.csc_matrix, null: np.ndarray | None = None,
+                     defect_tol: float = DEFECT_TOLERANCE) -> Factor:
     """The minimum-norm solution of a singular S x = b (free network): S's pseudo-inverse in the Jacobi-scaled
     metric, so that x has no component along the datum directions (inner constraints on the orientation and
     camera unknowns). ``Factor.defect`` is the number of datum directions, ``Factor.null`` (n, defect) a basis
@@ -255,6 +261,7 @@ def pseudo_factorise(S, null: np.ndarray | None = None, defect_tol: float = DEFE
     scale = 1.0 / np.sqrt(diag)
     Ss = S * scale[:, None] * scale[None, :]
     if null is not None and null.shape[1]:
+        Z: np.ndarray | None                                # None where _follow_null_space finds no shift
         Z = np.linalg.qr(null / scale[:, None])[0]
         if not np.linalg.norm(Ss @ Z) < 1e-6 * np.sqrt(Z.shape[1]):
             Z = _follow_null_space(Ss, Z)
@@ -436,7 +443,8 @@ def _bordered_banded(Ss: sp.csc_matrix, band, rcond: float):
     return solve
 
 
-def null_directions(S, names: list[str], tol: float = 1e-10, top: int = 6) -> list[str]:
+def null_directions(S: np.ndarray | sp.csr_matrix | sp.csc_matrix, names: list[str], tol: float = 1e-10,
+                    top: int = 6) -> list[str]:
     """Describe the (near) null space of S: for each direction, the unknowns it moves most.
 
     Used to turn a singular system into a message a user can act on

@@ -30,6 +30,7 @@ and sigma0^2 = v^T P v / (n - u) is unitless.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -38,6 +39,11 @@ from ..block import Block
 from ..errors import UsageError
 from .parameters import CameraParameters
 from .residuals import ResidualSettings, build_residuals
+
+if TYPE_CHECKING:
+    from ..sensors.base import BoundSensor, Sensor
+    from .ap_columns import APColumnCache
+    from .structure import BlockStructure
 
 __all__ = ["CameraParameters", "Problem", "State", "SensorSlot", "build_problem", "CHUNK_OBSERVATIONS"]
 
@@ -65,10 +71,20 @@ class State:
 class SensorSlot:
     """A sensor model and its binding to the images of a problem that use it."""
 
-    sensor: object                  # selfcal.sensors.base.Sensor
-    bound: object                   # selfcal.sensors.base.BoundSensor
+    sensor: Sensor
+    bound: BoundSensor
     images: np.ndarray              # problem image indices
     observations: np.ndarray        # positions (sorted order) of its image observations
+
+
+def _filled(shape: tuple[int, ...], dtype: type = float) -> Any:
+    """A field that build_problem fills: empty (``shape`` with no rows) until then."""
+    return field(default_factory=lambda: np.zeros(shape, dtype))
+
+
+def _ap_column_cache() -> APColumnCache:
+    from .ap_columns import APColumnCache       # (ap_columns imports this module)
+    return APColumnCache()
 
 
 @dataclass
@@ -96,34 +112,31 @@ class Problem:
     # layout of theta
     d_offset: list[int]             # start of each camera's free parameters in theta
     camera_ids: list[str] = field(default_factory=list)
-    image_ids: np.ndarray = None
+    image_ids: np.ndarray = _filled((0,), object)
     # the sensors of the images (filled by build_problem after the layout above)
     sensors: list[SensorSlot] = field(default_factory=list)
-    obs_sensor: np.ndarray = None   # (n_obs,) index into sensors
-    obs_pixel: np.ndarray = None    # (n_obs, 2) the measured (col, row), px
-    obs_value: np.ndarray = None    # (n_obs, 2) observation vector, the sensor's observation units
-    obs_sigma: np.ndarray = None    # (n_obs, 2) the standard deviation its rows are whitened by: a-priori / sqrt(weight)
-    obs_sigma_apriori: np.ndarray = None    # (n_obs, 2) the a-priori standard deviation (observation units)
-    obs_weight: np.ndarray = None   # (n_obs,) weight factor of each observation (1; a robust weight below it)
-    point_role: np.ndarray = None   # (n_points,) the block's role of each point: gcp, chk, tie
+    obs_sensor: np.ndarray = _filled((0,), np.int64)    # (n_obs,) index into sensors
+    obs_pixel: np.ndarray = _filled((0, 2))     # (n_obs, 2) the measured (col, row), px
+    obs_value: np.ndarray = _filled((0, 2))     # (n_obs, 2) observation vector, the sensor's observation units
+    # (n_obs, 2) the standard deviation its rows are whitened by: a-priori / sqrt(weight)
+    obs_sigma: np.ndarray = _filled((0, 2))
+    obs_sigma_apriori: np.ndarray = _filled((0, 2))     # (n_obs, 2) the a-priori standard deviation (observation units)
+    obs_weight: np.ndarray = _filled((0,))  # (n_obs,) weight factor of each observation (1; a robust weight below it)
+    point_role: np.ndarray | None = None    # (n_points,) the block's role of each point: gcp, chk, tie
     image_width: int = 6
-    image_names: list = None        # per image: the names of its parameters
-    image_units: list = None
-    image_free: np.ndarray = None   # (n_images, width) bool
-    image_prior_value: np.ndarray = None    # (n_images, width) a-priori values, observed where the sigma is finite
-    image_prior_sigma: np.ndarray = None    # (n_images, width) NaN: no prior
-    image_screenable: np.ndarray = None     # (n_images, width) bool
+    image_names: list = field(default_factory=list)     # per image: the names of its parameters
+    image_units: list = field(default_factory=list)
+    image_free: np.ndarray = _filled((0, 6), bool)      # (n_images, width) bool
+    # (n_images, width) a-priori values, observed where the sigma is finite
+    image_prior_value: np.ndarray = _filled((0, 6))
+    image_prior_sigma: np.ndarray = _filled((0, 6))     # (n_images, width) NaN: no prior
+    image_screenable: np.ndarray = _filled((0, 6), bool)    # (n_images, width) bool
     # every other kind of observation (:mod:`selfcal.adjust.residuals`): control coordinates, priors, GNSS/IMU
     residuals: list = field(default_factory=list)
     # the AP columns kept for the problem (:mod:`selfcal.adjust.ap_columns`)
-    ap_cache: "APColumnCache" = field(default=None, repr=False)
-    _structure: object = field(default=None, repr=False)
+    ap_cache: APColumnCache = field(default_factory=_ap_column_cache, repr=False)
+    _structure: BlockStructure | None = field(default=None, repr=False)
     _layout: tuple | None = field(default=None, repr=False)
-
-    def __post_init__(self):
-        if self.ap_cache is None:
-            from .ap_columns import APColumnCache
-            self.ap_cache = APColumnCache()
 
     def settle_sigma(self) -> None:
         """Take ``obs_sigma`` as the a-priori standard deviations (after the sensors refined them at the start
@@ -247,7 +260,7 @@ class Problem:
         position[self.point_order] = np.arange(len(self.point_order))
         return position
 
-    def structure(self):
+    def structure(self) -> BlockStructure:
         """Sparsity structure of the normal equations (built on first use, then cached)."""
         if self._structure is None:
             from .structure import build_structure
@@ -496,7 +509,7 @@ def build_problem(block: Block, ap_spec: str = "none", ap_settings: dict | None 
         spec = ap_spec if ap_cameras is None or cid in ap_cameras else "none"
         initial = getattr(cfg, "initial_ap", None)
         held = initial is not None and initial.sigma_px == 0
-        if held:
+        if initial is not None and held:
             spec = initial.spec          # a held calibration keeps its own AP model (block.toml sigma_px = 0)
         ap, ap_start = sensor.create_ap(spec, cfg, problem.obs_value[cam_of_obs == k], ap_settings,
                                         model=(ap_models or {}).get(cid))

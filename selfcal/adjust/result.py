@@ -53,8 +53,8 @@ class AdjustmentResult:
     residuals: np.ndarray          # (m, 2) image residuals in ``block``'s observation order, observation units
     notes: list[str]
     seconds: float
-    linearisation: Linearisation = field(repr=False, default=None)
-    v_inv: list = field(repr=False, default=None)
+    linearisation: Linearisation = field(repr=False)
+    v_inv: list = field(repr=False)
     point_cofactor_blocks: np.ndarray | None = field(repr=False, default=None)   # Q_points once computed
     reduced_matrix: np.ndarray | None = field(repr=False, default=None)   # S of the last linearisation (dense, small)
     datum_null: np.ndarray | None = field(repr=False, default=None)       # a free network's datum directions
@@ -179,13 +179,13 @@ class AdjustmentResult:
         :meth:`ParameterTable.labels` gives them), in code units; a name that is held or unknown is a KeyError."""
         table = self.parameters()
         where = {label: k for k, label in enumerate(table.labels())}
-        index = []
+        columns = []
         for name in names:
             k = where[name]
             if not table.free[k] or table.index[k] < 0:
                 raise KeyError(f"{name} is not estimated")
-            index.append(int(table.index[k]))
-        index = np.array(index, np.int64)
+            columns.append(int(table.index[k]))
+        index = np.array(columns, np.int64)
         return self.variance_factor * np.asarray(self.Q_theta[index[:, None], index[None, :]])
 
     @property

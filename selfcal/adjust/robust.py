@@ -121,7 +121,7 @@ class Danish(Loss):
 
 
 #: loss name -> its class (``--robust NAME``)
-LOSSES: dict[str, type[Loss]] = {"huber": Huber, "cauchy": Cauchy, "danish": Danish}
+LOSSES: dict[str, type[Huber | Cauchy | Danish]] = {"huber": Huber, "cauchy": Cauchy, "danish": Danish}
 
 
 @dataclass(frozen=True)

@@ -323,6 +323,7 @@ def reduce(problem: Problem, lin: Linearisation, lam: float = 0.0, dense: bool =
         _spread_camera_blocks(wide_diag, wide_off, own, ia, ib, w, S_ed, S_dd)
 
     damp = lam * lin.diag_theta
+    S: np.ndarray | sp.csc_matrix
     if dense:
         S = np.zeros((n_t, n_t))
         S_ee = np.zeros((n_img, n_img, w, w))
@@ -343,8 +344,8 @@ def reduce(problem: Problem, lin: Linearisation, lam: float = 0.0, dense: bool =
         blocks = np.concatenate([diag_blocks, off_blocks, off_blocks.transpose(0, 2, 1)])
         rows = np.broadcast_to(w * bi[:, None, None] + np.arange(w)[None, :, None], blocks.shape)
         cols = np.broadcast_to(w * bj[:, None, None] + np.arange(w)[None, None, :], blocks.shape)
-        S_ee = sp.csr_matrix((blocks.ravel(), (rows.ravel(), cols.ravel())), shape=(n_e, n_e))
-        top = sp.hstack([S_ee, sp.csr_matrix(S_ed), sp.csr_matrix((n_e, problem.n_extra))])
+        S_ee_csr = sp.csr_matrix((blocks.ravel(), (rows.ravel(), cols.ravel())), shape=(n_e, n_e))
+        top = sp.hstack([S_ee_csr, sp.csr_matrix(S_ed), sp.csr_matrix((n_e, problem.n_extra))])
         mid = sp.hstack([sp.csr_matrix(S_ed.T), sp.csr_matrix(S_dd), sp.csr_matrix((n_d, problem.n_extra))])
         bot = sp.csr_matrix((problem.n_extra, n_t))
         S = sp.vstack([top, mid, bot]).tocsc()
@@ -383,7 +384,7 @@ def back_substitute(problem: Problem, lin: Linearisation, v_inv: list, d_theta: 
     d_e = d_theta[:n_e].reshape(-1, problem.image_width)
     d_d = d_theta[n_e:n_e + n_d]
     d_p = np.zeros((problem.n_points, 3))
-    columns = problem.camera_columns() if n_d else None
+    columns = problem.camera_columns()             # (n_cameras, 0) without camera parameters (n_d 0)
 
     def work(chunk, _) -> None:                 # each chunk writes its own points
         ch, Vi = chunk

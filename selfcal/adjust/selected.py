@@ -163,12 +163,12 @@ class BandedCofactor:
         _cholesky_inverse(L[-1], out=Z(nb - 1))
         for i in range(nb - 2, -1, -1):
             G = la.solve_triangular(L[i], M[i].T, lower=True, trans="T", check_finite=False).T     # M_i L_i^-1
-            below = Z_below(i)
-            np.matmul(Z(i + 1), G, out=below)
-            below *= -1.0                                                                       # Z_{i+1,i}
+            Z_sub = Z_below(i)
+            np.matmul(Z(i + 1), G, out=Z_sub)
+            Z_sub *= -1.0                                                                       # Z_{i+1,i}
             _cholesky_inverse(L[i], out=Z(i))
-            Z(i)[...] -= below.T @ G
-            L[i] = M[i] = None                                                                  # done with
+            Z(i)[...] -= Z_sub.T @ G
+            L[i] = M[i] = np.empty((0, 0))                                          # done with: their memory goes
         self._X, self._XQ, self._Q_cc = X, X @ Q_cc, Q_cc
         self._pos = np.full(n, -1, np.int64)
         self._pos[perm] = np.arange(n_a)

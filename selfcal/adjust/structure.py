@@ -28,7 +28,7 @@ class SparsePattern:
         order = np.argsort(rows.astype(np.int64) * shape[1] + cols, kind="stable")
         self.shape = shape
         self.perm = order
-        self.indices = cols[order].astype(np.int32 if max(shape) < 2**31 else np.int64)
+        self.indices: np.ndarray = cols[order].astype(np.int32 if max(shape) < 2**31 else np.int64)
         counts = np.bincount(rows, minlength=shape[0])
         self.indptr = np.concatenate([[0], np.cumsum(counts)]).astype(self.indices.dtype)
 

@@ -114,11 +114,12 @@ def run_matrix(blocks: dict, models: list[str], settings: CellSettings = CellSet
         shared = {name: client.scatter(block, broadcast=True) for name, block in blocks.items()}
         # the wavelet cells take 3-4 times as long as the others: submitted first, they leave no worker idle at the end
         first = sorted(range(len(cases)), key=lambda i: not takes_grid(cases[i][1]))
-        futures = [None] * len(cases)
+        submitted = {}
         for i in first:
             name, model = cases[i]
-            futures[i] = client.submit(run_cell, name, shared[name], model, settings, pure=False,
-                                       key=f"selfcal-{name}-{model}-{time.time_ns()}")
+            submitted[i] = client.submit(run_cell, name, shared[name], model, settings, pure=False,
+                                         key=f"selfcal-{name}-{model}-{time.time_ns()}")
+        futures = [submitted[i] for i in range(len(cases))]      # in the cells' order
         if done is not None:
             for future in as_completed(futures):
                 done(future.result())

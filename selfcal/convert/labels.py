@@ -250,8 +250,8 @@ def match_labels(labels, others, *, path: str, other_path: str, what: str = "con
     if found_affix is not None:
         side, kind, affix = found_affix
         having = right if side == "right" else left
-        rest = {x: _cut(x, kind, affix) for x in having}
-        rest = {x: r for x, r in rest.items() if r is not None and not _is_number(r)}
+        cut = {x: _cut(x, kind, affix) for x in having}
+        rest = {x: r for x, r in cut.items() if r is not None and not _is_number(r)}
         plain = left if side == "right" else right
         pairs = _pairs(_by_form([x for x in plain if not _is_number(x)], _key),
                        _by_form(list(rest), lambda x: _key(rest[x])), ambiguous)

@@ -5,12 +5,16 @@ observations moved to their ideal positions, measured - Delta(measured), as the 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..geometry.rotation import matrix_from_opk, quaternion_from_matrix
 from ..sensors.frame import pixel_from_photo, project
 from .colmap import FLIP
+
+if TYPE_CHECKING:
+    from ..io.colmap import ColmapModel
 
 WORKSPACE_ROLES = ("tie", "gcp")
 
@@ -19,7 +23,7 @@ WORKSPACE_ROLES = ("tie", "gcp")
 class ColmapWorkspace:
     """A COLMAP sparse model of the ideal images, and what ties it back to selfcal's results."""
 
-    model: object                   # selfcal.io.colmap.ColmapModel
+    model: ColmapModel
     origin_m: np.ndarray            # (3,) object coordinates = model coordinates + origin_m
     point_id: np.ndarray            # (k,) selfcal point id of each 3-D point (COLMAP ids 1..k)
     point_role: np.ndarray          # (k,)

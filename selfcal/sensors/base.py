@@ -36,6 +36,7 @@ import numpy as np
 if TYPE_CHECKING:
     from ..ap.base import SparseBasis
     from ..block import Block
+    from .rpc import RpcModel
 
 __all__ = ["Parameter", "Sensor", "BoundSensor", "ImageGeometry", "display_unit"]
 
@@ -105,7 +106,7 @@ class ImageGeometry:
     project: Callable
     localize: Callable
     height_range_m: tuple[float, float] | None = None
-    rpc: object | None = None
+    rpc: RpcModel | None = None
 
 
 class BoundSensor(ABC):
@@ -126,8 +127,9 @@ class BoundSensor(ABC):
         (a pushbroom image's motion per line) their value at ``state`` (the start values), in place."""
 
     @abstractmethod
-    def context(self, state: Any) -> Any:
-        """What :meth:`predict` needs of the current estimate, computed once per evaluation (rotations...)."""
+    def context(self, state: Any, jacobians: bool = True) -> Any:
+        """What :meth:`predict` needs of the current estimate, computed once per evaluation (rotations...);
+        without ``jacobians``, what a :meth:`predict` without Jacobians needs (it may be cheaper)."""
 
     @abstractmethod
     def predict(self, context: Any, o: np.ndarray, img: np.ndarray, cam: np.ndarray, points: np.ndarray,

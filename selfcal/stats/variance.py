@@ -23,7 +23,7 @@ with few observations (some dozen GCPs or images) are estimated to 10-20 %.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 
@@ -90,13 +90,15 @@ def _apriori(block: Block, group: str) -> tuple[float, ...]:
         gcp = block.points.role == "gcp"
         return tuple(float(v) for v in np.nanmedian(block.points.sigma_m[gcp], axis=0))
     if group == "GNSS":
+        assert block.gnss_sigma_m is not None           # (the group's observations have it as their sigma)
         return tuple(float(v) for v in block.gnss_sigma_m)
+    assert block.imu_sigma_deg is not None
     return tuple(float(v) for v in block.imu_sigma_deg)
 
 
 def reweighted(block: Block, scale: dict[str, float]) -> Block:
     """``block`` with the a-priori sigmas of each group multiplied by ``scale[group]``."""
-    changes = {}
+    changes: dict[str, Any] = {}
     s = scale.get("image", 1.0)
     if s != 1.0:
         changes["observations"] = replace(block.observations, sigma_px=block.observations.sigma_px * s)
@@ -105,12 +107,14 @@ def reweighted(block: Block, scale: dict[str, float]) -> Block:
     if s != 1.0:
         factor = np.where(block.points.role == "gcp", s, 1.0)[:, None]
         changes["points"] = replace(block.points, sigma_m=block.points.sigma_m * factor)
-    images = {}
+    images: dict[str, np.ndarray] = {}
     if scale.get("GNSS", 1.0) != 1.0:
+        assert block.gnss_sigma_m is not None, "the block has no GNSS observations to reweight"
         changes["gnss_sigma_m"] = tuple(scale["GNSS"] * v for v in block.gnss_sigma_m)
         if block.images.gnss_sigma_m is not None:         # the images' own sigmas scale with the group's
             images["gnss_sigma_m"] = scale["GNSS"] * block.images.gnss_sigma_m
     if scale.get("IMU", 1.0) != 1.0:
+        assert block.imu_sigma_deg is not None, "the block has no IMU observations to reweight"
         changes["imu_sigma_deg"] = tuple(scale["IMU"] * v for v in block.imu_sigma_deg)
         if block.images.imu_sigma_rad is not None:
             images["imu_sigma_rad"] = scale["IMU"] * block.images.imu_sigma_rad

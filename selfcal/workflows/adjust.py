@@ -133,7 +133,7 @@ def _check_points_determined(block: Block, tested: TestedAdjustment) -> dict:
         return {}
     bad, reason = found
     result.notes.append(reason)
-    extra = {"n_points_undetermined": int(bad.size)}
+    extra: dict = {"n_points_undetermined": int(bad.size)}
     if block.datum != "free" and not tested.failure:
         extra["failure"] = reason
     return extra
@@ -184,4 +184,5 @@ def _seed001(block: Block, request: AdjustRequest, progress, report, say, scores
         extra["trajectory_fit_rms"] = {img.image_id: {k: np.asarray(v).tolist() for k, v in img.trajectory.fit_rms.items()}
                                        for img in images}
     found = case.checks if case.checks is not None else check_points.intersected(case.tested.result)
+    assert case.block is not None                   # (run_case gives every case its block)
     return Adjusted(case.tested, case.block, found, extra, (case.track_centre, case.track_axes), choice)

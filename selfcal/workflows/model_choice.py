@@ -92,7 +92,8 @@ def choose_ap_model(block: Block, candidates: list[tuple[str, tuple[int, int]]],
     """
     if not candidates:
         raise ValueError("no candidate AP models")
-    models, sizes = [], []
+    models: list[dict | AdjustmentError | ValueError] = []     # camera id -> APModel, or why it could not be built
+    sizes: list[int] = []
     for model, grid in candidates:
         try:
             built, n_camera = camera_models(block, replace(options, ap=model, grid=grid))
@@ -107,7 +108,10 @@ def choose_ap_model(block: Block, candidates: list[tuple[str, tuple[int, int]]],
     if snooping is not None and snooping.critical > 0 and max(sizes) >= 0:
         richest = int(np.argmax(sizes))
         model, grid = candidates[richest]
-        tested = adjust_with_tests(block, replace(options, ap=model, grid=grid), snooping, ap_models=models[richest])
+        richest_models = models[richest]
+        assert isinstance(richest_models, dict)             # (its size is not -1: they were built)
+        tested = adjust_with_tests(block, replace(options, ap=model, grid=grid), snooping,
+                                   ap_models=richest_models)
         n_blunders = len(tested.rejected_rows)
         keep = np.flatnonzero(~np.isin(block.observations.row, tested.rejected_rows))
         data = prune_for(replace(block, observations=block.observations.take(keep)))
@@ -130,9 +134,9 @@ def choose_ap_model(block: Block, candidates: list[tuple[str, tuple[int, int]]],
         scores.append(score)
         if progress is not None:
             progress(score)
-    valid = [s for s in scores if s.bic is not None]
+    valid = [(s, s.bic) for s in scores if s.bic is not None]
     if not valid:
         raise AdjustmentError("no candidate AP model could be adjusted:\n  "
                               + "\n  ".join(f"{s.label}: {s.error}" for s in scores))
-    best = min(valid, key=lambda s: s.bic)
+    best = min(valid, key=lambda scored: scored[1])[0]
     return ModelChoice(best.model, best.grid, scores, n_blunders)

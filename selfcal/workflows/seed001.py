@@ -14,6 +14,7 @@ nothing here solves anything of its own.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 
@@ -21,7 +22,7 @@ from ..adjust import AdjustOptions
 from ..block import Block
 from ..errors import AdjustmentError, UsageError
 from ..sensors import sensor_of
-from ..sensors.pushbroom import M6_SIGMA
+from ..sensors.pushbroom import M6_SIGMA, PushbroomSensor
 from ..sensors.pushbroom import track_frame as line_track_frame
 from ..stats.screening import ScreeningOptions
 from ..stats.snooping import SnoopingOptions
@@ -89,7 +90,7 @@ class PushbroomCase:
 def image_sets(block: Block) -> dict[str, tuple[int, ...]]:
     """Mono for every image, stereo for the first two and for all (F+N, F+N+B for a triplet)."""
     ids = [str(i) for i in block.images.image_id]
-    sets = {i: (k,) for k, i in enumerate(ids)}
+    sets: dict[str, tuple[int, ...]] = {i: (k,) for k, i in enumerate(ids)}
     if len(ids) >= 2:
         sets["+".join(ids[:2])] = (0, 1)
     if len(ids) >= 3:
@@ -173,6 +174,7 @@ def track_frame(block: Block) -> tuple[np.ndarray, np.ndarray]:
     """The scene centre of the block's middle image (ECEF) and the across, along, up axes there (rows)."""
     middle = len(block.images) // 2
     sensor = sensor_of(block.cameras[block.images.camera_id[middle]])
+    assert isinstance(sensor, PushbroomSensor), "seed 001's workflows are for line images"   # (its sensor models)
     return line_track_frame(sensor.line_image(block, middle))
 
 
@@ -195,8 +197,8 @@ def run_case(block: Block, model: str, gcps: np.ndarray, image_set, height=None,
         raise UsageError(f"a mono adjustment restitutes the check points ({others.size}) on the terrain: give a DEM "
                          f"or a height")
     sub = case_block(block, image_set, gcps, mono)
-    base = dict(model=name, n_gcp=len(gcps), images=label, gcps=np.asarray(gcps), track_axes=axes, block=sub,
-                track_centre=centre)
+    base: dict[str, Any] = dict(model=name, n_gcp=len(gcps), images=label, gcps=np.asarray(gcps), track_axes=axes,
+                                block=sub, track_centre=centre)
     try:
         tested = adjust_with_tests(sub, options, snooping, screening, progress=progress, report=report,
                                    variance=variance, robust=robust)

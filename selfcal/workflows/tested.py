@@ -108,9 +108,9 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
     then those of the reweighted block. ``ap_models`` (camera id -> APModel)
     replaces the models built from ``options.ap``.
     """
-    snoop_on = snooping is not None and snooping.critical > 0
-    critical = snooping.critical if snoop_on else 3.0
-    max_rounds = max(snooping.max_rounds if snoop_on else 0, screening.max_rounds if screening else 0)
+    snoop = snooping if snooping is not None and snooping.critical > 0 else None     # None: no snooping
+    critical = snoop.critical if snoop is not None else 3.0
+    max_rounds = max(snoop.max_rounds if snoop is not None else 0, screening.max_rounds if screening else 0)
     # a round's adjustment only chooses the next round's rejections: it stops once no estimate moves by
     # ROUND_TOLERANCE of its sigma; the adjustment the tests end with is converged to the caller's tolerance
     rough = options if not max_rounds else replace(options, solver=replace(
@@ -154,6 +154,7 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
             before = joint_tests[-1][1] if joint_tests else None
             new_free, decisions, joint = screen_once(result, screening, before)
             if decisions:
+                assert joint is not None                # (the joint test of what the round dropped)
                 free = new_free
                 dropped = len(decisions)
                 log += [(k, d) for d in decisions]
@@ -161,14 +162,14 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
         picks = np.zeros(0, np.int64)
         largest = 0.0
         demoted = None
-        if snoop_on:
-            w = image_w(tests, snooping.min_redundancy)
+        if snoop is not None:
+            w = image_w(tests, snoop.min_redundancy)
             largest = float(w.max()) if w.size else 0.0
             # the control group is tested too: a control point whose coordinates fail the test, worse than any
             # image observation, is checked instead (alone in its round: it pulls the image observations near it)
-            demoted = control_candidate(result, tests, critical, snooping.min_redundancy, largest)
+            demoted = control_candidate(result, tests, critical, snoop.min_redundancy, largest)
             picks = np.zeros(0, np.int64) if demoted is not None else \
-                reject_candidates(result.block, w, critical, snooping.mode)
+                reject_candidates(result.block, w, critical, snoop.mode)
             if picks.size and snooped + picks.size > limit:
                 failure = _too_many(tests, largest, snooped, robust is not None)
                 break
