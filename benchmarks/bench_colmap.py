@@ -29,7 +29,7 @@ PIXEL_MM = 0.0052
 
 
 def selfcal_run(path: str):
-    from selfcal.adjust import AdjustOptions, adjust
+    from selfcal.adjust import adjust, AdjustOptions, APOptions
     from selfcal.block import prune
     from selfcal.convert import block_from_colmap
     from selfcal.io.colmap import read_colmap
@@ -37,7 +37,7 @@ def selfcal_run(path: str):
     block, _ = block_from_colmap(read_colmap(path), None, pixel_size_mm=PIXEL_MM)
     block = prune(replace(block, datum="free"))
     start = time.perf_counter()
-    result = adjust(block, AdjustOptions(ap="brown"))
+    result = adjust(block, AdjustOptions(ap=APOptions("brown")))
     seconds = time.perf_counter() - start
     v_px = result.residuals_px
     return block, float(np.sqrt(np.mean(np.sum(v_px ** 2, axis=1)))), seconds, result.iterations

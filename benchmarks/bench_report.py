@@ -28,7 +28,7 @@ def main(argv=None) -> int:
     parser.add_argument("--repeat", type=int, default=3)
     args = parser.parse_args(argv)
 
-    from selfcal.adjust import AdjustOptions
+    from selfcal.adjust import AdjustOptions, APOptions
     from selfcal.allocator import keep_freed_memory
     from selfcal.block import prune
     from selfcal.io.results import read_results, results_from_files, write_results
@@ -41,7 +41,7 @@ def main(argv=None) -> int:
     sim = simulate_uav(seed=args.seed, distortion="local+brown", blunder_rate=0.003, distortion_scale=4.0)
     block = prune(sim.blocks["type1"])
     t0 = time.perf_counter()
-    tested = adjust_with_tests(block, AdjustOptions(ap=args.model), SnoopingOptions(), ScreeningOptions())
+    tested = adjust_with_tests(block, AdjustOptions(ap=APOptions(args.model)), SnoopingOptions(), ScreeningOptions())
     files = result_files(block, tested, {"seconds": 0.0})
     t_adjust = time.perf_counter() - t0
 

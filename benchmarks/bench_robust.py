@@ -32,7 +32,7 @@ import numpy as np
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 from selfcal.allocator import keep_freed_memory  # noqa: E402
-from selfcal.adjust import AdjustOptions, RobustOptions  # noqa: E402
+from selfcal.adjust import AdjustOptions, APOptions, RobustOptions  # noqa: E402
 from selfcal.simulate import simulate_uav  # noqa: E402
 from selfcal.simulate.outliers import contaminate  # noqa: E402
 from selfcal.stats import ScreeningOptions, SnoopingOptions  # noqa: E402
@@ -42,7 +42,7 @@ from selfcal.workflows.tested import adjust_with_tests, prune_for  # noqa: E402
 
 def tested(block, robust):
     t0 = time.perf_counter()
-    out = adjust_with_tests(block, AdjustOptions(ap="wavelet:db4"), SnoopingOptions(), ScreeningOptions(),
+    out = adjust_with_tests(block, AdjustOptions(ap=APOptions("wavelet:db4")), SnoopingOptions(), ScreeningOptions(),
                             robust=robust)
     return out, time.perf_counter() - t0
 

@@ -121,11 +121,10 @@ def _linalg_child(kind: str, a: int, b: int) -> dict:
         from selfcal.adjust.initial import initial_state
         from selfcal.adjust.schur import linearise, reduce
         from selfcal.adjust.problem import build_problem
-        from selfcal.ap import ap_settings
 
         block = _block(a, b)
         options = AdjustOptions()
-        problem = build_problem(block, options.ap, ap_settings(options.ap, options.grid), options=options)
+        problem = build_problem(block, options)
         state, _ = initial_state(problem, block, None)
         S, g, _ = reduce(problem, linearise(problem, state), 0.0, False)
         label = f"strips {a * b}"

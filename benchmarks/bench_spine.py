@@ -44,7 +44,7 @@ def _problem(seed: int, density: float):
     sim = simulate_uav(seed=seed, distortion="none", points_per_mm2=density, n_strips=strips,
                        images_per_strip=per_strip)
     block = prune(sim.blocks["type3"])
-    problem = build_problem(block, "none")
+    problem = build_problem(block)
     state, _ = initial_state(problem, block)
     return block, problem, state
 

@@ -38,7 +38,7 @@ def main(argv=None) -> int:
     parser.add_argument("--ap", default="wavelet:sym4")
     args = parser.parse_args(argv)
 
-    from selfcal.adjust import AdjustOptions, adjust
+    from selfcal.adjust import adjust, AdjustOptions, APOptions
     from selfcal.block import prune
     from selfcal.simulate import simulate_uav
     from selfcal.stats import ScreeningOptions, SnoopingOptions
@@ -46,7 +46,7 @@ def main(argv=None) -> int:
 
     sim = simulate_uav(seed=args.seed, distortion="local+brown", blunder_rate=0.003)
     block = prune(sim.blocks["type3"])
-    options = AdjustOptions(ap=args.ap)
+    options = AdjustOptions(ap=APOptions(args.ap))
 
     t0 = time.perf_counter()
     plain = adjust(block, options)

@@ -64,15 +64,17 @@ def _block(scenario: str):
 def _stopwatch() -> Stopwatch:
     """One stopwatch around the stage functions, installed once per process (wrapping them again for each
     block would nest the wrappers)."""
-    import selfcal.adjust as adjust_module
+    import selfcal.adjust.engine as engine
     import selfcal.adjust.linalg as linalg
+    import selfcal.adjust.result as result
     import selfcal.workflows.tested as workflow
 
     watch = Stopwatch()
-    watch.wrap(adjust_module, "solve", "solve")
-    watch.wrap(adjust_module, "downdated_start", "update")
-    for name in ("reduce", "factorise", "point_cofactors"):
-        watch.wrap(adjust_module, name, "covariance")
+    watch.wrap(engine, "solve", "solve")
+    watch.wrap(engine, "downdated_start", "update")
+    for name in ("reduce", "factorise"):
+        watch.wrap(engine, name, "covariance")
+    watch.wrap(result, "point_cofactors", "covariance")
     watch.wrap(linalg.Factor, "cofactor", "covariance")
     for name in ("observation_tests", "screen_once", "reject_candidates"):
         watch.wrap(workflow, name, "tests")
@@ -85,7 +87,7 @@ def run_selfcal(scenario: str, ap: str, repeat: int) -> tuple:
     holding the earlier runs' results (hundreds of MB of AP columns each) made the later ones fault in fresh
     pages (the Type 2 block, run after the Type 3 block's three results: 4.5 s against 3.0-3.4 s alone)."""
     import selfcal.workflows.tested as workflow
-    from selfcal.adjust import AdjustOptions
+    from selfcal.adjust import AdjustOptions, APOptions
     from selfcal.stats.screening import ScreeningOptions
 
     watch = _stopwatch()
@@ -95,7 +97,7 @@ def run_selfcal(scenario: str, ap: str, repeat: int) -> tuple:
         watch.seconds = {}
         iterations = []
         start = time.perf_counter()
-        tested = workflow.adjust_with_tests(block, AdjustOptions(ap=ap), screening=ScreeningOptions(),
+        tested = workflow.adjust_with_tests(block, AdjustOptions(ap=APOptions(ap)), screening=ScreeningOptions(),
                                             progress=lambda record: iterations.append(record))
         total = time.perf_counter() - start
         # the final factorisation inside adjust() is timed in covariance; the one inside solve() in solve

@@ -69,13 +69,13 @@ def one_seed(args) -> dict:
     against the truth: (scenario, name, true value, sigma in the unscreened adjustment, value and sigma at
     the drop, t at the drop)."""
     seed, points_per_mm2 = args
-    from selfcal.adjust import AdjustOptions
+    from selfcal.adjust import AdjustOptions, APOptions, TrajectoryOptions
     from selfcal.block import prune
     from selfcal.stats.screening import ScreeningOptions
     from selfcal.simulate.trajectory import true_terms_by_name
     from selfcal.workflows.tested import adjust_with_tests
     sim = simulate(seed, points_per_mm2)
-    options = AdjustOptions(ap="wavelet:db4", grid=(9, 6), gnss_drift=1, imu_drift=1)
+    options = AdjustOptions(ap=APOptions("wavelet:db4", grid=(9, 6)), trajectory=TrajectoryOptions(gnss_drift=1, imu_drift=1))
     out = {"seed": seed, "variant": VARIANTS[seed % len(VARIANTS)], "rms": {}, "dropped": [], "zero": [0, 0], "z": []}
     unscreened = {}
     for screen in (False, True):

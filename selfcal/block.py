@@ -319,10 +319,10 @@ class Block:
     gnss_sigma_m: tuple[float, float, float] | None = None
     imu_sigma_deg: tuple[float, float, float] | None = None
     #: GNSS antenna offset from the perspective centre in the camera frame (x, y, z; metres): the GNSS
-    #: observes X0 + M^T a; None = 0 (AdjustOptions.lever_arm estimates it, starting from this value)
+    #: observes X0 + M^T a; None = 0 (TrajectoryOptions.lever_arm estimates it, starting from this value)
     gnss_lever_arm_m: tuple[float, float, float] | None = None
     #: boresight angles (omega, phi, kappa; degrees) of the camera in the IMU body frame: the IMU observes
-    #: the angles of B(b)^T M; None = 0 (AdjustOptions.boresight estimates them, starting from these values)
+    #: the angles of B(b)^T M; None = 0 (TrajectoryOptions.boresight estimates them, starting from these values)
     imu_boresight_deg: tuple[float, float, float] | None = None
     dropped: Dropped = field(default_factory=Dropped)
     datum: str = "control"          # "control": fixed by control/trajectory; "free": a relative (free) network

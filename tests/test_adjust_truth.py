@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from selfcal.adjust import AdjustOptions, adjust
+from selfcal.adjust import adjust, AdjustOptions, APOptions
 
 from conftest import pruned, simulation, truth_index
 
@@ -20,7 +20,7 @@ SEED = 1
 def adjusted(request):
     sim = simulation(seed=SEED, distortion="none")
     block = pruned(sim, request.param)
-    result = adjust(block, AdjustOptions(ap="none"))
+    result = adjust(block, AdjustOptions(ap=APOptions("none")))
     return request.param, sim, block, result
 
 

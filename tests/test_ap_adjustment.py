@@ -8,8 +8,8 @@ least 78 % relative to no APs (the lower bound of seed 000).
 import numpy as np
 import pytest
 
-from selfcal.adjust import AdjustOptions, adjust
-from selfcal.adjust.solver import SolverOptions
+from selfcal.adjust import adjust, AdjustOptions, APOptions
+from selfcal.adjust import SolverOptions
 
 from conftest import pruned, simulation
 
@@ -20,7 +20,7 @@ WAPS = ["wavelet:db4", "wavelet:sym4", "wavelet:meyer", "wavelet:bl4"]
 
 def chk_rmsd(block, ap: str) -> tuple[float, float, object]:
     # 15 iterations: db4, sym4 and meyer converge in 6-8
-    result = adjust(block, AdjustOptions(ap=ap, solver=SolverOptions(max_iterations=15)))
+    result = adjust(block, AdjustOptions(ap=APOptions(ap), solver=SolverOptions(max_iterations=15)))
     chk = block.points.role == "chk"
     diff = result.state.points[chk] - block.points.xyz_m[chk]     # CHK coordinates are the truth
     xy = float(np.sqrt(np.mean(np.sum(diff[:, :2] ** 2, axis=1))))

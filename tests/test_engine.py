@@ -13,6 +13,7 @@ from selfcal.adjust.schur import back_substitute, linearise, reduce
 from selfcal.adjust.problem import build_problem
 
 from conftest import pruned, residual_vector, simulation, unpack
+from selfcal.adjust import APOptions, AdjustOptions
 
 
 #: "none", a physical and a polynomial family, and a wavelet family on a 2x2 grid
@@ -23,8 +24,7 @@ AP_CASES = ("none", "brown", "legendre:3", "wavelet:db2")
 def small(request):
     sim = simulation(seed=5, distortion="local+brown", points_per_mm2=0.04)
     block = pruned(sim, "type2")          # control points and GNSS/IMU observations
-    settings = {"grid": (2, 2)} if request.param.startswith("wavelet") else None
-    problem = build_problem(block, request.param, settings, chunk_observations=500)   # several chunks
+    problem = build_problem(block, AdjustOptions(ap=APOptions(request.param, grid=(2, 2))), chunk_observations=500)   # several chunks
     state, _ = initial_state(problem, block)
     # a state with non-zero AP coefficients, so that their columns and the
     # cached Gram block are exercised away from zero
@@ -115,7 +115,7 @@ def test_compact_camera_rows_equal_dense(ap, monkeypatch):
     reduced system, back-substitution, point cofactors and leverages as the dense columns."""
     import dataclasses
 
-    from selfcal.adjust import adjust, AdjustOptions
+    from selfcal.adjust import adjust, AdjustOptions, APOptions
     from selfcal.adjust.problem import Problem
     from selfcal.stats.reliability import observation_tests
 
@@ -129,13 +129,13 @@ def test_compact_camera_rows_equal_dense(ap, monkeypatch):
 
     def run(compact: bool):
         monkeypatch.setattr(Problem, "compact_cameras", property(lambda self: compact))
-        problem = build_problem(block, ap, None, chunk_observations=500)
+        problem = build_problem(block, AdjustOptions(ap=APOptions(ap)), chunk_observations=500)
         state, _ = initial_state(problem, block)
         lin = linearise(problem, state)
         S, g, v_inv = reduce(problem, lin, 1e-3)
         d_theta = factorise(S).solve(g)
         d_p = back_substitute(problem, lin, v_inv, d_theta)
-        result = adjust(block, AdjustOptions(ap=ap))
+        result = adjust(block, AdjustOptions(ap=APOptions(ap)))
         h = 1.0 - observation_tests(result).image_redundancy
         return problem, lin, S, g, d_p, result.Q_points, h
 
@@ -162,7 +162,7 @@ def test_re_adjustment_carries_ap_columns_and_gram():
 
     sim = simulation(seed=5, distortion="local+brown", points_per_mm2=0.04)
     block = pruned(sim, "type2")
-    options = AdjustOptions(ap="legendre:3")
+    options = AdjustOptions(ap=APOptions("legendre:3"))
     first = adjust(block, options)
     rng = np.random.default_rng(2)
     keep = np.flatnonzero(rng.random(len(block.observations)) > 0.03)
@@ -261,7 +261,7 @@ def test_small_blocks_adjust_on_one_blas_thread(monkeypatch):
     seen = []
     with threadpool_limits(limits=2, user_api="blas"):
         assert blas_threads() == {2}
-        result = adjust(block, AdjustOptions(ap="brown"), progress=lambda record: seen.append(blas_threads()))
+        result = adjust(block, AdjustOptions(ap=APOptions("brown")), progress=lambda record: seen.append(blas_threads()))
         assert seen and all(threads == {1} for threads in seen)
         assert blas_threads() == {2}
         import selfcal.adjust.leverage as leverage
@@ -272,7 +272,7 @@ def test_small_blocks_adjust_on_one_blas_thread(monkeypatch):
         assert inside == [{1}] and blas_threads() == {2}
         monkeypatch.setattr(linalg, "SINGLE_THREAD_IMAGES", len(block.images) - 1)
         seen.clear()
-        adjust(block, AdjustOptions(ap="brown"), progress=lambda record: seen.append(blas_threads()))
+        adjust(block, AdjustOptions(ap=APOptions("brown")), progress=lambda record: seen.append(blas_threads()))
         assert seen and all(threads == {2} for threads in seen)
         # inside the one-thread limit a long dense product gets the caller's threads back, a short one does not
         with linalg.blas_threads(1):
@@ -297,7 +297,7 @@ def test_point_cofactors_from_the_tests_pass_equal_their_own():
     from selfcal.stats.reliability import observation_tests
 
     block = pruned(simulation(seed=5, distortion="local+brown", points_per_mm2=0.04), "type3")
-    result = adjust(block, AdjustOptions(ap="wavelet:db4"))
+    result = adjust(block, AdjustOptions(ap=APOptions("wavelet:db4")))
     assert result.point_cofactor_blocks is None
     tests = observation_tests(result)
     fused = result.point_cofactor_blocks
@@ -311,7 +311,7 @@ def test_point_cofactors_from_the_tests_pass_equal_their_own():
                               own)[0]
     h_sorted = 1.0 - tests.image_redundancy[result.problem.obs_order]
     np.testing.assert_allclose(h_given, h_sorted, rtol=0, atol=1e-10)      # rounding: h sums terms larger than 1
-    lazy = adjust(block, AdjustOptions(ap="wavelet:db4"))
+    lazy = adjust(block, AdjustOptions(ap=APOptions("wavelet:db4")))
     np.testing.assert_allclose(lazy.Q_points, own, rtol=0, atol=1e-12 * np.abs(own).max())
 
 
@@ -326,7 +326,7 @@ def test_leverages_through_the_sparse_wavelet_rows_equal_the_dense_ones(monkeypa
     from selfcal.workflows.tested import adjust_with_tests
 
     block = pruned(simulation(seed=5, distortion="local+brown", points_per_mm2=0.04, blunder_rate=0.003), "type3")
-    tested = adjust_with_tests(block, AdjustOptions(ap="wavelet:sym4"), screening=ScreeningOptions())
+    tested = adjust_with_tests(block, AdjustOptions(ap=APOptions("wavelet:sym4")), screening=ScreeningOptions())
     result = tested.result
     problem = result.problem
     cam = problem.cameras[0]
@@ -358,7 +358,7 @@ def test_dense_ap_columns_from_the_sparse_rows_equal_the_basis():
     for held in (0, 40):
         columns = {}
         for source in ("sparse rows", "basis"):
-            problem = build_problem(block, "wavelet:sym4")
+            problem = build_problem(block, AdjustOptions(ap=APOptions("wavelet:sym4")))
             cam = problem.cameras[0]
             cam.free[cam.n_core + np.arange(held) * 3] = False
             if source == "basis":

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from conftest import pruned, simulation
-from selfcal.adjust import AdjustOptions, ParameterTable, Termination, adjust
+from selfcal.adjust import adjust, AdjustOptions, APOptions, ParameterTable, Termination
 from selfcal.adjust.residuals import RESIDUALS, ParameterResiduals, PointResiduals
 
 
@@ -14,7 +14,7 @@ from selfcal.adjust.residuals import RESIDUALS, ParameterResiduals, PointResidua
 def result():
     """Seed 000's Type 2 block (GNSS/IMU with shift and drift), thinned, Brown APs."""
     return adjust(pruned(simulation(seed=5, distortion="brown", points_per_mm2=0.04), "type2"),
-                  AdjustOptions(ap="brown"))
+                  AdjustOptions(ap=APOptions("brown")))
 
 
 def test_the_parameter_table_names_every_unknown_with_its_sigma(result):
@@ -52,7 +52,7 @@ def test_leverages_add_up_to_the_number_of_unknowns(result):
 
 
 def test_readjust_equals_a_fresh_adjustment_of_what_is_left(result):
-    options = AdjustOptions(ap="brown")
+    options = AdjustOptions(ap=APOptions("brown"))
     table = result.parameters()
     held = [table.labels()[k] for k in table.where(kind="ap")[-2:]]
     rows = result.block.observations.row[:25]
@@ -70,7 +70,7 @@ def test_readjust_equals_a_fresh_adjustment_of_what_is_left(result):
 def test_termination_says_how_it_ended(result):
     assert result.termination is Termination.CONVERGED
     from selfcal.adjust import SolverOptions
-    short = adjust(result.block, AdjustOptions(ap="brown", solver=SolverOptions(max_iterations=1)))
+    short = adjust(result.block, AdjustOptions(ap=APOptions("brown"), solver=SolverOptions(max_iterations=1)))
     assert short.termination is Termination.ITERATION_LIMIT and not short.converged
 
 

@@ -10,6 +10,7 @@ import pytest
 
 from selfcal.adjust.residuals import parameter_observations
 from selfcal.adjust.initial import initial_state
+from selfcal.adjust import AdjustOptions, TrajectoryOptions
 from selfcal.adjust.problem import build_problem
 from selfcal.block import prune
 from selfcal.errors import BlockError
@@ -45,7 +46,7 @@ def test_per_image_sigma_overrides_the_block_sigma_in_the_engine(uav, tmp_path):
 
     residuals = {}
     for name, b in (("block", block), ("own", read)):
-        problem = build_problem(b, gnss_drift=-1, imu_drift=-1)
+        problem = build_problem(b, AdjustOptions(trajectory=TrajectoryOptions(gnss_drift=-1, imu_drift=-1)))
         state, _ = initial_state(problem, b)
         state.image[:, :3] += [0.3, -0.2, 0.4]                # every observation gets a residual
         state.image[:, 3:6] += np.radians([0.05, -0.04, 0.1])
@@ -97,6 +98,7 @@ from PIL import Image                                               # noqa: E402
 from PIL.TiffImagePlugin import IFDRational                          # noqa: E402
 
 from selfcal.simulate.trajectory import TrajectoryErrors            # noqa: E402
+from selfcal.adjust import APOptions
 
 CRS = "EPSG:32632"                        # UTM 32N: the simulated block's local frame moved to ORIGIN
 ORIGIN = np.array([500_000.0, 5_200_000.0, 0.0])
@@ -247,13 +249,13 @@ def test_gimbal_angles_become_the_imu_observations(drone, cli):
 def test_adjustment_recovers_the_strip_shifts_and_drifts(drone, cli):
     """Eq. 12 of seed 000 on the imported block: every simulated GNSS and IMU shift and drift recovered within
     3 sigma (errors drawn independently of the model: TrajectoryErrors)."""
-    from selfcal.adjust import AdjustOptions, adjust
+    from selfcal.adjust import adjust, AdjustOptions, APOptions, TrajectoryOptions
     from selfcal.simulate.trajectory import true_terms_by_name
     sim, root, _ = drone
     if not (root / "gnss_imu").exists():
         assert cli("import", "gnss", str(root / "images"), "--block", str(root / "block"), "--out",
                    str(root / "gnss_imu"), "--sigma-m", "0.03,0.03,0.05", "--imu-sigma-deg", "0.005,0.005,0.01") == 0
-    result = adjust(read_block(root / "gnss_imu"), AdjustOptions(ap="none", gnss_drift=1, imu_drift=1))
+    result = adjust(read_block(root / "gnss_imu"), AdjustOptions(ap=APOptions("none"), trajectory=TrajectoryOptions(gnss_drift=1, imu_drift=1)))
     assert result.converged
     truth = true_terms_by_name(sim.truth, result)
     names = list(result.theta_names)
@@ -491,7 +493,7 @@ def test_a_plan_only_control_point_leaves_the_adjustment_alone(uav):
     xyz[k, 2] += 40.0
     plan = replace(block, points=replace(block.points, xyz_m=xyz, sigma_m=sigma))
     free = replace(block, points=replace(block.points, sigma_m=sigma))
-    a, b = (adjust(x, AdjustOptions(ap="none")) for x in (plan, free))
+    a, b = (adjust(x, AdjustOptions(ap=APOptions("none"))) for x in (plan, free))
     assert a.converged and b.converged
     i = list(uav.truth.point_id).index(block.points.point_id[k])
     assert abs(a.state.points[k, 2] - uav.truth.xyz[i, 2]) < 0.2

@@ -169,6 +169,7 @@ def test_initial_ap_values_carry_over_to_other_families(tmp_path):
     least-squares fit of the same field; unknown coefficient names are errors naming the key."""
     from dataclasses import replace
 
+    from selfcal.adjust import AdjustOptions, APOptions
     from selfcal.adjust.problem import build_problem
     from selfcal.ap import ImageFrame, create_ap, frame_nodes_mm
     from selfcal.block import InitialAP
@@ -190,11 +191,11 @@ def test_initial_ap_values_carry_over_to_other_families(tmp_path):
     full = np.zeros(brown.n_params)
     full[[0, 1, 3]] = initial.values_px
     bx, by = brown.displacement_px(x, y, full)
-    problem = build_problem(prune(again), "brown")
+    problem = build_problem(prune(again), AdjustOptions(ap=APOptions("brown")))
     np.testing.assert_array_equal(problem.cameras[0].prior_value[3:], full)
     # legendre leaves shift, scale, rotation and the projective fields to the orientation: compared
     # modulo those six fields
-    problem = build_problem(prune(again), "legendre")
+    problem = build_problem(prune(again), AdjustOptions(ap=APOptions("legendre")))
     lx, ly = problem.cameras[0].ap.displacement_px(x, y, problem.cameras[0].prior_value[3:])
     s = 1.0 / x.max()
     u, v = s * x, s * y
@@ -206,7 +207,7 @@ def test_initial_ap_values_carry_over_to_other_families(tmp_path):
     text = (tmp_path / "b" / "block.toml").read_text().replace("k2 = 4.0", "k9 = 4.0")
     (tmp_path / "b" / "block.toml").write_text(text)
     with pytest.raises(BlockError) as info:
-        build_problem(prune(read_block(tmp_path / "b")), "brown")
+        build_problem(prune(read_block(tmp_path / "b")), AdjustOptions(ap=APOptions("brown")))
     assert info.value.column == "cameras.ilce7m3.initial_ap.k9" and "k1, k2" in info.value.reason
 
 

@@ -19,7 +19,6 @@ from selfcal.adjust.linalg import CHOLMOD_AVAILABLE, band_structure, factorise
 from selfcal.adjust.schur import linearise, reduce
 from selfcal.adjust.problem import build_problem
 from selfcal.adjust.selected import BandedCofactor
-from selfcal.ap import ap_settings
 from selfcal.block import prune
 from selfcal.simulate import simulate_uav
 from selfcal.adjust.leverage import image_leverages
@@ -91,7 +90,7 @@ def test_selected_inverse_gives_the_dense_point_cofactors_and_leverages():
     sim = simulate_uav(seed=1, distortion="none", points_per_mm2=0.3, n_strips=2, images_per_strip=120)
     block = prune(sim.blocks["type3"])
     options = AdjustOptions()
-    problem = build_problem(block, options.ap, ap_settings(options.ap, options.grid), options=options)
+    problem = build_problem(block, options)
     state, _ = initial_state(problem, block, None)
     lin = linearise(problem, state)
     S, _, v_inv = reduce(problem, lin, 0.0, False)

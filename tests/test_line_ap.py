@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from selfcal.adjust import AdjustOptions
+from selfcal.adjust import AdjustOptions, APOptions
 from selfcal.ap.line import create_line_ap
 from selfcal.sensors.pushbroom import LineImage, line_images
 from selfcal.workflows.seed001 import choose_gcps, run_case, with_focal
@@ -49,7 +49,7 @@ def test_wavelet_line_aps_recover_a_chip_wise_error(distorted):
     assert np.sqrt(np.mean(result.residuals_px[nadir] ** 2, axis=0))[1] >= 0.5
     camera = images[1].camera
     with_aps = run_case(block, "M6", gcps, (0, 1, 2), sim.dem, "F+N+B",
-                        AdjustOptions(ap="wavelet1d:db4", grid=(12, 12), ap_cameras=("N",)))
+                        AdjustOptions(ap=APOptions("wavelet1d:db4", grid=(12, 12), cameras=("N",))))
     result = with_aps.result
     assert result.converged and 0.85 < np.sqrt(result.variance_factor) < 1.25
     nadir_camera = result.problem.camera_ids.index("N")

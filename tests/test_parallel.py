@@ -65,14 +65,14 @@ def test_an_adjustment_on_two_threads_equals_one_on_one(monkeypatch):
     """The seed-000 block with Brown APs, data snooping and the tests: the same rejections, estimate and
     redundancy numbers on two threads as on one, bit for bit (the Dask batch, one thread per worker, must
     equal the serial run)."""
-    from selfcal.adjust import AdjustOptions
+    from selfcal.adjust import AdjustOptions, APOptions
     from selfcal.workflows.tested import adjust_with_tests
 
     block = pruned(simulation(seed=3, distortion="local+brown", points_per_mm2=1.0, blunder_rate=0.003), "type2")
     runs = {}
     for threads in ("1", "2"):
         monkeypatch.setenv("SELFCAL_THREADS", threads)
-        runs[threads] = adjust_with_tests(block, AdjustOptions(ap="brown"))
+        runs[threads] = adjust_with_tests(block, AdjustOptions(ap=APOptions("brown")))
     one, two = runs["1"], runs["2"]
     assert len(one.result.problem.chunks) >= 2
     np.testing.assert_array_equal(one.rejected_rows, two.rejected_rows)

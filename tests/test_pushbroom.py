@@ -3,7 +3,7 @@ simulated PRISM triplet (known focal lengths, attitude bias and drift, boresight
 import numpy as np
 import pytest
 
-from selfcal.adjust import AdjustOptions
+from selfcal.adjust import AdjustOptions, SensorOptions
 from selfcal.errors import UsageError
 from selfcal.sensors.pushbroom import (PARAMETER_NAMES, SENSOR_MODELS, ground_to_image, image_to_ground, intersect,
                                        line_images, photo_coordinates, sensor_model, track_frame)
@@ -141,7 +141,7 @@ def test_attitude_free_run_matches_the_given_attitude_within_ten_percent(sim):
     gcps = choose_gcps(block, 4)
     a = run_case(block, "M6", gcps, (1,), sim.dem).rmse_m
     b = run_case(block, "M6", gcps, (1,), sim.dem,
-                 options=AdjustOptions(attitude_telemetry=False, parameter_sigma=ATTITUDE_FREE_SIGMA)).rmse_m
+                 options=AdjustOptions(sensor=SensorOptions(attitude_telemetry=False, parameter_sigma=ATTITUDE_FREE_SIGMA))).rmse_m
     planimetric = np.hypot(*a[:2]), np.hypot(*b[:2])
     assert abs(planimetric[1] / planimetric[0] - 1.0) < 0.10, (a, b)
     assert planimetric[1] < PIXEL_M

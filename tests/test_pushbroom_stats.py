@@ -6,7 +6,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from selfcal.adjust import AdjustOptions
+from selfcal.adjust import AdjustOptions, APOptions, SensorOptions
 from selfcal.simulate.prism import LINE_ERROR_PX, TRUE_FOCAL_MM, prism_block, simulate_prism
 from selfcal.stats import SnoopingOptions, VarianceOptions
 from selfcal.stats.reliability import noncentrality
@@ -66,7 +66,7 @@ def test_ap_model_is_chosen_by_bic_on_a_pushbroom_block():
     """With a chip-wise error of the nadir line (up to 0.9 px, 0.1 px noise) BIC chooses wavelet1d:db4 on the
     nadir camera over no APs; without the error it keeps no APs."""
     candidates = [("none", (12, 12)), ("wavelet1d:db4", (12, 12))]
-    options = AdjustOptions(sensor_model="M6", ap_cameras=("N",))
+    options = AdjustOptions(ap=APOptions(cameras=("N",)), sensor=SensorOptions(model="M6"))
     for error, expected in ((LINE_ERROR_PX, "wavelet1d:db4"), (None, "none")):
         sim = simulate_prism(seed=4, n_points=300, image_sigma_px=0.1, detector_error_px=error)
         block = with_focal(prism_block(sim, seed=4), TRUE_FOCAL_MM)

@@ -105,7 +105,7 @@ LRO = os.path.join(SHARED_DATA, "isis", "lro_nac_pair")
 def lro_runs(tmp_path_factory):
     """The three runs of examples/lro_nac/run.sh: name -> (results folder, adjusted)."""
     from selfcal.adjust import AdjustOptions
-    from selfcal.adjust.solver import SolverOptions
+    from selfcal.adjust import SolverOptions
     from selfcal.workflows.isis import hold_radii
     assert os.path.isdir(LRO), f"shared test data missing: {LRO}"
     tmp = tmp_path_factory.mktemp("lro")

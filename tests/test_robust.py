@@ -11,7 +11,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from selfcal.adjust import AdjustOptions, RobustOptions, adjust
+from selfcal.adjust import adjust, AdjustOptions, APOptions, RobustOptions
 from selfcal.adjust.initial import resect_robust
 from selfcal.adjust.robust import LOSSES, robust_scale
 from selfcal.geometry.rotation import matrix_from_opk
@@ -79,7 +79,7 @@ def small():
 
 
 def _tested(block, robust):
-    return adjust_with_tests(block, AdjustOptions(ap="brown"), SnoopingOptions(), ScreeningOptions(), robust=robust)
+    return adjust_with_tests(block, AdjustOptions(ap=APOptions("brown")), SnoopingOptions(), ScreeningOptions(), robust=robust)
 
 
 def _outcome(block, truth, tested, clean):
@@ -189,7 +189,7 @@ def test_contamination_and_misfit_are_told_apart(small):
     obs = small.observations
     optimistic = replace(small, observations=replace(obs, sigma_px=0.2 * obs.sigma_px),
                          image_sigma_px=0.2 * small.image_sigma_px)
-    misfit = adjust_with_tests(optimistic, AdjustOptions(ap="brown"), SnoopingOptions(), robust=RobustOptions())
+    misfit = adjust_with_tests(optimistic, AdjustOptions(ap=APOptions("brown")), SnoopingOptions(), robust=RobustOptions())
     assert diagnosis(misfit.cleaning.scale, misfit.cleaning.share) == "misfit"
     assert misfit.cleaning.scale == pytest.approx(5.0, rel=0.1)
     assert any("does not fit the data" in m and "too small" in m for m in misfit.cleaning.messages)
@@ -201,7 +201,7 @@ def test_robust_adjustment_weights_down_the_wrong_observations(small):
     the Brown terms leave the lens's local bumps; a two-ray point's rays share the smaller weight), and the scale
     is the noise's (sigma 0.5 px given, 0.5 px simulated: about 1)."""
     block, truth = contaminate(small, 0.2, anywhere_share=1.0, seed=6)
-    result = adjust(block, AdjustOptions(ap="brown"), robust=RobustOptions())
+    result = adjust(block, AdjustOptions(ap=APOptions("brown")), robust=RobustOptions())
     weight = np.empty(len(result.block.observations))
     weight[result.problem.obs_order] = result.robust.image
     rows = result.block.observations.row
@@ -216,7 +216,7 @@ def test_robust_adjustment_weights_down_the_wrong_observations(small):
 
 def test_a_collapsed_solution_is_named_with_its_start(small):
     """A principal distance taken to 1.6 mm and cameras below their points are a collapse, named with the start."""
-    result = adjust(small, AdjustOptions(ap="none"))
+    result = adjust(small, AdjustOptions(ap=APOptions("none")))
     assert collapse(result) is None
     state = result.state.copy()
     state.cameras[0][0] = 1.6

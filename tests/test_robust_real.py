@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from conftest import SHARED_DATA
-from selfcal.adjust import AdjustOptions, RobustOptions
+from selfcal.adjust import AdjustOptions, APOptions, RobustOptions, SensorOptions
 from selfcal.stats import SnoopingOptions
 from selfcal.workflows.tested import adjust_with_tests, prune_for
 
@@ -43,7 +43,7 @@ def copr():
     assert os.path.isdir(COPR), f"shared test data missing: {COPR}"
     block, _ = block_from_colmap(read_colmap(COPR), None, pixel_size_mm=0.0052)
     block = prune_for(replace(block, datum="free"))
-    clean = adjust_with_tests(block, AdjustOptions(ap="brown"), SnoopingOptions(), robust=RobustOptions())
+    clean = adjust_with_tests(block, AdjustOptions(ap=APOptions("brown")), SnoopingOptions(), robust=RobustOptions())
     return block, clean
 
 
@@ -57,13 +57,13 @@ def test_copr_camera_survives_wrong_observations(copr, share):
     the unmoved 80 % alone differ from the clean run by up to 1.08 sigma). Sigma: the clean run's."""
     block, clean = copr
     wrong, rows = _moved(block, share, 20.0, 500.0, seed=int(share * 100))
-    tested = adjust_with_tests(wrong, AdjustOptions(ap="brown"), SnoopingOptions(), robust=RobustOptions())
+    tested = adjust_with_tests(wrong, AdjustOptions(ap=APOptions("brown")), SnoopingOptions(), robust=RobustOptions())
     assert not tested.failure and tested.result.converged
     kept = np.isin(wrong.observations.row[rows], tested.result.block.observations.row)
     assert kept.mean() < 1e-3, kept.sum()        # (one moved along its point's epipolar line fits: none can see it)
     unmoved = prune_for(replace(block, observations=block.observations.take(
         np.setdiff1d(np.arange(len(block.observations)), rows))))
-    ideal = adjust_with_tests(unmoved, AdjustOptions(ap="brown"), SnoopingOptions(), robust=RobustOptions())
+    ideal = adjust_with_tests(unmoved, AdjustOptions(ap=APOptions("brown")), SnoopingOptions(), robust=RobustOptions())
     sigma = clean.result.camera_sigma()[0]
     names = clean.result.problem.cameras[0].names
     now = tested.result.state.cameras[0]
@@ -143,7 +143,7 @@ def test_pushbroom_triplet_with_ten_percent_wrong_tie_points():
     from selfcal.workflows.adjust import AdjustRequest, adjust_block
     block = prism_block(simulate_prism(seed=1, n_points=300), dem_file=None)
     # (its check points stand for matched points: their rays are not measured by hand)
-    request = AdjustRequest(AdjustOptions(sensor_model="M6"), n_gcp=4, robust=RobustOptions(hand=("gcp",)))
+    request = AdjustRequest(AdjustOptions(sensor=SensorOptions(model="M6")), n_gcp=4, robust=RobustOptions(hand=("gcp",)))
     clean = adjust_block(block, request)
     # (the triplet's points are all control or check points: its check points are its matched points here)
     wrong, truth = contaminate(block, 0.10, anywhere_share=0.5, seed=8, roles=("chk",))

@@ -7,7 +7,7 @@ import os
 import numpy as np
 import pytest
 
-from selfcal.adjust import AdjustOptions
+from selfcal.adjust import AdjustOptions, APOptions, SensorOptions
 from selfcal.adjust.initial import initial_state
 from selfcal.adjust.residuals.image import contexts, predict
 from selfcal.adjust.problem import build_problem
@@ -21,7 +21,7 @@ UNITS = {"m", "rad", "rad/s", "mm", "px", ""}
 
 def _frame():
     from selfcal.simulate import simulate_uav
-    return prune(simulate_uav(seed=3, points_per_mm2=0.3).blocks["type3"]), AdjustOptions(ap="none")
+    return prune(simulate_uav(seed=3, points_per_mm2=0.3).blocks["type3"]), AdjustOptions(ap=APOptions("none"))
 
 
 def _bal():
@@ -32,7 +32,7 @@ def _bal():
 
 def _pushbroom():
     from selfcal.simulate.prism import prism_block, simulate_prism
-    return prism_block(simulate_prism(seed=1), seed=1), AdjustOptions(sensor_model="M7")
+    return prism_block(simulate_prism(seed=1), seed=1), AdjustOptions(sensor=SensorOptions(model="M7"))
 
 
 def _rpc():
@@ -119,7 +119,7 @@ def _vendor(model, files):
     with open(os.path.join(folder, "observations.csv"), "w") as f:
         f.write("image_id,point_id,col_px,row_px\n")
         f.writelines(rows)
-    return read_block(folder), AdjustOptions(sensor_model="M7")
+    return read_block(folder), AdjustOptions(sensor=SensorOptions(model="M7"))
 
 
 def _dimap():
@@ -143,7 +143,7 @@ def test_every_registered_sensor_has_an_example():
 @pytest.fixture(scope="module", params=sorted(EXAMPLES))
 def bound(request):
     block, options = EXAMPLES[request.param]()
-    problem = build_problem(block, options.ap, options=options)
+    problem = build_problem(block, options)
     state, _ = initial_state(problem, block)
     # move every parameter off its start a little, so no derivative is taken at a special point
     rng = np.random.default_rng(1)

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 from scipy.stats import norm
 
-from selfcal.adjust import AdjustOptions, adjust
+from selfcal.adjust import adjust, AdjustOptions, APOptions, TrajectoryOptions
 from selfcal.stats import ScreeningOptions, SnoopingOptions, observation_tests
 from selfcal.workflows import adjust_with_tests
 from selfcal.stats.reliability import noncentrality
@@ -16,7 +16,7 @@ def small_result(request):
     """A small Type 2 block (GNSS/IMU observed), without and with APs (camera columns of the leverage)."""
     sim = simulation(seed=5, distortion="brown", points_per_mm2=0.04)
     block = pruned(sim, "type2")
-    return adjust(block, AdjustOptions(ap=request.param, gnss_drift=1, imu_drift=0))
+    return adjust(block, AdjustOptions(ap=APOptions(request.param), trajectory=TrajectoryOptions(gnss_drift=1, imu_drift=0)))
 
 
 @pytest.mark.slow
@@ -149,7 +149,7 @@ def test_backward_elimination_equals_the_constrained_least_squares_solution():
 def test_screening_keeps_the_simulated_brown_terms_and_drops_the_absent_ones():
     """The Brown-only field has k1, k2, p1, p2 and no affinity or shear (b1 = b2 = 0)."""
     block = pruned(simulation(seed=1, distortion="brown"), "type3")
-    tested = adjust_with_tests(block, AdjustOptions(ap="brown"), None, ScreeningOptions())
+    tested = adjust_with_tests(block, AdjustOptions(ap=APOptions("brown")), None, ScreeningOptions())
     names = tested.result.problem.cameras[0].ap.parameter_names
     kept = {n for n, f in zip(names, tested.ap_free["ilce7m3"]) if f}
     assert {"k1", "k2", "p1", "p2"} <= kept and not {"b1", "b2"} & kept, kept

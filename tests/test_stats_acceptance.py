@@ -8,7 +8,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from selfcal.adjust import AdjustOptions, adjust
+from selfcal.adjust import adjust, AdjustOptions, APOptions
 from selfcal.block import prune
 from selfcal.stats import ScreeningOptions, SnoopingOptions
 from selfcal.workflows import adjust_with_tests
@@ -17,7 +17,7 @@ from conftest import pruned, simulation
 
 pytestmark = pytest.mark.slow
 
-WAP = AdjustOptions(ap="wavelet:sym4")
+WAP = AdjustOptions(ap=APOptions("wavelet:sym4"))
 
 
 def chk_rmsd(result) -> np.ndarray:

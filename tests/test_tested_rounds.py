@@ -10,7 +10,7 @@ import os
 import numpy as np
 import pytest
 
-from selfcal.adjust import AdjustOptions
+from selfcal.adjust import AdjustOptions, APOptions
 from selfcal.convert import block_from_bal
 from selfcal.io.bal import read_bal
 import selfcal.workflows.tested as tested_module
@@ -98,7 +98,7 @@ def test_rough_rounds_on_a_controlled_block_with_screening(monkeypatch):
     from conftest import pruned, simulation
 
     block = pruned(simulation(seed=7, distortion="local+brown", points_per_mm2=0.2, blunder_rate=0.005), "type2")
-    options = AdjustOptions(ap="brown")
+    options = AdjustOptions(ap=APOptions("brown"))
     rough = adjust_with_tests(block, options, screening=ScreeningOptions())
     monkeypatch.setattr(tested_module, "ROUND_TOLERANCE", options.solver.function_tolerance)
     full = adjust_with_tests(block, options, screening=ScreeningOptions())

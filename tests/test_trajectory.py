@@ -4,7 +4,7 @@ import re
 import numpy as np
 import pytest
 
-from selfcal.adjust import AdjustOptions, adjust
+from selfcal.adjust import adjust, AdjustOptions, APOptions, TrajectoryOptions
 
 from conftest import pruned, simulation
 
@@ -24,7 +24,7 @@ def estimates(result, sensor: str, order: int) -> tuple[np.ndarray, np.ndarray]:
 @pytest.fixture(scope="module", params=["type2", "type4"])
 def adjusted(request):
     sim = simulation(seed=3, distortion="brown", points_per_mm2=1.0)
-    result = adjust(pruned(sim, request.param), AdjustOptions(ap="brown", gnss_drift=1, imu_drift=0))
+    result = adjust(pruned(sim, request.param), AdjustOptions(ap=APOptions("brown"), trajectory=TrajectoryOptions(gnss_drift=1, imu_drift=0)))
     assert result.converged
     return sim, result
 
@@ -77,7 +77,7 @@ def test_trajectory_data_improve_the_check_points():
         lookup = {p: i for i, p in enumerate(sim.truth.point_id)}
         sigma = {}
         for scenario in squares:
-            result = adjust(pruned(sim, scenario), AdjustOptions(ap="brown", gnss_drift=1, imu_drift=0))
+            result = adjust(pruned(sim, scenario), AdjustOptions(ap=APOptions("brown"), trajectory=TrajectoryOptions(gnss_drift=1, imu_drift=0)))
             block = result.block
             chk = np.flatnonzero(block.points.role == "chk")
             d = result.state.points[chk] - sim.truth.xyz[[lookup[p] for p in block.points.point_id[chk]]]
@@ -105,8 +105,7 @@ def test_lever_arm_and_boresight_within_three_sigma():
                          gnss_drift_mm_s=0.0, imu_shift_deg=0.0, lever_arm_m=tuple(LEVER_ARM_M),
                          boresight_deg=tuple(BORESIGHT_DEG))
         np.testing.assert_allclose(sim.truth.lever_arm_m, LEVER_ARM_M)
-        result = adjust(pruned(sim, "type4"), AdjustOptions(gnss_drift=-1, imu_drift=-1, lever_arm=True,
-                                                             boresight=True))
+        result = adjust(pruned(sim, "type4"), AdjustOptions(trajectory=TrajectoryOptions(gnss_drift=-1, imu_drift=-1, lever_arm=True, boresight=True)))
         assert result.converged and result.problem.extra_names[:3] == ["GNSS lever arm x", "GNSS lever arm y",
                                                                        "GNSS lever arm z"]
         n0 = result.problem.n_e + result.problem.n_d

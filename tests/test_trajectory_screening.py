@@ -3,7 +3,7 @@ shift/drift terms that never drops one that is really there."""
 import numpy as np
 import pytest
 
-from selfcal.adjust import AdjustOptions, adjust
+from selfcal.adjust import adjust, AdjustOptions, APOptions
 from selfcal.adjust.residuals.trajectory import wrap_angle as _wrap
 from selfcal.geometry.rotation import matrix_from_opk, matrix_from_rotation_vector, opk_from_matrix
 from selfcal.simulate import simulate_uav
@@ -99,7 +99,7 @@ def test_strips_without_drift():
 def screened(sim, scenario: str, ap: str = "wavelet:db4", options: ScreeningOptions = ScreeningOptions()):
     """The unscreened adjustment and the screened one (no snooping: the screening alone decides)."""
     block = pruned(sim, scenario)
-    return adjust(block, AdjustOptions(ap=ap)), adjust_with_tests(block, AdjustOptions(ap=ap), None, options)
+    return adjust(block, AdjustOptions(ap=APOptions(ap))), adjust_with_tests(block, AdjustOptions(ap=APOptions(ap)), None, options)
 
 
 def dropped_trajectory_terms(tested) -> dict:
@@ -182,7 +182,7 @@ def test_screening_drops_no_real_trajectory_term():
                       if abs(truth[name][0]) > 3 * sigma[name]]
             zero += sum(is_zero for _, is_zero in truth.values())
             zero_dropped += sum(is_zero and name in dropped for name, (_, is_zero) in truth.items())
-            base = adjust_with_tests(pruned(sim, without), AdjustOptions(ap="wavelet:db4"), None, ScreeningOptions())
+            base = adjust_with_tests(pruned(sim, without), AdjustOptions(ap=APOptions("wavelet:db4")), None, ScreeningOptions())
             assert tie_point_rms_xy(sim, tested.result) < 1.10 * tie_point_rms_xy(sim, base.result), (seed, with_trajectory)
     assert not large, large
     assert zero >= 20 and zero_dropped >= 0.8 * zero, (zero_dropped, zero)

@@ -10,7 +10,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from selfcal.adjust import AdjustOptions, adjust
+from selfcal.adjust import adjust, AdjustOptions, APOptions
+
+BROWN = AdjustOptions(ap=APOptions("brown"))
 from selfcal.adjust.update import downdated_start
 from selfcal.block import prune
 from selfcal.stats.screening import screening_masks
@@ -21,7 +23,7 @@ from conftest import SHARED_DATA, pruned, simulation
 @pytest.fixture(scope="module")
 def previous():
     block = pruned(simulation(seed=5, distortion="local+brown", points_per_mm2=0.04), "type3")
-    return adjust(block, AdjustOptions(ap="brown"))
+    return adjust(block, AdjustOptions(ap=APOptions("brown")))
 
 
 def _without(result, rows):
@@ -39,7 +41,7 @@ def _unit_distance(result, a, b) -> float:
 def _readjust(previous, block, free, downdate: bool, monkeypatch):
     import selfcal.adjust.engine as adjust_module
     monkeypatch.setattr(adjust_module, "downdated_start", downdated_start if downdate else lambda *a, **k: None)
-    return adjust(block, AdjustOptions(ap="brown"), start=previous, free=free,
+    return adjust(block, AdjustOptions(ap=APOptions("brown")), start=previous, free=free,
                   ap_models={c.camera_id: c.ap for c in previous.problem.cameras})
 
 
@@ -63,7 +65,7 @@ def test_downdated_start_lands_near_the_new_solution(previous, monkeypatch):
     from selfcal.adjust.problem import build_problem
     from selfcal.adjust import apply_free
     from selfcal.adjust.initial import initial_state
-    problem = build_problem(block, "brown", None, ap_models={c.camera_id: c.ap for c in previous.problem.cameras})
+    problem = build_problem(block, BROWN, ap_models={c.camera_id: c.ap for c in previous.problem.cameras})
     apply_free(problem, free)
     start = downdated_start(previous, problem, block)
     assert start is not None
@@ -83,24 +85,24 @@ def test_downdated_start_declines_what_it_cannot_do(previous):
     obs = previous.block.observations
     ties = obs.row[previous.block.points.role[obs.point_index] == "tie"]
     block = _without(previous, ties[:5])
-    problem = build_problem(block, "brown", None, ap_models=models)
+    problem = build_problem(block, BROWN, ap_models=models)
     apply_free(problem, free)
     assert downdated_start(previous, problem, block) is not None
     # an image left out
     fewer = prune(replace(block, observations=block.observations.take(
         np.flatnonzero(block.observations.image_index != 0))))
     assert len(fewer.images) == len(block.images) - 1
-    assert downdated_start(previous, build_problem(fewer, "brown", None, ap_models=models), fewer) is None
+    assert downdated_start(previous, build_problem(fewer, BROWN, ap_models=models), fewer) is None
     # an observation the previous block did not have
-    smaller = adjust(block, AdjustOptions(ap="brown"), ap_models=models)
-    assert downdated_start(smaller, build_problem(previous.block, "brown", None, ap_models=models),
+    smaller = adjust(block, AdjustOptions(ap=APOptions("brown")), ap_models=models)
+    assert downdated_start(smaller, build_problem(previous.block, BROWN, ap_models=models),
                            previous.block) is None
     # other weights
     heavier = replace(block, observations=replace(block.observations,
                                                   sigma_px=0.5 * block.observations.sigma_px))
-    assert downdated_start(previous, build_problem(heavier, "brown", None, ap_models=models), heavier) is None
+    assert downdated_start(previous, build_problem(heavier, BROWN, ap_models=models), heavier) is None
     # nothing to update, or no previous normal equations
-    same = build_problem(previous.block, "brown", None, ap_models=models)
+    same = build_problem(previous.block, BROWN, ap_models=models)
     apply_free(same, free)
     assert downdated_start(previous, same, previous.block) is None
     assert downdated_start(replace(previous, reduced_matrix=None), problem, block) is None
@@ -158,7 +160,7 @@ def test_downdated_start_of_a_free_network_closes_the_cost_gap():
     rays = np.bincount(obs.point_index)
     rows = np.random.default_rng(2).choice(obs.row[rays[obs.point_index] >= 3], 20, replace=False)
     block = _without(previous, rows)
-    problem = build_problem(block, "none", None)
+    problem = build_problem(block)
     start = downdated_start(previous, problem, block, free_network=True)
     assert start is not None
     final = adjust(block, AdjustOptions(), start=previous)

@@ -6,7 +6,7 @@ import os
 import numpy as np
 import pytest
 
-from selfcal.adjust import AdjustOptions, adjust
+from selfcal.adjust import adjust, AdjustOptions, SensorOptions
 from selfcal.block import Block, Images, Observations, Points, PushbroomCamera
 from selfcal.errors import BlockError
 from selfcal.io.usgscsm import read_usgscsm_isd
@@ -116,7 +116,7 @@ def test_isd_camera_jacobians_and_self_calibration():
                   Observations(np.zeros(n, np.int64), np.arange(n), np.column_stack([col + noise[1], row + noise[0]]),
                                np.full(n, 0.1), np.arange(n)),
                   0.1, image_models={"L": image})
-    result = adjust(block, AdjustOptions(sensor_model="d_roll0,d_roll1,d_pitch0,d_pitch1"))
+    result = adjust(block, AdjustOptions(sensor=SensorOptions(model="d_roll0,d_roll1,d_pitch0,d_pitch1")))
     assert result.converged and 0.7 < np.sqrt(result.variance_factor) < 1.3
     sigma = result.image_sigma()[0]
     for k in np.flatnonzero(result.problem.image_free[0]):

@@ -1,6 +1,6 @@
 """The adjustment engine: self-calibrating bundle adjustment of a block, one engine for every sensor.
 
->>> result = adjust(block, AdjustOptions(ap="brown"))          # doctest: +SKIP
+>>> result = adjust(block, AdjustOptions(ap=APOptions("brown")))          # doctest: +SKIP
 >>> result.sigma0_px, result.converged                          # doctest: +SKIP
 
 :func:`adjust` (:mod:`.engine`) takes a :class:`~selfcal.block.Block` and :class:`AdjustOptions` and returns one
@@ -11,14 +11,15 @@
 """
 from .datum import behind_camera, control_far_away, control_on_a_line, undetermined_points
 from .engine import adjust, camera_models, start_values
-from .options import AdjustOptions
+from .options import AdjustOptions, APOptions, SensorOptions, SolverOptions, TrajectoryOptions
 from .parameters import CameraParameters, ParameterTable, apply_free, parameter_table
 from .problem import Problem, State
 from .result import AdjustmentResult, Termination
 from .robust import LOSSES, RobustOptions
-from .solver import IterationRecord, SolverOptions
+from .solver import IterationRecord
 
-__all__ = ["AdjustOptions", "AdjustmentResult", "IterationRecord", "RobustOptions", "SolverOptions", "LOSSES",
+__all__ = ["AdjustOptions", "APOptions", "SensorOptions", "TrajectoryOptions", "AdjustmentResult", "IterationRecord",
+           "RobustOptions", "SolverOptions", "LOSSES",
            "adjust", "apply_free", "start_values", "camera_models", "Problem", "State", "CameraParameters",
            "ParameterTable", "parameter_table", "Termination",
            "behind_camera", "control_far_away", "control_on_a_line", "undetermined_points"]

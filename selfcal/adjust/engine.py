@@ -12,7 +12,6 @@ from typing import Callable
 
 import numpy as np
 
-from ..ap import ap_settings
 from ..block import Block, leave_out, prune
 from ..errors import AdjustmentError
 from .ap_columns import carry_ap_columns
@@ -37,7 +36,7 @@ def start_values(block: Block, options: AdjustOptions = AdjustOptions()):
     """The initial values an adjustment of ``block`` starts from (:mod:`.initial`), as a
     :class:`~selfcal.adjust.problem.State`: its images' orientations, and its points where the block gives them
     or intersected from the rays."""
-    problem = build_problem(block, options.ap, ap_settings(options.ap, options.grid), options=options)
+    problem = build_problem(block, options)
     return initial_state(problem, block)[0]
 
 
@@ -45,7 +44,7 @@ def camera_models(block: Block, options: AdjustOptions = AdjustOptions()) -> tup
     """The additional-parameter model of each camera an adjustment of ``block`` with ``options`` builds
     (camera id -> APModel: pass them to :func:`adjust` as ``ap_models`` to keep one basis), and the number of
     camera parameters it estimates."""
-    problem = build_problem(block, options.ap, ap_settings(options.ap, options.grid), options=options)
+    problem = build_problem(block, options)
     return {cam.camera_id: cam.ap for cam in problem.cameras}, problem.n_d
 
 
@@ -149,14 +148,10 @@ def adjust(block: Block, options: AdjustOptions = AdjustOptions(),
 def _adjust(block: Block, options: AdjustOptions, progress, start, free, ap_models, robust,
             threads: contextlib.ExitStack) -> AdjustmentResult:
     t0 = time.perf_counter()
-    settings = ap_settings(options.ap, options.grid)
 
     def setup(block: Block, start, ap_models):
         key = None if start is None else inherited_point_key(block, start.block, start.problem)
-        problem = build_problem(block, options.ap, settings, ap_models=ap_models,
-                                gnss_drift=options.gnss_drift, imu_drift=options.imu_drift,
-                                lever_arm=options.lever_arm, boresight=options.boresight, options=options,
-                                point_key=key)
+        problem = build_problem(block, options, ap_models=ap_models, point_key=key)
         if free:
             apply_free(problem, free)
         if start is not None:

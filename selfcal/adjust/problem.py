@@ -37,6 +37,7 @@ import numpy as np
 from ..ap import APModel
 from ..block import Block
 from ..errors import UsageError
+from .options import AdjustOptions
 from .parameters import CameraParameters
 from .residuals import ResidualSettings, build_residuals
 
@@ -398,35 +399,27 @@ def _chunks(point_start: np.ndarray, target: int) -> list[tuple[int, int]]:
     return [(a, b) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
 
 
-def build_problem(block: Block, ap_spec: str = "none", ap_settings: dict | None = None,
-                  chunk_observations: int = CHUNK_OBSERVATIONS, ap_models: dict | None = None,
-                  gnss_drift: int = 1, imu_drift: int = 1, lever_arm: bool = False,
-                  boresight: bool = False, options=None, point_key: np.ndarray | None = None) -> Problem:
+def build_problem(block: Block, options: AdjustOptions = AdjustOptions(), ap_models: dict | None = None,
+                  point_key: np.ndarray | None = None, chunk_observations: int = CHUNK_OBSERVATIONS) -> Problem:
     """Arrange a (pruned) block for the engine.
 
     Parameters
     ----------
     block : Block
         Object points in the object frame of its sensors (ECEF for satellite sensors).
-    ap_spec : str
-        AP model name (``none``, ``brown``, ``wavelet:db4``, ...), one model per camera.
-    ap_settings : dict, optional
-        Passed to the AP factory (e.g. ``grid=(9, 6)``).
+    options : AdjustOptions
+        The AP model of every camera (``options.ap``), the trajectory's shift/drift and mounting
+        (``options.trajectory``), what the sensors estimate (``options.sensor``, handed to them).
     ap_models : dict camera_id -> APModel, optional
-        Prebuilt AP models (instead of building them from ``ap_spec``).
-    gnss_drift, imu_drift : int
-        Order of the strip-wise shift/drift of the trajectory observations
-        (-1 none, 0 shift, 1 shift + linear drift, 2 adds a quadratic term).
-    lever_arm, boresight : bool
-        Estimate the GNSS lever arm / the IMU boresight angles (block.toml gives their
-        initial values, else zero); both need the shift/drift order -1.
-    options : AdjustOptions, optional
-        Handed to the sensors (a sensor model's parameter set and weights).
+        Prebuilt AP models (instead of building them from ``options.ap``).
     point_key : ndarray, optional
         Orders the points (``Problem.point_order``; :func:`inherited_point_key`); by default their first images.
+    chunk_observations : int
+        About how many image observations a chunk of points holds (the unit of the passes over the points).
     """
+    from ..ap import ap_settings as settings_of
     from ..sensors import sensor_of
-    ap_settings = ap_settings or {}
+    ap_settings = settings_of(options.ap.model, options.ap.grid)
     obs = block.observations
     used = set(block.images.camera_id.tolist())
     camera_ids = [c for c in block.cameras if c in used]         # a camera without images has no unknowns
@@ -475,14 +468,14 @@ def build_problem(block: Block, ap_spec: str = "none", ap_settings: dict | None 
         sensor = next(s for s in sensors if s.name == name)
         images = np.flatnonzero(sensor_index == s_index)
         o = np.flatnonzero(problem.obs_sensor == s_index)
-        bound = sensor.bind(problem, block, o, obs.pixel[order[o]], obs.sigma_px[order[o]], options)
+        bound = sensor.bind(problem, block, o, obs.pixel[order[o]], obs.sigma_px[order[o]], options.sensor)
         problem.obs_value[o], problem.obs_sigma[o] = bound.observations()
         problem.sensors.append(SensorSlot(sensor, bound, images, o))
         widths.add(len(sensor.image_parameters))
         for i in images:
             problem.image_names[i] = list(sensor.image_names)
             problem.image_units[i] = [p.unit for p in sensor.image_parameters]
-        image_setup[s_index] = (images, *sensor.image_setup(block, images, options))
+        image_setup[s_index] = (images, *sensor.image_setup(block, images, options.sensor))
     if len(widths) > 1:
         raise UsageError("a block mixes sensors whose images have different parameters: " + ", ".join(kinds))
     width = widths.pop() if widths else 6
@@ -501,12 +494,11 @@ def build_problem(block: Block, ap_spec: str = "none", ap_settings: dict | None 
     # the cameras: core parameters of their sensor, then the additional parameters
     cam_of_obs = image_camera[problem.obs_image]
     start = problem.n_e
-    ap_cameras = getattr(options, "ap_cameras", None)
-    ap_sigma_px = getattr(options, "ap_sigma_px", None)
+    ap_cameras, ap_sigma_px = options.ap.cameras, options.ap.sigma_px
     for k, (cid, sensor) in enumerate(zip(camera_ids, sensors)):
         cfg = block.cameras[cid]
-        value, free, sigma = sensor.camera_setup(cfg, options)
-        spec = ap_spec if ap_cameras is None or cid in ap_cameras else "none"
+        value, free, sigma = sensor.camera_setup(cfg, options.sensor)
+        spec = options.ap.model if ap_cameras is None or cid in ap_cameras else "none"
         initial = getattr(cfg, "initial_ap", None)
         held = initial is not None and initial.sigma_px == 0
         if initial is not None and held:
@@ -528,7 +520,6 @@ def build_problem(block: Block, ap_spec: str = "none", ap_settings: dict | None 
         problem.d_offset.append(start)
         start += int(camera.free.sum())
 
-    problem.residuals = build_residuals(block, problem, ResidualSettings(object_frame, gnss_drift, imu_drift,
-                                                                         lever_arm, boresight))
+    problem.residuals = build_residuals(block, problem, ResidualSettings(object_frame, options.trajectory))
     problem.settle_sigma()
     return problem

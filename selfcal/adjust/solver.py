@@ -19,73 +19,11 @@ import numpy as np
 from ..errors import AdjustmentError
 from .datum import points_not_determined_by_rays, similarity_directions
 from .linalg import PSEUDO_INVERSE_LIMIT, dense_assembly, SingularSystem, factorise, null_directions, pseudo_factorise
+from .options import SolverOptions
 from .schur import Linearisation, back_substitute, evaluate_cost, linearise, reduce
 from .problem import Problem, State
 
-__all__ = ["SolverOptions", "IterationRecord", "SolverOutcome", "solve"]
-
-
-@dataclass(frozen=True)
-class SolverOptions:
-    """How to iterate.
-
-    Attributes
-    ----------
-    max_iterations : int
-    step_tolerance : float
-        Converged when every correction is below this share of its conditional
-        standard deviation (``|dx_i| · sqrt(N_ii) < tol``, unit variance), ...
-    function_tolerance : float
-        ... or when an undamped step moves no function of the unknowns by more
-        than this share of its a-posteriori standard deviation (sqrt(d^T N d) <
-        tol · sigma0). On real blocks a few weakly determined points (short
-        bases) can creep along their rays for dozens of iterations, each step
-        lowering the cost by ~1e-10 of itself; 1 % of a sigma is far below
-        anything a test or a report can see.
-    cost_tolerance : float
-        ... or when an accepted step lowers the cost by less than this share.
-    initial_damping : float
-        Levenberg-Marquardt damping of the first step (relative to diag(N)).
-        Zero (pure Gauss-Newton) by default: damping slows progress along the
-        weakly determined directions a photogrammetric block always has (c
-        against Z0, x0 against X0 and phi); it is switched on only when neither
-        the step nor a shortened step lowers the cost, and off again once steps succeed.
-    line_search : int
-        How many times an undamped step that does not lower the cost is halved
-        before damping is switched on (0: damping at once).
-    point_sigma_ratio : float, optional
-        Free networks: stop (``SolverOutcome.undetermined``) as soon as a linearisation has points that their
-        rays do not determine (:func:`~selfcal.adjust.datum.points_not_determined_by_rays` with this ratio),
-        for the caller to leave them out and go on from the estimate so far. Without a datum nothing holds
-        such a point: Gauss-Newton sends it along its ray to infinity, damping only slows that to a creep
-        that no convergence test ends (BAL problem-49: 39 points drift beyond 1e10 m in 50 iterations).
-    free_network : bool
-        The block has no datum (datum = "free"): the normal equations are
-        singular by the datum defect (7 for a similarity). Up to
-        PSEUDO_INVERSE_LIMIT orientation and camera unknowns the undamped step
-        is the minimum-norm Gauss-Newton step (S's pseudo-inverse in the
-        Jacobi-scaled metric, :func:`~selfcal.adjust.linalg.pseudo_factorise`):
-        it has no component along the datum directions, so the estimate does
-        not drift along them and every test above applies unchanged. This is
-        the classical free-network adjustment (inner constraints), and it makes
-        the convergence tests gauge-invariant: sqrt(d^T N d) does not see the
-        datum at all (N is null along it), and a minimum-norm step has no datum
-        part for the conditional ``step_sigma`` to be inflated by. Larger free
-        networks keep Levenberg-Marquardt damping on (never below 1e-9: below,
-        the rounding in g along the datum directions is amplified into steps
-        that are rejected) and converge by the function test once the damping
-        is at most 1e-6 (the step is the Gauss-Newton step in every direction
-        the data determine to better than 1e-6 of the diagonal).
-    """
-
-    max_iterations: int = 50
-    point_sigma_ratio: float | None = None
-    step_tolerance: float = 1e-3
-    function_tolerance: float = 1e-2
-    cost_tolerance: float = 1e-12
-    initial_damping: float = 0.0
-    line_search: int = 6
-    free_network: bool = False
+__all__ = ["IterationRecord", "SolverOutcome", "solve"]
 
 
 @dataclass(frozen=True)

@@ -15,7 +15,7 @@ import time
 from dataclasses import dataclass, field
 from typing import Callable
 
-from ..adjust import AdjustOptions, RobustOptions
+from ..adjust import AdjustOptions, APOptions, RobustOptions, TrajectoryOptions
 from ..ap import ALL_MODELS, AP_FAMILIES, parse_ap_spec, takes_grid
 from ..errors import AdjustmentError
 from ..report import result_files
@@ -65,8 +65,7 @@ def run_cell(scenario: str, block, model: str, settings: CellSettings = CellSett
     its checks, the robust cleaning, snooping and screening); failures are recorded, not raised."""
     keep_freed_memory()
     t0 = time.perf_counter()
-    options = AdjustOptions(ap=model, grid=settings.grid, gnss_drift=settings.gnss_drift,
-                            imu_drift=settings.imu_drift, lever_arm=settings.lever_arm, boresight=settings.boresight)
+    options = AdjustOptions(ap=APOptions(model, grid=settings.grid), trajectory=TrajectoryOptions(gnss_drift=settings.gnss_drift, imu_drift=settings.imu_drift, lever_arm=settings.lever_arm, boresight=settings.boresight))
     request = AdjustRequest(options=options, snooping=settings.snooping, screening=settings.screening,
                             variance=settings.variance, robust=settings.robust)
     try:

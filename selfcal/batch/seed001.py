@@ -2,6 +2,8 @@
 {mono F, N, B; stereo F+N, F+N+B}, after the focal-length step (:mod:`selfcal.workflows.seed001`)."""
 from __future__ import annotations
 
+from dataclasses import replace
+
 from ..adjust import AdjustOptions
 from ..block import Block
 from ..sensors.pushbroom import SENSOR_MODELS
@@ -24,7 +26,7 @@ def run_study(block: Block, height, models=tuple(SENSOR_MODELS), gcp_counts=(3, 
     cases = []
     for label, image_set in sets.items():
         for name in models:
-            weights = AdjustOptions(**{**options.__dict__, "parameter_sigma": prior_sigma if name == "M6" else None})
+            weights = replace(options, sensor=replace(options.sensor, parameter_sigma=prior_sigma if name == "M6" else None))
             for n in gcp_counts:
                 case = run_case(block, name, choose_gcps(block, n), image_set, height, label, weights, snooping)
                 cases.append(case)

@@ -5,7 +5,7 @@ import argparse
 import sys
 import time
 
-from ..adjust import AdjustOptions
+from ..adjust import AdjustOptions, APOptions, SensorOptions, TrajectoryOptions
 from ..adjust import SolverOptions
 from ..ap import ALL_MODELS, AP_FAMILIES, parse_ap_spec
 from ..errors import UsageError
@@ -86,6 +86,10 @@ def _check_options(block, args) -> None:
                          f"or [imu] ({sensors} cameras)")
     if args.ap_sigma_px is not None and args.ap_sigma_px <= 0:
         raise UsageError("--ap-sigma-px must be positive")
+    for flag, drift in (("--lever-arm", "--gnss-drift"), ("--boresight", "--imu-drift")):
+        if getattr(args, flag[2:].replace("-", "_")) and getattr(args, drift[2:].replace("-", "_")) != -1:
+            raise UsageError(f"{flag} cannot be separated from strip-wise shifts (the attitude hardly changes along "
+                             f"a strip): give {drift} none with it")
 
 
 def _ap_cameras(block, args) -> tuple[str, ...] | None:
@@ -153,14 +157,8 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError("a mono adjustment restitutes the check points on the terrain: give --dem or "
                          "[terrain] in block.toml")
     sensor_model = args.sensor_model or ("M6" if seed001 else None)
-    options = AdjustOptions(ap="none" if auto else args.ap, grid=args.grid, gnss_drift=args.gnss_drift,
-                            imu_drift=args.imu_drift, lever_arm=args.lever_arm, boresight=args.boresight,
-                            sensor_model=sensor_model,
-                            parameter_sigma=ATTITUDE_FREE_SIGMA if args.no_attitude and
-                            (sensor_model or "").upper() == "M6" else None,
-                            ap_cameras=_ap_cameras(block, args), ap_sigma_px=args.ap_sigma_px,
-                            attitude_telemetry=not args.no_attitude,
-                            solver=SolverOptions(max_iterations=args.max_iterations))
+    options = AdjustOptions(ap=APOptions("none" if auto else args.ap, grid=args.grid, cameras=_ap_cameras(block, args), sigma_px=args.ap_sigma_px), trajectory=TrajectoryOptions(gnss_drift=args.gnss_drift, imu_drift=args.imu_drift, lever_arm=args.lever_arm, boresight=args.boresight), sensor=SensorOptions(model=sensor_model, parameter_sigma=ATTITUDE_FREE_SIGMA if args.no_attitude and
+                            (sensor_model or "").upper() == "M6" else None, attitude_telemetry=not args.no_attitude), solver=SolverOptions(max_iterations=args.max_iterations))
     screening = screening_options(args) if args.screen else None
     image_ids = tuple(v.strip() for v in args.images.split(",") if v.strip()) if args.images else None
     # by keyword, so that a field added to AdjustRequest does not shift the others

@@ -98,7 +98,7 @@ def run(args: argparse.Namespace) -> int:
 def _run_study(block, args) -> int:
     """Seed 001's study on a pushbroom block: M1-M7 x GCP counts x image sets (no data snooping: the rows of
     M1-M4 are there to show the model error that snooping would reject)."""
-    from ..adjust import AdjustOptions
+    from ..adjust import AdjustOptions, SensorOptions
     from ..batch.seed001 import run_study
     from ..io.dem import read_dem
     from ..report.compare import study_csv, study_markdown
@@ -125,7 +125,7 @@ def _run_study(block, args) -> int:
         print(f"{case.images} {case.model} {case.n_gcp} GCP: {status}", file=sys.stderr, flush=True)
 
     cases, focal, sigma = run_study(block, dem, models, counts, prior_sigma=prior, progress=show,
-                                    options=AdjustOptions(attitude_telemetry=not args.no_attitude))
+                                    options=AdjustOptions(sensor=SensorOptions(attitude_telemetry=not args.no_attitude)))
     table = study_markdown(cases, focal, sigma)
     with atomic_folder(args.out) as tmp:
         write_files(tmp, {"comparison.md": table, "comparison.csv": study_csv(cases)})

@@ -205,7 +205,7 @@ class Sensor(ABC):
     #: whether a point behind one of its cameras at a solution means the block folded (a central projection: its
     #: mirror image fits; :mod:`selfcal.stats.plausibility`)
     central_projection: bool = False
-    #: the named parameter sets it offers (seed 001's M1 ... M7), chosen by AdjustOptions.sensor_model; with
+    #: the named parameter sets it offers (seed 001's M1 ... M7), chosen by SensorOptions.model; with
     #: them come seed 001's workflow steps (focal-length calibration, GCP layouts, mono restitution)
     sensor_models: tuple[str, ...] = ()
 

@@ -79,7 +79,7 @@ def adjust_block(block: Block, request: AdjustRequest, progress: Callable | None
     options, choice = request.options, None
     if request.candidates:
         choice = choose_ap_model(block, request.candidates, options, request.snooping, progress=scores)
-        options = replace(options, ap=choice.model, grid=choice.grid)
+        options = replace(options, ap=replace(options.ap, model=choice.model, grid=choice.grid))
         say(f"chosen AP model: {choice.model}" + (f"@{choice.grid[0]}x{choice.grid[1]}" if
                                                   takes_grid(choice.model) else "") +
             f" (smallest BIC; {choice.n_blunders} observations left out as blunders for every candidate; scores in "
@@ -141,7 +141,7 @@ def _check_points_determined(block: Block, tested: TestedAdjustment) -> dict:
 
 def _seed001(block: Block, request: AdjustRequest, progress, report, say, scores) -> Adjusted:
     options = request.options
-    model = options.sensor_model or "M6"
+    model = options.sensor.model or "M6"
     extra: dict = {"sensor_model": model}
     if not request.keep_focal and seed001.needs_focal_step(model):
         focal, sigma = seed001.calibrate_focal(block, options=options, robust=request.robust)
@@ -160,9 +160,9 @@ def _seed001(block: Block, request: AdjustRequest, progress, report, say, scores
     choice = None
     if request.candidates:
         sub = seed001.case_block(block, image_set, gcps)
-        choice = choose_ap_model(sub, request.candidates, replace(options, sensor_model=model), request.snooping,
+        choice = choose_ap_model(sub, request.candidates, replace(options, sensor=replace(options.sensor, model=model)), request.snooping,
                                  progress=scores)
-        options = replace(options, ap=choice.model, grid=choice.grid)
+        options = replace(options, ap=replace(options.ap, model=choice.model, grid=choice.grid))
         say(f"chosen AP model: {choice.model} (smallest BIC; scores in model_choice.csv)")
     case = seed001.run_case(block, model, gcps, image_set, request.height, "+".join(chosen), options,
                             request.snooping, request.screening, progress, report, request.variance, request.robust)
@@ -180,7 +180,7 @@ def _seed001(block: Block, request: AdjustRequest, progress, report, say, scores
     fitted = [k for k, i in enumerate(block.images.image_id) if i not in (block.image_models or {})]
     if fitted:
         from ..sensors.pushbroom import line_images
-        images = line_images(block, options.attitude_telemetry, image_index=fitted)
+        images = line_images(block, options.sensor.attitude_telemetry, image_index=fitted)
         extra["trajectory_fit_rms"] = {img.image_id: {k: np.asarray(v).tolist() for k, v in img.trajectory.fit_rms.items()}
                                        for img in images}
     found = case.checks if case.checks is not None else check_points.intersected(case.tested.result)

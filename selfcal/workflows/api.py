@@ -8,16 +8,46 @@ import os
 import time
 from dataclasses import dataclass, replace
 
-from ..adjust import AdjustOptions, RobustOptions
-from ..adjust import SolverOptions
+from ..adjust import AdjustOptions, RobustOptions, SolverOptions
 from ..block import Block
+from ..errors import UsageError
 from ..stats.screening import ScreeningOptions
 from ..stats.snooping import SnoopingOptions
 from ..stats.variance import VarianceOptions
 from .adjust import Adjusted, AdjustRequest, adjust_block, offers_sensor_models
 from .progress import LOG, logging_progress, logging_rounds
 
-__all__ = ["bundle_adjust", "Outcome"]
+__all__ = ["bundle_adjust", "Outcome", "OPTION_KEYWORDS", "adjust_options"]
+
+#: the keywords of :func:`bundle_adjust` beyond its own, named as the CLI's flags: the group of
+#: :class:`~selfcal.adjust.AdjustOptions` and the field each sets
+OPTION_KEYWORDS = {
+    "grid": ("ap", "grid"), "ap_cameras": ("ap", "cameras"), "ap_sigma_px": ("ap", "sigma_px"),
+    "gnss_drift": ("trajectory", "gnss_drift"), "imu_drift": ("trajectory", "imu_drift"),
+    "lever_arm": ("trajectory", "lever_arm"), "boresight": ("trajectory", "boresight"),
+    "sensor_model": ("sensor", "model"), "parameter_sigma": ("sensor", "parameter_sigma"),
+    "attitude_telemetry": ("sensor", "attitude_telemetry"),
+}
+
+
+def adjust_options(ap: str, max_iterations: int, keywords: dict) -> AdjustOptions:
+    """The :class:`~selfcal.adjust.AdjustOptions` of ``bundle_adjust(block, ap, max_iterations=..., **keywords)``;
+    a keyword it does not know: :class:`~selfcal.errors.UsageError` naming it.
+
+    >>> adjust_options("wavelet:db4", 50, {"grid": (5, 4), "gnss_drift": 0}).trajectory.gnss_drift
+    0
+    """
+    unknown = sorted(set(keywords) - set(OPTION_KEYWORDS))
+    if unknown:
+        raise UsageError(f"bundle_adjust() got an unknown keyword {', '.join(map(repr, unknown))} (known: "
+                         f"{', '.join(OPTION_KEYWORDS)})")
+    base = AdjustOptions()
+    groups: dict[str, dict] = {"ap": {"model": ap}, "trajectory": {}, "sensor": {}}
+    for name, value in keywords.items():
+        group, field_name = OPTION_KEYWORDS[name]
+        groups[group][field_name] = value
+    return AdjustOptions(ap=replace(base.ap, **groups["ap"]), trajectory=replace(base.trajectory, **groups["trajectory"]),
+                         sensor=replace(base.sensor, **groups["sensor"]), solver=SolverOptions(max_iterations=max_iterations))
 
 
 @dataclass
@@ -55,8 +85,8 @@ def bundle_adjust(block: Block | str | os.PathLike, ap: str = "none", *, snoop: 
     ``ap``: the AP model (``"brown"``, ``"wavelet:db4"``...); ``snoop``: Baarda's critical value (0: none);
     ``screen``: drop insignificant and highly correlated APs; ``variance_components``: estimate each
     observation group's sigma; ``robust``: the loss of the robust cleaning before the tests (``"danish"``,
-    ``"huber"``, ``"cauchy"``; ``"none"``: least squares throughout); other keywords are :class:`selfcal.adjust.AdjustOptions` fields (``grid``,
-    ``gnss_drift``, ``sensor_model``...). Pushbroom blocks get seed 001's sensor model ``M6`` unless told.
+    ``"huber"``, ``"cauchy"``; ``"none"``: least squares throughout); other keywords are named as the CLI's flags
+    (:data:`OPTION_KEYWORDS`: ``grid``, ``gnss_drift``, ``sensor_model``...). Pushbroom blocks get seed 001's sensor model ``M6`` unless told.
     """
     from ..io.block_folder import read_block
     from ..report import result_files
@@ -65,15 +95,15 @@ def bundle_adjust(block: Block | str | os.PathLike, ap: str = "none", *, snoop: 
         block = read_block(block)
     if offers_sensor_models(block):
         options.setdefault("sensor_model", "M6")
-    adjust_options = replace(AdjustOptions(ap=ap, solver=SolverOptions(max_iterations=max_iterations)), **options)
+    chosen = adjust_options(ap, max_iterations, options)
     screening = ScreeningOptions() if screen else None
-    request = AdjustRequest(adjust_options, SnoopingOptions(critical=snoop), screening,
+    request = AdjustRequest(chosen, SnoopingOptions(critical=snoop), screening,
                             VarianceOptions() if variance_components else None,
                             None if robust == "none" else RobustOptions(loss=robust))
     LOG.info(f"{block.name}: {len(block.images)} images, {len(block.points)} points, {len(block.observations)} "
              f"image observations; AP model {ap}")
     adjusted = adjust_block(block, request, progress=logging_progress(block.image_sigma_px),
                             report=logging_rounds(), say=LOG.info)
-    extra = {"seconds": time.perf_counter() - t0, "grid": list(adjust_options.grid)} | adjusted.summary_extra
+    extra = {"seconds": time.perf_counter() - t0, "grid": list(chosen.ap.grid)} | adjusted.summary_extra
     files = result_files(adjusted.block, adjusted.tested, extra, screening, adjusted.checks, adjusted.track)
     return Outcome(adjusted, files)

@@ -96,7 +96,7 @@ def choose_ap_model(block: Block, candidates: list[tuple[str, tuple[int, int]]],
     sizes: list[int] = []
     for model, grid in candidates:
         try:
-            built, n_camera = camera_models(block, replace(options, ap=model, grid=grid))
+            built, n_camera = camera_models(block, replace(options, ap=replace(options.ap, model=model, grid=grid)))
         except (AdjustmentError, ValueError) as exc:
             models.append(exc)
             sizes.append(-1)
@@ -110,7 +110,7 @@ def choose_ap_model(block: Block, candidates: list[tuple[str, tuple[int, int]]],
         model, grid = candidates[richest]
         richest_models = models[richest]
         assert isinstance(richest_models, dict)             # (its size is not -1: they were built)
-        tested = adjust_with_tests(block, replace(options, ap=model, grid=grid), snooping,
+        tested = adjust_with_tests(block, replace(options, ap=replace(options.ap, model=model, grid=grid)), snooping,
                                    ap_models=richest_models)
         n_blunders = len(tested.rejected_rows)
         keep = np.flatnonzero(~np.isin(block.observations.row, tested.rejected_rows))
@@ -120,7 +120,7 @@ def choose_ap_model(block: Block, candidates: list[tuple[str, tuple[int, int]]],
         try:
             if isinstance(ap_models, Exception):
                 raise ap_models
-            result = adjust(data, replace(options, ap=model, grid=grid), ap_models=ap_models)
+            result = adjust(data, replace(options, ap=replace(options.ap, model=model, grid=grid)), ap_models=ap_models)
         except (AdjustmentError, ValueError) as exc:
             score = CandidateScore(model, grid, 0, 0, 0, np.nan, np.nan, None, None, None, str(exc))
         else:

@@ -87,6 +87,15 @@ class PushbroomCase:
         return float("nan") if self.result is None else float(np.sqrt(self.result.variance_factor))
 
 
+def _with_sensor(options: AdjustOptions | None, model: str, parameter_sigma: Any = ...) -> AdjustOptions:
+    """``options`` (default ones if None) with the sensor model ``model`` (and these parameter sigmas, if given)."""
+    options = options or AdjustOptions()
+    sensor = replace(options.sensor, model=model)
+    if parameter_sigma is not ...:
+        sensor = replace(sensor, parameter_sigma=parameter_sigma)
+    return replace(options, sensor=sensor)
+
+
 def image_sets(block: Block) -> dict[str, tuple[int, ...]]:
     """Mono for every image, stereo for the first two and for all (F+N, F+N+B for a triplet)."""
     ids = [str(i) for i in block.images.image_id]
@@ -155,7 +164,7 @@ def calibrate_focal(block: Block, gcps: np.ndarray | None = None, options: Adjus
     every gcp (``gcps``: indices of the block's points; default all its gcp); ``robust``: the robust cleaning
     of the adjustment it is a step of (:class:`~selfcal.adjust.RobustOptions`), else least squares."""
     gcps = np.flatnonzero(block.points.role == "gcp") if gcps is None else gcps
-    options = replace(options or AdjustOptions(), sensor_model="M7", parameter_sigma=None)
+    options = _with_sensor(options, "M7", None)
     sub = case_block(block, tuple(range(len(block.images))), gcps, mono=False)
     try:
         tested = adjust_with_tests(sub, options, snooping=None, robust=robust)
@@ -188,7 +197,7 @@ def run_case(block: Block, model: str, gcps: np.ndarray, image_set, height=None,
     ``model``. With ``snooping``, Baarda's data snooping; with ``screening``, the calibration parameters
     are screened (:func:`~selfcal.workflows.tested.adjust_with_tests`)."""
     mono = len(image_set) == 1
-    options = replace(options or AdjustOptions(), sensor_model=model)
+    options = _with_sensor(options, model)
     centre, axes = track_frame(block)
     name = model.upper() if model.upper() in ("M1", "M2", "M3", "M4", "M5", "M6", "M7") else model
     known = np.flatnonzero(~np.isnan(block.points.xyz_m).any(axis=1))

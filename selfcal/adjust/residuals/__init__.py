@@ -8,12 +8,13 @@ points, are the structure itself (:mod:`.image`).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
 import scipy.sparse as sp
 
+from ..options import TrajectoryOptions
 from . import control, priors, trajectory
 from .base import ParameterResiduals, PointResiduals, Triplets
 
@@ -23,15 +24,12 @@ __all__ = ["RESIDUALS", "ResidualSettings", "PointResiduals", "ParameterResidual
 
 @dataclass(frozen=True)
 class ResidualSettings:
-    """What the builders are told of the adjustment: the object frame of the block's sensors ("block" or "ECEF"),
-    the order of the GNSS/IMU shift/drift (-1 none, 0 shift, 1 + linear drift, 2 + quadratic), and whether the
-    GNSS lever arm and the IMU boresight angles are estimated."""
+    """What the builders are told of the adjustment: the object frame of the block's sensors ("block" or "ECEF")
+    and the trajectory's options (the order of the GNSS/IMU shift/drift, whether the GNSS lever arm and the IMU
+    boresight angles are estimated)."""
 
     object_frame: str = "block"
-    gnss_drift: int = 1
-    imu_drift: int = 1
-    lever_arm: bool = False
-    boresight: bool = False
+    trajectory: TrajectoryOptions = field(default_factory=TrajectoryOptions)
 
 
 #: kind name -> builder (block, problem, settings) -> list of residual blocks, in the order of theta's x part

@@ -141,13 +141,11 @@ def trajectory_terms(sensor: str, images, index: np.ndarray, observed: np.ndarra
 
     ``mounting``: the lever arm (GNSS, metres) or boresight angles (IMU, radians); with
     ``estimate_mounting`` they are unknowns. They cannot be told apart from strip-wise
-    shifts (the attitude is nearly constant along a strip), so estimating them needs ``order`` -1.
+    shifts (the attitude is nearly constant along a strip), so estimating them needs ``order`` -1
+    (:class:`~selfcal.adjust.TrajectoryOptions` says so when it is made).
     """
     from ...errors import AdjustmentError
-    what = "lever arm" if offset == 0 else "boresight angles"
-    if estimate_mounting and order >= 0:
-        raise UsageError(f"the {sensor} {what} cannot be separated from strip-wise {sensor} shifts (the attitude "
-                         f"hardly changes along a strip): estimate them with --{sensor.lower()}-drift none")
+    assert not (estimate_mounting and order >= 0), "TrajectoryOptions lets a mounting be estimated only with order -1"
     strip_ids = images.strip_id[index]
     strips = list(dict.fromkeys(strip_ids.tolist()))
     strip_of = np.array([strips.index(s) for s in strip_ids], dtype=np.int64)
@@ -203,9 +201,9 @@ def mounted_sensor(t, eop: np.ndarray, mounting: np.ndarray):
 
 def from_block(block, problem, settings) -> list[ParameterResiduals]:
     """The block's GNSS (``[gnss]``) and IMU (``[imu]``) observations, each a :class:`TrajectoryTerms` with the
-    shift/drift order and mounting that ``settings`` ask for (``gnss_drift``, ``imu_drift``, ``lever_arm``,
-    ``boresight``)."""
+    shift/drift order and mounting that ``settings.trajectory`` asks for."""
     images = block.images
+    settings = settings.trajectory
     out: list[ParameterResiduals] = []
     if settings.lever_arm and block.gnss_sigma_m is None:
         raise UsageError("the GNSS lever arm needs GNSS observations ([gnss] in block.toml)")

@@ -92,7 +92,7 @@ def sensor_model(spec: str, prior_sigma: dict | None = None) -> SensorModel:
 
 
 def _model_of(options) -> SensorModel:
-    return sensor_model(getattr(options, "sensor_model", None) or "M6", getattr(options, "parameter_sigma", None))
+    return sensor_model(options.model or "M6", options.parameter_sigma)
 
 
 def _fit_image(block, k: int, given_attitude: bool, orders, margin_s: float) -> LineImage:
@@ -175,7 +175,7 @@ class PushbroomBound(BoundSensor):
         block's telemetry."""
         given = block.image_models or {}
         fitted = [k for k in images if block.images.image_id[k] not in given]
-        out = dict(zip(fitted, line_images(block, getattr(options, "attitude_telemetry", True), image_index=fitted)))
+        out = dict(zip(fitted, line_images(block, options.attitude_telemetry, image_index=fitted)))
         out.update({k: given[block.images.image_id[k]] for k in images if k not in out})
         return {int(k): out[k] for k in images}
 
