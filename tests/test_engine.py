@@ -373,7 +373,7 @@ def test_dense_ap_columns_from_the_sparse_rows_equal_the_basis():
 def test_point_quadratic_through_the_cholesky_factor():
     """Z[p] Q Z[p]^T per point through Q = L L^T (the Gram matrices of the column blocks of Z L) equals the
     blocks computed one by one; a Q that is not positive definite has no factor (the plain product Z Q then)."""
-    from selfcal.adjust.covariance import _block_grams, lower_cholesky, times_lower
+    from selfcal.adjust.covariance import block_grams, lower_cholesky, times_lower
 
     rng = np.random.default_rng(3)
     Z = rng.normal(size=(3 * 40, 17))
@@ -382,7 +382,7 @@ def test_point_quadratic_through_the_cholesky_factor():
     expected = np.array([Z[3 * p:3 * p + 3] @ Q @ Z[3 * p:3 * p + 3].T for p in range(40)])
     L = lower_cholesky(Q)
     assert L is not None and lower_cholesky(-Q) is None
-    np.testing.assert_allclose(_block_grams(times_lower(Z, L), 40), expected, rtol=1e-12,
+    np.testing.assert_allclose(block_grams(times_lower(Z, L), 40), expected, rtol=1e-12,
                                atol=1e-12 * np.abs(expected).max())
 
 

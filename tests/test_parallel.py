@@ -119,13 +119,13 @@ def test_a_pass_inside_a_pass_runs_on_its_callers_thread(monkeypatch):
 def test_a_pushbroom_block_in_small_chunks_adjusts_alike_on_two_threads(monkeypatch):
     """The pushbroom sensor's predictions on two threads (the PRISM triplet cut into six chunks): the same
     adjustment as on one, bit for bit."""
-    import selfcal.adjust.problem as problem_module
+    import selfcal.adjust.ordering as ordering
     from selfcal.adjust import AdjustOptions, adjust
     from selfcal.simulate.prism import prism_block, simulate_prism
 
     block = prism_block(simulate_prism(seed=1), seed=1)
-    chunks = problem_module._chunks
-    monkeypatch.setattr(problem_module, "_chunks", lambda point_start, target: chunks(point_start, 20))
+    chunks = ordering.point_chunks
+    monkeypatch.setattr(ordering, "point_chunks", lambda point_start, target: chunks(point_start, 20))
     runs = {}
     for threads in ("1", "2"):
         monkeypatch.setenv("SELFCAL_THREADS", threads)

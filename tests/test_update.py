@@ -170,9 +170,9 @@ def test_downdated_start_of_a_free_network_closes_the_cost_gap():
 
 
 def test_touched_points_are_intersected_again(previous):
-    """update._intersect: points moved off a converged estimate return to it from their rays, the other unknowns
+    """update.intersect_points: points moved off a converged estimate return to it from their rays, the other unknowns
     held (at the joint optimum each point is at its own), within 1e-3 of their sigma."""
-    from selfcal.adjust.update import _intersect
+    from selfcal.adjust.update import intersect_points
 
     problem, state = previous.problem, previous.state.copy()
     rng = np.random.default_rng(4)
@@ -182,7 +182,7 @@ def test_touched_points_are_intersected_again(previous):
     state.points[points] += rng.normal(size=(25, 3)) * 50.0 * sigma
     at = problem.point_positions()[points]
     obs = np.concatenate([np.arange(problem.point_start[q], problem.point_start[q + 1]) for q in at])
-    _intersect(problem, state, points, obs)
+    intersect_points(problem, state, points, obs)
     assert np.max(np.abs(state.points[points] - previous.state.points[points]) / sigma) < 1e-3
     untouched = np.setdiff1d(np.arange(problem.n_points), points)
     np.testing.assert_array_equal(state.points[untouched], previous.state.points[untouched])
@@ -191,7 +191,7 @@ def test_touched_points_are_intersected_again(previous):
 def test_row_positions_finds_each_kept_observation_or_declines():
     """The previous position of each observation a re-adjustment keeps (rows in any order, as in a problem's),
     and None when the previous rows repeat one or a kept row was not among them."""
-    from selfcal.adjust.problem import row_positions
+    from selfcal.adjust.ordering import row_positions
     rng = np.random.default_rng(2)
     old = rng.permutation(5000)[:4000]
     new = rng.choice(old, 3000, replace=False)

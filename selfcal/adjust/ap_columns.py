@@ -19,7 +19,8 @@ import numpy as np
 from ..ap.base import pattern_groups
 from .kernels import compact_rows
 from .parallel import over_chunks
-from .problem import Problem, State, row_positions
+from .ordering import row_positions
+from .problem import Problem, State
 
 if TYPE_CHECKING:
     from ..sensors.base import BoundSensor

@@ -26,7 +26,7 @@ from .problem import Problem
 from .kernels import add_point_image_products, point_blocks_times, point_cofactor_pairs
 
 __all__ = ["point_cofactors", "PointCofactors", "PointTerms", "image_blocks", "observation_columns", "lower_cholesky",
-           "times_lower"]
+           "times_lower", "block_grams"]
 
 
 def image_blocks(Q, problem: Problem, columns: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -107,7 +107,7 @@ class PointCofactors:
                 Qp += _block_products(H + A, Z, n_pc)
             else:
                 ZL = times_lower(Z, self.L_dd)
-                Qp += _block_grams(ZL, n_pc) + _block_products(2.0 * A, Z, n_pc)
+                Qp += block_grams(ZL, n_pc) + _block_products(2.0 * A, Z, n_pc)
         return PointTerms(Z_e, Z, A, ZL, H, 0.5 * (Qp + Qp.transpose(0, 2, 1)))
 
 
@@ -153,7 +153,7 @@ def _block_products(X: np.ndarray, Y: np.ndarray, n: int) -> np.ndarray:
     return np.einsum("pin,pjn->pij", X.reshape(n, 3, -1), Y.reshape(n, 3, -1))
 
 
-def _block_grams(blocks: list[np.ndarray], n: int) -> np.ndarray:
+def block_grams(blocks: list[np.ndarray], n: int) -> np.ndarray:
     """The 3x3 Gram matrices of each point's three rows of the matrix whose column blocks are ``blocks``."""
     out = np.zeros((n, 3, 3))
     for block in blocks:

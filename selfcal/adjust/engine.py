@@ -21,7 +21,8 @@ from .linalg import (DENSE_LIMIT, EIGH_FLOPS, PSEUDO_INVERSE_LIMIT, SingularSyst
                      factorise, null_directions, shared_product)
 from .options import AdjustOptions
 from .parameters import apply_free
-from .problem import Problem, build_problem, inherited_point_key
+from .ordering import inherited_point_key
+from .problem import Problem, build_problem
 from .residuals.image import image_residuals
 from .result import AdjustmentResult
 from .robust import RobustOptions, RobustWeighting

@@ -34,9 +34,10 @@ from .linalg import SingularSystem, factorise, pseudo_factorise
 from .covariance import observation_columns
 from .residuals.image import ap_displacement, observation_rows, point_rows
 from .schur import SingularPoints, back_substitute, evaluate_cost
-from .problem import Problem, State, row_positions
+from .ordering import row_positions
+from .problem import Problem, State
 
-__all__ = ["downdated_start"]
+__all__ = ["downdated_start", "intersect_points"]
 
 
 def _held_moves(previous, problem: Problem) -> tuple[np.ndarray, np.ndarray] | None:
@@ -148,7 +149,7 @@ def _at(lin, arrays: list, start: str, index: np.ndarray, size: int = 1) -> np.n
     return out[:, 0] if size == 1 else out
 
 
-def _intersect(problem: Problem, state: State, points: np.ndarray, obs: np.ndarray, iterations: int = 5) -> None:
+def intersect_points(problem: Problem, state: State, points: np.ndarray, obs: np.ndarray, iterations: int = 5) -> None:
     """Gauss-Newton on each of ``points`` alone from its observations ``obs`` (problem order, grouped by point),
     the other unknowns held; a point keeps each step that lowers its own cost and stops once its step is below
     1e-3 of its sigma (``state`` is changed in place)."""
@@ -258,7 +259,7 @@ def _step(previous, S_old: np.ndarray, removed: np.ndarray, held, free_network: 
     # longer holds (BAL problem-49: one such point raised the cost by 44-297 in three of five rounds)
     # (control points keep the linear step: their surveyed coordinates are observations too)
     rays_only = stays & ~np.isin(touched, old.control_index)
-    _intersect(old, predicted, touched[rays_only], obs[still & rays_only[block_of]])
+    intersect_points(old, predicted, touched[rays_only], obs[still & rays_only[block_of]])
     # the linear model must hold: the step lowers the new problem's cost below that of the previous estimate
     # (the previous problem's cost less the left-out rows'); where it does not (BAL's free network, strongly
     # non-linear, in some rounds), the re-adjustment starts from the previous estimate as before

@@ -34,6 +34,7 @@ from typing import TYPE_CHECKING, Any, Callable
 import numpy as np
 
 if TYPE_CHECKING:
+    from ..adjust.options import SensorOptions
     from ..ap.base import SparseBasis
     from ..block import Block
     from .rpc import RpcModel
@@ -219,10 +220,10 @@ class Sensor(ABC):
 
     @abstractmethod
     def bind(self, problem: Any, block: Block, o: np.ndarray, pixel: np.ndarray, sigma_px: np.ndarray,
-             options: Any) -> BoundSensor:
+             options: SensorOptions) -> BoundSensor:
         """Bind to ``problem`` its observations ``o`` (positions in the problem's sorted order) in the images that
         use this sensor: measured at ``pixel`` (m, 2; col, row) with standard deviations ``sigma_px`` (m,, pixels).
-        ``block`` gives their cameras and sensor descriptions, ``options`` are the adjustment's."""
+        ``block`` gives their cameras and sensor descriptions, ``options`` are the adjustment's :class:`~selfcal.adjust.SensorOptions`."""
 
     def result_files(self, result: Any, slot: Any) -> dict:
         """Files of its own for the results folder (DESIGN.md §4: a sensor adds, never renames): name -> a dict
@@ -242,7 +243,7 @@ class Sensor(ABC):
         frame image without orientation, oriented later by space resection)."""
         return np.zeros((len(image_index), len(self.image_parameters)))
 
-    def camera_setup(self, camera: Any, options: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def camera_setup(self, camera: Any, options: SensorOptions) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(start value, free, a-priori sigma) of the camera's core parameters (NaN sigma: no prior)."""
         n = len(self.camera_parameters)
         return np.zeros(n), np.ones(n, bool), np.full(n, np.nan)
@@ -260,7 +261,7 @@ class Sensor(ABC):
             raise UsageError(f"AP model {spec}: {self.name} cameras take no additional parameters")
         return NoAP(None), np.zeros(0)
 
-    def image_setup(self, block: Block, image_index: np.ndarray, options: Any) -> tuple[np.ndarray, np.ndarray]:
+    def image_setup(self, block: Block, image_index: np.ndarray, options: SensorOptions) -> tuple[np.ndarray, np.ndarray]:
         """(free (n, width), a-priori sigma (n, width)) of the image parameters; NaN sigma: no prior."""
         shape = (len(image_index), len(self.image_parameters))
         return np.ones(shape, bool), np.full(shape, np.nan)
