@@ -161,6 +161,52 @@ def test_a_misidentified_target_is_checked_instead_and_named(small):
     assert any(name in note for note in tested.result.notes)
 
 
+def test_a_demotion_holds_only_where_the_rays_confirm_it_and_the_others_fit_better(small):
+    """The check of a demotion, in the re-adjustment where the control point is a check point: a target 0.5 m off
+    (30 sigmas of the survey) is confirmed by its rays; a good one is not (a few sigmas at most); nor is a wrong one when the
+    other control points fit worse without it (a block deforming against its control)."""
+    import selfcal.workflows.tested as tested_module
+    from selfcal.stats.reliability import observation_tests
+
+    points = small.points
+    gcp = np.flatnonzero(points.role == "gcp")
+    name = str(points.point_id[gcp[3]])
+    roles = points.role.copy()
+    roles[gcp[3]] = "chk"
+    for error_m, holds in ((0.5, True), (0.0, False)):
+        xyz = points.xyz_m.copy()
+        xyz[gcp[3], 0] += error_m
+        block = replace(small, points=replace(points, xyz_m=xyz, role=roles))
+        result = adjust(block, AdjustOptions(ap=APOptions("brown")))
+        tests = observation_tests(result, 3.0)
+        others = float(tested_module.control_w(tests, 0.0).max())
+        held, norm, others_now = tested_module.demotion_holds(result, tests, name, others + 0.1, 0.0)
+        assert held is holds and others_now == pytest.approx(others)
+        assert (norm > 15.0) if holds else (norm < 4.0)         # 0.5 m: 30 survey sigmas, 18 of both
+        if holds:                           # the others fitting worse than before the demotion: not confirmed
+            assert not tested_module.demotion_holds(result, tests, name, others - 0.1, 0.0)[0]
+
+
+def test_a_demotion_that_does_not_hold_is_taken_back_and_said(small, monkeypatch):
+    """A control point that fails the test of the control group but whose demotion the re-adjustment does not
+    confirm stays control, the control group is not tested again, and the notes say why."""
+    import selfcal.workflows.tested as tested_module
+
+    points = small.points
+    gcp = np.flatnonzero(points.role == "gcp")
+    xyz = points.xyz_m.copy()
+    xyz[gcp[len(gcp) // 2], 0] += 0.5
+    block = replace(small, points=replace(points, xyz_m=xyz))
+    calls = []
+    monkeypatch.setattr(tested_module, "demotion_holds", lambda *args: calls.append(args[2]) or (False, 2.0, 9.0))
+    tested = _tested(block, None)
+    name = str(points.point_id[gcp[len(gcp) // 2]])
+    assert calls == [name] and tested.control_demoted == []
+    roles = dict(zip(tested.result.block.points.point_id, tested.result.block.points.role))
+    assert roles.get(name, "gcp") == "gcp"        # (control again; its rays may then be rejected as blunders)
+    assert any(f"control point '{name}' failed the test" in n and "stays control" in n for n in tested.result.notes)
+
+
 def test_an_image_with_most_observations_wrong_is_left_out_and_named(small):
     obs = small.observations
     image = 9

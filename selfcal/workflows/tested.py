@@ -142,6 +142,8 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
     rejected_mdb = np.full((len(rejected), 2), np.nan)
     snooped = 0
     control_demoted: list[tuple[str, float]] = []
+    control_settled = False             # a demotion was not confirmed: the control group is not tested again
+    control_notes: list[str] = []       # what the test of the control group did, for the final result's notes
     rounds: list[SnoopingRound] = []
     log: list[tuple[int, ScreeningDecision]] = []
     joint_tests: list[tuple[int, ScreeningRound]] = []
@@ -167,7 +169,8 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
             largest = float(w.max()) if w.size else 0.0
             # the control group is tested too: a control point whose coordinates fail the test, worse than any
             # image observation, is checked instead (alone in its round: it pulls the image observations near it)
-            demoted = control_candidate(result, tests, critical, snoop.min_redundancy, largest)
+            demoted = None if control_settled else \
+                control_candidate(result, tests, critical, snoop.min_redundancy, largest)
             picks = np.zeros(0, np.int64) if demoted is not None else \
                 reject_candidates(result.block, w, critical, snoop.mode)
             if picks.size and snooped + picks.size > limit:
@@ -180,8 +183,10 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
         if demoted is not None:
             point, w_control = demoted
             name = str(result.block.points.point_id[point])
+            worst = control_w(tests, snoop.min_redundancy if snoop is not None else 0.0)
+            others_before = float(np.delete(worst, np.flatnonzero(result.problem.control_index == point)).max())
             control_demoted.append((name, w_control))
-            result.notes.append(f"control point '{name}' fails the test of the control group (|w| {w_control:.1f}): "
+            control_notes.append(f"control point '{name}' fails the test of the control group (|w| {w_control:.1f}): "
                                 f"its surveyed coordinates do not fit the block (a misidentified target? a typing "
                                 f"error?); it is checked instead of used as control")
             where = np.flatnonzero(block.points.point_id == name)
@@ -208,6 +213,25 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
         finished = rough is options or _meets(result, options)
         block = result.block            # what a free network's re-adjustment left out stays out
         tests = observation_tests(result, critical)
+        if demoted is not None:
+            assert snoop is not None
+            holds, norm, others_now = demotion_holds(result, tests, name, others_before, snoop.min_redundancy)
+            if not holds:               # the control as a whole disagrees with the block: the point stays control
+                control_demoted.pop()
+                control_settled = True
+                roles = np.asarray(block.points.role).copy()
+                roles[block.points.point_id == name] = "gcp"
+                block = replace(block, points=replace(block.points, role=roles))
+                result = adjust(block, rough, progress=progress, start=result, free=free, ap_models=models)
+                block = result.block
+                finished = rough is options or _meets(result, options)
+                tests = observation_tests(result, critical)
+                control_notes[-1] = (
+                    f"control point '{name}' failed the test of the control group (|w| {demoted[1]:.1f}), but checked "
+                    f"instead it {'fits its rays' if norm <= CONTROL_CRITICAL else 'leaves the others fitting worse'} "
+                    f"({norm:.1f} sigma off; the other control points' largest |w| {others_before:.1f} -> "
+                    f"{others_now:.1f}): the control disagrees with the block as a whole (a deformation the model "
+                    f"does not capture?), not at one target; it stays control and no control point is demoted")
     if not finished:                    # stopped by a failure or the round limit
         result, tests = _converge(result, options, critical, progress, free, models)
     components = converged = None
@@ -215,6 +239,7 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
         result, tests, components, converged = estimate_variance_components(
             result.block, options, variance, start=result, free=free, ap_models=models, critical=critical,
             progress=progress)
+    result.notes[:0] = control_notes
     if cleaning is not None:
         result.notes[:0] = cleaning.messages
     order = np.argsort(rejected)
@@ -238,13 +263,41 @@ def control_candidate(result: AdjustmentResult, tests: ObservationTests, critica
     index = result.problem.control_index
     if len(index) <= MIN_CONTROL or not tests.control_w.size:
         return None
-    w = np.abs(tests.control_w)
-    w[tests.control_redundancy < min_redundancy] = 0.0
-    worst = w.max(axis=1)
+    worst = control_w(tests, min_redundancy)
     k = int(np.argmax(worst))
     if worst[k] > max(critical, CONTROL_CRITICAL) and worst[k] > largest_image_w:
         return int(index[k]), float(worst[k])
     return None
+
+
+def control_w(tests: ObservationTests, min_redundancy: float) -> np.ndarray:
+    """The largest |w| of each control point's coordinates (those with a redundancy number of at least
+    ``min_redundancy``; 0 where none has)."""
+    w = np.abs(tests.control_w)
+    w[tests.control_redundancy < min_redundancy] = 0.0
+    return w.max(axis=1) if w.size else np.zeros(0)
+
+
+def demotion_holds(result: AdjustmentResult, tests: ObservationTests, name: str, others_before: float,
+                   min_redundancy: float) -> tuple[bool, float, float]:
+    """Whether the re-adjustment ``result``, in which control point ``name`` is a check point, confirms that its
+    surveyed coordinates do not fit: their discrepancy from the point's rays beyond :data:`CONTROL_CRITICAL` of its
+    sigma (the Mahalanobis norm of the difference with the survey's and the estimate's covariance), and the other
+    control points fitting no worse than before (their largest |w| not above ``others_before``). A wrong target
+    pulls the block: without it the others fit better. A block that deforms against its control (a bowl, a
+    calibration that the APs do not capture) does not fit at any one control point: leave one out and the
+    others' |w| grow. Returns (holds, the norm, the others' largest |w| now)."""
+    points = result.block.points
+    where = np.flatnonzero(points.point_id == name)
+    others = control_w(tests, min_redundancy)
+    others_now = float(others.max()) if others.size else 0.0
+    if not where.size:                  # (left out of the re-adjustment: no rays to compare with)
+        return True, float("nan"), others_now
+    k = int(where[0])
+    d = result.state.points[k] - points.xyz_m[k]
+    cov = result.point_covariance()[k] + np.diag(np.nan_to_num(points.sigma_m[k]) ** 2)
+    norm = float(np.sqrt(d @ np.linalg.solve(cov, d)))
+    return bool(norm > CONTROL_CRITICAL and others_now <= others_before), norm, others_now
 
 
 def _too_many(tests: ObservationTests, largest: float, snooped: int, cleaned: bool) -> str:
