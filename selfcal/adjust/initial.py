@@ -19,6 +19,7 @@ import numpy as np
 from ..errors import AdjustmentError
 from ..geometry.rotation import opk_from_matrix
 from ..sensors.frame import project, project_with_jacobians
+from .kernels import best_ray_pairs
 from .problem import Problem, State
 
 __all__ = ["intersect", "resect", "resect_robust", "initial_state", "PointsNotIntersected"]
@@ -114,63 +115,27 @@ PAIR_RAYS = 8
 
 
 def _best_pairs(point: np.ndarray, origin: np.ndarray, direction: np.ndarray, xyz: np.ndarray, ok: np.ndarray,
-                threshold: float, chunk: int = 200_000) -> np.ndarray:
+                threshold: float) -> np.ndarray:
     """For every point with three rays or more, the intersection of the pair of its rays that the most of its others
     agree with (a truncated quadratic of their angles, ``threshold`` rad), where it beats the least-squares point:
     one wrong ray among three or four pulls a least-squares point so far that every ray's angle is large, and a
-    re-weighting from there cannot tell which is wrong (RANSAC over the pairs)."""
+    re-weighting from there cannot tell which is wrong (RANSAC over the pairs of its first :data:`PAIR_RAYS` rays,
+    :func:`~selfcal.adjust.kernels.best_ray_pairs`)."""
     order = np.argsort(point, kind="stable")
     point, origin, direction = point[order], origin[order], direction[order]
     n_points = len(xyz)
-    count = np.bincount(point, minlength=n_points)
-    start = np.concatenate([[0], np.cumsum(count)])
-    many = np.flatnonzero(count >= 3)
-    if not many.size:
-        return xyz
-    k = np.minimum(count[many], PAIR_RAYS)
-    # pairs (i < j) of the first k rays of each point, as positions in the sorted rays
-    a_local, b_local = np.triu_indices(PAIR_RAYS, 1)
-    fits = b_local[None, :] < k[:, None]                             # (points, 28)
-    owner = np.broadcast_to(many[:, None], fits.shape)[fits]
-    a = start[owner] + np.broadcast_to(a_local, fits.shape)[fits]
-    b = start[owner] + np.broadcast_to(b_local, fits.shape)[fits]
-    # the point nearest both lines: O_a + s d_a and O_b + t d_b
-    w0 = origin[a] - origin[b]
-    da, db = direction[a], direction[b]
-    c = np.einsum("ni,ni->n", da, db)
-    p, q = np.einsum("ni,ni->n", da, w0), np.einsum("ni,ni->n", db, w0)
-    denominator = 1.0 - c * c
-    valid = denominator > 1e-8
-    s = np.where(valid, (c * q - p) / np.where(valid, denominator, 1.0), 0.0)
-    t = np.where(valid, (q - c * p) / np.where(valid, denominator, 1.0), 0.0)
-    valid &= (s > 0) & (t > 0)                                      # in front of both cameras
-    candidate = 0.5 * (origin[a] + s[:, None] * da + origin[b] + t[:, None] * db)
-    # the score of each candidate: sum over the point's rays of min(angle / threshold, 1)^2
-    score = np.zeros(len(a))
-    for lo in range(0, len(a), chunk):
-        hi = min(lo + chunk, len(a))
-        n_of = count[owner[lo:hi]]
-        pair = np.repeat(np.arange(lo, hi), n_of)
-        ray = start[owner[pair]] + np.arange(len(pair)) - np.repeat(np.cumsum(n_of) - n_of, n_of)
-        offset = candidate[pair] - origin[ray]
-        along = np.einsum("ni,ni->n", offset, direction[ray])
-        across = np.linalg.norm(offset - along[:, None] * direction[ray], axis=1)
-        angle = np.where(along > 0, across / np.maximum(np.abs(along), 1e-300), np.inf)
-        score[lo:hi] = np.bincount(pair - lo, np.minimum(angle / threshold, 1.0) ** 2, minlength=hi - lo)
-    score[~valid] = np.inf
-    best = np.full(n_points, np.inf)
-    np.minimum.at(best, owner, score)
-    pick = np.flatnonzero((score == best[owner]) & valid)
-    pick = pick[np.unique(owner[pick], return_index=True)[1]]        # one per point (the first of ties)
+    start = np.concatenate([[0], np.cumsum(np.bincount(point, minlength=n_points))]).astype(np.int64)
+    candidate, score = best_ray_pairs(start, np.ascontiguousarray(origin, float),
+                                      np.ascontiguousarray(direction, float), float(threshold), PAIR_RAYS)
     # the least-squares point's own score
     offset = np.nan_to_num(xyz[point]) - origin
     along = np.einsum("ni,ni->n", offset, direction)
     angle = np.where(along > 0, np.linalg.norm(offset - along[:, None] * direction, axis=1) /
                      np.maximum(np.abs(along), 1e-300), np.inf)
     own = np.bincount(point, np.minimum(angle / threshold, 1.0) ** 2, minlength=n_points)
-    better = pick[(score[pick] < own[owner[pick]]) | ~ok[owner[pick]]]
+    better = np.isfinite(score) & ((score < own) | ~ok)
     out = xyz.copy()
-    out[owner[better]] = candidate[better]
+    out[better] = candidate[better]
     return out
 
 

@@ -18,7 +18,7 @@ from numba import njit
 
 __all__ = ["accumulate_observations", "schur_image_blocks", "point_cofactor_pairs", "leverage_pairs", "camera_couplings", "point_blocks_times", "subtract_image_couplings", "rows_dot_blocks",
            "camera_couplings_compact", "leverage_camera_cross", "compact_rows",
-           "add_point_image_products", "spd_inverse_3x3"]
+           "add_point_image_products", "spd_inverse_3x3", "best_ray_pairs"]
 
 
 @njit(cache=True, nogil=True)
@@ -405,3 +405,48 @@ def compact_rows(flat, width, take, keep):
         dst = i * k
         for j in range(k):
             flat[dst + j] = flat[src + keep[j]]
+
+
+@njit(cache=True, nogil=True)
+def best_ray_pairs(start, origin, direction, threshold, pair_rays):
+    """For each point (its rays ``start[p]:start[p+1]`` of ``origin`` and unit ``direction``, sorted by point) with
+    three rays or more: the intersection of the pair among its first ``pair_rays`` rays that its rays agree with
+    best, and its score, the sum over the point's rays of min(angle / ``threshold``, 1)^2 (a ray the point lies
+    behind counts 1). Pairs whose rays are parallel or meet behind either camera are not tried; ties keep the
+    first pair. (candidate (n_points, 3), score (n_points,): inf where no pair was tried)."""
+    n_points = start.size - 1
+    candidate = np.full((n_points, 3), np.nan)
+    best = np.full(n_points, np.inf)
+    for p in range(n_points):
+        lo, hi = start[p], start[p + 1]
+        if hi - lo < 3:
+            continue
+        k = min(hi - lo, pair_rays)
+        for i in range(lo, lo + k):
+            for j in range(i + 1, lo + k):
+                c = direction[i, 0] * direction[j, 0] + direction[i, 1] * direction[j, 1] + direction[i, 2] * direction[j, 2]
+                denominator = 1.0 - c * c
+                if denominator <= 1e-8:
+                    continue
+                w0 = origin[i] - origin[j]
+                pa = direction[i, 0] * w0[0] + direction[i, 1] * w0[1] + direction[i, 2] * w0[2]
+                qb = direction[j, 0] * w0[0] + direction[j, 1] * w0[1] + direction[j, 2] * w0[2]
+                s = (c * qb - pa) / denominator
+                t = (qb - c * pa) / denominator
+                if s <= 0.0 or t <= 0.0:
+                    continue
+                x = 0.5 * (origin[i] + s * direction[i] + origin[j] + t * direction[j])
+                score = 0.0
+                for r in range(lo, hi):
+                    o0, o1, o2 = x[0] - origin[r, 0], x[1] - origin[r, 1], x[2] - origin[r, 2]
+                    along = o0 * direction[r, 0] + o1 * direction[r, 1] + o2 * direction[r, 2]
+                    if along <= 0.0:
+                        score += 1.0
+                        continue
+                    a0, a1, a2 = o0 - along * direction[r, 0], o1 - along * direction[r, 1], o2 - along * direction[r, 2]
+                    angle = np.sqrt(a0 * a0 + a1 * a1 + a2 * a2) / along
+                    score += min(angle / threshold, 1.0) ** 2
+                if score < best[p]:
+                    best[p] = score
+                    candidate[p] = x
+    return candidate, best

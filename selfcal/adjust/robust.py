@@ -141,7 +141,10 @@ class RobustOptions:
     settled : float
         The weights have settled (and stay as they are) once no more than this share of the observations (or
         ten) would change by more than ``tolerance``: the last few weights of a redescending loss creep for
-        dozens of iterations, each moving a handful of observations near the loss's knee.
+        dozens of iterations, each moving a handful of observations near the loss's knee. 1 %: the robust stage
+        only sorts the gross errors out (u beyond ``reject``, far from the knee) and gives the least-squares
+        adjustment its start; on the paper-scale block 0.1 % took 8 iterations (the last four moving 563, 273, 144
+        and 84 of 80,634 weights) where 1 % takes 4, with the same check points.
     reject : float
         After the robust adjustment, observations with u above this (in units of the scale: a blunder-free image
         point exceeds 5 with probability 4e-6) are gross errors:
@@ -157,7 +160,7 @@ class RobustOptions:
     c: float | None = None
     scale: str = "mad"
     tolerance: float = 0.02
-    settled: float = 1e-3
+    settled: float = 1e-2
     reject: float = 5.0
     control: bool = True
     hand: tuple[str, ...] = ("gcp", "chk")
