@@ -116,18 +116,19 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
     rough = options if not max_rounds else replace(options, solver=replace(
         options.solver, function_tolerance=max(options.solver.function_tolerance, ROUND_TOLERANCE)))
     cleaning = None
+    readmitted: Block | None = None             # the cleaned block with the observations taken back
     if robust is not None:
         first = adjust(block, rough, progress=progress, ap_models=ap_models, robust=robust)
         read, (block, cleaning) = first.block, clean(first, robust.reject, prune_for)
         models = {cam.camera_id: cam.ap for cam in first.problem.cameras}
         result = adjust(block, rough, progress=progress, start=first, ap_models=models)
         del first
-        # the good rays pulled along by a point's blunder in the robust adjustment fit the cleaned one: taken back
+        # the good rays pulled along by a point's blunder in the robust adjustment fit the cleaned one: taken back,
+        # into the first round's re-adjustment (or one of their own, if the tests of this one find nothing)
         back = readmissible(cleaning, read, result)
         if back.size:
             cleaning.readmit(back)
-            block = cleaning.apply(read, prune_for)
-            result = adjust(block, rough, progress=progress, start=result, ap_models=models)
+            readmitted = cleaning.apply(read, prune_for)
     else:
         result = adjust(block, rough, progress=progress, ap_models=ap_models)
     finished = rough is options or _meets(result, options)
@@ -180,6 +181,14 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
             rejected = np.concatenate([rejected, result.block.observations.row[picks]])
             rejected_w = np.concatenate([rejected_w, w[picks]])
             rejected_mdb = np.concatenate([rejected_mdb, tests.image_mdb_px[picks]])
+        if readmitted is not None:
+            block, readmitted = readmitted, None
+            if dropped == 0 and picks.size == 0 and demoted is None:
+                result = adjust(block, rough, progress=progress, start=result, free=free, ap_models=models)
+                finished = rough is options or _meets(result, options)
+                block = result.block
+                tests = observation_tests(result, critical)
+                continue                # (not a round: the tests of the block with them)
         if demoted is not None:
             point, w_control = demoted
             name = str(result.block.points.point_id[point])
@@ -232,6 +241,10 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
                     f"({norm:.1f} sigma off; the other control points' largest |w| {others_before:.1f} -> "
                     f"{others_now:.1f}): the control disagrees with the block as a whole (a deformation the model "
                     f"does not capture?), not at one target; it stays control and no control point is demoted")
+    if readmitted is not None:          # no round of tests (or a failure before the first re-adjustment)
+        result = adjust(readmitted, rough, progress=progress, start=result, free=free, ap_models=models)
+        finished = rough is options or _meets(result, options)
+        tests = observation_tests(result, critical)
     if not finished:                    # stopped by a failure or the round limit
         result, tests = _converge(result, options, critical, progress, free, models)
     components = converged = None
