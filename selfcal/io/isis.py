@@ -427,18 +427,42 @@ def match_serials(network: ControlNetwork, labels: Iterable[CubeLabel]) -> dict[
     return {s: by_serial[s] for s in sorted(used)}
 
 
-def read_image_folder(folder: str | os.PathLike, sensor_extensions: Sequence[str] = (".isd", ".json")
-                      ) -> dict[str, tuple[CubeLabel, str]]:
+#: the starts of PVL files that are not cube labels and are passed over without a word
+_NOT_IMAGES = (rb"\s*Object\s*=\s*ControlNetwork\b", rb"\s*PDS_VERSION_ID\b")
+
+
+def _why_not_a_label(path: str) -> str | None:
+    """None if ``path`` starts as an ISIS cube label; "" if it is another known kind of PVL file (a control
+    network, a PDS label); otherwise why it is not read as an image."""
+    try:
+        with open(path, "rb") as handle:
+            head = handle.read(4096)
+    except OSError as exc:
+        return f"cannot be read: {exc.strerror}"
+    if re.match(rb"\s*Object\s*=\s*IsisCube\b", head, re.IGNORECASE):
+        return None
+    if any(re.match(pattern, head, re.IGNORECASE) for pattern in _NOT_IMAGES):
+        return ""
+    try:
+        read_pvl(path)
+    except BlockError as exc:
+        return f"not an ISIS cube label: {exc.reason}" + (f" (line {exc.line})" if exc.line else "")
+    return "not an ISIS cube label: it does not start with 'Object = IsisCube'"
+
+
+def read_image_folder(folder: str | os.PathLike, sensor_extensions: Sequence[str] = (".isd", ".json"),
+                      left_out: list[tuple[str, str]] | None = None) -> dict[str, tuple[CubeLabel, str]]:
     """Serial number -> (label, sensor file) of the ISIS cube labels in a folder: every ``*.pvl`` with an
-    ``IsisCube`` object (control networks and PDS labels beside them are passed over), each with the file
-    of the same name and one of ``sensor_extensions`` (the usgscsm/ALE ISD). A label without one is an
-    error naming it."""
+    ``IsisCube`` object, each with the file of the same name and one of ``sensor_extensions`` (the usgscsm/ALE
+    ISD). A label without one is an error naming it. Control networks and PDS labels beside them are passed
+    over; any other ``*.pvl`` is left out and, when ``left_out`` is a list, added to it as (path, why)."""
     folder = str(folder)
     out: dict[str, tuple[CubeLabel, str]] = {}
     for path in sorted(glob.glob(os.path.join(folder, "*.pvl"))):
-        with open(path, "rb") as handle:
-            head = handle.read(4096)
-        if not re.match(rb"\s*Object\s*=\s*IsisCube\b", head, re.IGNORECASE):
+        why = _why_not_a_label(path)
+        if why is not None:
+            if why and left_out is not None:
+                left_out.append((path, why))
             continue
         label = read_cube_label(path)
         stem = os.path.splitext(path)[0]
