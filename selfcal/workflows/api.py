@@ -4,13 +4,17 @@ The CLI's defaults, as keyword arguments; progress goes to ``logging.getLogger("
 """
 from __future__ import annotations
 
+import math
 import os
 import time
-from dataclasses import dataclass, replace
+from collections.abc import Callable
+from dataclasses import dataclass, fields, replace
+from typing import TypeVar
 
 from ..adjust import AdjustOptions, RobustOptions
 from ..adjust import SolverOptions
 from ..block import Block
+from ..errors import SelfcalError, UsageError
 from ..stats.screening import ScreeningOptions
 from ..stats.snooping import SnoopingOptions
 from ..stats.variance import VarianceOptions
@@ -18,6 +22,8 @@ from .adjust import Adjusted, AdjustRequest, adjust_block, offers_sensor_models
 from .progress import LOG, logging_progress, logging_rounds
 
 __all__ = ["bundle_adjust", "Outcome"]
+
+T = TypeVar("T")
 
 
 @dataclass
@@ -47,6 +53,17 @@ class Outcome:
         write_results(folder, files)
 
 
+def _argument(name: str, value: object, make: Callable[[], T]) -> T:
+    """``make()``, its ValueError or TypeError a UsageError naming the argument ``name`` (bad input, exit code 2,
+    as the CLI's options are)."""
+    try:
+        return make()
+    except SelfcalError:
+        raise
+    except (ValueError, TypeError) as exc:
+        raise UsageError(f"bundle_adjust({name}={value!r}): {exc}") from None
+
+
 def bundle_adjust(block: Block | str | os.PathLike, ap: str = "none", *, snoop: float = 3.0, screen: bool = False,
                   variance_components: bool = False, max_iterations: int = 50, robust: str = "danish",
                   **options) -> Outcome:
@@ -65,11 +82,24 @@ def bundle_adjust(block: Block | str | os.PathLike, ap: str = "none", *, snoop: 
         block = read_block(block)
     if offers_sensor_models(block):
         options.setdefault("sensor_model", "M6")
-    adjust_options = replace(AdjustOptions(ap=ap, solver=SolverOptions(max_iterations=max_iterations)), **options)
+    if isinstance(snoop, bool) or not isinstance(snoop, (int, float)) or not math.isfinite(snoop) or snoop < 0:
+        raise UsageError(f"bundle_adjust(snoop={snoop!r}): Baarda's critical value must be a finite number, 0 or "
+                         f"more (0: no data snooping)")
+    if isinstance(max_iterations, bool) or not isinstance(max_iterations, int) or max_iterations < 1:
+        raise UsageError(f"bundle_adjust(max_iterations={max_iterations!r}): must be a whole number, 1 or more")
+    solver = _argument("max_iterations", max_iterations, lambda: SolverOptions(max_iterations=max_iterations))
+    adjust_options = _argument("ap", ap, lambda: AdjustOptions(ap=ap, solver=solver))
+    unknown = sorted(set(options) - {f.name for f in fields(AdjustOptions)})
+    if unknown:
+        raise UsageError(f"bundle_adjust({unknown[0]}=...): not an argument (AdjustOptions fields: "
+                         f"{', '.join(f.name for f in fields(AdjustOptions))})")
+    for name, value in options.items():
+        adjust_options = _argument(name, value, lambda: replace(adjust_options, **{name: value}))
     screening = ScreeningOptions() if screen else None
-    request = AdjustRequest(adjust_options, SnoopingOptions(critical=snoop), screening,
-                            VarianceOptions() if variance_components else None,
-                            None if robust == "none" else RobustOptions(loss=robust))
+    snooping = _argument("snoop", snoop, lambda: SnoopingOptions(critical=snoop))
+    robust_options = None if robust == "none" else _argument("robust", robust, lambda: RobustOptions(loss=robust))
+    request = AdjustRequest(adjust_options, snooping, screening,
+                            VarianceOptions() if variance_components else None, robust_options)
     LOG.info(f"{block.name}: {len(block.images)} images, {len(block.points)} points, {len(block.observations)} "
              f"image observations; AP model {ap}")
     adjusted = adjust_block(block, request, progress=logging_progress(block.image_sigma_px),
