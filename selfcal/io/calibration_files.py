@@ -130,6 +130,8 @@ def read_metashape_xml(path: str | os.PathLike) -> ToolCalibration:
     if calib.find("f") is None:
         raise BlockError(path, "<f> is missing (the focal length in pixels)")
     values = {name: number(name, calib.findtext(name), 0.0) for name in METASHAPE_NAMES}
+    if not values["f"] > 0:
+        raise BlockError(path, f"<f> must be a positive focal length in pixels, found {values['f']!r}")
     names: tuple[str, ...] = ()
     matrix = None
     if cov is not None:
@@ -140,6 +142,12 @@ def read_metashape_xml(path: str | os.PathLike) -> ToolCalibration:
             raise BlockError(path, "<covariance><coeffs> holds something that is not a number") from None
         if matrix.size != len(names) ** 2:
             raise BlockError(path, f"<covariance>: {matrix.size} coefficients for {len(names)} parameters")
+        unknown = [name for name in names if name.lower() not in METASHAPE_NAMES]
+        if unknown or len(set(names)) != len(names):
+            raise BlockError(path, f"<covariance><params> must name distinct parameters of {', '.join(METASHAPE_NAMES)}"
+                                   f", found {' '.join(names)[:80]!r}")
+        if not np.all(np.isfinite(matrix)):
+            raise BlockError(path, "<covariance><coeffs> holds a value that is not finite")
         matrix = matrix.reshape(len(names), len(names))
     return ToolCalibration("metashape", "frame", values, int(width), int(height), names, matrix)
 

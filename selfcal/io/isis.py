@@ -211,14 +211,21 @@ def _flag(block: PvlBlock, key: str, path: str) -> bool:
     return value in _TRUE
 
 
-def _integer(block: PvlBlock, key: str, path: str) -> int:
+#: no cube has a side of more pixels than this; a larger Samples or Lines is a broken label
+MAX_CUBE_SIDE = 10**7
+
+
+def _integer(block: PvlBlock, key: str, path: str, low: int | None = None) -> int:
+    """An integer keyword (``low``: at least ``low`` and at most MAX_CUBE_SIDE, a size in pixels)."""
     k = block.keyword(key)
     if k is None:
         raise BlockError(path, f"{block.kind} '{block.name}' has no '{key}'", block.line, key)
-    try:
-        return int(k.value)
-    except ValueError:
-        raise BlockError(path, f"'{key}' must be an integer, found {k.value!r}", k.line, key) from None
+    if len(k.values) != 1 or not re.fullmatch(r"[+-]?[0-9]{1,18}", k.value.strip()):
+        raise BlockError(path, f"'{key}' must be an integer, found {k.values!r}"[:200], k.line, key)
+    value = int(k.value)
+    if low is not None and not low <= value <= MAX_CUBE_SIDE:
+        raise BlockError(path, f"'{key}' must be an integer {low}..{MAX_CUBE_SIDE}, found {value}", k.line, key)
+    return value
 
 
 # --- control network ------------------------------------------------------------------------------
@@ -369,13 +376,17 @@ def _alpha_cube(label: PvlBlock, samples: int, lines: int, path: str) -> AlphaCu
     group = label.find("Group", "AlphaCube")
     if group is None:
         return AlphaCube.identity(samples, lines)
-    ints = {k: _integer(group, k, path) for k in ("AlphaSamples", "AlphaLines", "BetaSamples", "BetaLines")}
+    ints = {k: _integer(group, k, path, 1) for k in ("AlphaSamples", "AlphaLines", "BetaSamples", "BetaLines")}
     floats = {}
     for k in ("AlphaStartingSample", "AlphaStartingLine", "AlphaEndingSample", "AlphaEndingLine"):
         kw = group.keyword(k)
         if kw is None:
             raise BlockError(path, f"AlphaCube has no '{k}'", group.line, k)
         floats[k] = _number(kw, path)
+    if not (floats["AlphaStartingSample"] < floats["AlphaEndingSample"]
+            and floats["AlphaStartingLine"] < floats["AlphaEndingLine"]):
+        raise BlockError(path, "AlphaCube's starting sample and line must be below its ending ones", group.line,
+                         "AlphaStartingSample")
     if (ints["BetaSamples"], ints["BetaLines"]) != (samples, lines):
         raise BlockError(path, f"AlphaCube BetaSamples x BetaLines {ints['BetaSamples']} x {ints['BetaLines']} is not "
                                f"the cube's {samples} x {lines}", group.line, "BetaSamples")
@@ -395,7 +406,7 @@ def read_cube_label(path: str | os.PathLike) -> CubeLabel:
     dims = cube.find("Group", "Dimensions")
     if dims is None:
         raise BlockError(path, "the label has no 'Group = Dimensions'", cube.line, "Dimensions")
-    samples, lines = _integer(dims, "Samples", path), _integer(dims, "Lines", path)
+    samples, lines = _integer(dims, "Samples", path, 1), _integer(dims, "Lines", path, 1)
     instrument = cube.find("Group", "Instrument")
     kernels = cube.find("Group", "Kernels")
     code_value = None
