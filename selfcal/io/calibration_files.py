@@ -25,7 +25,7 @@ import numpy as np
 
 from ..errors import BlockError
 from .atomic import atomic_write
-from .text import read_text
+from .text import read_text, yaml_error
 from .xmlfile import xml_root
 
 __all__ = ["ToolCalibration", "write_metashape_xml", "read_metashape_xml", "write_opensfm_cameras",
@@ -232,9 +232,7 @@ def read_kalibr_camchain(path: str | os.PathLike, camera: str | None = None) -> 
     try:
         data = yaml.safe_load(read_text(path, "Kalibr camchain"))
     except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        raise BlockError(path, f"not YAML: {getattr(exc, 'problem', exc)}",
-                         mark.line + 1 if mark is not None else None) from None
+        raise yaml_error(path, exc) from None
     except RecursionError:
         raise BlockError(path, "not YAML: nested too deeply") from None
     if not isinstance(data, dict) or not any(isinstance(v, dict) and "intrinsics" in v for v in data.values()):

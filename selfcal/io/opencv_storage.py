@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import BlockError
-from .text import decode_text
+from .text import decode_text, yaml_error
 
 __all__ = ["Matrix", "Node", "NESTED", "read_file_storage", "MAX_FILE_BYTES"]
 
@@ -138,9 +138,7 @@ def _read_yaml_storage(path: str, text: str) -> dict[str, Node]:
     try:
         root = yaml.compose(text, Loader=yaml.SafeLoader)
     except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        raise BlockError(path, f"not OpenCV YAML: {getattr(exc, 'problem', None) or exc}",
-                         mark.line + 1 if mark is not None else None) from None
+        raise yaml_error(path, exc, "OpenCV YAML") from None
     except RecursionError:
         raise BlockError(path, "not OpenCV YAML: nested too deeply") from None
     if root is None:
