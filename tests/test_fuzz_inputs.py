@@ -115,7 +115,7 @@ def test_ctrl_c_inside_a_compiled_kernel_is_an_interrupt(monkeypatch, capsys):
 
 _NUMBER = re.compile(rb"-?\d+\.?\d*(?:[eE][-+]?\d+)?")
 _VALUES = [b"nan", b"NaN", b"inf", b"-inf", b"1e308", b"1e400", b"-1e30", b"abc", b"", b"1,5", b"1e-320",
-           b"99999999999999999999999", b"0", b"-0", b"\xff", b"\"", b"\x00"]
+           b"99999999999999999999999", b"0", b"-0", b"\xff", b"\"", b"\x00", b"null", b"\"abc\"", b"[]", b"{}", b"true"]
 _MUTATIONS = st.one_of(
     st.tuples(st.just("truncate"), st.floats(0.0, 1.0)),
     st.tuples(st.just("flip"), st.floats(0.0, 1.0), st.integers(0, 255)),
