@@ -57,7 +57,7 @@ class Node:
     line: int | None
 
 
-def _scalar(text: str) -> object:
+def _scalar(text: str) -> int | float | str:
     """An unquoted scalar as OpenCV writes it: an int, a float, or the text."""
     token = text.strip()
     if _INT.fullmatch(token):
