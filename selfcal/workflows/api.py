@@ -74,6 +74,8 @@ def bundle_adjust(block: Block | str | os.PathLike, ap: str = "none", *, snoop: 
     observation group's sigma; ``robust``: the loss of the robust cleaning before the tests (``"danish"``,
     ``"huber"``, ``"cauchy"``; ``"none"``: least squares throughout); other keywords are :class:`selfcal.adjust.AdjustOptions` fields (``grid``,
     ``gnss_drift``, ``sensor_model``...). Pushbroom blocks get seed 001's sensor model ``M6`` unless told.
+    An argument that cannot be used (``snoop=-1``, an unknown keyword) is a :class:`~selfcal.errors.UsageError`
+    naming it.
     """
     from ..io.block_folder import read_block
     from ..report import result_files
