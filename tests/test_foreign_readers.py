@@ -370,3 +370,18 @@ def test_api_arguments_are_usage_errors_naming_them(ws, kwargs, names):
     with pytest.raises(UsageError) as info:
         selfcal.bundle_adjust(ws.block, **kwargs)
     assert names in str(info.value), str(info.value)
+
+
+def test_pvl_is_read_up_to_its_end_line_only(tmp_path):
+    """A cube's label is read, not its pixels; an 'End_Object' cut by the 1 MB read boundary after 'End' is not
+    taken for the label's 'End'."""
+    from selfcal.io.pvl import read_pvl
+    head = "Object = IsisCube\n  # " + "x" * 100 + "\n"
+    body = "  Group = Dimensions\n    Samples = 5\n  End_Group\n"
+    pad = 2**20 - len(head) - len(body) - len("End")
+    text = head + body + " " * pad + "End_Object\nEnd\n"
+    assert text.index("End_Object") + 3 == 2**20
+    path = tmp_path / "cube.cub"
+    path.write_bytes(text.encode() + b"\xff\x00" * 2**20)          # binary pixels after the label
+    root = read_pvl(path)
+    assert root.find("Object", "IsisCube").find("Group", "Dimensions").keyword("Samples").value == "5"
