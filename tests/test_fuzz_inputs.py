@@ -115,7 +115,7 @@ def test_ctrl_c_inside_a_compiled_kernel_is_an_interrupt(monkeypatch, capsys):
 
 _NUMBER = re.compile(rb"-?\d+\.?\d*(?:[eE][-+]?\d+)?")
 _VALUES = [b"nan", b"NaN", b"inf", b"-inf", b"1e308", b"1e400", b"-1e30", b"abc", b"", b"1,5", b"1e-320",
-           b"99999999999999999999999", b"0", b"-0", b"\xff", b"\"", b"\x00"]
+           b"99999999999999999999999", b"0", b"-0", b"\xff", b"\"", b"\x00", b"null", b"\"abc\"", b"[]", b"{}", b"true"]
 _MUTATIONS = st.one_of(
     st.tuples(st.just("truncate"), st.floats(0.0, 1.0)),
     st.tuples(st.just("flip"), st.floats(0.0, 1.0), st.integers(0, 255)),
@@ -179,6 +179,17 @@ def _shared(*parts):
     return lambda ws: os.path.join(SHARED_DATA, *parts)
 
 
+def _camera_json_reader(path):
+    from selfcal.cli.calibrations import calibrations
+    return calibrations(os.path.dirname(path))
+
+
+def _isis_folder_reader(path):
+    from selfcal.io.isis import read_image_folder
+    left_out: list = []
+    return read_image_folder(os.path.dirname(path), left_out=left_out)
+
+
 #: reader -> (function of the mutated file's path, the valid folder or file, the files in it to mutate)
 READERS = {
     "block folder": (_block_reader, lambda ws: ws.block, ("block.toml", "images.csv", "points.csv", "observations.csv")),
@@ -216,7 +227,31 @@ READERS = {
                        lambda ws: os.path.join(ws.opensfm, "tracks.csv"), None),
     "metashape calibration": (_reader("selfcal.io.calibration_files", "read_calibration_file"),
                               lambda ws: _metashape_calibration(ws), None),
+    **{f"opencv {ext}": (_reader("selfcal.io.calibration_files", "read_calibration_file"),
+                         lambda ws, ext=ext: _exported(ws, "opencv", f"cal.{ext}"), None)
+       for ext in ("yaml", "xml", "json")},
+    "opensfm cameras.json": (_reader("selfcal.io.calibration_files", "read_calibration_file"),
+                             lambda ws: _exported(ws, "opensfm", "cameras.json"), None),
+    "kalibr camchain": (_reader("selfcal.io.calibration_files", "read_calibration_file"),
+                        lambda ws: _exported(ws, "kalibr", "camchain.yaml"), None),
+    "camera.json": (_camera_json_reader, lambda ws: ws.results, ("camera.json",)),
+    "isis label folder": (_isis_folder_reader, _shared("isis", "lro_nac_pair"), ("observationImageL.pvl",)),
 }
+
+#: the readers issue 46 added to the fuzzing, run with EXAMPLES_LONG examples each behind the slow mark
+READERS_46 = ("opencv yaml", "opencv xml", "opencv json", "opensfm cameras.json", "metashape calibration",
+              "camera.json", "isis cube label", "isis label folder")
+EXAMPLES_LONG = 500
+
+
+def _exported(ws, tool: str, name: str) -> str:
+    """A calibration file of the block's camera exported once from its results by ``selfcal export TOOL``."""
+    path = os.path.join(ws.root, "calibration", name)
+    if not os.path.exists(path):
+        from front_door import run_main
+        code, err = run_main(["export", tool, ws.results, "--out", path, "--tolerance-px", "1"])
+        assert code == 0, err
+    return path
 
 
 def _metashape_calibration(ws) -> str:
@@ -242,6 +277,18 @@ SLOW_READERS = ("dimap physical model", "digitalglobe xml", "spot5 dimap", "isis
 @pytest.mark.parametrize("name", [pytest.param(name, marks=pytest.mark.slow) if name in SLOW_READERS else name
                                   for name in READERS])
 def test_mutated_files_are_read_or_refused_with_their_name(ws, name):
+    _fuzz(ws, name, EXAMPLES)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", READERS_46)
+def test_the_foreign_readers_of_issue_46_survive_500_mutations(ws, name):
+    """OpenCV FileStorage, OpenSfM cameras.json, Metashape calibration XML, camera.json and ISIS labels: each of
+    500 mutated files is read or refused with its name (cv2.FileStorage used to abort the process on some)."""
+    _fuzz(ws, name, EXAMPLES_LONG)
+
+
+def _fuzz(ws, name: str, examples_wanted: int) -> None:
     read, source_of, members = READERS[name]
     source = source_of(ws)
     work = tempfile.mkdtemp(prefix="fuzz-", dir=ws.root)
@@ -256,7 +303,7 @@ def test_mutated_files_are_read_or_refused_with_their_name(ws, name):
     names = sorted(originals)
     examples = []
 
-    @settings(max_examples=EXAMPLES, derandomize=True, deadline=None, database=None,
+    @settings(max_examples=examples_wanted, derandomize=True, deadline=None, database=None,
               suppress_health_check=list(HealthCheck))
     @given(member=st.sampled_from(names), mutation=_MUTATIONS)
     def check(member, mutation):
@@ -280,5 +327,5 @@ def test_mutated_files_are_read_or_refused_with_their_name(ws, name):
         assert sorted(os.listdir(folder)) == sorted(set(os.listdir(folder)) | set()) and not strays(work)
 
     check()
-    assert len(examples) >= EXAMPLES          # Hypothesis ran them all (it stops early only on a failure)
+    assert len(examples) >= examples_wanted   # Hypothesis ran them all (it stops early only on a failure)
     shutil.rmtree(work)

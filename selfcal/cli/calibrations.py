@@ -8,7 +8,7 @@ import sys
 from ..calibration import OPENCV_MODELS, Calibration, undistortion_maps
 from ..calibration_models import FAMILIES, MODELS, fit_best, propagate
 from ..errors import BlockError, UsageError
-from ..io.results import read_camera_json
+from ..io.camera_json import frame_camera_entries
 from .options import number
 
 __all__ = ["calibrations", "pick_camera", "maps_of", "models", "report_fit", "camera_options", "tool_options",
@@ -27,15 +27,12 @@ def camera_options(parser) -> None:
 
 def calibrations(results: str) -> dict[str, Calibration]:
     """The frame cameras of a results folder's camera.json, by id."""
-    cameras = read_camera_json(results).get("cameras", {})
     path = os.path.join(results, "camera.json")
     out = {}
-    for camera_id, entry in cameras.items():
-        if entry.get("model") != "frame":
-            continue
+    for camera_id, entry in frame_camera_entries(results).items():
         try:
             out[camera_id] = Calibration.from_camera_json(camera_id, entry)
-        except (KeyError, TypeError, ValueError) as exc:
+        except (KeyError, TypeError, ValueError, AttributeError, IndexError) as exc:   # the AP family's own keys
             raise BlockError(path, f"camera {camera_id}: cannot read its calibration ({exc})") from None
     if not out:
         raise BlockError(path, "no frame camera to export")
@@ -54,8 +51,12 @@ def pick_camera(cameras: dict[str, Calibration], camera_id: str | None) -> Calib
 
 def maps_of(cal: Calibration):
     """:func:`undistortion_maps`, saying that it is under way (half a minute for WAPs on 12 MP)."""
-    print(f"camera {cal.camera_id}: inverting its {cal.ap.spec} distortion on nodes every 4 px "
-          f"(about half a minute for a WAP model on a 12-megapixel frame) ...", file=sys.stderr)
+    if cal.ap.spec == "none":
+        print(f"camera {cal.camera_id}: AP model none, no distortion to invert; mapping the image to the ideal "
+              f"camera ...", file=sys.stderr)
+    else:
+        print(f"camera {cal.camera_id}: inverting its {cal.ap.spec} distortion on nodes every 4 px "
+              f"(about half a minute for a WAP model on a 12-megapixel frame) ...", file=sys.stderr)
     return undistortion_maps(cal)
 
 

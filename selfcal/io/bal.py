@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import io
 import os
+import re
 from dataclasses import dataclass
 
 import numpy as np
@@ -34,6 +35,7 @@ def read_bal(path: str | os.PathLike) -> BalProblem:
     path = str(path)
     if not os.path.isfile(path):
         raise BlockError(path, "file not found")
+    size = os.path.getsize(path)
     with io.StringIO(read_text(path, "BAL problem")) as handle:
         header = handle.readline()
         try:
@@ -42,6 +44,12 @@ def read_bal(path: str | os.PathLike) -> BalProblem:
             raise BlockError(path, "the first line must hold n_cameras n_points n_observations", 1) from None
         if min(n_cam, n_pt, n_obs) <= 0:
             raise BlockError(path, "the counts of the first line must be positive", 1)
+        # the shortest file the counts can describe: 'c p x y' lines of 8 bytes, parameters of 2 ('0' and a
+        # line end); checked before anything of their size is allocated (a count of 10^12 asked for 29 TiB)
+        least = len(header) + 8 * n_obs + 2 * (9 * n_cam + 3 * n_pt)
+        if least > size:
+            raise BlockError(path, f"the header's counts ({n_cam} cameras, {n_pt} points, {n_obs} observations) need "
+                                   f"at least {least} bytes; the file has {size}", 1)
         obs = np.zeros((n_obs, 4))
         obs_line = np.zeros(n_obs, np.int64)
         number, k = 1, 0
@@ -63,20 +71,34 @@ def read_bal(path: str | os.PathLike) -> BalProblem:
                 raise BlockError(path, f"NaN or infinite value in '{line.strip()[:60]}'", number)
             obs_line[k] = number
             k += 1
-        rest = handle.read().split()
+        rest_text = handle.read()
+    rest = rest_text.split()
     need = 9 * n_cam + 3 * n_pt
+
+    def line_of(k: int) -> int:
+        """The file line of parameter ``k`` (0-based) of the block after the observations."""
+        for n, match in enumerate(re.finditer(r"\S+", rest_text)):
+            if n == k:
+                return number + 1 + rest_text.count("\n", 0, match.start())
+        return number + 1 + rest_text.count("\n")
+
+    def owner(k: int) -> str:
+        return f"camera {k // 9}" if k < 9 * n_cam else f"point {(k - 9 * n_cam) // 3}"
+
     if len(rest) != need:
+        where = line_of(need) if len(rest) > need else number + 1 + rest_text.rstrip().count("\n")
         raise BlockError(path, f"expected {need} camera and point parameters after the observations, found "
-                               f"{len(rest)}", number + 1)
+                               f"{len(rest)}", where)
     try:
         values = np.array(rest, dtype=float)
     except ValueError:
-        bad = next(v for v in rest if not is_number(v))
-        raise BlockError(path, f"'{bad}' is not a number (in the parameter block)") from None
+        k = next(k for k, v in enumerate(rest) if not is_number(v))
+        raise BlockError(path, f"'{rest[k][:40]}' is not a number (parameter {k + 1} after the observations, "
+                               f"{owner(k)})", line_of(k)) from None
     if not np.all(np.isfinite(values)):
         k = int(np.flatnonzero(~np.isfinite(values))[0])
         raise BlockError(path, f"NaN or infinite value '{rest[k]}' (parameter {k + 1} after the observations, "
-                               f"{'camera ' + str(k // 9) if k < 9 * n_cam else 'point ' + str((k - 9 * n_cam) // 3)})")
+                               f"{owner(k)})", line_of(k))
     index = obs[:, :2]
     wrong = np.any((index != np.round(index)) | (np.abs(index) > 2**53), axis=1)
     if wrong.any():

@@ -25,7 +25,7 @@ import numpy as np
 
 from ..errors import BlockError
 from .atomic import atomic_write
-from .text import read_text
+from .text import read_text, yaml_error
 from .xmlfile import xml_root
 
 __all__ = ["ToolCalibration", "write_metashape_xml", "read_metashape_xml", "write_opensfm_cameras",
@@ -130,6 +130,8 @@ def read_metashape_xml(path: str | os.PathLike) -> ToolCalibration:
     if calib.find("f") is None:
         raise BlockError(path, "<f> is missing (the focal length in pixels)")
     values = {name: number(name, calib.findtext(name), 0.0) for name in METASHAPE_NAMES}
+    if not values["f"] > 0:
+        raise BlockError(path, f"<f> must be a positive focal length in pixels, found {values['f']!r}")
     names: tuple[str, ...] = ()
     matrix = None
     if cov is not None:
@@ -140,6 +142,12 @@ def read_metashape_xml(path: str | os.PathLike) -> ToolCalibration:
             raise BlockError(path, "<covariance><coeffs> holds something that is not a number") from None
         if matrix.size != len(names) ** 2:
             raise BlockError(path, f"<covariance>: {matrix.size} coefficients for {len(names)} parameters")
+        unknown = [name for name in names if name.lower() not in METASHAPE_NAMES]
+        if unknown or len(set(names)) != len(names):
+            raise BlockError(path, f"<covariance><params> must name distinct parameters of {', '.join(METASHAPE_NAMES)}"
+                                   f", found {' '.join(names)[:80]!r}")
+        if not np.all(np.isfinite(matrix)):
+            raise BlockError(path, "<covariance><coeffs> holds a value that is not finite")
         matrix = matrix.reshape(len(names), len(names))
     return ToolCalibration("metashape", "frame", values, int(width), int(height), names, matrix)
 
@@ -180,17 +188,26 @@ def read_opensfm_cameras(path: str | os.PathLike, camera: str | None = None) -> 
     if model not in OPENSFM_NAMES:
         raise BlockError(path, f"camera {camera!r}: projection_type {model!r} is not supported (supported: "
                                f"{', '.join(OPENSFM_NAMES)})")
+    from .opensfm import check_camera_numbers
+    check_camera_numbers(path, entry, f"camera {camera!r}")
     values = {}
     for name in ("width", "height") + OPENSFM_NAMES[model]:
         value = entry.get(name, 0.0 if name[0] in "kpc" else None)
         if not isinstance(value, (int, float)) or isinstance(value, bool):
-            raise BlockError(path, f"camera {camera!r}: {name} is missing or not a number")
+            raise BlockError(path, f"camera {camera!r}: '{name}' is missing or not a number, found {value!r}"[:200])
         values[name] = float(value)
     width, height = values.pop("width"), values.pop("height")
     if width <= 0 or height <= 0 or width != int(width) or height != int(height):
         raise BlockError(path, f"camera {camera!r}: image size {width:g} x {height:g} is not two positive whole "
                                f"numbers")
     return ToolCalibration("opensfm", model, values, int(width), int(height), camera_id=camera)
+
+
+def _whole(value) -> int:
+    """A whole number of a YAML/JSON file (int, or a float without fraction); anything else: ValueError."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or value != int(value):
+        raise ValueError(f"{value!r} is not a whole number")
+    return int(value)
 
 
 # --- Kalibr -----------------------------------------------------------------------------------------------
@@ -215,9 +232,9 @@ def read_kalibr_camchain(path: str | os.PathLike, camera: str | None = None) -> 
     try:
         data = yaml.safe_load(read_text(path, "Kalibr camchain"))
     except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        raise BlockError(path, f"not YAML: {getattr(exc, 'problem', exc)}",
-                         mark.line + 1 if mark is not None else None) from None
+        raise yaml_error(path, exc) from None
+    except RecursionError:
+        raise BlockError(path, "not YAML: nested too deeply") from None
     if not isinstance(data, dict) or not any(isinstance(v, dict) and "intrinsics" in v for v in data.values()):
         raise BlockError(path, "not a Kalibr camchain: no camN entry with intrinsics")
     camera = camera or ("cam0" if "cam0" in data else next(k for k, v in data.items()
@@ -225,6 +242,8 @@ def read_kalibr_camchain(path: str | os.PathLike, camera: str | None = None) -> 
     if camera not in data:
         raise BlockError(path, f"no camera {camera!r} (it has: {', '.join(map(str, data))})")
     cam = data[camera]
+    if not isinstance(cam, dict):
+        raise BlockError(path, f"'{camera}' must be a map of camera_model, intrinsics, ..., found {cam!r}"[:200])
     if cam.get("camera_model", "pinhole") != "pinhole":
         raise BlockError(path, f"{camera}: camera_model {cam.get('camera_model')!r} is not supported (pinhole)")
     model = cam.get("distortion_model", "radtan")
@@ -234,13 +253,16 @@ def read_kalibr_camchain(path: str | os.PathLike, camera: str | None = None) -> 
     try:
         intrinsics = [float(v) for v in cam["intrinsics"]]
         coeffs = [float(v) for v in cam.get("distortion_coeffs", [0.0] * 4)]
-        width, height = (int(v) for v in cam["resolution"])
-    except (KeyError, TypeError, ValueError) as exc:
+        width, height = (_whole(v) for v in cam["resolution"])
+    except (KeyError, TypeError, ValueError, OverflowError) as exc:
         raise BlockError(path, f"{camera}: intrinsics [fu, fv, pu, pv], distortion_coeffs and resolution [w, h] "
                                f"are needed ({exc})") from None
     if len(intrinsics) != 4 or len(coeffs) != 4 or width <= 0 or height <= 0:
         raise BlockError(path, f"{camera}: intrinsics and distortion_coeffs need 4 numbers each, resolution 2 "
                                f"positive ones")
+    if not all(np.isfinite(intrinsics + coeffs)) or not (intrinsics[0] > 0 and intrinsics[1] > 0):
+        raise BlockError(path, f"{camera}: intrinsics {intrinsics} and distortion_coeffs {coeffs} must be finite, "
+                               f"fu and fv positive")
     values = dict(zip(("fu", "fv", "pu", "pv"), intrinsics))
     values.update(zip(KALIBR_DISTORTION_NAMES[model], coeffs))
     return ToolCalibration("kalibr", model, values, width, height, camera_id=camera)

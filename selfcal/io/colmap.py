@@ -271,7 +271,10 @@ def _points_bin(path):
     n = r.count(43, "3-D points")
     ids, xyz, err = np.empty(n, np.int64), np.empty((n, 3)), np.empty(n)
     for k in range(n):
+        at = r.pos
         pid, x, y, z, _, _, _, e, length = r.read("Q3d3BdQ")
+        if pid >= 2**63:
+            raise BlockError(path, f"3-D point {k + 1} (byte {at}): id {pid} is beyond COLMAP's ids (< 2^63)")
         ids[k], xyz[k], err[k] = pid, (x, y, z), e
         r.pos += 8 * length
     return ids, xyz, err

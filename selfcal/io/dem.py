@@ -28,6 +28,16 @@ def read_dem(path: str | os.PathLike) -> GridDem:
         raise BlockError(path, f"cannot read the DEM: {exc}") from None
     if nodata is not None and np.any(heights == nodata):
         raise BlockError(path, "the DEM has no-data cells; fill them first")
+    bad = ~np.isfinite(heights)
+    if bad.any():
+        row, col = (int(v) for v in np.argwhere(bad)[0])
+        raise BlockError(path, f"{int(bad.sum())} cells are NaN or infinite (the first at row {row}, column {col}); "
+                               f"expected a finite height in every cell: fill them first")
+    if heights.ndim != 2 or min(heights.shape) < 2:
+        raise BlockError(path, f"the DEM is {' x '.join(map(str, heights.shape))} cells; at least 2 x 2 are needed "
+                               f"to interpolate")
+    if not all(np.isfinite(transform)):
+        raise BlockError(path, f"the geotransform {transform} is not finite")
     try:
         return GridDem(heights, transform)
     except ValueError as exc:

@@ -89,7 +89,8 @@ def _samples(doc: XmlDocument, block, list_key: str, item_key: str, width: int, 
                         f"{name}/{list_key}")
     rows = np.array([_row(doc, item, width) for item in items])
     index = rows[:, 0]
-    if np.any(index != np.round(index)) or sorted(index.astype(int)) != list(range(1, count + 1)):
+    if np.any(index != np.round(index)) or np.any((index < 1) | (index > count)) \
+            or sorted(index.astype(int)) != list(range(1, count + 1)):
         raise doc.error(block, f"{name}/{list_key}: the first number of each {item_key} must be its index 1..{count}",
                         f"{name}/{list_key}")
     rows = rows[np.argsort(index)]

@@ -211,14 +211,21 @@ def _flag(block: PvlBlock, key: str, path: str) -> bool:
     return value in _TRUE
 
 
-def _integer(block: PvlBlock, key: str, path: str) -> int:
+#: no cube has a side of more pixels than this; a larger Samples or Lines is a broken label
+MAX_CUBE_SIDE = 10**7
+
+
+def _integer(block: PvlBlock, key: str, path: str, low: int | None = None) -> int:
+    """An integer keyword (``low``: at least ``low`` and at most MAX_CUBE_SIDE, a size in pixels)."""
     k = block.keyword(key)
     if k is None:
         raise BlockError(path, f"{block.kind} '{block.name}' has no '{key}'", block.line, key)
-    try:
-        return int(k.value)
-    except ValueError:
-        raise BlockError(path, f"'{key}' must be an integer, found {k.value!r}", k.line, key) from None
+    if len(k.values) != 1 or not re.fullmatch(r"[+-]?[0-9]{1,18}", k.value.strip()):
+        raise BlockError(path, f"'{key}' must be an integer, found {k.values!r}"[:200], k.line, key)
+    value = int(k.value)
+    if low is not None and not low <= value <= MAX_CUBE_SIDE:
+        raise BlockError(path, f"'{key}' must be an integer {low}..{MAX_CUBE_SIDE}, found {value}", k.line, key)
+    return value
 
 
 # --- control network ------------------------------------------------------------------------------
@@ -369,13 +376,17 @@ def _alpha_cube(label: PvlBlock, samples: int, lines: int, path: str) -> AlphaCu
     group = label.find("Group", "AlphaCube")
     if group is None:
         return AlphaCube.identity(samples, lines)
-    ints = {k: _integer(group, k, path) for k in ("AlphaSamples", "AlphaLines", "BetaSamples", "BetaLines")}
+    ints = {k: _integer(group, k, path, 1) for k in ("AlphaSamples", "AlphaLines", "BetaSamples", "BetaLines")}
     floats = {}
     for k in ("AlphaStartingSample", "AlphaStartingLine", "AlphaEndingSample", "AlphaEndingLine"):
         kw = group.keyword(k)
         if kw is None:
             raise BlockError(path, f"AlphaCube has no '{k}'", group.line, k)
         floats[k] = _number(kw, path)
+    if not (floats["AlphaStartingSample"] < floats["AlphaEndingSample"]
+            and floats["AlphaStartingLine"] < floats["AlphaEndingLine"]):
+        raise BlockError(path, "AlphaCube's starting sample and line must be below its ending ones", group.line,
+                         "AlphaStartingSample")
     if (ints["BetaSamples"], ints["BetaLines"]) != (samples, lines):
         raise BlockError(path, f"AlphaCube BetaSamples x BetaLines {ints['BetaSamples']} x {ints['BetaLines']} is not "
                                f"the cube's {samples} x {lines}", group.line, "BetaSamples")
@@ -395,7 +406,7 @@ def read_cube_label(path: str | os.PathLike) -> CubeLabel:
     dims = cube.find("Group", "Dimensions")
     if dims is None:
         raise BlockError(path, "the label has no 'Group = Dimensions'", cube.line, "Dimensions")
-    samples, lines = _integer(dims, "Samples", path), _integer(dims, "Lines", path)
+    samples, lines = _integer(dims, "Samples", path, 1), _integer(dims, "Lines", path, 1)
     instrument = cube.find("Group", "Instrument")
     kernels = cube.find("Group", "Kernels")
     code_value = None
@@ -427,18 +438,42 @@ def match_serials(network: ControlNetwork, labels: Iterable[CubeLabel]) -> dict[
     return {s: by_serial[s] for s in sorted(used)}
 
 
-def read_image_folder(folder: str | os.PathLike, sensor_extensions: Sequence[str] = (".isd", ".json")
-                      ) -> dict[str, tuple[CubeLabel, str]]:
+#: the starts of PVL files that are not cube labels and are passed over without a word
+_NOT_IMAGES = (rb"\s*Object\s*=\s*ControlNetwork\b", rb"\s*PDS_VERSION_ID\b")
+
+
+def _why_not_a_label(path: str) -> str | None:
+    """None if ``path`` starts as an ISIS cube label; "" if it is another known kind of PVL file (a control
+    network, a PDS label); otherwise why it is not read as an image."""
+    try:
+        with open(path, "rb") as handle:
+            head = handle.read(4096)
+    except OSError as exc:
+        return f"cannot be read: {exc.strerror}"
+    if re.match(rb"\s*Object\s*=\s*IsisCube\b", head, re.IGNORECASE):
+        return None
+    if any(re.match(pattern, head, re.IGNORECASE) for pattern in _NOT_IMAGES):
+        return ""
+    try:
+        read_pvl(path)
+    except BlockError as exc:
+        return f"not an ISIS cube label: {exc.reason}" + (f" (line {exc.line})" if exc.line else "")
+    return "not an ISIS cube label: it does not start with 'Object = IsisCube'"
+
+
+def read_image_folder(folder: str | os.PathLike, sensor_extensions: Sequence[str] = (".isd", ".json"),
+                      left_out: list[tuple[str, str]] | None = None) -> dict[str, tuple[CubeLabel, str]]:
     """Serial number -> (label, sensor file) of the ISIS cube labels in a folder: every ``*.pvl`` with an
-    ``IsisCube`` object (control networks and PDS labels beside them are passed over), each with the file
-    of the same name and one of ``sensor_extensions`` (the usgscsm/ALE ISD). A label without one is an
-    error naming it."""
+    ``IsisCube`` object, each with the file of the same name and one of ``sensor_extensions`` (the usgscsm/ALE
+    ISD). A label without one is an error naming it. Control networks and PDS labels beside them are passed
+    over; any other ``*.pvl`` is left out and, when ``left_out`` is a list, added to it as (path, why)."""
     folder = str(folder)
     out: dict[str, tuple[CubeLabel, str]] = {}
     for path in sorted(glob.glob(os.path.join(folder, "*.pvl"))):
-        with open(path, "rb") as handle:
-            head = handle.read(4096)
-        if not re.match(rb"\s*Object\s*=\s*IsisCube\b", head, re.IGNORECASE):
+        why = _why_not_a_label(path)
+        if why is not None:
+            if why and left_out is not None:
+                left_out.append((path, why))
             continue
         label = read_cube_label(path)
         stem = os.path.splitext(path)[0]

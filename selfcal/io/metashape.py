@@ -58,6 +58,15 @@ def _float(path, line, element, name) -> float | None:
     return None if value is None else numbers(path, line, [value], [f"{element.tag} {name}"])[0]
 
 
+def _flag(path, line, element, name) -> bool:
+    """A Metashape true/false attribute (absent: true); any other value is an error."""
+    value = element.get(name, "true").strip().lower()
+    if value not in ("true", "false", "1", "0"):
+        raise BlockError(path, f"<{element.tag} {name}=...> must be true or false, found {element.get(name)!r}"[:200],
+                         line)
+    return value in ("true", "1")
+
+
 def read_markers_xml(path: str | os.PathLike) -> Markers:
     """Marker projections (and references) of a Metashape markers XML or chunk document."""
     path = os.fspath(path)
@@ -92,11 +101,14 @@ def read_markers_xml(path: str | os.PathLike) -> Markers:
                 if None in xyz:
                     raise BlockError(path, f"marker '{label}': the reference lacks a coordinate", line)
                 sigma = [_float(path, line, ref, k) for k in ("sx", "sy", "sz")]
+                if any(v is not None and not v > 0 for v in sigma):
+                    raise BlockError(path, f"marker '{label}': the reference accuracies sx, sy, sz must be positive, "
+                                           f"found {[ref.get(k) for k in ('sx', 'sy', 'sz')]}", line)
                 ref_ids.append(label)
                 ref_xyz.append(xyz)
                 ref_sigma.append([np.nan if s is None else s for s in sigma])
                 ref_line.append(line)
-                ref_enabled.append(ref.get("enabled", "true").lower() not in ("false", "0"))
+                ref_enabled.append(_flag(path, line, ref, "enabled"))
     marker: list[str] = []
     camera: list[str] = []
     pixel: list[tuple[float, float]] = []
@@ -116,7 +128,7 @@ def read_markers_xml(path: str | os.PathLike) -> Markers:
             if cid not in cameras:
                 raise BlockError(path, f"marker '{labels[mid]}': camera id {cid} is not among the file's <cameras>",
                                  line or None)
-            if location.get("valid", "true").lower() in ("false", "0"):
+            if not _flag(path, line or None, location, "valid"):
                 continue
             x, y = _float(path, line, location, "x"), _float(path, line, location, "y")
             if x is None or y is None:

@@ -1,7 +1,8 @@
 """OpenCV camera files (cv::FileStorage YAML, XML or JSON) and undistortion maps (NumPy .npz).
 
-The camera file is written and read by OpenCV's own ``cv2.FileStorage`` (the format follows the extension:
-``.yaml``/``.yml``, ``.xml``, ``.json``), so any id or text round-trips: ``camera_matrix`` and
+The camera file is written by OpenCV's own ``cv2.FileStorage`` (the format follows the extension:
+``.yaml``/``.yml``, ``.xml``, ``.json``) and read by :mod:`selfcal.io.opencv_storage`, which checks every value
+before it is used (``cv2.FileStorage`` aborts the process on some broken files), so any id or text round-trips: ``camera_matrix`` and
 ``distortion_coefficients`` (OpenCV's pixel convention: the centre of the first pixel at (0, 0)), the image
 size, the distortion model, how far the OpenCV model is from selfcal's, and, where the calibration has a
 covariance, ``parameter_names`` with ``parameter_sigma`` (1 x n) and ``parameter_covariance`` (n x n) of
@@ -29,6 +30,8 @@ OPENCV_EXTENSIONS = (".yaml", ".yml", ".xml", ".json")
 
 #: OpenCV's distortion coefficients in order, as named in parameter_names
 DISTORTION_NAMES = ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6", "s1", "s2", "s3", "s4")
+#: no camera has a side of more pixels than this; a larger image_width is a broken file
+MAX_IMAGE_SIDE_PX = 1_000_000
 
 
 def _extension(path) -> str:
@@ -72,44 +75,66 @@ def write_opencv_file(camera: OpenCVCamera, path: str | os.PathLike, source: str
         handle.write(text)
 
 
+def _whole_positive(path: str, nodes: dict, key: str) -> int:
+    node = nodes.get(key)
+    if node is None:
+        raise BlockError(path, f"{key} is missing (image_width and image_height: the size the calibration is for)",
+                         column=key)
+    value = node.value
+    if isinstance(value, float) and value.is_integer():
+        value = int(value)
+    if not isinstance(value, int) or not 0 < value <= MAX_IMAGE_SIDE_PX:
+        raise BlockError(path, f"{key} must be a whole number of pixels 1..{MAX_IMAGE_SIDE_PX}, found {value!r}"[:200],
+                         node.line, key)
+    return value
+
+
+def _string(path: str, nodes: dict, key: str) -> str:
+    node = nodes.get(key)
+    if node is None:
+        return ""
+    if not isinstance(node.value, (str, int, float)) or isinstance(node.value, bool):
+        raise BlockError(path, f"{key} must be a text, found a map or a list", node.line, key)
+    return str(node.value)
+
+
 def read_opencv_calibration(path: str | os.PathLike) -> ToolCalibration:
     """An OpenCV camera file (any FileStorage format) as a
     :class:`selfcal.io.calibration_files.ToolCalibration` (tool ``opencv``; values fx, fy, cx, cy and the
-    distortion coefficients by OpenCV's names; the model from ``distortion_model`` or the count)."""
-    import cv2
+    distortion coefficients by OpenCV's names; the model from ``distortion_model`` or the count).
 
+    The file is parsed and checked by :mod:`selfcal.io.opencv_storage`, never by ``cv2.FileStorage`` (which
+    aborts the process on some broken files)."""
     from .calibration_files import ToolCalibration
+    from .opencv_storage import Matrix, read_file_storage
     path = os.fspath(path)
-    try:
-        storage = cv2.FileStorage(path, cv2.FILE_STORAGE_READ)
-    except cv2.error as exc:
-        raise BlockError(path, f"OpenCV FileStorage cannot read it: {exc.err}") from None
-    try:
-        if not storage.isOpened():
-            raise BlockError(path, "OpenCV FileStorage cannot read it")
-        K = storage.getNode("camera_matrix").mat()
-        dist = storage.getNode("distortion_coefficients").mat()
-        width_node = storage.getNode("image_width")
-        height_node = storage.getNode("image_height")
-        if K is None or K.shape != (3, 3):
-            raise BlockError(path, "camera_matrix (3 x 3) is missing")
-        if width_node.empty() or height_node.empty():
-            raise BlockError(path, "image_width and image_height are missing (the size the calibration is for)")
-        width, height = int(width_node.real()), int(height_node.real())
-        dist = np.zeros(0) if dist is None else dist.ravel().astype(float)
-        model_node = storage.getNode("distortion_model")
-        model = model_node.string() if not model_node.empty() and model_node.isString() else ""
-        camera_id_node = storage.getNode("camera_id")
-        camera_id = camera_id_node.string() if not camera_id_node.empty() else ""
-    finally:
-        storage.release()
-    if not np.all(np.isfinite(K)) or not np.all(np.isfinite(dist)):
-        raise BlockError(path, "camera_matrix or distortion_coefficients hold a value that is not finite")
+    nodes = read_file_storage(path)
+    k_node = nodes.get("camera_matrix")
+    if k_node is None:
+        raise BlockError(path, "camera_matrix (3 x 3) is missing", column="camera_matrix")
+    if not isinstance(k_node.value, Matrix) or k_node.value.values.shape != (3, 3):
+        found = k_node.value.values.shape if isinstance(k_node.value, Matrix) else "no opencv-matrix"
+        raise BlockError(path, f"camera_matrix must be a 3 x 3 opencv-matrix, found {found}", k_node.line,
+                         "camera_matrix")
+    K = k_node.value.values
+    if not (K[0, 0] > 0 and K[1, 1] > 0) or np.any(np.abs(K[[1, 2, 2], [0, 0, 1]]) > 1e-9 * K[0, 0]) \
+            or abs(K[2, 2] - 1) > 1e-9:
+        raise BlockError(path, "camera_matrix must be [fx 0 cx; 0 fy cy; 0 0 1] with fx, fy > 0", k_node.line,
+                         "camera_matrix")
     if abs(K[0, 1]) > 1e-9 * abs(K[0, 0]):
-        raise BlockError(path, "camera_matrix has a skew term; selfcal reads OpenCV cameras without skew")
+        raise BlockError(path, "camera_matrix has a skew term; selfcal reads OpenCV cameras without skew",
+                         k_node.line, "camera_matrix")
+    width, height = (_whole_positive(path, nodes, key) for key in ("image_width", "image_height"))
+    d_node = nodes.get("distortion_coefficients")
+    if d_node is not None and not isinstance(d_node.value, Matrix):
+        raise BlockError(path, "distortion_coefficients must be an opencv-matrix (1 x n)", d_node.line,
+                         "distortion_coefficients")
+    dist = np.zeros(0) if d_node is None or not isinstance(d_node.value, Matrix) else d_node.value.values.ravel()
+    model, camera_id = _string(path, nodes, "distortion_model"), _string(path, nodes, "camera_id")
     by_count = {0: "opencv4", 4: "opencv4", 5: "plumb_bob", 8: "rational", 12: "thin_prism", 14: "thin_prism"}
     if len(dist) not in by_count or len(dist) == 14 and np.any(dist[12:]):
-        raise BlockError(path, f"{len(dist)} distortion coefficients: OpenCV models with 4, 5, 8 or 12 are read")
+        raise BlockError(path, f"{len(dist)} distortion coefficients: OpenCV models with 4, 5, 8 or 12 are read",
+                         d_node.line if d_node is not None else None, "distortion_coefficients")
     counts = {"opencv4": 4, "plumb_bob": 5, "rational": 8, "thin_prism": 12}
     if model not in counts or counts[model] != len(dist):
         model = by_count[len(dist)]

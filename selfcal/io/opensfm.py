@@ -27,7 +27,7 @@ from ..errors import BlockError
 from .text import read_json, read_text
 
 __all__ = ["OpenSfmCamera", "OpenSfmReconstruction", "OpenSfmTracks", "read_reconstruction", "read_tracks",
-           "CAMERA_PARAMETERS"]
+           "CAMERA_PARAMETERS", "KNOWN_PARAMETERS", "check_camera_numbers"]
 
 #: projection type -> parameters it needs (normalized units)
 CAMERA_PARAMETERS = {
@@ -94,6 +94,20 @@ def _vector(path, value, where, n=3) -> list[float]:
     return [_number(path, v, where) for v in value]
 
 
+#: every camera parameter OpenSfM writes (a value of one that its projection type does not use is still checked)
+KNOWN_PARAMETERS = ("focal", "focal_x", "focal_y", "c_x", "c_y", "k1", "k2", "k3", "k4", "p1", "p2")
+
+
+def check_camera_numbers(path: str, camera: dict, where: str) -> None:
+    """Every parameter of an OpenSfM camera object is a finite number, the focal lengths positive: a text where
+    a number belongs is an error even where the projection type does not use it (``"focal": "abc"``)."""
+    for name in KNOWN_PARAMETERS:
+        if name in camera:
+            value = _number(path, camera[name], f"{where}, '{name}'")
+            if name.startswith("focal") and not value > 0:
+                raise BlockError(path, f"{where}, '{name}': the focal length must be positive, found {value!r}")
+
+
 def read_reconstruction(path: str | os.PathLike) -> OpenSfmReconstruction:
     """The first reconstruction of an OpenSfM ``reconstruction.json``."""
     path = os.fspath(path)
@@ -126,6 +140,7 @@ def read_reconstruction(path: str | os.PathLike) -> OpenSfmReconstruction:
                     continue
                 raise BlockError(path, f"{where} ({kind}) has no '{name}'")
             params[name] = _number(path, cam[name], f"{where}, '{name}'")
+        check_camera_numbers(path, cam, where)
         cameras[cid] = OpenSfmCamera(cid, kind, width, height, params)
     ids, cams, rot, trans = [], [], [], []
     for sid, shot in rec["shots"].items():

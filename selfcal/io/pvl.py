@@ -246,15 +246,30 @@ def parse_pvl(text: str, path: str = "<text>") -> PvlBlock:
     return _Parser(_tokens(text, path), path).parse()
 
 
+#: the largest PVL text read (labels are kilobytes; a control network of a million measures some hundred MB)
+MAX_LABEL_BYTES = 1024 * 2**20
+
+
 def read_pvl(path: str | os.PathLike) -> PvlBlock:
     """Read a PVL file (a detached ISIS label, a PVL control network); the text ends at ``End``."""
     path = str(path)
+    end_line = re.compile(rb"^[ \t]*End[ \t]*\r?$", re.MULTILINE | re.IGNORECASE)
+    raw, end = bytearray(), None
     try:
-        with open(path, "rb") as handle:
-            raw = handle.read()
+        with open(path, "rb") as handle:      # a cube's label, not its pixels: read up to 'End' only
+            start = 0
+            while True:
+                chunk = handle.read(2**20)
+                raw += chunk
+                end = end_line.search(raw, start)
+                if not chunk or end is not None and end.end() < len(raw):   # 'End' and its line end, or EOF
+                    break
+                start = max(0, len(raw) - 64)
+                if len(raw) > MAX_LABEL_BYTES:
+                    raise BlockError(path, f"no 'End' line in the first {MAX_LABEL_BYTES // 2**20} MB: not a PVL "
+                                           f"label or control network of a size selfcal reads")
     except OSError as exc:
         raise BlockError(path, f"cannot read: {exc.strerror}") from None
-    end = re.search(rb"^\s*End\s*$", raw, re.MULTILINE | re.IGNORECASE)
-    head = raw[:end.end()] if end else raw
+    head = bytes(raw[:end.end()] if end else raw)
     text = decode_text(head, path)
     return parse_pvl(text, path)

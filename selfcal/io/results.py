@@ -174,14 +174,10 @@ def read_results(folder: str | os.PathLike) -> ResultsFolder:
 
 
 def read_camera_json(folder: str | os.PathLike) -> dict:
-    """camera.json of a results folder (the calibration, for exports); missing or unreadable: BlockError."""
-    folder = os.fspath(folder)
-    if not os.path.isdir(folder):
-        raise BlockError(folder, "no such results folder")
-    path = os.path.join(folder, "camera.json")
-    if not os.path.isfile(path):
-        raise BlockError(path, "missing: is this a results folder written by 'selfcal adjust'?")
-    return _read_json(path)
+    """camera.json of a results folder (the calibration, for exports), its structure checked
+    (:func:`selfcal.io.camera_json.read_camera_json`); missing or unreadable: BlockError."""
+    from .camera_json import read_camera_json as read
+    return read(folder)
 
 
 def read_results_table(folder: str | os.PathLike, name: str) -> dict[str, np.ndarray]:

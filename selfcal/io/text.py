@@ -10,7 +10,7 @@ import os
 
 from ..errors import BlockError
 
-__all__ = ["read_text", "read_json", "decode_text", "is_number", "UTF8_BOM"]
+__all__ = ["read_text", "read_json", "decode_text", "is_number", "yaml_error", "UTF8_BOM"]
 
 UTF8_BOM = b"\xef\xbb\xbf"
 
@@ -95,3 +95,16 @@ def is_number(text: str) -> bool:
     except ValueError:
         return False
     return True
+
+
+def yaml_error(path: str, exc: Exception, what: str = "YAML") -> BlockError:
+    """A PyYAML error as a one-line BlockError with its line (PyYAML's own text spans several lines)."""
+    mark = getattr(exc, "problem_mark", None)
+    line = mark.line + 1 if mark is not None else None
+    problem = getattr(exc, "problem", None)
+    if problem is None and hasattr(exc, "character"):          # a ReaderError: a character YAML does not allow
+        character = exc.character
+        code = ord(character) if isinstance(character, str) else character
+        problem = f"character #x{code:04x} is not allowed"
+    reason = " ".join(str(problem or exc).split())
+    return BlockError(path, f"not {what}: {reason}", line)

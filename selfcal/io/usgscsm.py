@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import BlockError
+from .jsonfields import array, found, integer, mapping, need, number
 from .text import read_json
 
 __all__ = ["LineScanIsd", "read_usgscsm_isd", "LINE_SCANNER_MODEL"]
@@ -58,29 +59,21 @@ class LineScanIsd:
 
 
 def _need(isd: dict, key: str, path: str, parent: str = ""):
-    where = isd if not parent else isd.get(parent, {})
-    if not isinstance(where, dict) or key not in where:
-        raise BlockError(path, f"missing key '{parent + '.' if parent else ''}{key}'")
-    return where[key]
+    where = isd if not parent else need(path, isd, parent)
+    return need(path, where, key, parent)
 
 
 def _array(value, shape_tail, path: str, key: str) -> np.ndarray:
-    try:
-        a = np.asarray(value, float)
-    except (TypeError, ValueError):
-        raise BlockError(path, f"'{key}' must be numbers") from None
-    if a.ndim != 1 + len(shape_tail) or a.shape[1:] != tuple(shape_tail) or not np.all(np.isfinite(a)):
-        raise BlockError(path, f"'{key}' must be finite numbers of shape (n, {', '.join(map(str, shape_tail))}), "
-                               f"found shape {a.shape}")
-    return a
+    return array(path, value, key, (None,) + tuple(shape_tail))
 
 
 def _times(isd: dict, section: str, count: int, path: str, t0_key: str, dt_key: str) -> np.ndarray:
-    block = isd[section]
+    block = mapping(path, isd[section], section)
     if "ephemeris_times" in block:
-        t = np.asarray(block["ephemeris_times"], float)
+        t = array(path, block["ephemeris_times"], f"{section}.ephemeris_times", (None,))
     elif t0_key in isd and dt_key in isd:
-        t = float(_need(isd, "center_ephemeris_time", path)) + isd[t0_key] + isd[dt_key] * np.arange(count)
+        t = number(path, _need(isd, "center_ephemeris_time", path), "center_ephemeris_time") \
+            + number(path, isd[t0_key], t0_key) + number(path, isd[dt_key], dt_key, positive=True) * np.arange(count)
     else:
         raise BlockError(path, f"missing key '{section}.ephemeris_times' (or {t0_key}/{dt_key})")
     if len(t) != count:
@@ -97,9 +90,9 @@ def _rotation(isd: dict, section: str, path: str) -> tuple[np.ndarray, np.ndarra
         k = int(np.argmax(np.abs(norms - 1.0)))
         raise BlockError(path, f"'{section}.quaternions' #{k} is not a unit quaternion (norm {norms[k]:.9f})")
     times = _times(isd, section, len(quaternions), path, "t0_quaternion", "dt_quaternion")
-    constant = np.asarray(isd[section].get("constant_rotation", np.eye(3).ravel()), float)
-    if constant.size != 9:
-        raise BlockError(path, f"'{section}.constant_rotation' must have 9 elements")
+    if "constant_rotation" not in isd[section]:
+        return times, quaternions, np.eye(3)
+    constant = array(path, isd[section]["constant_rotation"], f"{section}.constant_rotation", (9,))
     return times, quaternions, constant.reshape(3, 3)
 
 
@@ -112,11 +105,11 @@ def read_usgscsm_isd(path: str | os.PathLike) -> LineScanIsd:
     model = _need(isd, "name_model", path)
     if model != LINE_SCANNER_MODEL:
         raise BlockError(path, f"name_model is '{model}'; only {LINE_SCANNER_MODEL} is read", column="name_model")
-    center = float(_need(isd, "center_ephemeris_time", path))
-    position = _need(isd, "instrument_position", path)
+    center = number(path, _need(isd, "center_ephemeris_time", path), "center_ephemeris_time")
+    position = mapping(path, _need(isd, "instrument_position", path), "instrument_position")
     unit = _UNIT_TO_M.get(position.get("unit", "km"))
     if unit is None:
-        raise BlockError(path, f"instrument_position.unit '{position['unit']}' is neither km nor m")
+        raise BlockError(path, f"'instrument_position.unit' must be 'km' or 'm', found {found(position['unit'])}")
     positions = _array(_need(isd, "positions", path, "instrument_position"), (3,), path,
                        "instrument_position.positions")
     velocities = _array(_need(isd, "velocities", path, "instrument_position"), (3,), path,
@@ -126,30 +119,45 @@ def read_usgscsm_isd(path: str | os.PathLike) -> LineScanIsd:
     position_times = _times(isd, "instrument_position", len(positions), path, "t0_ephemeris", "dt_ephemeris")
     pointing = _rotation(isd, "instrument_pointing", path)
     body = _rotation(isd, "body_rotation", path)
-    radii = _need(isd, "radii", path)
+    radii = mapping(path, _need(isd, "radii", path), "radii")
     radius_unit = _UNIT_TO_M.get(radii.get("unit", "km"))
     if radius_unit is None:
-        raise BlockError(path, f"radii.unit '{radii['unit']}' is neither km nor m")
-    distortion = _need(isd, "optical_distortion", path)
+        raise BlockError(path, f"'radii.unit' must be 'km' or 'm', found {found(radii['unit'])}")
+    distortion = mapping(path, _need(isd, "optical_distortion", path), "optical_distortion")
     if len(distortion) != 1:
-        raise BlockError(path, "optical_distortion must name one model")
+        raise BlockError(path, "'optical_distortion' must name one distortion model")
     (distortion_model, parameters), = distortion.items()
+    parameters = mapping(path, parameters, f"optical_distortion.{distortion_model}")
+    coefficients = parameters.get("coefficients", [])
+    if not isinstance(coefficients, list):              # one coefficient may be written as a number
+        coefficients = [coefficients]
+    if coefficients:
+        coefficients = array(path, coefficients, f"optical_distortion.{distortion_model}.coefficients", (None,))
     rate = _array(_need(isd, "line_scan_rate", path), (3,), path, "line_scan_rate")
     center_pixel = _need(isd, "detector_center", path)
+
+    def num(key: str, parent: str = "", positive: bool = False) -> float:
+        where = isd if not parent else need(path, isd, parent)
+        return number(path, need(path, where, key, parent), f"{parent}.{key}" if parent else key, positive)
+
+    def whole(key: str) -> int:
+        return integer(path, _need(isd, key, path), key)
+
     return LineScanIsd(
-        path=path, sensor_name=str(isd.get("name_sensor", "")), image_lines=int(_need(isd, "image_lines", path)),
-        image_samples=int(_need(isd, "image_samples", path)), center_time_s=center, line_scan_rate=rate,
-        line_summing=float(_need(isd, "detector_line_summing", path)),
-        sample_summing=float(_need(isd, "detector_sample_summing", path)),
-        starting_detector_line=float(_need(isd, "starting_detector_line", path)),
-        starting_detector_sample=float(_need(isd, "starting_detector_sample", path)),
-        detector_center_line=float(center_pixel["line"]), detector_center_sample=float(center_pixel["sample"]),
-        focal2pixel_lines=np.asarray(_need(isd, "focal2pixel_lines", path), float),
-        focal2pixel_samples=np.asarray(_need(isd, "focal2pixel_samples", path), float),
-        focal_length_mm=float(_need(isd, "focal_length_model", path)["focal_length"]),
+        path=path, sensor_name=str(isd.get("name_sensor", "")), image_lines=whole("image_lines"),
+        image_samples=whole("image_samples"), center_time_s=center, line_scan_rate=rate,
+        line_summing=num("detector_line_summing", positive=True),
+        sample_summing=num("detector_sample_summing", positive=True),
+        starting_detector_line=num("starting_detector_line"),
+        starting_detector_sample=num("starting_detector_sample"),
+        detector_center_line=num("line", "detector_center"), detector_center_sample=num("sample", "detector_center"),
+        focal2pixel_lines=array(path, _need(isd, "focal2pixel_lines", path), "focal2pixel_lines", (3,)),
+        focal2pixel_samples=array(path, _need(isd, "focal2pixel_samples", path), "focal2pixel_samples", (3,)),
+        focal_length_mm=num("focal_length", "focal_length_model", positive=True),
         distortion_model=str(distortion_model),
-        distortion_coefficients=np.atleast_1d(np.asarray(parameters.get("coefficients", []), float)),
-        semi_major_m=float(radii["semimajor"]) * radius_unit, semi_minor_m=float(radii["semiminor"]) * radius_unit,
+        distortion_coefficients=np.atleast_1d(np.asarray(coefficients, float)),
+        semi_major_m=num("semimajor", "radii", positive=True) * radius_unit,
+        semi_minor_m=num("semiminor", "radii", positive=True) * radius_unit,
         position_times_s=position_times - center, positions_m=positions * unit, velocities_m_s=velocities * unit,
         pointing_times_s=pointing[0] - center, pointing_quaternions=pointing[1], pointing_constant=pointing[2],
         body_times_s=body[0] - center, body_quaternions=body[1], body_constant=body[2])

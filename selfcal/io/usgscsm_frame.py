@@ -17,11 +17,13 @@ taken as the full detector). The geometry is :mod:`selfcal.sensors.usgscsm_frame
 from __future__ import annotations
 
 import os
+import re
 from dataclasses import dataclass
 
 import numpy as np
 
 from ..errors import BlockError
+from .jsonfields import integer, mapping, number
 from .text import read_json
 from .isis import AlphaCube
 
@@ -99,7 +101,7 @@ def _times(section: dict, count: int, path: str, name: str) -> np.ndarray:
 
 
 def _rotation(isd: dict, name: str, path: str):
-    section = _need(isd, name, path)
+    section = mapping(path, _need(isd, name, path), name)
     q = _rows(_need(section, "quaternions", path, name + "."), 4, path, f"{name}.quaternions")
     norms = np.linalg.norm(q, axis=1)
     if np.any(np.abs(norms - 1.0) > 1e-6):
@@ -125,13 +127,13 @@ def read_frame_isd(path: str | os.PathLike, alpha_cube: AlphaCube | None = None)
     model = _need(isd, "name_model", path)
     if model != FRAME_MODEL:
         raise BlockError(path, f"name_model is '{model}'; only {FRAME_MODEL} is read here", column="name_model")
-    samples, lines = int(_need(isd, "image_samples", path)), int(_need(isd, "image_lines", path))
+    samples, lines = (integer(path, _need(isd, key, path), key) for key in ("image_samples", "image_lines"))
     if alpha_cube is None:
         alpha_cube = AlphaCube.identity(samples, lines)
     elif (alpha_cube.beta_samples, alpha_cube.beta_lines) != (samples, lines):
         raise BlockError(path, f"the image is {samples} x {lines} but its label's AlphaCube has "
                                f"{alpha_cube.beta_samples} x {alpha_cube.beta_lines}", column="image_samples")
-    position = _need(isd, "instrument_position", path)
+    position = mapping(path, _need(isd, "instrument_position", path), "instrument_position")
     unit = _UNIT_TO_M.get(position.get("unit", "km"))
     if unit is None:
         raise BlockError(path, f"instrument_position.unit '{position['unit']}' is neither km nor m",
@@ -146,12 +148,12 @@ def read_frame_isd(path: str | os.PathLike, alpha_cube: AlphaCube | None = None)
     position_times = _times(position, len(positions), path, "instrument_position")
     pointing = _rotation(isd, "instrument_pointing", path)
     body = _rotation(isd, "body_rotation", path)
-    radii = _need(isd, "radii", path)
+    radii = mapping(path, _need(isd, "radii", path), "radii")
     radius_unit = _UNIT_TO_M.get(radii.get("unit", "km"))
     if radius_unit is None:
         raise BlockError(path, f"radii.unit '{radii['unit']}' is neither km nor m", column="radii.unit")
-    naif = _need(isd, "naif_keywords", path)
-    codes = {int(k[3:].split("_", 1)[0]) for k in naif if k.startswith("INS-") and k[3:].split("_", 1)[0][1:].isdigit()}
+    naif = mapping(path, _need(isd, "naif_keywords", path), "naif_keywords")
+    codes = {int(m.group(1)) for m in map(re.compile(r"INS(-[0-9]{1,12})_").match, naif) if m}
     if len(codes) != 1:
         raise BlockError(path, f"naif_keywords name {len(codes)} instruments (INS<code>_...); one is expected",
                          column="naif_keywords")
@@ -176,13 +178,13 @@ def read_frame_isd(path: str | os.PathLike, alpha_cube: AlphaCube | None = None)
     return FrameIsd(
         path=path, sensor_name=str(isd.get("name_sensor", "")), platform_name=str(isd.get("name_platform", "")),
         naif_code=code, image_samples=samples, image_lines=lines,
-        center_time_s=float(_need(isd, "center_ephemeris_time", path)),
+        center_time_s=number(path, _need(isd, "center_ephemeris_time", path), "center_ephemeris_time"),
         position_times_s=position_times, positions_m=positions * unit, velocities_m_s=velocities * unit,
         pointing_times_s=pointing[0], pointing_quaternions=pointing[1], pointing_constant=pointing[2],
         body_times_s=body[0], body_quaternions=body[1], body_constant=body[2],
         focal_length_mm=focal, pixel_pitch_mm=pitch,
         trans_x=ins("TRANSX", 3), trans_y=ins("TRANSY", 3), itrans_s=ins("ITRANSS", 3), itrans_l=ins("ITRANSL", 3),
         principal_point_mm=ins("PP", 2), radial_k=ins("OD_K", 3), decentering=ins("DECENTER", 3),
-        semi_major_m=float(_need(radii, "semimajor", path, "radii.")) * radius_unit,
-        semi_minor_m=float(_need(radii, "semiminor", path, "radii.")) * radius_unit,
+        semi_major_m=number(path, _need(radii, "semimajor", path, "radii."), "radii.semimajor", True) * radius_unit,
+        semi_minor_m=number(path, _need(radii, "semiminor", path, "radii."), "radii.semiminor", True) * radius_unit,
         alpha_cube=alpha_cube)

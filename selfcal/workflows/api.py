@@ -4,13 +4,16 @@ The CLI's defaults, as keyword arguments; progress goes to ``logging.getLogger("
 """
 from __future__ import annotations
 
+import math
 import os
 import time
-from dataclasses import dataclass, replace
+from collections.abc import Callable
+from dataclasses import dataclass, fields, replace
+from typing import TypeVar
 
 from ..adjust import AdjustOptions, RobustOptions, SolverOptions
 from ..block import Block
-from ..errors import UsageError
+from ..errors import SelfcalError, UsageError
 from ..stats.screening import ScreeningOptions
 from ..stats.snooping import SnoopingOptions
 from ..stats.variance import VarianceOptions
@@ -39,15 +42,19 @@ def adjust_options(ap: str, max_iterations: int, keywords: dict) -> AdjustOption
     """
     unknown = sorted(set(keywords) - set(OPTION_KEYWORDS))
     if unknown:
-        raise UsageError(f"bundle_adjust() got an unknown keyword {', '.join(map(repr, unknown))} (known: "
+        raise UsageError(f"bundle_adjust({unknown[0]}=...): not an argument (the options' keywords: "
                          f"{', '.join(OPTION_KEYWORDS)})")
     base = AdjustOptions()
     groups: dict[str, dict] = {"ap": {"model": ap}, "trajectory": {}, "sensor": {}}
     for name, value in keywords.items():
         group, field_name = OPTION_KEYWORDS[name]
         groups[group][field_name] = value
-    return AdjustOptions(ap=replace(base.ap, **groups["ap"]), trajectory=replace(base.trajectory, **groups["trajectory"]),
-                         sensor=replace(base.sensor, **groups["sensor"]), solver=SolverOptions(max_iterations=max_iterations))
+    return AdjustOptions(ap=replace(base.ap, **groups["ap"]),
+                         trajectory=replace(base.trajectory, **groups["trajectory"]),
+                         sensor=replace(base.sensor, **groups["sensor"]),
+                         solver=SolverOptions(max_iterations=max_iterations))
+
+T = TypeVar("T")
 
 
 @dataclass
@@ -77,6 +84,17 @@ class Outcome:
         write_results(folder, files)
 
 
+def _argument(name: str, value: object, make: Callable[[], T]) -> T:
+    """``make()``, its ValueError or TypeError a UsageError naming the argument ``name`` (bad input, exit code 2,
+    as the CLI's options are)."""
+    try:
+        return make()
+    except SelfcalError:
+        raise
+    except (ValueError, TypeError) as exc:
+        raise UsageError(f"bundle_adjust({name}={value!r}): {exc}") from None
+
+
 def bundle_adjust(block: Block | str | os.PathLike, ap: str = "none", *, snoop: float = 3.0, screen: bool = False,
                   variance_components: bool = False, max_iterations: int = 50, robust: str = "danish",
                   **options) -> Outcome:
@@ -86,7 +104,9 @@ def bundle_adjust(block: Block | str | os.PathLike, ap: str = "none", *, snoop: 
     ``screen``: drop insignificant and highly correlated APs; ``variance_components``: estimate each
     observation group's sigma; ``robust``: the loss of the robust cleaning before the tests (``"danish"``,
     ``"huber"``, ``"cauchy"``; ``"none"``: least squares throughout); other keywords are named as the CLI's flags
-    (:data:`OPTION_KEYWORDS`: ``grid``, ``gnss_drift``, ``sensor_model``...). Pushbroom blocks get seed 001's sensor model ``M6`` unless told.
+    (:data:`OPTION_KEYWORDS`: ``grid``, ``gnss_drift``, ``sensor_model``...). Pushbroom blocks get seed 001's
+    sensor model ``M6`` unless told. An argument that cannot be used (``snoop=-1``, an unknown keyword) is a
+    :class:`~selfcal.errors.UsageError` naming it.
     """
     from ..io.block_folder import read_block
     from ..report import result_files
@@ -95,11 +115,17 @@ def bundle_adjust(block: Block | str | os.PathLike, ap: str = "none", *, snoop: 
         block = read_block(block)
     if offers_sensor_models(block):
         options.setdefault("sensor_model", "M6")
-    chosen = adjust_options(ap, max_iterations, options)
+    if isinstance(snoop, bool) or not isinstance(snoop, (int, float)) or not math.isfinite(snoop) or snoop < 0:
+        raise UsageError(f"bundle_adjust(snoop={snoop!r}): Baarda's critical value must be a finite number, 0 or "
+                         f"more (0: no data snooping)")
+    if isinstance(max_iterations, bool) or not isinstance(max_iterations, int) or max_iterations < 1:
+        raise UsageError(f"bundle_adjust(max_iterations={max_iterations!r}): must be a whole number, 1 or more")
+    chosen = _argument("ap", ap, lambda: adjust_options(ap, max_iterations, options))
     screening = ScreeningOptions() if screen else None
-    request = AdjustRequest(chosen, SnoopingOptions(critical=snoop), screening,
-                            VarianceOptions() if variance_components else None,
-                            None if robust == "none" else RobustOptions(loss=robust))
+    snooping = _argument("snoop", snoop, lambda: SnoopingOptions(critical=snoop))
+    robust_options = None if robust == "none" else _argument("robust", robust, lambda: RobustOptions(loss=robust))
+    request = AdjustRequest(chosen, snooping, screening,
+                            VarianceOptions() if variance_components else None, robust_options)
     LOG.info(f"{block.name}: {len(block.images)} images, {len(block.points)} points, {len(block.observations)} "
              f"image observations; AP model {ap}")
     adjusted = adjust_block(block, request, progress=logging_progress(block.image_sigma_px),

@@ -5,7 +5,7 @@ import argparse
 import os
 import sys
 
-from ...errors import UsageError
+from ...errors import BlockError, UsageError
 from ...io.block_folder import write_block
 from ...io.output import output_folder
 from ..options import count, number
@@ -29,6 +29,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--hold-radii", type=number(0.0, low_open=True), metavar="M",
                         help="Free points keep their a-priori radius within this sigma (m), latitude and longitude "
                              "free: jigsaw's radius=no, which holds them on the DEM the a-priori points came from")
+    parser.add_argument("--strict", action="store_true",
+                        help="a *.pvl in --images that cannot be read as a cube label is an error (by default it "
+                             "is left out with a warning naming it)")
     parser.add_argument("--measure-sigma-px", type=number(0.0, low_open=True), default=None, metavar="PX",
                         help="a-priori sigma of a measure in cube pixels (default: jigsaw's 1.4 detector pixels)")
 
@@ -45,7 +48,14 @@ def run(args: argparse.Namespace) -> int:
         if value is not None and not value > 0:
             raise UsageError(f"{flag} must be positive, found {value}")
     network = read_control_network(args.source)
-    images = read_image_folder(args.images)
+    left_out: list[tuple[str, str]] = []
+    images = read_image_folder(args.images, left_out=left_out)
+    for path, why in left_out:
+        if args.strict:
+            raise BlockError(path, f"{why}; with --strict every *.pvl in --images must be a cube label")
+        print(f"warning: {path}: left out of the images: {why}", file=sys.stderr)
+    if not images:
+        raise BlockError(args.images, "no ISIS cube label (*.pvl with 'Object = IsisCube') in the folder")
     first = read_usgscsm(next(iter(images.values()))[1])
     line_only = [flag for flag, given in (("--attitude-degree", args.attitude_degree is not None),
                                           ("--no-twist", args.no_twist), ("--solve-position", args.solve_position))
@@ -80,8 +90,12 @@ def run(args: argparse.Namespace) -> int:
         block = hold_radii(read_block(args.out), args.hold_radii)
         write_block(block, args.out)
     roles = {r: int((block.points.role == r).sum()) for r in ("gcp", "tie")}
+    missing = sorted({m.serial_number for m in network.measures if not m.ignored and m.serial_number not in images})
     print(f"imported {len(block.images)} images, {len(block.points)} points ({roles['gcp']} gcp, {roles['tie']} tie), "
           f"{len(block.observations)} measures (sigma {sigma_px:.3g} px) into {args.out}; left out: "
           f"{counts['ignored_points']} ignored points, {counts['ignored_measures']} ignored measures, "
-          f"{counts['measures_without_image']} measures of images not in {args.images}", file=sys.stderr)
+          f"{counts['measures_without_image']} measures of images not in {args.images}"
+          + (f" (serial numbers {', '.join(missing[:5])}{', ...' if len(missing) > 5 else ''}"
+             + (f"; left out: {', '.join(os.path.basename(p) for p, _ in left_out)})" if left_out else ")")
+             if missing else ""), file=sys.stderr)
     return 0
