@@ -1,0 +1,150 @@
+"""Ctrl-C, SIGTERM and SIGHUP as one exception, and the few steps no signal may cut in two.
+
+The command line calls :func:`install` first thing (before NumPy, SciPy or any module of ours that needs
+them is imported): from then on SIGINT, SIGTERM and SIGHUP raise :class:`Interrupted` (a
+:class:`KeyboardInterrupt`, so every ``finally`` and every atomic writer cleans up as for a Ctrl-C) in the
+main thread; the clean-ups of temporary names run under :func:`deferred`, so a second signal never cuts them short.
+A signal is also remembered: if some library swallowed its exception (a bare ``except:``), :func:`check` raises
+it again before an output is put in place, and ``main`` exits as interrupted all the same.
+:func:`release` (when the command is done) makes later signals do nothing, so a signal in the last
+microseconds never turns a finished run into a traceback.
+
+:func:`deferred` holds signals over a few statements that must run together (create a temporary name and
+take charge of it; rename a finished output into place): a signal that arrives inside is raised when the
+block ends. Without :func:`install` (selfcal used as a library) it holds a Ctrl-C as before and leaves the
+program's own handlers of the other signals alone.
+
+This module imports nothing of selfcal's and nothing heavy.
+"""
+from __future__ import annotations
+
+import contextlib
+import signal
+import threading
+
+__all__ = ["Interrupted", "install", "release", "restore", "deferred", "check", "noted", "exit_code", "signal_name", "SIGNALS",
+           "record_written", "written"]
+
+#: the signals treated as Ctrl-C (SIGHUP does not exist on Windows)
+SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name))
+
+
+class Interrupted(KeyboardInterrupt):
+    """A signal asked the process to stop; ``signum`` says which."""
+
+    def __init__(self, signum: int = signal.SIGINT):
+        super().__init__(signum)
+        self.signum = int(signum)
+
+
+class _State:
+    installed = False       # our handler is the one of SIGNALS
+    released = False        # the command is done: signals do nothing
+    signum: int | None = None   # the first signal that came (kept even if some library swallowed its exception)
+    depth = 0               # nesting of deferred()
+    pending: list[int] = []
+
+
+_state = _State()
+
+
+def _handler(signum, frame) -> None:
+    if _state.released:
+        return
+    if _state.signum is None:
+        _state.signum = int(signum)
+    if _state.depth:
+        _state.pending.append(signum)
+        return
+    raise Interrupted(signum)
+
+
+def install() -> dict:
+    """Make SIGINT, SIGTERM and SIGHUP raise :class:`Interrupted` in the main thread (the command line); returns
+    the handlers they had (for :func:`restore`)."""
+    previous = {number: signal.signal(number, _handler) for number in SIGNALS}
+    _state.installed, _state.released, _state.signum = True, False, None
+    _state.depth, _state.pending = 0, []
+    _WRITTEN.clear()
+    return previous
+
+
+def restore(previous: dict) -> None:
+    """Give the signals the handlers :func:`install` found (``main`` called from a program, not as a process)."""
+    for number, handler in previous.items():
+        signal.signal(number, handler if handler is not None else signal.SIG_DFL)
+    _state.installed, _state.signum, _state.pending = False, None, []
+
+
+_WRITTEN: list[str] = []
+
+
+def record_written(path: str) -> None:
+    """Note that an output has been put in place complete (:mod:`selfcal.io.atomic`): the message of an
+    interrupt that comes later names it instead of saying that nothing was written."""
+    _WRITTEN.append(path)
+
+
+def written() -> list[str]:
+    """The outputs put in place since :func:`install` (or since this module was loaded)."""
+    return list(_WRITTEN)
+
+
+def release() -> None:
+    """From now on signals do nothing more (the command has finished and is about to exit)."""
+    _state.released = True
+
+
+def check() -> None:
+    """Raise :class:`Interrupted` if a signal came since :func:`install`, even one whose exception some code
+    swallowed (a bare ``except:`` in a library being imported): called before an output is put in place."""
+    if _state.signum is not None and not _state.released:
+        raise Interrupted(_state.signum)
+
+
+def noted() -> int | None:
+    """The first signal since :func:`install`, or None."""
+    return _state.signum
+
+
+def exit_code(signum: int) -> int:
+    """The shell's status of a process ended by ``signum``: 128 + its number (130 Ctrl-C, 143 SIGTERM, 129 SIGHUP)."""
+    return 128 + int(signum)
+
+
+def signal_name(signum: int) -> str:
+    try:
+        return signal.Signals(signum).name
+    except ValueError:
+        return f"signal {signum}"
+
+
+@contextlib.contextmanager
+def deferred():
+    """Hold SIGINT, SIGTERM and SIGHUP until the block is done, then raise the first one that came."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    if _state.installed and signal.getsignal(signal.SIGINT) is _handler:
+        _state.depth += 1
+        try:
+            yield
+        finally:
+            _state.depth -= 1
+            if not _state.depth and _state.pending and not _state.released:
+                signum = _state.pending[0]
+                _state.pending = []
+                raise Interrupted(signum)
+        return
+    caught: list[int] = []
+    try:
+        previous = signal.signal(signal.SIGINT, lambda number, frame: caught.append(number))
+    except ValueError:                  # not the main interpreter
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+        if caught:
+            raise KeyboardInterrupt
