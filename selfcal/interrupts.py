@@ -1,9 +1,10 @@
 """Ctrl-C, SIGTERM and SIGHUP as one exception, and the few steps no signal may cut in two.
 
-The command line calls :func:`install` first thing (before NumPy, SciPy or any module of ours that needs
-them is imported): from then on SIGINT, SIGTERM and SIGHUP raise :class:`Interrupted` (a
-:class:`KeyboardInterrupt`, so every ``finally`` and every atomic writer cleans up as for a Ctrl-C) in the
-main thread; the clean-ups of temporary names run under :func:`deferred`, so a second signal never cuts them short.
+The command line calls :func:`exit_early` in the first lines of ``selfcal.cli.main`` (before NumPy, SciPy or
+any module of ours that needs them is imported): a signal while the modules load and the arguments are parsed
+ends the process at once with one line (nothing can have been written). Once parsed, :func:`install`: from
+then on SIGINT, SIGTERM and SIGHUP raise :class:`Interrupted` (a :class:`KeyboardInterrupt`, so every
+``finally`` and every atomic writer cleans up as for a Ctrl-C) in the main thread; the clean-ups of temporary names run under :func:`deferred`, so a second signal never cuts them short.
 A signal is also remembered: if some library swallowed its exception (a bare ``except:``), :func:`check` raises
 it again before an output is put in place, and ``main`` exits as interrupted all the same.
 :func:`release` (when the command is done) makes later signals do nothing, so a signal in the last
@@ -19,10 +20,11 @@ This module imports nothing of selfcal's and nothing heavy.
 from __future__ import annotations
 
 import contextlib
+import os
 import signal
 import threading
 
-__all__ = ["Interrupted", "install", "release", "restore", "deferred", "check", "noted", "exit_code", "signal_name", "SIGNALS",
+__all__ = ["Interrupted", "install", "exit_early", "release", "restore", "deferred", "check", "noted", "exit_code", "signal_name", "SIGNALS",
            "record_written", "written"]
 
 #: the signals treated as Ctrl-C (SIGHUP does not exist on Windows)
@@ -43,6 +45,8 @@ class _State:
     signum: int | None = None   # the first signal that came (kept even if some library swallowed its exception)
     depth = 0               # nesting of deferred()
     pending: list[int] = []
+    early: dict | None = None   # the handlers exit_early() found, until install()
+    exit_line: str | None = None
 
 
 _state = _State()
@@ -61,12 +65,32 @@ def _handler(signum, frame) -> None:
 
 def install() -> dict:
     """Make SIGINT, SIGTERM and SIGHUP raise :class:`Interrupted` in the main thread (the command line); returns
-    the handlers they had (for :func:`restore`)."""
-    previous = {number: signal.signal(number, _handler) for number in SIGNALS}
+    the handlers they had before this or :func:`exit_early` (for :func:`restore`)."""
+    handlers = {number: signal.signal(number, _handler) for number in SIGNALS}
+    previous = _state.early if _state.early is not None else handlers
+    _state.early, _state.exit_line = None, None
     _state.installed, _state.released, _state.signum = True, False, None
     _state.depth, _state.pending = 0, []
     _WRITTEN.clear()
     return previous
+
+
+def exit_early(prefix: str) -> None:
+    """Until :func:`install`, end the process at once on SIGINT, SIGTERM or SIGHUP with ``PREFIX: interrupted
+    (SIGTERM); nothing was written`` and 128 + the number (the command line while its modules are imported and its
+    arguments parsed: nothing can have been written yet, and an exception raised inside the import of a compiled
+    extension comes out as some other error, or is swallowed by a library's bare ``except:``)."""
+    _state.exit_line = prefix
+    if _state.early is None:
+        _state.early = {number: signal.signal(number, _exit_handler) for number in SIGNALS}
+
+
+def _exit_handler(signum, frame) -> None:
+    line = f"{_state.exit_line}: interrupted ({signal_name(signum)}); nothing was written\n"
+    try:
+        os.write(2, line.encode("utf-8", "backslashreplace"))
+    finally:
+        os._exit(exit_code(signum))
 
 
 def restore(previous: dict) -> None:
@@ -90,9 +114,14 @@ def written() -> list[str]:
     return list(_WRITTEN)
 
 
-def release() -> None:
-    """From now on signals do nothing more (the command has finished and is about to exit)."""
+def release(ignore: bool = False) -> None:
+    """From now on signals do nothing more (the command has finished and is about to exit). ``ignore``: set them
+    to SIG_IGN (the process itself: the interpreter's finalisation puts a Python handler back to SIG_DFL, and a
+    signal then would end a finished run with -2 or -15)."""
     _state.released = True
+    if ignore:
+        for number in SIGNALS:
+            signal.signal(number, signal.SIG_IGN)
 
 
 def check() -> None:

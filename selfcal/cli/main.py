@@ -12,12 +12,24 @@ moment of a run is one line and the shell's status, never a traceback.
 """
 from __future__ import annotations
 
-import argparse
-import importlib
+import os
 import sys
 
 from .. import interrupts
-from ..errors import SelfcalError, UsageError
+
+
+def _verb(argv: list[str]) -> str:
+    """``selfcal VERB`` of a command line (for messages before it is parsed)."""
+    return f"selfcal {next((a for a in argv if not a.startswith('-')), '')}".rstrip()
+
+
+if __name__ == "__main__" or os.path.basename(sys.argv[0] if sys.argv else "") == "selfcal":
+    interrupts.exit_early(_verb(sys.argv[1:]))   # the command itself: a signal from here on is one line
+
+import argparse  # noqa: E402
+import importlib  # noqa: E402
+
+from ..errors import SelfcalError, UsageError  # noqa: E402
 
 #: verb -> module (in selfcal.cli) with ``add_arguments(parser)`` and ``run(args) -> int``; imported when the
 #: parser is built, after the signal handlers are in place
@@ -78,18 +90,15 @@ def _signal_of(exc: BaseException) -> int | None:
     return None
 
 
-def _verb(argv: list[str]) -> str:
-    """The verb of a command line (for messages before it is parsed)."""
-    return next((a for a in argv if not a.startswith("-")), "")
-
-
-def _run(argv: list[str]) -> int:
+def _run(argv: list[str], command: bool) -> int:
     from ..allocator import keep_freed_memory
     try:
         args = build_parser().parse_args(argv)
     except _ArgumentError as exc:
         print(f"{exc.prog}: error: {exc}", file=sys.stderr)
         return exc.exit_code
+    if command:                        # the modules are loaded: from here a signal unwinds through the clean-ups
+        interrupts.install()
     keep_freed_memory()
     try:
         return int(_module(args.command).run(args) or 0)
@@ -106,25 +115,31 @@ def _run(argv: list[str]) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """Run ``selfcal ARGV`` (``sys.argv[1:]`` when None: the console script, which exits with the result)."""
-    previous = interrupts.install()
-    words = sys.argv[1:] if argv is None else list(argv)
+    command = argv is None
+    words = sys.argv[1:] if command else list(argv or [])
+    if command:
+        interrupts.exit_early(_verb(words))        # until the arguments are parsed (already so when run as the command)
+        previous: dict = {}
+    else:                              # called from a program (the tests): raise at once, and give the handlers back
+        previous = interrupts.install()
     try:
         try:
-            code = _run(words)
+            code = _run(words, command)
             interrupts.check()         # a signal whose exception some library swallowed
         finally:
-            interrupts.release()       # a signal from here on changes nothing: the run is over
+            interrupts.release(ignore=command)    # a signal from here on changes nothing: the run is over
     except BaseException as exc:
-        signum = _signal_of(exc)
+        # an exception after a signal is the signal's doing, even one that lost it on the way (a C extension cut
+        # short while it was imported raises ImportError without the KeyboardInterrupt as its cause)
+        signum = _signal_of(exc) or interrupts.noted()
         if signum is None:
             raise
-        verb = f"selfcal {_verb(words)}".rstrip()
         done = interrupts.written()
         what = (f"after writing {', '.join(done)} completely" if done else "nothing was written")
-        print(f"{verb}: interrupted ({interrupts.signal_name(signum)}); {what}", file=sys.stderr)
+        print(f"{_verb(words)}: interrupted ({interrupts.signal_name(signum)}); {what}", file=sys.stderr)
         code = interrupts.exit_code(signum)
     finally:
-        if argv is not None:           # called from a program (the tests): give it back its handlers
+        if not command:
             interrupts.restore(previous)
     return code
 
