@@ -22,6 +22,7 @@ from __future__ import annotations
 import contextlib
 import os
 import signal
+import sys
 import threading
 
 __all__ = ["Interrupted", "install", "exit_early", "release", "restore", "deferred", "check", "noted", "exit_code", "signal_name", "SIGNALS",
@@ -46,6 +47,7 @@ class _State:
     depth = 0               # nesting of deferred()
     pending: list[int] = []
     early: dict | None = None   # the handlers exit_early() found, until install()
+    unraisablehook = staticmethod(sys.__unraisablehook__)
     exit_line: str | None = None
 
 
@@ -72,7 +74,23 @@ def install() -> dict:
     _state.installed, _state.released, _state.signum = True, False, None
     _state.depth, _state.pending = 0, []
     _WRITTEN.clear()
+    if sys.unraisablehook is not _unraisable:
+        _state.unraisablehook = sys.unraisablehook
+        sys.unraisablehook = _unraisable
     return previous
+
+
+def _unraisable(unraisable) -> None:
+    """An Interrupted raised where Python cannot propagate it (the handler ran inside a weakref callback or a
+    ``__del__``: "Exception ignored in ..." and a traceback) is sent again to this process, so that it is raised
+    at a statement of the program instead; anything else goes to the previous hook."""
+    if isinstance(unraisable.exc_value, Interrupted) and not _state.released:
+        # from another thread, a moment later: a signal sent here would run the handler inside this hook
+        again = threading.Timer(0.002, os.kill, (os.getpid(), unraisable.exc_value.signum))
+        again.daemon = True
+        again.start()
+        return
+    _state.unraisablehook(unraisable)
 
 
 def exit_early(prefix: str) -> None:
@@ -98,6 +116,8 @@ def restore(previous: dict) -> None:
     for number, handler in previous.items():
         signal.signal(number, handler if handler is not None else signal.SIG_DFL)
     _state.installed, _state.signum, _state.pending = False, None, []
+    if sys.unraisablehook is _unraisable:
+        sys.unraisablehook = _state.unraisablehook
 
 
 _WRITTEN: list[str] = []

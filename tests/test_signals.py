@@ -8,7 +8,7 @@ output that is either absent, the earlier output unchanged, or complete.
 The random delay counts from the moment the process catches SIGTERM (``SigCgt`` in /proc/PID/status): before
 that the Python interpreter itself is starting (site, the editable-install finder: 20-30 ms on an idle machine,
 up to 150 ms with four runs on two cores) and no program's handler can exist. selfcal's handlers are the first
-lines of ``selfcal.cli.main`` (:func:`selfcal.interrupts.hold_early`), before NumPy and the verbs' modules load.
+lines of ``selfcal.cli.main`` (:func:`selfcal.interrupts.exit_early`), before NumPy and the verbs' modules load.
 
 The always-run subset sends 16 signals (4 verbs x 2 signals x 2 delays); the ``slow`` one 240.
 """
