@@ -27,12 +27,16 @@ import os
 os.environ.setdefault("OPENBLAS_THREAD_TIMEOUT", "12")
 
 from importlib import import_module  # noqa: E402
-from importlib.metadata import PackageNotFoundError, version
 
-try:
-    __version__ = version("selfcal")
-except PackageNotFoundError:          # pragma: no cover - running from a tree that was never installed
-    __version__ = "0+unknown"
+
+def _version() -> str:
+    """The installed distribution's version (importlib.metadata costs 35 ms: looked up on first use only, so
+    that the command line installs its signal handlers within milliseconds of starting)."""
+    from importlib.metadata import PackageNotFoundError, version
+    try:
+        return version("selfcal")
+    except PackageNotFoundError:      # pragma: no cover - running from a tree that was never installed
+        return "0+unknown"
 
 #: public name -> module that defines it (imported on first use: ``import selfcal`` stays light)
 _API = {
@@ -47,10 +51,14 @@ __all__ = ["__version__", *_API]
 
 
 def __getattr__(name: str):
+    if name == "__version__":
+        value = _version()
+        globals()["__version__"] = value
+        return value
     if name in _API:
         return getattr(import_module(_API[name]), name)
     raise AttributeError(f"module 'selfcal' has no attribute {name!r}")
 
 
 def __dir__():
-    return sorted(list(globals()) + list(_API))
+    return sorted(set(globals()) | set(_API) | {"__version__"})

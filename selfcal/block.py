@@ -336,6 +336,8 @@ class Block:
     image_models: dict | None = None
     #: image id -> the path of its sensor_file (for writing the block again)
     image_files: dict | None = None
+    #: the block folder it was read from (None: built in memory); an output never goes there
+    folder: str | None = None
 
     @property
     def has_trajectory(self) -> bool:

@@ -8,10 +8,13 @@ Three kinds of failure reach the user, each with its own exit code (DESIGN.md §
   AP model in a list). Exit code 2, as for argparse's own usage errors.
 * :class:`AdjustmentError` — the input is well formed but the adjustment cannot
   produce an estimate (singular normal equations, divergence). Exit code 1.
+* :class:`OutputError` — an output could not be written (a full disk, a folder removed under the run). It
+  names the output's final path (never a temporary one) and the system's reason. Exit code 1: the input
+  was fine, and the previous output is still in place.
 """
 from __future__ import annotations
 
-__all__ = ["SelfcalError", "BlockError", "UsageError", "AdjustmentError"]
+__all__ = ["SelfcalError", "BlockError", "UsageError", "AdjustmentError", "OutputError"]
 
 
 class SelfcalError(Exception):
@@ -63,3 +66,14 @@ class AdjustmentError(SelfcalError, RuntimeError):
     """The adjustment could not produce an estimate; the message says why."""
 
     exit_code = 1
+
+
+class OutputError(SelfcalError):
+    """An output could not be written; ``path`` is where it was to go, ``reason`` the system's words."""
+
+    exit_code = 1
+
+    def __init__(self, path: str, reason: str):
+        self.path = str(path)
+        self.reason = reason
+        super().__init__(f"cannot write {self.path}: {reason}")

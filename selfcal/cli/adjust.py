@@ -11,7 +11,7 @@ from ..ap import ALL_MODELS, AP_FAMILIES, parse_ap_spec
 from ..errors import UsageError
 from ..io import read_block
 from ..io.dem import read_dem
-from ..io.output import check_inputs, output_folder
+from ..io.output import check_inputs, failed_run_folder, output_folder
 from ..io.results import results_from_files, write_results
 from ..report import model_choice_table, render_report, result_files
 from ..stats import SnoopingOptions, VarianceOptions
@@ -187,8 +187,13 @@ def run(args: argparse.Namespace) -> int:
         files |= render_report(results_from_files(files))
         if not args.quiet:
             print(f"report rendered in {time.perf_counter() - t_report:.1f} s", file=sys.stderr)
-    write_results(out, files)
     s = files["summary.json"]
+    failure = s.get("failure") or (None if tested.result.converged else
+                                   f"the adjustment did not converge: {tested.result.reason}")
+    # a failed run never replaces earlier results: its files go beside them, or nowhere (and the line says so)
+    target, where = (out, f"results in {args.out}") if not failure else failed_run_folder(out)
+    if target is not None:
+        write_results(target, files)
     line = (f"sigma0 {s['sigma0_px']:.3f} px, check points RMSD XY {_m(s['rmsd_chk_xy_m'])} Z {_m(s['rmsd_chk_z_m'])}"
             f" ({s['n_chk_used']} CHK, {s['n_gcp_used']} GCP), {s['n_obs_rejected']} observations rejected")
     if seed001 and s.get("rmse_chk_across_m") is not None:
@@ -196,8 +201,7 @@ def run(args: argparse.Namespace) -> int:
                  f"{s['rmse_chk_up_m']:.2f} m")
     if not seed001:
         line += f", {s['n_ap_significant']}/{s['n_ap_initial']} APs"
-    print(f"{line}; results in {args.out}", file=sys.stderr)
-    failure = s.get("failure")
+    print(f"{line}; {where}", file=sys.stderr)
     # what a free network's adjustments left out (observations behind their camera, undetermined points)
     for message in tested.result.block.dropped.messages[len(block.dropped.messages):]:
         if message.startswith("left out"):
@@ -216,10 +220,7 @@ def run(args: argparse.Namespace) -> int:
               f"({100 * robust['share_rejected']:.1f} %), {robust.get('n_readmitted', 0)} taken back; diagnosis "
               f"{robust['diagnosis']}", file=sys.stderr)
     if failure:
-        print(f"selfcal adjust: error: {failure}", file=sys.stderr)
-        return 1
-    if not tested.result.converged:
-        print(f"selfcal adjust: error: the adjustment did not converge: {tested.result.reason}", file=sys.stderr)
+        print(f"selfcal adjust: error: {failure}; {where}", file=sys.stderr)
         return 1
     return 0
 

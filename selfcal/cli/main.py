@@ -1,30 +1,52 @@
 """The ``selfcal`` command: one sub-command per verb, each in its own module.
 
 Exit codes (DESIGN.md §5): 0 success, 1 the adjustment failed (singular,
-diverged or not converged; the reason is printed), 2 bad input (file, line,
-column and reason are printed).
+diverged or not converged; the reason is printed) or an output could not be
+written (a full disk), 2 bad input (file, line, column and reason are printed),
+128 + the signal's number when interrupted: 130 Ctrl-C (SIGINT), 143 SIGTERM,
+129 SIGHUP.
+
+The signal handlers are installed before anything heavy is imported (the verbs'
+modules pull in NumPy, SciPy, matplotlib, OpenCV: seconds), so a signal at any
+moment of a run is one line and the shell's status, never a traceback.
 """
 from __future__ import annotations
 
-import argparse
+import os
 import sys
 
-from .. import __version__
-from ..allocator import keep_freed_memory
-from ..errors import SelfcalError, UsageError
-from . import adjust, compare, demo, export, import_, report, simulate, undistort
+from .. import interrupts
 
-#: verb -> module with ``add_arguments(parser)`` and ``run(args) -> int``
+
+def _verb(argv: list[str]) -> str:
+    """``selfcal VERB`` of a command line (for messages before it is parsed)."""
+    return f"selfcal {next((a for a in argv if not a.startswith('-')), '')}".rstrip()
+
+
+if __name__ == "__main__" or os.path.basename(sys.argv[0] if sys.argv else "") == "selfcal":
+    interrupts.exit_early(_verb(sys.argv[1:]))   # the command itself: a signal from here on is one line
+
+import argparse  # noqa: E402
+import importlib  # noqa: E402
+
+from ..errors import SelfcalError, UsageError  # noqa: E402
+
+#: verb -> module (in selfcal.cli) with ``add_arguments(parser)`` and ``run(args) -> int``; imported when the
+#: parser is built, after the signal handlers are in place
 COMMANDS = {
-    "adjust": adjust,
-    "simulate": simulate,
-    "compare": compare,
-    "report": report,
-    "import": import_,
-    "export": export,
-    "undistort": undistort,
-    "demo": demo,
+    "adjust": "adjust",
+    "simulate": "simulate",
+    "compare": "compare",
+    "report": "report",
+    "import": "import_",
+    "export": "export",
+    "undistort": "undistort",
+    "demo": "demo",
 }
+
+
+def _module(verb: str):
+    return importlib.import_module(f"selfcal.cli.{COMMANDS[verb]}")
 
 
 class _Parser(argparse.ArgumentParser):
@@ -41,53 +63,85 @@ class _ArgumentError(UsageError):
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from .. import __version__
     parser = _Parser(
         prog="selfcal",
         description="Self-calibrating bundle adjustment of frame and pushbroom sensors.")
     parser.add_argument("--version", action="version", version=f"selfcal {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for name, module in COMMANDS.items():
+    for name in COMMANDS:
+        module = _module(name)
         doc = (module.__doc__ or "").strip().splitlines()[0]
         p = sub.add_parser(name, help=doc, description=doc)
         module.add_arguments(p)
     return parser
 
 
-def _interrupted(exc: BaseException) -> bool:
-    """Whether a KeyboardInterrupt is among the causes of ``exc``."""
+def _signal_of(exc: BaseException) -> int | None:
+    """The signal behind ``exc`` if a KeyboardInterrupt is among its causes (Ctrl-C while a compiled kernel
+    called back into Python: Numba reports it as the cause of a SystemError; an import cut short), else None."""
     seen = set()
     cause: BaseException | None = exc
     while cause is not None and id(cause) not in seen:
         if isinstance(cause, KeyboardInterrupt):
-            return True
+            return getattr(cause, "signum", interrupts.SIGNALS[0])
         seen.add(id(cause))
         cause = cause.__cause__ or cause.__context__
-    return False
+    return None
 
 
-def main(argv: list[str] | None = None) -> int:
+def _run(argv: list[str], command: bool) -> int:
+    from ..allocator import keep_freed_memory
     try:
         args = build_parser().parse_args(argv)
     except _ArgumentError as exc:
         print(f"{exc.prog}: error: {exc}", file=sys.stderr)
         return exc.exit_code
+    if command:                        # the modules are loaded: from here a signal unwinds through the clean-ups
+        interrupts.install()
     keep_freed_memory()
     try:
-        return int(COMMANDS[args.command].run(args) or 0)
+        return int(_module(args.command).run(args) or 0)
     except SelfcalError as exc:
         print(f"selfcal {args.command}: error: {exc}", file=sys.stderr)
         return exc.exit_code
-    except (KeyboardInterrupt, SystemError) as exc:
-        # Ctrl-C while a compiled kernel called back into Python (Numba unpickling a constant): Numba reports
-        # the KeyboardInterrupt as the cause of a SystemError
-        if not _interrupted(exc):
+    except OSError as exc:             # a folder removed under the run, a device error: no traceback
+        if _signal_of(exc) is not None:
             raise
-        print(f"selfcal {args.command}: interrupted; nothing was written", file=sys.stderr)
-        return 130
-    except OSError as exc:             # a disk that fills up, a folder removed under the run: no traceback
         where = f"{exc.filename}: " if exc.filename else ""
         print(f"selfcal {args.command}: error: {where}{exc.strerror or exc}", file=sys.stderr)
-        return 2
+        return 1
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run ``selfcal ARGV`` (``sys.argv[1:]`` when None: the console script, which exits with the result)."""
+    command = argv is None
+    words = sys.argv[1:] if command else list(argv or [])
+    if command:
+        interrupts.exit_early(_verb(words))        # until the arguments are parsed (already so when run as the command)
+        previous: dict = {}
+    else:                              # called from a program (the tests): raise at once, and give the handlers back
+        previous = interrupts.install()
+    try:
+        try:
+            code = _run(words, command)
+            interrupts.check()         # a signal whose exception some library swallowed
+        finally:
+            interrupts.release(ignore=command)    # a signal from here on changes nothing: the run is over
+    except BaseException as exc:
+        # an exception after a signal is the signal's doing, even one that lost it on the way (a C extension cut
+        # short while it was imported raises ImportError without the KeyboardInterrupt as its cause)
+        signum = _signal_of(exc) or interrupts.noted()
+        if signum is None:
+            raise
+        done = interrupts.written()
+        what = (f"after writing {', '.join(done)} completely" if done else "nothing was written")
+        print(f"{_verb(words)}: interrupted ({interrupts.signal_name(signum)}); {what}", file=sys.stderr)
+        code = interrupts.exit_code(signum)
+    finally:
+        if not command:
+            interrupts.restore(previous)
+    return code
 
 
 if __name__ == "__main__":  # pragma: no cover

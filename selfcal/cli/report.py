@@ -7,6 +7,7 @@ import os
 import sys
 import time
 
+from ..io.atomic import atomic_update
 from ..io.output import update_folder
 from ..io.results import read_results, write_files
 from ..report import render_report
@@ -20,11 +21,14 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     results = read_results(update_folder(args.results))
     files = render_report(results)
-    write_files(args.results, files)
-    # figures of an earlier rendering that this one did not draw (e.g. fewer cameras) would mislead
-    for path in glob.glob(os.path.join(args.results, "figures", "*")):
-        if os.path.relpath(path, args.results).replace(os.sep, "/") not in files:
-            os.unlink(path)
+    # a copy of the folder gets the new report and replaces it: the figures and report.html appear together,
+    # or (a full disk, an interrupt) the folder stays exactly as it was
+    with atomic_update(args.results) as tmp:
+        # figures of an earlier rendering that this one did not draw (e.g. fewer cameras) would mislead
+        for path in glob.glob(os.path.join(tmp, "figures", "*")):
+            if os.path.relpath(path, tmp).replace(os.sep, "/") not in files:
+                os.unlink(path)
+        write_files(tmp, files)
     n_figures = sum(name.endswith(".png") for name in files)
     print(f"{os.path.join(args.results, 'report.html')}: {n_figures} figures, rendered in "
           f"{time.perf_counter() - t0:.1f} s", file=sys.stderr)

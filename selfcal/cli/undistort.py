@@ -10,7 +10,8 @@ import numpy as np
 from ..calibration import OpenCVCamera, undistort_image
 from ..errors import BlockError
 from ..io.atomic import atomic_folder
-from ..io.opencv import read_image, write_image, write_opencv_file
+from ..io.images import check_file_name, read_image, write_image
+from ..io.opencv import write_opencv_file
 from ..io.output import output_folder
 from .options import force_option
 from .calibrations import calibrations, maps_of, pick_camera
@@ -28,6 +29,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     args.out = output_folder(args.out, (args.results, *args.images), args.force)
+    for path in args.images:            # before any work: OpenCV never sees a name that is not UTF-8
+        check_file_name(path)
     cal = pick_camera(calibrations(args.results), args.camera)
     names = [os.path.basename(p) for p in args.images]
     if len(set(names)) < len(names):

@@ -493,6 +493,7 @@ def read_block(folder: str | os.PathLike, min_gcp: int = 3) -> Block:
         image_models=image_models or None,
         image_files={k: v[0] for k, v in files.items()} or None,
         dropped=dropped,
+        folder=folder,
     )
     # blocks of seed 001's sensors are used as read: mono restitution needs check points seen in one image
     if not any(s.sensor_models for s in sensors.values()):

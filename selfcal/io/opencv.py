@@ -17,6 +17,7 @@ import numpy as np
 
 from ..errors import BlockError
 from .atomic import atomic_write
+from .images import read_image, write_image  # noqa: F401 - their home before issue 46
 
 if TYPE_CHECKING:
     from ..calibration import OpenCVCamera
@@ -155,21 +156,3 @@ def write_undistortion_maps(path: str | os.PathLike, map_x: np.ndarray, map_y: n
 def read_undistortion_maps(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     with np.load(path) as data:
         return data["map_x"], data["map_y"], data["camera_matrix"]
-
-
-def read_image(path: str | os.PathLike) -> np.ndarray:
-    """An image file as OpenCV reads it (any depth and channels); unreadable: BlockError."""
-    import cv2
-
-    image = cv2.imread(os.fspath(path), cv2.IMREAD_UNCHANGED)
-    if image is None:
-        raise BlockError(os.fspath(path), "cannot be read as an image")
-    return image
-
-
-def write_image(path: str | os.PathLike, image: np.ndarray) -> None:
-    """Write an image in the format its extension names (callers write into an atomic folder)."""
-    import cv2
-
-    if not cv2.imwrite(os.fspath(path), image):
-        raise BlockError(os.fspath(path), "OpenCV cannot write this file (unknown extension?)")

@@ -23,9 +23,10 @@ import shutil
 import tempfile
 
 from ..errors import UsageError
+from ..interrupts import deferred
 from .atomic import MARKER
 
-__all__ = ["output_folder", "output_file", "update_folder", "check_inputs"]
+__all__ = ["output_folder", "output_file", "update_folder", "check_inputs", "holds_results", "failed_run_folder"]
 
 
 def _real(path: str) -> str:
@@ -77,15 +78,16 @@ def _probe(folder: str, path: str, option: str) -> None:
     """Create and remove a temporary folder in ``folder`` (where ``path`` will be written)."""
     if not os.path.isdir(folder):
         raise UsageError(f"{option} {path}: {folder} is a file, not a folder")
-    try:
-        probe = tempfile.mkdtemp(prefix=".selfcal-partial-", dir=folder)
-    except OSError as exc:
-        reason = "read-only" if exc.errno in (errno.EACCES, errno.EPERM, errno.EROFS) else exc.strerror
-        raise UsageError(f"{option} {path}: cannot write in {folder} ({reason})") from None
-    shutil.rmtree(probe, ignore_errors=True)
+    with deferred():                    # a signal never leaves the probe behind
+        try:
+            probe = tempfile.mkdtemp(prefix=".selfcal-partial-", dir=folder)
+        except OSError as exc:
+            reason = "read-only" if exc.errno in (errno.EACCES, errno.EPERM, errno.EROFS) else exc.strerror
+            raise UsageError(f"{option} {path}: cannot write in {folder} ({reason})") from None
+        shutil.rmtree(probe, ignore_errors=True)
 
 
-def output_folder(path, inputs=(), force: bool = False, option: str = "--out") -> str:
+def output_folder(path, inputs=(), force: bool = False, option: str = "--out", force_name: str = "--force") -> str:
     """Check that a command may write (replace) the folder ``path``; return it.
 
     An existing folder is replaced only when it is empty, when selfcal wrote it (it holds the marker) or
@@ -103,7 +105,7 @@ def output_folder(path, inputs=(), force: bool = False, option: str = "--out") -
             raise UsageError(f"{option} {path}: cannot read the folder ({exc.strerror})") from None
         if entries and MARKER not in entries and not force:
             raise UsageError(f"{option} {path} exists and was not written by selfcal (no {MARKER} in it); "
-                             f"selfcal would replace all of it: name another folder, or add --force")
+                             f"selfcal would replace all of it: name another folder, or add {force_name}")
     _probe(_nearest_existing(path), path, option)
     return path
 
@@ -120,8 +122,37 @@ def output_file(path, inputs=(), option: str = "--out") -> str:
 
 
 def update_folder(path, option: str = "RESULTS") -> str:
-    """Check that the files of an existing folder ``path`` may be rewritten in place (``selfcal report``)."""
+    """Check that the existing folder ``path`` may be updated (``selfcal report``: a changed copy replaces it, so
+    its parent folder must be writable)."""
     path = _nonempty(path, option)
     if os.path.isdir(path):
-        _probe(path, path, option)
+        real = os.path.realpath(path)
+        _probe(os.path.dirname(real), path, option)
     return path
+
+
+def holds_results(path) -> bool:
+    """Whether ``path`` is a non-empty folder: earlier output (or the user's files) a failed run must not replace."""
+    try:
+        return os.path.isdir(path) and bool(os.listdir(path))
+    except OSError:
+        return True
+
+
+def failed_run_folder(path: str) -> tuple[str | None, str]:
+    """Where the files of a failed or unconverged run go when ``path`` already holds results: the sibling
+    ``PATH-failed`` (replaced if selfcal wrote it), or nowhere; and the sentence that says which and why."""
+    path = os.fspath(path).rstrip(os.sep) or os.sep
+    if not holds_results(path):
+        return path, f"this run's files are in {path}"
+    sibling = path + "-failed"
+    kept = f"{path} keeps the earlier results; this run's files were not written"
+    if os.path.lexists(sibling) and not os.path.isdir(sibling):
+        return None, f"{kept} ({sibling} is a file)"
+    if holds_results(sibling) and not os.path.exists(os.path.join(sibling, MARKER)):
+        return None, f"{kept} ({sibling} exists and selfcal did not write it)"
+    try:
+        _probe(_nearest_existing(sibling), sibling, "the folder")
+    except UsageError as exc:
+        return None, f"{kept} ({exc})"
+    return sibling, f"{path} keeps the earlier results; this run's files are in {sibling}"

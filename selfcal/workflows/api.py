@@ -63,6 +63,8 @@ class Outcome:
 
     adjusted: Adjusted
     files: dict
+    #: the files and folders the adjustment read (the block folder, a DEM): write never goes there
+    inputs: tuple = ()
 
     @property
     def summary(self) -> dict:
@@ -74,14 +76,45 @@ class Outcome:
         """The final :class:`selfcal.adjust.AdjustmentResult` (estimates, covariance, residuals)."""
         return self.adjusted.tested.result
 
-    def write(self, folder: str | os.PathLike, report: bool = True) -> None:
-        """Write the results folder (atomically: complete or not at all), with report.html unless told not to."""
+    @property
+    def failed(self) -> str | None:
+        """Why the adjustment failed (summary.json ``failure``, or that it did not converge), or None."""
+        if self.summary.get("failure"):
+            return str(self.summary["failure"])
+        if not self.adjusted.tested.result.converged:
+            return f"the adjustment did not converge: {self.adjusted.tested.result.reason}"
+        return None
+
+    def write(self, folder: str | os.PathLike, report: bool = True, force: bool = False) -> str | None:
+        """Write the results folder (atomically: complete or not at all), with report.html unless told not to;
+        returns the folder written (None: a failed outcome that had nowhere to go).
+
+        The folder passes the check of every ``--out`` (:func:`selfcal.io.output.output_folder`): never the
+        block folder, its sensor files or DEM (nor a folder holding or inside them), never a folder that selfcal
+        did not write (no ``.selfcal-output`` in it) unless ``force``; a refusal is a
+        :class:`~selfcal.errors.UsageError` naming the path. A failed or unconverged outcome never replaces
+        earlier results: it goes to ``FOLDER-failed`` (or is not written; the warning on the ``selfcal`` logger
+        says which), as ``selfcal adjust`` does. A write that fails (a full disk) is an
+        :class:`~selfcal.errors.OutputError` naming the path, and the folder stays as it was.
+        """
+        from ..io.output import failed_run_folder, output_folder
         from ..io.results import results_from_files, write_results
         from ..report import render_report
+        block = self.adjusted.block
+        inputs = (block.folder, block.dem_path, *(block.image_files or {}).values(), *self.inputs)
+        target = output_folder(os.fspath(folder), inputs, force, option="Outcome.write:",
+                               force_name="force=True")
+        if self.failed:
+            where, why = failed_run_folder(target)
+            LOG.warning(f"{self.failed}; {why}")
+            if where is None:
+                return None
+            target = where
         files = dict(self.files)
         if report:
             files |= render_report(results_from_files(files))
-        write_results(folder, files)
+        write_results(target, files)
+        return target
 
 
 def _argument(name: str, value: object, make: Callable[[], T]) -> T:
@@ -111,7 +144,9 @@ def bundle_adjust(block: Block | str | os.PathLike, ap: str = "none", *, snoop: 
     from ..io.block_folder import read_block
     from ..report import result_files
     t0 = time.perf_counter()
+    inputs: tuple = ()
     if not isinstance(block, Block):
+        inputs = (os.fspath(block),)
         block = read_block(block)
     if offers_sensor_models(block):
         options.setdefault("sensor_model", "M6")
@@ -132,4 +167,4 @@ def bundle_adjust(block: Block | str | os.PathLike, ap: str = "none", *, snoop: 
                             report=logging_rounds(), say=LOG.info)
     extra = {"seconds": time.perf_counter() - t0, "grid": list(chosen.ap.grid)} | adjusted.summary_extra
     files = result_files(adjusted.block, adjusted.tested, extra, screening, adjusted.checks, adjusted.track)
-    return Outcome(adjusted, files)
+    return Outcome(adjusted, files, inputs)

@@ -29,7 +29,7 @@ from ..convert import colmap_workspace
 from ..errors import BlockError
 from ..io.atomic import atomic_folder, atomic_write
 from ..io.colmap import write_colmap_bin, write_stereo_config
-from ..io.opencv import read_image, write_image
+from ..io.images import check_file_name, read_image, write_image
 from ..io.results import read_results, to_jsonable
 
 __all__ = ["export_workspace", "find_images", "ORIGIN_FILE", "POINTS_FILE"]
@@ -98,6 +98,8 @@ def export_workspace(results_folder: str, cams: dict[str, Calibration], images_f
     if ws.n_points_short_track:
         say(f"note: {ws.n_points_short_track} point(s) seen in fewer than two of the exported images are left out")
     names = list(model.image_names)
+    for name in names:                  # before any work: OpenCV never sees a name that is not UTF-8
+        check_file_name(os.path.join(images_folder, name))
     with atomic_folder(out) as tmp:
         os.makedirs(os.path.join(tmp, "images"))
         for colmap_id, camera_id in ws.camera_id.items():
