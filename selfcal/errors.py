@@ -52,8 +52,15 @@ class BlockError(SelfcalError, ValueError):
         if self.line is not None:
             where += f", line {self.line}"
         if self.column is not None:
-            where += f", column '{self.column}'"
-        return f"{where}: {self.reason}"
+            where += f", column '{_one_line(self.column)}'"
+        return f"{where}: {_one_line(self.reason, 2000)}"
+
+
+def _one_line(text: str, limit: int = 80) -> str:
+    """``text`` on one line (line breaks shown as \\n, as a quoted CSV field can hold them), cut to ``limit``
+    characters: a message is one line whatever the file holds."""
+    text = str(text).replace("\r", "\\r").replace("\n", "\\n")
+    return text if len(text) <= limit else text[:limit - 3] + "..."
 
 
 class UsageError(SelfcalError, ValueError):

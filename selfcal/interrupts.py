@@ -86,9 +86,17 @@ def _unraisable(unraisable) -> None:
     at a statement of the program instead; anything else goes to the previous hook."""
     if isinstance(unraisable.exc_value, Interrupted) and not _state.released:
         # from another thread, a moment later: a signal sent here would run the handler inside this hook
-        again = threading.Timer(0.002, os.kill, (os.getpid(), unraisable.exc_value.signum))
-        again.daemon = True
-        again.start()
+        # (the timer can fire before start() returns, under load: the handler then raises here, inside the hook,
+        # where the interrupt would be lost again; it is caught and the signal sent once more, later)
+        signum, delay = unraisable.exc_value.signum, 0.002
+        for _ in range(6):
+            try:
+                again = threading.Timer(delay, os.kill, (os.getpid(), signum))
+                again.daemon = True
+                again.start()
+                return
+            except Interrupted:
+                delay *= 10
         return
     _state.unraisablehook(unraisable)
 
