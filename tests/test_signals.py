@@ -191,6 +191,7 @@ def _report(runs: list[Run]) -> str:
     return "\n".join(lines)
 
 
+@pytest.mark.slow          # (make test runs it; the fast tier keeps the signals during the module load)
 def test_signals_at_random_moments_leave_nothing_half_written(ws, selfcal_exe, tmp_path):
     runs = _campaign(ws, selfcal_exe, str(tmp_path), per_verb_and_signal=2, seed=46)
     assert len(runs) == 16
