@@ -234,13 +234,14 @@ class RobustWeighting:
     def __post_init__(self):
         self.loss = self.options.make_loss()
 
-    def sizes(self, problem, state) -> tuple[np.ndarray, np.ndarray]:
-        """u * scale of every image point and control point at ``state``: the length of its whitened residuals
+    def sizes(self, problem, state, residuals: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """u * scale of every image point and control point at ``state`` (whose image residuals l - f, sorted order,
+        are ``residuals`` where the caller has them): the length of its whitened residuals
         (a-priori sigmas), an image point's over the square root of its point's share of redundancy, 1 - 3 / (2 n)
         for n rays (a two-ray point's rays share one parallax: 1/4; a point seen ten times: 0.85), as the w-test
         divides by the redundancy number."""
         from .residuals.image import image_residuals
-        v = image_residuals(problem, state) / problem.obs_sigma_apriori
+        v = (image_residuals(problem, state) if residuals is None else residuals) / problem.obs_sigma_apriori
         image = np.sqrt(np.sum(v * v, axis=1) / (1.0 - 1.5 / np.maximum(_rays(problem, self.options.hand), 2)))
         control = np.zeros(0)
         block = problem.control
@@ -249,13 +250,14 @@ class RobustWeighting:
             control = np.sqrt(np.sum(r * r, axis=1))
         return image, control
 
-    def update(self, problem, state) -> bool:
-        """Re-weight ``problem``'s observations from the residuals at ``state``; whether any weight moved. After
+    def update(self, problem, state, residuals: np.ndarray | None = None) -> bool:
+        """Re-weight ``problem``'s observations from the residuals at ``state`` (its image residuals, if the caller
+        has them: :meth:`sizes`); whether any weight moved. After
         :data:`MAX_UPDATES` updates the weights stay (a weight flipping about the tolerance would go on)."""
         from .residuals.image import reweight_observations
         if len(self.history) >= MAX_UPDATES:
             return False
-        image, control = self.sizes(problem, state)
+        image, control = self.sizes(problem, state, residuals)
         rays = _rays(problem, self.options.hand)
         scale = 1.0
         if self.options.scale == "mad":

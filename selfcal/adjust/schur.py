@@ -37,6 +37,7 @@ from .residuals import parameter_observations
 from .residuals.image import chunk_rows, contexts, image_residuals
 
 __all__ = ["ChunkLinearisation", "Linearisation", "linearise", "reduce", "back_substitute", "evaluate_cost",
+           "cost_and_residuals",
            "SingularPoints", "damped_inverse"]
 
 
@@ -403,9 +404,16 @@ def back_substitute(problem: Problem, lin: Linearisation, v_inv: list, d_theta: 
 
 def evaluate_cost(problem: Problem, state: State) -> float:
     """0.5 v^T P v of all observation groups at ``state``."""
-    v = image_residuals(problem, state) / problem.obs_sigma
+    return cost_and_residuals(problem, state)[0]
+
+
+def cost_and_residuals(problem: Problem, state: State) -> tuple[float, np.ndarray]:
+    """:func:`evaluate_cost` and the image residuals l - f it sums (observation units, sorted order, (n, 2)): a
+    robust reweighting at an accepted step reads them instead of evaluating them again."""
+    residuals = image_residuals(problem, state)
+    v = residuals / problem.obs_sigma
     cost = 0.5 * float(np.sum(v * v))
     cost += sum(block.cost(state.points) for block in problem.point_residuals)
     _, r_x = parameter_observations(problem, state)
-    return cost + 0.5 * float(np.sum(r_x * r_x))
+    return cost + 0.5 * float(np.sum(r_x * r_x)), residuals
 

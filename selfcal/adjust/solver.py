@@ -20,7 +20,7 @@ from ..errors import AdjustmentError
 from .datum import points_not_determined_by_rays, similarity_directions
 from .linalg import PSEUDO_INVERSE_LIMIT, dense_assembly, SingularSystem, factorise, null_directions, pseudo_factorise
 from .options import SolverOptions
-from .schur import Linearisation, back_substitute, evaluate_cost, linearise, reduce
+from .schur import Linearisation, back_substitute, cost_and_residuals, evaluate_cost, linearise, reduce
 from .problem import Problem, State
 
 __all__ = ["IterationRecord", "SolverOutcome", "solve"]
@@ -121,12 +121,13 @@ def _converged(options: SolverOptions, step_sigma: float, moved_sigma: float, co
 def solve(problem: Problem, state: State, names: list[str], options: SolverOptions = SolverOptions(),
           progress: Callable[[IterationRecord], None] | None = None,
           datum_null: np.ndarray | None = None,
-          reweight: Callable[[Problem, State], bool] | None = None) -> SolverOutcome:
+          reweight: Callable[..., bool] | None = None) -> SolverOutcome:
     """Iterate to the least-squares estimate.
 
     ``datum_null``: a free network's datum directions from an earlier solve of the same unknowns
     (``SolverOutcome.datum_null``), followed from there instead of found by an eigendecomposition.
-    ``reweight``: called with the problem and the state at the start and after every accepted step, it may
+    ``reweight``: called with the problem and the state at the start and after every accepted step (there with
+    the step's image residuals too, as the cost evaluated them), it may
     change the observations' weight factors (a robust loss: :mod:`selfcal.adjust.robust`) and says whether it
     did; the estimate has converged only once a step passes the tests and no weight moved.
 
@@ -185,7 +186,7 @@ def solve(problem: Problem, state: State, names: list[str], options: SolverOptio
         d_theta = factor.solve(g)
         d_p = back_substitute(problem, lin, v_inv, d_theta)
         candidate = problem.apply(state, d_theta, d_p)
-        new_cost = evaluate_cost(problem, candidate)
+        new_cost, residuals = cost_and_residuals(problem, candidate)
         diag_p = np.einsum("nii->ni", lin.of_points("V"))
         g_p = lin.of_points("g_p")
         predicted = 0.5 * (d_theta @ lin.g_theta + np.sum(d_p * g_p)
@@ -199,6 +200,7 @@ def solve(problem: Problem, state: State, names: list[str], options: SolverOptio
             d_theta, d_p, candidate, new_cost, predicted = _shortened(problem, state, lin.cost, d_theta, d_p,
                                                                       predicted, options.line_search)
             full_gauss_newton = False
+            residuals = None
         step_sigma = max(float(np.max(np.abs(d_theta) * np.sqrt(lin.diag_theta), initial=0.0)),
                          float(np.max(np.abs(d_p) * np.sqrt(diag_p), initial=0.0)))
         rho = (lin.cost - new_cost) / predicted if predicted > 0 else -1.0
@@ -221,7 +223,7 @@ def solve(problem: Problem, state: State, names: list[str], options: SolverOptio
         if accepted:
             state = candidate
             # the weights follow the estimate; while they move, the objective does, and nothing has converged
-            moved_weights = reweight is not None and reweight(problem, state)
+            moved_weights = reweight is not None and reweight(problem, state, residuals)
             done = None if moved_weights else _converged(options, step_sigma, moved_sigma, lin.cost, new_cost)
             if done is not None:
                 converged, reason = True, done

@@ -264,8 +264,8 @@ class FrameBound(BoundSensor):
         xy = project(points, image[img], iop[cam], M[img])
         for k, camera in enumerate(self.problem.cameras):
             sel = np.flatnonzero(cam == k)
-            if sel.size and camera.ap.n_params:
-                a = values[k][camera.n_core:] * camera.free[camera.n_core:]
+            a = values[k][camera.n_core:] * camera.free[camera.n_core:]
+            if sel.size and a.any():                    # (a start from zero APs: no basis to evaluate)
                 dx, dy = camera.ap.displacement_px(xy[sel, 0], xy[sel, 1], a)
                 xy[sel, 0] += camera.pixel_size_mm * dx
                 xy[sel, 1] += camera.pixel_size_mm * dy
