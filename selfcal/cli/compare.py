@@ -11,7 +11,7 @@ from ..batch import ALL_MODELS, CellSettings, run_matrix
 from ..errors import BlockError, UsageError
 from ..io import read_block
 from ..io.atomic import atomic_folder
-from ..io.output import check_inputs, output_folder
+from ..io.output import check_inputs, failed_run_folder, output_folder
 from ..io.results import results_from_files, write_files
 from ..report import best_cells, render_comparison_report, render_report
 from ..report.compare import comparison_csv, comparison_markdown, comparison_rows
@@ -88,11 +88,20 @@ def run(args: argparse.Namespace) -> int:
     cells = run_matrix(blocks, models, settings, scheduler, args.workers, done)
     seconds = time.perf_counter() - t0
     rows = comparison_rows(cells)
-    with atomic_folder(args.out) as tmp:
-        write_matrix(tmp, cells, rows, "selfcal compare", report=not args.no_report)
+    failed = [c for c in cells if c.error]
+    # a comparison with a failed cell never replaces earlier results: its files go beside them, or nowhere
+    target, where = (args.out, f"results in {args.out}") if not failed else failed_run_folder(args.out)
+    if target is not None:
+        with atomic_folder(target) as tmp:
+            write_matrix(tmp, cells, rows, "selfcal compare", report=not args.no_report)
     print(comparison_markdown(rows))
-    print(f"{total} adjustments in {seconds:.1f} s ({args.scheduler}); results in {args.out}", file=sys.stderr)
-    return 1 if any(c.error for c in cells) else 0
+    print(f"{total} adjustments in {seconds:.1f} s ({args.scheduler}); {where}", file=sys.stderr)
+    if failed:
+        print(f"selfcal compare: error: {len(failed)} of {total} adjustments failed "
+              f"({', '.join(f'{c.scenario} {c.model}' for c in failed[:5])}{', ...' if len(failed) > 5 else ''}); "
+              f"{where}", file=sys.stderr)
+        return 1
+    return 0
 
 
 def _run_study(block, args) -> int:

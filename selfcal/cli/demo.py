@@ -10,7 +10,7 @@ from ..batch import PAPER_MODELS, CellSettings, available_models, run_matrix
 from ..block import prune
 from ..io.atomic import atomic_folder
 from ..io.block_folder import write_block
-from ..io.output import output_folder
+from ..io.output import failed_run_folder, output_folder
 from ..io.results import write_files
 from ..report.compare import comparison_markdown, comparison_rows
 from ..simulate import SCENARIOS, simulate_uav, truth_files
@@ -52,13 +52,22 @@ def run(args: argparse.Namespace) -> int:
     cells = run_matrix(blocks, models, CellSettings(), None if args.scheduler == "serial" else args.scheduler,
                        None, done)
     rows = comparison_rows(cells)
-    with atomic_folder(args.out) as tmp:
-        for name in SCENARIOS:
-            write_block(sim.blocks[name], os.path.join(tmp, "blocks", name))
-        os.makedirs(os.path.join(tmp, "blocks", "truth"))
-        write_files(os.path.join(tmp, "blocks", "truth"), truth_files(sim.truth))
-        write_matrix(tmp, cells, rows, "seed-000 block, 24 cases")
+    failed = [c for c in cells if c.error]
+    # a demo with a failed case never replaces earlier results: its files go beside them, or nowhere
+    target, where = (args.out, f"results in {args.out}") if not failed else failed_run_folder(args.out)
+    if target is not None:
+        with atomic_folder(target) as tmp:
+            for name in SCENARIOS:
+                write_block(sim.blocks[name], os.path.join(tmp, "blocks", name))
+            os.makedirs(os.path.join(tmp, "blocks", "truth"))
+            write_files(os.path.join(tmp, "blocks", "truth"), truth_files(sim.truth))
+            write_matrix(tmp, cells, rows, "seed-000 block, 24 cases")
     print(comparison_markdown(rows))
     print(f"GSD {sim.truth.gsd_m * 100:.1f} cm; 'gruen' (Grün's 44 polynomials) stands for BINGO's AP set. "
-          f"{total} adjustments, {time.perf_counter() - t0:.0f} s in all; results in {args.out}", file=sys.stderr)
-    return 1 if any(c.error for c in cells) else 0
+          f"{total} adjustments, {time.perf_counter() - t0:.0f} s in all; {where}", file=sys.stderr)
+    if failed:
+        print(f"selfcal demo: error: {len(failed)} of {total} cases failed "
+              f"({', '.join(f'{c.scenario} {c.model}' for c in failed[:5])}{', ...' if len(failed) > 5 else ''}); "
+              f"{where}", file=sys.stderr)
+        return 1
+    return 0
