@@ -186,6 +186,7 @@ def solve(problem: Problem, state: State, names: list[str], options: SolverOptio
         d_theta = factor.solve(g)
         d_p = back_substitute(problem, lin, v_inv, d_theta)
         candidate = problem.apply(state, d_theta, d_p)
+        residuals: np.ndarray | None
         new_cost, residuals = cost_and_residuals(problem, candidate)
         diag_p = np.einsum("nii->ni", lin.of_points("V"))
         g_p = lin.of_points("g_p")

@@ -17,8 +17,6 @@ COLMAP's and selfcal's are the same (the upper-left corner of the first pixel at
 """
 from __future__ import annotations
 
-import csv
-import json
 import os
 from typing import Callable
 
@@ -27,43 +25,11 @@ import numpy as np
 from ..calibration import Calibration, undistort_image, undistortion_maps
 from ..convert import colmap_workspace
 from ..errors import BlockError
-from ..io.atomic import atomic_folder, atomic_write
-from ..io.colmap import write_colmap_bin, write_stereo_config
-from ..io.images import check_file_name, read_image, write_image
-from ..io.results import read_results, to_jsonable
+from ..io.colmap_workspace import find_images, write_workspace
+from ..io.images import check_file_name, read_image
+from ..io.results import read_results
 
-__all__ = ["export_workspace", "find_images", "ORIGIN_FILE", "POINTS_FILE"]
-
-#: the workspace file that says where the model's coordinates are (object = model + origin_m)
-ORIGIN_FILE = "selfcal_origin.json"
-#: the workspace file that names each 3-D point's selfcal point id
-POINTS_FILE = "selfcal_points.csv"
-
-
-def find_images(folder: str, image_ids) -> tuple[dict[str, str], list[str]]:
-    """image id -> file name in ``folder`` (relative; the id itself, which may hold sub-folders as COLMAP image
-    names do, else the one file of the folder whose name without extension is the id), and the folder's
-    files that belong to no image."""
-    if not os.path.isdir(folder):
-        raise BlockError(folder, "--images: no such folder")
-    root = os.path.realpath(folder)
-    files = sorted(f for f in os.listdir(folder) if os.path.isfile(os.path.join(folder, f)))
-    by_stem: dict[str, list[str]] = {}
-    for f in files:
-        by_stem.setdefault(os.path.splitext(f)[0], []).append(f)
-    found = {}
-    for image_id in image_ids:
-        path = os.path.realpath(os.path.join(folder, image_id))
-        if os.path.commonpath([path, root]) == root and os.path.isfile(path):
-            found[image_id] = image_id
-        elif image_id in by_stem:
-            if len(by_stem[image_id]) > 1:
-                raise BlockError(os.path.join(folder, by_stem[image_id][0]),
-                                 f"image {image_id}: {len(by_stem[image_id])} files could be it "
-                                 f"({', '.join(by_stem[image_id])}); keep one")
-            found[image_id] = by_stem[image_id][0]
-    used = set(found.values())
-    return found, [f for f in files if f not in used]
+__all__ = ["export_workspace"]
 
 
 def export_workspace(results_folder: str, cams: dict[str, Calibration], images_folder: str, out: str,
@@ -100,8 +66,9 @@ def export_workspace(results_folder: str, cams: dict[str, Calibration], images_f
     names = list(model.image_names)
     for name in names:                  # before any work: OpenCV never sees a name that is not UTF-8
         check_file_name(os.path.join(images_folder, name))
-    with atomic_folder(out) as tmp:
-        os.makedirs(os.path.join(tmp, "images"))
+
+    def undistorted():
+        """(name, pixels) of each image resampled to its ideal camera, one at a time, camera by camera."""
         for colmap_id, camera_id in ws.camera_id.items():
             cal = cams[camera_id]
             try:
@@ -115,28 +82,16 @@ def export_workspace(results_folder: str, cams: dict[str, Calibration], images_f
                 if image.shape[:2] != (cal.height_px, cal.width_px):
                     raise BlockError(path, f"is {image.shape[1]} x {image.shape[0]} px, camera {camera_id} of image "
                                            f"{image_id} is {cal.width_px} x {cal.height_px} px")
-                target = os.path.join(tmp, "images", name)
-                os.makedirs(os.path.dirname(target), exist_ok=True)
-                write_image(target, undistort_image(image, map_x, map_y))
+                yield name, undistort_image(image, map_x, map_y)
                 say(f"[{k + 1}/{len(names)}] {name}")
-        sparse = os.path.join(tmp, "sparse")
-        write_colmap_bin(sparse, model)
-        with atomic_write(os.path.join(sparse, ORIGIN_FILE)) as handle:
-            json.dump(to_jsonable({
-                "origin_m": ws.origin_m,
-                "crs": results.summary.get("crs"),
-                "meaning": "object coordinates (the results' CRS) = COLMAP model coordinates + origin_m; same axes "
-                           "and scale",
-                "results": os.path.abspath(results_folder),
-                "ap_model": results.summary.get("ap_model"),
-                "cameras": {str(k): c for k, c in ws.camera_id.items()},
-                "points_file": POINTS_FILE}), handle, indent=2)
-            handle.write("\n")
-        with atomic_write(os.path.join(sparse, POINTS_FILE)) as handle:
-            table = csv.writer(handle, lineterminator="\n")
-            table.writerow(["point3D_id", "point_id", "role"])
-            table.writerows(zip(model.point_ids.tolist(), ws.point_id, ws.point_role))
-        write_stereo_config(os.path.join(tmp, "stereo"), names)
+    origin = {
+        "origin_m": ws.origin_m,
+        "crs": results.summary.get("crs"),
+        "meaning": "object coordinates (the results' CRS) = COLMAP model coordinates + origin_m; same axes and scale",
+        "results": os.path.abspath(results_folder),
+        "ap_model": results.summary.get("ap_model"),
+        "cameras": {str(k): c for k, c in ws.camera_id.items()}}
+    write_workspace(out, model, undistorted(), origin, zip(model.point_ids.tolist(), ws.point_id, ws.point_role))
     rms = float(np.sqrt(np.mean(model.point_error ** 2))) if len(model.point_error) else float("nan")
     return {"images": len(names), "points": len(model.point_ids), "observations": len(model.obs_point),
             "origin_m": ws.origin_m, "mean_error_px": rms}

@@ -6,7 +6,8 @@ import argparse
 import sys
 
 from ...io.output import output_folder
-from ...workflows.export_workspace import ORIGIN_FILE, export_workspace
+from ...io.colmap_workspace import ORIGIN_FILE
+from ...workflows.export_workspace import export_workspace
 from ..calibrations import calibrations, maps_of
 from ..options import force_option
 
