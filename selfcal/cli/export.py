@@ -3,17 +3,24 @@ from __future__ import annotations
 
 import argparse
 
-from .exporters import EXPORTERS
+from .exporters import EXPORTERS, module
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
+#: the formats of this verb (the command line imports only the one it names)
+FORMATS = EXPORTERS
+
+
+def add_arguments(parser: argparse.ArgumentParser, chosen: str | None = None) -> None:
+    """The formats' sub-commands; the arguments of the format ``chosen`` only (the one the command line names)."""
     formats = parser.add_subparsers(dest="format", required=True, metavar="FORMAT",
                                     help=", ".join(EXPORTERS))
-    for name, module in EXPORTERS.items():
-        sub = formats.add_parser(name, help=module.HELP, description=module.HELP)
+    for name, (_, text) in EXPORTERS.items():
+        sub = formats.add_parser(name, help=text, description=text)
+        if name != chosen:
+            continue
         sub.add_argument("results", metavar="RESULTS", help="results folder written by selfcal adjust")
-        module.add_arguments(sub)
+        module(name).add_arguments(sub)
 
 
 def run(args: argparse.Namespace) -> int:
-    return EXPORTERS[args.format].run(args)
+    return module(args.format).run(args)

@@ -6,21 +6,28 @@ from __future__ import annotations
 
 import argparse
 
-from .importers import IMPORTERS
+from .importers import IMPORTERS, module
 from .options import force_option
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
+#: the formats of this verb (the command line imports only the one it names)
+FORMATS = IMPORTERS
+
+
+def add_arguments(parser: argparse.ArgumentParser, chosen: str | None = None) -> None:
+    """The formats' sub-commands; the arguments of the format ``chosen`` only (the one the command line names)."""
     formats = parser.add_subparsers(dest="format", required=True, metavar="FORMAT",
                                     help=", ".join(IMPORTERS))
-    for name, module in IMPORTERS.items():
-        sub = formats.add_parser(name, help=module.HELP, description=module.HELP)
+    for name, (_, text) in IMPORTERS.items():
+        sub = formats.add_parser(name, help=text, description=text)
+        if name != chosen:
+            continue
         sub.add_argument("source", metavar="SRC", help="the model to import")
         sub.add_argument("--out", required=True, metavar="BLOCK",
                          help="block folder to write (replaced if selfcal wrote it; never the source)")
         force_option(sub)
-        module.add_arguments(sub)
+        module(name).add_arguments(sub)
 
 
 def run(args: argparse.Namespace) -> int:
-    return IMPORTERS[args.format].run(args)
+    return module(args.format).run(args)

@@ -31,22 +31,28 @@ import importlib  # noqa: E402
 
 from ..errors import SelfcalError, UsageError  # noqa: E402
 
-#: verb -> module (in selfcal.cli) with ``add_arguments(parser)`` and ``run(args) -> int``; imported when the
-#: parser is built, after the signal handlers are in place
+#: verb -> (module in selfcal.cli with ``add_arguments(parser)`` and ``run(args) -> int``, the one-line help: the
+#: first line of the module's docstring). Only the verb a command line names is imported, after the signal handlers
+#: are in place: ``selfcal --help`` and ``--version`` load none of them, ``selfcal VERB --help`` only its own. A verb
+#: with formats (import, export) has ``FORMATS`` and ``add_arguments(parser, chosen)``: only the chosen format's
+#: module is imported.
 COMMANDS = {
-    "adjust": "adjust",
-    "simulate": "simulate",
-    "compare": "compare",
-    "report": "report",
-    "import": "import_",
-    "export": "export",
-    "undistort": "undistort",
-    "demo": "demo",
+    "adjust": ("adjust", "Adjust a block folder and write a results folder, whatever the block's sensors."),
+    "simulate": ("simulate", "Simulate a block with known truth (the UAV block of seed 000, the PRISM triplet of "
+                             "seed 001)."),
+    "compare": ("compare", "Adjust blocks with several AP models and tabulate the comparison (seed 000's tables)."),
+    "report": ("report", "Render the report of a results folder again (report.html, figures/), without adjusting."),
+    "import": ("import_", "Import another program's model, control, camera GNSS or calibration as a block folder."),
+    "export": ("export", "Export a results folder to other programs: camera models (OpenCV, COLMAP, Metashape, "
+                         "OpenSfM, Kalibr), maps, RPCs."),
+    "undistort": ("undistort", "Resample images to the ideal (distortion-free) camera of a results folder, with "
+                               "OpenCV's remap."),
+    "demo": ("demo", "Simulate the seed-000 block and run the paper's 24 cases (4 control scenarios x 6 AP models)."),
 }
 
 
 def _module(verb: str):
-    return importlib.import_module(f"selfcal.cli.{COMMANDS[verb]}")
+    return importlib.import_module(f"selfcal.cli.{COMMANDS[verb][0]}")
 
 
 class _Parser(argparse.ArgumentParser):
@@ -62,18 +68,34 @@ class _ArgumentError(UsageError):
         super().__init__(f"{message} (see {prog} --help)")
 
 
-def build_parser() -> argparse.ArgumentParser:
+def _chosen(words: list[str], names) -> tuple[str | None, list[str]]:
+    """The first of ``words`` that is one of ``names`` (a verb, a format) and the words after it: options come
+    before it only as ``--help`` / ``--version``, so the first word that is not an option is it or a mistake."""
+    for k, word in enumerate(words):
+        if not word.startswith("-"):
+            return (word if word in names else None), words[k + 1:]
+    return None, []
+
+
+def build_parser(words: list[str] = ()) -> argparse.ArgumentParser:
+    """The parser of ``selfcal WORDS``: every verb listed, the arguments of the verb the words name only."""
     from .. import __version__
     parser = _Parser(
         prog="selfcal",
         description="Self-calibrating bundle adjustment of frame and pushbroom sensors.")
     parser.add_argument("--version", action="version", version=f"selfcal {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for name in COMMANDS:
-        module = _module(name)
-        doc = (module.__doc__ or "").strip().splitlines()[0]
+    verb, rest = _chosen(list(words), COMMANDS)
+    for name, (_, doc) in COMMANDS.items():
         p = sub.add_parser(name, help=doc, description=doc)
-        module.add_arguments(p)
+        if name != verb:
+            continue
+        module = _module(name)
+        formats = getattr(module, "FORMATS", None)
+        if formats is None:
+            module.add_arguments(p)
+        else:
+            module.add_arguments(p, _chosen(rest, formats)[0])
     return parser
 
 
@@ -93,7 +115,7 @@ def _signal_of(exc: BaseException) -> int | None:
 def _run(argv: list[str], command: bool) -> int:
     from ..allocator import keep_freed_memory
     try:
-        args = build_parser().parse_args(argv)
+        args = build_parser(argv).parse_args(argv)
     except _ArgumentError as exc:
         print(f"{exc.prog}: error: {exc}", file=sys.stderr)
         return exc.exit_code

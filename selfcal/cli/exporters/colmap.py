@@ -9,8 +9,6 @@ from ...io.colmap import write_cameras_txt
 from ...io.output import output_file
 from ..calibrations import calibrations, camera_options, models, pick_camera, report_fit
 
-HELP = "cameras.txt of COLMAP (OPENCV or FULL_OPENCV); all cameras unless --camera"
-
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, metavar="FILE",

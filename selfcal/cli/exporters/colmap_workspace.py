@@ -11,9 +11,6 @@ from ...workflows.export_workspace import export_workspace
 from ..calibrations import calibrations, maps_of
 from ..options import force_option
 
-HELP = ("COLMAP dense workspace (images/ undistorted exactly for every AP model, sparse/ PINHOLE cameras, adjusted "
-        "poses and tie points, stereo/ configuration) for patch_match_stereo, OpenMVS or Gaussian splatting")
-
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--images", required=True, metavar="DIR",

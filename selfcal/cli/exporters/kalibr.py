@@ -8,8 +8,6 @@ from ...io.calibration_files import write_kalibr_camchain
 from ...io.output import output_file
 from ..calibrations import tool_calibration, tool_options
 
-HELP = "Kalibr camchain.yaml of one camera (pinhole, radtan or equidistant)"
-
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, metavar="FILE",

@@ -8,8 +8,6 @@ from ...io.calibration_files import write_metashape_xml
 from ...io.output import output_file
 from ..calibrations import tool_calibration, tool_options
 
-HELP = "Metashape calibration XML of one camera (f, cx, cy, b1, b2, k1-k4, p1, p2 and their covariance)"
-
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, metavar="FILE",

@@ -11,9 +11,6 @@ from ...io.opencv import write_opencv_file
 from ...io.output import output_file
 from ..calibrations import calibrations, fit_tool, fitted_covariance, pick_camera, tool_options
 
-HELP = ("cv::FileStorage file of one camera (.yaml, .xml or .json: camera matrix, distortion coefficients, "
-        "their sigma)")
-
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, metavar="FILE",

@@ -8,8 +8,6 @@ from ...io.calibration_files import write_opensfm_cameras
 from ...io.output import output_file
 from ..calibrations import tool_calibration, tool_options
 
-HELP = "OpenSfM / OpenDroneMap cameras.json of one camera (perspective, brown or fisheye)"
-
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, metavar="FILE",

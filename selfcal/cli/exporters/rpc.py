@@ -14,9 +14,6 @@ from ...io.results import read_camera_json, read_results_table
 from ...io.rpc_gdal import raster_size, write_geotiff_rpc, write_rpc_file
 from ...workflows.export_rpc import adjusted_rpc, points_height_range
 
-HELP = ("the RPC of an adjusted image for GDAL (.RPB, _RPC.TXT or a GeoTIFF copy of --raster, by the name of --out): "
-        "the vendor RPC with its shift bias folded in, or an RPC fitted to the adjusted model (affine bias; pushbroom, "
-        "dimap, dg) with its misfit")
 #: --out name endings (any case) and what they write
 _TIFF = (".tif", ".tiff")
 

@@ -8,8 +8,6 @@ from ...io.opencv import write_undistortion_maps
 from ...io.output import output_file
 from ..calibrations import calibrations, maps_of, pick_camera
 
-HELP = ".npz with map_x, map_y for cv2.remap and the ideal camera matrix (exact for every AP model)"
-
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, metavar="FILE",

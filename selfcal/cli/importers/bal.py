@@ -11,8 +11,6 @@ from ...io.block_folder import write_block
 from ...io.output import output_folder
 from ..options import number
 
-HELP = "a Bundle Adjustment in the Large problem file (one camera per image, no datum)"
-
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--image-sigma-px", type=number(0.0, low_open=True), default=1.0,

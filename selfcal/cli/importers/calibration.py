@@ -13,9 +13,6 @@ from ...io.calibration_files import read_calibration_file
 from ...io.output import output_folder
 from ..options import number
 
-HELP = ("a camera calibration (Metashape XML, OpenSfM cameras.json, OpenCV YAML/XML/JSON, Kalibr camchain.yaml) "
-        "as a block camera's initial or fixed values")
-
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--block", required=True, metavar="BLOCK", help="block folder to add it to (read only)")

@@ -12,8 +12,6 @@ from ...io.odm import read_gcp_list
 from ...io.output import output_folder
 from ..options import number
 
-HELP = "a COLMAP sparse model folder (text or binary), ground control from OpenDroneMap's gcp_list.txt"
-
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--gcp", metavar="FILE", help="OpenDroneMap gcp_list.txt with the ground control")

@@ -9,9 +9,6 @@ import sys
 from ...errors import BlockError, UsageError
 from ..options import number
 
-HELP = ("camera GNSS positions from a folder of JPEGs (EXIF GPS, DJI XMP with RtkStd sigmas) or an ODM geo.txt, "
-        "added to --block as [gnss] observations")
-
 
 def _three(text: str) -> tuple[float, float, float]:
     parse = number(0.0, low_open=True)

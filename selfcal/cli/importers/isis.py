@@ -10,8 +10,6 @@ from ...io.block_folder import write_block
 from ...io.output import output_folder
 from ..options import count, number
 
-HELP = ("an ISIS PVL control network (--images: the folder of the cube labels and their usgscsm/ALE ISDs)")
-
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--images", metavar="DIR", help="folder of the ISIS cube labels (*.pvl) and their ISDs")

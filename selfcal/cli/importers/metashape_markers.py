@@ -13,9 +13,6 @@ from ...io.output import output_folder
 from ..options import number
 from .patb import checks, control_arguments
 
-HELP = ("Metashape markers XML (SRC: exported markers or a chunk's doc.xml; projections in px) with the reference "
-        "CSV of their coordinates, added as control to the images of --block")
-
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--block", metavar="BLOCK", help="the block whose images the markers are measured in "

@@ -12,9 +12,6 @@ from ...io.opensfm import read_reconstruction, read_tracks
 from ...io.output import output_folder
 from ..options import number
 
-HELP = ("an OpenSfM / OpenDroneMap reconstruction.json (SRC: the file or its folder) with its tracks.csv "
-        "(a free network)")
-
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--tracks", metavar="FILE",

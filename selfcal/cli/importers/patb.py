@@ -13,9 +13,6 @@ from ...io.output import output_folder
 from ...io.patb import find_patb, read_con, read_ori, read_photo_blocks
 from ..options import number
 
-HELP = ("PAT-B files as Metashape exports them (SRC: the .im, its stem or its folder; .con and .ori beside it): "
-        "image coordinates in mm (x right, y up, from the principal point), control, orientations")
-
 
 def image_size(text: str) -> tuple[int, int]:
     parts = text.lower().split("x")

@@ -14,9 +14,6 @@ from ...io.pix4d import params_folder, read_pix4d_params
 from ..options import number
 from .patb import checks, control_arguments, image_size
 
-HELP = ("Pix4D's params folder (SRC: PROJECT/1_initial/params or the project): the BINGO tie points "
-        "(*_tp_bingo.txt), calibrated internal (.cam) and external parameters; ground control from --gcp")
-
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--gcp", metavar="FILE",
