@@ -28,6 +28,7 @@ if __name__ == "__main__" or os.path.basename(sys.argv[0] if sys.argv else "") =
 
 import argparse  # noqa: E402
 import importlib  # noqa: E402
+from typing import Sequence  # noqa: E402
 
 from ..errors import SelfcalError, UsageError  # noqa: E402
 
@@ -77,7 +78,7 @@ def _chosen(words: list[str], names) -> tuple[str | None, list[str]]:
     return None, []
 
 
-def build_parser(words: list[str] = ()) -> argparse.ArgumentParser:
+def build_parser(words: Sequence[str] = ()) -> argparse.ArgumentParser:
     """The parser of ``selfcal WORDS``: every verb listed, the arguments of the verb the words name only."""
     from .. import __version__
     parser = _Parser(
