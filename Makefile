@@ -81,6 +81,7 @@ bench: install
 	$(PY) benchmarks/bench_scaling.py
 	$(PY) benchmarks/bench_workflow.py
 	$(PY) benchmarks/bench_pushbroom.py
+	$(PY) benchmarks/bench_startup.py
 	$(PY) benchmarks/study_trajectory.py --processes 2
 
 clean:

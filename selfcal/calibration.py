@@ -27,7 +27,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.interpolate import RectBivariateSpline
 
 from .ap import APModel, ImageFrame, ap_from_dict
 from .sensors.frame import photo_from_pixel
@@ -263,6 +262,7 @@ def undistortion_maps(calibration: Calibration, step_px: int = 4) -> tuple[np.nd
     map_x, map_y : float32 (height, width)
     camera_matrix : (3, 3) of the ideal image (OpenCV convention)
     """
+    from scipy.interpolate import RectBivariateSpline     # 0.4 s to import: the exports' --help goes without
     w, h = calibration.width_px, calibration.height_px
     u_nodes = np.unique(np.concatenate([np.arange(0, w, step_px), [w - 1]])).astype(float)
     v_nodes = np.unique(np.concatenate([np.arange(0, h, step_px), [h - 1]])).astype(float)

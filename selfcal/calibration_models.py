@@ -22,7 +22,6 @@ from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy.optimize import least_squares
 
 from .ap import ImageFrame, create_ap, fit_displacement, frame_nodes_mm
 from .sensors.frame import photo_from_pixel, pixel_from_photo
@@ -225,6 +224,7 @@ def fit_camera_model(calibration: Calibration, model: CameraModel, nodes_x: int 
     """The parameters of ``model`` that project like ``calibration`` over its image, by nonlinear least
     squares on a grid of ``nodes_x`` measured positions across (selfcal gives their ideal normalised
     coordinates), with the sensitivity dq/dtheta of the result (module docstring)."""
+    from scipy.optimize import least_squares     # imported on use: the exports' --help goes without SciPy
     w, h = calibration.width_px, calibration.height_px
     x, y = frame_nodes_mm(calibration.ap.frame, nodes_x)
     measured = pixel_from_photo(np.column_stack([x, y]), w, h, calibration.pixel_size_mm)

@@ -6,12 +6,13 @@ from __future__ import annotations
 
 from importlib import import_module
 from importlib.util import find_spec
+from collections.abc import Mapping
 from typing import Callable
 
 __all__ = ["attach"]
 
 
-def attach(package: str, modules: dict[str, tuple[str, ...]]) -> tuple[Callable[[str], object], Callable[[], list]]:
+def attach(package: str, modules: Mapping[str, tuple[str, ...]]) -> tuple[Callable[[str], object], Callable[[], list]]:
     """``__getattr__`` and ``__dir__`` for ``package`` whose public names live in ``modules`` (relative module
     name -> its names): a name is imported from its module the first time it is asked for, then kept; a
     submodule's name imports the submodule, as an eager ``__init__`` that imported it made it an attribute."""

@@ -2,6 +2,7 @@
 import json
 import os
 import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -107,6 +108,26 @@ def test_console_script_runs(selfcal_exe, tmp_path):
     assert "block folder not found" in done.stderr
     done = subprocess.run([selfcal_exe, "--help"], capture_output=True, text=True)
     assert done.returncode == 0 and "adjust" in done.stdout
+
+
+#: what building the parser of a command line may import (issue 45: help answers at once): the verbs that only
+#: read options nothing numeric; the engine's verbs NumPy (their defaults); a format that projects through the
+#: frame camera (Numba kernels) SciPy and Numba too; none of them matplotlib, OpenCV, Dask, GDAL or PROJ
+_HELP_IMPORTS = {"": set(), "report": set(), "export": set(), "adjust": {"numpy"}, "compare": {"numpy"},
+                 "demo": {"numpy"}, "import": {"numpy"}, "import gnss": {"numpy"},
+                 "simulate": {"numpy", "scipy", "numba"}, "import colmap": {"numpy", "scipy", "numba"},
+                 "export opencv": {"numpy", "scipy", "numba"}, "undistort": {"numpy", "scipy", "numba"}}
+_HEAVY = ("numpy", "scipy", "numba", "matplotlib", "cv2", "dask", "rasterio", "pyproj", "pywt", "PIL")
+
+
+@pytest.mark.parametrize("words", list(_HELP_IMPORTS))
+def test_help_loads_only_what_the_options_need(words):
+    code = ("import sys\nfrom selfcal.cli import main\nmain.build_parser(sys.argv[1:])\n"
+            f"print(','.join(m for m in {_HEAVY!r} if m in sys.modules))")
+    done = subprocess.run([sys.executable, "-c", code, *words.split()], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    loaded = set(filter(None, done.stdout.strip().split(",")))
+    assert loaded <= _HELP_IMPORTS[words], f"selfcal {words} --help imports {sorted(loaded - _HELP_IMPORTS[words])}"
 
 
 @pytest.mark.slow

@@ -107,17 +107,17 @@ def test_failed_adjustment_keeps_earlier_results(ws, far_block, tmp_path):
 def test_failed_comparison_keeps_earlier_results(ws, tmp_path, monkeypatch):
     """``compare`` (and ``demo``, which writes the same matrix) with a failed cell: exit 1, the earlier comparison
     byte-identical, this run's files beside it."""
-    import selfcal.cli.compare as compare
+    import selfcal.batch as batch          # compare imports run_matrix from it when it runs
     out = tmp_path / "cmp"
     code, err = run_main(["compare", ws.block, "--ap", "none", "--out", str(out), "--no-report"])
     assert code == 0, err
     before = digest(str(out))
-    real = compare.run_matrix
+    real = batch.run_matrix
 
     def one_fails(*args, **kwargs):
         cells = real(*args, **kwargs)
         return [replace(cells[0], error="injected failure"), *cells[1:]]
-    monkeypatch.setattr(compare, "run_matrix", one_fails)
+    monkeypatch.setattr(batch, "run_matrix", one_fails)
     code, err = run_main(["compare", ws.block, "--ap", "none", "--out", str(out), "--no-report"])
     assert code == 1, err
     assert (f"selfcal compare: error: 1 of 1 adjustments failed (block none); {out} keeps the earlier results; "

@@ -5,19 +5,8 @@ import argparse
 import sys
 import time
 
-from ..adjust import AdjustOptions, APOptions, SensorOptions, TrajectoryOptions
 from ..adjust import SolverOptions
-from ..ap import ALL_MODELS, AP_FAMILIES, parse_ap_spec
 from ..errors import UsageError
-from ..io import read_block
-from ..io.dem import read_dem
-from ..io.output import check_inputs, failed_run_folder, output_folder
-from ..io.results import results_from_files, write_results
-from ..report import model_choice_table, render_report, result_files
-from ..stats import SnoopingOptions, VarianceOptions
-from ..workflows import parse_candidate
-from ..workflows.adjust import AdjustRequest, adjust_block, offers_sensor_models
-from ..workflows.seed001 import ATTITUDE_FREE_SIGMA
 from .options import (ap_option, count, force_option, grid_option, number, progress_printer, robust_options,
                       round_printer, screening_options, test_options, trajectory_options)
 
@@ -72,6 +61,7 @@ def _given(args, dest: str) -> bool:
 
 def _check_options(block, args) -> None:
     """An option that does not apply to the block's sensors is an error naming it."""
+    from ..workflows.adjust import offers_sensor_models
     seed001 = offers_sensor_models(block)
     sensors = ", ".join(sorted({c.model for c in block.cameras.values()}))
     foreign = _FRAME_OPTIONS if seed001 else _SEED001_OPTIONS
@@ -94,6 +84,7 @@ def _check_options(block, args) -> None:
 
 def _ap_cameras(block, args) -> tuple[str, ...] | None:
     """--ap-cameras, checked; wavelet1d on several pushbroom cameras needs it (DESIGN-NOTES)."""
+    from ..ap import AP_FAMILIES, parse_ap_spec
     adjusted = args.images.split(",") if args.images else list(block.images.image_id)
     cameras = list(dict.fromkeys(block.images.camera_id[list(block.images.image_id).index(i)] for i in adjusted
                                  if i in list(block.images.image_id)))
@@ -112,6 +103,7 @@ def _ap_cameras(block, args) -> tuple[str, ...] | None:
 
 
 def _terrain(block, args):
+    from ..io.dem import read_dem
     if args.dem:
         return read_dem(args.dem)
     if block.dem_path:
@@ -121,6 +113,8 @@ def _terrain(block, args):
 
 def _candidates(args) -> list:
     """``--ap auto`` (the ten default models) or ``--ap auto:MODEL,MODEL@GxXGy,...``."""
+    from ..ap import ALL_MODELS, AP_FAMILIES, parse_ap_spec
+    from ..workflows import parse_candidate
     listed = args.ap.partition(":")[2]
     names = [m for m in listed.split(",") if m.strip()] if listed else list(ALL_MODELS)
     candidates = []
@@ -136,6 +130,15 @@ def _candidates(args) -> list:
 
 
 def run(args: argparse.Namespace) -> int:
+    # the engine, the readers and the report load here, not for --help (issue 45: help answers at once)
+    from ..adjust import AdjustOptions, APOptions, SensorOptions, TrajectoryOptions
+    from ..io import read_block
+    from ..io.output import check_inputs, failed_run_folder, output_folder
+    from ..io.results import results_from_files, write_results
+    from ..report import model_choice_table, render_report, result_files
+    from ..stats import SnoopingOptions, VarianceOptions
+    from ..workflows.adjust import AdjustRequest, adjust_block, offers_sensor_models
+    from ..workflows.seed001 import ATTITUDE_FREE_SIGMA
     t0 = time.perf_counter()
     if args.max_iterations < 1:
         raise UsageError(f"--max-iterations must be at least 1, found {args.max_iterations}")

@@ -6,17 +6,8 @@ import os
 import sys
 import time
 
-from ..ap import parse_ap_spec, AP_FAMILIES
-from ..batch import ALL_MODELS, CellSettings, run_matrix
+from ..ap import ALL_MODELS
 from ..errors import BlockError, UsageError
-from ..io import read_block
-from ..io.atomic import atomic_folder
-from ..io.output import check_inputs, failed_run_folder, output_folder
-from ..io.results import results_from_files, write_files
-from ..report import best_cells, render_comparison_report, render_report
-from ..report.compare import comparison_csv, comparison_markdown, comparison_rows
-from ..stats import SnoopingOptions, VarianceOptions
-from ..workflows.adjust import offers_sensor_models
 from .options import ap_list, count, force_option, grid_option, screening_options, test_options, trajectory_options
 
 
@@ -48,6 +39,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    # the engine, Dask and the report load here, not for --help (issue 45)
+    from ..ap import AP_FAMILIES, parse_ap_spec
+    from ..batch import CellSettings, run_matrix
+    from ..io import read_block
+    from ..io.atomic import atomic_folder
+    from ..io.output import check_inputs, failed_run_folder, output_folder
+    from ..report.compare import comparison_markdown, comparison_rows
+    from ..stats import SnoopingOptions, VarianceOptions
+    from ..workflows.adjust import offers_sensor_models
     args.out = output_folder(args.out, (*args.blocks, args.dem), args.force)
     if len(args.blocks) == 1:
         block = read_block(args.blocks[0])
@@ -109,7 +109,9 @@ def _run_study(block, args) -> int:
     M1-M4 are there to show the model error that snooping would reject)."""
     from ..adjust import AdjustOptions, SensorOptions
     from ..batch.seed001 import run_study
+    from ..io.atomic import atomic_folder
     from ..io.dem import read_dem
+    from ..io.results import write_files
     from ..report.compare import study_csv, study_markdown
     from ..sensors.pushbroom import SENSOR_MODELS
     from ..workflows.seed001 import ATTITUDE_FREE_SIGMA
@@ -151,6 +153,9 @@ def cell_folder(scenario: str, model: str) -> str:
 def write_matrix(folder: str, cells, rows: list[dict], title: str, report: bool = True) -> None:
     """Write every cell's results, the comparison table and, with ``report``, the comparison report and
     the report of each scenario's best model (smallest check-point RMSD)."""
+    from ..io.results import results_from_files, write_files
+    from ..report import best_cells, render_comparison_report, render_report
+    from ..report.compare import comparison_csv, comparison_markdown
     for cell in cells:
         if cell.files:
             write_files(os.path.join(folder, cell_folder(cell.scenario, cell.model)), cell.files)

@@ -6,15 +6,6 @@ import os
 import sys
 import time
 
-from ..batch import PAPER_MODELS, CellSettings, available_models, run_matrix
-from ..block import prune
-from ..io.atomic import atomic_folder
-from ..io.block_folder import write_block
-from ..io.output import failed_run_folder, output_folder
-from ..io.results import write_files
-from ..report.compare import comparison_markdown, comparison_rows
-from ..simulate import SCENARIOS, simulate_uav, truth_files
-from .compare import write_matrix
 from .options import count, force_option, number
 
 
@@ -34,6 +25,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..batch import PAPER_MODELS, CellSettings, available_models, run_matrix
+    from ..block import prune
+    from ..io.atomic import atomic_folder
+    from ..io.block_folder import write_block
+    from ..io.output import failed_run_folder, output_folder
+    from ..io.results import write_files
+    from ..report.compare import comparison_markdown, comparison_rows
+    from ..simulate import SCENARIOS, simulate_uav, truth_files
+    from .compare import write_matrix
     t0 = time.perf_counter()
     args.out = output_folder(args.out, (), args.force)
     print("simulating the seed-000 UAV block (28 images, local + Brown distortion, blunders) ...", file=sys.stderr)

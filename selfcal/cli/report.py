@@ -7,10 +7,6 @@ import os
 import sys
 import time
 
-from ..io.atomic import atomic_update
-from ..io.output import update_folder
-from ..io.results import read_results, write_files
-from ..report import render_report
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -18,6 +14,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..io.atomic import atomic_update
+    from ..io.output import update_folder
+    from ..io.results import read_results, write_files
+    from ..report import render_report
     t0 = time.perf_counter()
     results = read_results(update_folder(args.results))
     files = render_report(results)

@@ -6,10 +6,6 @@ import os
 import sys
 
 from ..errors import UsageError
-from ..io.atomic import atomic_folder
-from ..io.block_folder import write_block
-from ..io.output import output_folder
-from ..io.results import write_files
 from ..simulate import DISTORTIONS, SCENARIOS, simulate_uav, truth_files
 from .options import count, force_option, number
 
@@ -40,6 +36,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..io.atomic import atomic_folder
+    from ..io.block_folder import write_block
+    from ..io.output import output_folder
+    from ..io.results import write_files
     args.out = output_folder(args.out, (), args.force)
     if args.kind == "prism":
         return _prism(args)
@@ -65,6 +65,9 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _prism(args: argparse.Namespace) -> int:
+    from ..io.atomic import atomic_folder
+    from ..io.block_folder import write_block
+    from ..io.results import write_files
     from ..io.dem import write_dem
     from ..simulate.prism import LINE_ERROR_PX, dem_grid, prism_block, prism_truth_files, simulate_prism
 
