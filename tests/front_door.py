@@ -26,9 +26,15 @@ SHARED_DATA = os.path.normpath(os.path.join(os.path.dirname(__file__), "..", "..
 
 def run_main(argv: list[str]) -> tuple[object, str]:
     """(exit code, stderr) of ``selfcal ARGV`` in this process; an escaping exception is 'traceback'."""
+    code, _, err = run_main_streams(argv)
+    return code, err
+
+
+def run_main_streams(argv: list[str]) -> tuple[object, str, str]:
+    """(exit code, stdout, stderr) of ``selfcal ARGV`` in this process; an escaping exception is 'traceback'."""
     from selfcal.cli.main import main
-    err = io.StringIO()
-    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+    err, out = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(out):
         try:
             code = main([str(a) for a in argv])
         except SystemExit as exc:            # --help, or an argparse exit main did not turn into a message
@@ -36,7 +42,7 @@ def run_main(argv: list[str]) -> tuple[object, str]:
         except BaseException:                # noqa: BLE001 - a traceback is what the cases must never show
             traceback.print_exc(file=err)
             code = "traceback"
-    return code, err.getvalue()
+    return code, out.getvalue(), err.getvalue()
 
 
 def digest(path: str) -> dict:

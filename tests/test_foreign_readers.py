@@ -14,7 +14,7 @@ import pytest
 
 from selfcal.errors import BlockError, UsageError
 
-from front_door import SHARED_DATA, Workspace, run_main
+from front_door import SHARED_DATA, Workspace, run_main, run_main_streams
 
 
 @pytest.fixture(scope="module")
@@ -307,11 +307,12 @@ def _isis_folder(tmp_path):
 
 def test_import_isis_names_the_label_it_leaves_out(tmp_path):
     folder = _isis_folder(tmp_path)
-    code, err = run_main(["import", "isis", folder / "apolloNet.pvl", "--images", folder, "--out", tmp_path / "out"])
+    code, out, err = run_main_streams(["import", "isis", folder / "apolloNet.pvl", "--images", folder, "--out",
+                                       tmp_path / "out"])
     assert code == 0, err
     assert re.search(r"warning: \S*apolloImage3\.pvl: left out of the images: not an ISIS cube label", err), err
-    assert "imported 6 images" in err and "serial numbers APOLLO15/METRIC/" in err
-    assert "left out: apolloImage3.pvl)" in err, err
+    assert "imported 6 images" in out and "serial numbers APOLLO15/METRIC/" in out       # the outcome, on stdout
+    assert "left out: apolloImage3.pvl)" in out, out
 
 
 def test_import_isis_strict_refuses_a_label_it_cannot_read(tmp_path):

@@ -2,11 +2,13 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 
 from ..adjust import SolverOptions
 from ..errors import UsageError
+from .outcome import finish
 from .options import (ap_option, count, force_option, grid_option, number, progress_printer, robust_options,
                       round_printer, screening_options, test_options, trajectory_options)
 
@@ -29,7 +31,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     trajectory_options(parser)
     parser.add_argument("--no-report", action="store_true",
                         help="do not render report.html and figures/ (selfcal report RESULTS does it later)")
-    parser.add_argument("--quiet", action="store_true", help="no progress output")
     parser.add_argument("--max-iterations", type=count(1), default=SolverOptions.max_iterations, metavar="N",
                         help=f"Gauss-Newton / Levenberg-Marquardt iterations at most (default "
                              f"{SolverOptions.max_iterations}); a weakly determined block may need more")
@@ -204,7 +205,6 @@ def run(args: argparse.Namespace) -> int:
                  f"{s['rmse_chk_up_m']:.2f} m")
     if not seed001:
         line += f", {s['n_ap_significant']}/{s['n_ap_initial']} APs"
-    print(f"{line}; {where}", file=sys.stderr)
     # what a free network's adjustments left out (observations behind their camera, undetermined points)
     for message in tested.result.block.dropped.messages[len(block.dropped.messages):]:
         if message.startswith("left out"):
@@ -222,10 +222,16 @@ def run(args: argparse.Namespace) -> int:
         print(f"robust cleaning ({robust['loss']}): {robust['n_rejected']} gross errors rejected "
               f"({100 * robust['share_rejected']:.1f} %), {robust.get('n_readmitted', 0)} taken back; diagnosis "
               f"{robust['diagnosis']}", file=sys.stderr)
-    if failure:
-        print(f"selfcal adjust: error: {failure}; {where}", file=sys.stderr)
-        return 1
-    return 0
+    figures = {key: s.get(key) for key in _FIGURES if key in s}
+    written = [os.path.abspath(target)] if target is not None else []
+    return finish(args, f"{line}; {where}", figures, written, exit_code=1 if failure else 0,
+                  error=f"{failure}; {where}" if failure else None)
+
+
+#: the summary's key figures in ``--json``'s document (summary.json holds them all)
+_FIGURES = ("converged", "sigma0_px", "rmsd_chk_xy_m", "rmsd_chk_z_m", "rmse_chk_across_m", "rmse_chk_along_m",
+            "rmse_chk_up_m", "n_chk_used", "n_gcp_used", "n_obs_rejected", "n_ap_significant", "n_ap_initial",
+            "ap_model", "failure")
 
 
 def _show_score(score) -> None:

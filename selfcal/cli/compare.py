@@ -3,11 +3,11 @@ from __future__ import annotations
 
 import argparse
 import os
-import sys
 import time
 
 from ..ap import ALL_MODELS
 from ..errors import BlockError, UsageError
+from .outcome import finish, progress
 from .options import ap_list, count, force_option, grid_option, screening_options, test_options, trajectory_options
 
 
@@ -81,7 +81,7 @@ def run(args: argparse.Namespace) -> int:
     def done(cell):
         finished.append(cell)
         status = "failed: " + cell.error.splitlines()[0] if cell.error else f"{cell.seconds:.1f} s"
-        print(f"[{len(finished)}/{total}] {cell.scenario} {cell.model}: {status}", file=sys.stderr, flush=True)
+        progress(f"[{len(finished)}/{total}] {cell.scenario} {cell.model}: {status}")
 
     t0 = time.perf_counter()
     scheduler = None if args.scheduler == "serial" else args.scheduler
@@ -94,14 +94,9 @@ def run(args: argparse.Namespace) -> int:
     if target is not None:
         with atomic_folder(target) as tmp:
             write_matrix(tmp, cells, rows, "selfcal compare", report=not args.no_report)
-    print(comparison_markdown(rows))
-    print(f"{total} adjustments in {seconds:.1f} s ({args.scheduler}); {where}", file=sys.stderr)
-    if failed:
-        print(f"selfcal compare: error: {len(failed)} of {total} adjustments failed "
-              f"({', '.join(f'{c.scenario} {c.model}' for c in failed[:5])}{', ...' if len(failed) > 5 else ''}); "
-              f"{where}", file=sys.stderr)
-        return 1
-    return 0
+    progress(comparison_markdown(rows))
+    return finish_matrix(args, rows, failed, f"{total} adjustments in {seconds:.1f} s ({args.scheduler})", where,
+                         target)
 
 
 def _run_study(block, args) -> int:
@@ -133,16 +128,34 @@ def _run_study(block, args) -> int:
     def show(case):
         status = case.failure.splitlines()[0] if case.rmse_m is None else \
             "RMSE " + " / ".join(f"{v:.2f}" for v in case.rmse_m) + " m"
-        print(f"{case.images} {case.model} {case.n_gcp} GCP: {status}", file=sys.stderr, flush=True)
+        progress(f"{case.images} {case.model} {case.n_gcp} GCP: {status}")
 
     cases, focal, sigma = run_study(block, dem, models, counts, prior_sigma=prior, progress=show,
                                     options=AdjustOptions(sensor=SensorOptions(attitude_telemetry=not args.no_attitude)))
     table = study_markdown(cases, focal, sigma)
     with atomic_folder(args.out) as tmp:
         write_files(tmp, {"comparison.md": table, "comparison.csv": study_csv(cases)})
-    print(table)
-    print(f"{len(cases)} adjustments in {time.perf_counter() - t0:.1f} s; results in {args.out}", file=sys.stderr)
-    return 0
+    progress(table)
+    return finish(args, f"{len(cases)} adjustments in {time.perf_counter() - t0:.1f} s; results in {args.out}",
+                  {"n_adjustments": len(cases)}, [os.path.abspath(args.out)])
+
+
+def finish_matrix(args, rows: list[dict], failed: list, done: str, where: str, target: str | None) -> int:
+    """The outcome of a comparison (compare, demo): the best model of each scenario, the cells' key figures for
+    --json, and the error line when a cell failed."""
+    from ..report import best_cells
+    best = best_cells(rows)
+    line = f"{done}; best " + ", ".join(f"{s} {r['ap_model']}" for s, r in best.items()) if best else done
+    figures = {"best": {s: r["ap_model"] for s, r in best.items()},
+               "cells": [{k: r.get(k) for k in ("scenario", "ap_model", "rmsd_xy_m", "rmsd_z_m", "sigma0_px",
+                                                  "error")} for r in rows]}
+    error = None
+    if failed:
+        error = (f"{len(failed)} of {len(rows)} {'cases' if args.command == 'demo' else 'adjustments'} failed "
+                 f"({', '.join(f'{c.scenario} {c.model}' for c in failed[:5])}{', ...' if len(failed) > 5 else ''}); "
+                 f"{where}")
+    return finish(args, f"{line}; {where}", figures, [os.path.abspath(target)] if target else [],
+                  exit_code=1 if failed else 0, error=error)
 
 
 def cell_folder(scenario: str, model: str) -> str:
@@ -170,6 +183,6 @@ def write_matrix(folder: str, cells, rows: list[dict], title: str, report: bool 
             write_files(os.path.join(folder, name), render_report(results_from_files(cell.files)))
             links[(scenario, cell.model)] = f"{name}/report.html"
         files |= render_comparison_report(rows, comparison_markdown(rows), links, title)
-        print(f"reports of the comparison and of {len(links)} best models rendered in "
-              f"{time.perf_counter() - t0:.1f} s", file=sys.stderr)
+        progress(f"reports of the comparison and of {len(links)} best models rendered in "
+                 f"{time.perf_counter() - t0:.1f} s")
     write_files(folder, files)

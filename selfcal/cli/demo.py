@@ -3,9 +3,9 @@ from __future__ import annotations
 
 import argparse
 import os
-import sys
 import time
 
+from .outcome import progress
 from .options import count, force_option, number
 
 
@@ -33,10 +33,10 @@ def run(args: argparse.Namespace) -> int:
     from ..io.results import write_files
     from ..report.compare import comparison_markdown, comparison_rows
     from ..simulate import SCENARIOS, simulate_uav, truth_files
-    from .compare import write_matrix
+    from .compare import finish_matrix, write_matrix
     t0 = time.perf_counter()
     args.out = output_folder(args.out, (), args.force)
-    print("simulating the seed-000 UAV block (28 images, local + Brown distortion, blunders) ...", file=sys.stderr)
+    progress("simulating the seed-000 UAV block (28 images, local + Brown distortion, blunders) ...")
     sim = simulate_uav(seed=args.seed, distortion="local+brown", blunder_rate=args.blunder_rate,
                        distortion_scale=args.distortion_scale)
     blocks = {name: prune(sim.blocks[name]) for name in SCENARIOS}
@@ -47,7 +47,7 @@ def run(args: argparse.Namespace) -> int:
     def done(cell):
         count.append(cell)
         status = "failed" if cell.error else f"{cell.seconds:.1f} s"
-        print(f"[{len(count)}/{total}] {cell.scenario} {cell.model}: {status}", file=sys.stderr, flush=True)
+        progress(f"[{len(count)}/{total}] {cell.scenario} {cell.model}: {status}")
 
     cells = run_matrix(blocks, models, CellSettings(), None if args.scheduler == "serial" else args.scheduler,
                        None, done)
@@ -62,12 +62,7 @@ def run(args: argparse.Namespace) -> int:
             os.makedirs(os.path.join(tmp, "blocks", "truth"))
             write_files(os.path.join(tmp, "blocks", "truth"), truth_files(sim.truth))
             write_matrix(tmp, cells, rows, "seed-000 block, 24 cases")
-    print(comparison_markdown(rows))
-    print(f"GSD {sim.truth.gsd_m * 100:.1f} cm; 'gruen' (Grün's 44 polynomials) stands for BINGO's AP set. "
-          f"{total} adjustments, {time.perf_counter() - t0:.0f} s in all; {where}", file=sys.stderr)
-    if failed:
-        print(f"selfcal demo: error: {len(failed)} of {total} cases failed "
-              f"({', '.join(f'{c.scenario} {c.model}' for c in failed[:5])}{', ...' if len(failed) > 5 else ''}); "
-              f"{where}", file=sys.stderr)
-        return 1
-    return 0
+    progress(comparison_markdown(rows))
+    progress(f"GSD {sim.truth.gsd_m * 100:.1f} cm; 'gruen' (Grün's 44 polynomials) stands for BINGO's AP set.")
+    return finish_matrix(args, rows, failed, f"{total} adjustments, {time.perf_counter() - t0:.0f} s in all", where,
+                         target)

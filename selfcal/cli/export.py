@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+from typing import Callable
 
 from .exporters import EXPORTERS, module
 
@@ -10,8 +11,10 @@ from .exporters import EXPORTERS, module
 FORMATS = EXPORTERS
 
 
-def add_arguments(parser: argparse.ArgumentParser, chosen: str | None = None) -> None:
-    """The formats' sub-commands; the arguments of the format ``chosen`` only (the one the command line names)."""
+def add_arguments(parser: argparse.ArgumentParser, chosen: str | None = None,
+                  common: Callable[[argparse.ArgumentParser], None] | None = None) -> None:
+    """The formats' sub-commands; the arguments of the format ``chosen`` only (the one the command line names),
+    and ``common``'s (the options every verb has) after them."""
     formats = parser.add_subparsers(dest="format", required=True, metavar="FORMAT",
                                     help=", ".join(EXPORTERS))
     for name, (_, text) in EXPORTERS.items():
@@ -20,6 +23,8 @@ def add_arguments(parser: argparse.ArgumentParser, chosen: str | None = None) ->
             continue
         sub.add_argument("results", metavar="RESULTS", help="results folder written by selfcal adjust")
         module(name).add_arguments(sub)
+        if common is not None:
+            common(sub)
 
 
 def run(args: argparse.Namespace) -> int:

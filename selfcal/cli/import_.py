@@ -5,6 +5,7 @@ camera calibration added to an existing block (--block)."""
 from __future__ import annotations
 
 import argparse
+from typing import Callable
 
 from .importers import IMPORTERS, module
 from .options import force_option
@@ -14,8 +15,10 @@ from .options import force_option
 FORMATS = IMPORTERS
 
 
-def add_arguments(parser: argparse.ArgumentParser, chosen: str | None = None) -> None:
-    """The formats' sub-commands; the arguments of the format ``chosen`` only (the one the command line names)."""
+def add_arguments(parser: argparse.ArgumentParser, chosen: str | None = None,
+                  common: Callable[[argparse.ArgumentParser], None] | None = None) -> None:
+    """The formats' sub-commands; the arguments of the format ``chosen`` only (the one the command line names),
+    and ``common``'s (the options every verb has) after them."""
     formats = parser.add_subparsers(dest="format", required=True, metavar="FORMAT",
                                     help=", ".join(IMPORTERS))
     for name, (_, text) in IMPORTERS.items():
@@ -27,6 +30,8 @@ def add_arguments(parser: argparse.ArgumentParser, chosen: str | None = None) ->
                          help="block folder to write (replaced if selfcal wrote it; never the source)")
         force_option(sub)
         module(name).add_arguments(sub)
+        if common is not None:
+            common(sub)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -31,6 +31,7 @@ import importlib  # noqa: E402
 from typing import Sequence  # noqa: E402
 
 from ..errors import SelfcalError, UsageError  # noqa: E402
+from . import outcome  # noqa: E402
 
 #: verb -> (module in selfcal.cli with ``add_arguments(parser)`` and ``run(args) -> int``, the one-line help: the
 #: first line of the module's docstring). Only the verb a command line names is imported, after the signal handlers
@@ -95,8 +96,9 @@ def build_parser(words: Sequence[str] = ()) -> argparse.ArgumentParser:
         formats = getattr(module, "FORMATS", None)
         if formats is None:
             module.add_arguments(p)
-        else:
-            module.add_arguments(p, _chosen(rest, formats)[0])
+            outcome.add_options(p)
+        else:                          # the output options go with the format's own (``import colmap --json``)
+            module.add_arguments(p, _chosen(rest, formats)[0], outcome.add_options)
     return parser
 
 
@@ -119,20 +121,27 @@ def _run(argv: list[str], command: bool) -> int:
         args = build_parser(argv).parse_args(argv)
     except _ArgumentError as exc:
         print(f"{exc.prog}: error: {exc}", file=sys.stderr)
+        if "--json" in argv:
+            outcome.failed(argparse.Namespace(json=True), exc.prog.removeprefix("selfcal").strip(),
+                           exc.exit_code, str(exc))
         return exc.exit_code
     if command:                        # the modules are loaded: from here a signal unwinds through the clean-ups
         interrupts.install()
     keep_freed_memory()
+    outcome.configure(args)
+    name = outcome.command_of(args)
     try:
         return int(_module(args.command).run(args) or 0)
     except SelfcalError as exc:
         print(f"selfcal {args.command}: error: {exc}", file=sys.stderr)
+        outcome.failed(args, name, exc.exit_code, str(exc))
         return exc.exit_code
     except OSError as exc:             # a folder removed under the run, a device error: no traceback
         if _signal_of(exc) is not None:
             raise
         where = f"{exc.filename}: " if exc.filename else ""
         print(f"selfcal {args.command}: error: {where}{exc.strerror or exc}", file=sys.stderr)
+        outcome.failed(args, name, 1, f"{where}{exc.strerror or exc}")
         return 1
 
 

@@ -4,8 +4,9 @@ from __future__ import annotations
 import argparse
 import glob
 import os
-import sys
 import time
+
+from .outcome import finish
 
 
 
@@ -30,6 +31,6 @@ def run(args: argparse.Namespace) -> int:
                 os.unlink(path)
         write_files(tmp, files)
     n_figures = sum(name.endswith(".png") for name in files)
-    print(f"{os.path.join(args.results, 'report.html')}: {n_figures} figures, rendered in "
-          f"{time.perf_counter() - t0:.1f} s", file=sys.stderr)
-    return 0
+    report = os.path.join(args.results, "report.html")
+    return finish(args, f"{report}: {n_figures} figures, rendered in {time.perf_counter() - t0:.1f} s",
+                  {"n_figures": n_figures}, [os.path.abspath(report)])

@@ -3,10 +3,10 @@ from __future__ import annotations
 
 import argparse
 import os
-import sys
 
 from ..errors import UsageError
 from ..simulate import DISTORTIONS, SCENARIOS, simulate_uav, truth_files
+from .outcome import finish
 from .options import count, force_option, number
 
 
@@ -58,10 +58,11 @@ def run(args: argparse.Namespace) -> int:
         os.makedirs(os.path.join(tmp, "truth"))
         write_files(os.path.join(tmp, "truth"), truth_files(sim.truth))
     info = sim.info
-    print(f"simulated {info['n_images']} images, {info['n_points']} points, {info['n_observations']} image "
-          f"observations ({info['points_per_image']:.0f} per image), distortion {args.distortion}; "
-          f"wrote {', '.join(scenarios)} and truth/ to {args.out}", file=sys.stderr)
-    return 0
+    return finish(args, f"simulated {info['n_images']} images, {info['n_points']} points, {info['n_observations']} "
+                        f"image observations ({info['points_per_image']:.0f} per image), distortion "
+                        f"{args.distortion}; wrote {', '.join(scenarios)} and truth/ to {args.out}",
+                  {k: info[k] for k in ("n_images", "n_points", "n_observations")},
+                  [os.path.abspath(os.path.join(args.out, name)) for name in (*scenarios, "truth")])
 
 
 def _prism(args: argparse.Namespace) -> int:
@@ -85,7 +86,9 @@ def _prism(args: argparse.Namespace) -> int:
         write_dem(os.path.join(folder, "dem.tif"), dem_grid(sim))
         os.makedirs(os.path.join(tmp, "truth"))
         write_files(os.path.join(tmp, "truth"), prism_truth_files(sim))
-    print(f"simulated the PRISM triplet F/N/B: {len(sim.point_ids)} points ({int((block.points.role == 'gcp').sum())} "
-          f"GCP), {len(sim.obs_row)} image points with {noise} px noise, telemetry at 1 Hz / 10 Hz; wrote triplet/ "
-          f"and truth/ to {args.out}", file=sys.stderr)
-    return 0
+    n_gcp = int((block.points.role == "gcp").sum())
+    return finish(args, f"simulated the PRISM triplet F/N/B: {len(sim.point_ids)} points ({n_gcp} GCP), "
+                        f"{len(sim.obs_row)} image points with {noise} px noise, telemetry at 1 Hz / 10 Hz; wrote "
+                        f"triplet/ and truth/ to {args.out}",
+                  {"n_points": len(sim.point_ids), "n_gcp": n_gcp, "n_observations": len(sim.obs_row)},
+                  [os.path.abspath(os.path.join(args.out, name)) for name in ("triplet", "truth")])

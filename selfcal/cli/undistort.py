@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import sys
 
 import numpy as np
 
@@ -13,6 +12,7 @@ from ..io.atomic import atomic_folder
 from ..io.images import check_file_name, read_image, write_image
 from ..io.opencv import write_opencv_file
 from ..io.output import output_folder
+from .outcome import finish, progress
 from .options import force_option
 from .calibrations import calibrations, maps_of, pick_camera
 
@@ -45,9 +45,9 @@ def run(args: argparse.Namespace) -> int:
                 raise BlockError(path, f"is {image.shape[1]} x {image.shape[0]} px, camera {cal.camera_id} is "
                                        f"{cal.width_px} x {cal.height_px} px")
             write_image(os.path.join(tmp, name), undistort_image(image, map_x, map_y))
-            print(f"[{k}/{len(names)}] {name}", file=sys.stderr)
+            progress(f"[{k}/{len(names)}] {name}")
         write_opencv_file(ideal, os.path.join(tmp, "ideal_camera.yaml"),
                           source=f"ideal camera of the undistorted images of camera {cal.camera_id}")
-    print(f"{len(names)} images undistorted into {args.out} (camera {cal.camera_id}, {cal.ap.spec})",
-          file=sys.stderr)
-    return 0
+    return finish(args, f"{len(names)} images undistorted into {args.out} (camera {cal.camera_id}, {cal.ap.spec})",
+                  {"n_images": len(names), "camera_id": cal.camera_id, "ap_model": cal.ap.spec},
+                  [os.path.abspath(os.path.join(args.out, n)) for n in (*names, "ideal_camera.yaml")])

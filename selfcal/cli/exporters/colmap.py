@@ -2,12 +2,14 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 
 from ...calibration import COLMAP_MODELS, colmap_parameters, fit_opencv
 from ...io.colmap import write_cameras_txt
 from ...io.output import output_file
 from ..calibrations import calibrations, camera_options, models, pick_camera, report_fit
+from ..outcome import finish
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -28,5 +30,5 @@ def run(args: argparse.Namespace) -> int:
         rows.append((number, model, cal.width_px, cal.height_px, params))
         print(f"camera {camera_id} is COLMAP camera {number} ({model})", file=sys.stderr)
     write_cameras_txt(args.out, rows)
-    print(f"wrote {args.out}", file=sys.stderr)
-    return 0
+    line = f"wrote {args.out}"
+    return finish(args, line, {"n_cameras": len(rows)}, [os.path.abspath(args.out)])

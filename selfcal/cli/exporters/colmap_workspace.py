@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 
 from ...io.output import output_folder
@@ -10,6 +11,7 @@ from ...io.colmap_workspace import ORIGIN_FILE
 from ...workflows.export_workspace import export_workspace
 from ..calibrations import calibrations, maps_of
 from ..options import force_option
+from ..outcome import finish
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -25,8 +27,8 @@ def run(args: argparse.Namespace) -> int:
     args.out = output_folder(args.out, (args.results, args.images), args.force)
     done = export_workspace(args.results, calibrations(args.results), args.images, args.out,
                             say=lambda text: print(text, file=sys.stderr), maps=maps_of)
-    print(f"wrote {args.out}: {done['images']} images, {done['points']} points, {done['observations']} "
-          f"observations (mean error per point {done['mean_error_px']:.3f} px rms); model coordinates = object "
-          f"coordinates - ({', '.join(f'{v:.0f}' for v in done['origin_m'])}) m (sparse/{ORIGIN_FILE})",
-          file=sys.stderr)
-    return 0
+    line = (f"wrote {args.out}: {done['images']} images, {done['points']} points, {done['observations']} "
+            f"observations (mean error per point {done['mean_error_px']:.3f} px rms); model coordinates = object "
+            f"coordinates - ({', '.join(f'{v:.0f}' for v in done['origin_m'])}) m (sparse/{ORIGIN_FILE})")
+    return finish(args, line, {k: done[k] for k in ("images", "points", "observations", "mean_error_px")},
+                  [os.path.abspath(args.out)])

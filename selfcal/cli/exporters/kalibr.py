@@ -2,11 +2,12 @@
 from __future__ import annotations
 
 import argparse
-import sys
+import os
 
 from ...io.calibration_files import write_kalibr_camchain
 from ...io.output import output_file
 from ..calibrations import tool_calibration, tool_options
+from ..outcome import finish
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -18,5 +19,5 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     args.out = output_file(args.out, (args.results,))
     write_kalibr_camchain(args.out, tool_calibration(args, "kalibr"))
-    print(f"wrote {args.out}", file=sys.stderr)
-    return 0
+    line = f"wrote {args.out}"
+    return finish(args, line, None, [os.path.abspath(args.out)])

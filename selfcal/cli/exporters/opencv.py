@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 import argparse
-import sys
+import os
 
 import numpy as np
 
@@ -10,6 +10,7 @@ from ...calibration import OpenCVCamera
 from ...io.opencv import write_opencv_file
 from ...io.output import output_file
 from ..calibrations import calibrations, fit_tool, fitted_covariance, pick_camera, tool_options
+from ..outcome import finish
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -29,5 +30,7 @@ def run(args: argparse.Namespace) -> int:
                           fitted.misfit_rms_px, fitted.misfit_max_px, cal.width_px, cal.height_px)
     write_opencv_file(camera, args.out, source=f"selfcal {cal.ap.spec} calibration of camera {cal.camera_id}",
                       camera_id=cal.camera_id, covariance=fitted_covariance(cal, fitted))
-    print(f"wrote {args.out}", file=sys.stderr)
-    return 0
+    line = f"wrote {args.out}"
+    return finish(args, line, {"camera_id": cal.camera_id, "model": fitted.model.name,
+                               "misfit_rms_px": fitted.misfit_rms_px},
+                  [os.path.abspath(args.out)])

@@ -13,6 +13,7 @@ from ...io.output import output_file
 from ...io.results import read_camera_json, read_results_table
 from ...io.rpc_gdal import raster_size, write_geotiff_rpc, write_rpc_file
 from ...workflows.export_rpc import adjusted_rpc, points_height_range
+from ..outcome import finish
 
 #: --out name endings (any case) and what they write
 _TIFF = (".tif", ".tiff")
@@ -103,11 +104,13 @@ def run(args: argparse.Namespace) -> int:
                              f"size from its RPC)")
     for result in results:                       # every image computed before any file is written
         print(_report(result), file=sys.stderr)
+    written = []
     for result in results:
         out = outs[result.image_id]
         if args.raster is None:
             write_rpc_file(result.model, out)
         else:
             write_geotiff_rpc(result.model, out, args.raster)
-        print(f"wrote {out}", file=sys.stderr)
-    return 0
+        written.append(os.path.abspath(out))
+    return finish(args, f"wrote {', '.join(outs[r.image_id] for r in results)}",
+                  {"images": [r.image_id for r in results]}, written)

@@ -2,11 +2,13 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 
 from ...io.opencv import write_undistortion_maps
 from ...io.output import output_file
 from ..calibrations import calibrations, maps_of, pick_camera
+from ..outcome import finish
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -23,5 +25,5 @@ def run(args: argparse.Namespace) -> int:
     print(f"camera {cal.camera_id}: undistortion maps {cal.width_px} x {cal.height_px} for cv2.remap; ideal "
           f"camera fx = fy = {camera_matrix[0, 0]:.3f} px, principal point ({camera_matrix[0, 2]:.3f}, "
           f"{camera_matrix[1, 2]:.3f}) (OpenCV convention)", file=sys.stderr)
-    print(f"wrote {args.out}", file=sys.stderr)
-    return 0
+    line = f"wrote {args.out}"
+    return finish(args, line, {"camera_id": cal.camera_id}, [os.path.abspath(args.out)])

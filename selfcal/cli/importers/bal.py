@@ -10,6 +10,7 @@ from ...io.bal import read_bal
 from ...io.block_folder import write_block
 from ...io.output import output_folder
 from ..options import number
+from ..outcome import finish
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -27,7 +28,8 @@ def run(args: argparse.Namespace) -> int:
               f"behind their camera; BAL's formula still gives them a residual (COLMAP would ignore them)",
               file=sys.stderr)
     write_block(block, args.out, source=args.source)
-    print(f"imported {len(block.images)} images (one BAL camera each), {len(block.points)} points, "
-          f"{len(block.observations)} observations into {args.out}; BAL has no datum: adjust it with "
-          f"ground control, or use it as a relative problem", file=sys.stderr)
-    return 0
+    line = (f"imported {len(block.images)} images (one BAL camera each), {len(block.points)} points, "
+            f"{len(block.observations)} observations into {args.out}; BAL has no datum: adjust it with "
+            f"ground control, or use it as a relative problem")
+    return finish(args, line, {"n_images": len(block.images), "n_points": len(block.points),
+                               "n_observations": len(block.observations)}, [os.path.abspath(args.out)])

@@ -3,6 +3,7 @@ interior orientation and additional parameters, in a copy of a block."""
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from dataclasses import replace
 
@@ -12,6 +13,7 @@ from ...io.block_folder import read_block, write_block
 from ...io.calibration_files import read_calibration_file
 from ...io.output import output_folder
 from ..options import number
+from ..outcome import finish
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -62,5 +64,6 @@ def run(args: argparse.Namespace) -> int:
     cameras = dict(block.cameras)
     cameras[args.camera] = new_camera
     write_block(replace(block, cameras=cameras), args.out, source=args.source)
-    print(f"wrote {args.out}", file=sys.stderr)
-    return 0
+    line = f"wrote {args.out}"
+    return finish(args, line, {"camera_id": args.camera, "focal_mm": new_camera.focal_mm, "misfit_px": misfit_px},
+                  [os.path.abspath(args.out)])

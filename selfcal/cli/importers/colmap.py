@@ -11,6 +11,7 @@ from ...io.colmap import read_colmap
 from ...io.odm import read_gcp_list
 from ...io.output import output_folder
 from ..options import number
+from ..outcome import finish
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -38,6 +39,7 @@ def run(args: argparse.Namespace) -> int:
     for note in notes:
         print(note, file=sys.stderr)
     write_block(block, args.out, source=args.source)
-    print(f"imported {len(block.images)} images, {len(block.points)} points, {len(block.observations)} "
-          f"observations into {args.out}", file=sys.stderr)
-    return 0
+    line = (f"imported {len(block.images)} images, {len(block.points)} points, {len(block.observations)} "
+            f"observations into {args.out}")
+    return finish(args, line, {"n_images": len(block.images), "n_points": len(block.points),
+                               "n_observations": len(block.observations)}, [os.path.abspath(args.out)])

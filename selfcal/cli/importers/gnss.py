@@ -8,6 +8,7 @@ import sys
 
 from ...errors import BlockError, UsageError
 from ..options import number
+from ..outcome import finish
 
 
 def _three(text: str) -> tuple[float, float, float]:
@@ -73,8 +74,9 @@ def run(args: argparse.Namespace) -> int:
     warnings += result.warnings
     for note in warnings:
         print(f"warning: {note}", file=sys.stderr)
-    print(f"imported the GNSS positions of {result.n_with_gnss} of {len(result.block.images)} images "
-          f"({result.n_own_sigma} with their own sigma) in {result.n_strips} strips"
-          + (f", the attitudes of {result.n_with_attitude}" if args.imu_sigma_deg else "") + f" into {args.out} "
-          f"({len(warnings)} warning{'s' if len(warnings) != 1 else ''})", file=sys.stderr)
-    return 0
+    line = (f"imported the GNSS positions of {result.n_with_gnss} of {len(result.block.images)} images "
+            f"({result.n_own_sigma} with their own sigma) in {result.n_strips} strips"
+            + (f", the attitudes of {result.n_with_attitude}" if args.imu_sigma_deg else "") + f" into {args.out} "
+            f"({len(warnings)} warning{'s' if len(warnings) != 1 else ''})")
+    return finish(args, line, {"n_images": len(result.block.images), "n_with_gnss": result.n_with_gnss,
+                               "n_strips": result.n_strips, "n_warnings": len(warnings)}, [os.path.abspath(args.out)])

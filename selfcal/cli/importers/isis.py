@@ -9,6 +9,7 @@ from ...errors import BlockError, UsageError
 from ...io.block_folder import write_block
 from ...io.output import output_folder
 from ..options import count, number
+from ..outcome import finish
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -89,11 +90,13 @@ def run(args: argparse.Namespace) -> int:
         write_block(block, args.out)
     roles = {r: int((block.points.role == r).sum()) for r in ("gcp", "tie")}
     missing = sorted({m.serial_number for m in network.measures if not m.ignored and m.serial_number not in images})
-    print(f"imported {len(block.images)} images, {len(block.points)} points ({roles['gcp']} gcp, {roles['tie']} tie), "
-          f"{len(block.observations)} measures (sigma {sigma_px:.3g} px) into {args.out}; left out: "
-          f"{counts['ignored_points']} ignored points, {counts['ignored_measures']} ignored measures, "
-          f"{counts['measures_without_image']} measures of images not in {args.images}"
-          + (f" (serial numbers {', '.join(missing[:5])}{', ...' if len(missing) > 5 else ''}"
-             + (f"; left out: {', '.join(os.path.basename(p) for p, _ in left_out)})" if left_out else ")")
-             if missing else ""), file=sys.stderr)
-    return 0
+    line = (f"imported {len(block.images)} images, {len(block.points)} points ({roles['gcp']} gcp, {roles['tie']} "
+            f"tie), "
+            f"{len(block.observations)} measures (sigma {sigma_px:.3g} px) into {args.out}; left out: "
+            f"{counts['ignored_points']} ignored points, {counts['ignored_measures']} ignored measures, "
+            f"{counts['measures_without_image']} measures of images not in {args.images}"
+            + (f" (serial numbers {', '.join(missing[:5])}{', ...' if len(missing) > 5 else ''}"
+               + (f"; left out: {', '.join(os.path.basename(p) for p, _ in left_out)})" if left_out else ")")
+               if missing else ""))
+    return finish(args, line, {"n_images": len(block.images), "n_points": len(block.points),
+                               "n_observations": len(block.observations)}, [os.path.abspath(args.out)])

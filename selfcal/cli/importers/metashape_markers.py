@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 
 from ...convert.uav import block_with_markers
@@ -12,6 +13,7 @@ from ...io.metashape import read_markers_xml, read_reference_csv
 from ...io.output import output_folder
 from ..options import number
 from .patb import checks, control_arguments
+from ..outcome import finish
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -37,6 +39,7 @@ def run(args: argparse.Namespace) -> int:
     for note in notes:
         print(note, file=sys.stderr)
     write_block(new, args.out, source=args.source)
-    print(f"wrote {args.out}: {len(new.images)} images, {len(new.points)} points, {len(new.observations)} "
-          f"observations", file=sys.stderr)
-    return 0
+    line = (f"wrote {args.out}: {len(new.images)} images, {len(new.points)} points, {len(new.observations)} "
+            f"observations")
+    return finish(args, line, {"n_images": len(new.images), "n_points": len(new.points),
+                               "n_observations": len(new.observations)}, [os.path.abspath(args.out)])

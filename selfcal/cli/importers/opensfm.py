@@ -11,6 +11,7 @@ from ...io.block_folder import write_block
 from ...io.opensfm import read_reconstruction, read_tracks
 from ...io.output import output_folder
 from ..options import number
+from ..outcome import finish
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -35,6 +36,7 @@ def run(args: argparse.Namespace) -> int:
     for note in notes:
         print(note, file=sys.stderr)
     write_block(block, args.out, source=source)
-    print(f"imported {len(block.images)} shots, {len(block.points)} points, {len(block.observations)} "
-          f"observations into {args.out}", file=sys.stderr)
-    return 0
+    line = (f"imported {len(block.images)} shots, {len(block.points)} points, {len(block.observations)} "
+            f"observations into {args.out}")
+    return finish(args, line, {"n_images": len(block.images), "n_points": len(block.points),
+                               "n_observations": len(block.observations)}, [os.path.abspath(args.out)])

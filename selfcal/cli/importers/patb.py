@@ -12,6 +12,7 @@ from ...io.block_folder import write_block
 from ...io.output import output_folder
 from ...io.patb import find_patb, read_con, read_ori, read_photo_blocks
 from ..options import number
+from ..outcome import finish
 
 
 def image_size(text: str) -> tuple[int, int]:
@@ -86,6 +87,7 @@ def run(args: argparse.Namespace) -> int:
         print(note, file=sys.stderr)
     write_block(block, args.out, source=files["im"])
     roles = {r: int((block.points.role == r).sum()) for r in ("gcp", "chk", "tie")}
-    print(f"imported {len(block.images)} photos, {len(block.points)} points ({roles['gcp']} gcp, {roles['chk']} "
-          f"chk, {roles['tie']} tie), {len(block.observations)} observations into {args.out}", file=sys.stderr)
-    return 0
+    line = (f"imported {len(block.images)} photos, {len(block.points)} points ({roles['gcp']} gcp, {roles['chk']} "
+            f"chk, {roles['tie']} tie), {len(block.observations)} observations into {args.out}")
+    return finish(args, line, {"n_images": len(block.images), "n_points": len(block.points),
+                               "n_observations": len(block.observations)}, [os.path.abspath(args.out)])

@@ -13,6 +13,7 @@ from ...io.output import output_folder
 from ...io.pix4d import params_folder, read_pix4d_params
 from ..options import number
 from .patb import checks, control_arguments, image_size
+from ..outcome import finish
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -38,6 +39,7 @@ def run(args: argparse.Namespace) -> int:
         print(note, file=sys.stderr)
     write_block(block, args.out, source=params_folder(args.source))
     roles = {r: int((block.points.role == r).sum()) for r in ("gcp", "chk", "tie")}
-    print(f"imported {len(block.images)} images, {len(block.points)} points ({roles['gcp']} gcp, {roles['chk']} "
-          f"chk, {roles['tie']} tie), {len(block.observations)} observations into {args.out}", file=sys.stderr)
-    return 0
+    line = (f"imported {len(block.images)} images, {len(block.points)} points ({roles['gcp']} gcp, {roles['chk']} "
+            f"chk, {roles['tie']} tie), {len(block.observations)} observations into {args.out}")
+    return finish(args, line, {"n_images": len(block.images), "n_points": len(block.points),
+                               "n_observations": len(block.observations)}, [os.path.abspath(args.out)])

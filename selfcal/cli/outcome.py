@@ -1,0 +1,104 @@
+"""What a verb tells its caller, the same in every verb (issue 45; DESIGN.md §5).
+
+* stdout holds the outcome only: one line (``sigma0 0.49 px, check points RMSD ...; results in res``), or with
+  ``--json`` one JSON document (the line, the key figures and the paths written) that a script or a pipeline step
+  reads without parsing files. Nothing else ever goes to stdout.
+* stderr holds the rest: progress (:func:`progress`, off with ``--quiet``), warnings and errors (always), and with
+  ``--verbose`` the lines of the ``selfcal`` logger (each stage's timing, the solver's details).
+
+A verb ends with ``return finish(args, line, figures, written)``; an error that ends a verb early (exit 1 or 2) is
+reported by the command's handler (:mod:`.main`), which gives ``--json`` its document too.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import math
+import sys
+from collections.abc import Mapping, Sequence
+
+__all__ = ["add_options", "configure", "progress", "finish", "failed", "quiet"]
+
+_STATE = {"quiet": False}
+
+
+def add_options(parser: argparse.ArgumentParser) -> None:
+    """--json, --quiet, --verbose: every verb has them, with one meaning."""
+    group = parser.add_argument_group("output (every verb)")
+    group.add_argument("--json", action="store_true",
+                       help="print the outcome as one JSON document on stdout (key figures, paths written, the "
+                            "error if any) instead of the one-line outcome")
+    loud = group.add_mutually_exclusive_group()
+    loud.add_argument("--quiet", action="store_true",
+                      help="no progress on stderr (warnings and errors are still printed)")
+    loud.add_argument("--verbose", action="store_true",
+                      help="more on stderr: the selfcal logger's lines (stages and their timing)")
+
+
+def configure(args: argparse.Namespace) -> None:
+    """Apply --quiet / --verbose for this run (the command's handler calls it once the arguments are parsed)."""
+    _STATE["quiet"] = bool(getattr(args, "quiet", False))
+    logger = logging.getLogger("selfcal")
+    if getattr(args, "verbose", False) and not any(getattr(h, "_selfcal_verbose", False) for h in logger.handlers):
+        handler = logging.StreamHandler(sys.stderr)
+        handler.setFormatter(logging.Formatter("selfcal: %(message)s"))
+        handler._selfcal_verbose = True          # type: ignore[attr-defined]
+        logger.addHandler(handler)
+        logger.setLevel(logging.DEBUG)
+
+
+def quiet() -> bool:
+    """True under --quiet: a verb's own progress lines are left out."""
+    return _STATE["quiet"]
+
+
+def progress(text: str) -> None:
+    """A progress line on stderr (left out under --quiet), flushed at once: the user sees the step begin."""
+    if not _STATE["quiet"]:
+        print(text, file=sys.stderr, flush=True)
+
+
+def _plain(value):
+    """``value`` as JSON can hold it: NumPy scalars as numbers, NaN and infinity as null, tuples as lists."""
+    if isinstance(value, Mapping):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if hasattr(value, "item") and callable(value.item):        # a NumPy scalar
+        value = value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+def _document(command: str, exit_code: int, line: str | None, figures: Mapping | None, written: Sequence[str],
+              error: str | None) -> str:
+    from .. import __version__
+    return json.dumps(_plain({"selfcal": __version__, "command": command, "exit_code": exit_code,
+                              "outcome": line, "error": error, "figures": dict(figures or {}),
+                              "written": list(written)}), indent=1, allow_nan=False)
+
+
+def command_of(args: argparse.Namespace) -> str:
+    """``adjust``, ``import colmap``, ``export opencv``: the verb and its format."""
+    return " ".join(v for v in (getattr(args, "command", None), getattr(args, "format", None)) if v)
+
+
+def finish(args: argparse.Namespace, line: str, figures: Mapping | None = None, written: Sequence[str] = (),
+           exit_code: int = 0, error: str | None = None) -> int:
+    """Print the outcome (the line, or with --json the document) on stdout, and ``error`` as the verb's error line
+    on stderr; return ``exit_code`` for the verb to return."""
+    if error is not None:
+        print(f"selfcal {args.command}: error: {error}", file=sys.stderr)
+    if getattr(args, "json", False):
+        print(_document(command_of(args), exit_code, line, figures, written, error), flush=True)
+    else:
+        print(line, flush=True)
+    return exit_code
+
+
+def failed(args: argparse.Namespace | None, command: str, exit_code: int, error: str) -> None:
+    """With --json, the document of a verb ended by an error (bad input, a failed write) before its outcome."""
+    if args is not None and getattr(args, "json", False):
+        print(_document(command_of(args) or command, exit_code, None, None, (), error), flush=True)

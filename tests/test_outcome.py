@@ -1,0 +1,110 @@
+"""What every verb prints (DESIGN.md §5): stdout holds the outcome only (one line, or with --json one JSON document
+with the key figures and the paths written), stderr the progress, warnings and errors; --quiet leaves the progress
+out, --verbose adds the logger's lines."""
+import json
+import os
+import re
+
+import pytest
+
+from front_door import run_main_streams
+
+
+@pytest.fixture(scope="module")
+def adjusted(tmp_path_factory):
+    """A 10-image simulated block and its adjustment (brown, no snooping)."""
+    from selfcal.io import write_block
+    from selfcal.simulate import simulate_uav
+    sim = simulate_uav(seed=3, distortion="brown", points_per_mm2=0.05, n_strips=2, images_per_strip=5)
+    root = tmp_path_factory.mktemp("outcome")
+    write_block(sim.blocks["type3"], root / "block")
+    code, out, err = run_main_streams(["adjust", root / "block", "--out", root / "res", "--ap", "brown",
+                                       "--snoop", "0", "--no-report", "--json"])
+    assert code == 0, err
+    return root, json.loads(out)
+
+
+def _document(out: str) -> dict:
+    """stdout as the one JSON document it must be: json.loads fails on anything printed beside it."""
+    doc = json.loads(out)
+    assert set(doc) == {"selfcal", "command", "exit_code", "outcome", "error", "figures", "written"}
+    return doc
+
+
+def test_adjust_json_holds_the_summary_figures_and_the_results_folder(adjusted):
+    root, doc = adjusted
+    summary = json.loads((root / "res" / "summary.json").read_text())
+    assert doc["command"] == "adjust" and doc["exit_code"] == 0 and doc["error"] is None
+    assert doc["figures"]["converged"] is True
+    assert doc["figures"]["sigma0_px"] == pytest.approx(summary["sigma0_px"], rel=1e-9)
+    assert doc["figures"]["rmsd_chk_xy_m"] == pytest.approx(summary["rmsd_chk_xy_m"], rel=1e-9)
+    assert doc["figures"]["n_chk_used"] == summary["n_chk_used"] > 0
+    assert doc["written"] == [os.path.abspath(root / "res")]
+    assert doc["outcome"].startswith("sigma0 ") and "results in" in doc["outcome"]
+
+
+def _verbs(root):
+    """One run of each verb the block can feed, with the file or folder it writes."""
+    return {
+        "report": (["report", root / "res"], root / "res" / "report.html"),
+        "export opencv": (["export", "opencv", root / "res", "--out", root / "cam.yaml"], root / "cam.yaml"),
+        "export colmap": (["export", "colmap", root / "res", "--out", root / "cameras.txt"], root / "cameras.txt"),
+        "export metashape": (["export", "metashape", root / "res", "--out", root / "cam.xml"], root / "cam.xml"),
+        "export opensfm": (["export", "opensfm", root / "res", "--out", root / "cameras.json"],
+                           root / "cameras.json"),
+        "export kalibr": (["export", "kalibr", root / "res", "--out", root / "camchain.yaml"],
+                          root / "camchain.yaml"),
+        "export undistort-map": (["export", "undistort-map", root / "res", "--out", root / "maps.npz"],
+                                 root / "maps.npz"),
+        "import calibration": (["import", "calibration", root / "cam.yaml", "--block", root / "block",
+                                "--out", root / "recalibrated"], root / "recalibrated"),
+    }
+
+
+VERBS = [
+    "report", "export opencv", "export colmap", "export metashape", "export opensfm", "export kalibr",
+    "export undistort-map", "import calibration"]
+
+
+@pytest.mark.parametrize("verb", VERBS)
+def test_every_verb_prints_one_line_or_one_json_document(adjusted, verb):
+    root, _ = adjusted
+    argv, written = _verbs(root)[verb]
+    code, out, err = run_main_streams(argv + ["--json"])
+    assert code == 0, err
+    doc = _document(out)
+    assert doc["command"] == verb and doc["exit_code"] == 0 and doc["error"] is None
+    assert doc["written"] and os.path.abspath(written) in doc["written"] and os.path.exists(written)
+    assert doc["outcome"] and "\n" not in doc["outcome"]
+    code, plain, err = run_main_streams(argv + ["--quiet"])         # the same run without --json: the line alone
+    assert code == 0, err
+    untimed = re.compile(r"\d+(\.\d+)? s\b")                       # a run's duration differs between runs
+    assert untimed.sub("", plain) == untimed.sub("", doc["outcome"]) + "\n"
+
+
+def test_errors_give_the_document_with_the_exit_code(adjusted, tmp_path):
+    root, _ = adjusted
+    code, out, err = run_main_streams(["export", "opencv", tmp_path / "nowhere", "--out", tmp_path / "c.yaml",
+                                       "--json"])
+    assert code == 2
+    doc = _document(out)
+    assert doc["exit_code"] == 2 and doc["outcome"] is None and "nowhere" in doc["error"]
+    assert doc["command"] == "export opencv" and doc["written"] == []
+    assert "selfcal export: error:" in err and "nowhere" in err
+    code, out, err = run_main_streams(["adjust", root / "block", "--out", tmp_path / "r", "--bogus", "--json"])
+    assert code == 2 and _document(out)["exit_code"] == 2 and "--bogus" in _document(out)["error"]
+    code, out, err = run_main_streams(["export", "opencv", tmp_path / "nowhere", "--out", tmp_path / "c.yaml"])
+    assert code == 2 and out == ""                                  # an error leaves stdout empty without --json
+
+
+def test_quiet_and_verbose_change_stderr_only(adjusted, tmp_path):
+    root, _ = adjusted
+    argv = ["adjust", root / "block", "--ap", "none", "--snoop", "0", "--no-report"]
+    code, out_q, err_q = run_main_streams(argv + ["--out", tmp_path / "q", "--quiet"])
+    assert code == 0 and "iteration" not in err_q
+    code, out_v, err_v = run_main_streams(argv + ["--out", tmp_path / "v", "--verbose"])
+    assert code == 0 and "iteration" in err_v and len(err_v) > len(err_q)
+    assert out_q.count("\n") == out_v.count("\n") == 1
+    assert out_q.replace(str(tmp_path / "q"), "") == out_v.replace(str(tmp_path / "v"), "")
+    code, _, err = run_main_streams(argv + ["--out", tmp_path / "x", "--quiet", "--verbose"])
+    assert code == 2 and "not allowed with" in err
