@@ -59,22 +59,47 @@ def test_summary_json_is_valid_against_its_schema(adjusted):
             jsonschema.validate(broken, schema, cls=jsonschema.Draft202012Validator)
 
 
-def test_check_points_as_geojson_read_by_gdal(adjusted):
+def _geojson_as_gdal_reads_it(folder):
+    """check_points.geojson of a results folder as GDAL/OGR reads it (pyogrio): (layer metadata, fields by name,
+    x y z of each point), each feature's numbers checked against points.csv: at the reference position X - dX,
+    dX_m dY_m dZ_m as points.csv's, sigma_dX_m ... its sigma_X_m ... (a frame block: errors along X, Y, Z)."""
     from pyogrio.raw import read
-    meta, _, geometry, fields = read(str(adjusted / "check_points.geojson"))
-    assert meta["crs"] == "EPSG:32611" and meta["geometry_type"] == "Point Z"
+    meta, _, geometry, fields = read(str(folder / "check_points.geojson"))
+    assert meta["geometry_type"] == "Point Z"
     field = dict(zip(meta["fields"], fields))
-    points = read_results(str(adjusted)).tables["points"]
+    xyz = np.array([np.frombuffer(wkb[-24:], "<f8") for wkb in geometry])     # WKB Point Z ends with x, y, z
+    points = read_results(str(folder)).tables["points"]
     chk = np.flatnonzero(points["role"] == "chk")
     assert len(geometry) == len(chk) == 24
-    row_of = {pid: k for k, pid in enumerate(points["point_id"])}
-    for wkb, pid, d1, d2, d3 in zip(geometry, field["point_id"], field["d1_m"], field["d2_m"], field["d3_m"]):
-        k = row_of[pid]
-        d = np.array([points["dX_m"][k], points["dY_m"][k], points["dZ_m"][k]])
-        adjusted_xyz = np.array([points["X"][k], points["Y"][k], points["Z"][k]])
-        xyz = np.frombuffer(wkb[-24:], "<f8")                       # WKB Point Z ends with x, y, z
-        np.testing.assert_allclose(xyz, adjusted_xyz - d, atol=2e-4)  # the reference position
-        np.testing.assert_allclose([d1, d2, d3], d, atol=2e-4)
+    row = [{pid: k for k, pid in enumerate(points["point_id"])}[pid] for pid in field["point_id"]]
+    d = np.column_stack([points[f"d{a}_m"][row] for a in "XYZ"])
+    np.testing.assert_allclose(np.column_stack([field[f"d{a}_m"] for a in "XYZ"]), d, atol=6e-5)
+    np.testing.assert_allclose(xyz, np.column_stack([points[a][row] for a in "XYZ"]) - d, atol=2e-4)
+    np.testing.assert_allclose(np.column_stack([field[f"sigma_d{a}_m"] for a in "XYZ"]),
+                               np.column_stack([points[f"sigma_{a}_m"][row] for a in "XYZ"]), atol=6e-6)
+    np.testing.assert_allclose(field["error_xy_m"], np.hypot(d[:, 0], d[:, 1]), atol=1e-4)
+    assert set(field["role"]) == {"chk"}
+    return meta, field, xyz
+
+
+def test_check_points_as_geojson_read_by_gdal(adjusted):
+    """A UTM block: GDAL reads EPSG:32611 from the GeoJSON 2008 crs member."""
+    meta, _, _ = _geojson_as_gdal_reads_it(adjusted)
+    assert meta["crs"] == "EPSG:32611"
+
+
+def test_check_points_of_a_local_frame_in_an_engineering_crs(tmp_path):
+    """A block in a local frame: GDAL reads the crs member as an engineering CRS in metres (not longitude and
+    latitude, GeoJSON's default), named as the block's crs."""
+    from pyproj import CRS
+    import selfcal
+    block = dataclasses.replace(_block(), crs="local")
+    selfcal.bundle_adjust(block, ap="brown").write(tmp_path / "res", report=False)
+    meta, _, xyz = _geojson_as_gdal_reads_it(tmp_path / "res")
+    crs = CRS.from_wkt(meta["crs"])
+    assert meta["crs"].startswith('LOCAL_CS["local"') and crs.is_engineering and not crs.is_geographic
+    assert [a.unit_name for a in crs.axis_info] == ["metre"] * 3 and [a.name for a in crs.axis_info] == list("XYZ")
+    assert np.abs(xyz[:, :2]).max() > 360.0                     # what would be out of range as degrees
 
 
 def test_object_points_as_ply_read_by_plyfile(adjusted):
@@ -93,21 +118,32 @@ def test_object_points_as_ply_read_by_plyfile(adjusted):
 
 
 def test_geojson_of_an_earth_fixed_block_is_longitude_latitude_height():
+    """An Earth-fixed block: RFC 7946's longitude, latitude, height (no crs member), errors east, north, up with
+    their sigma (null where the method gives none); a body-fixed block of an unknown body gets an engineering
+    CRS (its Cartesian metres), never WGS 84 degrees."""
     from selfcal.geometry.earth import geodetic_from_ecef
     from selfcal.report.exchange import check_points_geojson
-    from selfcal.stats.checks import CheckPoints
+    from selfcal.stats.checks import CheckPoints, check_point_sigmas_m
     lat, lon, h = np.radians(44.17), np.radians(5.27), 1500.0        # Mont Ventoux
     a, e2 = 6378137.0, 6.69437999014e-3
     n = a / np.sqrt(1 - e2 * np.sin(lat) ** 2)
     ecef = np.array([[(n + h) * np.cos(lat) * np.cos(lon), (n + h) * np.cos(lat) * np.sin(lon),
                       (n * (1 - e2) + h) * np.sin(lat)]])
-    checks = CheckPoints(np.array(["c1"]), np.array(["chk"]), ecef, ecef + [[1.0, 0, 0]], "intersection", np.eye(3))
-    doc = check_points_geojson(checks, "EPSG:4978", earth_fixed=True)
+    checks = CheckPoints(np.array(["c1"]), np.array(["chk"]), ecef, ecef + [[1.0, 0, 0]], "intersection",
+                         np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]))
+    doc = check_points_geojson(checks, "EPSG:4978", True, np.array([[0.1, 0.2, 0.3]]))
     assert "crs" not in doc
-    np.testing.assert_allclose(doc["features"][0]["geometry"]["coordinates"], [5.27, 44.17, 1500.0],
-                               atol=1e-9)
-    assert check_points_geojson(checks, "local", earth_fixed=False) is None     # metres would read as degrees
+    feature = doc["features"][0]
+    np.testing.assert_allclose(feature["geometry"]["coordinates"], [5.27, 44.17, 1500.0], atol=1e-9)
+    assert feature["properties"] | {"error_xy_m": 1.0} == {
+        "point_id": "c1", "role": "chk", "dE_m": 0.0, "dN_m": 1.0, "dU_m": 0.0, "sigma_dE_m": 0.1,
+        "sigma_dN_m": 0.2, "sigma_dU_m": 0.3, "error_xy_m": 1.0}
+    assert check_points_geojson(checks, "EPSG:4978", True)["features"][0]["properties"]["sigma_dU_m"] is None
+    assert check_point_sigmas_m(dataclasses.replace(checks, method="restitution"), None) is None   # no covariance
     assert np.allclose(np.degrees(geodetic_from_ecef(ecef[0])[:2]), [44.17, 5.27])
+    unknown = check_points_geojson(checks, "body-fixed", True)
+    assert unknown["crs"]["properties"]["name"].startswith('ENGCRS["body-fixed"')
+    np.testing.assert_allclose(unknown["features"][0]["geometry"]["coordinates"], ecef[0])
 
 
 def test_python_api_adjusts_like_the_cli_and_logs_its_progress(adjusted, tmp_path, caplog):

@@ -96,6 +96,51 @@ def test_data_snooping_finds_cube7s_inconsistent_measures(jigsaw_run):
     assert snooped.result.sigma0_px < adjusted.tested.result.sigma0_px / 3
 
 
+def test_check_points_on_the_moon_are_in_its_iau_crs(jigsaw_run, tmp_path):
+    """check_points.geojson of a lunar block, read by GDAL/OGR (pyogrio): the Moon's IAU 2015 CRS (the body
+    named by the ISDs' BODY301_RADII), planetocentric longitude and latitude and the height above the 1737.4 km
+    sphere of each reference position (from points.csv's X - dX), the errors along east, north and radial at
+    the centroid, their sigma as points.csv's (the total, which the rotation keeps). The network has no check
+    points: its 32 Constrained points are taken as such, adjusted against their a-priori positions."""
+    from pyogrio.raw import read
+    from pyproj import CRS
+    from selfcal.io.results import read_results, write_files
+    from selfcal.stats.checks import CheckPoints, local_axes
+    results, adjusted = jigsaw_run
+    result = adjusted.tested.result
+    pts = result.block.points
+    gcp = np.flatnonzero(pts.role == "gcp")
+    checks = CheckPoints(pts.point_id[gcp], pts.role[gcp], pts.xyz_m[gcp], result.state.points[gcp], "intersection",
+                         local_axes(pts.xyz_m[gcp], "ECEF", result.block.crs))
+    files = result_files(adjusted.block, adjusted.tested, {}, None, checks)
+    write_files(str(tmp_path), {"check_points.geojson": files["check_points.geojson"]})
+    meta, _, geometry, fields = read(str(tmp_path / "check_points.geojson"))
+    crs = CRS.from_wkt(meta["crs"])
+    assert meta["crs"].endswith('AUTHORITY["IAU","30100"]]') and crs.is_geographic      # GDAL's WKT1 of it
+    assert crs.equals(CRS.from_authority("IAU_2015", "30100"), ignore_axis_order=True)
+    assert crs.ellipsoid.semi_major_metre == crs.ellipsoid.semi_minor_metre == 1737400.0
+    assert len(geometry) == len(gcp) == 32 and meta["geometry_type"] == "Point Z"
+    field = dict(zip(meta["fields"], fields))
+    points = read_results(str(results)).tables["points"]
+    row = [{pid: k for k, pid in enumerate(points["point_id"])}[pid] for pid in field["point_id"]]
+    d = np.column_stack([points[f"d{a}_m"][row] for a in "XYZ"])
+    reference = np.column_stack([points[a][row] for a in "XYZ"]) - d
+    r = np.linalg.norm(reference, axis=1)
+    lon_lat_h = np.column_stack([np.degrees(np.arctan2(reference[:, 1], reference[:, 0])),
+                                 np.degrees(np.arcsin(reference[:, 2] / r)), r - 1737400.0])
+    np.testing.assert_allclose([np.frombuffer(wkb[-24:], "<f8") for wkb in geometry], lon_lat_h,
+                               rtol=0, atol=2e-4)
+    centre = reference.mean(axis=0)
+    lon, lat = np.arctan2(centre[1], centre[0]), np.arcsin(centre[2] / np.linalg.norm(centre))
+    axes = np.array([[-np.sin(lon), np.cos(lon), 0.0],
+                     [-np.sin(lat) * np.cos(lon), -np.sin(lat) * np.sin(lon), np.cos(lat)], centre / np.linalg.norm(centre)])
+    np.testing.assert_allclose(np.column_stack([field[f"d{a}_m"] for a in "ENU"]), d @ axes.T, atol=2e-4)
+    sigma = np.column_stack([field[f"sigma_d{a}_m"] for a in "ENU"])
+    np.testing.assert_allclose(np.linalg.norm(sigma, axis=1),
+                               np.linalg.norm(np.column_stack([points[f"sigma_{a}_m"][row] for a in "XYZ"]), axis=1),
+                               atol=3e-5)
+
+
 # --- the LRO NAC pair (line-scan ISDs): jigsaw observations=yes cksolvedegree=3 camsolve=all twist=no radius=no --
 
 LRO = os.path.join(SHARED_DATA, "isis", "lro_nac_pair")

@@ -12,8 +12,14 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["latlon_radius_from_xyz", "xyz_from_latlon_radius", "north_east_radial", "covariance_from_sigmas",
+__all__ = ["is_body_fixed", "latlon_radius_from_xyz", "xyz_from_latlon_radius", "north_east_radial", "covariance_from_sigmas",
            "sigmas_from_covariance"]
+
+
+def is_body_fixed(crs: str) -> bool:
+    """Whether a block's ``crs`` names a body-fixed frame of a planetary body: ``body-fixed`` (ISIS imports)
+    or an IAU CRS (``IAU_2015:30100``) of a block whose sensors work in Cartesian body-fixed metres."""
+    return crs.strip() == "body-fixed" or crs.strip().upper().startswith("IAU")
 
 
 def latlon_radius_from_xyz(xyz_m) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -12,6 +12,7 @@ Image coordinates are usgscsm's (line, sample) with the centre of the first pixe
 from __future__ import annotations
 
 import os
+import re
 from dataclasses import dataclass
 
 import numpy as np
@@ -20,7 +21,7 @@ from ..errors import BlockError
 from .jsonfields import array, found, integer, mapping, need, number
 from .text import read_json
 
-__all__ = ["LineScanIsd", "read_usgscsm_isd", "LINE_SCANNER_MODEL"]
+__all__ = ["LineScanIsd", "read_usgscsm_isd", "LINE_SCANNER_MODEL", "target_naif_code"]
 
 LINE_SCANNER_MODEL = "USGS_ASTRO_LINE_SCANNER_SENSOR_MODEL"
 _UNIT_TO_M = {"km": 1000.0, "m": 1.0}
@@ -56,6 +57,17 @@ class LineScanIsd:
     body_times_s: np.ndarray
     body_quaternions: np.ndarray           # J2000 -> target body, w x y z
     body_constant: np.ndarray
+    target_naif_code: int | None = None    # the target body's NAIF code (301: the Moon), None if not named
+
+
+def target_naif_code(isd: dict) -> int | None:
+    """The NAIF code of the ISD's target body (301: the Moon, 499: Mars), from the body constants ALE copies
+    into ``naif_keywords`` (``BODY<code>_RADII``); None when they name no body, or more than one."""
+    keywords = isd.get("naif_keywords")
+    if not isinstance(keywords, dict):
+        return None
+    codes = {int(m.group(1)) for m in map(re.compile(r"BODY([0-9]{1,9})_RADII$").match, keywords) if m}
+    return codes.pop() if len(codes) == 1 else None
 
 
 def _need(isd: dict, key: str, path: str, parent: str = ""):
@@ -160,4 +172,5 @@ def read_usgscsm_isd(path: str | os.PathLike) -> LineScanIsd:
         semi_minor_m=num("semiminor", "radii", positive=True) * radius_unit,
         position_times_s=position_times - center, positions_m=positions * unit, velocities_m_s=velocities * unit,
         pointing_times_s=pointing[0] - center, pointing_quaternions=pointing[1], pointing_constant=pointing[2],
-        body_times_s=body[0] - center, body_quaternions=body[1], body_constant=body[2])
+        body_times_s=body[0] - center, body_quaternions=body[1], body_constant=body[2],
+        target_naif_code=target_naif_code(isd))

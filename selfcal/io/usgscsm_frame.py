@@ -26,6 +26,7 @@ from ..errors import BlockError
 from .jsonfields import integer, mapping, number
 from .text import read_json
 from .isis import AlphaCube
+from .usgscsm import target_naif_code
 
 __all__ = ["FrameIsd", "read_frame_isd", "FRAME_MODEL", "APOLLO_METRIC_CODES"]
 
@@ -65,6 +66,7 @@ class FrameIsd:
     semi_major_m: float
     semi_minor_m: float
     alpha_cube: AlphaCube
+    target_naif_code: int | None = None     # the target body's NAIF code (301: the Moon), None if not named
 
 
 def _need(d: dict, key: str, path: str, where: str = ""):
@@ -187,4 +189,4 @@ def read_frame_isd(path: str | os.PathLike, alpha_cube: AlphaCube | None = None)
         principal_point_mm=ins("PP", 2), radial_k=ins("OD_K", 3), decentering=ins("DECENTER", 3),
         semi_major_m=number(path, _need(radii, "semimajor", path, "radii."), "radii.semimajor", True) * radius_unit,
         semi_minor_m=number(path, _need(radii, "semiminor", path, "radii."), "radii.semiminor", True) * radius_unit,
-        alpha_cube=alpha_cube)
+        alpha_cube=alpha_cube, target_naif_code=target_naif_code(isd))

@@ -2,10 +2,19 @@
 their sigma as PLY (point-cloud viewers: CloudCompare, MeshLab, Open3D).
 
 Both are in the object frame of points.csv: the block's CRS for frame cameras (a projected CRS and height,
-or a local frame), Earth-fixed for satellite sensors. GeoJSON puts an Earth-fixed frame into longitude,
-latitude and ellipsoidal height (RFC 7946's own CRS, with no ``crs`` member); an ``EPSG:N`` CRS is named
-by the ``crs`` member of GeoJSON 2008 (``urn:ogc:def:crs:EPSG::N``), which GDAL/OGR and QGIS honour; a
-block in a local frame gets no GeoJSON (without a ``crs`` member a GIS would read its metres as degrees).
+or a local frame), Earth- or body-fixed for satellite and planetary sensors. GeoJSON gets a CRS GDAL/OGR
+(and with it QGIS) reads in every case, in the ``crs`` member of GeoJSON 2008 (``{"type": "name",
+"properties": {"name": ...}}``, which GDAL passes to ``OGRSpatialReference::SetFromUserInput``):
+
+* an Earth-fixed frame (ECEF): longitude, latitude and WGS 84 ellipsoidal height, RFC 7946's own CRS, no
+  ``crs`` member;
+* a planetary body (a body-fixed ``crs``, :func:`selfcal.geometry.body.is_body_fixed`): planetocentric
+  longitude, latitude and the height above the body's IAU 2015 sphere, ``urn:ogc:def:crs:IAU_2015::<NAIF
+  code>00`` (``IAU_2015:30100``: the Moon); the body is the IAU code of the ``crs`` or the NAIF code its
+  images' ISDs name (``BODY301_RADII``);
+* a CRS with an authority code (``EPSG:32611``): that code as ``urn:ogc:def:crs:EPSG::32611``;
+* anything else (a local frame, a body whose IAU CRS is unknown): an engineering CRS in WKT2 (``ENGCRS``,
+  Cartesian, metres, axes X, Y, Z of unspecified direction), so that no GIS reads the metres as degrees.
 """
 from __future__ import annotations
 
@@ -18,41 +27,124 @@ import numpy as np
 if TYPE_CHECKING:
     from ..stats.checks import CheckPoints
 
-__all__ = ["check_points_geojson", "object_points_ply", "PLY_ROLES"]
+__all__ = ["check_points_geojson", "geojson_crs", "engineering_crs_wkt", "object_points_ply", "PLY_ROLES"]
 
 #: PLY ``role`` codes
 PLY_ROLES = {"tie": 0, "gcp": 1, "chk": 2}
 
 
-def check_points_geojson(checks: CheckPoints, crs: str, earth_fixed: bool) -> dict | None:
-    """check_points.geojson: one Point feature per check point at its reference position, with its errors
-    d = adjusted - reference (``d1_m, d2_m, d3_m`` along ``axes``: east, north, up for an Earth-fixed frame,
-    else X, Y, Z) and ``error_xy_m``. ``earth_fixed``: the frame is ECEF (the sensors' object frame). None
-    without check points, and in a local frame (no CRS a GIS could place it in)."""
+def engineering_crs_wkt(name: str) -> str:
+    """WKT2 of an engineering CRS named ``name``: Cartesian, metres, axes X, Y, Z of unspecified direction."""
+    from pyproj import CRS
+    axes = [{"name": a, "abbreviation": a, "direction": "unspecified", "unit": "metre"} for a in "XYZ"]
+    return CRS.from_json_dict({"type": "EngineeringCRS", "name": name,
+                               "datum": {"type": "EngineeringDatum", "name": "selfcal object frame"},
+                               "coordinate_system": {"subtype": "Cartesian", "axis": axes}}).to_wkt()
+
+
+def _iau_sphere(crs: str, body_naif_code: int | None):
+    """(IAU_2015 code, sphere radius in m) of the body of a body-fixed ``crs``, or None if pyproj knows none."""
+    from pyproj import CRS
+    from pyproj.exceptions import CRSError
+    named = re.fullmatch(r"IAU(?:_\d{4})?:(\d+)", crs.strip(), flags=re.IGNORECASE)
+    naif = int(named.group(1)) // 100 if named else body_naif_code
+    if naif is None:
+        return None
+    try:
+        geographic = CRS.from_authority("IAU_2015", str(100 * naif))
+    except CRSError:
+        return None
+    ellipsoid = geographic.ellipsoid
+    if ellipsoid is None or ellipsoid.semi_major_metre != ellipsoid.semi_minor_metre:
+        return None
+    return 100 * naif, float(ellipsoid.semi_major_metre)
+
+
+def _authority_urn(crs: str) -> str | None:
+    """``urn:ogc:def:crs:AUTH::CODE`` of a ``crs`` written as AUTH:CODE (EPSG, ESRI, IAU_2015 ...) that pyproj
+    knows, else None."""
+    code = re.fullmatch(r"([A-Za-z][A-Za-z0-9_]*):(\d+)", crs.strip())
+    if not code:
+        return None
+    if code.group(1).upper() != "EPSG":
+        from pyproj import CRS
+        from pyproj.exceptions import CRSError
+        try:
+            CRS.from_authority(code.group(1), code.group(2))
+        except CRSError:
+            return None
+    authority = "EPSG" if code.group(1).upper() == "EPSG" else code.group(1)
+    return f"urn:ogc:def:crs:{authority}::{code.group(2)}"
+
+
+def geojson_crs(crs: str, earth_fixed: bool, body_naif_code: int | None = None) -> tuple[str, str | None, float]:
+    """How check_points.geojson places the points of a block (see the module docstring): (kind, the name of
+    its ``crs`` member or None, the radius of the body's sphere in m or 0). kind: ``earth`` (longitude,
+    latitude, WGS 84 height), ``body`` (longitude, latitude, height above the sphere), ``code`` (the block's
+    coordinates in the named CRS) or ``engineering`` (the block's coordinates, an engineering CRS)."""
+    from ..geometry.body import is_body_fixed
+    if crs.strip() == "body-fixed" or (earth_fixed and is_body_fixed(crs)):
+        body = _iau_sphere(crs, body_naif_code)
+        if body is not None:
+            return "body", f"urn:ogc:def:crs:IAU_2015::{body[0]}", body[1]
+        return "engineering", engineering_crs_wkt(crs), 0.0
+    if earth_fixed:
+        return "earth", None, 0.0
+    urn = _authority_urn(crs)
+    if urn is not None:
+        return "code", urn, 0.0
+    return "engineering", engineering_crs_wkt(crs), 0.0
+
+
+def check_points_geojson(checks: CheckPoints, crs: str, earth_fixed: bool, sigmas_m: np.ndarray | None = None,
+                         body_naif_code: int | None = None) -> dict | None:
+    """check_points.geojson: one Point feature per check point at its reference position (in the CRS of
+    :func:`geojson_crs`), with its errors d = adjusted - reference along the check points' axes
+    (:attr:`CheckPoints.axes`) and their sigma: ``dE_m, dN_m, dU_m`` and ``sigma_dE_m ...`` (east, north, up:
+    Earth- or body-fixed) or ``dX_m, dY_m, dZ_m`` and ``sigma_dX_m ...`` (the frame's axes), ``error_xy_m``
+    (the horizontal error). ``earth_fixed``: the sensors work in ECEF (or body-fixed) metres; ``sigmas_m``
+    (n, 3): the a-posteriori sigmas along the axes (:func:`selfcal.stats.checks.check_point_sigmas_m`), None
+    writes null (restituted check points); ``body_naif_code``: the target body of a body-fixed block. None
+    without check points."""
     if checks is None or not len(checks):
         return None
     d = checks.errors_m
+    sigma = np.full(d.shape, np.nan) if sigmas_m is None else np.asarray(sigmas_m, float)
+    kind, name, radius_m = geojson_crs(crs, earth_fixed, body_naif_code)
     position = checks.reference
-    doc: dict[str, object] = {"type": "FeatureCollection", "name": "check_points"}
-    if earth_fixed:
+    if kind == "earth":
         from ..geometry.earth import geodetic_from_ecef
         lat, lon, h = geodetic_from_ecef(position)
         position = np.column_stack([np.degrees(lon), np.degrees(lat), h])
-        axes = ["east", "north", "up"]
-    else:
-        code = re.fullmatch(r"EPSG:(\d+)", crs.strip(), flags=re.IGNORECASE)
-        if not code:            # a local frame: GeoJSON without a crs member means longitude and latitude
-            return None
-        doc["crs"] = {"type": "name", "properties": {"name": f"urn:ogc:def:crs:EPSG::{code.group(1)}"}}
-        axes = ["X", "Y", "Z"]
-    doc["selfcal"] = {"crs": crs, "axes": axes, "method": checks.method,
-                      "note": "d = adjusted - reference, in metres along axes"}
-    doc["features"] = [
-        {"type": "Feature",
-         "geometry": {"type": "Point", "coordinates": [float(v) for v in p]},
-         "properties": {"point_id": str(pid), "role": str(role), "d1_m": float(e[0]), "d2_m": float(e[1]),
-                        "d3_m": float(e[2]), "error_xy_m": float(np.hypot(e[0], e[1]))}}
-        for pid, role, p, e in zip(checks.point_id, checks.role, position, d)]
+    elif kind == "body":
+        from ..geometry.body import latlon_radius_from_xyz
+        lat, lon, r = latlon_radius_from_xyz(position)
+        position = np.column_stack([np.degrees(lon), np.degrees(lat), r - radius_m])
+    enu = earth_fixed                          # errors along east, north, up (CheckPoints.axes: local_axes)
+    axes = ["E", "N", "U"] if enu else ["X", "Y", "Z"]
+    about: dict[str, object] = {"crs": crs, "axes": ["east", "north", "up"] if enu else axes,
+                                "method": checks.method,
+                                "note": "d = adjusted - reference, in metres along axes; sigma_d: the adjusted "
+                                        "point's a-posteriori sigma (null: not known for this method)"}
+    if kind == "body":
+        about["height"] = f"above the body's IAU 2015 sphere of radius {radius_m:.1f} m"
+    doc: dict[str, object] = {"type": "FeatureCollection", "name": "check_points"}
+    if name is not None:
+        doc["crs"] = {"type": "name", "properties": {"name": name}}
+    doc["selfcal"] = about
+
+    def value(x: float) -> float | None:
+        return float(x) if np.isfinite(x) else None
+
+    features = []
+    for pid, role, p, e, s in zip(checks.point_id, checks.role, position, d, sigma):
+        properties: dict[str, object] = {"point_id": str(pid), "role": str(role)}
+        properties |= {f"d{a}_m": float(v) for a, v in zip(axes, e)}
+        properties |= {f"sigma_d{a}_m": value(v) for a, v in zip(axes, s)}
+        properties["error_xy_m"] = float(np.hypot(e[0], e[1]))
+        features.append({"type": "Feature", "geometry": {"type": "Point", "coordinates": [float(v) for v in p]},
+                         "properties": properties})
+    doc["features"] = features
     return doc
 
 

@@ -22,7 +22,7 @@ from ..block import Block
 from ..ap import frame_nodes_mm, takes_grid
 from ..sensors.frame import pixel_from_photo
 from ..stats.accuracy import ce90, le90
-from ..stats.checks import CheckPoints, intersected
+from ..stats.checks import CheckPoints, check_point_sigmas_m, intersected
 from ..stats.correlation import max_abs_correlation_by_group
 from .exchange import check_points_geojson, object_points_ply
 
@@ -87,7 +87,7 @@ def summary(tested, extra: dict | None = None, checks=None) -> dict:
     d_chk = checks.errors_m
     gcp = pts.role == "gcp"
     tie = pts.role == "tie"
-    axes = local_axes(pts.xyz_m[gcp] if gcp.any() else st.points, _object_frame(result))
+    axes = local_axes(pts.xyz_m[gcp] if gcp.any() else st.points, _object_frame(result), block.crs)
     d_gcp = (st.points[gcp] - pts.xyz_m[gcp]) @ axes.T
     cov = np.einsum("ij,njk,lk->nil", axes, result.point_covariance(), axes)
     var = np.einsum("nii->ni", cov)
@@ -469,9 +469,10 @@ def result_files(block_read: Block, tested, summary_extra: dict | None = None, s
         "correlation.csv": correlation_table(result),
     }
     files["points.ply"] = object_points_ply(result)
+    found = intersected(result) if checks is None else checks
     optional = {"check_points.geojson": check_points_geojson(
-                    intersected(result) if checks is None else checks, result.block.crs,
-                    _object_frame(result) == "ECEF"),
+                    found, result.block.crs, _object_frame(result) == "ECEF", check_point_sigmas_m(found, result),
+                    target_naif_code(result.block)),
                 "distortion_grid.csv": distortion_grid_table(result.block, result),
                 "detector_line.csv": detector_line_table(result),
                 "trajectory.csv": trajectory_table(result) if result.problem.trajectory else None}
@@ -480,6 +481,13 @@ def result_files(block_read: Block, tested, summary_extra: dict | None = None, s
     for slot in result.problem.sensors:
         optional |= slot.sensor.result_files(result, slot)
     return files | {k: v for k, v in optional.items() if v is not None}
+
+
+def target_naif_code(block: Block) -> int | None:
+    """The NAIF code of the body the block's images look at, as their ISDs name it (None: none or several)."""
+    codes = {getattr(model, "target_naif_code", None) for model in (block.image_models or {}).values()}
+    codes.discard(None)
+    return codes.pop() if len(codes) == 1 else None
 
 
 def trajectory_table(result) -> CsvTable:

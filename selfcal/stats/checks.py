@@ -7,7 +7,10 @@ height) through the adjusted sensor (:meth:`selfcal.sensors.base.BoundSensor.gro
 001 checks a single pushbroom image.
 
 Errors d = estimate - reference are given in the object frame's axes for a block in a projected
-or local frame, and along east, north and up at the check points' centroid for ECEF.
+or local frame, and along east, north and up at the check points' centroid for ECEF: up is the WGS 84
+normal on the Earth, the radial direction on a planetary body (a body-fixed ``crs``, as its control
+points' sigmas are north, east, radial). An intersected check point's precision is its a-posteriori
+covariance (:func:`check_point_sigmas_m`); a restituted one has none here.
 """
 from __future__ import annotations
 
@@ -15,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["CheckPoints", "intersected", "restituted", "local_axes"]
+__all__ = ["CheckPoints", "intersected", "restituted", "local_axes", "check_point_sigmas_m"]
 
 
 @dataclass
@@ -44,11 +47,17 @@ class CheckPoints:
         return float(np.sqrt(np.mean(d[:, 2] ** 2))) if len(d) else None
 
 
-def local_axes(points: np.ndarray, object_frame: str) -> np.ndarray:
-    """The axes check-point errors are reported in: east, north, up at the centroid of ``points`` (ECEF),
-    else the object frame's own."""
+def local_axes(points: np.ndarray, object_frame: str, crs: str = "") -> np.ndarray:
+    """The axes (rows) check-point errors are reported in: east, north, up at the centroid of ``points``
+    (ECEF; up radial for a body-fixed ``crs``, :func:`selfcal.geometry.body.is_body_fixed`), else the
+    object frame's own."""
     if object_frame != "ECEF" or not len(points):
         return np.eye(3)
+    from ..geometry.body import is_body_fixed, latlon_radius_from_xyz, north_east_radial
+    if is_body_fixed(crs):
+        lat_b, lon_b, _ = latlon_radius_from_xyz(np.mean(points, axis=0))
+        north, east_b, radial = north_east_radial(lat_b, lon_b).T
+        return np.stack([east_b, north, radial])
     from ..geometry.earth import geodetic_from_ecef, local_up
     lat, lon, _ = geodetic_from_ecef(np.mean(points, axis=0))
     up = local_up(lat, lon)
@@ -65,7 +74,7 @@ def intersected(result) -> CheckPoints:
     pts = result.block.points
     chk = np.flatnonzero(pts.role == "chk")
     return CheckPoints(pts.point_id[chk], pts.role[chk], pts.xyz_m[chk], result.state.points[chk], "intersection",
-                       local_axes(pts.xyz_m[chk], _object_frame(result)))
+                       local_axes(pts.xyz_m[chk], _object_frame(result), result.block.crs))
 
 
 def restituted(result, block, image_id: str, point_index: np.ndarray, height, role=None) -> CheckPoints:
@@ -81,4 +90,15 @@ def restituted(result, block, image_id: str, point_index: np.ndarray, height, ro
     estimate = slot.bound.ground(context, np.full(sel.size, k), obs.pixel[sel], height)
     reference = block.points.xyz_m[points]
     return CheckPoints(block.points.point_id[points], (block.points.role if role is None else role)[points], reference,
-                       estimate, "restitution", local_axes(reference, slot.sensor.object_frame))
+                       estimate, "restitution", local_axes(reference, slot.sensor.object_frame, block.crs))
+
+
+def check_point_sigmas_m(checks: CheckPoints, result) -> np.ndarray | None:
+    """The a-posteriori sigmas (n, 3), m, of intersected check points along :attr:`CheckPoints.axes`: the
+    adjusted points' covariance (points.csv's sigma) turned into those axes; the reference's own sigma is not
+    in it. None for restituted check points (no covariance is propagated through the restitution)."""
+    if checks.method != "intersection" or not len(checks):
+        return None
+    row = {pid: k for k, pid in enumerate(result.block.points.point_id)}
+    covariance = result.point_covariance()[[row[pid] for pid in checks.point_id]]
+    return np.sqrt(np.einsum("ij,njk,ik->ni", checks.axes, covariance, checks.axes))
