@@ -561,3 +561,60 @@ def test_import_of_files_written_as_each_tool_documents(small_block, tmp_path, c
     # not a trivial pass: the pinhole part alone misses by pixels
     pinhole = replace(imported, coefficients_px=np.zeros_like(imported.coefficients_px))
     assert np.hypot(*(project(pinhole.normalised_from_measured(measured)) - measured).T).max() > 20
+
+
+def lens_project(n, c):
+    """The older PhotoScan / Agisoft Lens camera (Agisoft Lens user manual 0.4.0, "Camera model", as quoted on
+    Agisoft's forum, topic 6437): x' = x(1 + K1 r^2 + K2 r^4 + K3 r^6) + P2 (r^2 + 2x^2) + 2 P1 x y,
+    y' = y(1 + K1 r^2 + K2 r^4 + K3 r^6) + P1 (r^2 + 2y^2) + 2 P2 x y, u = cx + x' fx + y' skew, v = cy + y' fy."""
+    x, y = n.T
+    r2 = x**2 + y**2
+    radial = 1 + c["k1"] * r2 + c["k2"] * r2**2 + c["k3"] * r2**3
+    xs = x * radial + c["p2"] * (r2 + 2 * x**2) + 2 * c["p1"] * x * y
+    ys = y * radial + c["p1"] * (r2 + 2 * y**2) + 2 * c["p2"] * x * y
+    return np.column_stack([c["cx"] + xs * c["fx"] + ys * c["skew"], c["cy"] + ys * c["fy"]])
+
+
+def test_old_photoscan_calibration_gives_the_camera_of_the_newer_file(small_block, tmp_path, capsys):
+    """PhotoScan's older calibration XML (fx, fy, cx and cy of the principal point, skew, as Agisoft Lens wrote it)
+    and the newer one of the same camera (f, cx, cy from the centre, b1, b2; converted here by Agisoft's own rule
+    F = Fy, B1 = Fx - Fy, B2 = skew) project alike by their documented models, read as the same values (the
+    covariance carried by J C J^T) and import as the same block camera."""
+    from selfcal.io.calibration_files import read_calibration_file
+    path, camera, _ = small_block
+    w, h = camera.width_px, camera.height_px
+    f = camera.focal_mm / camera.pixel_size_mm
+    old = {"fx": f * 1.0004, "fy": f, "cx": w / 2 + 11.5, "cy": h / 2 - 6.25, "skew": -0.8, "k1": -0.03,
+           "k2": 0.01, "k3": -0.002, "p1": 2e-4, "p2": -1e-4}
+    new = {"f": old["fy"], "cx": old["cx"] - w / 2, "cy": old["cy"] - h / 2, "b1": old["fx"] - old["fy"],
+           "b2": old["skew"], "k1": old["k1"], "k2": old["k2"], "k3": old["k3"], "k4": 0.0, "p1": old["p2"],
+           "p2": old["p1"]}
+    n = np.column_stack([g.ravel() for g in np.meshgrid(np.linspace(-0.4, 0.4, 9), np.linspace(-0.3, 0.3, 7))])
+    np.testing.assert_allclose(lens_project(n, old), metashape_project(n, new, w, h), rtol=0, atol=1e-9)
+    cov_old = np.diag([4.0, 1.0, 2.0, 3.0, 0.25])
+    cov_old[0, 1] = cov_old[1, 0] = 1.5                                       # fx and fy correlated
+    (tmp_path / "old.xml").write_text(
+        '<?xml version="1.0" encoding="UTF-8"?>\n<calibration>\n  <projection>frame</projection>\n'
+        f"  <width>{w}</width>\n  <height>{h}</height>\n"
+        + "".join(f"  <{k}>{v!r}</{k}>\n" for k, v in old.items())
+        + "  <covariance>\n    <params>fx fy cx cy skew</params>\n"
+        + f"    <coeffs>{' '.join(str(float(v)) for v in cov_old.ravel())}</coeffs>\n  </covariance>\n"
+        + "  <date>2014-05-12T09:41:07Z</date>\n</calibration>\n")
+    (tmp_path / "new.xml").write_text(
+        "<calibration><projection>frame</projection>" + f"<width>{w}</width><height>{h}</height>"
+        + "".join(f"<{k}>{v!r}</{k}>" for k, v in new.items()) + "</calibration>")
+    read_old, read_new = read_calibration_file(tmp_path / "old.xml"), read_calibration_file(tmp_path / "new.xml")
+    assert read_old.values == pytest.approx(read_new.values, rel=1e-15, abs=1e-12)
+    assert read_old.covariance_names == ("f", "cx", "cy", "b1", "b2")
+    # b1 = fx - fy: var 4 + 1 - 2 * 1.5; cov(f, b1) = cov(fy, fx) - var(fy) = 1.5 - 1
+    assert read_old.covariance[3, 3] == pytest.approx(2.0) and read_old.covariance[0, 3] == pytest.approx(0.5)
+    assert read_old.covariance[1, 1] == 2.0 and read_old.covariance[4, 4] == 0.25
+    cameras = []
+    for name in ("old", "new"):
+        assert run_cli("import", "calibration", str(tmp_path / f"{name}.xml"), "--block", str(path),
+                       "--out", str(tmp_path / f"b_{name}")) == 0
+        cameras.append(block_calibration(tmp_path / f"b_{name}")[0])
+    a, b = cameras
+    assert (a.focal_mm, a.x0_mm, a.y0_mm) == pytest.approx((b.focal_mm, b.x0_mm, b.y0_mm), rel=1e-12)
+    np.testing.assert_allclose(a.initial_ap.values_px, b.initial_ap.values_px, rtol=1e-9, atol=1e-9)
+    assert a.initial_ap.names == b.initial_ap.names

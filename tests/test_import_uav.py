@@ -322,9 +322,10 @@ def test_bad_input_names_file_line_and_reason(tmp_path, sim, capsys, fmt, name, 
 
 # -------------------------------------------------------------------------------------------------- Pix4D
 
-def write_pix4d(folder, sim, project="proj", bingo_label=str, gcp_label=str, northing_first=False):
+def write_pix4d(folder, sim, project="proj", bingo_label=str, gcp_label=str, northing_first=False, end_marker=True):
     """A Pix4D params folder as Pix4D documents it: the BINGO file ("What is the bingo file": mm from the image
-    centre, one block per image closed by -99), the .cam (F, Px, Py in mm, Px/Py from the sensor's upper-left
+    centre, one block per image closed by -99; with ``end_marker`` False as that article's example shows it,
+    ``P1060498 H_8.07_6.0525`` headers, blocks apart by a blank line, no -99), the .cam (F, Px, Py in mm, Px/Py from the sensor's upper-left
     corner, the sensor size in the comment), the external parameters (imageName X Y Z Omega Phi Kappa, degrees,
     PATB convention) and the calibrated camera parameters (fileName imageWidth imageHeight, K, ...), and a GCP
     file in PIX4D's import format (label, X, Y, Z, horizontal accuracy, vertical accuracy).
@@ -345,7 +346,7 @@ def write_pix4d(folder, sim, project="proj", bingo_label=str, gcp_label=str, nor
                 if block.points.role[ob.point_index[k]] != "tie":
                     pid = bingo_label(pid)
                 f.write(f"{pid} {(col - w / 2) * p:.10f} {(h / 2 - row) * p:.10f}\n")
-            f.write("-99\n\n")
+            f.write("-99\n\n" if end_marker else "\n")
     with open(os.path.join(params, f"{project}_pix4d_calibrated_internal_camera_parameters.cam"), "w") as f:
         f.write(f"Pix4D camera calibration file 0\n#Focal Length mm assuming a sensor width of {w * p:g}x{h * p:g}mm\n"
                 f"F {cam.focal_mm}\n#Principal Point mm\nPx {w * p / 2 + cam.x0_mm}\nPy {h * p / 2 - cam.y0_mm}\n"
@@ -392,6 +393,40 @@ def test_pix4d_import_recovers_the_block(tmp_path, sim):
         assert np.array_equal(block.points.xyz_m[k], xyz)
         assert tuple(block.points.sigma_m[k]) == (0.0167, 0.0167, 0.0289)
         assert block.points.role[k] == ("chk" if name == "M07" else "gcp")
+
+
+def test_pix4d_bingo_without_end_markers_reads_as_with_them(tmp_path, sim):
+    """The BINGO layout of Pix4D's own example ("What is the bingo file": header ``image camera``, then ``point x
+    y`` records, no -99) and the closed one (-99 after each block) give the same block."""
+    blocks = []
+    for end_marker in (True, False):
+        project = tmp_path / f"project{int(end_marker)}"
+        _, gcp = write_pix4d(str(project), sim, end_marker=end_marker)
+        bingo = (project / "1_initial" / "params" / "proj_tp_bingo.txt").read_text()
+        assert ("-99" in bingo) == end_marker
+        out = str(tmp_path / f"block{int(end_marker)}")
+        assert run_cli("import", "pix4d", str(project), "--gcp", gcp, "--out", out) == 0
+        blocks.append(read_block(out))
+        assert_same_measurements(blocks[-1], sim.blocks["type1"])
+    closed, open_ = blocks
+    assert list(closed.images.image_id) == list(open_.images.image_id)
+    assert list(closed.points.point_id) == list(open_.points.point_id)
+    np.testing.assert_array_equal(closed.observations.pixel, open_.observations.pixel)
+
+
+@pytest.mark.parametrize("edit, line, reason", [
+    (lambda t: t.replace("\n", "\nM99 1.5\n", 2).replace("\nM99 1.5\n", "\n", 1), 3,
+     "expected 'point_id x y' (or a header 'image camera' after photo 'S1_01'), found 2 field(s)"),
+    (lambda t: "1006 -1.9 1.8\n" + t, 1, "a 'point_id x y' record before the first image header"),
+    (lambda t: t.replace("\n", "\nM98 x 1.5\n", 1), 2, "x: 'x' is not a number"),
+])
+def test_pix4d_bingo_without_end_markers_bad_input(tmp_path, sim, capsys, edit, line, reason):
+    write_pix4d(str(tmp_path / "project"), sim, end_marker=False)
+    path = tmp_path / "project" / "1_initial" / "params" / "proj_tp_bingo.txt"
+    path.write_text(edit(path.read_text()))
+    assert run_cli("import", "pix4d", str(tmp_path / "project"), "--out", str(tmp_path / "out")) == 2
+    err = capsys.readouterr().err
+    assert "proj_tp_bingo.txt" in err and reason in err and f"line {line}" in err, err
 
 
 # ------------------------------------------------------------------------------------------ Metashape markers

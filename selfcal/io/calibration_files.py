@@ -3,7 +3,9 @@
 * Metashape calibration XML (``<calibration>``): f, cx, cy, b1, b2, k1-k4, p1, p2 in Metashape's own
   conventions (cx, cy offsets of the principal point from the image centre in px; its P1, P2 swapped
   relative to OpenCV's p1, p2; the centre of the first pixel at (0.5, 0.5)), and the ``<covariance>`` block
-  Metashape writes (``<params>`` names, ``<coeffs>`` the matrix row by row).
+  Metashape writes (``<params>`` names, ``<coeffs>`` the matrix row by row). Also the older PhotoScan / Agisoft
+  Lens layout (``fx``, ``fy``, ``cx``, ``cy`` of the principal point itself, ``skew``, ``k1``-``k4``, ``p1``,
+  ``p2``), whose values are converted here to the newer names (:data:`OLD_METASHAPE_NAMES`).
 * OpenSfM / OpenDroneMap ``cameras.json``: ``{camera key: {projection_type, width, height, ...}}`` with the
   focal length and principal point normalised by the larger image side (OpenSfM's normalised image
   coordinates: origin at the image centre).
@@ -30,10 +32,21 @@ from .xmlfile import xml_root
 
 __all__ = ["ToolCalibration", "write_metashape_xml", "read_metashape_xml", "write_opensfm_cameras",
            "read_opensfm_cameras", "write_kalibr_camchain", "read_kalibr_camchain", "read_calibration_file",
-           "METASHAPE_NAMES", "OPENSFM_NAMES", "KALIBR_DISTORTION_NAMES"]
+           "METASHAPE_NAMES", "OLD_METASHAPE_NAMES", "OPENSFM_NAMES", "KALIBR_DISTORTION_NAMES"]
 
 #: Metashape's parameters in the order of its calibration file
 METASHAPE_NAMES = ("f", "cx", "cy", "b1", "b2", "k1", "k2", "k3", "k4", "p1", "p2")
+#: the older PhotoScan / Agisoft Lens calibration's parameters. Its model (Agisoft Lens user manual 0.4.0, "Camera
+#: model", as quoted on Agisoft's forum, topic 6437): x' = x(1 + K1 r^2 + K2 r^4 + K3 r^6) + P2 (r^2 + 2x^2) + 2 P1 x y,
+#: y' = y(1 + ...) + P1 (r^2 + 2y^2) + 2 P2 x y, u = cx + x' fx + y' skew, v = cy + y' fy. The newer one (Metashape
+#: user manual, Appendix C, Frame cameras): x' = x(...) + P1 (r^2 + 2x^2) + 2 P2 x y, u = w/2 + cx + x'(f + B1) + y' B2,
+#: v = h/2 + cy + y' f. So (Agisoft's support on that topic: "F = Fy, B1 = Fx - Fy, B2 = skew") f = fy,
+#: b1 = fx - fy, b2 = skew, cx = cx_old - w/2, cy = cy_old - h/2, and the newer P1, P2 are the older P2, P1.
+OLD_METASHAPE_NAMES = ("fx", "fy", "cx", "cy", "skew", "k1", "k2", "k3", "k4", "p1", "p2")
+#: each newer parameter as a linear combination of the older ones (the constant -w/2, -h/2 of cx, cy aside)
+_FROM_OLD = {"f": {"fy": 1.0}, "cx": {"cx": 1.0}, "cy": {"cy": 1.0}, "b1": {"fx": 1.0, "fy": -1.0},
+             "b2": {"skew": 1.0}, "k1": {"k1": 1.0}, "k2": {"k2": 1.0}, "k3": {"k3": 1.0}, "k4": {"k4": 1.0},
+             "p1": {"p2": 1.0}, "p2": {"p1": 1.0}}
 #: OpenSfM's parameters of each projection type (opensfm/io.py camera_to_json)
 OPENSFM_NAMES = {"perspective": ("focal", "k1", "k2"),
                  "brown": ("focal_x", "focal_y", "c_x", "c_y", "k1", "k2", "k3", "p1", "p2"),
@@ -127,14 +140,25 @@ def read_metashape_xml(path: str | os.PathLike) -> ToolCalibration:
     width, height = number("width", size[0]), number("height", size[1])
     if width <= 0 or height <= 0 or width != int(width) or height != int(height):
         raise BlockError(path, f"image size {width:g} x {height:g} is not two positive whole numbers")
-    if calib.find("f") is None:
-        raise BlockError(path, "<f> is missing (the focal length in pixels)")
-    values = {name: number(name, calib.findtext(name), 0.0) for name in METASHAPE_NAMES}
-    if not values["f"] > 0:
-        raise BlockError(path, f"<f> must be a positive focal length in pixels, found {values['f']!r}")
+    old = calib.find("f") is None and calib.find("fx") is not None
+    if old:
+        if calib.find("fy") is None:
+            raise BlockError(path, "<fy> is missing (the older PhotoScan layout has <fx> and <fy>, in pixels)")
+        values = _from_old_metashape({name: number(name, calib.findtext(name), 0.0) for name in OLD_METASHAPE_NAMES},
+                                     width, height)
+        if not values["f"] > 0:
+            raise BlockError(path, f"<fy> must be a positive focal length in pixels, found {values['f']!r}")
+    else:
+        if calib.find("f") is None:
+            raise BlockError(path, "<f> is missing (the focal length in pixels; or <fx> and <fy> of PhotoScan's older "
+                                   "layout)")
+        values = {name: number(name, calib.findtext(name), 0.0) for name in METASHAPE_NAMES}
+        if not values["f"] > 0:
+            raise BlockError(path, f"<f> must be a positive focal length in pixels, found {values['f']!r}")
     names: tuple[str, ...] = ()
     matrix = None
     if cov is not None:
+        known = OLD_METASHAPE_NAMES if old else METASHAPE_NAMES
         names = tuple((cov.findtext("params") or "").split())
         try:
             matrix = np.array([float(v) for v in (cov.findtext("coeffs") or "").split()], float)
@@ -142,14 +166,36 @@ def read_metashape_xml(path: str | os.PathLike) -> ToolCalibration:
             raise BlockError(path, "<covariance><coeffs> holds something that is not a number") from None
         if matrix.size != len(names) ** 2:
             raise BlockError(path, f"<covariance>: {matrix.size} coefficients for {len(names)} parameters")
-        unknown = [name for name in names if name.lower() not in METASHAPE_NAMES]
+        unknown = [name for name in names if name.lower() not in known]
         if unknown or len(set(names)) != len(names):
-            raise BlockError(path, f"<covariance><params> must name distinct parameters of {', '.join(METASHAPE_NAMES)}"
+            raise BlockError(path, f"<covariance><params> must name distinct parameters of {', '.join(known)}"
                                    f", found {' '.join(names)[:80]!r}")
         if not np.all(np.isfinite(matrix)):
             raise BlockError(path, "<covariance><coeffs> holds a value that is not finite")
         matrix = matrix.reshape(len(names), len(names))
+        if old:
+            names, matrix = _covariance_from_old_metashape(tuple(n.lower() for n in names), matrix)
     return ToolCalibration("metashape", "frame", values, int(width), int(height), names, matrix)
+
+
+def _from_old_metashape(old: dict, width: float, height: float) -> dict:
+    """The newer Metashape parameters of an older PhotoScan / Lens calibration (:data:`OLD_METASHAPE_NAMES`)."""
+    values = {new: sum(k * old[name] for name, k in terms.items()) for new, terms in _FROM_OLD.items()}
+    values["cx"] -= width / 2.0
+    values["cy"] -= height / 2.0
+    return {name: values[name] for name in METASHAPE_NAMES}
+
+
+def _covariance_from_old_metashape(names: tuple[str, ...], matrix: np.ndarray) -> tuple[tuple[str, ...], np.ndarray]:
+    """The covariance of the newer parameters that the older ones given (``names``) determine: J C J^T."""
+    index = {name: k for k, name in enumerate(names)}
+    new = tuple(n for n in METASHAPE_NAMES if any(o in index for o in _FROM_OLD[n]))
+    jacobian = np.zeros((len(new), len(names)))
+    for row, name in enumerate(new):
+        for old, k in _FROM_OLD[name].items():
+            if old in index:
+                jacobian[row, index[old]] = k
+    return new, jacobian @ matrix @ jacobian.T
 
 
 # --- OpenSfM / ODM ----------------------------------------------------------------------------------------

@@ -98,9 +98,38 @@ def _records(path: str, what: str):
             yield number, tokens
 
 
-def read_photo_blocks(path: str | os.PathLike, what: str = "PAT-B image coordinate file") -> PhotoMeasurements:
-    """Photo blocks: a header record (photo id [more tokens]), ``point_id x y`` records, ``-99``."""
+def _is_number(token: str) -> bool:
+    try:
+        return math.isfinite(float(token))
+    except ValueError:
+        return False
+
+
+def read_photo_blocks(path: str | os.PathLike, what: str = "PAT-B image coordinate file",
+                      end_optional: bool = False) -> PhotoMeasurements:
+    """Photo blocks: a header record (photo id [more tokens]), ``point_id x y`` records, ``-99``.
+
+    ``end_optional`` (BINGO as Pix4D's "What is the bingo file" shows it: ``P1060498 H_8.07_6.0525`` then
+    ``1006 -1.90643 1.83493`` records, blocks apart by a blank line and no ``-99``): in a file without any ``-99``
+    record a header is a record of two fields whose second is not a number (``image camera``), or of one field
+    that is not a number; the next header closes the block (a record of three fields is a measurement, its x and
+    y checked as numbers). A file with a ``-99`` is read in the closed layout.
+    """
     path = os.fspath(path)
+    records = list(_records(path, what))
+    if end_optional and not any(tokens[0] == END for _, tokens in records):
+        return _photo_blocks(path, records, closed=False)
+    return _photo_blocks(path, records, closed=True)
+
+
+def _open_layout_header(tokens: Sequence[str]) -> bool:
+    """A header of the layout without ``-99``: ``image camera`` (the camera not a number) or a lone image name."""
+    if len(tokens) == 1:
+        return not _is_number(tokens[0])
+    return len(tokens) == 2 and not _is_number(tokens[1])
+
+
+def _photo_blocks(path: str, records, closed: bool) -> PhotoMeasurements:
     image, point, xy, lines = [], [], [], []
     photos: list[str] = []
     header: dict[str, tuple[str, ...]] = {}
@@ -108,9 +137,10 @@ def read_photo_blocks(path: str | os.PathLike, what: str = "PAT-B image coordina
     current = None
     seen: set = set()
     last = 0
-    for number, tokens in _records(path, what):
+    for number, tokens in records:
         last = number
-        if current is None:
+        starts = current is None if closed else _open_layout_header(tokens)
+        if starts:
             if tokens[0] == END:
                 raise BlockError(path, "-99 closes a photo block, but no photo block is open", number)
             current = tokens[0]
@@ -122,11 +152,15 @@ def read_photo_blocks(path: str | os.PathLike, what: str = "PAT-B image coordina
             header_line[current] = number
             seen = set()
             continue
-        if tokens[0] == END:
+        if closed and tokens[0] == END:
             current = None
             continue
+        if current is None:
+            raise BlockError(path, "a 'point_id x y' record before the first image header ('image camera')",
+                             number)
         if len(tokens) < 3:
-            raise BlockError(path, f"expected 'point_id x y' (or -99 to close photo '{current}'), found "
+            closing = "or -99 to close" if closed else "or a header 'image camera' after"
+            raise BlockError(path, f"expected 'point_id x y' ({closing} photo '{current}'), found "
                                    f"{len(tokens)} field(s)", number)
         x, y = numbers(path, number, tokens[1:3], ("x", "y"))
         if tokens[0] in seen:
@@ -136,7 +170,7 @@ def read_photo_blocks(path: str | os.PathLike, what: str = "PAT-B image coordina
         point.append(tokens[0])
         xy.append((x, y))
         lines.append(number)
-    if current is not None:
+    if closed and current is not None:
         raise BlockError(path, f"the block of photo '{current}' (line {header_line[current]}) is not closed by "
                                f"-99: a truncated file?", last)
     if not image:

@@ -4,7 +4,9 @@ Files read (Pix4D's "What does the Output Params Folder contain"):
 
 * ``*_tp_bingo.txt`` (or ``*_bingo.txt``): the BINGO tie-point file, image coordinates of the GCPs, check points and
   a selection of automatic tie points on the original (distorted) images, one block per image: a header record
-  ``image_name camera_name``, ``point_id x y`` records, ``-99`` (:func:`selfcal.io.patb.read_photo_blocks`).
+  ``image_name camera_name``, ``point_id x y`` records, ``-99`` (:func:`selfcal.io.patb.read_photo_blocks`); or,
+  as the example of Pix4D's "What is the bingo file" shows it, the blocks without ``-99`` (the next
+  ``image_name camera_name`` header closes a block).
   Pix4D's "What is the bingo file": "The origin of the image coordinate system is the center of the image.
   The coordinates are given in millimeters"; x right and y up as BINGO's photo coordinates.
 * ``*_pix4d_calibrated_internal_camera_parameters.cam``: per camera ``F`` (focal length, mm), ``Px``, ``Py``
@@ -167,7 +169,7 @@ def read_pix4d_params(source: str, image_size: tuple[int, int] | None = None) ->
     ``image_size`` (px) where the folder has no ``*_calibrated_camera_parameters.txt``."""
     folder = params_folder(os.fspath(source))
     bingo = read_photo_blocks(_one(folder, ("*_tp_bingo.txt", "*bingo.txt"), "BINGO tie-point file"),
-                              "Pix4D BINGO tie-point file")
+                              "Pix4D BINGO tie-point file", end_optional=True)
     cam_path = _one(folder, ("*_pix4d_calibrated_internal_camera_parameters.cam",), "calibrated internal parameters")
     if image_size is None:
         size_file = _one(folder, ("*_calibrated_camera_parameters.txt",), "calibrated camera parameters (image size)")
