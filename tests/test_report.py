@@ -187,7 +187,7 @@ def test_report_command_renders_again_from_the_files(adjusted, tmp_path, capsys)
     with open(copy / "figures-stale.txt", "w") as handle:   # not in figures/: left alone
         handle.write("x")
     assert run_cli("report", str(copy)) == 0
-    assert f"{len(FIGURES)} figures" in capsys.readouterr().err
+    assert f"{len(FIGURES)} figures" in capsys.readouterr().out      # the outcome line: stdout
     first, again = _parse(adjusted / "report.html"), _parse(copy / "report.html")
     assert again.cells == first.cells
     assert sorted(os.listdir(copy / "figures")) == sorted(os.listdir(adjusted / "figures"))
