@@ -13,6 +13,10 @@ function theorem, Gauss-Newton form). :func:`propagate` gives Sigma_q = L Sigma_
 
 :func:`initial_from_model` goes the other way: a tool's model becomes selfcal's interior orientation and the
 initial values of an AP model (a least-squares fit of its distortion field).
+
+:func:`fit_for_lens` chooses between a tool's model of a frame (rectilinear) lens and its model of a fisheye
+lens (:data:`LENS_MODELS`) from the lens itself: its field of view across the diagonal, and which of the two
+models reproduces it.
 """
 from __future__ import annotations
 
@@ -29,8 +33,9 @@ from .sensors.frame import photo_from_pixel, pixel_from_photo
 if TYPE_CHECKING:
     from .calibration import Calibration
 
-__all__ = ["CameraModel", "FittedModel", "InitialCalibration", "MODELS", "FAMILIES", "fit_camera_model", "fit_best",
-           "propagate", "ideal_from_pixel", "initial_from_model", "opencv_radial_tangential"]
+__all__ = ["CameraModel", "FittedModel", "InitialCalibration", "LensChoice", "MODELS", "FAMILIES", "LENS_MODELS",
+           "FISHEYE_FIELD_DEG", "FRAME_MODEL_FAILS_PX", "fit_camera_model", "fit_best", "fit_for_lens",
+           "field_of_view_deg", "propagate", "ideal_from_pixel", "initial_from_model", "opencv_radial_tangential"]
 
 
 def opencv_radial_tangential(n: np.ndarray, k: np.ndarray) -> np.ndarray:
@@ -287,6 +292,62 @@ def fit_best(calibration: Calibration, tool: str, names: Sequence[str] | None = 
             best = fitted
     assert best is not None                     # names is not empty
     return best
+
+
+#: tool -> (its model of a frame (rectilinear) lens, its model of a fisheye lens), for :func:`fit_for_lens`
+LENS_MODELS = {"kalibr": ("radtan", "equidistant")}
+#: a lens whose field of view across the diagonal is this wide or wider (degrees) is a fisheye: a rectilinear
+#: lens's image height c tan(theta) grows without bound towards 90 degrees off axis, and the frame models'
+#: polynomials in r = tan(theta) fit it ever worse, while a fisheye's (about c theta) stays finite
+FISHEYE_FIELD_DEG = 120.0
+#: below that field, the lens is still taken for a fisheye when the frame model misses selfcal's by more than
+#: this (px) somewhere in the image and the fisheye model does at least twice as well
+FRAME_MODEL_FAILS_PX = 1.0
+
+
+def field_of_view_deg(calibration: Calibration) -> float:
+    """The field of view across the image diagonal (degrees): the angle between the rays through two opposite
+    corners of the image (the wider of the two diagonals), with selfcal's distortion."""
+    w, h = calibration.width_px, calibration.height_px
+    n = calibration.normalised_from_measured(np.array([[0.0, 0.0], [w, h], [w, 0.0], [0.0, h]]))
+    rays = np.column_stack([n, np.ones(4)])
+    rays /= np.linalg.norm(rays, axis=1)[:, None]
+    cosines = [np.clip(rays[0] @ rays[1], -1.0, 1.0), np.clip(rays[2] @ rays[3], -1.0, 1.0)]
+    return float(np.degrees(np.arccos(min(cosines))))
+
+
+@dataclass(frozen=True)
+class LensChoice:
+    """The model :func:`fit_for_lens` chose and why: ``lens`` is "frame" or "fisheye", ``by`` what decided it
+    ("field": the field of view; "misfit": the frame model failing where the fisheye one does not), with the
+    largest misfits of the models fitted (None for a model not fitted)."""
+
+    fitted: FittedModel
+    lens: str
+    by: str
+    field_of_view_deg: float
+    frame_misfit_max_px: float | None
+    fisheye_misfit_max_px: float | None
+
+
+def fit_for_lens(calibration: Calibration, tool: str, nodes_x: int = 121) -> LensChoice:
+    """The tool's frame-lens model (:data:`LENS_MODELS`) fitted to ``calibration``, unless the lens is a
+    fisheye: a field of view of :data:`FISHEYE_FIELD_DEG` or more across the diagonal, or the frame model
+    missing selfcal's by more than :data:`FRAME_MODEL_FAILS_PX` where the fisheye model misses by at most half
+    as much. The frame model is not dropped for fitting a little worse than the fisheye model: a rectilinear
+    lens with some higher-order radial distortion is still a rectilinear lens (and its misfit is reported)."""
+    frame_name, fisheye_name = LENS_MODELS[tool]
+    field = field_of_view_deg(calibration)
+    if field >= FISHEYE_FIELD_DEG:
+        fisheye = fit_camera_model(calibration, MODELS[tool, fisheye_name], nodes_x)
+        return LensChoice(fisheye, "fisheye", "field", field, None, fisheye.misfit_max_px)
+    frame = fit_camera_model(calibration, MODELS[tool, frame_name], nodes_x)
+    if frame.misfit_max_px <= FRAME_MODEL_FAILS_PX:
+        return LensChoice(frame, "frame", "field", field, frame.misfit_max_px, None)
+    fisheye = fit_camera_model(calibration, MODELS[tool, fisheye_name], nodes_x)
+    if fisheye.misfit_max_px <= 0.5 * frame.misfit_max_px:
+        return LensChoice(fisheye, "fisheye", "misfit", field, frame.misfit_max_px, fisheye.misfit_max_px)
+    return LensChoice(frame, "frame", "field", field, frame.misfit_max_px, fisheye.misfit_max_px)
 
 
 def propagate(fitted: FittedModel, covariance_theta: np.ndarray) -> np.ndarray:

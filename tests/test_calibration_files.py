@@ -618,3 +618,176 @@ def test_old_photoscan_calibration_gives_the_camera_of_the_newer_file(small_bloc
     assert (a.focal_mm, a.x0_mm, a.y0_mm) == pytest.approx((b.focal_mm, b.x0_mm, b.y0_mm), rel=1e-12)
     np.testing.assert_allclose(a.initial_ap.values_px, b.initial_ap.values_px, rtol=1e-9, atol=1e-9)
     assert a.initial_ap.names == b.initial_ap.names
+
+
+# --- Kalibr: its camchain reader's checks, the model chosen from the lens ------------------------------------
+
+class KalibrConfigError(RuntimeError):
+    pass
+
+
+def kalibr_read_camchain(path):
+    """A re-implementation of Kalibr's camchain reader's checks (ethz-asl/kalibr,
+    aslam_offline_calibration/kalibr/python/kalibr_common/ConfigReader.py): ParametersBase.readYaml
+    (yaml.safe_load); CameraChainParameters.numCameras (len of the top-level map: every key is a camera),
+    getCameraParameters (the key 'camN'), getCamOverlaps / checkCamOverlaps (a list of camera ids below
+    numCameras), getExtrinsicsLastCamToHere (T_cn_cnm1, a 4 x 4 transformation, for camN with N >= 1);
+    CameraParameters.getRosTopic / checkRosTopic (a str), getIntrinsics / checkIntrinsics (camera_model pinhole,
+    omni or ds with 4, 5, 6 intrinsics; focal length and principal point floats, not negative),
+    getDistortion / checkDistortion (radtan 4, equidistant 4, fov 1, none 0 coefficients), getResolution /
+    checkResolution (two ints). A missing key is the reader's "Field ... missing" (its catch_keyerror).
+    IccCameraChain (kalibr_imu_camera_calibration/IccSensors.py) reads rostopic of every camera to open the
+    bag. Returns [(rostopic, camera_model, intrinsics, distortion_model, coeffs, resolution, overlaps)]."""
+    with open(path) as handle:
+        data = yaml.safe_load(handle)
+
+    def field(entry, key):
+        if key not in entry:
+            raise KalibrConfigError(f"Field '{key}' missing in file: {path}")
+        return entry[key]
+
+    cameras = []
+    count = len(data)
+    for nr in range(count):
+        cam = field(data, f"cam{nr}")
+        topic = field(cam, "rostopic")
+        if not isinstance(topic, str):
+            raise KalibrConfigError("rostopic has to be a string")
+        model, intrinsics = field(cam, "camera_model"), field(cam, "intrinsics")
+        sizes = {"pinhole": 4, "omni": 5, "ds": 6}
+        if model not in sizes:
+            raise KalibrConfigError(f"Unknown camera model '{model}'")
+        if len(intrinsics) != sizes[model]:
+            raise KalibrConfigError(f"invalid intrinsics for {model}: {len(intrinsics)} parameters")
+        focal, centre = intrinsics[-4:-2], intrinsics[-2:]
+        if not all(isinstance(v, float) and v >= 0.0 for v in focal):
+            raise KalibrConfigError("invalid focalLength (2 floats)")
+        if not all(isinstance(v, float) and v >= 0.0 for v in centre):
+            raise KalibrConfigError("invalid principalPoint")
+        dist_model, coeffs = field(cam, "distortion_model"), field(cam, "distortion_coeffs")
+        counts = {"radtan": 4, "equidistant": 4, "fov": 1, "none": 0}
+        if dist_model not in counts:
+            raise KalibrConfigError(f"Unknown distortion model '{dist_model}'")
+        if len(coeffs) != counts[dist_model]:
+            raise KalibrConfigError(f"distortion model '{dist_model}' requires {counts[dist_model]} coefficients")
+        resolution = field(cam, "resolution")
+        if len(resolution) != 2 or not all(isinstance(v, int) for v in resolution):
+            raise KalibrConfigError("invalid resolution")
+        overlaps = field(cam, "cam_overlaps")
+        if any(i >= count for i in overlaps):
+            raise KalibrConfigError("out-of-range: camera id")
+        if nr >= 1 and np.asarray(field(cam, "T_cn_cnm1"), float).shape != (4, 4):
+            raise KalibrConfigError(f"invalid camera baseline (cam{nr} in {path})")
+        cameras.append((topic, model, intrinsics, dist_model, coeffs, resolution, overlaps))
+    return cameras
+
+
+def lens_line(err):
+    return next(line for line in err.splitlines() if "chosen from the lens" in line)
+
+
+FRAME_24MM = dict(width=5984, height=4000, pixel_mm=0.006, focal_mm=24.0)     # a 35.9 x 24 mm sensor
+
+
+def fisheye_entry(corner_deg, w=1280, h=1024, pixel_mm=0.0048):
+    """camera.json entry of a fisheye: a true equidistant lens (image height f theta, the image corner
+    ``corner_deg`` off axis) as selfcal's Brown camera represents it (its least-squares fit)."""
+    from selfcal.calibration_models import initial_from_model
+    f = np.hypot(w / 2, h / 2) / np.radians(corner_deg)
+    q = [f, f, w / 2 + 2.5, h / 2 - 2.5, -0.01, 0.002, 0.0, 0.0]
+    ini = initial_from_model(MODELS["kalibr", "equidistant"], q, w, h, pixel_mm, "brown")
+    return camera_entry(list(ini.ap_values_px), width=w, height=h, pixel_mm=pixel_mm, focal_mm=ini.focal_mm,
+                        x0_mm=ini.x0_mm, y0_mm=ini.y0_mm)
+
+
+def test_kalibr_camchain_passes_kalibrs_reader(brown, tmp_path, capsys):
+    """Every key Kalibr's reader requires is written, with its types: rostopic (default and --rostopic),
+    cam_overlaps [] for the one camera; the file written before this (no rostopic, no cam_overlaps) fails it."""
+    folder, cal = brown
+    out = tmp_path / "camchain.yaml"
+    assert run_cli("export", "kalibr", str(folder), "--out", str(out)) == 0
+    ((topic, model, intrinsics, dist_model, coeffs, resolution, overlaps),) = kalibr_read_camchain(out)
+    assert (topic, model, resolution, overlaps) == ("/cam0/image_raw", "pinhole", [WIDTH, HEIGHT], [])
+    assert dist_model == "radtan" and len(coeffs) == 4
+    assert intrinsics[0] == pytest.approx(FOCAL_MM / PIXEL_MM, rel=1e-3)
+    assert run_cli("export", "kalibr", str(folder), "--out", str(out), "--rostopic", "/left/image_raw") == 0
+    assert kalibr_read_camchain(out)[0][0] == "/left/image_raw"
+    capsys.readouterr()
+    assert run_cli("export", "kalibr", str(folder), "--out", str(out), "--rostopic", "") == 2
+    assert "--rostopic" in capsys.readouterr().err
+    old = yaml.safe_load(out.read_text())
+    del old["cam0"]["rostopic"], old["cam0"]["cam_overlaps"]
+    out.write_text(yaml.safe_dump(old))
+    with pytest.raises(KalibrConfigError, match="rostopic"):
+        kalibr_read_camchain(out)
+
+
+@pytest.mark.parametrize("brown_px", [[-60.0, 8.0, -1.0, 1.0, -0.5, 0.2, 0.0],    # usual: radtan fits to 0.15 px
+                                      [-60.0, 20.0, -8.0, 0.0, 0.0, 0.0, 0.0]])   # equidistant closer, still radtan
+def test_a_24mm_frame_camera_is_exported_as_radtan(tmp_path, capsys, brown_px):
+    """A 24 mm lens on a 35.9 x 24 mm sensor (85 deg across the diagonal) is a frame lens: radtan, also where
+    its higher-order radial distortion makes equidistant's largest misfit the smaller (the issue's case: 'auto'
+    took the closest model). The misfit is the one Kalibr's documented projection shows."""
+    folder = results_folder(tmp_path / "r", camera_entry(brown_px, **FRAME_24MM))
+    cal = Calibration.from_camera_json(CAMERA_ID, camera_entry(brown_px, **FRAME_24MM))
+    out = tmp_path / "camchain.yaml"
+    assert run_cli("export", "kalibr", str(folder), "--out", str(out)) == 0
+    err = capsys.readouterr().err
+    line = lens_line(err)
+    field = float(re.search(r"([\d.]+) deg across the diagonal", line).group(1))
+    assert "Kalibr radtan" in line and "a frame lens" in line and 84.0 < field < 86.0, line
+    rms, worst = printed_misfit(err)
+    (cam,) = yaml.safe_load(out.read_text()).values()
+    assert cam["distortion_model"] == "radtan" and kalibr_read_camchain(out)
+    measured, n = grid(cal, 41)
+    miss = np.hypot(*(kalibr_project(n, cam) - measured).T)
+    print(f"24 mm {brown_px}: radtan {rms:.4f} px rms, {worst:.4f} px max; measured {miss.max():.4f} px; {line}")
+    assert miss.max() <= worst + 1e-3
+    if brown_px[1] == 8.0:
+        assert worst < 0.2 and rms < 0.02                 # the usual lens: radtan reproduces selfcal's
+    else:
+        # the closest model was equidistant, which 'auto' used to take for this frame camera
+        closer = fit_camera_model(cal, MODELS["kalibr", "equidistant"]).misfit_max_px
+        print(f"  equidistant would miss by {closer:.4f} px")
+        assert closer < 0.6 * worst and 0.3 < worst < 1.0
+
+
+@pytest.mark.parametrize("corner_deg,by", [(62.0, "field"), (55.0, "misfit")])
+def test_a_fisheye_is_exported_as_equidistant(tmp_path, capsys, corner_deg, by):
+    """A fisheye (an equidistant lens 62 deg off axis at the corner: 125 deg across the diagonal) is exported as
+    equidistant for its field; one of 111 deg, because radtan misses by far more than 1 px where equidistant
+    does not. --model radtan still forces radtan."""
+    entry = fisheye_entry(corner_deg, pixel_mm=0.0048)
+    folder = results_folder(tmp_path / "r", entry)
+    cal = Calibration.from_camera_json(CAMERA_ID, entry)
+    out = tmp_path / "camchain.yaml"
+    assert run_cli("export", "kalibr", str(folder), "--out", str(out)) == 0
+    err = capsys.readouterr().err
+    line = lens_line(err)
+    field = float(re.search(r"([\d.]+) deg across the diagonal", line).group(1))
+    assert "Kalibr equidistant" in line and "a fisheye" in line, line
+    _, worst = printed_misfit(err)
+    (cam,) = yaml.safe_load(out.read_text()).values()
+    assert cam["distortion_model"] == "equidistant" and kalibr_read_camchain(out)
+    measured, n = grid(cal, 41)
+    miss = np.hypot(*(kalibr_project(n, cam) - measured).T)
+    print(f"fisheye {corner_deg} deg: {field} deg field, equidistant {worst:.3f} px max; {line}")
+    assert miss.max() <= worst + 1e-3
+    if by == "field":
+        assert field > 120.0 and "radtan misses" not in line
+    else:
+        assert 105.0 < field < 120.0
+        frame_px, fisheye_px = (float(v) for v in re.search(r"radtan misses selfcal's model by ([\d.]+) px.*"
+                                                              r"equidistant by ([\d.]+) px", line).groups())
+        assert frame_px > 5.0 and fisheye_px < 0.5 * frame_px and fisheye_px == pytest.approx(worst, abs=1e-3)
+    assert run_cli("export", "kalibr", str(folder), "--out", str(out), "--model", "radtan") == 0
+    err = capsys.readouterr().err
+    assert "chosen from the lens" not in err and yaml.safe_load(out.read_text())["cam0"]["distortion_model"] == \
+        "radtan"
+
+
+def test_kalibr_help_states_the_rule(capsys):
+    with pytest.raises(SystemExit):
+        run_cli("export", "kalibr", "--help")
+    text = " ".join(capsys.readouterr().out.split())
+    assert "chosen from the lens" in text and "120 deg" in text and "--rostopic" in text

@@ -6,13 +6,14 @@ import os
 import sys
 
 from ..calibration import OPENCV_MODELS, Calibration, undistortion_maps
-from ..calibration_models import FAMILIES, MODELS, fit_best, propagate
+from ..calibration_models import (FAMILIES, FISHEYE_FIELD_DEG, FRAME_MODEL_FAILS_PX, LENS_MODELS, MODELS, LensChoice,
+                                  fit_best, fit_for_lens, propagate)
 from ..errors import BlockError, UsageError
 from ..io.camera_json import frame_camera_entries
 from .options import number
 
 __all__ = ["calibrations", "pick_camera", "maps_of", "models", "report_fit", "camera_options", "tool_options",
-           "fit_tool", "fitted_covariance", "tool_calibration"]
+           "fit_tool", "lens_reason", "fitted_covariance", "tool_calibration"]
 
 
 def camera_options(parser) -> None:
@@ -83,10 +84,16 @@ TOOL_NAMES = {"opencv": "OpenCV", "metashape": "Metashape", "opensfm": "OpenSfM"
 def tool_options(parser, tool: str, option: str = "--model") -> None:
     """--camera, the tool's model (auto or a name) and --tolerance-px: every export that fits a tool's model."""
     known = [m for t, m in MODELS if t == tool]
+    if tool in LENS_MODELS:
+        frame, fisheye = LENS_MODELS[tool]
+        auto = (f"auto (chosen from the lens: {frame} for a frame lens; {fisheye} for a fisheye, that is a field "
+                f"of view of {FISHEYE_FIELD_DEG:g} deg or more across the diagonal, or {frame} missing selfcal's "
+                f"model by more than {FRAME_MODEL_FAILS_PX:g} px where {fisheye} misses by at most half as much)")
+    else:
+        auto = f"auto (the first of {', '.join(FAMILIES[tool])} within --tolerance-px, else the closest)"
     parser.add_argument("--camera", metavar="ID", help="camera to export (needed when the block has several)")
     parser.add_argument(option, default="auto", metavar="MODEL", dest="tool_model",
-                        help=f"{TOOL_NAMES[tool]} camera model: auto (the first of {', '.join(FAMILIES[tool])} "
-                             f"within --tolerance-px, else the closest) or one of {', '.join(known)}")
+                        help=f"{TOOL_NAMES[tool]} camera model: {auto} or one of {', '.join(known)}")
     parser.add_argument("--tolerance-px", type=number(0.0, low_open=True), default=0.01,
                         help=f"largest misfit of the {TOOL_NAMES[tool]} model accepted by 'auto' and without a "
                              f"warning (default 0.01 px)")
@@ -99,7 +106,13 @@ def fit_tool(cal: Calibration, tool: str, option: str, tolerance_px: float, opti
     if option != "auto" and option not in known:
         raise UsageError(f"{option_name} {option}: {TOOL_NAMES[tool]} has no such camera model (known: auto, "
                          f"{', '.join(known)})")
-    fitted = fit_best(cal, tool, None if option == "auto" else (option,), tolerance_px)
+    if option == "auto" and tool in LENS_MODELS:
+        choice = fit_for_lens(cal, tool)
+        print(f"camera {cal.camera_id}: {TOOL_NAMES[tool]} {choice.fitted.model.name}, {lens_reason(tool, choice)}; "
+              f"{option_name} NAME forces one", file=sys.stderr)
+        fitted = choice.fitted
+    else:
+        fitted = fit_best(cal, tool, None if option == "auto" else (option,), tolerance_px)
     print(f"camera {cal.camera_id}: {TOOL_NAMES[tool]} {fitted.model.name}, misfit to selfcal's model "
           f"{fitted.misfit_rms_px:.4f} px rms, {fitted.misfit_max_px:.4f} px max over the image", file=sys.stderr)
     if fitted.misfit_max_px > tolerance_px:
@@ -107,6 +120,23 @@ def fit_tool(cal: Calibration, tool: str, option: str, tolerance_px: float, opti
               f"selfcal's within {tolerance_px:g} px; 'selfcal export undistort-map' or 'selfcal undistort' are "
               f"exact", file=sys.stderr)
     return fitted
+
+
+def lens_reason(tool: str, choice: LensChoice) -> str:
+    """Why :func:`fit_for_lens` chose its model, in words."""
+    frame, fisheye = LENS_MODELS[tool]
+    field = f"{choice.field_of_view_deg:.1f} deg across the diagonal"
+    if choice.lens == "fisheye" and choice.by == "field":
+        return f"chosen from the lens: a fisheye ({field}, {FISHEYE_FIELD_DEG:g} deg or more)"
+    if choice.lens == "fisheye":
+        return (f"chosen from the lens: a fisheye ({field}, but {frame} misses selfcal's model by "
+                f"{choice.frame_misfit_max_px:.3f} px, more than {FRAME_MODEL_FAILS_PX:g} px, and {fisheye} by "
+                f"{choice.fisheye_misfit_max_px:.3f} px)")
+    why = f"chosen from the lens: a frame lens ({field}, below the {FISHEYE_FIELD_DEG:g} deg of a fisheye"
+    if choice.fisheye_misfit_max_px is not None:
+        why += (f"; {fisheye} misses selfcal's model by {choice.fisheye_misfit_max_px:.3f} px, not half of "
+                f"{frame}'s {choice.frame_misfit_max_px:.3f} px")
+    return why + ")"
 
 
 def fitted_covariance(cal: Calibration, fitted):

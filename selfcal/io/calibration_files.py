@@ -10,7 +10,8 @@
   focal length and principal point normalised by the larger image side (OpenSfM's normalised image
   coordinates: origin at the image centre).
 * Kalibr ``camchain.yaml``: ``cam0: {camera_model: pinhole, intrinsics: [fu, fv, pu, pv], distortion_model:
-  radtan | equidistant, distortion_coeffs, resolution: [w, h]}``, OpenCV's pixel convention.
+  radtan | equidistant, distortion_coeffs, resolution: [w, h], rostopic, cam_overlaps}``, OpenCV's pixel
+  convention.
 * OpenCV FileStorage (YAML, XML, JSON): :mod:`selfcal.io.opencv`.
 
 No conversion happens here: the values are the tool's, named as the tool names them
@@ -32,7 +33,7 @@ from .xmlfile import xml_root
 
 __all__ = ["ToolCalibration", "write_metashape_xml", "read_metashape_xml", "write_opensfm_cameras",
            "read_opensfm_cameras", "write_kalibr_camchain", "read_kalibr_camchain", "read_calibration_file",
-           "METASHAPE_NAMES", "OLD_METASHAPE_NAMES", "OPENSFM_NAMES", "KALIBR_DISTORTION_NAMES"]
+           "METASHAPE_NAMES", "OLD_METASHAPE_NAMES", "OPENSFM_NAMES", "KALIBR_DISTORTION_NAMES", "KALIBR_ROSTOPIC"]
 
 #: Metashape's parameters in the order of its calibration file
 METASHAPE_NAMES = ("f", "cx", "cy", "b1", "b2", "k1", "k2", "k3", "k4", "p1", "p2")
@@ -53,6 +54,8 @@ OPENSFM_NAMES = {"perspective": ("focal", "k1", "k2"),
                  "fisheye": ("focal", "k1", "k2")}
 #: Kalibr's distortion coefficients of each distortion model
 KALIBR_DISTORTION_NAMES = {"radtan": ("k1", "k2", "r1", "r2"), "equidistant": ("k1", "k2", "k3", "k4")}
+#: the image topic a camchain names when none is given (Kalibr's own examples: /cam0/image_raw)
+KALIBR_ROSTOPIC = "/cam0/image_raw"
 
 
 @dataclass(frozen=True)
@@ -258,7 +261,13 @@ def _whole(value) -> int:
 
 # --- Kalibr -----------------------------------------------------------------------------------------------
 
-def write_kalibr_camchain(path: str | os.PathLike, calibration: ToolCalibration) -> None:
+def write_kalibr_camchain(path: str | os.PathLike, calibration: ToolCalibration,
+                          rostopic: str = KALIBR_ROSTOPIC) -> None:
+    """A Kalibr camchain.yaml of one camera (cam0) with every key Kalibr's camchain reader requires
+    (kalibr_common/ConfigReader.py, CameraParameters and CameraChainParameters): camera_model, intrinsics
+    (floats), distortion_model, distortion_coeffs, resolution [w, h] (ints), rostopic (the image topic the
+    IMU-camera calibration reads the bag from) and cam_overlaps (no other camera). No T_cn_cnm1: cam0 is the
+    chain's base, Kalibr has none for it."""
     import yaml
     v = calibration.values
     names = KALIBR_DISTORTION_NAMES[calibration.model]
@@ -266,7 +275,9 @@ def write_kalibr_camchain(path: str | os.PathLike, calibration: ToolCalibration)
            "intrinsics": [float(v["fu"]), float(v["fv"]), float(v["pu"]), float(v["pv"])],
            "distortion_model": calibration.model,
            "distortion_coeffs": [float(v[name]) for name in names],
-           "resolution": [int(calibration.width_px), int(calibration.height_px)]}
+           "resolution": [int(calibration.width_px), int(calibration.height_px)],
+           "rostopic": str(rostopic),
+           "cam_overlaps": []}
     with atomic_write(path) as handle:
         yaml.safe_dump({"cam0": cam}, handle, default_flow_style=None, sort_keys=False)
 
