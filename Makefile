@@ -6,7 +6,7 @@ STAMP  := $(VENV)/.installed-stamp
 # glibc keeps freed memory instead of re-mapping (and re-zeroing) it every iteration (selfcal/allocator.py)
 MALLOC := MALLOC_MMAP_THRESHOLD_=33554432 MALLOC_TRIM_THRESHOLD_=2147483647 MALLOC_TOP_PAD_=268435456
 
-.PHONY: install suitesparse browser colmap test test-fast docs typecheck demo bench clean
+.PHONY: install suitesparse browser colmap test test-fast examples docs typecheck demo bench clean
 
 install: suitesparse $(STAMP)
 
@@ -54,6 +54,10 @@ test: install browser colmap
 # the tests not marked slow (pyproject.toml: whole-block adjustments and the like), for the edit-test loop
 test-fast: install browser colmap
 	$(TEST_ENV) $(PY) -m pytest -q -n 2 --durations=15 -m "not slow"
+
+# every shell block of README.md and of the examples' READMEs, the long ones too (tests/test_readme.py; about 15 min)
+examples: install browser colmap
+	SELFCAL_README_LONG=1 $(TEST_ENV) $(PY) -m pytest -q -n 2 tests/test_readme.py
 
 # the API reference from the docstrings (docs/api), then its examples run as doctests; a warning or a failed
 # example fails the build (-E: a fresh environment every time, so that no warning hides in a page read before)

@@ -5,12 +5,15 @@
 # import's frame), adjust it with four AP models (data snooping on, APs screened), write the reports, say
 # what the control can and cannot fix (control.py), and export the wavelet:db4 result as a COLMAP dense
 # workspace (the two images of the data) checked with pycolmap.
-# Run from the repository root: sh examples/copr/run.sh [OUT]   (about 7 minutes on 2 busy cores)
+# Run: sh examples/copr/run.sh [OUT]   (about 7 minutes on 2 busy cores; OUT defaults to copr-results/ in the
+# current folder). DATA (the block's folder), SELFCAL and PYTHON (default: the repository's .venv) may be set.
 set -e
-DATA=${COPR_DATA:-../shared/data/copr}
+HERE=$(cd "$(dirname "$0")" && pwd)
+ROOT=$(cd "$HERE/../.." && pwd)
+DATA=${DATA:-$ROOT/../shared/data/copr}
 OUT=${1:-copr-results}
-SELFCAL=${SELFCAL:-.venv/bin/selfcal}
-PY=${PY:-.venv/bin/python}
+SELFCAL=${SELFCAL:-$ROOT/.venv/bin/selfcal}
+PY=${PYTHON:-$ROOT/.venv/bin/python}
 mkdir -p "$OUT"
 # Canon EOS 450D: 22.2 mm x 14.8 mm sensor, 4272 px across -> 5.2 um pixels; hand-held GPS: 3 m / 5 m
 $SELFCAL import colmap "$DATA/sparse" --gcp "$DATA/gcp_list.txt" --pixel-size-mm 0.0052 \
@@ -20,8 +23,8 @@ for AP in none brown legendre wavelet:db4; do
     NAME=$(echo "$AP" | tr ':' '-')
     $SELFCAL adjust "$OUT/block" --ap "$AP" --screen --out "$OUT/$NAME"
 done
-$PY examples/copr/summary.py "$OUT" none brown legendre wavelet-db4
-$PY examples/copr/control.py "$OUT/brown"
-$PY examples/copr/control.py "$OUT/brown" --sigma-z 0.1
+$PY $HERE/summary.py "$OUT" none brown legendre wavelet-db4
+$PY $HERE/control.py "$OUT/brown"
+$PY $HERE/control.py "$OUT/brown" --sigma-z 0.1
 $SELFCAL export colmap-workspace "$OUT/wavelet-db4" --images "$DATA/images" --out "$OUT/workspace-db4"
-$PY examples/copr/check_workspace.py "$OUT/wavelet-db4" "$OUT/workspace-db4"
+$PY $HERE/check_workspace.py "$OUT/wavelet-db4" "$OUT/workspace-db4"

@@ -7,7 +7,11 @@ GetMaximumResidual) and the mean, standard deviation, minimum and maximum of the
 the sensor's Z free as well; ``degree1``: bias and drift only; ``radii_free``: bias and
 drift, the points free in 3-D).
 
-Run: ``python compare.py [RESULTS]`` after ``run.sh`` (RESULTS defaults to results/ beside this file).
+Then one summary table of the runs (the README's). Every table is printed in Markdown: the README's rows are copies
+of them, and tests/test_readme.py checks every one against a fresh run.
+
+Run: ``python compare.py [RESULTS] [EXPECTED_VALUES.txt]`` after ``run.sh`` (RESULTS defaults to results/ beside
+this file, the expected values to ../shared/data/isis/EXPECTED_VALUES.txt).
 """
 from __future__ import annotations
 
@@ -68,17 +72,40 @@ def rows(results: str, jigsaw: dict | None = None) -> list[tuple[str, float, flo
     return out
 
 
-def main(argv: list[str]) -> int:
-    results = argv[1] if len(argv) > 1 else os.path.join(HERE, "results")
-    jigsaw = read_jigsaw()
+def _signed(value: float) -> str:
+    return f"{value:+.2f}".replace("-", "\u2212")
+
+
+def summary_rows(results: str, jigsaw: dict) -> list[str]:
+    """The README's table: per run the mean and largest residual beside jigsaw's, and the points' mean X, Y, Z
+    minus jigsaw's."""
+    out = ["| run | mean residual [px] | max residual [px] | points X / Y / Z mean \u2212 jigsaw [km] |",
+           "|---|---:|---:|---|",
+           f"| jigsaw | {jigsaw['mean_residual_px']:.4f} | {jigsaw['max_residual_px']:.4f} | |"]
     for run, title in RUNS.items():
         folder = os.path.join(results, run)
         if not os.path.isdir(folder):
             continue
-        print(f"\n{run}: {title}")
-        print(f"{'quantity':28s} {'jigsaw':>14s} {'selfcal':>14s} {'ratio':>8s} {'difference':>11s}")
+        ours = read_selfcal(folder)
+        mean, largest = ours["mean_residual_px"], ours["max_residual_px"]
+        shift = " / ".join(_signed(ours["points"][a]["mean"] - jigsaw["points"][a]["mean"]) for a in "XYZ")
+        out.append(f"| `{run}`: {title} | {mean:.4f} ({mean / jigsaw['mean_residual_px']:.2f}\u00d7) | "
+                   f"{largest:.4f} ({largest / jigsaw['max_residual_px']:.2f}\u00d7) | {shift} |")
+    return out
+
+
+def main(argv: list[str]) -> int:
+    results = argv[1] if len(argv) > 1 else os.path.join(HERE, "results")
+    jigsaw = read_jigsaw(argv[2] if len(argv) > 2 else EXPECTED)
+    for run, title in RUNS.items():
+        folder = os.path.join(results, run)
+        if not os.path.isdir(folder):
+            continue
+        print(f"\n{run}: {title}\n\n| quantity | jigsaw | selfcal | ratio | difference |\n|---|---:|---:|---:|---:|")
         for name, theirs, ours in rows(folder, jigsaw):
-            print(f"{name:28s} {theirs:14.6f} {ours:14.6f} {ours / theirs:8.4f} {ours - theirs:11.4f}")
+            print(f"| {name} | {theirs:.6f} | {ours:.6f} | {ours / theirs:.4f} | {ours - theirs:.4f} |")
+    print()
+    print("\n".join(summary_rows(results, jigsaw)))
     return 0
 
 

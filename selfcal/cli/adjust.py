@@ -112,24 +112,6 @@ def _terrain(block, args):
     return block.terrain_height_m
 
 
-def _candidates(args) -> list:
-    """``--ap auto`` (the ten default models) or ``--ap auto:MODEL,MODEL@GxXGy,...``."""
-    from ..ap import ALL_MODELS, AP_FAMILIES, parse_ap_spec
-    from ..workflows import parse_candidate
-    listed = args.ap.partition(":")[2]
-    names = [m for m in listed.split(",") if m.strip()] if listed else list(ALL_MODELS)
-    candidates = []
-    for name in names:
-        try:
-            model, grid_ = parse_candidate(name, args.grid)
-        except ValueError as exc:
-            raise UsageError(str(exc)) from None
-        if parse_ap_spec(model)[0] not in AP_FAMILIES:
-            raise UsageError(f"unknown AP model '{model}' in --ap {args.ap} (known: {', '.join(AP_FAMILIES)})")
-        candidates.append((model, grid_))
-    return candidates
-
-
 def run(args: argparse.Namespace) -> int:
     # the engine, the readers and the report load here, not for --help (issue 45: help answers at once)
     from ..adjust import AdjustOptions, APOptions, SensorOptions, TrajectoryOptions
@@ -138,13 +120,17 @@ def run(args: argparse.Namespace) -> int:
     from ..io.results import results_from_files, write_results
     from ..report import model_choice_table, render_report, result_files
     from ..stats import SnoopingOptions, VarianceOptions
-    from ..workflows.adjust import AdjustRequest, adjust_block, offers_sensor_models
+    from ..workflows.adjust import AdjustRequest, adjust_block, ap_candidates, default_ap_model, is_auto, \
+        offers_sensor_models
     from ..workflows.seed001 import ATTITUDE_FREE_SIGMA
     t0 = time.perf_counter()
     if args.max_iterations < 1:
         raise UsageError(f"--max-iterations must be at least 1, found {args.max_iterations}")
     out = output_folder(args.out, (args.block, args.dem), args.force)
     block = read_block(args.block)
+    defaulted = args.ap is None
+    if defaulted:
+        args.ap = default_ap_model(block)
     check_inputs(out, [*(block.image_files or {}).values(), block.dem_path])
     _check_options(block, args)
     for message in block.dropped.messages[:20]:
@@ -153,8 +139,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"warning: ... and {len(block.dropped.messages) - 20} more (see summary.json)", file=sys.stderr)
     if not args.quiet:
         print(f"{block.name}: {len(block.images)} images, {len(block.points)} points, "
-              f"{len(block.observations)} image observations; AP model {args.ap}", file=sys.stderr)
-    auto = args.ap == "auto" or args.ap.startswith("auto:")
+              f"{len(block.observations)} image observations; AP model {args.ap}"
+              + (" (the default for these cameras: see --ap in --help)" if defaulted else ""), file=sys.stderr)
+    auto = is_auto(args.ap)
     seed001 = offers_sensor_models(block)
     height = _terrain(block, args) if seed001 else None
     if seed001 and args.images and len(args.images.split(",")) == 1 and height is None:
@@ -168,7 +155,7 @@ def run(args: argparse.Namespace) -> int:
     # by keyword, so that a field added to AdjustRequest does not shift the others
     request = AdjustRequest(options=options, snooping=SnoopingOptions(critical=args.snoop, mode=args.snoop_mode),
                             screening=screening, variance=VarianceOptions() if args.variance_components else None,
-                            candidates=_candidates(args) if auto else None, image_ids=image_ids, n_gcp=args.gcps,
+                            candidates=ap_candidates(args.ap, args.grid) if auto else None, image_ids=image_ids, n_gcp=args.gcps,
                             keep_focal=args.keep_focal, height=height,
                             robust=robust_options(args))
     if request.candidates is not None and not args.quiet:         # --ap auto

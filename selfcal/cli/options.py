@@ -101,10 +101,13 @@ def grid(text: str) -> tuple[int, int]:
 
 
 def ap_option(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--ap", default="none", metavar="MODEL", type=ap_spec,
+    parser.add_argument("--ap", default=None, metavar="MODEL", type=ap_spec,
                         help="additional-parameter model: none, brown, ebner, gruen, legendre[:deg], "
-                             "fourier[:order], wavelet:db4 | sym4 | meyer | bl4 (default: none); pushbroom blocks: "
-                             "wavelet1d:db4 | sym4 | meyer | bl4 along the detector line")
+                             "fourier[:order], wavelet:db4 | sym4 | meyer | bl4; auto[:MODEL,...] chooses by BIC; "
+                             "pushbroom blocks: wavelet1d:db4 | sym4 | meyer | bl4 along the detector line. Default: "
+                             "for frame cameras whose calibration is not held, auto:none,brown (the better of no APs "
+                             "and Brown's by BIC on the same observations: on simulated blocks it kept none for every "
+                             "lens without distortion and brown for every distorted one); otherwise none")
 
 
 def grid_option(parser: argparse.ArgumentParser) -> None:

@@ -530,7 +530,7 @@ def model_choice_table(choice) -> CsvTable:
     """model_choice.csv: every candidate of ``--ap auto`` with its score (selfcal.workflows.model_choice)."""
     header = ["model", "grid", "n_camera_parameters", "n_observations", "n_unknowns", "omega", "sigma0_px",
               "bic", "delta_bic", "chosen", "rmsd_chk_xy_m", "rmsd_chk_z_m", "error"]
-    best = min(s.bic for s in choice.candidates if s.bic is not None)
+    best = min((s.bic for s in choice.candidates if s.bic is not None), default=np.nan)   # nan: none converged
 
     def num(value):
         return np.nan if value is None else value

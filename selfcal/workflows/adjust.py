@@ -30,7 +30,8 @@ from .frames import object_frame_block
 from .model_choice import ModelChoice, choose_ap_model
 from .tested import TestedAdjustment, adjust_with_tests
 
-__all__ = ["AdjustRequest", "Adjusted", "adjust_block", "offers_sensor_models"]
+__all__ = ["AdjustRequest", "Adjusted", "adjust_block", "offers_sensor_models", "default_ap_model", "ap_candidates",
+           "is_auto", "DEFAULT_FRAME_CANDIDATES"]
 
 
 @dataclass(frozen=True)
@@ -61,6 +62,48 @@ class Adjusted:
     choice: ModelChoice | None = None
 
 
+#: the AP models a frame camera chooses between when no model is asked for (issue 45 item 4): on 12 simulated
+#: blocks (no distortion, Brown's, a local field + Brown's; Type 1 and Type 3 control; benchmarks/
+#: study_default_ap.py) BIC chose none for every distortion-free lens, where brown costs up to 29 % in Z at the
+#: check points, and brown for every distorted one, where none is 5-19x worse in Z
+DEFAULT_FRAME_CANDIDATES = ("none", "brown")
+
+
+def default_ap_model(block: Block) -> str:
+    """The AP model of an adjustment that asks for none: for frame cameras whose calibration is not held, the
+    better of none and brown by BIC on the same observations (``auto:none,brown``); otherwise ``none`` (a mission
+    camera's ISD, pushbroom and RPC images, BAL: their sensors model what they know)."""
+    cameras = list(block.cameras.values())
+    held = [c for c in cameras if getattr(c, "initial_ap", None) is not None and c.initial_ap.sigma_px == 0]
+    if cameras and all(c.model == "frame" for c in cameras) and len(held) < len(cameras):
+        return "auto:" + ",".join(DEFAULT_FRAME_CANDIDATES)
+    return "none"
+
+
+def is_auto(spec: str) -> bool:
+    """Whether an AP model spec asks for the choice by BIC (``auto`` or ``auto:MODEL,...``)."""
+    return spec == "auto" or spec.startswith("auto:")
+
+
+def ap_candidates(spec: str, grid: tuple[int, int]) -> list[tuple[str, tuple[int, int]]]:
+    """The (model, grid) candidates of ``auto`` (the ten default models) or ``auto:MODEL,MODEL@GxXGy,...``;
+    UsageError for an unknown model."""
+    from ..ap import ALL_MODELS, AP_FAMILIES, parse_ap_spec
+    from .model_choice import parse_candidate
+    listed = spec.partition(":")[2]
+    names = [m for m in listed.split(",") if m.strip()] if listed else list(ALL_MODELS)
+    candidates = []
+    for name in names:
+        try:
+            model, grid_ = parse_candidate(name, grid)
+        except ValueError as exc:
+            raise UsageError(str(exc)) from None
+        if parse_ap_spec(model)[0] not in AP_FAMILIES:
+            raise UsageError(f"unknown AP model '{model}' in --ap {spec} (known: {', '.join(AP_FAMILIES)})")
+        candidates.append((model, grid_))
+    return candidates
+
+
 def offers_sensor_models(block: Block) -> bool:
     """Whether the block's sensors offer seed 001's sensor models (and with them its workflow)."""
     return any(sensor_of(c).sensor_models for c in block.cameras.values())
@@ -77,14 +120,15 @@ def adjust_block(block: Block, request: AdjustRequest, progress: Callable | None
     if offers_sensor_models(block):
         return _seed001(block, request, progress, report, say, scores)
     options, choice = request.options, None
+    _check_control(block)                   # before any work: the model choice adjusts too
     if request.candidates:
-        choice = choose_ap_model(block, request.candidates, options, request.snooping, progress=scores)
+        choice = choose_ap_model(block, request.candidates, options, request.snooping, progress=scores,
+                                 robust=request.robust)
         options = replace(options, ap=replace(options.ap, model=choice.model, grid=choice.grid))
         say(f"chosen AP model: {choice.model}" + (f"@{choice.grid[0]}x{choice.grid[1]}" if
                                                   takes_grid(choice.model) else "") +
-            f" (smallest BIC; {choice.n_blunders} observations left out as blunders for every candidate; scores in "
-            "model_choice.csv)")
-    _check_control(block)
+            (f" (smallest BIC; {choice.n_blunders} observations left out as blunders for every candidate; scores in "
+             "model_choice.csv)" if choice.by_bic else " (no candidate converged: the first one is adjusted)"))
     tested = adjust_with_tests(block, options, request.snooping, request.screening, progress=progress,
                                report=report, variance=request.variance, robust=request.robust)
     _check_collapse(tested)
@@ -161,7 +205,7 @@ def _seed001(block: Block, request: AdjustRequest, progress, report, say, scores
     if request.candidates:
         sub = seed001.case_block(block, image_set, gcps)
         choice = choose_ap_model(sub, request.candidates, replace(options, sensor=replace(options.sensor, model=model)), request.snooping,
-                                 progress=scores)
+                                 progress=scores, robust=request.robust)
         options = replace(options, ap=replace(options.ap, model=choice.model, grid=choice.grid))
         say(f"chosen AP model: {choice.model} (smallest BIC; scores in model_choice.csv)")
     case = seed001.run_case(block, model, gcps, image_set, request.height, "+".join(chosen), options,

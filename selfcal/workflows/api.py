@@ -17,7 +17,8 @@ from ..errors import SelfcalError, UsageError
 from ..stats.screening import ScreeningOptions
 from ..stats.snooping import SnoopingOptions
 from ..stats.variance import VarianceOptions
-from .adjust import Adjusted, AdjustRequest, adjust_block, offers_sensor_models
+from .adjust import Adjusted, AdjustRequest, adjust_block, ap_candidates, default_ap_model, is_auto, \
+    offers_sensor_models
 from .progress import LOG, logging_progress, logging_rounds
 
 __all__ = ["bundle_adjust", "Outcome", "OPTION_KEYWORDS", "adjust_options"]
@@ -128,12 +129,13 @@ def _argument(name: str, value: object, make: Callable[[], T]) -> T:
         raise UsageError(f"bundle_adjust({name}={value!r}): {exc}") from None
 
 
-def bundle_adjust(block: Block | str | os.PathLike, ap: str = "none", *, snoop: float = 3.0, screen: bool = False,
+def bundle_adjust(block: Block | str | os.PathLike, ap: str | None = None, *, snoop: float = 3.0, screen: bool = False,
                   variance_components: bool = False, max_iterations: int = 50, robust: str = "danish",
                   **options) -> Outcome:
     """The tested adjustment of ``block`` (a :class:`~selfcal.block.Block` or a block folder).
 
-    ``ap``: the AP model (``"brown"``, ``"wavelet:db4"``...); ``snoop``: Baarda's critical value (0: none);
+    ``ap``: the AP model (``"brown"``, ``"wavelet:db4"``..., ``"auto[:MODEL,...]"`` to choose by BIC; None: the
+    default of ``selfcal adjust``, :func:`~selfcal.workflows.adjust.default_ap_model`); ``snoop``: Baarda's critical value (0: none);
     ``screen``: drop insignificant and highly correlated APs; ``variance_components``: estimate each
     observation group's sigma; ``robust``: the loss of the robust cleaning before the tests (``"danish"``,
     ``"huber"``, ``"cauchy"``; ``"none"``: least squares throughout); other keywords are named as the CLI's flags
@@ -142,7 +144,7 @@ def bundle_adjust(block: Block | str | os.PathLike, ap: str = "none", *, snoop: 
     :class:`~selfcal.errors.UsageError` naming it.
     """
     from ..io.block_folder import read_block
-    from ..report import result_files
+    from ..report import model_choice_table, result_files
     t0 = time.perf_counter()
     inputs: tuple = ()
     if not isinstance(block, Block):
@@ -155,16 +157,22 @@ def bundle_adjust(block: Block | str | os.PathLike, ap: str = "none", *, snoop: 
                          f"more (0: no data snooping)")
     if isinstance(max_iterations, bool) or not isinstance(max_iterations, int) or max_iterations < 1:
         raise UsageError(f"bundle_adjust(max_iterations={max_iterations!r}): must be a whole number, 1 or more")
-    chosen = _argument("ap", ap, lambda: adjust_options(ap, max_iterations, options))
+    if ap is None:
+        ap = default_ap_model(block)
+    auto = isinstance(ap, str) and is_auto(ap)
+    chosen = _argument("ap", ap, lambda: adjust_options("none" if auto else ap, max_iterations, options))
+    candidates = _argument("ap", ap, lambda: ap_candidates(ap, chosen.ap.grid)) if auto else None
     screening = ScreeningOptions() if screen else None
     snooping = _argument("snoop", snoop, lambda: SnoopingOptions(critical=snoop))
     robust_options = None if robust == "none" else _argument("robust", robust, lambda: RobustOptions(loss=robust))
     request = AdjustRequest(chosen, snooping, screening,
-                            VarianceOptions() if variance_components else None, robust_options)
+                            VarianceOptions() if variance_components else None, robust_options, candidates=candidates)
     LOG.info(f"{block.name}: {len(block.images)} images, {len(block.points)} points, {len(block.observations)} "
              f"image observations; AP model {ap}")
     adjusted = adjust_block(block, request, progress=logging_progress(block.image_sigma_px),
                             report=logging_rounds(), say=LOG.info)
     extra = {"seconds": time.perf_counter() - t0, "grid": list(chosen.ap.grid)} | adjusted.summary_extra
     files = result_files(adjusted.block, adjusted.tested, extra, screening, adjusted.checks, adjusted.track)
+    if adjusted.choice is not None:
+        files["model_choice.csv"] = model_choice_table(adjusted.choice)
     return Outcome(adjusted, files, inputs)

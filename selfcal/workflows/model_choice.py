@@ -1,8 +1,8 @@
 """Choosing the AP model automatically (``--ap auto``; beyond seed 000, which leaves the choice open).
 
 1. **Blunders first.** The candidate with the most parameters is adjusted with
-   data snooping, and the observations it rejects are left out for every
-   candidate. A model that cannot follow the distortion would reject the
+   the robust cleaning (when asked for) and data snooping, and the observations
+   it rejects are left out for every candidate. A model that cannot follow the distortion would reject the
    distortion itself (without APs, a quarter of the observations of a
    wide-angle block), and each candidate would be scored on data of its own
    choosing.
@@ -27,7 +27,7 @@ from typing import Callable
 
 import numpy as np
 
-from ..adjust import AdjustOptions, adjust, camera_models
+from ..adjust import AdjustOptions, RobustOptions, adjust, camera_models
 from ..ap import takes_grid
 from ..block import Block
 from ..errors import AdjustmentError
@@ -63,6 +63,9 @@ class ModelChoice:
     grid: tuple[int, int]
     candidates: list[CandidateScore]
     n_blunders: int                 # observations left out for every candidate (step 1)
+    #: False when no candidate converged: the first one adjusted is chosen, so that the tested adjustment says why
+    #: it does not converge (and a failed run writes its files where failed runs go)
+    by_bic: bool = True
 
 
 def parse_candidate(text: str, grid: tuple[int, int]) -> tuple[str, tuple[int, int]]:
@@ -84,11 +87,14 @@ def _rmsd_chk(result) -> tuple[float | None, float | None]:
 
 def choose_ap_model(block: Block, candidates: list[tuple[str, tuple[int, int]]],
                     options: AdjustOptions = AdjustOptions(), snooping: SnoopingOptions | None = SnoopingOptions(),
-                    progress: Callable[[CandidateScore], None] | None = None) -> ModelChoice:
+                    progress: Callable[[CandidateScore], None] | None = None,
+                    robust: RobustOptions | None = None) -> ModelChoice:
     """Adjust ``block`` (pruned) with every candidate (model, grid) and pick the smallest BIC.
 
     ``options`` gives everything but the AP model and grid (trajectory drift
-    orders, solver). Raises AdjustmentError when no candidate can be adjusted.
+    orders, solver); ``robust``: the robust cleaning of the blunder step (matcher
+    data: least squares alone would not reach the blunders). Raises
+    AdjustmentError when no candidate can be adjusted.
     """
     if not candidates:
         raise ValueError("no candidate AP models")
@@ -105,13 +111,13 @@ def choose_ap_model(block: Block, candidates: list[tuple[str, tuple[int, int]]],
             sizes.append(n_camera)
     data = block
     n_blunders = 0
-    if snooping is not None and snooping.critical > 0 and max(sizes) >= 0:
+    if (robust is not None or snooping is not None and snooping.critical > 0) and max(sizes) >= 0:
         richest = int(np.argmax(sizes))
         model, grid = candidates[richest]
         richest_models = models[richest]
         assert isinstance(richest_models, dict)             # (its size is not -1: they were built)
         tested = adjust_with_tests(block, replace(options, ap=replace(options.ap, model=model, grid=grid)), snooping,
-                                   ap_models=richest_models)
+                                   ap_models=richest_models, robust=robust)
         n_blunders = len(tested.rejected_rows)
         keep = np.flatnonzero(~np.isin(block.observations.row, tested.rejected_rows))
         data = prune_for(replace(block, observations=block.observations.take(keep)))
@@ -135,6 +141,9 @@ def choose_ap_model(block: Block, candidates: list[tuple[str, tuple[int, int]]],
         if progress is not None:
             progress(score)
     valid = [(s, s.bic) for s in scores if s.bic is not None]
+    ran = [s for s in scores if s.n_observations > 0]
+    if not valid and ran:
+        return ModelChoice(ran[0].model, ran[0].grid, scores, n_blunders, by_bic=False)
     if not valid:
         raise AdjustmentError("no candidate AP model could be adjusted:\n  "
                               + "\n  ".join(f"{s.label}: {s.error}" for s in scores))
