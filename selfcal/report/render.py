@@ -129,7 +129,7 @@ def _layout_section(page: Page, files: dict, results) -> None:
     fig = figures.camera_layout_figure(xy, counts, pts["role"], centres, list(im["strip_id"]), list(im["image_id"]),
                                        "Camera layout and overlap")
     _add_figure(page, files, fig, "camera-layout",
-                f"Camera layout and overlap, in plan (X right, Y up, from the mean of the points): every object "
+                f"Camera layout and overlap. In plan (X right, Y up, from the mean of the points), every object "
                 f"point coloured by the number of images that observe it in the final adjustment (observations "
                 f"rejected excluded; from residuals.csv), {figures.OVERLAP_TOP} and more in the last colour; "
                 f"control points as triangles, check points as circles. {said}")
@@ -195,8 +195,8 @@ def _processing_rows(s: dict) -> list[tuple[str, list[str]]]:
         rows.append(("a-priori σ of an image coordinate [px]", [_cell(s, "options.image_sigma_px", ".3g")]))
     rows.append(("datum", [_cell(s, "datum_detail")]))
     if o.get("n_control"):
-        rows.append(("a-priori σ of the control points XY / Z [m] (median)",
-                     [_cell(s, "options.control_sigma_xy_m", ".3g"), _cell(s, "options.control_sigma_z_m", ".3g")]))
+        for axis, key in (("XY", "control_sigma_xy_m"), ("Z", "control_sigma_z_m")):
+            rows.append((f"a-priori σ of the control points {axis} [m] (median)", [_cell(s, f"options.{key}", ".3g")]))
     for key, label in (("gnss_sigma_m", "a-priori σ of GNSS X0, Y0, Z0 [m]"),
                        ("imu_sigma_deg", "a-priori σ of IMU ω, φ, κ [deg]")):
         if o.get(key):
@@ -226,9 +226,8 @@ def _processing_rows(s: dict) -> list[tuple[str, list[str]]]:
             if screening else "off: every parameter kept")]))
         rows.append(("variance components", [_text_cell("estimated per observation group"
                                                         if o.get("variance_components") else "not estimated")]))
-        rows.append(("iterations / limit", [_cell(s, "iterations"), _cell(s, "options.max_iterations")]))
-    else:
-        rows.append(("iterations", [_cell(s, "iterations")]))
+        rows.append(("iteration limit", [_cell(s, "options.max_iterations")]))
+    rows.append(("iterations", [_cell(s, "iterations")]))
     return rows
 
 
