@@ -17,13 +17,14 @@ from selfcal.report.figures import grid_mean_vectors, nice_length
 
 from conftest import pruned, run_cli, simulation
 
-FIGURES = ["distortion", "residual-grid", "residual-histogram", "control-errors", "tie-precision", "correlation",
-           "robust-weights", "rejection-map"]
+FIGURES = ["camera-layout", "distortion", "residual-grid", "residual-histogram", "control-errors", "tie-precision",
+           "correlation", "robust-weights", "rejection-map"]
 #: every summary.json key that the summary section must print
 PRINTED = ["sigma0_px", "variance_factor", "iterations", "redundancy", "n_observations", "n_unknowns",
            "rmsd_chk_xy_m", "rmsd_chk_z_m", "rmsd_chk_xy_gsd", "rmsd_chk_z_gsd", "ce90_chk_m", "le90_chk_m",
            "rms_sigma_tie_xy_m", "rms_sigma_tie_z_m", "n_gcp_used", "n_chk_used", "n_obs_rejected",
-           "n_ap_initial", "n_ap_significant", "max_abs_corr.IOP", "max_abs_corr.EOP", "gsd_m"]
+           "n_ap_initial", "n_ap_significant", "max_abs_corr.IOP", "max_abs_corr.EOP", "gsd_m", "selfcal_version",
+           "options.ap_model", "options.image_sigma_px", "options.control_sigma_xy_m", "options.max_iterations"]
 
 
 class _ReportParser(HTMLParser):

@@ -16,7 +16,7 @@ from matplotlib.figure import Figure
 
 __all__ = ["distortion_figure", "residual_grid_figure", "residual_histogram_figure", "control_error_figure",
            "correlation_figure", "precision_map_figure", "comparison_figure", "grid_mean_vectors",
-           "robust_weight_figure", "rejection_map_figure",
+           "robust_weight_figure", "rejection_map_figure", "camera_layout_figure", "OVERLAP_TOP",
            "nice_length", "length_unit"]
 
 _WIDTH_IN = 7.5   # fits an A4 page with margins
@@ -349,4 +349,61 @@ def rejection_map_figure(images: list[tuple[str, np.ndarray, np.ndarray, np.ndar
     if images:
         axes[0].legend(fontsize=6, loc="lower left", markerscale=2)
     fig.suptitle(title, x=0.01, ha="left", fontsize=10)
+    return fig
+
+
+#: the camera-layout figure's colour scale of images per point ends here (more images share its last colour)
+OVERLAP_TOP = 9
+
+
+def camera_layout_figure(points_xy_m: np.ndarray, images_per_point: np.ndarray, role: np.ndarray,
+                         centres_xy_m: np.ndarray | None, strip: Sequence[str], names: Sequence[str],
+                         title: str) -> Figure:
+    """The camera layout over the object points (plan view, easting right, northing up, from the points' mean).
+
+    Each point is coloured by the number of images that observe it (``images_per_point``, one discrete colour
+    per count from 1 to :data:`OVERLAP_TOP` and more, red for few, green for many; 0 grey); control points
+    (``role`` gcp) are drawn as triangles, check points (chk) as circles; the projection centres
+    (``centres_xy_m``, None: not drawn) as black crosses joined along each strip, named when few.
+    """
+    from matplotlib import colormaps
+    from matplotlib.colors import BoundaryNorm
+    fig = Figure(figsize=(_WIDTH_IN, _WIDTH_IN * 0.72), layout="constrained")
+    ax = fig.add_subplot()
+    origin = points_xy_m.mean(axis=0) if len(points_xy_m) else np.zeros(2)
+    e, n = (points_xy_m - origin).T
+    counts = np.asarray(images_per_point, dtype=int)
+    top = int(min(max(int(counts.max()) if counts.size else 2, 2), OVERLAP_TOP))
+    cmap = colormaps["RdYlGn"].resampled(top)
+    norm = BoundaryNorm(np.arange(0.5, top + 1.5), top)
+    seen = counts > 0
+    tie = ~np.isin(role, ("gcp", "chk"))
+    ax.scatter(e[~seen], n[~seen], s=2, color="0.6", linewidths=0, rasterized=True)
+    dots = ax.scatter(e[seen & tie], n[seen & tie], c=np.minimum(counts[seen & tie], top), s=5, cmap=cmap,
+                      norm=norm, linewidths=0, rasterized=True)
+    for r, marker, label in (("gcp", "^", "control"), ("chk", "o", "check")):
+        pick = role == r
+        if pick.any():
+            ax.scatter(e[pick], n[pick], c=np.minimum(np.maximum(counts[pick], 1), top), cmap=cmap, norm=norm,
+                       marker=marker, s=36, edgecolors="k", linewidths=0.6, label=label, zorder=3)
+    bar = fig.colorbar(dots, ax=ax, label="images per point", shrink=0.85, ticks=range(1, top + 1))
+    if counts.size and counts.max() > top:
+        bar.ax.set_yticklabels([str(k) for k in range(1, top)] + [f"{top}+"])
+    if centres_xy_m is not None and len(centres_xy_m):
+        ce, cn = (centres_xy_m - origin).T
+        strips = np.asarray(strip, dtype=object)
+        for s in dict.fromkeys(strips):
+            mine = strips == s
+            ax.plot(ce[mine], cn[mine], "-", color="0.35", lw=0.7, zorder=4)
+        ax.plot(ce, cn, "+", color="k", ms=7, mew=1.2, label="projection centres", zorder=5)
+        if len(names) <= 40:
+            for x, y, t in zip(ce, cn, names):
+                ax.annotate(str(t), (x, y), xytext=(3, 3), textcoords="offset points", fontsize=5, color="0.2")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel("easting − mean of the points [m]")
+    ax.set_ylabel("northing − mean of the points [m]")
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(fontsize=7, loc="lower left", framealpha=0.8)
+    median = float(np.median(counts[seen])) if seen.any() else float("nan")
+    ax.set_title(f"{title}: {len(counts)} points, median {median:g} images per point", loc="left", fontsize=10)
     return fig

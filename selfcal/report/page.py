@@ -28,6 +28,7 @@ figure img { max-width: 100%; height: auto; border: 1px solid #eee; }
 figcaption { font-size: 9pt; color: #444; }
 .note { font-size: 9pt; color: #555; }
 .bad { color: #b00; font-weight: bold; }
+details { margin: 0.3em 0 1em; } details > summary { cursor: pointer; color: #235; font-size: 9pt; }
 @media print { body { max-width: none; margin: 0; font-size: 9.5pt; } h2 { page-break-after: avoid; }
                table { page-break-inside: auto; } tr { page-break-inside: avoid; } a { color: inherit; } }
 """

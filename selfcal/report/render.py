@@ -13,6 +13,7 @@ from __future__ import annotations
 import html
 import io
 import math
+from collections import Counter
 
 import numpy as np
 
@@ -20,7 +21,8 @@ from ..io.results import ResultsFolder
 from . import figures
 from .page import Page, fmt, summary_cell
 
-__all__ = ["render_report", "render_comparison_report", "best_cells", "FIGURE_DPI", "MAX_CAMERA_FIGURES"]
+__all__ = ["render_report", "render_comparison_report", "best_cells", "images_per_point", "FIGURE_DPI",
+           "MAX_CAMERA_FIGURES", "MAX_AP_ROWS"]
 
 FIGURE_DPI = 110
 #: image-space figures are drawn for this many cameras at most (those with the most observations)
@@ -29,6 +31,11 @@ MAX_CAMERA_FIGURES = 4
 MAX_REJECTION_PANELS = 6
 #: rejected observations listed in the report (largest |w| first); all of them are in residuals.csv
 MAX_REJECTED_ROWS = 200
+#: an AP table longer than this is folded (<details>) to the coefficients with the largest t; all are in
+#: parameters.csv; the camera table of initial against adjusted values lists a camera's APs only up to this many
+MAX_AP_ROWS = 20
+#: rows of the table of initial against adjusted camera values (all are in parameters.csv)
+MAX_CAMERA_CHANGE_ROWS = 60
 
 #: the summary table: a label and the summary.json keys (with their formats) printed on its row
 _SUMMARY_ROWS = [
@@ -82,6 +89,198 @@ def _summary_section(page: Page, s: dict) -> None:
         page.add('<p class="note">Largest |correlation| of the camera parameters with each group '
                  "(Table 4 of seed 000):</p>"
                  f"<table><thead><tr>{head}</tr></thead><tbody><tr>{corr_cells}</tr></tbody></table>")
+
+
+def images_per_point(results) -> dict[str, int]:
+    """How many images observe each point in the final adjustment: the distinct images of its observations in
+    residuals.csv that were not rejected (and have a residual). Points without one are absent."""
+    res = results.tables["residuals"]
+    keep = (res["rejected"] == 0) & np.isfinite(res["vx_px"])
+    pairs = set(zip(res["image_id"][keep].tolist(), res["point_id"][keep].tolist()))
+    return dict(Counter(point for _, point in pairs))
+
+
+def _projection_centres(results, points_xy: np.ndarray) -> tuple[np.ndarray | None, str]:
+    """The images' projection centres X0, Y0 from images.csv (None where its sensor writes none, or where they lie
+    far outside the block, as a satellite's do) and a sentence for the caption."""
+    im = results.tables["images"]
+    if "X0" not in im or "Y0" not in im or not len(im["X0"]):
+        return None, "The images' sensor writes no projection centre (images.csv): the points only. "
+    centres = np.column_stack([im["X0"], im["Y0"]])
+    if not np.isfinite(centres).all():
+        return None, "Some projection centres are not finite (images.csv): the points only. "
+    if len(points_xy):
+        middle = points_xy.mean(axis=0)
+        span = max(float(np.ptp(points_xy[:, 0])), float(np.ptp(points_xy[:, 1])), 1.0)
+        if float(np.max(np.hypot(*(centres - middle).T))) > 10.0 * span:
+            return None, ("The projection centres lie more than ten times the block's extent from it (a satellite, "
+                          "a far camera) and are not drawn. ")
+    return centres, "Black crosses: the projection centres X0, Y0 (images.csv), joined along each strip. "
+
+
+def _layout_section(page: Page, files: dict, results) -> None:
+    """The camera layout over the points coloured by their overlap, and the table of the overlap's counts."""
+    pts = results.tables["points"]
+    by_point = images_per_point(results)
+    counts = np.array([by_point.get(p, 0) for p in pts["point_id"]], dtype=int)
+    xy = np.column_stack([pts["X"], pts["Y"]])
+    centres, said = _projection_centres(results, xy)
+    im = results.tables["images"]
+    fig = figures.camera_layout_figure(xy, counts, pts["role"], centres, list(im["strip_id"]), list(im["image_id"]),
+                                       "Camera layout and overlap")
+    _add_figure(page, files, fig, "camera-layout",
+                f"Camera layout and overlap. In plan (X right, Y up, from the mean of the points), every object "
+                f"point coloured by the number of images that observe it in the final adjustment (observations "
+                f"rejected excluded; from residuals.csv), {figures.OVERLAP_TOP} and more in the last colour; "
+                f"control points as triangles, check points as circles. {said}")
+    control = np.isin(pts["role"], ("gcp", "chk"))
+    rows = []
+    for k in sorted(set(counts.tolist())):
+        mine = counts == k
+        rows.append([k, int((mine & ~control).sum()), int((mine & control).sum()),
+                     fmt(100.0 * mine.sum() / max(len(counts), 1), ".1f")])
+    page.table(["images per point", "tie points", "control and check points", "share of the points [%]"], rows,
+               text_columns=0, ident="overlap")
+    if (counts < 2).any():
+        page.paragraph(f"{int((counts < 2).sum())} points are seen in fewer than two images after the rejections "
+                       "(0: all their observations rejected, or the point left the adjustment).", "note")
+
+
+def _known(summary: dict, key: str) -> bool:
+    """Whether the dotted ``key`` names a scalar of summary.json (None included): a cell that holds it exactly."""
+    value: object = summary
+    for part in key.split("."):
+        if not isinstance(value, dict) or part not in value:
+            return False
+        value = value[part]
+    return not isinstance(value, (dict, list))
+
+
+def _cell(summary: dict, key: str, spec: str = "") -> str:
+    """The summary.json value ``key`` in a (left-aligned) cell that names it (:func:`summary_cell`), or '–' where
+    it is absent."""
+    if not _known(summary, key):
+        return _text_cell("–")
+    return summary_cell(summary, key, spec).replace("<td ", '<td class="text" ', 1)
+
+
+def _text_cell(text: str) -> str:
+    return f'<td class="text">{html.escape(text)}</td>'
+
+
+def _processing_rows(s: dict) -> list[tuple[str, list[str]]]:
+    """The processing parameters: what the run was asked to do (summary.json ``options``) and what it did."""
+    from ..ap import takes_grid
+    o = s.get("options") or {}
+    rows: list[tuple[str, list[str]]] = [("selfcal version", [_cell(s, "selfcal_version")]),
+                                         ("block", [_cell(s, "block")]),
+                                         ("sensors", [_text_cell(", ".join(s.get("sensors") or []))]),
+                                         ("coordinate reference system", [_cell(s, "crs")])]
+    if o.get("ap_model"):
+        rows.append(("AP model asked for", [_cell(s, "options.ap_model")]))
+    if o.get("ap_candidates"):
+        rows.append(("AP candidates (the smallest BIC chosen)", [_text_cell(", ".join(o["ap_candidates"]))]))
+    rows.append(("AP model used", [_cell(s, "ap_model")]))
+    try:
+        gridded = takes_grid(str(s.get("ap_model", "none")))
+    except ValueError:
+        gridded = False
+    grid = s.get("grid") or o.get("grid")
+    if gridded and grid:
+        rows.append(("AP grid Gx × Gy", [_text_cell(f"{grid[0]} × {grid[1]}")]))
+    if o:
+        rows.append(("a-priori σ of the AP coefficients [px]",
+                     [_cell(s, "options.ap_sigma_px", ".3g") if o.get("ap_sigma_px") is not None
+                      else _text_cell("none: free")]))
+        rows.append(("a-priori σ of an image coordinate [px]", [_cell(s, "options.image_sigma_px", ".3g")]))
+    rows.append(("datum", [_cell(s, "datum_detail")]))
+    if o.get("n_control"):
+        for axis, key in (("XY", "control_sigma_xy_m"), ("Z", "control_sigma_z_m")):
+            rows.append((f"a-priori σ of the control points {axis} [m] (median)", [_cell(s, f"options.{key}", ".3g")]))
+    for key, label in (("gnss_sigma_m", "a-priori σ of GNSS X0, Y0, Z0 [m]"),
+                       ("imu_sigma_deg", "a-priori σ of IMU ω, φ, κ [deg]")):
+        if o.get(key):
+            rows.append((label, [_text_cell(", ".join(fmt(v, ".3g") for v in o[key]))]))
+    robust = s.get("robust")
+    scale = (o.get("robust") or {}).get("scale")
+    rows.append(("robust cleaning", [_text_cell(
+        f"{robust['loss']} loss, c = {fmt(robust.get('c'), 'g')} × the scale{f' ({scale})' if scale else ''}; "
+        f"gross errors beyond {fmt(robust.get('reject_u'), 'g')} robust σ rejected" if robust
+        else "none: least squares throughout")]))
+    snooping = s.get("snooping") or {}
+    critical = snooping.get("critical")
+    mode = (o.get("snooping") or {}).get("mode")
+    if critical:
+        rows.append(("data snooping (Baarda): critical |w|", [_cell(s, "snooping.critical", "g")]))
+        if mode:
+            rows.append(("data snooping: rejections per round", [_text_cell(
+                "the largest |w| of the block (single)" if mode == "single" else
+                f"the largest |w| of each point above it ({mode})")]))
+    else:
+        rows.append(("data snooping (Baarda)", [_text_cell("off" if snooping or o else "–")]))
+    if o:
+        screening = o.get("screening")
+        rows.append(("parameter screening", [_text_cell(
+            f"one at a time while t < {fmt(screening.get('significance'), 'g')} or |ρ| > "
+            f"{fmt(screening.get('max_correlation'), 'g')}; joint F-test α = {fmt(screening.get('joint_alpha'), 'g')}"
+            if screening else "off: every parameter kept")]))
+        rows.append(("variance components", [_text_cell("estimated per observation group"
+                                                        if o.get("variance_components") else "not estimated")]))
+        rows.append(("iteration limit", [_cell(s, "options.max_iterations")]))
+    rows.append(("iterations", [_cell(s, "iterations")]))
+    return rows
+
+
+def _processing_section(page: Page, s: dict) -> None:
+    rows = _processing_rows(s)
+    page.add('<table id="processing"><tbody>' + "".join(
+        f'<tr><td class="text">{html.escape(label)}</td>{"".join(cells)}</tr>' for label, cells in rows) +
+        "</tbody></table>")
+    if not s.get("options"):
+        page.paragraph("This results folder does not record the run's options (summary.json has no 'options': "
+                       "written by an older selfcal); the rows above are those summary.json holds.", "note")
+
+
+#: the number format of a camera value by its unit
+_UNIT_FORMAT = {"mm": ".5f", "px": ".4f", "m": ".4f", "deg": ".6f"}
+
+
+def _camera_change_section(page: Page, results) -> None:
+    """Each camera's parameters: initial (parameters.csv ``start``), adjusted, their difference and σ; the APs of
+    a model with at most MAX_AP_ROWS coefficients too (longer ones: the AP table below)."""
+    cameras = results.camera.get("cameras", {})
+    t = results.tables.get("parameters")
+    if t is None:
+        page.paragraph("This results folder has no parameters.csv (an older selfcal): the initial values are not "
+                       "recorded; the adjusted values are in the camera tables below.", "note")
+        return
+    many = len(cameras) > 1
+    rows, notes = [], []
+    for camera_id in cameras:
+        mine = np.flatnonzero(t["owner"] == camera_id)
+        ap = [i for i in mine if t["group"][i] == "AP"]
+        shown = [i for i in mine if t["group"][i] != "AP" or len(ap) <= MAX_AP_ROWS]
+        if len(ap) > MAX_AP_ROWS:
+            notes.append(f"{camera_id}: {len(ap)} APs, in the AP table below (folded) and parameters.csv")
+        for i in shown:
+            spec = _UNIT_FORMAT.get(str(t["unit"][i]), ".6g")
+            value, start, sigma = float(t["value"][i]), float(t["start"][i]), float(t["sigma"][i])
+            active = bool(t["active"][i])
+            ratio = abs(value - start) / sigma if active and sigma > 0 else None
+            rows.append(([camera_id] if many else []) +
+                        [t["parameter"][i], t["unit"][i], fmt(start, spec), fmt(value, spec), fmt(value - start, spec),
+                         fmt(sigma if active else None, ".3g"), fmt(ratio, ".1f"), "estimated" if active else "held"])
+    if not rows:
+        return
+    header = (["camera"] if many else []) + ["parameter", "unit", "initial", "adjusted", "adjusted − initial", "σ",
+                                             "|Δ|/σ", ""]
+    text = {0, 1, 2, 9} if many else {0, 1, 8}
+    more = len(rows) - MAX_CAMERA_CHANGE_ROWS
+    page.table(header, rows[:MAX_CAMERA_CHANGE_ROWS], text_columns=text, ident="camera-change")
+    page.paragraph("Initial = the start value of the adjustment (the block's camera, or the calibration it was "
+                   "given), adjusted ± σ its a-posteriori estimate; |Δ|/σ = |adjusted − initial| / σ. From "
+                   "parameters.csv" + (f"; {more} more rows there" if more > 0 else "") + "."
+                   + (f" {'; '.join(notes)}." if notes else ""), "note")
 
 
 def _residual_cameras(results) -> np.ndarray:
@@ -267,7 +466,7 @@ def _camera_section(page: Page, results) -> None:
         coefficients = ap.get("coefficients", [])
         if not coefficients:
             continue
-        rows = []
+        rows, ts = [], []
         for c in coefficients:
             value, sigma = c.get("value_px"), c.get("sigma_px")
             t = abs(value) / sigma if value is not None and sigma else None
@@ -275,10 +474,22 @@ def _camera_section(page: Page, results) -> None:
             outcome = "kept" if c.get("active") else "held at its given value" if c.get("held") else (
                 f"dropped in round {entry['round']}: {entry['reason']}" if entry else "not estimated")
             rows.append([c["name"], fmt(value, ".4f"), fmt(sigma, ".4f"), fmt(t, ".1f"), outcome])
-        page.paragraph(f"{ap.get('spec', '')}: {ap.get('n_active', 0)} of {len(coefficients)} coefficients active "
-                       "(in pixels; t = |value|/σ).", "note")
-        page.table(["AP", "value [px]", "σ [px]", "t", "screening"], rows, text_columns={0, 4},
-                   ident=f"ap-{camera_id}")
+            ts.append(-1.0 if t is None else t)
+        header = ["AP", "value [px]", "σ [px]", "t", "screening"]
+        said = f"{ap.get('spec', '')}: {ap.get('n_active', 0)} of {len(coefficients)} coefficients active " \
+               "(in pixels; t = |value|/σ)"
+        if len(rows) <= MAX_AP_ROWS:
+            page.paragraph(f"{said}.", "note")
+            page.table(header, rows, text_columns={0, 4}, ident=f"ap-{camera_id}")
+            continue
+        # a long table (wavelet APs): the coefficients with the largest t, folded; every one is in parameters.csv
+        largest = sorted(np.argsort(-np.asarray(ts), kind="stable")[:MAX_AP_ROWS])
+        page.paragraph(f"{said}. The full table of all {len(rows)} coefficients (value, σ, start value, active) "
+                       "is in parameters.csv (group AP), their screening in screening.json.", "note")
+        page.add(f'<details id="ap-fold-{html.escape(camera_id)}"><summary>The {MAX_AP_ROWS} coefficients with the '
+                 f"largest t of {len(rows)} (in their order; all in parameters.csv)</summary>")
+        page.table(header, [rows[i] for i in largest], text_columns={0, 4}, ident=f"ap-{camera_id}")
+        page.add("</details>")
 
 
 def _trajectory_section(page: Page, results) -> None:
@@ -499,6 +710,12 @@ def render_report(results: ResultsFolder, title: str | None = None) -> dict:
     page.add(f'<p class="lede">{html.escape(status)} ({html.escape(str(s.get("convergence", "")))}); '
              f"{html.escape(_scenario_text(s))}every number below comes from summary.json, camera.json and the "
              "CSV tables beside this page.</p>")
+    page.heading("Camera layout and overlap", anchor="layout")
+    _layout_section(page, files, results)
+    page.heading("Processing parameters", anchor="processing")
+    _processing_section(page, s)
+    page.heading("Camera: initial against adjusted values", anchor="camera-change")
+    _camera_change_section(page, results)
     page.heading("Summary", anchor="summary")
     _summary_section(page, s)
     page.heading("Image space: distortion and residuals", anchor="image-space")

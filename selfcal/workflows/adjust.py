@@ -9,7 +9,7 @@ by :func:`selfcal.report.result_files` in one schema.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
 from typing import Callable
 
 import numpy as np
@@ -31,7 +31,7 @@ from .model_choice import ModelChoice, choose_ap_model
 from .tested import TestedAdjustment, adjust_with_tests
 
 __all__ = ["AdjustRequest", "Adjusted", "adjust_block", "offers_sensor_models", "default_ap_model", "ap_candidates",
-           "is_auto", "DEFAULT_FRAME_CANDIDATES"]
+           "is_auto", "DEFAULT_FRAME_CANDIDATES", "run_options"]
 
 
 @dataclass(frozen=True)
@@ -113,7 +113,54 @@ def adjust_block(block: Block, request: AdjustRequest, progress: Callable | None
                  report: Callable | None = None, say: Callable[[str], None] | None = None,
                  scores: Callable | None = None) -> Adjusted:
     """The tested adjustment of ``block`` as ``request`` asks (module docstring); ``say`` receives one-line
-    messages on the way (the focal lengths, the chosen model), ``scores`` each candidate of ``--ap auto``."""
+    messages on the way (the focal lengths, the chosen model), ``scores`` each candidate of ``--ap auto``.
+    Its ``summary_extra`` holds the run's options (:func:`run_options`: summary.json ``options``)."""
+    adjusted = _adjust_block(block, request, progress, report, say, scores)
+    adjusted.summary_extra = {"options": run_options(block, request)} | adjusted.summary_extra
+    return adjusted
+
+
+def run_options(block: Block, request: AdjustRequest) -> dict:
+    """What the run was asked to do, for summary.json ``options`` (the report's processing parameters): the
+    request's options (the AP model asked for, ``auto`` for a choice by BIC; snooping, screening, robust cleaning,
+    variance components, solver) and the block's a-priori weights: the sigma of an image coordinate, the median
+    sigma of the control points (XY, Z; None where none is given), the GNSS and IMU sigmas."""
+    o = request.options
+    gcp = block.points.role == "gcp"
+    sigma = block.points.sigma_m[gcp] if gcp.any() else np.zeros((0, 3))
+
+    def median(values: np.ndarray) -> float | None:
+        finite = values[np.isfinite(values)]
+        return float(np.median(finite)) if finite.size else None
+    sensor = {k: v for k, v in asdict(o.sensor).items() if v is not None} if offers_sensor_models(block) else None
+    return {
+        "ap_model": "auto" if request.candidates else o.ap.model,
+        "ap_candidates": [f"{m}@{g[0]}x{g[1]}" if takes_grid(m) else m for m, g in request.candidates]
+        if request.candidates else None,
+        "grid": list(o.ap.grid),
+        "ap_cameras": list(o.ap.cameras) if o.ap.cameras else None,
+        "ap_sigma_px": o.ap.sigma_px,
+        "image_sigma_px": float(block.image_sigma_px),
+        "n_control": int(gcp.sum()),
+        "control_sigma_xy_m": median(sigma[:, :2].ravel()),
+        "control_sigma_z_m": median(sigma[:, 2]),
+        "gnss_sigma_m": None if block.gnss_sigma_m is None else list(block.gnss_sigma_m),
+        "imu_sigma_deg": None if block.imu_sigma_deg is None else list(block.imu_sigma_deg),
+        "trajectory": asdict(o.trajectory) if block.has_trajectory else None,
+        "sensor": sensor,
+        "max_iterations": int(o.solver.max_iterations),
+        "snooping": None if request.snooping is None else asdict(request.snooping),
+        "screening": None if request.screening is None else asdict(request.screening),
+        "robust": None if request.robust is None else asdict(request.robust),
+        "variance_components": None if request.variance is None else asdict(request.variance),
+        "image_ids": list(request.image_ids) if request.image_ids else None,
+        "n_gcp": request.n_gcp,
+        "keep_focal": bool(request.keep_focal),
+    }
+
+
+def _adjust_block(block: Block, request: AdjustRequest, progress: Callable | None, report: Callable | None,
+                  say: Callable[[str], None] | None, scores: Callable | None) -> Adjusted:
     say = say or (lambda text: None)
     _check_control_axes(block)
     block = object_frame_block(block)
