@@ -23,7 +23,7 @@ up, so (X, Y, Z)_opencv = (X, -Y, -Z)_selfcal.
 """
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -246,7 +246,9 @@ def fit_opencv(calibration: Calibration, models: Sequence[str] = tuple(OPENCV_MO
                         fitted.misfit_rms_px, fitted.misfit_max_px, calibration.width_px, calibration.height_px)
 
 
-def undistortion_maps(calibration: Calibration, step_px: int = 4) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def undistortion_maps(calibration: Calibration, step_px: int = 4,
+                      progress: Callable[[str, float], None] | None = None
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Maps for ``cv2.remap`` from a measured image to the ideal one, and the ideal camera matrix.
 
     The ideal image has the size of the measured one, the principal distance as
@@ -255,7 +257,9 @@ def undistortion_maps(calibration: Calibration, step_px: int = 4) -> tuple[np.nd
     measured position that shows it: exact (Newton) on nodes every ``step_px``
     pixels, bicubic splines between them. Between nodes 4 px apart the maps
     follow a db4 WAP field (whose scaling function is only about 1.6 times
-    differentiable) within 0.01 px; polynomial fields far better.
+    differentiable) within 0.01 px; polynomial fields far better. ``progress``
+    receives the stage (``"nodes inverted"``, then ``"map rows interpolated"``)
+    and its share done so far (0-1) after each of about a hundred bands of rows.
 
     Returns
     -------
@@ -268,12 +272,25 @@ def undistortion_maps(calibration: Calibration, step_px: int = 4) -> tuple[np.nd
     v_nodes = np.unique(np.concatenate([np.arange(0, h, step_px), [h - 1]])).astype(float)
     U, V = np.meshgrid(u_nodes, v_nodes)
     ideal = np.column_stack([U.ravel(), V.ravel()]) + 0.5      # selfcal's convention
-    measured = calibration.measured_from_ideal(ideal) - 0.5
+    bands = np.array_split(np.arange(len(v_nodes)), min(100, len(v_nodes)))
+    measured = np.empty_like(ideal)
+    for k, rows in enumerate(bands):          # node rows in bands: the inversion says how far it is
+        at = slice(rows[0] * len(u_nodes), (rows[-1] + 1) * len(u_nodes))
+        measured[at] = calibration.measured_from_ideal(ideal[at]) - 0.5
+        if progress is not None:
+            progress("nodes inverted", (k + 1) / len(bands))
     mx = RectBivariateSpline(v_nodes, u_nodes, measured[:, 0].reshape(U.shape), kx=3, ky=3)
     my = RectBivariateSpline(v_nodes, u_nodes, measured[:, 1].reshape(U.shape), kx=3, ky=3)
-    u_all, v_all = np.arange(w, dtype=float), np.arange(h, dtype=float)
-    map_x = mx(v_all, u_all).astype(np.float32)
-    map_y = my(v_all, u_all).astype(np.float32)
+    u_all = np.arange(w, dtype=float)
+    map_x = np.empty((h, w), np.float32)
+    map_y = np.empty((h, w), np.float32)
+    pixel_bands = np.array_split(np.arange(h), min(100, h))
+    for k, rows in enumerate(pixel_bands):    # and so does the interpolation between the nodes
+        v_rows = rows.astype(float)
+        map_x[rows] = mx(v_rows, u_all)
+        map_y[rows] = my(v_rows, u_all)
+        if progress is not None:
+            progress("map rows interpolated", (k + 1) / len(pixel_bands))
     return map_x, map_y, calibration.opencv_intrinsics()
 
 

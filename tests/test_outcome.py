@@ -64,9 +64,9 @@ def _verbs(root):
     }
 
 
-VERBS = [
+VERBS = [       # export undistort-map: test_undistort_map_says_how_far_it_is (a subprocess, its stderr timed)
     "report", "export opencv", "export colmap", "export metashape", "export opensfm", "export kalibr",
-    "export undistort-map", "import calibration"]
+    "import calibration"]
 
 
 @pytest.mark.parametrize("verb", VERBS)
@@ -111,3 +111,33 @@ def test_quiet_and_verbose_change_stderr_only(adjusted, tmp_path):
     assert out_q.replace(str(tmp_path / "q"), "") == out_v.replace(str(tmp_path / "v"), "")
     code, _, err = run_main_streams(argv + ["--out", tmp_path / "x", "--quiet", "--verbose"])
     assert code == 2 and "not allowed with" in err
+
+
+def test_undistort_map_says_how_far_it_is(adjusted):
+    """The longest step of the exports (the inversion of the distortion on a 6000 x 4000 frame and the maps between
+    the nodes: 3-13 s here, minutes for WAPs) prints a line at least every 2 s (3 s allowed for a loaded machine), stamped as stderr delivers it;
+    its --json document names the file."""
+    import subprocess
+    import sys
+    import time
+    root, _ = adjusted
+    argv, written = _verbs(root)["export undistort-map"]
+    exe = os.path.join(os.path.dirname(sys.executable), "selfcal")
+    stamps, lines = [], []
+    with subprocess.Popen([exe, *map(str, argv), "--json"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                          text=True) as proc:
+        assert proc.stderr is not None and proc.stdout is not None
+        for line in proc.stderr:
+            stamps.append(time.perf_counter())
+            lines.append(line.rstrip())
+        out = proc.stdout.read()
+        proc.wait()
+    end = time.perf_counter()
+    assert proc.returncode == 0, "\n".join(lines)
+    doc = _document(out)
+    assert doc["command"] == "export undistort-map" and doc["written"] == [os.path.abspath(written)]
+    gaps = [b - a for a, b in zip(stamps, stamps[1:] + [end])]
+    assert max(gaps) <= 3.0, list(zip(lines, [f"{g:.2f}" for g in gaps]))
+    assert any(" % of the nodes inverted in " in line or " % of the map rows interpolated in " in line
+               for line in lines), lines
+    assert any(line.startswith("writing ") for line in lines), lines

@@ -147,9 +147,11 @@ def read_opencv_calibration(path: str | os.PathLike) -> ToolCalibration:
 
 def write_undistortion_maps(path: str | os.PathLike, map_x: np.ndarray, map_y: np.ndarray,
                             camera_matrix: np.ndarray, camera_id: str) -> None:
-    """``map_x``, ``map_y`` (float32, height x width) for ``cv2.remap`` and the ideal camera matrix."""
+    """``map_x``, ``map_y`` (float32, height x width) for ``cv2.remap`` and the ideal camera matrix. Stored without
+    compression: deflate shrinks float32 maps by a fifth only (96 to 76 MB per 6000 x 4000 map) and took 3.4-3.8 s
+    per map, 17 s for the pair on a loaded machine, against 0.1 s stored."""
     with atomic_write(path, mode="wb", encoding=None) as handle:
-        np.savez_compressed(handle, map_x=map_x, map_y=map_y, camera_matrix=camera_matrix,
+        np.savez(handle, map_x=map_x, map_y=map_y, camera_matrix=camera_matrix,
                             camera_id=np.array(camera_id))
 
 

@@ -21,6 +21,8 @@ def run(args: argparse.Namespace) -> int:
     args.out = output_file(args.out, (args.results,))
     cal = pick_camera(calibrations(args.results), args.camera)
     map_x, map_y, camera_matrix = maps_of(cal)
+    print(f"writing {args.out} ({(map_x.nbytes + map_y.nbytes) / 1e6:.0f} MB of maps) ...",
+          file=sys.stderr, flush=True)
     write_undistortion_maps(args.out, map_x, map_y, camera_matrix, cal.camera_id)
     print(f"camera {cal.camera_id}: undistortion maps {cal.width_px} x {cal.height_px} for cv2.remap; ideal "
           f"camera fx = fy = {camera_matrix[0, 0]:.3f} px, principal point ({camera_matrix[0, 2]:.3f}, "
