@@ -403,7 +403,8 @@ def test_colmap_point_triangulator_takes_the_workspace(adjusted, tmp_path):
     tracks: Mapper.tri_ignore_two_view_tracks), with that option off nearly every 3-D point of sparse/ (>= 95 %);
     each of its tracks is one of selfcal's, and its points lie at selfcal's adjusted points within 0.1 m RMS,
     0.5 m at most (the ground pixel is 0.6 m: 213 m / 355 px; COLMAP intersects the ideal 2-D points of three
-    images, selfcal adjusted ten; measured 0.04 m RMS) and reproject onto the 2-D points within 0.1 px RMS."""
+    images, selfcal adjusted ten; measured 0.04 m RMS) and reproject onto the 2-D points within 0.1 px RMS.
+    pycolmap 4's triangulate_points takes the same files (its database migrated) and finds the same tracks."""
     import pycolmap
     exe = shutil.which("colmap")
     assert exe, "Debian's colmap is needed for this test; `make test` installs it (make colmap)"
@@ -448,3 +449,10 @@ def test_colmap_point_triangulator_takes_the_workspace(adjusted, tmp_path):
             assert len(matched) >= 0.95 * len(given.points3D)
         assert np.sqrt(np.mean(miss ** 2)) < 0.1 and miss.max() < 0.5
         assert np.sqrt(np.mean(reprojection ** 2)) < 0.1
+    # COLMAP 4 (pycolmap's triangulate_points, the same step) migrates the 3.8 database (a copy: it rewrites it)
+    # and triangulates the same tracks
+    shutil.copy(ws / "database.db", tmp_path / "database.db")
+    (tmp_path / "pycolmap").mkdir()
+    newer = pycolmap.triangulate_points(pycolmap.Reconstruction(str(ws / "sparse" / "triangulator_input")),
+                                        str(tmp_path / "database.db"), str(ws / "images"), str(tmp_path / "pycolmap"))
+    assert len(newer.points3D) == n_multi
