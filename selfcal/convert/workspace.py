@@ -132,3 +132,103 @@ def colmap_workspace(calibrations: dict, images: dict, points: dict, residuals: 
     )
     return ColmapWorkspace(model, origin, np.asarray(points["point_id"], object)[exported], role[exported],
                            {k: c for c, k in colmap_cam.items()}, img_ids, projected, int(short.sum()))
+
+
+#: the colour of a 3-D point that no 2-D point inside an undistorted image sees (COLMAP's own default grey)
+FALLBACK_GREY = 128
+
+
+def image_rgb_at(image: np.ndarray, xy_px: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Bilinear RGB (0..255, float) of ``image`` (as OpenCV holds it: grey, BGR or BGRA) at the pixel positions
+    ``xy_px`` (m x 2, selfcal's and COLMAP's convention: the first pixel's centre at (0.5, 0.5)), and whether each
+    position lies within the pixel centres (the four neighbours all inside the image; else its colour is 0).
+
+    8-bit images are taken as they are, other integer depths scaled by 255 / their largest value, floating-point
+    images as 0..1 (clipped)."""
+    pixels = np.asarray(image)
+    if pixels.ndim == 2:
+        pixels = pixels[:, :, None][:, :, [0, 0, 0]]
+    elif pixels.shape[2] == 1:
+        pixels = pixels[:, :, [0, 0, 0]]
+    else:
+        pixels = pixels[:, :, [2, 1, 0]]                    # BGR(A) -> RGB
+    if pixels.dtype == np.uint8:
+        scale = 1.0
+    elif np.issubdtype(pixels.dtype, np.integer):
+        scale = 255.0 / np.iinfo(pixels.dtype).max
+    else:
+        scale = 255.0
+    height, width = pixels.shape[:2]
+    xy = np.asarray(xy_px, float).reshape(-1, 2) - 0.5     # array coordinates (pixel centres at integers)
+    inside = (np.isfinite(xy).all(axis=1) & (xy[:, 0] >= 0) & (xy[:, 0] <= width - 1)
+              & (xy[:, 1] >= 0) & (xy[:, 1] <= height - 1))
+    rgb = np.zeros((len(xy), 3))
+    if not inside.any():
+        return rgb, inside
+    col, row = xy[inside, 0], xy[inside, 1]
+    c0 = np.minimum(np.floor(col).astype(np.int64), max(width - 2, 0))
+    r0 = np.minimum(np.floor(row).astype(np.int64), max(height - 2, 0))
+    c1, r1 = np.minimum(c0 + 1, width - 1), np.minimum(r0 + 1, height - 1)
+    fc, fr = (col - c0)[:, None], (row - r0)[:, None]
+    value = ((1 - fr) * ((1 - fc) * pixels[r0, c0] + fc * pixels[r0, c1])
+             + fr * ((1 - fc) * pixels[r1, c0] + fc * pixels[r1, c1])) * scale
+    if not np.issubdtype(pixels.dtype, np.integer):
+        value = np.clip(value, 0.0, 255.0)
+    rgb[inside] = value
+    return rgb, inside
+
+
+class PointColours:
+    """The colour of each 3-D point of a sparse model: the mean, over the images whose 2-D points see it, of the
+    bilinear colour of the (undistorted) image at those 2-D points; :data:`FALLBACK_GREY` where no 2-D point
+    of the point lies inside its image. Images are added one at a time (:meth:`add`)."""
+
+    def __init__(self, model: ColmapModel):
+        self.model = model
+        self.point_index = {int(p): k for k, p in enumerate(model.point_ids)}
+        self.obs_index = np.array([self.point_index.get(int(p), -1) for p in model.obs_point], np.int64)
+        self.total = np.zeros((len(model.point_ids), 3))
+        self.count = np.zeros(len(model.point_ids), np.int64)
+
+    def add(self, image_id: int, image: np.ndarray) -> None:
+        """Sample ``image`` (the model's image ``image_id``) at its 2-D points."""
+        rows = np.flatnonzero((np.asarray(self.model.obs_image) == image_id) & (self.obs_index >= 0))
+        rgb, inside = image_rgb_at(image, self.model.obs_xy[rows])
+        np.add.at(self.total, self.obs_index[rows[inside]], rgb[inside])
+        np.add.at(self.count, self.obs_index[rows[inside]], 1)
+
+    def rgb(self) -> tuple[np.ndarray, int]:
+        """(k x 3) uint8 colours of the model's points, and how many of them are the fallback grey."""
+        seen = self.count > 0
+        out = np.full((len(self.count), 3), FALLBACK_GREY, np.uint8)
+        out[seen] = np.clip(np.round(self.total[seen] / self.count[seen, None]), 0, 255).astype(np.uint8)
+        return out, int(np.sum(~seen))
+
+
+def keypoints_and_matches(model: ColmapModel) -> tuple[dict[int, np.ndarray], dict[tuple[int, int], np.ndarray]]:
+    """The feature data of a COLMAP database that gives ``model``'s tracks back: each image's keypoints (its
+    2-D points, n x 2, in the order of the model's ``obs_*``, which is the order of :func:`selfcal.io.colmap.write_colmap_bin`'s
+    POINT2D_IDX) and, for each pair of images (id1 < id2) that see common 3-D points, the matches (k x 2
+    keypoint indices in image 1 and image 2): one per 3-D point seen in both (the first 2-D point in each
+    image when an image sees a point twice)."""
+    obs_image = np.asarray(model.obs_image, np.int64)
+    obs_point = np.asarray(model.obs_point, np.int64)
+    order = np.argsort(obs_image, kind="stable")
+    index_in_image = np.empty(len(obs_image), np.int64)
+    keypoints = {}
+    for image_id in model.image_ids:
+        lo, hi = np.searchsorted(obs_image[order], [image_id, image_id + 1])
+        rows = order[lo:hi]
+        index_in_image[rows] = np.arange(len(rows))
+        keypoints[int(image_id)] = np.asarray(model.obs_xy, float)[rows].reshape(-1, 2)
+    first: dict[int, dict[int, int]] = {}          # image id -> point id -> keypoint index
+    for image_id, point_id, idx in zip(obs_image.tolist(), obs_point.tolist(), index_in_image.tolist()):
+        first.setdefault(image_id, {}).setdefault(point_id, idx)
+    matches = {}
+    ids = sorted(first)
+    for a, id1 in enumerate(ids):
+        for id2 in ids[a + 1:]:
+            common = sorted(set(first[id1]) & set(first[id2]))
+            if common:
+                matches[(id1, id2)] = np.array([[first[id1][p], first[id2][p]] for p in common], np.int64)
+    return keypoints, matches

@@ -5,11 +5,22 @@
                                 selfcal.calibration.undistortion_maps), same name and format
     WS/sparse/cameras.bin       one PINHOLE camera per frame camera: fx = fy = principal distance, principal point
     WS/sparse/images.bin        adjusted poses (world to camera) and the kept observations, undistorted
-    WS/sparse/points3D.bin      adjusted tie and control points seen in two or more exported images, with tracks
+    WS/sparse/points3D.bin      adjusted tie and control points seen in two or more exported images, with tracks;
+                                colour: bilinear in the undistorted images at the point's 2-D points, mean over
+                                its images (grey 128 where none lies inside its image)
     WS/sparse/selfcal_origin.json   object coordinates = model coordinates + origin_m (and the CRS, when the
                                 results name it); COLMAP camera ids -> selfcal camera ids
     WS/sparse/selfcal_points.csv    point3D_id,point_id,role: the selfcal id of each 3-D point
     WS/stereo/patch-match.cfg, fusion.cfg, depth_maps/, normal_maps/, consistency_graphs/
+    WS/database.db              for ``colmap point_triangulator``: the cameras, images (same ids and names), each
+                                image's 2-D points as keypoints and, per image pair, one verified match per
+                                3-D point both see
+    WS/sparse/triangulator_input/   cameras, images (poses, no 2-D points) and no 3-D points: its --input_path
+
+    colmap point_triangulator --database_path WS/database.db --image_path WS/images \
+        --input_path WS/sparse/triangulator_input --output_path OUT
+
+(COLMAP keeps only image pairs with at least ``--Mapper.min_num_matches`` matches, 15 by default.)
 
 The observations and tracks come from the results folder alone: residuals.csv holds every image measurement
 (col_px, row_px) and whether the adjustment rejected it; only kept ones are written. Pixel convention:
@@ -23,7 +34,7 @@ from typing import Callable
 import numpy as np
 
 from ..calibration import Calibration, undistort_image, undistortion_maps
-from ..convert import colmap_workspace
+from ..convert import FALLBACK_GREY, PointColours, colmap_workspace, keypoints_and_matches
 from ..errors import BlockError
 from ..io.colmap_workspace import find_images, write_workspace
 from ..io.images import check_file_name, read_image
@@ -37,7 +48,7 @@ def export_workspace(results_folder: str, cams: dict[str, Calibration], images_f
                      maps: Callable = undistortion_maps) -> dict:
     """Write the workspace ``out`` (atomically) for the frame cameras ``cams`` of ``results_folder`` and the images
     of ``images_folder``; ``say`` receives the notes, warnings and progress lines; ``maps(calibration)`` gives the
-    undistortion maps. Returns the counts (images, points, observations), the origin and the mean error."""
+    undistortion maps. Returns the counts (images, points, observations, points left grey), the origin and the mean error."""
     results = read_results(results_folder)
     images, residuals = results.tables["images"], results.tables["residuals"]
     frame_images = [i for i, c in zip(images["image_id"], images["camera_id"]) if c in cams]
@@ -82,8 +93,17 @@ def export_workspace(results_folder: str, cams: dict[str, Calibration], images_f
                 if image.shape[:2] != (cal.height_px, cal.width_px):
                     raise BlockError(path, f"is {image.shape[1]} x {image.shape[0]} px, camera {camera_id} of image "
                                            f"{image_id} is {cal.width_px} x {cal.height_px} px")
-                yield name, undistort_image(image, map_x, map_y)
+                ideal = undistort_image(image, map_x, map_y)
+                colours.add(int(model.image_ids[k]), ideal)
+                yield name, ideal
                 say(f"[{k + 1}/{len(names)}] {name}")
+        model.point_rgb, grey = colours.rgb()       # all images taken: the model is written after them
+        counts["grey_points"] = grey
+        say(f"colours: {len(model.point_ids) - grey} point(s) from the undistorted images (bilinear at their 2-D "
+            f"points, mean over the images), {grey} grey ({FALLBACK_GREY}: no 2-D point inside an image)")
+
+    colours = PointColours(model)
+    counts = {"grey_points": 0}
     origin = {
         "origin_m": ws.origin_m,
         "crs": results.summary.get("crs"),
@@ -91,7 +111,8 @@ def export_workspace(results_folder: str, cams: dict[str, Calibration], images_f
         "results": os.path.abspath(results_folder),
         "ap_model": results.summary.get("ap_model"),
         "cameras": {str(k): c for k, c in ws.camera_id.items()}}
-    write_workspace(out, model, undistorted(), origin, zip(model.point_ids.tolist(), ws.point_id, ws.point_role))
+    write_workspace(out, model, undistorted(), origin, zip(model.point_ids.tolist(), ws.point_id, ws.point_role),
+                    keypoints_and_matches(model))
     rms = float(np.sqrt(np.mean(model.point_error ** 2))) if len(model.point_error) else float("nan")
     return {"images": len(names), "points": len(model.point_ids), "observations": len(model.obs_point),
-            "origin_m": ws.origin_m, "mean_error_px": rms}
+            "origin_m": ws.origin_m, "mean_error_px": rms, "grey_points": counts["grey_points"]}
