@@ -211,7 +211,7 @@ def test_progress_message_of_a_camera_without_aps(ws, capsys, monkeypatch):
     from selfcal.cli import calibrations as module
     cal = next(iter(module.calibrations(ws.results).values()))
     assert cal.ap.spec == "none"
-    monkeypatch.setattr(module, "undistortion_maps", lambda c: None)
+    monkeypatch.setattr(module, "undistortion_maps", lambda c, progress=None: None)
     module.maps_of(cal)
     err = capsys.readouterr().err
     assert "none distortion" not in err and "AP model none, no distortion to invert" in err, err

@@ -110,8 +110,8 @@ def test_gcp_list_image_names_joined_after_a_folder_prefix_and_case(models, tmp_
     is the one of the original file, number for number."""
     control = read_gcp_list(_renamed_gcp_list(tmp_path, lambda name: "images/" + name.upper()))
     original = read_gcp_list(os.path.join(COPR, "gcp_list.txt"))
-    block, notes = block_from_colmap(models[0], control, pixel_size_mm=0.0052)
-    want, want_notes = block_from_colmap(models[0], original, pixel_size_mm=0.0052)
+    block, notes = block_from_colmap(models[0], control, pixel_size_mm=0.0052, control_sigma_m=(3.0, 5.0))
+    want, want_notes = block_from_colmap(models[0], original, pixel_size_mm=0.0052, control_sigma_m=(3.0, 5.0))
     n = len(set(original.obs_image))
     assert (f"warning: image names matched after removing the prefix 'images/' of gcp_list.txt's labels and "
             f"ignoring case (gcp_list.txt to the model): {n} of {n} (images/IMG_0037.JPG = IMG_0037.jpg, ") in notes[1]
@@ -296,3 +296,28 @@ def test_every_perspective_model_becomes_brown_initial_values(model, params):
     ideal = np.column_stack([camera.x0_mm + camera.focal_mm * n[:, 0], camera.y0_mm - camera.focal_mm * n[:, 1]])
     miss = np.hypot(*((xy - p * np.column_stack([dx, dy])) - ideal).T) / p
     assert miss.max() < bound and np.max(np.hypot(dx, dy)) > 10
+
+
+def test_the_defaults_the_files_cannot_give_are_printed_with_their_value(models, tmp_path, capsys):
+    """COLMAP works in pixels and gcp_list.txt has no accuracy column: the pixel size (0.005 mm) and the control
+    sigma (3 m / 5 m) an import assumes are warnings naming the value and the option; given, nothing is said.
+    The CLI says the same on stderr, and a lone --gcp-sigma-xy says which height sigma it assumed."""
+    control = read_gcp_list(os.path.join(COPR, "gcp_list.txt"))
+    _, notes = block_from_colmap(models[0], control)
+    pixel = [n for n in notes if "pixel size" in n]
+    sigma = [n for n in notes if "control sigma" in n]
+    assert len(pixel) == 1 and "0.005 mm assumed" in pixel[0] and "--pixel-size-mm" in pixel[0]
+    assert len(sigma) == 1 and "3 m in plan, 5 m in height" in sigma[0] and "--gcp-sigma-xy" in sigma[0]
+    given, notes = block_from_colmap(models[0], control, pixel_size_mm=0.005, control_sigma_m=(3.0, 5.0))
+    assert not [n for n in notes if "pixel size" in n or "control sigma" in n]
+    default, _ = block_from_colmap(models[0], control)
+    np.testing.assert_array_equal(default.images.position_m, given.images.position_m)
+    _, notes = block_from_colmap(models[0], None)
+    assert not [n for n in notes if "control sigma" in n]          # no control, no sigma to assume
+
+    capsys.readouterr()
+    assert run_cli("import", "colmap", os.path.join(COPR, "sparse"), "--gcp", os.path.join(COPR, "gcp_list.txt"),
+                   "--gcp-sigma-xy", "0.5", "--out", str(tmp_path / "blk")) == 0
+    err = capsys.readouterr().err
+    assert "--gcp-sigma-z not given: 5 m assumed" in err and "0.005 mm assumed" in err
+    assert "no control sigma given" not in err

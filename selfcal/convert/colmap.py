@@ -121,8 +121,28 @@ def _robust_similarity(local, target, ok, names, notes, factor: float = 3.0, pat
 PLAN_ONLY_SIGMA_Z_M = 1.0e6
 
 
-def block_from_colmap(model, control=None, pixel_size_mm: float = 0.005, image_sigma_px: float = 1.0,
-                      control_sigma_m: tuple[float, float] = (3.0, 5.0), check_points=(),
+#: the pixel size assumed when none is given (COLMAP and OpenSfM work in pixels only): it sets the camera's focal
+#: length, principal point and APs in mm, and its use is a warning among the notes of the import
+DEFAULT_PIXEL_SIZE_MM = 0.005
+
+#: a-priori sigma (plan, height) of the control of an OpenDroneMap gcp_list.txt when none is given: the file has no
+#: accuracy column, so this is every point's; metre level as a hand-held GPS (the COPR block's targets), not the
+#: 0.01/0.02 m of the surveyed default of the importers whose files carry accuracies. Its use is a warning
+DEFAULT_GCP_LIST_SIGMA_M = (3.0, 5.0)
+
+
+def pixel_size_or_default(pixel_size_mm: float | None, tool: str, notes: list[str]) -> float:
+    """``pixel_size_mm``, else :data:`DEFAULT_PIXEL_SIZE_MM` with a warning in ``notes`` naming the value, why and
+    the option that sets it."""
+    if pixel_size_mm is not None:
+        return float(pixel_size_mm)
+    notes.append(f"warning: no pixel size given: {DEFAULT_PIXEL_SIZE_MM} mm assumed ({tool} works in pixels only); "
+                 f"it sets the focal length, principal point and APs in mm; give the camera's with --pixel-size-mm")
+    return DEFAULT_PIXEL_SIZE_MM
+
+
+def block_from_colmap(model, control=None, pixel_size_mm: float | None = None, image_sigma_px: float = 1.0,
+                      control_sigma_m: tuple[float, float] | None = None, check_points=(),
                       name: str = "colmap") -> tuple[Block, list[str]]:
     """A block from a COLMAP model, georeferenced by ground control when given.
 
@@ -130,9 +150,10 @@ def block_from_colmap(model, control=None, pixel_size_mm: float = 0.005, image_s
     ----------
     model : selfcal.io.colmap.ColmapModel
     control : selfcal.io.odm.GroundControl, optional
-    pixel_size_mm : float
-        Physical pixel size (COLMAP works in pixels only).
-    control_sigma_m : (sigma_xy, sigma_z) of the control coordinates.
+    pixel_size_mm : float, optional
+        Physical pixel size (COLMAP works in pixels only); default :data:`DEFAULT_PIXEL_SIZE_MM`, with a warning.
+    control_sigma_m : (sigma_xy, sigma_z) of the control coordinates, optional
+        Default :data:`DEFAULT_GCP_LIST_SIGMA_M`, with a warning when there is control.
     check_points : names of control points to use as check points.
 
     Returns
@@ -142,6 +163,14 @@ def block_from_colmap(model, control=None, pixel_size_mm: float = 0.005, image_s
     from ..io.colmap import PERSPECTIVE_MODELS
 
     notes: list[str] = []
+    pixel_size_mm = pixel_size_or_default(pixel_size_mm, "COLMAP", notes)
+    if control_sigma_m is None:
+        control_sigma_m = DEFAULT_GCP_LIST_SIGMA_M
+        if control is not None:
+            notes.append(f"warning: no control sigma given: {control_sigma_m[0]:g} m in plan, {control_sigma_m[1]:g} m "
+                         f"in height assumed for every point of {control.path} (gcp_list.txt has no accuracy "
+                         f"column; metre level, as a hand-held GPS); give surveyed targets theirs with "
+                         f"--gcp-sigma-xy and --gcp-sigma-z (e.g. 0.01 and 0.02)")
     if control is not None:
         from .gnss import projected_control
         control, note = projected_control(control)

@@ -294,16 +294,18 @@ def _opensfm_camera(cam, pixel_size_mm: float):
     return camera, colmap
 
 
-def block_from_opensfm(reconstruction, tracks, pixel_size_mm: float = 0.005, image_sigma_px: float = 1.0,
+def block_from_opensfm(reconstruction, tracks, pixel_size_mm: float | None = None, image_sigma_px: float = 1.0,
                        name: str = "opensfm") -> tuple[Block, list[str]]:
     """A block (a free network in the reconstruction's frame) from an OpenSfM reconstruction and its tracks.
 
     Every observation of a reconstructed point (a track id among the reconstruction's points) in a
-    reconstructed shot is kept; the others are counted in the notes.
+    reconstructed shot is kept; the others are counted in the notes. Without ``pixel_size_mm``,
+    :data:`selfcal.convert.colmap.DEFAULT_PIXEL_SIZE_MM` with a warning.
     """
-    from .colmap import colmap_distortion_as_brown
+    from .colmap import colmap_distortion_as_brown, pixel_size_or_default
 
     notes: list[str] = []
+    pixel_size_mm = pixel_size_or_default(pixel_size_mm, "OpenSfM", notes)
     if reconstruction.n_reconstructions > 1:
         notes.append(f"{reconstruction.path} holds {reconstruction.n_reconstructions} reconstructions; the first "
                      f"({len(reconstruction.shot_ids)} shots) is imported")

@@ -17,8 +17,9 @@ from ..outcome import finish
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--tracks", metavar="FILE",
                         help="OpenSfM tracks.csv (default: tracks.csv beside reconstruction.json)")
-    parser.add_argument("--pixel-size-mm", type=number(0.0, low_open=True), default=0.005,
-                        help="physical pixel size of the camera (default 0.005 mm; OpenSfM works in pixels only)")
+    parser.add_argument("--pixel-size-mm", type=number(0.0, low_open=True), default=None,
+                        help="physical pixel size of the camera (default 0.005 mm, with a warning; OpenSfM works in "
+                             "pixels only)")
     parser.add_argument("--image-sigma-px", type=number(0.0, low_open=True), default=1.0,
                         help="a-priori sigma of an image measurement (default 1.0 px)")
 
