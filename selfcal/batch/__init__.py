@@ -80,7 +80,8 @@ def run_cell(scenario: str, block, model: str, settings: CellSettings = CellSett
 
 def run_matrix(blocks: dict, models: list[str], settings: CellSettings = CellSettings(),
                scheduler: str | None = "local", n_workers: int | None = None,
-               done: Callable[[Cell], None] | None = None) -> list[Cell]:
+               done: Callable[[Cell], None] | None = None, say: Callable[[str], None] | None = None,
+               every_s: float = 1.5) -> list[Cell]:
     """Adjust every block with every model; cells in (block, model) order.
 
     Parameters
@@ -90,6 +91,8 @@ def run_matrix(blocks: dict, models: list[str], settings: CellSettings = CellSet
         cluster, or the address of an existing Dask scheduler.
     n_workers : worker processes of the local cluster (default: the number of cores).
     done : called with each cell as it finishes.
+    say : called with a line when the cluster starts and whenever ``every_s`` pass on Dask without a cell
+        finishing (the cells of a 28-image block take 10-20 s: the caller's progress).
     """
     cases = [(name, model) for name in blocks for model in models]
     if scheduler is None:
@@ -100,14 +103,19 @@ def run_matrix(blocks: dict, models: list[str], settings: CellSettings = CellSet
                 done(cell)
             cells.append(cell)
         return cells
-    from dask.distributed import Client, LocalCluster, as_completed
+    from dask.distributed import Client, LocalCluster, wait
 
+    tell = say if say is not None else (lambda text: None)
     cluster = None
     if scheduler == "local":
         single_thread = {k: "1" for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",
                                           "SELFCAL_THREADS")}
-        cluster = LocalCluster(n_workers=n_workers or os.cpu_count() or 1, threads_per_worker=1,
+        workers = n_workers or os.cpu_count() or 1
+        tell(f"starting a local Dask cluster of {workers} worker process{'es' if workers > 1 else ''} ...")
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1,
                                processes=True, dashboard_address=":0", env=single_thread)   # ":0": a free port (two runs at once raced for 8787)
+    else:
+        tell(f"connecting to the Dask scheduler at {scheduler} ...")
     client = Client(cluster if cluster is not None else scheduler)
     try:
         shared = {name: client.scatter(block, broadcast=True) for name, block in blocks.items()}
@@ -119,11 +127,53 @@ def run_matrix(blocks: dict, models: list[str], settings: CellSettings = CellSet
             submitted[i] = client.submit(run_cell, name, shared[name], model, settings, pure=False,
                                          key=f"selfcal-{name}-{model}-{time.time_ns()}")
         futures = [submitted[i] for i in range(len(cases))]      # in the cells' order
-        if done is not None:
-            for future in as_completed(futures):
-                done(future.result())
+        t0, pending = time.perf_counter(), set(futures)
+        while pending:
+            try:
+                finished, pending = wait(pending, timeout=every_s, return_when="FIRST_COMPLETED")
+            except TimeoutError:
+                tell(f"{len(cases) - len(pending)}/{len(cases)} adjustments done in "
+                     f"{time.perf_counter() - t0:.0f} s ...")
+                continue
+            for future in finished:
+                cell = future.result()
+                if done is not None:
+                    done(cell)
         return client.gather(futures)
     finally:
+        _close(client, cluster)
+
+
+def _quiet_dask() -> None:
+    """Dask's loggers to CRITICAL in this process (a worker's, run there by :func:`_close`)."""
+    import logging
+    for name in _DASK_LOGGERS:
+        logging.getLogger(name).setLevel(logging.CRITICAL)
+
+
+_DASK_LOGGERS = ("distributed", "tornado", "asyncio")
+
+
+def _close(client, cluster) -> None:
+    """Close the client, then the local cluster, with Dask's loggers silenced in the workers and here. The cells
+    are done (their errors came back with their futures): what a worker, its nanny or the scheduler logs while
+    they stop (a heartbeat that found the scheduler gone, a connection closed under a pending read) is a traceback
+    about the shutdown alone, and it ended a successful demo (issue 45). A scheduler given by its address is
+    left as it was: its workers are someone else's."""
+    import logging
+    if cluster is not None:
+        try:
+            client.run(_quiet_dask)
+        except Exception:              # noqa: BLE001 - a worker already gone has nothing to say
+            pass
+    loggers = [logging.getLogger(name) for name in _DASK_LOGGERS]
+    levels = [logger.level for logger in loggers]
+    for logger in loggers:
+        logger.setLevel(logging.CRITICAL)
+    try:
         client.close()
         if cluster is not None:
             cluster.close()
+    finally:
+        for logger, level in zip(loggers, levels):
+            logger.setLevel(level)

@@ -8,7 +8,7 @@ import time
 
 from ..adjust import SolverOptions
 from ..errors import UsageError
-from .outcome import finish
+from .outcome import finish, progress, say, steps
 from .options import (ap_option, count, force_option, grid_option, number, progress_printer, robust_options,
                       round_printer, screening_options, test_options, trajectory_options)
 
@@ -163,7 +163,7 @@ def run(args: argparse.Namespace) -> int:
               f"richest candidate) ...", file=sys.stderr)
     adjusted = adjust_block(block, request, progress=None if args.quiet else progress_printer(block.image_sigma_px),
                             report=None if args.quiet else round_printer(),
-                            say=lambda text: print(text, file=sys.stderr),
+                            say=say,
                             scores=None if args.quiet else _show_score)
     tested = adjusted.tested
     if seed001 and not args.quiet:
@@ -175,7 +175,7 @@ def run(args: argparse.Namespace) -> int:
         files["model_choice.csv"] = model_choice_table(adjusted.choice)
     if not args.no_report:
         t_report = time.perf_counter()
-        files |= render_report(results_from_files(files))
+        files |= render_report(results_from_files(files), say=steps("rendering the report"))
         if not args.quiet:
             print(f"report rendered in {time.perf_counter() - t_report:.1f} s", file=sys.stderr)
     s = files["summary.json"]

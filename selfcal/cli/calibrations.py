@@ -11,6 +11,7 @@ from ..calibration_models import (FAMILIES, FISHEYE_FIELD_DEG, FRAME_MODEL_FAILS
 from ..errors import BlockError, UsageError
 from ..io.camera_json import frame_camera_entries
 from .options import number
+from .outcome import progress
 
 __all__ = ["calibrations", "pick_camera", "maps_of", "models", "report_fit", "camera_options", "tool_options",
            "fit_tool", "lens_reason", "fitted_covariance", "tool_calibration"]
@@ -55,28 +56,27 @@ def maps_of(cal: Calibration):
     time left, measured as it goes (a WAP model on a 12-megapixel frame takes from half a minute to minutes)."""
     import time
     if cal.ap.spec == "none":
-        print(f"camera {cal.camera_id}: AP model none, no distortion to invert; mapping the image to the ideal "
-              f"camera ...", file=sys.stderr)
+        progress(f"camera {cal.camera_id}: AP model none, no distortion to invert; mapping the image to the ideal "
+                 f"camera ...")
     else:
-        print(f"camera {cal.camera_id}: inverting its {cal.ap.spec} distortion on nodes every 4 px ...",
-              file=sys.stderr)
+        progress(f"camera {cal.camera_id}: inverting its {cal.ap.spec} distortion on nodes every 4 px ...")
     start = time.perf_counter()
     printed = [start]               # when the last line was printed
     stage_began: dict[str, float] = {}
     called = [start]                # when the last band ended: the next stage begins there
 
-    def progress(stage: str, share: float) -> None:
+    def advance(stage: str, share: float) -> None:
         now = time.perf_counter()
         began = stage_began.setdefault(stage, called[0])
         called[0] = now
         if now - printed[0] >= 1.5 and share < 1.0:
             left = (now - began) * (1.0 - share) / share
-            print(f"camera {cal.camera_id}: {100 * share:.0f} % of the {stage} in {now - began:.0f} s, "
-                  f"about {left:.0f} s left", file=sys.stderr, flush=True)
+            progress(f"camera {cal.camera_id}: {100 * share:.0f} % of the {stage} in {now - began:.0f} s, "
+                     f"about {left:.0f} s left")
             printed[0] = now
 
-    maps = undistortion_maps(cal, progress=progress)
-    print(f"camera {cal.camera_id}: undistortion maps in {time.perf_counter() - start:.1f} s", file=sys.stderr)
+    maps = undistortion_maps(cal, progress=advance)
+    progress(f"camera {cal.camera_id}: undistortion maps in {time.perf_counter() - start:.1f} s")
     return maps
 
 
@@ -89,8 +89,8 @@ def models(option: str, allowed) -> tuple[str, ...]:
 
 
 def report_fit(camera_id, fitted, tolerance_px) -> None:
-    print(f"camera {camera_id}: OpenCV {fitted.model}, misfit to selfcal's model {fitted.misfit_rms_px:.4f} px "
-          f"rms, {fitted.misfit_max_px:.4f} px max over the image", file=sys.stderr)
+    progress(f"camera {camera_id}: OpenCV {fitted.model}, misfit to selfcal's model {fitted.misfit_rms_px:.4f} px "
+             f"rms, {fitted.misfit_max_px:.4f} px max over the image")
     if fitted.misfit_max_px > tolerance_px:
         print(f"warning: camera {camera_id}: no OpenCV model reproduces selfcal's within {tolerance_px:g} px; "
               f"'selfcal export undistort-map' or 'selfcal undistort' are exact", file=sys.stderr)
@@ -127,13 +127,13 @@ def fit_tool(cal: Calibration, tool: str, option: str, tolerance_px: float, opti
                          f"{', '.join(known)})")
     if option == "auto" and tool in LENS_MODELS:
         choice = fit_for_lens(cal, tool)
-        print(f"camera {cal.camera_id}: {TOOL_NAMES[tool]} {choice.fitted.model.name}, {lens_reason(tool, choice)}; "
-              f"{option_name} NAME forces one", file=sys.stderr)
+        progress(f"camera {cal.camera_id}: {TOOL_NAMES[tool]} {choice.fitted.model.name}, {lens_reason(tool, choice)}; "
+                 f"{option_name} NAME forces one")
         fitted = choice.fitted
     else:
         fitted = fit_best(cal, tool, None if option == "auto" else (option,), tolerance_px)
-    print(f"camera {cal.camera_id}: {TOOL_NAMES[tool]} {fitted.model.name}, misfit to selfcal's model "
-          f"{fitted.misfit_rms_px:.4f} px rms, {fitted.misfit_max_px:.4f} px max over the image", file=sys.stderr)
+    progress(f"camera {cal.camera_id}: {TOOL_NAMES[tool]} {fitted.model.name}, misfit to selfcal's model "
+             f"{fitted.misfit_rms_px:.4f} px rms, {fitted.misfit_max_px:.4f} px max over the image")
     if fitted.misfit_max_px > tolerance_px:
         print(f"warning: camera {cal.camera_id}: {TOOL_NAMES[tool]}'s {fitted.model.name} model does not reproduce "
               f"selfcal's within {tolerance_px:g} px; 'selfcal export undistort-map' or 'selfcal undistort' are "

@@ -7,7 +7,7 @@ import time
 
 from ..ap import ALL_MODELS
 from ..errors import BlockError, UsageError
-from .outcome import finish, progress
+from .outcome import finish, progress, steps
 from .options import ap_list, count, force_option, grid_option, screening_options, test_options, trajectory_options
 
 
@@ -85,7 +85,7 @@ def run(args: argparse.Namespace) -> int:
 
     t0 = time.perf_counter()
     scheduler = None if args.scheduler == "serial" else args.scheduler
-    cells = run_matrix(blocks, models, settings, scheduler, args.workers, done)
+    cells = run_matrix(blocks, models, settings, scheduler, args.workers, done, say=progress)
     seconds = time.perf_counter() - t0
     rows = comparison_rows(cells)
     failed = [c for c in cells if c.error]
@@ -169,6 +169,7 @@ def write_matrix(folder: str, cells, rows: list[dict], title: str, report: bool 
     from ..io.results import results_from_files, write_files
     from ..report import best_cells, render_comparison_report, render_report
     from ..report.compare import comparison_csv, comparison_markdown
+    progress(f"writing the results of {sum(bool(c.files) for c in cells)} adjustments ...")
     for cell in cells:
         if cell.files:
             write_files(os.path.join(folder, cell_folder(cell.scenario, cell.model)), cell.files)
@@ -180,8 +181,10 @@ def write_matrix(folder: str, cells, rows: list[dict], title: str, report: bool 
         for scenario, row in best_cells(rows).items():
             cell = by_key[(scenario, row["ap_model"])]
             name = cell_folder(scenario, cell.model)
-            write_files(os.path.join(folder, name), render_report(results_from_files(cell.files)))
+            say = steps(f"rendering the report of {scenario} {cell.model}")
+            write_files(os.path.join(folder, name), render_report(results_from_files(cell.files), say=say))
             links[(scenario, cell.model)] = f"{name}/report.html"
+        progress("rendering the comparison report ...")
         files |= render_comparison_report(rows, comparison_markdown(rows), links, title)
         progress(f"reports of the comparison and of {len(links)} best models rendered in "
                  f"{time.perf_counter() - t0:.1f} s")

@@ -50,13 +50,14 @@ def run(args: argparse.Namespace) -> int:
         progress(f"[{len(count)}/{total}] {cell.scenario} {cell.model}: {status}")
 
     cells = run_matrix(blocks, models, CellSettings(), None if args.scheduler == "serial" else args.scheduler,
-                       None, done)
+                       None, done, say=progress)
     rows = comparison_rows(cells)
     failed = [c for c in cells if c.error]
     # a demo with a failed case never replaces earlier results: its files go beside them, or nowhere
     target, where = (args.out, f"results in {args.out}") if not failed else failed_run_folder(args.out)
     if target is not None:
         with atomic_folder(target) as tmp:
+            progress(f"writing the simulated blocks into {target} ...")
             for name in SCENARIOS:
                 write_block(sim.blocks[name], os.path.join(tmp, "blocks", name))
             os.makedirs(os.path.join(tmp, "blocks", "truth"))

@@ -23,7 +23,19 @@ def _verb(argv: list[str]) -> str:
     return f"selfcal {next((a for a in argv if not a.startswith('-')), '')}".rstrip()
 
 
-if __name__ == "__main__" or os.path.basename(sys.argv[0] if sys.argv else "") == "selfcal":
+def _is_command() -> bool:
+    """True when this process is the ``selfcal`` command, not a process it started: a Dask worker of ``compare``
+    or ``demo`` is spawned with the command's ``sys.argv`` and imports its script again as ``__mp_main__``; it must
+    keep its own signal handling (its nanny stops it with SIGTERM), not exit with the command's line."""
+    if "__mp_main__" in sys.modules:   # the spawned child runs the script as __mp_main__ (and keeps the name)
+        return False
+    mp = sys.modules.get("multiprocessing")
+    if mp is not None and mp.parent_process() is not None:
+        return False
+    return __name__ == "__main__" or os.path.basename(sys.argv[0] if sys.argv else "") == "selfcal"
+
+
+if _is_command():
     interrupts.exit_early(_verb(sys.argv[1:]))   # the command itself: a signal from here on is one line
 
 import argparse  # noqa: E402
@@ -116,7 +128,10 @@ def _signal_of(exc: BaseException) -> int | None:
 
 
 def _run(argv: list[str], command: bool) -> int:
+    import logging
+    import time
     from ..allocator import keep_freed_memory
+    t0 = time.perf_counter()
     try:
         args = build_parser(argv).parse_args(argv)
     except _ArgumentError as exc:
@@ -130,8 +145,13 @@ def _run(argv: list[str], command: bool) -> int:
     keep_freed_memory()
     outcome.configure(args)
     name = outcome.command_of(args)
+    log = logging.getLogger("selfcal.cli")
+    log.info(f"{name}: arguments parsed and the verb's modules loaded in {time.perf_counter() - t0:.2f} s")
+    t_run = time.perf_counter()
     try:
-        return int(_module(args.command).run(args) or 0)
+        code = int(_module(args.command).run(args) or 0)
+        log.info(f"{name}: done in {time.perf_counter() - t_run:.2f} s (exit {code})")
+        return code
     except SelfcalError as exc:
         print(f"selfcal {args.command}: error: {exc}", file=sys.stderr)
         outcome.failed(args, name, exc.exit_code, str(exc))

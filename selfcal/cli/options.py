@@ -3,11 +3,11 @@ from __future__ import annotations
 
 import argparse
 import math
-import sys
 from typing import TYPE_CHECKING, Any, Callable
 
 from ..adjust import LOSSES, RobustOptions
 from ..workflows.progress import LOG, iteration_line, round_line
+from .outcome import progress
 
 if TYPE_CHECKING:
     from ..stats import ScreeningOptions
@@ -121,7 +121,7 @@ def progress_printer(image_sigma_px: float, prefix: str = "") -> Callable[[Any],
     def show(record) -> None:
         line = iteration_line(record, image_sigma_px, prefix)
         LOG.info(line)
-        print(line, file=sys.stderr, flush=True)
+        progress(line)
     return show
 
 
@@ -175,7 +175,7 @@ def round_printer() -> Callable[[Any], None]:
     def show(record) -> None:
         line = round_line(record)
         LOG.info(line)
-        print(line, file=sys.stderr, flush=True)
+        progress(line)
     return show
 
 

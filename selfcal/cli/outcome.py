@@ -4,7 +4,9 @@
   ``--json`` one JSON document (the line, the key figures and the paths written) that a script or a pipeline step
   reads without parsing files. Nothing else ever goes to stdout.
 * stderr holds the rest: progress (:func:`progress`, off with ``--quiet``), warnings and errors (always), and with
-  ``--verbose`` the lines of the ``selfcal`` logger (each stage's timing, the solver's details).
+  ``--verbose`` the lines of the ``selfcal`` logger (each stage's timing, the solver's details, the verb's time).
+  No step of a verb stays silent for more than ~2 s: a long step made of short ones (a report's sections) says
+  its steps through :func:`steps`; :func:`say` sends a line that may be a warning where it belongs.
 
 A verb ends with ``return finish(args, line, figures, written)``; an error that ends a verb early (exit 1 or 2) is
 reported by the command's handler (:mod:`.main`), which gives ``--json`` its document too.
@@ -16,11 +18,13 @@ import json
 import logging
 import math
 import sys
-from collections.abc import Mapping, Sequence
+import time
+from collections.abc import Callable, Mapping, Sequence
 
-__all__ = ["add_options", "configure", "progress", "finish", "failed", "quiet"]
+__all__ = ["add_options", "configure", "progress", "steps", "say", "finish", "failed", "quiet", "verbose"]
 
-_STATE = {"quiet": False}
+_STATE = {"quiet": False, "verbose": False}
+LOG = logging.getLogger("selfcal.cli")
 
 
 def add_options(parser: argparse.ArgumentParser) -> None:
@@ -39,11 +43,16 @@ def add_options(parser: argparse.ArgumentParser) -> None:
 def configure(args: argparse.Namespace) -> None:
     """Apply --quiet / --verbose for this run (the command's handler calls it once the arguments are parsed)."""
     _STATE["quiet"] = bool(getattr(args, "quiet", False))
+    _STATE["verbose"] = bool(getattr(args, "verbose", False))
     logger = logging.getLogger("selfcal")
-    if getattr(args, "verbose", False) and not any(getattr(h, "_selfcal_verbose", False) for h in logger.handlers):
+    # one run's handler only (main called again in one process, as the tests do: this run's stderr, this run's flag)
+    for handler in [h for h in logger.handlers if hasattr(h, "_selfcal_level")]:
+        logger.removeHandler(handler)
+        logger.setLevel(handler._selfcal_level)            # type: ignore[attr-defined]
+    if _STATE["verbose"]:
         handler = logging.StreamHandler(sys.stderr)
         handler.setFormatter(logging.Formatter("selfcal: %(message)s"))
-        handler._selfcal_verbose = True          # type: ignore[attr-defined]
+        handler._selfcal_level = logger.level              # type: ignore[attr-defined]  # the level to go back to
         logger.addHandler(handler)
         logger.setLevel(logging.DEBUG)
 
@@ -53,10 +62,42 @@ def quiet() -> bool:
     return _STATE["quiet"]
 
 
+def verbose() -> bool:
+    """True under --verbose."""
+    return _STATE["verbose"]
+
+
 def progress(text: str) -> None:
     """A progress line on stderr (left out under --quiet), flushed at once: the user sees the step begin."""
     if not _STATE["quiet"]:
         print(text, file=sys.stderr, flush=True)
+
+
+def say(text: str) -> None:
+    """A line of a lower layer's ``say`` callback: a warning (``warning: ...``) always, anything else as
+    :func:`progress`."""
+    if text.startswith("warning:"):
+        print(text, file=sys.stderr, flush=True)
+    else:
+        progress(text)
+
+
+def steps(what: str, every_s: float = 1.0) -> Callable[[str], None]:
+    """A callback for the steps of a long task (``what``: "report", the sections as steps): ``what: STEP ...``
+    is printed as :func:`progress` when ``every_s`` have passed since the last line it printed (the first step
+    at once), so the task is never silent longer than one step plus ``every_s``, and a fast task prints one line;
+    under --verbose every step, with the time the one before took, also goes to the ``selfcal`` logger."""
+    last = {"printed": -math.inf, "began": time.perf_counter(), "step": ""}
+
+    def step(text: str) -> None:
+        now = time.perf_counter()
+        if last["step"]:
+            LOG.debug(f"{what}: {last['step']}: {now - last['began']:.2f} s")
+        last["began"], last["step"] = now, text
+        if now - last["printed"] >= every_s:
+            last["printed"] = now
+            progress(f"{what}: {text[:1].lower()}{text[1:]} ...")
+    return step
 
 
 def _plain(value):

@@ -6,8 +6,7 @@ import glob
 import os
 import time
 
-from .outcome import finish
-
+from .outcome import finish, progress, steps
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -21,7 +20,9 @@ def run(args: argparse.Namespace) -> int:
     from ..report import render_report
     t0 = time.perf_counter()
     results = read_results(update_folder(args.results))
-    files = render_report(results)
+    progress(f"read {args.results} in {time.perf_counter() - t0:.1f} s")
+    files = render_report(results, say=steps("rendering the report"))
+    progress(f"writing {len(files)} files into {args.results} ...")
     # a copy of the folder gets the new report and replaces it: the figures and report.html appear together,
     # or (a full disk, an interrupt) the folder stays exactly as it was
     with atomic_update(args.results) as tmp:

@@ -14,6 +14,7 @@ import html
 import io
 import math
 from collections import Counter
+from typing import Callable
 
 import numpy as np
 
@@ -699,41 +700,48 @@ def _join(values) -> str:
     return fmt(values, ".4g")
 
 
-def render_report(results: ResultsFolder, title: str | None = None) -> dict:
-    """The report of one adjustment: ``report.html`` and its figures, as data."""
+def render_report(results: ResultsFolder, title: str | None = None,
+                  say: Callable[[str], None] | None = None) -> dict:
+    """The report of one adjustment: ``report.html`` and its figures, as data; ``say`` (if given) is called with
+    each section's title as its rendering begins (the command line's progress: the figures take seconds)."""
     s = results.summary
     title = title or f"selfcal adjustment report: {s.get('block', '')}, {s.get('ap_model', '')}"
     page = Page(title)
+
+    def heading(text: str, anchor: str) -> None:
+        if say is not None:
+            say(text)
+        page.heading(text, anchor=anchor)
     files: dict = {}
     page.heading(title, 1)
     status = "converged" if s.get("converged") else "NOT CONVERGED"
     page.add(f'<p class="lede">{html.escape(status)} ({html.escape(str(s.get("convergence", "")))}); '
              f"{html.escape(_scenario_text(s))}every number below comes from summary.json, camera.json and the "
              "CSV tables beside this page.</p>")
-    page.heading("Camera layout and overlap", anchor="layout")
+    heading("Camera layout and overlap", anchor="layout")
     _layout_section(page, files, results)
-    page.heading("Processing parameters", anchor="processing")
+    heading("Processing parameters", anchor="processing")
     _processing_section(page, s)
-    page.heading("Camera: initial against adjusted values", anchor="camera-change")
+    heading("Camera: initial against adjusted values", anchor="camera-change")
     _camera_change_section(page, results)
-    page.heading("Summary", anchor="summary")
+    heading("Summary", anchor="summary")
     _summary_section(page, s)
-    page.heading("Image space: distortion and residuals", anchor="image-space")
+    heading("Image space: distortion and residuals", anchor="image-space")
     _image_space_section(page, files, results)
-    page.heading("Object space: control and check points", anchor="control")
+    heading("Object space: control and check points", anchor="control")
     _control_section(page, files, results)
-    page.heading("Precision and correlations", anchor="precision")
+    heading("Precision and correlations", anchor="precision")
     _precision_section(page, files, results)
     _correlation_section(page, files, results)
-    page.heading("Interior orientation and additional parameters", anchor="camera")
+    heading("Interior orientation and additional parameters", anchor="camera")
     _camera_section(page, results)
     _parameters_section(page, results)
-    page.heading("Exterior orientation", anchor="images")
+    heading("Exterior orientation", anchor="images")
     _images_section(page, results)
     _attitude_section(page, files, results)
     _trajectory_section(page, results)
     _joint_tests_section(page, results)
-    page.heading("Rejected observations", anchor="rejected")
+    heading("Rejected observations", anchor="rejected")
     _robust_section(page, files, results)
     _rejected_section(page, results)
     _notes_section(page, s)

@@ -3,13 +3,12 @@ from __future__ import annotations
 
 import argparse
 import os
-import sys
 
 from ...calibration import COLMAP_MODELS, colmap_parameters, fit_opencv
 from ...io.colmap import write_cameras_txt
 from ...io.output import output_file
 from ..calibrations import calibrations, camera_options, models, pick_camera, report_fit
-from ..outcome import finish
+from ..outcome import finish, progress
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -28,7 +27,7 @@ def run(args: argparse.Namespace) -> int:
         report_fit(camera_id, fitted, args.tolerance_px)
         model, params = colmap_parameters(fitted)
         rows.append((number, model, cal.width_px, cal.height_px, params))
-        print(f"camera {camera_id} is COLMAP camera {number} ({model})", file=sys.stderr)
+        progress(f"camera {camera_id} is COLMAP camera {number} ({model})")
     write_cameras_txt(args.out, rows)
     line = f"wrote {args.out}"
     return finish(args, line, {"n_cameras": len(rows)}, [os.path.abspath(args.out)])

@@ -4,14 +4,13 @@ from __future__ import annotations
 
 import argparse
 import os
-import sys
 
 from ...io.output import output_folder
 from ...io.colmap_workspace import ORIGIN_FILE
 from ...workflows.export_workspace import export_workspace
 from ..calibrations import calibrations, maps_of
 from ..options import force_option
-from ..outcome import finish
+from ..outcome import finish, say
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -26,7 +25,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     args.out = output_folder(args.out, (args.results, args.images), args.force)
     done = export_workspace(args.results, calibrations(args.results), args.images, args.out,
-                            say=lambda text: print(text, file=sys.stderr), maps=maps_of)
+                            say=say, maps=maps_of)
     line = (f"wrote {args.out}: {done['images']} images, {done['points']} points, {done['observations']} "
             f"observations (mean error per point {done['mean_error_px']:.3f} px rms); model coordinates = object "
             f"coordinates - ({', '.join(f'{v:.0f}' for v in done['origin_m'])}) m (sparse/{ORIGIN_FILE})")

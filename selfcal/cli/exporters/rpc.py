@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import sys
 
 import numpy as np
 
@@ -13,7 +12,7 @@ from ...io.output import output_file
 from ...io.results import read_camera_json, read_results_table
 from ...io.rpc_gdal import raster_size, write_geotiff_rpc, write_rpc_file
 from ...workflows.export_rpc import adjusted_rpc, points_height_range
-from ..outcome import finish
+from ..outcome import finish, progress
 
 #: --out name endings (any case) and what they write
 _TIFF = (".tif", ".tiff")
@@ -103,7 +102,7 @@ def run(args: argparse.Namespace) -> int:
                              f"(a crop would carry it wrongly; an rpc camera without width_px, height_px takes its "
                              f"size from its RPC)")
     for result in results:                       # every image computed before any file is written
-        print(_report(result), file=sys.stderr)
+        progress(_report(result))
     written = []
     for result in results:
         out = outs[result.image_id]

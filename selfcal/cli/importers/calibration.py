@@ -13,7 +13,7 @@ from ...io.block_folder import read_block, write_block
 from ...io.calibration_files import read_calibration_file
 from ...io.output import output_folder
 from ..options import number
-from ..outcome import finish
+from ..outcome import finish, progress
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -51,11 +51,11 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"--ap {args.ap}: {exc}") from None
     except ArithmeticError as exc:
         raise BlockError(args.source, str(exc)) from None
-    print(f"{args.source}: {tool_cal.tool} {tool_cal.model} calibration of {tool_cal.width_px} x "
-          f"{tool_cal.height_px} px", file=sys.stderr)
-    print(f"camera {args.camera}: c = {new_camera.focal_mm:.5f} mm, x0 = {new_camera.x0_mm:.5f} mm, y0 = "
-          f"{new_camera.y0_mm:.5f} mm, {args.ap} APs reproduce its distortion within {misfit_px:.4f} px over the "
-          f"image; {'held fixed' if args.fixed else 'initial values'}", file=sys.stderr)
+    progress(f"{args.source}: {tool_cal.tool} {tool_cal.model} calibration of {tool_cal.width_px} x "
+             f"{tool_cal.height_px} px")
+    progress(f"camera {args.camera}: c = {new_camera.focal_mm:.5f} mm, x0 = {new_camera.x0_mm:.5f} mm, y0 = "
+             f"{new_camera.y0_mm:.5f} mm, {args.ap} APs reproduce its distortion within {misfit_px:.4f} px over the "
+             f"image; {'held fixed' if args.fixed else 'initial values'}")
     if misfit_px > args.tolerance_px:
         print(f"warning: camera {args.camera}: the {args.ap} APs reproduce the {tool_cal.tool} calibration only within "
               f"{misfit_px:.3f} px (selfcal's terms are centred on the frame, the tool's on its principal point)"

@@ -11,7 +11,7 @@ from ...io.colmap import read_colmap
 from ...io.odm import read_gcp_list
 from ...io.output import output_folder
 from ..options import number
-from ..outcome import finish
+from ..outcome import finish, progress
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -31,6 +31,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     args.out = output_folder(args.out, (args.source, args.gcp), args.force)
+    progress(f"reading {args.source} ...")
     model = read_colmap(args.source)
     control = read_gcp_list(args.gcp) if args.gcp else None
     checks = [c.strip() for c in args.check.split(",") if c.strip()]
@@ -46,6 +47,7 @@ def run(args: argparse.Namespace) -> int:
                                      name=os.path.basename(os.path.normpath(args.out)))
     for note in notes:
         print(note, file=sys.stderr)
+    progress(f"writing {args.out} ({len(block.observations)} observations) ...")
     write_block(block, args.out, source=args.source)
     line = (f"imported {len(block.images)} images, {len(block.points)} points, {len(block.observations)} "
             f"observations into {args.out}")
