@@ -327,10 +327,9 @@ def test_network_errors_name_file_line_and_key(tmp_path):
     no_id = POINT.format(**good).replace("    PointId = P1\n", "")
     with pytest.raises(BlockError, match=r"line 4, column 'PointId'"):
         read_control_network(_write(tmp_path, "bad.net", no_id))
-    binary = "Object = ControlNetwork\n  Version = 5\n  Group = ProtoBuffer\n  End_Group\nEnd_Object\nEnd\n"
-    binary = binary.replace("Group = ProtoBuffer\n  End_Group", "Object = ProtoBuffer\n  End_Object")
-    with pytest.raises(BlockError, match="binary.*cnetbin2pvl"):
-        read_control_network(_write(tmp_path, "bin.net", binary))
+    binary = "Object = ProtoBuffer\n  Group = ControlNetworkInfo\n    Version = 5\n  End_Group\nEnd_Object\nEnd\n"
+    with pytest.raises(BlockError, match=r"bin\.pvl, line 1, column 'Core': the label's ProtoBuffer has no 'Object = Core'"):
+        read_control_network(_write(tmp_path, "bin.pvl", binary))      # binary by its content, not its name
     with pytest.raises(BlockError, match=r"x\.pvl, line 2, column 'B': the array of 'B' is never closed"):
         parse_pvl("A = 1\nB = (1, 2\n", "x.pvl")
 

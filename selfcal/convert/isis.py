@@ -96,3 +96,50 @@ def block_from_isis(network, images: dict, image_sigma_px: float = 0.35, name: s
     block = Block(name=name, crs="body-fixed", cameras=cameras, images=block_images, points=points,
                   observations=observations, image_sigma_px=image_sigma_px, image_files=files)
     return block, counts
+
+
+def adjusted_network(network, image_of_serial: dict[str, str], points: dict, residuals: dict,
+                     detector_scale: dict[str, tuple[float, float]] | None = None):
+    """The ISIS control network ``network`` with a selfcal adjustment in it, as jigsaw writes its ``onet``.
+
+    ``points``/``residuals``: the columns of the results folder's points.csv and residuals.csv;
+    ``image_of_serial``: serial number -> image id of the block. Each point the adjustment estimated gets its
+    ``AdjustedX/Y/Z`` (body-fixed m, points.csv's X, Y, Z) and ``AprioriXYZSource`` unchanged; each measure it
+    used gets ``SampleResidual``/``LineResidual`` in ISIS's sense: measured minus computed, in *detector*
+    pixels (ISIS ``ControlPoint::ComputeResiduals``), i.e. ``-vx_px`` and ``vy_px`` (residuals.csv's v is
+    computed minus observed in cube pixels, y up) times ``detector_scale[serial]`` (detector pixels per cube
+    pixel along sample and line, the cube label's AlphaCube: 4 for the Apollo cubes reduced 4x; 1 where not
+    given). Measured on the Apollo block: jigsaw's spot-checked residuals and per-image RMS are selfcal's times
+    4. A measure residuals.csv marks rejected is ``JigsawRejected`` (not ``Ignore``, as jigsaw's
+    outlier rejection). Points and measures the adjustment left out (ignored, of images not in the block) are
+    as they were. Returns (network, counts of the points and measures written)."""
+    import dataclasses
+    xyz = {pid: np.array([points["X"][k], points["Y"][k], points["Z"][k]], float)
+           for k, pid in enumerate(points["point_id"])}
+    rows = {(str(i), str(p)): k for k, (i, p) in enumerate(zip(residuals["image_id"], residuals["point_id"]))}
+    rejected = np.asarray(residuals["rejected"]).astype(float) != 0
+    counts = {"points_adjusted": 0, "measures_with_residuals": 0, "measures_rejected": 0}
+    new_points = []
+    for point in network.points:
+        adjusted = xyz.get(point.point_id) if not point.ignored else None
+        measures = []
+        for m in point.measures:
+            k = rows.get((image_of_serial.get(m.serial_number, ""), point.point_id)) \
+                if adjusted is not None and not m.ignored else None
+            if k is not None:
+                vx, vy = float(residuals["vx_px"][k]), float(residuals["vy_px"][k])
+                s_scale, l_scale = (detector_scale or {}).get(m.serial_number, (1.0, 1.0))
+                m = dataclasses.replace(m, sample_residual_px=-vx * s_scale if np.isfinite(vx) else float("nan"),
+                                        line_residual_px=vy * l_scale if np.isfinite(vy) else float("nan"),
+                                        rejected=bool(rejected[k]))
+                counts["measures_with_residuals"] += 1
+                counts["measures_rejected"] += int(rejected[k])
+            measures.append(m)
+        if adjusted is not None and np.all(np.isfinite(adjusted)):
+            point = dataclasses.replace(point, adjusted_xyz_m=adjusted, adjusted_covariance_m2=None,
+                                        measures=tuple(measures))
+            counts["points_adjusted"] += 1
+        else:
+            point = dataclasses.replace(point, measures=tuple(measures))
+        new_points.append(point)
+    return dataclasses.replace(network, points=tuple(new_points)), counts

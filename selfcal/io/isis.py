@@ -105,7 +105,8 @@ class ControlPoint:
     adjusted_xyz_m: np.ndarray | None
     apriori_source: str                     # AprioriXYZSource ('' if absent)
     measures: tuple[ControlMeasure, ...]
-    source_line: int
+    source_line: int                        # line of 'Object = ControlPoint' (binary network: byte offset)
+    adjusted_covariance_m2: np.ndarray | None = None  # (3, 3) symmetric, the adjustment's (jigsaw's)
 
 
 @dataclass(frozen=True)
@@ -115,6 +116,11 @@ class ControlNetwork:
     target_name: str
     version: int
     points: tuple[ControlPoint, ...]
+    created: str = ""
+    last_modified: str = ""
+    description: str = ""
+    user_name: str = ""
+    binary: bool = False                    # read from a binary (protobuf) network
 
     @property
     def measures(self) -> list[ControlMeasure]:
@@ -312,16 +318,18 @@ def _point(obj: PvlBlock, path: str) -> ControlPoint:
         constrained=(_flag(obj, "LatitudeConstrained", path), _flag(obj, "LongitudeConstrained", path),
                      _flag(obj, "RadiusConstrained", path)),
         adjusted_xyz_m=_xyz(named, "Adjusted", path), apriori_source=_text(obj, "AprioriXYZSource", path, False),
-        measures=measures, source_line=obj.line)
+        measures=measures, source_line=obj.line,
+        adjusted_covariance_m2=_covariance(obj, "AdjustedCovarianceMatrix", path))
 
 
 def read_control_network(path: str | os.PathLike) -> ControlNetwork:
-    """Read an ISIS control network in PVL (module docstring). A binary (protobuf) network is an error that
-    says how to convert it (ISIS ``cnetbin2pvl``)."""
+    """Read an ISIS control network: PVL (module docstring) or binary (protobuf, versions 2 and 5:
+    :mod:`selfcal.io.isis_cnet`), told apart by the content (a label ``Object = ProtoBuffer``), not the name."""
     path = str(path)
+    from .isis_cnet import is_binary_network, read_binary_network
+    if is_binary_network(path):
+        return read_binary_network(path)
     root = read_pvl(path)
-    if root.find("Object", "ProtoBuffer") is not None:
-        raise BlockError(path, "a binary (protobuf) ISIS control network; convert it to PVL with ISIS cnetbin2pvl")
     nets = root.children("Object", "ControlNetwork")
     if len(nets) != 1:
         raise BlockError(path, f"expected one 'Object = ControlNetwork', found {len(nets)}")
@@ -343,7 +351,10 @@ def read_control_network(path: str | os.PathLike) -> ControlNetwork:
         seen[point.point_id] = obj.line
         points.append(point)
     return ControlNetwork(path=path, network_id=_text(net, "NetworkId", path, False),
-                          target_name=_text(net, "TargetName", path, False), version=version, points=tuple(points))
+                          target_name=_text(net, "TargetName", path, False), version=version, points=tuple(points),
+                          created=_text(net, "Created", path, False), last_modified=_text(net, "LastModified", path, False),
+                          description=_text(net, "Description", path, False),
+                          user_name=_text(net, "UserName", path, False))
 
 
 # --- cube labels and serial numbers ---------------------------------------------------------------

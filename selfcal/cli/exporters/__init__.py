@@ -25,6 +25,7 @@ EXPORTERS = {
         ("Metashape calibration XML of one camera (f, cx, cy, b1, b2, k1-k4, p1, p2 and their covariance)")),
     "opensfm": ("opensfm", "OpenSfM / OpenDroneMap cameras.json of one camera (perspective, brown or fisheye)"),
     "kalibr": ("kalibr", "Kalibr camchain.yaml of one camera (pinhole, radtan or equidistant)"),
+    "isis-cnet": ("isis_cnet", "the imported ISIS control network with the adjusted points and residuals (PVL or --binary)"),
 }
 
 
