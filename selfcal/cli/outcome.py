@@ -48,7 +48,7 @@ def configure(args: argparse.Namespace) -> None:
     # one run's handler only (main called again in one process, as the tests do: this run's stderr, this run's flag)
     for handler in [h for h in logger.handlers if hasattr(h, "_selfcal_level")]:
         logger.removeHandler(handler)
-        logger.setLevel(handler._selfcal_level)            # type: ignore[attr-defined]
+        logger.setLevel(getattr(handler, "_selfcal_level"))
     if _STATE["verbose"]:
         handler = logging.StreamHandler(sys.stderr)
         handler.setFormatter(logging.Formatter("selfcal: %(message)s"))
@@ -87,15 +87,16 @@ def steps(what: str, every_s: float = 1.0) -> Callable[[str], None]:
     is printed as :func:`progress` when ``every_s`` have passed since the last line it printed (the first step
     at once), so the task is never silent longer than one step plus ``every_s``, and a fast task prints one line;
     under --verbose every step, with the time the one before took, also goes to the ``selfcal`` logger."""
-    last = {"printed": -math.inf, "began": time.perf_counter(), "step": ""}
+    times = {"printed": -math.inf, "began": time.perf_counter()}
+    last_step = [""]
 
     def step(text: str) -> None:
         now = time.perf_counter()
-        if last["step"]:
-            LOG.debug(f"{what}: {last['step']}: {now - last['began']:.2f} s")
-        last["began"], last["step"] = now, text
-        if now - last["printed"] >= every_s:
-            last["printed"] = now
+        if last_step[0]:
+            LOG.debug(f"{what}: {last_step[0]}: {now - times['began']:.2f} s")
+        times["began"], last_step[0] = now, text
+        if now - times["printed"] >= every_s:
+            times["printed"] = now
             progress(f"{what}: {text[:1].lower()}{text[1:]} ...")
     return step
 
