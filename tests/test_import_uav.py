@@ -900,3 +900,36 @@ def test_adjust_refuses_control_swapped_against_the_images_before_any_work(tmp_p
            "they lie 3.45e+06 m from the 6 camera positions" in err, err
     assert "point 'M01', line 2: X 2689945.424" in err, err
     assert not os.path.exists(results)
+
+
+def test_patb_without_control_is_a_free_network_with_its_warning(tmp_path, sim, capsys):
+    """PAT-B without a .con (tie points and orientations only) is imported as a free network with a warning that
+    says what that costs; its adjustment recovers the truth within its (relative) sigmas: the principal distance,
+    which only the relief holds, within 3 sigma, the photos' centres within 3 sigma. Without a .ori as well, the
+    warning says the adjustment cannot start, and adjust says so too (exit 1)."""
+    src = tmp_path / "src"
+    src.mkdir()
+    write_patb(str(src), sim)
+    os.remove(src / "block.con")
+    block_dir, results = str(tmp_path / "block"), str(tmp_path / "results")
+    assert run_cli(*patb_argv(str(src), block_dir, "--image-sigma-px", "0.5")) == 0
+    err = capsys.readouterr().err
+    assert "warning: no control (no .con): the block is a free network" in err
+    assert "no check point measures the accuracy" in err
+    block = read_block(block_dir)
+    assert block.datum == "free" and set(block.points.role) == {"tie"}
+    assert_same_measurements(block, sim.blocks["type1"])              # the control points measured as tie points
+    assert run_cli("adjust", block_dir, "--out", results, "--ap", "none", "--no-report", "--quiet") == 0
+    focal = read_json(os.path.join(results, "camera.json"))["cameras"]["patb"]["focal_mm"]
+    z_focal = (focal["value"] - sim.truth.camera.focal_mm) / focal["sigma"]
+    truth = {i: e for i, e in zip(sim.truth.image_id, sim.truth.eop)}
+    z = np.array([(float(row[key]) - truth[row["image_id"]][k]) / float(row[f"sigma_{key}_m"])
+                  for row in read_rows(os.path.join(results, "images.csv"))
+                  for k, key in enumerate(("X0", "Y0", "Z0"))])
+    print(f"free PAT-B network: focal error / sigma {z_focal:.2f}, centres' largest error / sigma {np.max(np.abs(z)):.2f}")
+    assert abs(z_focal) < 3.0 and np.max(np.abs(z)) < 3.0
+    os.remove(src / "block.ori")
+    assert run_cli(*patb_argv(str(src), str(tmp_path / "bare"))) == 0
+    assert "no orientations (no .ori): the block is a free network the adjustment cannot start" in capsys.readouterr().err
+    assert run_cli("adjust", str(tmp_path / "bare"), "--out", str(tmp_path / "r2"), "--no-report", "--quiet") == 1
+    assert "cannot orient image(s)" in capsys.readouterr().err

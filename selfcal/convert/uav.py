@@ -214,7 +214,22 @@ def block_from_patb(measurements, control=None, orientations=None, *, width_px: 
     position, opk = _orientations(orientations, photos, image_index, notes)
     block = _assemble(name, crs, {"patb": camera}, photos, ["patb"] * len(photos), position, opk, ids, roles, xyz,
                       sigma, obs_img, obs_pt, pixel, np.full(len(obs_img), image_sigma_px), image_sigma_px)
+    if block.datum == "free":
+        notes.append(_free_patb_warning(roles.count("gcp"), orientations is not None))
     return block, notes
+
+
+def _free_patb_warning(n_gcp: int, has_orientations: bool) -> str:
+    """What a PAT-B block with fewer than 3 control points is: a free network, and what that costs."""
+    control = "no control (no .con)" if n_gcp == 0 else f"only {n_gcp} control point(s)"
+    if has_orientations:
+        return (f"warning: {control}: the block is a free network; the adjustment keeps the datum (position, "
+                f"rotation and scale) of the .ori orientations, the principal distance and the heights are held "
+                f"only by the relief and the photos' convergence, the precision is relative and no check point "
+                f"measures the accuracy; give a .con with at least 3 control points to tie it to the ground")
+    return (f"warning: {control} and no orientations (no .ori): the block is a free network the adjustment "
+            f"cannot start (no photo can be oriented); give a .ori, or a .con with at least 4 control points "
+            f"in every photo (a space resection each), before `selfcal adjust`")
 
 
 def block_from_pix4d(params, control=None, *, image_sigma_px: float = 1.0, control_sigma_m=(0.01, 0.02),
