@@ -7,6 +7,7 @@ sigmas as written.
 """
 import csv
 import os
+import re
 
 import numpy as np
 import pytest
@@ -563,33 +564,53 @@ def test_pix4d_bad_input(tmp_path, sim, capsys, name, edit, line, reason):
     assert not os.path.exists(out)
 
 
-def test_pix4d_radial_distortion_becomes_initial_brown_values(tmp_path, sim):
-    """R1..R3 of the .cam: the initial brown APs reproduce Pix4D's documented radial model (x_d = x_h (1 + R1 r^2
-    + R2 r^4 + R3 r^6) on the homogeneous point, pixel = f x_d + c) within 0.05 px over the image."""
+def pix4d_distorted(col, row, f_px, cx, cy, d, y_down=True):
+    """Pixels of Pix4D's documented lens model ("How are the internal and external camera parameters defined")
+    at the ideal pixels (col, row): on the homogeneous point (x_h, y_h), x_d = x_h (1 + R1 r^2 + R2 r^4 + R3 r^6)
+    + 2 T1 x_h y_h + T2 (r^2 + 2 x_h^2), y_d = y_h (...) + T1 (r^2 + 2 y_h^2) + 2 T2 x_h y_h, pixel = f x_d + c;
+    with ``y_down`` False, y_h taken upwards (the reading selfcal rejects)."""
+    s = 1.0 if y_down else -1.0
+    xh, yh = (col - cx) / f_px, s * (row - cy) / f_px
+    r2 = xh**2 + yh**2
+    radial = 1 + d["K1"] * r2 + d["K2"] * r2**2 + d["K3"] * r2**3
+    xd = xh * radial + 2 * d["T1"] * xh * yh + d["T2"] * (r2 + 2 * xh**2)
+    yd = yh * radial + d["T1"] * (r2 + 2 * yh**2) + 2 * d["T2"] * xh * yh
+    return np.column_stack([f_px * xd + cx, s * f_px * yd + cy])
+
+
+@pytest.mark.parametrize("distortion", [
+    {"K1": -0.012, "K2": 0.003, "K3": -0.0004, "T1": 0.0, "T2": 0.0},
+    {"K1": -0.012, "K2": 0.003, "K3": -0.0004, "T1": 0.0006, "T2": -0.0009},
+    {"K1": 0.0, "K2": 0.0, "K3": 0.0, "T1": -0.0011, "T2": 0.0004}], ids=["radial", "radial+tangential", "tangential"])
+def test_pix4d_distortion_becomes_initial_brown_values(tmp_path, sim, capsys, distortion):
+    """R1..R3, T1, T2 of the .cam: the initial brown APs reproduce Pix4D's documented model (OpenCV's, x right, y
+    down, T1, T2 as p1, p2) over the image within the misfit the import states (brown's terms are taken at the
+    measured point, OpenCV's at the ideal one: the radial and tangential parts cross), at most 0.05 px for each
+    part alone and 0.2 px for both at 42 px of distortion; with y taken upwards the tangential part would be off
+    by more than 1 px (the test tells the two readings apart)."""
     write_pix4d(str(tmp_path / "project"), sim)
     cam_file = os.path.join(tmp_path, "project", "1_initial", "params",
                             "proj_pix4d_calibrated_internal_camera_parameters.cam")
-    radial = {"K1": -0.012, "K2": 0.003, "K3": -0.0004}
     with open(cam_file) as f:
         text = f.read()
-    for key, value in radial.items():
+    for key, value in distortion.items():
         text = text.replace(f"{key} 0\n", f"{key} {value}\n")
     with open(cam_file, "w") as f:
         f.write(text)
     out = str(tmp_path / "block")
     assert run_cli("import", "pix4d", str(tmp_path / "project"), "--out", out) == 0
+    note = capsys.readouterr().err
+    assert "not carried over" not in note
+    misfit = float(re.search(r"largest misfit of the conversion ([0-9.]+) px", note).group(1))
     cam = read_block(out).cameras["pix4d"]
     assert cam.initial_ap is not None and cam.initial_ap.spec == "brown"
     from selfcal.ap import ImageFrame, create_ap
     truth = sim.truth.camera
     p, w, h = truth.pixel_size_mm, truth.width_px, truth.height_px
     f_px, cx, cy = truth.focal_mm / p, w / 2 + truth.x0_mm / p, h / 2 - truth.y0_mm / p
-    col, row = np.meshgrid(np.linspace(100, w - 100, 25), np.linspace(100, h - 100, 17))
-    xh, yh = (col.ravel() - cx) / f_px, (row.ravel() - cy) / f_px          # ideal positions, homogeneous
-    r2 = xh**2 + yh**2
-    d = 1 + radial["K1"] * r2 + radial["K2"] * r2**2 + radial["K3"] * r2**3
-    want = np.column_stack([f_px * xh * d + cx, f_px * yh * d + cy])     # Pix4D's distorted pixels
-    ideal_mm = np.column_stack([(col.ravel() - w / 2) * p, (h / 2 - row.ravel()) * p])
+    col, row = (g.ravel() for g in np.meshgrid(np.linspace(100, w - 100, 25), np.linspace(100, h - 100, 17)))
+    want = pix4d_distorted(col, row, f_px, cx, cy, distortion)
+    ideal_mm = np.column_stack([(col - w / 2) * p, (h / 2 - row) * p])
     ap = create_ap("brown", ImageFrame(cam.width_mm, cam.height_mm, cam.pixel_size_mm))
     values = np.array([cam.initial_ap.values_px[cam.initial_ap.names.index(n)] for n in ap.parameter_names])
     measured = ideal_mm.copy()
@@ -598,9 +619,13 @@ def test_pix4d_radial_distortion_becomes_initial_brown_values(tmp_path, sim):
         measured = ideal_mm + np.column_stack([bx @ values, by @ values]) * p
     got = np.column_stack([measured[:, 0] / p + w / 2, h / 2 - measured[:, 1] / p])
     err = np.hypot(*(got - want).T)
-    print(f"largest difference to Pix4D's radial model: {np.max(err):.4f} px (distortion up to "
-          f"{np.max(np.hypot(*(want - np.column_stack([col.ravel(), row.ravel()])).T)):.1f} px)")
-    assert np.max(err) < 0.05
+    other = np.hypot(*(got - pix4d_distorted(col, row, f_px, cx, cy, distortion, y_down=False)).T)
+    print(f"largest difference to Pix4D's model: {np.max(err):.4f} px; to the y-up reading {np.max(other):.2f} px "
+          f"(distortion up to {np.max(np.hypot(*(want - np.column_stack([col, row])).T)):.1f} px)")
+    assert np.max(err) <= misfit + 0.005
+    assert np.max(err) < (0.2 if distortion["T1"] and distortion["K1"] else 0.05)
+    if distortion["T1"] or distortion["T2"]:
+        assert np.max(other) > 1.0
 
 
 # ------------------------------------------------------------------- control of real files (issue 39, item 5)

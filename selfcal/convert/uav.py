@@ -253,25 +253,26 @@ def block_from_pix4d(params, control=None, *, image_sigma_px: float = 1.0, contr
     camera = FrameCamera("pix4d", cam.width_px, cam.height_px, p, cam.focal_mm,
                          cam.principal_point_mm[0] - cam.width_px * p / 2.0,
                          cam.height_px * p / 2.0 - cam.principal_point_mm[1])
-    radial = {k: cam.distortion[name] for k, name in (("k1", "K1"), ("k2", "K2"), ("k3", "K3"))
-              if cam.distortion[name] != 0.0}
-    if radial:
-        # Pix4D's radial model is OpenCV's (x_d = x_h (1 + R1 r^2 + R2 r^4 + R3 r^6) on the homogeneous point):
-        # fitted as initial brown APs the way a COLMAP camera's distortion is
+    # Pix4D's lens model ("How are the internal and external camera parameters defined") is OpenCV's on the
+    # homogeneous point with x right, y down: x_d = x_h (1 + R1 r^2 + R2 r^4 + R3 r^6) + 2 T1 x_h y_h + T2 (r^2 +
+    # 2 x_h^2), y_d = y_h (...) + T1 (r^2 + 2 y_h^2) + 2 T2 x_h y_h, so R1..R3 are k1..k3 and T1, T2 are p1, p2.
+    # (Issue 45 reports a real project whose BINGO observations reproject at 1.55 px so, at 2.9-5.1 px otherwise.)
+    # They are fitted as initial brown APs the way a COLMAP camera's distortion is.
+    opencv = {k: cam.distortion[name] for k, name in (("k1", "K1"), ("k2", "K2"), ("k3", "K3"), ("p1", "T1"),
+                                                      ("p2", "T2")) if cam.distortion[name] != 0.0}
+    if opencv:
         from .colmap import colmap_distortion_as_brown
         from ..io.colmap import ColmapCamera
         f_px = cam.focal_mm / p
         colmap = ColmapCamera(0, "PIX4D", cam.width_px, cam.height_px,
                               {"fx": f_px, "fy": f_px, "cx": cam.principal_point_mm[0] / p,
-                               "cy": cam.principal_point_mm[1] / p, **radial})
+                               "cy": cam.principal_point_mm[1] / p, **opencv})
         initial, misfit_px = colmap_distortion_as_brown(colmap, camera)
         camera = replace(camera, initial_ap=initial)
-        notes.append(f"Pix4D's radial distortion (R1..R3) is the initial value of the brown APs (largest misfit of "
+        carried = " and ".join(w for w, keys in (("radial (R1..R3)", "k"), ("tangential (T1, T2)", "p"))
+                               if any(k.startswith(keys) for k in opencv))
+        notes.append(f"Pix4D's {carried} distortion is the initial value of the brown APs (largest misfit of "
                      f"the conversion {misfit_px:.3f} px)")
-    if cam.distortion["T1"] != 0.0 or cam.distortion["T2"] != 0.0:
-        notes.append(f"Pix4D's tangential distortion (T1 {cam.distortion['T1']:g}, T2 {cam.distortion['T2']:g}) is "
-                     f"not carried over (the direction of Pix4D's y axis in its formula is not documented): the "
-                     f"adjustment estimates it")
     measurements = params.bingo
     photos = list(measurements.photos)
     image_index = {ph: i for i, ph in enumerate(photos)}
