@@ -430,6 +430,77 @@ def test_pix4d_bingo_without_end_markers_bad_input(tmp_path, sim, capsys, edit, 
     assert "proj_tp_bingo.txt" in err and reason in err and f"line {line}" in err, err
 
 
+def write_gcps_position(params, control, layout):
+    """A params folder's ``*_measured_gcps_position.txt`` in the layouts public Pix4D exports show (Pix4D does not
+    document the columns): ``hash`` (``#Label,X/East,Y/North,Z/Altitude,Accuracy_(m),Error_(m),X_error,Y_error,
+    Z_error,X_est,Y_est,Z_est``, a quoted label, an empty accuracy) and ``named`` (``GCP label, GCP measured X, ...``
+    separated by ``, ``, horizontal and vertical accuracies, then the estimated position). The error and estimated
+    columns hold other numbers: a reader taking them would fail. Returns the sigma per point (NaN: none given)."""
+    sigma = {}
+    with open(os.path.join(params, "proj_measured_gcps_position.txt"), "w") as f:
+        if layout == "hash":
+            f.write("#Label,X/East,Y/North,Z/Altitude,Accuracy_(m),Error_(m),X_error,Y_error,Z_error,X_est,Y_est,"
+                    "Z_est\n")
+            for k, (name, xyz) in enumerate(control.items()):
+                accuracy = "" if k % 2 else "0.015"
+                sigma[name] = (np.nan,) * 3 if k % 2 else (0.015,) * 3
+                label = f'"{name}"' if k % 3 == 0 else name
+                f.write(f"{label},{xyz[0]:.3f},{xyz[1]:.3f},{xyz[2]:.3f},{accuracy},0.027775,-0.019520,-0.006123,"
+                        f"0.018786,{xyz[0] + 0.7:.3f},{xyz[1] - 0.4:.3f},{xyz[2] + 0.3:.3f}\n")
+        else:
+            f.write("GCP label, GCP measured X, GCP measured Y, GCP measured Z, Accuracy Horz, Accuracy Vert, "
+                    "GCP estimated X, GCP estimated Y, GCP estimated Z\n")
+            for name, xyz in control.items():
+                sigma[name] = (0.012, 0.012, 0.021)
+                f.write(f"{name}, {xyz[0]:.3f}, {xyz[1]:.3f}, {xyz[2]:.3f}, 0.012, 0.021, {xyz[0] + 0.7:.3f}, "
+                        f"{xyz[1] - 0.4:.3f}, {xyz[2] + 0.3:.3f}\n")
+    return sigma
+
+
+@pytest.mark.parametrize("layout", ["hash", "named"])
+def test_pix4d_measured_gcps_position_is_the_control(tmp_path, sim, capsys, layout):
+    """Without --gcp, the params folder's *_measured_gcps_position.txt is the control: coordinates as written
+    (not the estimated ones beside them), sigmas as written, the default where the accuracy is empty; --gcp still
+    wins over it, and says so."""
+    control, gcp = write_pix4d(str(tmp_path / "project"), sim)
+    params = str(tmp_path / "project" / "1_initial" / "params")
+    sigma = write_gcps_position(params, control, layout)
+    out = str(tmp_path / "block")
+    assert run_cli("import", "pix4d", str(tmp_path / "project"), "--check", "M07", "--out", out) == 0
+    assert "proj_measured_gcps_position.txt" in capsys.readouterr().err
+    block = read_block(out)
+    index = {p: k for k, p in enumerate(block.points.point_id)}
+    assert set(control) <= set(index)
+    for name, xyz in control.items():
+        k = index[name]
+        assert np.array_equal(block.points.xyz_m[k], xyz)
+        want = (0.01, 0.01, 0.02) if np.isnan(sigma[name][0]) else sigma[name]          # the import's default
+        assert tuple(block.points.sigma_m[k]) == want
+        assert block.points.role[k] == ("chk" if name == "M07" else "gcp")
+    out2 = str(tmp_path / "block2")
+    assert run_cli("import", "pix4d", str(tmp_path / "project"), "--gcp", gcp, "--out", out2) == 0
+    assert "(--gcp), not from" in capsys.readouterr().err
+    k = list(read_block(out2).points.point_id).index(next(iter(control)))
+    assert tuple(read_block(out2).points.sigma_m[k]) == (0.0167, 0.0167, 0.0289)             # the --gcp file's
+
+
+@pytest.mark.parametrize("edit, line, reason", [
+    (lambda t: t.replace("Z/Altitude", "Height_est"), 1, "the header names no z column"),
+    (lambda t: t.replace(",0.015,", ",-0.015,", 1), 2, "Accuracy_(m) must be positive"),
+    (lambda t: t.replace("\n", "\n" + t.splitlines()[1].replace(",", ",x", 1) + "\n", 1), 2, "X/East: 'x"),
+])
+def test_pix4d_measured_gcps_position_bad_input(tmp_path, sim, capsys, edit, line, reason):
+    control, _ = write_pix4d(str(tmp_path / "project"), sim)
+    params = tmp_path / "project" / "1_initial" / "params"
+    write_gcps_position(str(params), control, "hash")
+    path = params / "proj_measured_gcps_position.txt"
+    path.write_text(edit(path.read_text()))
+    assert run_cli("import", "pix4d", str(tmp_path / "project"), "--out", str(tmp_path / "out")) == 2
+    err = capsys.readouterr().err
+    assert "proj_measured_gcps_position.txt" in err and reason in err and f"line {line}" in err, err
+    assert not os.path.exists(tmp_path / "out")
+
+
 # ------------------------------------------------------------------------------------------ Metashape markers
 
 def write_markers(folder, sim, disabled="M03", ref_label=str, northing_first=False):

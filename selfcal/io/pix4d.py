@@ -18,9 +18,18 @@ Files read (Pix4D's "What does the Output Params Folder contain"):
   defined": R = Rx(omega) Ry(phi) Rz(kappa) maps the camera frame, x right, y up, z backwards, into the world).
 * ``*_calibrated_camera_parameters.txt``: read for the image size only (a record ``fileName imageWidth
   imageHeight`` opens each image's block).
+* ``*_measured_gcps_position.txt`` (or, where it is absent, ``*_measured_estimated_gcps_position.txt``): the GCPs
+  and check points as they were imported into the project, written "if GCPs have been imported" (Pix4D's "What
+  does the Output Params Folder contain"). Pix4D does not document their columns; the exports seen in public
+  (a header line ``#Label,X/East,Y/North,Z/Altitude,Accuracy_(m),Error_(m),X_error,...,X_est,...``; a header
+  ``GCP label, GCP measured X, GCP measured Y, GCP measured Z, ...`` separated by ``, ``) name them in a header,
+  so the columns are found by name (:func:`read_gcps_position`): the label, the measured X, Y, Z and the
+  accuracies; errors and estimated positions are left out. A file without a header is PIX4D's GCP import layout
+  (:func:`selfcal.io.metashape.read_reference_csv`).
 """
 from __future__ import annotations
 
+import csv
 import glob
 import os
 import re
@@ -29,10 +38,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import BlockError
-from .patb import PhotoMeasurements, numbers, read_photo_blocks
+from .patb import ControlPoints, PhotoMeasurements, numbers, read_photo_blocks
 from .text import is_number, read_text
 
-__all__ = ["Pix4dCamera", "Pix4dExternal", "Pix4dParams", "read_pix4d_params", "params_folder"]
+__all__ = ["Pix4dCamera", "Pix4dExternal", "Pix4dParams", "read_gcps_position", "read_pix4d_params",
+           "params_folder"]
 
 
 @dataclass(frozen=True)
@@ -62,6 +72,7 @@ class Pix4dParams:
     bingo: PhotoMeasurements
     camera: Pix4dCamera
     external: Pix4dExternal | None
+    gcps_path: str | None = None               # *_measured_gcps_position.txt, where the folder has one
 
 
 def params_folder(source: str) -> str:
@@ -176,4 +187,100 @@ def read_pix4d_params(source: str, image_size: tuple[int, int] | None = None) ->
         image_size = _image_size(size_file)
     camera = read_cam(cam_path, *image_size)
     ext_path = _one_or_none(folder, ("*_calibrated_external_camera_parameters.txt",), exclude="wgs84")
-    return Pix4dParams(folder, bingo, camera, read_external(ext_path) if ext_path else None)
+    gcp_path = _one_or_none(folder, GCPS_POSITION_FILES)
+    return Pix4dParams(folder, bingo, camera, read_external(ext_path) if ext_path else None, gcp_path)
+
+
+#: the params folder's files of the project's GCPs, the first found is read
+GCPS_POSITION_FILES = ("*_measured_gcps_position.txt", "*_measured_estimated_gcps_position.txt")
+
+#: words of a column name that make it something other than the measured (input) position or its accuracy
+_NOT_MEASURED = ("error", "est", "residual", "rms", "projection", "image", "marked")
+
+
+def _column_kind(name: str) -> str | None:
+    """What a header column of a GCP position file holds: label, x, y, z, accuracy_xy, accuracy_z, accuracy
+    (all axes) or None (a column left out)."""
+    n = name.strip().lstrip("#").strip().strip('"').lower()
+    if "label" in n or n in ("name", "id", "gcp", "point"):
+        return "label"
+    if any(word in n for word in _NOT_MEASURED):
+        return None
+    if "accuracy" in n or "sigma" in n or n.startswith("std"):
+        if any(word in n for word in ("horz", "horiz", "xy", "plan")):
+            return "accuracy_xy"
+        if any(word in n for word in ("vert", "_z", " z", "height")):
+            return "accuracy_z"
+        return "accuracy"
+    core = re.sub(r"\b(gcp|measured)\b", "", n).strip(" _:")
+    for kind, starts in (("x", ("x", "east")), ("y", ("y", "north")), ("z", ("z", "alt", "height", "elev"))):
+        if core.startswith(starts):
+            return kind
+    return None
+
+
+def _fields(line: str) -> list[str]:
+    return [f.strip().strip('"').strip() for f in next(csv.reader([line], skipinitialspace=True))]
+
+
+def read_gcps_position(path: str | os.PathLike) -> ControlPoints:
+    """The control of a Pix4D GCP position file (the module's docstring): columns found by the header's names;
+    an empty accuracy is NaN (the import's default sigma applies). A file whose first line is not a header is
+    read as PIX4D's GCP import layout."""
+    from .metashape import read_reference_csv
+
+    path = os.fspath(path)
+    lines = read_text(path, "Pix4D GCP position file").splitlines()
+    head = next(((k, line) for k, line in enumerate(lines, start=1) if line.strip()), None)
+    if head is None:
+        raise BlockError(path, "no point in the file")
+    head_number, head_line = head
+    names = _fields(head_line)
+    if len(names) >= 4 and is_number(names[1]):
+        return read_reference_csv(path)                 # no header: label, X, Y, Z[, accuracies]
+    kinds = [_column_kind(n) for n in names]
+    column = {}
+    for k, kind in enumerate(kinds):
+        if kind is not None and kind not in column:
+            column[kind] = k
+    missing = [what for what in ("label", "x", "y", "z") if what not in column]
+    if missing:
+        raise BlockError(path, f"the header names no {', '.join(missing)} column (found: {', '.join(names)[:200]})",
+                         head_number)
+    ids, xyz, sigma, numbers_ = [], [], [], []
+    first: dict[str, int] = {}
+    for number, line in enumerate(lines[head_number:], start=head_number + 1):
+        text = line.strip()
+        if not text or text.startswith("#"):
+            continue
+        fields = _fields(text)
+        if len(fields) < len(names) and len(fields) <= max(column.values()):
+            raise BlockError(path, f"expected {len(names)} fields as the header names, found {len(fields)}", number)
+        label = fields[column["label"]]
+        if not label:
+            raise BlockError(path, "a point without a label", number)
+        if label in first:
+            raise BlockError(path, f"point '{label}' is given twice (first on line {first[label]})", number)
+        first[label] = number
+        coords = numbers(path, number, [fields[column[a]] for a in ("x", "y", "z")],
+                         [names[column[a]] for a in ("x", "y", "z")])
+
+        def accuracy(kind: str) -> float:
+            if kind not in column or not fields[column[kind]]:
+                return float("nan")
+            value = numbers(path, number, [fields[column[kind]]], [names[column[kind]]])[0]
+            if value <= 0:
+                raise BlockError(path, f"{names[column[kind]]} must be positive, found {value:g}", number)
+            return value
+
+        every, plan, height = accuracy("accuracy"), accuracy("accuracy_xy"), accuracy("accuracy_z")
+        plan = every if np.isnan(plan) else plan
+        height = every if np.isnan(height) else height
+        ids.append(label)
+        xyz.append(coords)
+        sigma.append([plan, plan, height])
+        numbers_.append(number)
+    if not ids:
+        raise BlockError(path, "no point in the file")
+    return ControlPoints(path, np.array(ids, object), np.array(xyz, float), np.array(sigma, float),
+                         np.array(numbers_, np.int64), np.ones(len(ids), bool))

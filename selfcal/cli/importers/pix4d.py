@@ -8,17 +8,18 @@ import sys
 from ...convert.uav import block_from_pix4d
 from ...errors import UsageError
 from ...io.block_folder import write_block
-from ...io.metashape import read_reference_csv
 from ...io.output import output_folder
-from ...io.pix4d import params_folder, read_pix4d_params
+from ...io.pix4d import params_folder, read_gcps_position, read_pix4d_params
 from ..options import number
 from .patb import checks, control_arguments, image_size
-from ..outcome import finish
+from ..outcome import finish, progress
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--gcp", metavar="FILE",
-                        help="ground control: label, X, Y, Z[, accuracy XY, accuracy Z] (Pix4D's GCP file)")
+                        help="ground control: label, X, Y, Z[, accuracy XY, accuracy Z] (Pix4D's GCP import file), "
+                             "or a *_measured_gcps_position.txt; default: the params folder's "
+                             "*_measured_gcps_position.txt, where it has one")
     parser.add_argument("--image-size", type=image_size, metavar="WxH",
                         help="image size in pixels (default: from *_calibrated_camera_parameters.txt)")
     parser.add_argument("--image-sigma-px", type=number(0.0, low_open=True), default=1.0,
@@ -31,7 +32,12 @@ def run(args: argparse.Namespace) -> int:
     if not args.crs.strip():
         raise UsageError("--crs is empty")
     params = read_pix4d_params(args.source, args.image_size)
-    control = read_reference_csv(args.gcp) if args.gcp else None
+    gcp_path = args.gcp or params.gcps_path
+    control = read_gcps_position(gcp_path) if gcp_path else None
+    if args.gcp and params.gcps_path:
+        progress(f"control from {args.gcp} (--gcp), not from {params.gcps_path}")
+    elif control is not None and not args.gcp:
+        progress(f"control: {len(control.point_id)} point(s) of {control.path}")
     block, notes = block_from_pix4d(params, control, image_sigma_px=args.image_sigma_px,
                                     control_sigma_m=(args.gcp_sigma_xy, args.gcp_sigma_z), check_points=checks(args),
                                     crs=args.crs, name=os.path.basename(os.path.normpath(args.out)))
