@@ -551,3 +551,25 @@ def test_ellipsoidal_heights_into_a_vertical_datum_need_its_geoid():
     else:
         with pytest.raises(ValueError, match="needs a grid that is not installed"):
             positions_in_crs(lonlath, "EPSG:4326", target)
+
+
+def test_positions_without_times_and_the_default_drift_say_what_to_give(drone, cli, capsys, tmp_path):
+    """An ODM geo.txt has no times: the import says a drift needs them; adjust with the default --gnss-drift 1 is
+    a usage error (exit 2) naming --gnss-drift 0 and the times, before any work; --gnss-drift 0 adjusts."""
+    sim, root, gnss_utm = drone
+    block = read_block(root / "block")
+    geo = geodetic(gnss_utm)
+    lines = ["EPSG:4326"] + [f"{i}.JPG {lon:.11f} {lat:.11f} {h:.5f}" for i, (lon, lat, h) in
+                             zip(block.images.image_id, geo)]
+    (tmp_path / "geo.txt").write_text("\n".join(lines) + "\n")
+    out = tmp_path / "out"
+    assert cli("import", "gnss", str(tmp_path / "geo.txt"), "--block", str(root / "block"), "--sigma-m",
+               "0.03,0.03,0.05", "--out", str(out)) == 0
+    assert f"{len(geo)} of the positions have no exposure time: adjust with --gnss-drift 0" in capsys.readouterr().err
+    assert cli("adjust", str(out), "--out", str(tmp_path / "r1"), "--ap", "none", "--no-report") == 2
+    err = capsys.readouterr().err
+    assert "--gnss-drift 1 (the default: a shift and a drift per strip) needs the exposure time" in err
+    assert "give --gnss-drift 0 (a shift per strip)" in err and "an ODM geo.txt carries no times" in err
+    assert not (tmp_path / "r1").exists()
+    assert cli("adjust", str(out), "--out", str(tmp_path / "r0"), "--ap", "none", "--no-report", "--quiet",
+               "--gnss-drift", "0") == 0

@@ -72,6 +72,7 @@ def _check_options(block, args) -> None:
     if seed001 and (args.gnss_drift != 1 or args.imu_drift != 1) and not block.has_trajectory:
         raise UsageError(f"--gnss-drift / --imu-drift do not apply to this block ({sensors} cameras without "
                          "[gnss] or [imu])")
+    _check_drift_times(block, args)
     if getattr(args, "trajectory_significance", None) is not None and not block.has_trajectory:
         raise UsageError(f"--trajectory-significance screens GNSS/IMU shift/drift terms; this block has no [gnss] "
                          f"or [imu] ({sensors} cameras)")
@@ -81,6 +82,29 @@ def _check_options(block, args) -> None:
         if getattr(args, flag[2:].replace("-", "_")) and getattr(args, drift[2:].replace("-", "_")) != -1:
             raise UsageError(f"{flag} cannot be separated from strip-wise shifts (the attitude hardly changes along "
                              f"a strip): give {drift} none with it")
+
+
+def _check_drift_times(block, args) -> None:
+    """A drift per strip needs the exposure times: GNSS positions without them (an ODM geo.txt, a CSV of
+    positions) and the default --gnss-drift 1 are an error saying what to give instead."""
+    import numpy as np
+
+    images = block.images
+    for flag, sensor, sigma, observed in (("--gnss-drift", "GNSS positions", block.gnss_sigma_m, images.position_m),
+                                          ("--imu-drift", "IMU attitudes", block.imu_sigma_deg, images.attitude_rad)):
+        order = getattr(args, flag[2:].replace("-", "_"))
+        if sigma is None or order is None or order < 1:
+            continue
+        seen = np.isfinite(observed).all(axis=1)
+        untimed = seen & np.isnan(images.time_s)
+        if untimed.any():
+            names = ", ".join(images.image_id[untimed][:3]) + (" ..." if untimed.sum() > 3 else "")
+            raise UsageError(
+                f"{flag} {order} (the default: a shift and a drift per strip) needs the exposure time of every "
+                f"image, and {int(untimed.sum())} of the {int(seen.sum())} images with {sensor} have "
+                f"none ({names}; an ODM geo.txt carries no times): give {flag} 0 (a shift per strip) or "
+                f"{flag} none, or give the times (time_s in images.csv; `selfcal import gnss` of the JPEGs reads "
+                f"their GPS time stamps)")
 
 
 def _ap_cameras(block, args) -> tuple[str, ...] | None:

@@ -8,7 +8,7 @@ import sys
 
 from ...errors import BlockError, UsageError
 from ..options import number
-from ..outcome import finish
+from ..outcome import finish, progress
 
 
 def _three(text: str) -> tuple[float, float, float]:
@@ -74,6 +74,12 @@ def run(args: argparse.Namespace) -> int:
     warnings += result.warnings
     for note in warnings:
         print(f"warning: {note}", file=sys.stderr)
+    import numpy as np
+    images = result.block.images
+    untimed = int((np.isfinite(images.position_m).all(axis=1) & np.isnan(images.time_s)).sum())
+    if untimed:
+        progress(f"{untimed} of the positions have no exposure time: adjust with --gnss-drift 0 (a shift per strip) "
+                 f"or --gnss-drift none; the default drift per strip needs the times")
     line = (f"imported the GNSS positions of {result.n_with_gnss} of {len(result.block.images)} images "
             f"({result.n_own_sigma} with their own sigma) in {result.n_strips} strips"
             + (f", the attitudes of {result.n_with_attitude}" if args.imu_sigma_deg else "") + f" into {args.out} "
