@@ -722,27 +722,36 @@ def test_kalibr_camchain_passes_kalibrs_reader(brown, tmp_path, capsys):
         kalibr_read_camchain(out)
 
 
+def export_kalibr(tmp_path, capsys, entry):
+    """``selfcal export kalibr`` of a results folder holding ``entry``: (the lens line it prints, the field across
+    the diagonal in deg, the printed rms and largest misfit in px, the camchain's camera, the largest miss of
+    Kalibr's documented projection against selfcal's camera over a 41-node grid, px)."""
+    folder = results_folder(tmp_path / "r", entry)
+    cal = Calibration.from_camera_json(CAMERA_ID, entry)
+    out = tmp_path / "camchain.yaml"
+    assert run_cli("export", "kalibr", str(folder), "--out", str(out)) == 0
+    err = capsys.readouterr().err
+    line = lens_line(err)
+    field = float(re.search(r"([\d.]+) deg across the diagonal", line).group(1))
+    rms, worst = printed_misfit(err)
+    (cam,) = yaml.safe_load(out.read_text()).values()
+    assert kalibr_read_camchain(out)
+    measured, n = grid(cal, 41)
+    miss = np.hypot(*(kalibr_project(n, cam) - measured).T)
+    return line, field, rms, worst, cam, float(miss.max()), folder, cal
+
+
 @pytest.mark.parametrize("brown_px", [[-60.0, 8.0, -1.0, 1.0, -0.5, 0.2, 0.0],    # usual: radtan fits to 0.15 px
                                       [-60.0, 20.0, -8.0, 0.0, 0.0, 0.0, 0.0]])   # equidistant closer, still radtan
 def test_a_24mm_frame_camera_is_exported_as_radtan(tmp_path, capsys, brown_px):
     """A 24 mm lens on a 35.9 x 24 mm sensor (85 deg across the diagonal) is a frame lens: radtan, also where
     its higher-order radial distortion makes equidistant's largest misfit the smaller (the issue's case: 'auto'
     took the closest model). The misfit is the one Kalibr's documented projection shows."""
-    folder = results_folder(tmp_path / "r", camera_entry(brown_px, **FRAME_24MM))
-    cal = Calibration.from_camera_json(CAMERA_ID, camera_entry(brown_px, **FRAME_24MM))
-    out = tmp_path / "camchain.yaml"
-    assert run_cli("export", "kalibr", str(folder), "--out", str(out)) == 0
-    err = capsys.readouterr().err
-    line = lens_line(err)
-    field = float(re.search(r"([\d.]+) deg across the diagonal", line).group(1))
+    line, field, rms, worst, cam, miss, _, cal = export_kalibr(tmp_path, capsys, camera_entry(brown_px, **FRAME_24MM))
     assert "Kalibr radtan" in line and "a frame lens" in line and 84.0 < field < 86.0, line
-    rms, worst = printed_misfit(err)
-    (cam,) = yaml.safe_load(out.read_text()).values()
-    assert cam["distortion_model"] == "radtan" and kalibr_read_camchain(out)
-    measured, n = grid(cal, 41)
-    miss = np.hypot(*(kalibr_project(n, cam) - measured).T)
-    print(f"24 mm {brown_px}: radtan {rms:.4f} px rms, {worst:.4f} px max; measured {miss.max():.4f} px; {line}")
-    assert miss.max() <= worst + 1e-3
+    assert cam["distortion_model"] == "radtan"
+    print(f"24 mm {brown_px}: radtan {rms:.4f} px rms, {worst:.4f} px max; measured {miss:.4f} px; {line}")
+    assert miss <= worst + 1e-3
     if brown_px[1] == 8.0:
         assert worst < 0.2 and rms < 0.02                 # the usual lens: radtan reproduces selfcal's
     else:
@@ -757,22 +766,12 @@ def test_a_fisheye_is_exported_as_equidistant(tmp_path, capsys, corner_deg, by):
     """A fisheye (an equidistant lens 62 deg off axis at the corner: 125 deg across the diagonal) is exported as
     equidistant for its field; one of 111 deg, because radtan misses by far more than 1 px where equidistant
     does not. --model radtan still forces radtan."""
-    entry = fisheye_entry(corner_deg, pixel_mm=0.0048)
-    folder = results_folder(tmp_path / "r", entry)
-    cal = Calibration.from_camera_json(CAMERA_ID, entry)
-    out = tmp_path / "camchain.yaml"
-    assert run_cli("export", "kalibr", str(folder), "--out", str(out)) == 0
-    err = capsys.readouterr().err
-    line = lens_line(err)
-    field = float(re.search(r"([\d.]+) deg across the diagonal", line).group(1))
+    line, field, _, worst, cam, miss, folder, _ = export_kalibr(tmp_path, capsys, fisheye_entry(corner_deg,
+                                                                                                pixel_mm=0.0048))
     assert "Kalibr equidistant" in line and "a fisheye" in line, line
-    _, worst = printed_misfit(err)
-    (cam,) = yaml.safe_load(out.read_text()).values()
-    assert cam["distortion_model"] == "equidistant" and kalibr_read_camchain(out)
-    measured, n = grid(cal, 41)
-    miss = np.hypot(*(kalibr_project(n, cam) - measured).T)
+    assert cam["distortion_model"] == "equidistant"
     print(f"fisheye {corner_deg} deg: {field} deg field, equidistant {worst:.3f} px max; {line}")
-    assert miss.max() <= worst + 1e-3
+    assert miss <= worst + 1e-3
     if by == "field":
         assert field > 120.0 and "radtan misses" not in line
     else:
@@ -780,6 +779,7 @@ def test_a_fisheye_is_exported_as_equidistant(tmp_path, capsys, corner_deg, by):
         frame_px, fisheye_px = (float(v) for v in re.search(r"radtan misses selfcal's model by ([\d.]+) px.*"
                                                               r"equidistant by ([\d.]+) px", line).groups())
         assert frame_px > 5.0 and fisheye_px < 0.5 * frame_px and fisheye_px == pytest.approx(worst, abs=1e-3)
+    out = tmp_path / "camchain.yaml"
     assert run_cli("export", "kalibr", str(folder), "--out", str(out), "--model", "radtan") == 0
     err = capsys.readouterr().err
     assert "chosen from the lens" not in err and yaml.safe_load(out.read_text())["cam0"]["distortion_model"] == \

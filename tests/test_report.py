@@ -4,7 +4,6 @@ import math
 import os
 import shutil
 import subprocess
-from html.parser import HTMLParser
 
 import numpy as np
 import pytest
@@ -16,6 +15,7 @@ from selfcal.report.compare import comparison_rows
 from selfcal.report.figures import grid_mean_vectors, nice_length
 
 from conftest import pruned, run_cli, simulation
+from report_page import read_report
 
 FIGURES = ["camera-layout", "distortion", "residual-grid", "residual-histogram", "control-errors", "tie-precision",
            "correlation", "robust-weights", "rejection-map"]
@@ -25,56 +25,6 @@ PRINTED = ["sigma0_px", "variance_factor", "iterations", "redundancy", "n_observ
            "rms_sigma_tie_xy_m", "rms_sigma_tie_z_m", "n_gcp_used", "n_chk_used", "n_obs_rejected",
            "n_ap_initial", "n_ap_significant", "max_abs_corr.IOP", "max_abs_corr.EOP", "gsd_m", "selfcal_version",
            "options.ap_model", "options.image_sigma_px", "options.control_sigma_xy_m", "options.max_iterations"]
-
-
-class _ReportParser(HTMLParser):
-    """Summary cells (key, exact value, text), images, and the rows of tables by id."""
-
-    def __init__(self):
-        super().__init__()
-        self.cells, self.images, self.tables = [], [], {}
-        self._cell = None
-        self._table = None
-        self._row = None
-
-    def handle_starttag(self, tag, attrs):
-        attrs = dict(attrs)
-        if tag == "td" and "data-summary" in attrs:
-            self._cell = [attrs["data-summary"], attrs["data-value"], ""]
-        elif tag == "img":
-            self.images.append(attrs.get("src", ""))
-        elif tag == "table":
-            self._table = attrs.get("id")
-            if self._table:
-                self.tables[self._table] = []
-        elif tag == "tr" and self._table:
-            self._row = {"flag": attrs.get("class") == "flag", "cells": []}
-        elif tag == "td" and self._row is not None:
-            self._row["cells"].append("")
-
-    def handle_endtag(self, tag):
-        if tag == "td" and self._cell is not None:
-            self.cells.append(tuple(self._cell))
-            self._cell = None
-        elif tag == "tr" and self._row is not None:
-            if self._row["cells"]:
-                self.tables[self._table].append(self._row)
-            self._row = None
-        elif tag == "table":
-            self._table = None
-
-    def handle_data(self, data):
-        if self._cell is not None:
-            self._cell[2] += data
-        if self._row is not None and self._row["cells"]:
-            self._row["cells"][-1] += data
-
-
-def _parse(path) -> _ReportParser:
-    parser = _ReportParser()
-    with open(path, encoding="utf-8") as handle:
-        parser.feed(handle.read())
-    return parser
 
 
 def _text(path) -> str:
@@ -109,7 +59,7 @@ def test_every_figure_is_written_and_embedded(adjusted):
             with open(path, "rb") as handle:
                 head = handle.read(5)
             assert head.startswith(magic) and os.path.getsize(path) > 10_000, path
-    report = _parse(adjusted / "report.html")
+    report = read_report(adjusted / "report.html")
     assert len(report.images) == len(FIGURES)
     assert all(src.startswith("data:image/png;base64,") and len(src) > 10_000 for src in report.images)
 
@@ -118,7 +68,7 @@ def test_every_figure_is_written_and_embedded(adjusted):
 def test_report_numbers_equal_summary_json(adjusted):
     with open(adjusted / "summary.json") as handle:
         summary = json.load(handle)
-    report = _parse(adjusted / "report.html")
+    report = read_report(adjusted / "report.html")
     seen = {key for key, _, _ in report.cells}
     assert set(PRINTED) <= seen
     for key, exact, text in report.cells:
@@ -138,17 +88,17 @@ def test_report_numbers_equal_summary_json(adjusted):
 def test_tables_list_points_flags_and_rejections(adjusted):
     with open(adjusted / "summary.json") as handle:
         summary = json.load(handle)
-    report = _parse(adjusted / "report.html")
+    report = read_report(adjusted / "report.html")
     # the rejected observations: data snooping's, largest |w| first, then the robust cleaning's, largest u first, up
     # to the 200-row cap (all are in residuals.csv)
     assert summary["n_obs_rejected"] > 0
     rejected = report.tables["rejected"]
     assert len(rejected) == min(summary["n_obs_rejected"], 200)
-    by = [row["cells"][2] for row in rejected]
+    by = [row[2][0] for row in rejected]
     assert by == sorted(by, key=lambda b: b == "robust") and "snooping" in by
-    w = [abs(float(row["cells"][7])) for row in rejected if row["cells"][2] == "snooping"]
+    w = [abs(float(row[7][0])) for row in rejected if row[2][0] == "snooping"]
     assert min(w) > 3.0 and w == sorted(w, reverse=True)
-    u = [float(row["cells"][8]) for row in rejected if row["cells"][2] == "robust"]
+    u = [float(row[8][0]) for row in rejected if row[2][0] == "robust"]
     assert all(x > summary["robust"]["reject_u"] for x in u) and u == sorted(u, reverse=True)
     lines = _text(adjusted / "residuals.csv").strip().split("\n")
     col_of = {h: i for i, h in enumerate(lines[0].split(","))}
@@ -163,19 +113,19 @@ def test_tables_list_points_flags_and_rejections(adjusted):
     header, data = lines[0].split(","), [line.split(",") for line in lines[1:]]
     col = {h: i for i, h in enumerate(header)}
     controls = [r for r in data if r[col["role"]] in ("gcp", "chk")]
-    rows = {row["cells"][0]: row for row in report.tables["control-points"]}
+    rows = {row[0][0]: row for row in report.tables["control-points"]}
     assert len(rows) == len(controls) == summary["n_gcp_used"] + summary["n_chk_used"]
     for r in controls:
         row = rows[r[col["point_id"]]]
-        assert float(row["cells"][4]) == pytest.approx(float(r[col["dZ_m"]]), abs=5e-5)
+        assert float(row[4][0]) == pytest.approx(float(r[col["dZ_m"]]), abs=5e-5)
         if r[col["role"]] == "chk":
             z = max(abs(float(r[col[f"d{c}_m"]])) / float(r[col[f"sigma_{c}_m"]]) for c in "XYZ")
-            assert row["flag"] == (z > 3.0)
+            assert row.flag == (z > 3.0)
     # the AP table: one row per Brown coefficient, value as in camera.json
     camera = json.loads(_text(adjusted / "camera.json"))["cameras"]["ilce7m3"]
     ap_rows = report.tables["ap-ilce7m3"]
-    assert [r["cells"][0] for r in ap_rows] == [c["name"] for c in camera["ap"]["coefficients"]]
-    assert float(ap_rows[0]["cells"][1]) == pytest.approx(camera["ap"]["coefficients"][0]["value_px"], abs=5e-5)
+    assert [r[0][0] for r in ap_rows] == [c["name"] for c in camera["ap"]["coefficients"]]
+    assert float(ap_rows[0][1][0]) == pytest.approx(camera["ap"]["coefficients"][0]["value_px"], abs=5e-5)
     assert len(report.tables["images"]) == summary["n_images"]
 
 
@@ -189,7 +139,7 @@ def test_report_command_renders_again_from_the_files(adjusted, tmp_path, capsys)
         handle.write("x")
     assert run_cli("report", str(copy)) == 0
     assert f"{len(FIGURES)} figures" in capsys.readouterr().out      # the outcome line: stdout
-    first, again = _parse(adjusted / "report.html"), _parse(copy / "report.html")
+    first, again = read_report(adjusted / "report.html"), read_report(copy / "report.html")
     assert again.cells == first.cells
     assert sorted(os.listdir(copy / "figures")) == sorted(os.listdir(adjusted / "figures"))
 
@@ -283,7 +233,7 @@ def test_comparison_report_links_the_best_model_of_each_scenario(tmp_path):
                   if r["scenario"] == scenario}
         assert best[scenario]["ap_model"] == min(scores, key=scores.get) == "brown"
     write_matrix(str(tmp_path), cells, rows, "test")
-    page = _parse(tmp_path / "report.html")
+    page = read_report(tmp_path / "report.html")
     assert len(page.images) == 3                              # Figs. 3, 4 and 5
     html = _text(tmp_path / "report.html")
     for scenario in blocks:

@@ -4,7 +4,6 @@ import csv
 import json
 import shutil
 from collections import Counter
-from html.parser import HTMLParser
 
 import numpy as np
 import pytest
@@ -14,58 +13,13 @@ from selfcal.report.render import MAX_AP_ROWS
 from selfcal.workflows.api import bundle_adjust
 
 from conftest import pruned, run_cli, simulation
+from report_page import ReportPage, read_report
 
 CAMERA = "ilce7m3"
 
 
-class _Tables(HTMLParser):
-    """Every table with an id: its rows as lists of cells (text, data-summary key, data-value), whether it lies
-    in a <details> fold; and the alt texts of the images."""
-
-    def __init__(self):
-        super().__init__()
-        self.tables, self.folded, self.alts = {}, set(), []
-        self._table = self._row = self._cell = None
-        self._details = 0
-
-    def handle_starttag(self, tag, attrs):
-        attrs = dict(attrs)
-        if tag == "details":
-            self._details += 1
-        elif tag == "img":
-            self.alts.append(attrs.get("alt", ""))
-        elif tag == "table" and attrs.get("id"):
-            self._table = attrs["id"]
-            self.tables[self._table] = []
-            if self._details:
-                self.folded.add(self._table)
-        elif tag == "tr" and self._table:
-            self._row = []
-        elif tag == "td" and self._row is not None:
-            self._cell = ["", attrs.get("data-summary"), attrs.get("data-value")]
-
-    def handle_endtag(self, tag):
-        if tag == "details":
-            self._details -= 1
-        elif tag == "td" and self._cell is not None:
-            self._row.append(tuple(self._cell))
-            self._cell = None
-        elif tag == "tr" and self._row is not None:
-            if self._row:
-                self.tables[self._table].append(self._row)
-            self._row = None
-        elif tag == "table":
-            self._table = None
-
-    def handle_data(self, data):
-        if self._cell is not None:
-            self._cell[0] += data
-
-
-def _page(folder) -> _Tables:
-    parser = _Tables()
-    parser.feed((folder / "report.html").read_text(encoding="utf-8"))
-    return parser
+def _page(folder) -> ReportPage:
+    return read_report(folder / "report.html")
 
 
 def _csv(path) -> list[dict]:
