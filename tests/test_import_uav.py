@@ -1022,10 +1022,13 @@ def test_patb_without_control_is_a_free_network_with_its_warning(tmp_path, sim, 
     z = np.array([(float(row[key]) - truth[row["image_id"]][k]) / float(row[f"sigma_{key}_m"])
                   for row in read_rows(os.path.join(results, "images.csv"))
                   for k, key in enumerate(("X0", "Y0", "Z0"))])
-    print(f"free PAT-B network: focal error / sigma {z_focal:.2f}, centres' largest error / sigma {np.max(np.abs(z)):.2f}")
-    assert abs(z_focal) < 3.0 and np.max(np.abs(z)) < 3.0
+    measured = (f"free PAT-B network: focal {focal['value']:.3f} +- {focal['sigma']:.3f} mm (truth "
+                f"{sim.truth.camera.focal_mm}), error / sigma {z_focal:.2f}; centres' largest error / sigma "
+                f"{np.max(np.abs(z)):.2f}")
+    assert abs(z_focal) < 3.0 and np.max(np.abs(z)) < 3.0, measured
     os.remove(src / "block.ori")
     assert run_cli(*patb_argv(str(src), str(tmp_path / "bare"))) == 0
     assert "no orientations (no .ori): the block is a free network the adjustment cannot start" in capsys.readouterr().err
     assert run_cli("adjust", str(tmp_path / "bare"), "--out", str(tmp_path / "r2"), "--no-report", "--quiet") == 1
     assert "cannot orient image(s)" in capsys.readouterr().err
+    print(measured)                                                   # after the last capsys read: it shows with -s
