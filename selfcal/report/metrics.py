@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import __version__
-from ..block import Block
+from ..block import Block, FrameCamera
 from ..ap import frame_nodes_mm, takes_grid
 from ..sensors.frame import pixel_from_photo
 from ..stats.accuracy import ce90, le90
@@ -155,6 +155,7 @@ def summary(tested, extra: dict | None = None, checks=None) -> dict:
         "warnings": list(block.dropped.messages),
         "notes": list(result.notes),
         "seconds": result.seconds,
+        "diagnosis": diagnosis(tested, checks),
     }
     if extra:
         out.update(extra)
@@ -547,3 +548,38 @@ def model_choice_table(choice) -> CsvTable:
             np.array([s.error.splitlines()[0].replace(",", ";") if s.error else "" for s in rows], dtype=object)]
     fmts = ["", "", "d", "d", "d", ".3f", ".4f", ".2f", ".2f", "d", ".4f", ".4f", ""]
     return header, cols, fmts
+
+
+def diagnosis(tested, checks=None) -> dict:
+    """summary.json ``diagnosis`` (:mod:`selfcal.stats.diagnosis`): the residual-field test of each frame camera,
+    the dome test of the check points' heights, and sentences naming what was found, its likely cause and the
+    remedy. The dome's centre is the centre of the images' positions (of the check points without them)."""
+    from ..stats.checks import intersected
+    from ..stats.diagnosis import ALPHA, POWER, dome_test, findings, residual_field_tests
+    result = tested.result
+    block = result.block
+    ob = block.observations
+    v = result.residuals_px
+    red = tested.tests.image_redundancy
+    fields = []
+    camera_of_image = np.asarray(block.images.camera_id)[ob.image_index]
+    for camera_id, cam in block.cameras.items():
+        if not isinstance(cam, FrameCamera):
+            continue
+        at = np.flatnonzero(camera_of_image == camera_id)
+        if len(at) == 0:
+            continue
+        fields += residual_field_tests(camera_id, ob.pixel[at, 0], ob.pixel[at, 1], v[at], ob.sigma_px[at], red[at],
+                                       cam.width_px, cam.height_px)
+    checks = intersected(result) if checks is None else checks
+    dome = None
+    if len(checks):
+        planar = checks.reference @ checks.axes.T
+        positions = block.images.position_m
+        seen = np.isfinite(positions).all(axis=1)
+        centre = (positions[seen] @ checks.axes.T)[:, :2].mean(axis=0) if seen.any() else planar[:, :2].mean(axis=0)
+        dome = dome_test(planar[:, :2], checks.errors_m[:, 2], centre)
+    return {"alpha": ALPHA, "power": POWER,
+            "residual_field": [f.as_dict() for f in fields],
+            "dome": None if dome is None else dome.as_dict(),
+            "findings": findings(fields, dome)}

@@ -694,6 +694,40 @@ def _notes_section(page: Page, s: dict) -> None:
         page.add("<ul>" + "".join(f"<li>{html.escape(str(m))}</li>" for m in messages) + "</ul>")
 
 
+def _diagnosis_section(page: Page, s: dict) -> None:
+    """summary.json ``diagnosis``: the findings, then each test with its statistic, critical value and power."""
+    d = s.get("diagnosis")
+    if not d:
+        page.paragraph("No diagnosis: this results folder has none (no frame camera and no check points, or written "
+                       "by an older selfcal).", "note")
+        return
+    page.add('<ul id="diagnosis-findings">' + "".join(f"<li>{html.escape(str(f))}</li>" for f in d["findings"])
+             + "</ul>")
+    fields = d.get("residual_field") or []
+    if fields:
+        page.table(["camera", "grid", "zones", "T", "critical", "largest zone", "its critical", "largest mean [px]",
+                    "RMS of the means [px]", f"detectable RMS [px] ({d['power']:.0%})", "Moran's I", "its p",
+                    "found"],
+                   [[f["camera_id"], f"{f['grid'][0]}x{f['grid'][1]}", f["n_zones"], fmt(f["statistic"], ".1f"),
+                     fmt(f["critical"], ".1f"), fmt(f["largest_zone_statistic"], ".1f"),
+                     fmt(f["largest_zone_critical"], ".1f"), fmt(f["largest_zone_mean_px"], ".3f"),
+                     fmt(f["rms_zone_mean_px"], ".3f"), fmt(f["detectable_rms_px"], ".3f"),
+                     fmt(f["morans_i"], ".2f"), fmt(f["morans_p"], ".3f"), "yes" if f["found"] else "no"]
+                    for f in fields], text_columns=2, flagged=[bool(f["found"]) for f in fields],
+                   ident="diagnosis-field")
+    dome = d.get("dome")
+    if dome:
+        page.table(["check points", "dome height at r_max [m]", "σ [m]", "r_max [m]", "t", "critical",
+                    f"detectable height [m] ({d['power']:.0%})", "found"],
+                   [[dome["n_points"], fmt(dome["dome_height_m"], "+.4f"), fmt(dome["sigma_dome_height_m"], ".4f"),
+                     fmt(dome["radius_m"], ".1f"), fmt(dome["t"], ".2f"), fmt(dome["critical"], ".2f"),
+                     fmt(dome["detectable_height_m"], ".4f"), "yes" if dome["found"] else "no"]],
+                   text_columns=0, flagged=[bool(dome["found"])], ident="diagnosis-dome")
+    page.paragraph(f"Tests at α = {d['alpha']:g} (the field's grids and statistics share it); a residual field is "
+                   f"found when it is significant and a zone's mean reaches the practical size; the dome is "
+                   f"dZ = a + b r² over the check points (James & Robson 2014).", "note")
+
+
 def _join(values) -> str:
     if isinstance(values, (list, tuple)):
         return ", ".join(fmt(v, ".4g") for v in values)
@@ -726,6 +760,8 @@ def render_report(results: ResultsFolder, title: str | None = None,
     _camera_change_section(page, results)
     heading("Summary", anchor="summary")
     _summary_section(page, s)
+    heading("Diagnosis: what the adjustment left systematic", anchor="diagnosis")
+    _diagnosis_section(page, s)
     heading("Image space: distortion and residuals", anchor="image-space")
     _image_space_section(page, files, results)
     heading("Object space: control and check points", anchor="control")
