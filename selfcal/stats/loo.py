@@ -69,6 +69,7 @@ class LeaveOneOut:
     critical_w: float
     method: str = "re-adjustment"   # how d was found (every point re-adjusted from the converged estimate)
     seconds: float | None = None    # what finding them took
+    linear_gap_m: float | None = None   # the largest difference of the linear downdate from the re-adjusted d
 
     def __len__(self) -> int:
         return len(self.point_id)
