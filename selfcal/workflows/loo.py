@@ -77,7 +77,7 @@ def control_loo(tested: TestedAdjustment, options: AdjustOptions) -> LeaveOneOut
         j = int(where[0])
         d[k] = other.state.points[j] - block.points.xyz_m[p]
         # the re-adjustment's own cofactor (the downdate's differs by the re-linearisation: 6e-4 of it at an edge)
-        cov[k] = some_point_cofactors(other.problem, other.linearisation, other.v_inv, other.Q_theta, [j])[0] + \
+        cov[k] = some_point_cofactors(other.problem, other.linearisation, other.v_inv, other.Q_theta, np.array([j]))[0] + \
             np.linalg.inv(control.W[k].T @ control.W[k])
     gap = np.abs(linear - d[:len(control.index)])
     linear_gap = float(np.nanmax(gap)) if np.isfinite(gap).any() else None
