@@ -175,3 +175,20 @@ def test_left_without_rays_passes_over_what_never_had_rays_and_what_is_named(blo
                         f"blunders, too few left to determine it; it no longer controls the block"]
     assert left_without_rays(block, after, rows, named=(name,)) == []
     assert left_without_rays(after, after, rows) == []
+
+
+def test_a_control_point_the_tests_check_instead_is_listed_with_its_own_error(block):
+    """A control point 0.15 m off in X (9 of its sigmas): the control group's test checks it instead; the
+    validation lists it as demoted with its error in that adjustment (about -0.15 m in X), the worst, failing."""
+    gcp = np.flatnonzero(block.points.role == "gcp")
+    p = int(gcp[5])
+    name = str(block.points.point_id[p])
+    xyz = block.points.xyz_m.copy()
+    xyz[p, 0] += 0.15
+    moved = adjust_block(replace(block, points=replace(block.points, xyz_m=xyz)), AdjustRequest(options=OPTIONS))
+    loo = moved.tested.loo
+    k = int(np.flatnonzero(loo.point_id == name)[0])
+    assert name in dict(moved.tested.control_demoted) and loo.role[k] == "demoted"
+    assert loo.worst() == k and loo.fails[k]
+    assert loo.d_m[k, 0] == pytest.approx(-0.15, abs=0.05)
+    assert len(loo) == len(gcp)
