@@ -25,7 +25,7 @@ from .schur import Linearisation
 from .problem import Problem
 from .kernels import add_point_image_products, point_blocks_times, point_cofactor_pairs
 
-__all__ = ["point_cofactors", "PointCofactors", "PointTerms", "image_blocks", "observation_columns", "lower_cholesky",
+__all__ = ["point_cofactors", "some_point_cofactors", "PointCofactors", "PointTerms", "image_blocks", "observation_columns", "lower_cholesky",
            "times_lower", "block_grams"]
 
 
@@ -120,6 +120,21 @@ def point_cofactors(problem: Problem, lin: Linearisation, v_inv: list, Q) -> np.
         ch, cs, Vi = chunk
         out[ch.points] = parts.chunk(ch, cs, Vi).Q_pp
     over_chunks(list(zip(lin.chunks, problem.structure().chunks, v_inv)), work, lambda: None)
+    return out
+
+
+def some_point_cofactors(problem: Problem, lin: Linearisation, v_inv: list, Q, points: np.ndarray) -> np.ndarray:
+    """The cofactor blocks (len(points), 3, 3) of the block's points ``points`` alone: the chunks that hold them
+    (:func:`point_cofactors` passes over all)."""
+    parts = PointCofactors(problem, Q)
+    points = np.asarray(points, np.int64)
+    out = np.full((len(points), 3, 3), np.nan)
+    for ch, cs, Vi in zip(lin.chunks, problem.structure().chunks, v_inv):
+        hit = np.flatnonzero(np.isin(points, ch.points))
+        if hit.size:
+            blocks = parts.chunk(ch, cs, Vi).Q_pp
+            where = {int(p): k for k, p in enumerate(ch.points)}
+            out[hit] = blocks[[where[int(points[k])] for k in hit]]
     return out
 
 

@@ -225,7 +225,8 @@ def run(args: argparse.Namespace) -> int:
             print(f"warning: {note}", file=sys.stderr)
     # what the robust cleaning and the control group's test found (images and control left out, the diagnosis)
     messages = (tested.cleaning.messages if tested.cleaning is not None else []) + \
-        [n for n in tested.result.notes if n.startswith("control point") and "fails the test" in n]
+        [n for n in tested.result.notes if n.startswith(("control point", "check point", "leave-one-out"))
+         and ("fails the" in n or "left without rays" in n or n.startswith("leave-one-out"))]
     for message in dict.fromkeys(messages):
         print(f"warning: {message}", file=sys.stderr)
     robust = s.get("robust")

@@ -28,7 +28,8 @@ from .exchange import check_points_geojson, object_points_ply
 
 __all__ = ["SCHEMA_VERSION", "ground_sample_distance", "model_choice_table", "summary", "camera_json", "image_table",
            "point_table", "residual_table", "screening_json", "correlation_table", "distortion_grid_table",
-           "trajectory_table", "parameter_table", "detector_line_table", "check_point_table", "result_files"]
+           "trajectory_table", "parameter_table", "detector_line_table", "check_point_table", "control_loo_table",
+           "result_files"]
 
 #: a CSV file of the results folder as data: header, columns (equal-length sequences), format of each column
 #: (:func:`selfcal.io.table.write_table`)
@@ -295,6 +296,18 @@ def check_point_table(checks: CheckPoints, axes: np.ndarray, centre: np.ndarray)
              e[:, 2]], ["", "", ".3f", ".3f", ".4f", ".4f", ".4f"])
 
 
+def control_loo_table(loo) -> CsvTable:
+    """control_loo.csv: each control point's leave-one-out error d = estimate without it - surveyed
+    (:class:`selfcal.stats.loo.LeaveOneOut`; along east, north, up for ECEF), its a-priori sigma, w = d / sigma,
+    the 3-D T = d^T C^-1 d, P(chi2(3) > T) and whether it fails the test (1) at the adjustment's significance."""
+    sigma, w = loo.sigma_m, loo.w
+    header = ["point_id", "role", "dX_m", "dY_m", "dZ_m", "sigma_X_m", "sigma_Y_m", "sigma_Z_m", "w_X", "w_Y", "w_Z",
+              "T_3d", "p", "fails"]
+    cols = [loo.point_id.astype(object), loo.role.astype(object), *loo.d_m.T, *sigma.T, *w.T, loo.t3, loo.p,
+            loo.fails.astype(int)]
+    return header, cols, ["", ""] + [".4f"] * 3 + [".5f"] * 3 + [".3f"] * 3 + [".3f", ".3g", "d"]
+
+
 def point_table(block: Block, result, tests=None) -> CsvTable:
     """points.csv: adjusted points with sigma; for control and check points d = adjusted - reference.
 
@@ -476,7 +489,8 @@ def result_files(block_read: Block, tested, summary_extra: dict | None = None, s
                     target_naif_code(result.block)),
                 "distortion_grid.csv": distortion_grid_table(result.block, result),
                 "detector_line.csv": detector_line_table(result),
-                "trajectory.csv": trajectory_table(result) if result.problem.trajectory else None}
+                "trajectory.csv": trajectory_table(result) if result.problem.trajectory else None,
+                "control_loo.csv": control_loo_table(tested.loo) if getattr(tested, "loo", None) is not None else None}
     if track is not None and checks is not None and len(checks):
         optional["check_points.csv"] = check_point_table(checks, track[1], track[0])
     for slot in result.problem.sensors:

@@ -415,6 +415,28 @@ def _control_section(page: Page, files: dict, results) -> None:
                    f"included); control points when Baarda's w of a coordinate exceeds {critical:g}.", "note")
 
 
+def _control_loo_section(page: Page, results) -> None:
+    """control_loo.csv as a table: each control point's error when it is left out of the control (issue 40)."""
+    loo = results.tables.get("control_loo")
+    if loo is None or not len(loo["point_id"]):
+        return
+    s = results.summary.get("control_loo") or {}
+    fails = np.asarray(loo["fails"]) == 1
+    rows = [[loo["point_id"][i], loo["role"][i], fmt(loo["dX_m"][i]), fmt(loo["dY_m"][i]), fmt(loo["dZ_m"][i]),
+             fmt(loo["sigma_X_m"][i]), fmt(loo["sigma_Y_m"][i]), fmt(loo["sigma_Z_m"][i]),
+             fmt(loo["w_X"][i], ".2f"), fmt(loo["w_Y"][i], ".2f"), fmt(loo["w_Z"][i], ".2f"),
+             fmt(loo["T_3d"][i], ".1f"), fmt(loo["p"][i], ".3g"), "⚑" if fails[i] else ""]
+            for i in range(len(loo["point_id"]))]
+    page.table(["point", "role", "dX [m]", "dY [m]", "dZ [m]", "σX [m]", "σY [m]", "σZ [m]", "w_X", "w_Y", "w_Z",
+                "T", "p", "flag"], rows, text_columns=2, flagged=list(fails), ident="control-loo")
+    page.paragraph("Leave-one-out: each control point left out of the control in turn, the block re-adjusted "
+                   "without it; d = its estimate then − its surveyed coordinates, σ the a-priori standard deviation "
+                   "of d (the estimate's and the survey's), w = d / σ, T = dᵀ C⁻¹ d ~ χ²(3) where the coordinates "
+                   f"fit; flagged where T exceeds {fmt(s.get('critical_t3'), '.1f')} (the significance of the "
+                   "w-test). Role 'demoted': checked instead by the tests, its error is the adjustment's own.",
+                   "note")
+
+
 def _precision_section(page: Page, files: dict, results) -> None:
     pts = results.tables["points"]
     tie = pts["role"] == "tie"
@@ -766,6 +788,7 @@ def render_report(results: ResultsFolder, title: str | None = None,
     _image_space_section(page, files, results)
     heading("Object space: control and check points", anchor="control")
     _control_section(page, files, results)
+    _control_loo_section(page, results)
     heading("Precision and correlations", anchor="precision")
     _precision_section(page, files, results)
     _correlation_section(page, files, results)

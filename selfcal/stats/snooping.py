@@ -74,3 +74,28 @@ def reject_candidates(block: Block, w: np.ndarray, critical: float, mode: str) -
     first = np.ones(order.size, bool)
     first[1:] = pts[order][1:] != pts[order][:-1]
     return above[order[first]]
+
+
+#: the fewest rays that determine a point of each role (:func:`selfcal.block.prune`)
+_RAYS_NEEDED = {"gcp": 1, "chk": 2}
+
+
+def left_without_rays(before: Block, after: Block, rejected_rows: np.ndarray, named=()) -> list[str]:
+    """One warning per control or check point of ``before`` that had the rays to take part and is not in ``after``
+    (their rejection by data snooping or the robust cleaning, ``rejected_rows``, left too few, or their images went),
+    naming it; points in ``named`` (already warned about) are passed over."""
+    rays = np.bincount(before.observations.point_index, minlength=len(before.points))
+    kept = set(after.points.point_id.tolist())
+    messages = []
+    for p in np.flatnonzero(np.isin(before.points.role, list(_RAYS_NEEDED))):
+        name, role = str(before.points.point_id[p]), str(before.points.role[p])
+        if rays[p] < _RAYS_NEEDED[role] or name in kept or name in named:
+            continue
+        rows = before.observations.row[before.observations.point_index == p]
+        n_rejected = int(np.isin(rows, rejected_rows).sum())
+        why = (f"{n_rejected} of its {len(rows)} rays rejected as blunders" if n_rejected else
+               f"its images left out ({len(rows)} rays)")
+        messages.append(f"{'control' if role == 'gcp' else 'check'} point '{name}' left without rays: {why}, too few "
+                        f"left to determine it; it "
+                        + ("no longer controls the block" if role == "gcp" else "is not checked"))
+    return messages

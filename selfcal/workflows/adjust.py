@@ -27,6 +27,7 @@ from ..stats import checks as check_points
 from ..stats.plausibility import collapse
 from . import seed001
 from .frames import object_frame_block
+from .loo import control_loo, loo_notes, loo_summary
 from .model_choice import ModelChoice, choose_ap_model
 from .tested import TestedAdjustment, adjust_with_tests
 
@@ -50,6 +51,8 @@ class AdjustRequest:
     n_gcp: int | None = None
     keep_focal: bool = False
     height: object = None                   # terrain for mono restitution: a DEM callable or metres
+    # validate the control point by point, each left out in turn (frame and BAL blocks; :mod:`.loo`)
+    control_loo: bool = True
 
 
 @dataclass
@@ -179,8 +182,13 @@ def _adjust_block(block: Block, request: AdjustRequest, progress: Callable | Non
     tested = adjust_with_tests(block, options, request.snooping, request.screening, progress=progress,
                                report=report, variance=request.variance, robust=request.robust)
     _check_collapse(tested)
-    return Adjusted(tested, block, check_points.intersected(tested.result), _check_points_determined(block, tested),
-                    choice=choice)
+    extra = _check_points_determined(block, tested)
+    if request.control_loo and tested.result.converged and not tested.failure:
+        tested.loo = control_loo(tested, options)
+        if tested.loo is not None:
+            extra["control_loo"] = loo_summary(tested.loo)
+            tested.result.notes.extend(loo_notes(tested.loo))
+    return Adjusted(tested, block, check_points.intersected(tested.result), extra, choice=choice)
 
 
 def _check_control_axes(block: Block) -> None:

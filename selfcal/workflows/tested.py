@@ -28,7 +28,8 @@ from ..block import Block, prune
 from ..stats.cleaning import Cleaning, clean, readmissible
 from ..stats.reliability import ObservationTests, observation_tests
 from ..stats.screening import ScreeningDecision, ScreeningOptions, ScreeningRound, screen_once, screening_masks
-from ..stats.snooping import SnoopingOptions, SnoopingRound, image_w, reject_candidates
+from ..stats.loo import LeaveOneOut
+from ..stats.snooping import SnoopingOptions, SnoopingRound, image_w, left_without_rays, reject_candidates
 from ..stats.variance import VarianceComponent, VarianceOptions, estimate_variance_components
 
 __all__ = ["TestedAdjustment", "adjust_with_tests", "MAX_REJECTED_SHARE", "prune_for"]
@@ -77,6 +78,7 @@ class TestedAdjustment:
     failure: str = ""                                # why the tests stopped short, if they did
     cleaning: Cleaning | None = None                 # the robust cleaning before the tests, if there was one
     control_demoted: list[tuple[str, float]] = field(default_factory=list)   # (point id, |w|) checked instead
+    loo: LeaveOneOut | None = None                   # the control's leave-one-out validation (workflows.loo)
 
     @property
     def robust_rows(self) -> np.ndarray:
@@ -108,6 +110,7 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
     then those of the reweighted block. ``ap_models`` (camera id -> APModel)
     replaces the models built from ``options.ap``.
     """
+    given = block
     snoop = snooping if snooping is not None and snooping.critical > 0 else None     # None: no snooping
     critical = snoop.critical if snoop is not None else 3.0
     max_rounds = max(snoop.max_rounds if snoop is not None else 0, screening.max_rounds if screening else 0)
@@ -252,7 +255,8 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
         result, tests, components, converged = estimate_variance_components(
             result.block, options, variance, start=result, free=free, ap_models=models, critical=critical,
             progress=progress)
-    result.notes[:0] = control_notes
+    result.notes[:0] = control_notes + left_without_rays(
+        given, result.block, rejected, () if cleaning is None else cleaning.control_lost)
     if cleaning is not None:
         result.notes[:0] = cleaning.messages
     order = np.argsort(rejected)
