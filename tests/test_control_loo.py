@@ -192,3 +192,19 @@ def test_a_control_point_the_tests_check_instead_is_listed_with_its_own_error(bl
     assert loo.worst() == k and loo.fails[k]
     assert loo.d_m[k, 0] == pytest.approx(-0.15, abs=0.05)
     assert len(loo) == len(gcp)
+
+
+def test_no_control_loo_leaves_the_check_out(block, tmp_path):
+    """``--no-control-loo`` (and ``bundle_adjust(control_loo=False)``): no control_loo.csv, no summary key; by
+    default both are written."""
+    from selfcal.io.block_folder import write_block
+    from selfcal.workflows.api import bundle_adjust
+    from conftest import run_cli
+    write_block(block, tmp_path / "block")
+    assert run_cli("adjust", str(tmp_path / "block"), "--out", str(tmp_path / "off"), "--ap", "none", "--no-report",
+                   "--quiet", "--no-control-loo") == 0
+    assert not (tmp_path / "off" / "control_loo.csv").exists()
+    assert run_cli("adjust", str(tmp_path / "block"), "--out", str(tmp_path / "on"), "--ap", "none", "--no-report",
+                   "--quiet") == 0
+    assert (tmp_path / "on" / "control_loo.csv").exists()
+    assert "control_loo.csv" not in bundle_adjust(block, "none", control_loo=False).files
