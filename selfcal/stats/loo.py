@@ -37,6 +37,16 @@ def critical_t3(critical_w: float) -> float:
     return float(chi2.isf(alpha, 3))
 
 
+def fully_controlled(W: np.ndarray) -> np.ndarray:
+    """(n,) bool: control points whose whitening ``W`` (n, 3, 3) is finite and of full rank, i.e. controlled on
+    all three axes (not a plan-only point, a radius-only ISIS constraint or a held point)."""
+    W = np.asarray(W, float)
+    ok = np.isfinite(W).all(axis=(1, 2))
+    s = np.zeros((len(W), 3))
+    s[ok] = np.linalg.svd(W[ok], compute_uv=False)
+    return ok & (s[:, 2] > 1e-9 * np.maximum(s[:, 0], 1e-300))
+
+
 def downdate(W: np.ndarray, Q_pp: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The linear leave-one-out prediction of control points (module docstring): ``W`` (n, 3, 3) their whitening
     (W^T W = C^-1), ``Q_pp`` (n, 3, 3) their cofactors in the adjustment with them, ``v`` (n, 3) X_hat - X in
@@ -47,8 +57,9 @@ def downdate(W: np.ndarray, Q_pp: np.ndarray, v: np.ndarray) -> tuple[np.ndarray
     Q_vv = np.eye(3) - np.einsum("nij,njk,nlk->nil", W, Q_pp, W)
     d = np.full((n, 3), np.nan)
     cov = np.full((n, 3, 3), np.nan)
+    whole = fully_controlled(W)
     for k in range(n):
-        if np.linalg.eigvalsh(0.5 * (Q_vv[k] + Q_vv[k].T)).min() <= 1e-12:
+        if not whole[k] or np.linalg.eigvalsh(0.5 * (Q_vv[k] + Q_vv[k].T)).min() <= 1e-12:
             continue
         W_inv = np.linalg.inv(W[k])
         Q_inv = np.linalg.inv(Q_vv[k])
@@ -77,7 +88,8 @@ class LeaveOneOut:
     @property
     def sigma_m(self) -> np.ndarray:
         """(n, 3) the a-priori sigma of d per axis."""
-        return np.sqrt(np.einsum("nii->ni", self.cov_m2))
+        var = np.einsum("nii->ni", self.cov_m2)
+        return np.sqrt(np.where(var > 0, var, np.nan))
 
     @property
     def w(self) -> np.ndarray:

@@ -24,7 +24,7 @@ from ..adjust.covariance import some_point_cofactors
 from ..adjust.residuals.control import control_weights
 from ..errors import AdjustmentError
 from ..stats.checks import local_axes
-from ..stats.loo import LeaveOneOut, downdate
+from ..stats.loo import LeaveOneOut, downdate, fully_controlled
 from .tested import TestedAdjustment
 
 __all__ = ["control_loo", "loo_notes", "loo_summary", "MIN_CONTROL_LOO"]
@@ -60,10 +60,13 @@ def control_loo(tested: TestedAdjustment, options: AdjustOptions) -> LeaveOneOut
     # the linear prediction, to say how far it is from the re-adjustments (summary.json)
     linear, _ = downdate(control.W, result.Q_points[control.index], result.state.points[control.index] - control.xyz)
     names, roles = [], []
+    whole = fully_controlled(control.W)
     for k, p in enumerate(control.index):
         name = str(block.points.point_id[p])
         names.append(name)
         roles.append("gcp")
+        if not whole[k]:
+            continue                        # (controlled on fewer than three axes: no 3-D test; left undetermined)
         role = np.asarray(block.points.role).copy()
         role[p] = "chk"
         without = replace(block, points=replace(block.points, role=role))
@@ -79,6 +82,8 @@ def control_loo(tested: TestedAdjustment, options: AdjustOptions) -> LeaveOneOut
         # the re-adjustment's own cofactor (the downdate's differs by the re-linearisation: 6e-4 of it at an edge)
         cov[k] = some_point_cofactors(other.problem, other.linearisation, other.v_inv, other.Q_theta, np.array([j]))[0] + \
             np.linalg.inv(control.W[k].T @ control.W[k])
+        if np.linalg.eigvalsh(0.5 * (cov[k] + cov[k].T)).min() <= 0:
+            d[k], cov[k] = np.nan, np.nan   # (a cofactor that is not positive: not determined)
     gap = np.abs(linear - d[:len(control.index)])
     linear_gap = float(np.nanmax(gap)) if np.isfinite(gap).any() else None
     if demoted_index:
@@ -86,6 +91,8 @@ def control_loo(tested: TestedAdjustment, options: AdjustOptions) -> LeaveOneOut
         for k, p in enumerate(demoted_index, start=len(control.index)):
             names.append(str(block.points.point_id[p]))
             roles.append("demoted")
+            if not fully_controlled(W[k - len(control.index):k - len(control.index) + 1])[0]:
+                continue
             C = np.linalg.inv(W[k - len(control.index)].T @ W[k - len(control.index)])
             d[k] = result.state.points[p] - block.points.xyz_m[p]
             cov[k] = result.Q_points[p] + C
