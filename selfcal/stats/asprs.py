@@ -14,7 +14,7 @@ in the product accuracy, at least 30 checkpoints instead of 20, the new three-di
 * the product's: RMSE_H = sqrt(RMSE_H,measured² + RMSE_H,survey²), RMSE_V likewise;
 * RMSE_3D = sqrt(RMSE_H² + RMSE_V²);
 * the class: Edition 2 names a class by the RMSE it allows, "#-cm" (its horizontal and vertical accuracy class
-  tables, Tables 7.1 and 7.2, leave # open); the result meets the smallest class of :data:`CLASSES_CM` at or above
+  tables, Tables 7.1 and 7.2 as recalled, not checked against the text here, leave # open); the result meets the smallest class of :data:`CLASSES_CM` at or above
   its RMSE (beyond the list: its RMSE rounded up to a whole centimetre);
 * fewer than :data:`MIN_CHECKPOINTS` check points: the figures are given with a warning that they are no
   statement under the standard.
