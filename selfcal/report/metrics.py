@@ -22,6 +22,8 @@ from ..block import Block, FrameCamera
 from ..ap import frame_nodes_mm, takes_grid
 from ..sensors.frame import pixel_from_photo
 from ..stats.accuracy import ce90, le90
+from ..stats.asprs import accuracy_statement
+from ..stats.quality import quality_checks, worst_status
 from ..stats.checks import CheckPoints, check_point_sigmas_m, intersected
 from ..stats.correlation import max_abs_correlation_by_group
 from .exchange import check_points_geojson, object_points_ply
@@ -124,6 +126,7 @@ def summary(tested, extra: dict | None = None, checks=None) -> dict:
         "rmsd_chk_z_gsd": gsd_of(rmsd_z),
         "ce90_chk_m": ce90(d_chk[:, :2]),
         "le90_chk_m": le90(d_chk[:, 2]),
+        "accuracy": accuracy_statement(d_chk, survey_sigmas_m(checks, block)).as_dict(),
         "check_method": checks.method,
         "rms_gcp_residual_xy_m": _rms(np.sum(d_gcp[:, :2] ** 2, axis=1)),
         "rms_gcp_residual_z_m": _rms(d_gcp[:, 2] ** 2),
@@ -158,9 +161,75 @@ def summary(tested, extra: dict | None = None, checks=None) -> dict:
         "seconds": result.seconds,
         "diagnosis": diagnosis(tested, checks),
     }
+    out["quality_check"] = quality_check(tested, d_gcp, pts.sigma_m[gcp], pts.point_id[gcp])
     if extra:
         out.update(extra)
     return out
+
+
+def survey_sigmas_m(checks: CheckPoints, block: Block) -> np.ndarray:
+    """The check points' own survey sigmas (n, 3), m, from the block's points (NaN where a point has none or is
+    not in ``block``): along the axes their errors are given in (a block's X, Y, Z; east, north, up for ECEF, as
+    the control weights read them)."""
+    row = {pid: k for k, pid in enumerate(block.points.point_id)}
+    out = np.full((len(checks), 3), np.nan)
+    for i, pid in enumerate(checks.point_id):
+        if pid in row:
+            out[i] = block.points.sigma_m[row[pid]]
+    return out
+
+
+def quality_check(tested, d_gcp: np.ndarray, sigma_gcp: np.ndarray, gcp_ids: np.ndarray) -> dict:
+    """summary.json ``quality_check`` (:mod:`selfcal.stats.quality`): the figures of the checks gathered from the
+    adjustment, ``d_gcp`` the control residuals (n, 3) along the axes of their sigmas ``sigma_gcp``."""
+    result = tested.result
+    block = result.block
+    obs = block.observations
+    per_image = np.bincount(obs.image_index, minlength=len(block.images))
+    per_point = np.bincount(obs.point_index, minlength=len(block.points))
+    n_rejected = int(len(tested.rejected_rows))
+    table = result.parameters()
+    focal = np.flatnonzero((table.kind == "core") & (table.name == "c") & (table.start != 0))
+    focal_change = None
+    if focal.size:
+        change = np.abs(table.value[focal] - table.start[focal]) / np.abs(table.start[focal])
+        k = int(np.nanargmax(change))
+        focal_change = (float(change[k]), f"camera {table.owner[focal[k]]}")
+    weighted = np.isfinite(sigma_gcp) & (sigma_gcp > 0)
+    gcp_ratio = None
+    if weighted.any():
+        ratio = np.where(weighted, np.abs(d_gcp) / np.where(weighted, sigma_gcp, 1.0), -1.0)
+        i, a = np.unravel_index(int(np.argmax(ratio)), ratio.shape)
+        gcp_ratio = (float(ratio[i, a]), f"point {gcp_ids[i]}, axis {'XYZ'[a]}")
+    checks = quality_checks(
+        n_images=int(len(block.images) + block.dropped.images_too_few_points),
+        n_images_oriented=int(np.count_nonzero(per_image)), points_per_image=per_image[per_image > 0],
+        rays_per_point=per_point[block.points.role == "tie"], focal_change=focal_change,
+        sigma0_ratio=float(np.sqrt(result.variance_factor)) if np.isfinite(result.variance_factor) else None,
+        n_rejected=n_rejected, n_observations=int(len(obs)) + n_rejected, gcp_ratio=gcp_ratio,
+        camera_correlation=_camera_correlation(result, table))
+    return {"status": worst_status(checks), "checks": {c.key: c.as_dict() for c in checks}}
+
+
+def _camera_correlation(result, table) -> tuple[float, str] | None:
+    """The largest |rho| of an estimated camera parameter (core, AP) with any other estimated unknown, and the
+    two names; None where no camera parameter is estimated."""
+    free = table.free & (table.index >= 0)
+    camera = np.flatnonzero(free & np.isin(table.kind, ("core", "ap")))
+    if camera.size == 0:
+        return None
+    others = np.flatnonzero(free)
+    rows, cols = table.index[camera].astype(np.int64), table.index[others].astype(np.int64)
+    Q = result.Q_theta
+    d = np.sqrt(np.maximum(Q.diagonal(), 0.0))
+    block = np.asarray(Q[np.ix_(rows, cols)], float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rho = np.abs(block / d[rows][:, None] / d[cols][None, :])
+    rho[rows[:, None] == cols[None, :]] = 0.0
+    rho = np.nan_to_num(rho, nan=0.0, posinf=0.0)
+    i, j = np.unravel_index(int(np.argmax(rho)), rho.shape)
+    labels = table.labels()
+    return float(min(rho[i, j], 1.0)), f"{labels[camera[i]]} with {labels[others[j]]}"
 
 
 def _object_frame(result) -> str:

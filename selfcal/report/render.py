@@ -92,6 +92,72 @@ def _summary_section(page: Page, s: dict) -> None:
                  f"<table><thead><tr>{head}</tr></thead><tbody><tr>{corr_cells}</tr></tbody></table>")
 
 
+#: the colour of a quality check's status
+_STATUS_STYLE = {"pass": "color:#176b1a", "warn": "color:#9a6700", "fail": "color:#b00;font-weight:bold", "n/a": ""}
+
+
+def _quality_section(page: Page, s: dict) -> None:
+    """summary.json ``quality_check``: each check with its value, threshold and status (selfcal.stats.quality)."""
+    quality = s.get("quality_check")
+    if not quality:
+        page.paragraph("This results folder has no quality check (summary.json has no 'quality_check': written by "
+                       "an older selfcal).", "note")
+        return
+    rows = []
+    for key, c in (quality.get("checks") or {}).items():
+        name = f"quality_check.checks.{key}"
+        shown = str(c.get("shown", ""))
+        status = str(c.get("status", ""))
+        # the value as summary.json shows it ("0.9 % (57 of 6087)"; the number itself is its "value")
+        rows.append(f'<tr><td class="text">{html.escape(str(c.get("check", key)))}</td>'
+                    f'<td data-summary="{html.escape(name)}.shown" data-value="{html.escape(repr(shown))}">'
+                    f'{html.escape(shown)}</td>'
+                    f'<td class="text">{html.escape(str(c.get("threshold", "")))}</td>'
+                    f'<td class="text" data-summary="{html.escape(name)}.status" data-value="{html.escape(repr(status))}"'
+                    f' style="{_STATUS_STYLE.get(status, "")}">{html.escape(status)}</td>'
+                    f'<td class="text">{html.escape(str(c.get("detail", "")))}</td></tr>')
+    page.add('<table id="quality-check"><thead><tr><th class="text">check</th><th>value</th>'
+             '<th class="text">threshold</th><th class="text">status</th><th class="text"></th></tr></thead>'
+             f'<tbody>{"".join(rows)}</tbody></table>')
+    page.paragraph(f"Overall: {quality.get('status', '–')} (the worst check). Each check is computed from this "
+                   "adjustment's results; the thresholds and their reasons are in selfcal.stats.quality.", "note")
+
+
+#: the rows of the accuracy statement: a label and the keys of summary.json ``accuracy`` (horizontal, vertical,
+#: 3-D; None: no figure)
+_ACCURACY_ROWS = [
+    ("RMSE measured at the check points [m]", ("rmse_h_measured_m", "rmse_v_measured_m", None), ".4f"),
+    ("RMSE of the check points' survey (their σ) [m]", ("rmse_h_survey_m", "rmse_v_survey_m", None), ".4f"),
+    ("RMSE of the product, survey included [m]", ("rmse_h_m", "rmse_v_m", "rmse_3d_m"), ".4f"),
+    ("accuracy class met [cm]", ("horizontal_class_cm", "vertical_class_cm", None), "g"),
+]
+
+
+def _accuracy_section(page: Page, s: dict) -> None:
+    """summary.json ``accuracy``: ASPRS Edition 2's RMSE_H, RMSE_V, RMSE_3D with the check points' survey error
+    included, and the classes met (selfcal.stats.asprs)."""
+    a = s.get("accuracy")
+    if not a:
+        page.paragraph("This results folder has no accuracy statement (summary.json has no 'accuracy': written by "
+                       "an older selfcal).", "note")
+        return
+    rows = []
+    for label, keys, spec in _ACCURACY_ROWS:
+        cells = "".join(summary_cell(s, f"accuracy.{k}", spec) if k else "<td>–</td>" for k in keys)
+        rows.append(f'<tr><td class="text">{html.escape(label)}</td>{cells}</tr>')
+    page.add('<table id="accuracy"><thead><tr><th class="text"></th><th>horizontal (H)</th><th>vertical (V)</th>'
+             f'<th>3-D</th></tr></thead><tbody>{"".join(rows)}</tbody></table>')
+    page.paragraph(
+        f"{a.get('standard', 'ASPRS Edition 2')}, from {a.get('n_checkpoints')} check points "
+        f"({a.get('n_survey_sigma')} with a survey σ): RMSE_H = sqrt(RMSE_x² + RMSE_y²) (RMSE_x "
+        f"{fmt(a.get('rmse_x_m'))} m, RMSE_y {fmt(a.get('rmse_y_m'))} m), RMSE_V = sqrt(mean dZ²); the product's "
+        "RMSE = sqrt(measured² + survey²), the survey's from the check points' a-priori σ (RMS); RMSE_3D = "
+        "sqrt(RMSE_H² + RMSE_V²). A result meets the smallest '#-cm' class at or above its RMSE (classes of "
+        "selfcal.stats.asprs.CLASSES_CM). CE90 / LE90 (Edition 1) stay in the summary above.", "note")
+    for warning in a.get("warnings") or []:
+        page.add(f'<p class="bad">{html.escape(str(warning))}</p>')
+
+
 def images_per_point(results) -> dict[str, int]:
     """How many images observe each point in the final adjustment: the distinct images of its observations in
     residuals.csv that were not rejected (and have a residual). Points without one are absent."""
@@ -774,6 +840,8 @@ def render_report(results: ResultsFolder, title: str | None = None,
     page.add(f'<p class="lede">{html.escape(status)} ({html.escape(str(s.get("convergence", "")))}); '
              f"{html.escape(_scenario_text(s))}every number below comes from summary.json, camera.json and the "
              "CSV tables beside this page.</p>")
+    heading("Quality check", anchor="quality")
+    _quality_section(page, s)
     heading("Camera layout and overlap", anchor="layout")
     _layout_section(page, files, results)
     heading("Processing parameters", anchor="processing")
@@ -782,6 +850,8 @@ def render_report(results: ResultsFolder, title: str | None = None,
     _camera_change_section(page, results)
     heading("Summary", anchor="summary")
     _summary_section(page, s)
+    heading("Accuracy statement (ASPRS Edition 2)", anchor="accuracy")
+    _accuracy_section(page, s)
     heading("Diagnosis: what the adjustment left systematic", anchor="diagnosis")
     _diagnosis_section(page, s)
     heading("Image space: distortion and residuals", anchor="image-space")
