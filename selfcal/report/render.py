@@ -67,6 +67,9 @@ _SUMMARY_ROWS = [
 def _figure_files(fig, stem: str) -> tuple[dict, bytes]:
     png, svg = io.BytesIO(), io.BytesIO()
     fig.savefig(png, format="png", dpi=FIGURE_DPI)
+    # the layout the PNG was drawn with, kept for the SVG: the constrained layout solved once, not twice (it is
+    # half the time of a figure's two copies)
+    fig.set_layout_engine("none")
     fig.savefig(svg, format="svg", metadata={"Date": None})
     return {f"figures/{stem}.png": png.getvalue(), f"figures/{stem}.svg": svg.getvalue()}, png.getvalue()
 
