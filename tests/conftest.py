@@ -65,3 +65,13 @@ def selfcal_exe():
     exe = os.path.join(os.path.dirname(sys.executable), "selfcal")
     assert os.path.exists(exe), "the selfcal console script is not installed in the test environment"
     return exe
+
+
+#: tests of a minute or more: started first, so that the two workers do not end with one of them alone on a long
+#: test (pytest-xdist hands the tests out in their order)
+LONG_TESTS = ("test_readme_block_runs_as_written", "test_two_hundred_signals", "test_snooping_with_waps",
+              "test_example_runs_as_written")
+
+
+def pytest_collection_modifyitems(config, items):
+    items.sort(key=lambda item: not item.name.startswith(LONG_TESTS))
