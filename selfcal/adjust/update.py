@@ -1,7 +1,8 @@
 """The start of a re-adjustment: the previous normal equations with the left-out observations taken out.
 
 Data snooping and screening re-adjust a block after leaving out a few observations and holding a few
-parameters. At the previous estimate x the previous gradient vanishes, so the new problem's gradient is
+parameters; the leave-one-out check of the control after turning a control point into a check point (its three
+control rows leave, like left-out observations, only its own point block). At the previous estimate x the previous gradient vanishes, so the new problem's gradient is
 only what the left-out observations R contributed, with the opposite sign (whitened: g = -J_R^T r_R), and its
 normal matrix is the previous one minus J_R^T J_R. Holding parameters H at their new values moves them by a
 known d_H, which enters the other equations through the normal matrix's columns H. One solve of this
@@ -105,17 +106,35 @@ def downdated_start(previous, problem: Problem, block, free_network: bool = Fals
         return None
     if np.any(old.obs_weight != 1.0) or np.any(old.control.weight != 1.0):
         return None                         # a robust adjustment's rows were re-weighted
-    if not np.array_equal(old_block.points.point_id[old.control_index], block.points.point_id[problem.control_index]):
-        return None                         # a control point became a check point
+    dropped = _dropped_control(old, old_block, problem, block)
+    if dropped is None:
+        return None                         # a check point became a control point, or a survey sigma changed
     left = np.ones(old.n_image_observations, bool)
     left[kept] = False
     removed = np.flatnonzero(left)
-    if removed.size == 0 and held[0].size == 0:
+    if removed.size == 0 and held[0].size == 0 and dropped.size == 0:
         return None
     try:
-        return _step(previous, S, removed, held, free_network)
+        return _step(previous, S, removed, held, free_network, dropped)
     except (SingularPoints, SingularSystem, np.linalg.LinAlgError):
         return None
+
+
+def _dropped_control(old: Problem, old_block, problem: Problem, block) -> np.ndarray | None:
+    """The previous problem's control points (positions in its control block) that ``problem`` no longer holds
+    as control (their role now ``chk``: the leave-one-out check of the control); None unless every control point
+    of ``problem`` was one before, with the same survey weights."""
+    old_ids = np.asarray(old_block.points.point_id)[old.control_index]
+    new_ids = np.asarray(block.points.point_id)[problem.control_index]
+    if np.array_equal(old_ids, new_ids):
+        return np.zeros(0, np.int64)
+    where = {name: k for k, name in enumerate(old_ids)}
+    if any(name not in where for name in new_ids):
+        return None
+    positions = np.array([where[name] for name in new_ids], np.int64)
+    if not np.allclose(old.control.W[positions], problem.control.W) or np.any(np.diff(positions) <= 0):
+        return None
+    return np.setdiff1d(np.arange(len(old_ids)), positions)
 
 
 def _point_columns(old: Problem, lin, obs: np.ndarray, block_of: np.ndarray, L: np.ndarray, W_d: np.ndarray | None,
@@ -185,7 +204,8 @@ def intersect_points(problem: Problem, state: State, points: np.ndarray, obs: np
             return
 
 
-def _step(previous, S_old: np.ndarray, removed: np.ndarray, held, free_network: bool):
+def _step(previous, S_old: np.ndarray, removed: np.ndarray, held, free_network: bool,
+          dropped: np.ndarray = np.zeros(0, np.int64)):
     old, state, lin = previous.problem, previous.state, previous.linearisation
     n_e, n_d, width = old.n_e, old.n_d, old.image_width
     # points that keep fewer than two rays leave the problem: all their observations go
@@ -193,7 +213,10 @@ def _step(previous, S_old: np.ndarray, removed: np.ndarray, held, free_network: 
                                                                             minlength=old.n_points)
     gone = rays < 2
     if np.any(gone[old.control_index]):
-        return None
+        return None                         # (a control point left out of the control keeps two rays too)
+    # the control coordinates left out: their rows (point blocks only), at the estimate
+    dropped_points = old.control_index[dropped]
+    r_c, J_c = old.control.rows(state.points[dropped_points], dropped)
     removed = np.union1d(removed, np.flatnonzero(gone[old.obs_point]))
     r, j_e, j_p, j_d = observation_rows(old, state, removed)
     point = old.obs_point[removed]
@@ -206,7 +229,7 @@ def _step(previous, S_old: np.ndarray, removed: np.ndarray, held, free_network: 
     g = -(J.T @ r.ravel())
     S = S_old - J.T @ J
     # the points the left-out rows touch: their part of the reduced matrix before and after
-    touched = np.unique(point)
+    touched = np.unique(np.concatenate([point, dropped_points]))
     n_t = len(touched)
     at = old.point_positions()[touched]                                # their positions in the problem's order
     counts = old.point_start[at + 1] - old.point_start[at]
@@ -220,6 +243,9 @@ def _step(previous, S_old: np.ndarray, removed: np.ndarray, held, free_network: 
     np.subtract.at(V_new, position, np.einsum("oki,okj->oij", j_p, j_p))
     g_p = np.zeros((n_t, 3))
     np.subtract.at(g_p, position, np.einsum("oki,ok->oi", j_p, r))
+    at_control = np.searchsorted(touched, dropped_points)
+    np.subtract.at(V_new, at_control, np.einsum("nki,nkj->nij", J_c, J_c))
+    np.subtract.at(g_p, at_control, np.einsum("nki,nk->ni", J_c, r_c))
     stays = ~gone[touched]
     V_new[~stays] = np.eye(3)                 # a point that leaves: no rays, no correction
     L_old = np.linalg.cholesky(Vi_old)
@@ -267,10 +293,12 @@ def _step(previous, S_old: np.ndarray, removed: np.ndarray, held, free_network: 
         d_held = np.zeros(old.n_theta)
         d_held[index] = move
         state = old.apply(state, d_held, np.zeros_like(state.points))
-        plain = evaluate_cost(old, state) - 0.5 * float(np.sum(observation_rows(old, state, removed)[0] ** 2))
+        plain = (evaluate_cost(old, state) - 0.5 * float(np.sum(observation_rows(old, state, removed)[0] ** 2))
+                 - 0.5 * float(np.sum(old.control.rows(state.points[dropped_points], dropped)[0] ** 2)))
     else:
-        plain = previous.cost - 0.5 * float(np.sum(r * r))
-    new = evaluate_cost(old, predicted) - 0.5 * float(np.sum(observation_rows(old, predicted, removed)[0] ** 2))
+        plain = previous.cost - 0.5 * float(np.sum(r * r)) - 0.5 * float(np.sum(r_c * r_c))
+    new = (evaluate_cost(old, predicted) - 0.5 * float(np.sum(observation_rows(old, predicted, removed)[0] ** 2))
+           - 0.5 * float(np.sum(old.control.rows(predicted.points[dropped_points], dropped)[0] ** 2)))
     if not new < plain:
         return None
     return SimpleNamespace(block=previous.block, problem=old, state=predicted)

@@ -5,9 +5,11 @@ of the control in turn, the block re-adjusted without it, its error against its 
 What is re-run, per control point: the tested adjustment's block as it ended (its rejections made, its AP set
 as the screening left it, the AP basis kept), with that point a check point, adjusted from the converged
 estimate with the caller's options: no robust loss, no data snooping, no screening. The estimate moves by the
-datum's share of that one point; two Gauss-Newton iterations converge it (seed 000's block: to 3e-8 m of a
-re-adjustment converged to 1e-7 of a sigma). A linear rank-3 downdate costs nothing but misses by the
-re-linearisation's 2e-5 m there (:func:`selfcal.stats.loo.downdate`), beyond the 1e-6 m asked for.
+datum's share of that one point; the engine starts from the downdated estimate
+(:func:`selfcal.adjust.update.downdated_start`: the point's control rows taken out of the normal equations) and
+one Gauss-Newton iteration converges it (seed 000's block: within 5e-8 m of a re-adjustment converged to 1e-9 of
+a sigma). The linear rank-3 downdate alone costs nothing but misses by the re-linearisation's 2e-5 to 1.6e-4 m
+(:func:`selfcal.stats.loo.downdate`), beyond the 1e-6 m asked for.
 
 A control point the tests (or the robust cleaning) already checked instead is left out of this adjustment: its
 error is the adjustment's own (role ``demoted``).
