@@ -203,3 +203,25 @@ def test_row_positions_finds_each_kept_observation_or_declines():
     assert row_positions(np.array([4, 2, 3]), np.array([-1])) is None
     assert row_positions(np.zeros(0, np.int64), np.array([1])) is None
     assert row_positions(np.array([4]), np.zeros(0, np.int64)).size == 0
+
+
+def test_a_control_point_turned_check_point_starts_from_its_downdate(previous, monkeypatch):
+    """The leave-one-out check of the control (selfcal.workflows.loo): a control point becomes a check point; the
+    downdated start takes its control rows out of its point block, and the re-adjustment from there converges
+    in one iteration, where one from the previous estimate needs two, to the same estimate."""
+    block = previous.block
+    gcp = np.flatnonzero(block.points.role == "gcp")
+    role = np.asarray(block.points.role).copy()
+    role[gcp[len(gcp) // 2]] = "chk"
+    without = replace(block, points=replace(block.points, role=role))
+    cold = _readjust(previous, without, None, False, monkeypatch)
+    warm = _readjust(previous, without, None, True, monkeypatch)
+    assert cold.converged and warm.converged
+    assert warm.iterations == 1 < cold.iterations, (warm.iterations, cold.iterations)
+    assert _unit_distance(cold, warm.state, cold.state) < 1e-2                   # both within the tolerance
+    # a check point turned control point is declined (its control rows are not in the previous equations)
+    role = np.asarray(block.points.role).copy()
+    role[np.flatnonzero(role == "chk")[0]] = "gcp"
+    more = replace(block, points=replace(block.points, role=role))
+    from selfcal.adjust.problem import build_problem
+    assert downdated_start(previous, build_problem(more, BROWN), more) is None
