@@ -107,3 +107,35 @@ def test_rough_rounds_on_a_controlled_block_with_screening(monkeypatch):
     assert {k: v.tolist() for k, v in rough.ap_free.items()} == {k: v.tolist() for k, v in full.ap_free.items()}
     assert [d.name for _, d in rough.screening_log] == [d.name for _, d in full.screening_log]
     assert abs(rough.result.cost - full.result.cost) <= 1e-9 * full.result.cost
+
+
+@pytest.mark.parametrize("seed, density, stop", [
+    (0, 0.5, "the robust cleaning's rejections are taken back"),       # the cleaned block fell apart
+    (4, 1.0, "data snooping stopped at round 2"),                       # a round's rejections would cut it
+    (0, 1.0, "is converged to 0.1 of a sigma only"),                    # singular to rounding at the end
+])
+def test_a_model_that_misses_the_lens_never_cuts_the_block_apart(seed, density, stop):
+    """No APs for seed 000's lens at 4x its size (about 44 px in the corners; the demo's 'none' cases): the
+    largest residuals lie at the frame's edges, on the rays between the strips, and the robust cleaning or a
+    round of data snooping would reject them until the block is undetermined (the demo's type2/type3 'none' failed
+    with a singular system). The rejections that do so are taken back, the tests stop with a failure that says
+    why, and the block still has its adjustment: every check point estimated, the error of a model without the
+    lens (metres, where the lens modelled gives centimetres)."""
+    from selfcal.adjust import RobustOptions
+    from selfcal.simulate import simulate_uav
+    from selfcal.stats import ScreeningOptions, SnoopingOptions
+    from selfcal.workflows.tested import prune_for
+    sim = simulate_uav(seed=seed, distortion="local+brown", distortion_scale=4, blunder_rate=0.003,
+                       points_per_mm2=density)
+    block = prune_for(sim.blocks["type3"])
+    out = adjust_with_tests(block, AdjustOptions(ap=APOptions("none")), SnoopingOptions(3.0), ScreeningOptions(),
+                            robust=RobustOptions())
+    said = out.failure + " ".join(out.cleaning.messages if out.cleaning is not None else [])
+    assert stop in said, said
+    assert "not blunders" in said or "not gross errors" in said
+    result = out.result
+    chk = np.flatnonzero(result.block.points.role == "chk")
+    assert chk.size >= 10 and np.isfinite(result.sigma0_px)           # (type3: 12 check points)
+    truth = dict(zip(sim.truth.point_id, sim.truth.xyz))
+    error = result.state.points[chk] - np.array([truth[p] for p in result.block.points.point_id[chk]])
+    assert np.all(np.isfinite(error)) and 0.1 < np.sqrt(np.mean(error[:, 2] ** 2)) < 50.0

@@ -57,7 +57,6 @@ class Cleaning:
     weight: np.ndarray                              # its final weight factor
     u: np.ndarray                                   # its normalised residual size
     rejected_rows: np.ndarray                       # rejected as gross errors (u > reject or in an image left out)
-    roles: np.ndarray                               # the points' roles after the cleaning (demoted control: chk)
     images_left_out: list[str] = field(default_factory=list)
     control_demoted: list[tuple[str, float]] = field(default_factory=list)   # (point id, u)
     control_lost: list[str] = field(default_factory=list)   # gcp / chk whose rays all went
@@ -82,6 +81,13 @@ class Cleaning:
         rows = np.asarray(rows, np.int64)
         self.readmitted_rows = np.union1d(self.readmitted_rows, rows)
         self.rejected_rows = np.setdiff1d(self.rejected_rows, rows)
+
+    def revoke(self, why: str) -> None:
+        """Take every rejection back (the rows, the images left out, the control checked instead): the cleaned
+        block could not be adjusted (``why``); the record keeps the robust adjustment's weights and sizes."""
+        self.readmit(self.rejected_rows)
+        self.images_left_out, self.control_demoted, self.control_lost = [], [], []
+        self.messages = [f"the robust cleaning's rejections are taken back: {why}"]
 
     @property
     def share(self) -> float:
@@ -147,17 +153,15 @@ def clean(result, reject: float, prune: Callable[[Block], Block]) -> tuple[Block
         np.zeros(0, np.int64)
     # the worst first, and never down to four or fewer control points (the datum)
     bad_control = bad_control[np.argsort(-u_control[bad_control])][:max(0, len(control) - MIN_CONTROL_LEFT)]
-    roles = np.asarray(points.role).copy()
     for k in bad_control:
         p = control[k]
         demoted.append((str(points.point_id[p]), float(u_control[k])))
-        roles[p] = "chk"
         messages.append(f"control point '{points.point_id[p]}' does not fit the block: its surveyed coordinates are "
                         f"{u_control[k]:.1f} robust sigmas off (a misidentified target? a typing error?); it is "
                         f"checked instead of used as control")
     cleaning = Cleaning(weighting.loss.name, weighting.loss.c, weighting.scale, weighting.residual_scale, reject,
                         obs.row.copy(), weight, u,
-                        np.sort(obs.row[gross]), roles, image_ids, demoted, [], result.iterations, messages)
+                        np.sort(obs.row[gross]), image_ids, demoted, [], result.iterations, messages)
     pruned = cleaning.apply(result.block, prune)
     lost = [str(p) for p, r in zip(points.point_id, points.role) if r in ("gcp", "chk")
             and p not in set(pruned.points.point_id.tolist())]

@@ -14,7 +14,9 @@ rays no longer determine) stays out. The AP basis is built once, from all observ
 
 Data snooping stops with a failure rather than reject more than :data:`MAX_REJECTED_SHARE` of
 the image observations: so many outliers are a model that does not fit (an uncalibrated focal
-length, too few parameters), not blunders.
+length, too few parameters), not blunders; and rather than leave the block undetermined: a round whose
+rejections make the re-adjustment singular (a model without APs for a strong lens rejects the rays between
+strips, at the frame's edges) is taken back, and the result is the round before's.
 """
 from __future__ import annotations
 
@@ -25,6 +27,7 @@ import numpy as np
 
 from ..adjust import AdjustmentResult, AdjustOptions, RobustOptions, adjust
 from ..block import Block, prune
+from ..errors import AdjustmentError
 from ..stats.cleaning import Cleaning, clean, readmissible
 from ..stats.reliability import ObservationTests, observation_tests
 from ..stats.screening import ScreeningDecision, ScreeningOptions, ScreeningRound, screen_once, screening_masks
@@ -124,7 +127,15 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
         first = adjust(block, rough, progress=progress, ap_models=ap_models, robust=robust)
         read, (block, cleaning) = first.block, clean(first, robust.reject, prune_for)
         models = {cam.camera_id: cam.ap for cam in first.problem.cameras}
-        result = adjust(block, rough, progress=progress, start=first, ap_models=models)
+        try:
+            result = adjust(block, rough, progress=progress, start=first, ap_models=models)
+        except AdjustmentError as exc:
+            # the gross errors were what held the block together (a model without APs for a strong lens puts its
+            # largest residuals on the rays between strips): nothing is rejected, and the tests judge them
+            cleaning.revoke(f"without them the block is undetermined ({_first_clause(str(exc))}): a model that "
+                            f"misses a systematic error, not gross errors; see the diagnosis, try another AP model")
+            block = cleaning.apply(read, prune_for)
+            result = adjust(block, rough, progress=progress, start=first, ap_models=models)
         del first
         # the good rays pulled along by a point's blunder in the robust adjustment fit the cleaned one: taken back,
         # into the first round's re-adjustment (or one of their own, if the tests of this one find nothing)
@@ -221,7 +232,20 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
             report(record)
         keep = ~np.isin(block.observations.row, rejected)
         sub = prune_for(replace(block, observations=block.observations.take(np.flatnonzero(keep))))
-        result = adjust(sub, rough, progress=progress, start=result, free=free, ap_models=models)
+        try:
+            result = adjust(sub, rough, progress=progress, start=result, free=free, ap_models=models)
+        except AdjustmentError as exc:
+            if not picks.size:
+                raise
+            # the round's rejections cut what held the block together (the rays between strips, where a model
+            # that misses the lens puts its largest residuals): they are taken back and the tests stop there
+            n = int(picks.size)
+            rejected, rejected_w, rejected_mdb = rejected[:-n], rejected_w[:-n], rejected_mdb[:-n]
+            snooped -= n
+            rounds.pop()
+            failure = _disconnected(k, n, largest, str(exc))
+            block, finished = result.block, False       # (converged below with the round's screening)
+            break
         finished = rough is options or _meets(result, options)
         block = result.block            # what a free network's re-adjustment left out stays out
         tests = observation_tests(result, critical)
@@ -249,7 +273,15 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
         finished = rough is options or _meets(result, options)
         tests = observation_tests(result, critical)
     if not finished:                    # stopped by a failure or the round limit
-        result, tests = _converge(result, options, critical, progress, free, models)
+        try:
+            result, tests = _converge(result, options, critical, progress, free, models)
+        except AdjustmentError as exc:
+            if not failure:
+                raise
+            # a block the failure left barely determined (its normal matrix singular to rounding at the finer
+            # tolerance): the round's estimate, converged to ROUND_TOLERANCE, is the result
+            failure += (f"; the last adjustment is converged to {ROUND_TOLERANCE:g} of a sigma only (further, "
+                        f"{_first_clause(str(exc))})")
     components = converged = None
     if variance is not None:
         result, tests, components, converged = estimate_variance_components(
@@ -315,6 +347,20 @@ def demotion_holds(result: AdjustmentResult, tests: ObservationTests, name: str,
     cov = result.point_covariance()[k] + np.diag(np.nan_to_num(points.sigma_m[k]) ** 2)
     norm = float(np.sqrt(d @ np.linalg.solve(cov, d)))
     return bool(norm > CONTROL_CRITICAL and others_now <= others_before), norm, others_now
+
+
+def _first_clause(error: str) -> str:
+    """An adjustment error's first line without the list of the undetermined unknowns that follows it."""
+    return error.splitlines()[0].split("; undetermined")[0]
+
+
+def _disconnected(k: int, n: int, largest: float, error: str) -> str:
+    """Why data snooping stops where a round's rejections leave the block undetermined."""
+    return (f"data snooping stopped at round {k}: rejecting its {n} observations (largest |w| {largest:.1f}) would "
+            f"leave the block undetermined ({_first_clause(error)}); they are kept, and the results are those "
+            f"of the round before. So many rejections that the block falls apart are a model that misses a "
+            f"systematic error (the lens, the trajectory), not blunders: see the diagnosis, and try another AP "
+            f"model")
 
 
 def _too_many(tests: ObservationTests, largest: float, snooped: int, cleaned: bool) -> str:
