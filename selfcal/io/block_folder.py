@@ -61,7 +61,8 @@ OBSERVATION_COLUMNS = [
 # numbers), "intlist", "pairlist".
 _TOP_KEYS = {"name": ("str", False), "crs": ("str", False), "datum": ("str", False)}
 #: a camera's block.toml keys come from its sensor (selfcal.sensors: Sensor.camera_type, Sensor.camera_keys)
-_CAMERA_MODELS = {name: (sensor.camera_type, sensor.camera_keys) for name, sensor in SENSORS.items()}
+_CAMERA_MODELS = {name: (sensor.camera_type, sensor.camera_keys) for name, sensor in SENSORS.items()
+                  if sensor.selectable}
 _SECTIONS = {
     "terrain": {"dem": ("str", False), "height_m": ("num", False)},
     "observations": {"image_sigma_px": ("pos", True)},
