@@ -228,7 +228,8 @@ SENSOR = RollingFrameSensor()
 def rolling_table(result, slot) -> tuple:
     """rolling_shutter.csv of the images of ``slot``: ``image_id, camera_id, strip_id, time_s``, the velocity
     ``vx_m_s, vy_m_s, vz_m_s`` (data: from the strip's positions and times), ``speed_m_s``, ``heading_deg`` (of the
-    horizontal velocity, clockwise from +Y), the camera's ``readout_ms``, ``motion_m`` (the projection centre's path
+    horizontal velocity, clockwise from +Y), the attitude rates ``omega_rate_deg_s ...`` (0 where the attitude is not
+    turned, ``readout_rotation``), the camera's ``readout_ms``, ``motion_m`` (the projection centre's path
     during the readout) and ``shear_col_px, shear_row_px``: the mean image displacement of the image's points
     between the first and the last line (what a global-shutter model would have to absorb)."""
     problem, state, bound = result.problem, result.state, slot.bound
@@ -260,10 +261,13 @@ def rolling_table(result, slot) -> tuple:
     counts = np.maximum(np.bincount(img, minlength=problem.n_images), 1)
     shear = np.column_stack([np.bincount(img, moved[:, k], minlength=problem.n_images) / counts for k in (0, 1)])
     shear = shear[images]
+    rate = np.zeros((len(images), 3)) if bound.rate is None else np.degrees(bound.rate[images])
     header = ["image_id", "camera_id", "strip_id", "time_s", "vx_m_s", "vy_m_s", "vz_m_s", "speed_m_s",
-              "heading_deg", "readout_ms", "motion_m", "shear_col_px", "shear_row_px"]
+              "heading_deg", "omega_rate_deg_s", "phi_rate_deg_s", "kappa_rate_deg_s", "readout_ms", "motion_m",
+              "shear_col_px", "shear_row_px"]
     columns = [block.images.image_id[images], block.images.camera_id[images], block.images.strip_id[images],
-               block.images.time_s[images], *velocity.T, speed, heading, readout_ms[cam], motion, *shear.T]
-    formats = ["", "", "", ".4f", ".4f", ".4f", ".4f", ".4f", ".2f", ".4f", ".4f", ".3f", ".3f"]
+               block.images.time_s[images], *velocity.T, speed, heading, *rate.T, readout_ms[cam], motion, *shear.T]
+    formats = ["", "", "", ".4f", ".4f", ".4f", ".4f", ".4f", ".2f", ".6f", ".6f", ".6f", ".4f", ".4f", ".3f",
+               ".3f"]
     return header, columns, formats
 
