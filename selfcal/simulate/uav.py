@@ -30,6 +30,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import ArrayLike
+from scipy.interpolate import CubicSpline
 
 from ..block import Block, Dropped, FrameCamera, Images, Observations, Points, prune
 from ..geometry.rotation import matrix_from_opk, opk_from_matrix
@@ -199,9 +200,9 @@ def simulate_uav(seed: int = 0, distortion: str = "local+brown", image_sigma_px:
     rolling_shutter_ms : float
         Readout time of a rolling shutter (0: a global shutter). Each image's pose is that of its middle row at its
         time; the row of an image point is read (row - H/2)/H x readout later, while the camera moves with the
-        image's velocity: the strip's direction at ``speed_mps`` plus ``velocity_noise_mps`` of noise per axis
-        (drawn from a stream of its own: a seed's images, points, noise and trajectory are those of the global
-        shutter's). The blocks declare ``shutter = "rolling"`` with the readout a camera nobody measured gets
+        image's velocity: the derivative of a cubic spline in time through its strip's true positions plus
+        ``velocity_noise_mps`` of noise per axis (drawn from a stream of its own: a seed's images, points, noise
+        and trajectory are those of the global shutter's). The blocks declare ``shutter = "rolling"`` with the readout a camera nobody measured gets
         (:data:`DECLARED_READOUT_MS` +- :data:`DECLARED_SIGMA_READOUT_MS`). Image points that the motion moves off the
         frame are left out (and the blocks pruned, :func:`selfcal.block.prune`, where that leaves a point with one ray).
     """
@@ -291,11 +292,15 @@ def simulate_uav(seed: int = 0, distortion: str = "local+brown", image_sigma_px:
     xyz_true = np.vstack([marks, tie])
     point_id = np.array([f"M{k + 1:02d}" for k in range(39)] + [f"T{k + 1:06d}" for k in range(n_tie)], dtype=object)
 
-    # --- the velocity of each image during its readout (a stream of its own: the rest of a seed stays the same)
-    heading = np.where(strip_of % 2 == 0, 1.0, -1.0)
-    velocity = np.column_stack([heading * speed, np.zeros(n_img), np.zeros(n_img)])
+    # --- the velocity of each image during its readout: the path through the images' positions (a cubic spline in
+    # time along each strip: the positions wander by metres about the strip's line) and noise drawn from a stream of
+    # its own (the rest of a seed stays the same)
+    velocity = np.zeros((n_img, 3))
     if rolling_shutter_ms > 0:
-        velocity = velocity + np.random.default_rng([seed, 41]).normal(0, velocity_noise_mps, (n_img, 3))
+        for s in range(n_strips):
+            members = np.flatnonzero(strip_of == s)
+            velocity[members] = CubicSpline(times[members], eop[members, :3]).derivative()(times[members])
+        velocity += np.random.default_rng([seed, 41]).normal(0, velocity_noise_mps, (n_img, 3))
 
     # --- project every point into every image
     iop = np.array([true_cam.focal_mm, true_cam.x0_mm, true_cam.y0_mm])
