@@ -96,7 +96,8 @@ class Calibration:
             # (a rolling shutter's readout is not the lens's: its rows and columns are left out, its marginal)
             kept = [k for k, name in enumerate(given["parameters"]) if name in index]
             at = np.array([index[given["parameters"][k]] for k in kept], dtype=np.int64)
-            matrix = np.asarray(given["matrix"], float).reshape(len(given["parameters"]), -1)[np.ix_(kept, kept)]
+            n = len(given["parameters"])
+            matrix = np.asarray(given["matrix"], float).reshape(n, n)[np.ix_(kept, kept)]
             covariance = np.zeros((len(names), len(names)))
             covariance[np.ix_(at, at)] = matrix
         return cls(camera_id, int(entry["width_px"]), int(entry["height_px"]), p, float(entry["focal_mm"]["value"]),

@@ -120,8 +120,8 @@ def with_rolling_shutter(block: Block, camera_of_images: Mapping[str, tuple] | N
             prior = ReadoutPrior(float(readout_ms), float(sigma), f"{readout_ms:g} +- {sigma:g} ms (given)")
         else:
             mine = np.flatnonzero(block.images.camera_id == camera_id)
-            named = Counter((camera_of_images or {}).get(str(i)) for i in block.images.image_id[mine])
-            named.pop(None, None)
+            given = camera_of_images or {}
+            named = Counter(given[str(i)] for i in block.images.image_id[mine] if str(i) in given)
             make, model, width, height = named.most_common(1)[0][0] if named else (None, None, None, None)
             prior = readout_prior(make, model, width, height)
         cameras[camera_id] = replace(camera, shutter="rolling", readout_ms=prior.readout_ms,

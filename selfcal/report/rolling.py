@@ -45,7 +45,8 @@ def rolling_shutter_section(page: Page, results) -> None:
                ident="rolling-readout")
     strips = list(dict.fromkeys(table["strip_id"].tolist()))
     shear = np.column_stack([table["shear_col_px"], table["shear_row_px"]])
-    per_strip, by_direction = [], {}
+    per_strip: list[list[str]] = []
+    by_direction: dict[str, list[np.ndarray]] = {}
     for strip in strips:
         sel = np.flatnonzero(table["strip_id"] == strip)
         heading = _mean_heading(table["heading_deg"][sel])

@@ -130,11 +130,11 @@ class RollingFrameBound(FrameBound):
         readout_s = np.array([c[READOUT] if len(c) > READOUT else 0.0 for c in state.cameras]) / 1000.0
         return (*super().context(state, jacobians), readout_s)
 
-    def _exposure(self, image: np.ndarray, readout_s: np.ndarray, o: np.ndarray, img: np.ndarray, cam: np.ndarray,
-                  share: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
+    def _exposure(self, image: np.ndarray, readout_s: np.ndarray, o: np.ndarray | None, img: np.ndarray,
+                  cam: np.ndarray, share: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
         """(shift of the projection centre (n, 3), the attitude at each observation's line (n, 3) or None where
         the attitude does not turn, s) of observations ``o`` (or of lines at ``share``)."""
-        s = self.share[o] if share is None else share
+        s = share if share is not None else self.share[o]
         dt = s * readout_s[cam]
         shift = self.velocity[img] * dt[:, None]
         angles = None if self.rate is None else image[img, 3:] + self.rate[img] * dt[:, None]

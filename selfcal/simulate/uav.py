@@ -30,7 +30,6 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy.interpolate import CubicSpline
 
 from ..block import Block, Dropped, FrameCamera, Images, Observations, Points, prune
 from ..geometry.rotation import matrix_from_opk, opk_from_matrix
@@ -297,6 +296,7 @@ def simulate_uav(seed: int = 0, distortion: str = "local+brown", image_sigma_px:
     # its own (the rest of a seed stays the same)
     velocity = np.zeros((n_img, 3))
     if rolling_shutter_ms > 0:
+        from scipy.interpolate import CubicSpline
         for s in range(n_strips):
             members = np.flatnonzero(strip_of == s)
             velocity[members] = CubicSpline(times[members], eop[members, :3]).derivative()(times[members])
