@@ -2,7 +2,7 @@
 and OpenDroneMap's two-step correction, on simulated blocks with known truth.
 
     python benchmarks/study_rolling_shutter.py [--seeds 10] [--density 1.0] [--flights serpentine,corridor]
-                                               [--lens none,field] [--no-cost] [--coverage 30]
+                                               [--lens none,field] [--no-cost] [--coverage 30] [--sweep 3]
 
 Blocks: seed 000's camera and terrain (selfcal.simulate.simulate_uav), flown ``serpentine`` (4 strips of 7 with a
 fixed heading: the camera moves forwards on one strip, backwards on the next) or as a ``corridor`` (2 strips of 14
@@ -24,7 +24,8 @@ Rows, per flight and lens (median and largest over the seeds of check-point RMSD
 * on the global-shutter block: the model's readout within 2 sigma of 0 (count of seeds), screened out by ``--screen``
   (count; lens none), and the check points against today's (largest relative difference).
 
-Then the readout's coverage: its z-scores over 30 more seeds (lens none). Then the cost: the engine's time (and time per iteration) of the rolling-shutter model against the global-shutter
+Then the readout's coverage: its z-scores over 30 more seeds (lens none); a sweep over the simulator's range of
+readouts (20-75 ms) and speeds (5-12 m/s). Then the cost: the engine's time (and time per iteration) of the rolling-shutter model against the global-shutter
 model on the same full-density block (80,000 image points).
 """
 from __future__ import annotations
@@ -182,6 +183,29 @@ def coverage(seeds: int, density: float = 0.6) -> None:
                   f"{int(np.sum(np.abs(z) <= 2))}/{seeds}", flush=True)
 
 
+def sweep(seeds: int, density: float = 0.6) -> None:
+    """The simulator's range (readouts 20-75 ms at 5-12 m/s), lens none, AP none: the model's check points against the
+    global-shutter block's, today's model's, and the readout against the truth."""
+    print(f"\nsweep over readout and speed, {seeds} seeds (300...), {density} points per mm^2, lens none: check-point "
+          f"RMSD / the global-shutter block's (XY, Z; largest over the seeds), readout - truth in sigma (largest |z|)")
+    for flight in ("serpentine", "corridor"):
+        for readout, speed in ((20.0, 5.0), (33.0, 8.0), (50.0, 10.0), (75.0, 12.0)):
+            model, blind, z = [], [], []
+            for seed in range(300, 300 + seeds):
+                kw = dict(seed=seed, distortion="none", flight=flight, speed_mps=speed, points_per_mm2=density)
+                rolling = simulate_uav(rolling_shutter_ms=readout, **kw).blocks["type2"]
+                gs = _rmsd(bundle_adjust(simulate_uav(**kw).blocks["type2"], ap="none", **FAST))
+                outcome = bundle_adjust(rolling, ap="none", **FAST)
+                model.append(_rmsd(outcome) / gs)
+                blind.append(_rmsd(bundle_adjust(global_shutter(rolling), ap="none", **FAST)) / gs)
+                value, sigma = _readout(outcome)
+                z.append((value - readout) / sigma)
+            model_max, blind_max = np.max(model, axis=0), np.max(blind, axis=0)
+            print(f"  {flight:10s} {readout:4.0f} ms {speed:4.0f} m/s: model {model_max[0]:.3f} {model_max[1]:.3f}, "
+                  f"no model {blind_max[0]:.2f} {blind_max[1]:.2f}; readout |z| <= {np.max(np.abs(z)):.2f}",
+                  flush=True)
+
+
 def cost(repeats: int = 2) -> None:
     """Engine time of the rolling-shutter model against the global-shutter model on the same block (full density),
     the best of ``repeats`` runs each."""
@@ -215,6 +239,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-cost", action="store_true")
     parser.add_argument("--coverage", type=int, default=30, metavar="N",
                         help="seeds of the readout's coverage study (0: none; default 30)")
+    parser.add_argument("--sweep", type=int, default=3, metavar="N",
+                        help="seeds of the sweep over readouts 20-75 ms and speeds 5-12 m/s (0: none; default 3)")
     args = parser.parse_args(argv)
     results = {}
     for flight in args.flights.split(","):
@@ -224,6 +250,8 @@ def main(argv: list[str] | None = None) -> int:
         print_study(flight, lens, out)
     if args.coverage:
         coverage(args.coverage)
+    if args.sweep:
+        sweep(args.sweep)
     if not args.no_cost:
         cost()
     return 0
