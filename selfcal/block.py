@@ -78,8 +78,26 @@ class FrameCamera:
     sigma_x0_mm: float | None = None
     sigma_y0_mm: float | None = None
     initial_ap: InitialAP | None = None
+    #: ``"rolling"``: the sensor is read line by line during ``readout_ms`` (its a-priori value, weighted by
+    #: ``sigma_readout_ms``: None free, 0 held), the lines running ``readout_direction`` ("down": row 0 first, "up",
+    #: "right": column 0 first, "left"); ``readout_rotation``: the attitude turns too (selfcal.sensors.rolling).
+    #: None or ``"global"``: a global shutter
+    shutter: str | None = None
+    readout_ms: float | None = None
+    sigma_readout_ms: float | None = None
+    readout_direction: str | None = None
+    readout_rotation: bool | None = None
 
     model = "frame"
+
+    @property
+    def rolling_shutter(self) -> bool:
+        return self.shutter == "rolling"
+
+    @property
+    def sensor(self) -> str:
+        """The registered sensor of its images: the frame camera, or the frame camera with a rolling shutter."""
+        return "frame-rolling" if self.rolling_shutter else "frame"
 
     @property
     def width_mm(self) -> float:

@@ -38,6 +38,8 @@ __all__ = ["Calibration", "OpenCVCamera", "OPENCV_MODELS", "fit_opencv", "undist
 #: (k1, k2, p1, p2, k3, k4, k5, k6, s1, s2, s3, s4); opencv4 is COLMAP's OPENCV model,
 #: rational its FULL_OPENCV
 OPENCV_MODELS = {"opencv4": 4, "plumb_bob": 5, "rational": 8, "thin_prism": 12}
+#: a camera's parameters in camera.json that are not its calibration (a rolling shutter's readout, ms)
+NOT_CALIBRATION = ("readout",)
 
 #: Newton's method for the inverse stops when the step is below this (pixels)
 INVERSE_TOLERANCE_PX = 1e-9
@@ -88,11 +90,14 @@ class Calibration:
         if entry.get("covariance"):
             given = entry["covariance"]
             index = {name: k for k, name in enumerate(names)}
-            unknown = [name for name in given["parameters"] if name not in index]
+            unknown = [name for name in given["parameters"] if name not in index and name not in NOT_CALIBRATION]
             if unknown:
                 raise ValueError(f"camera {camera_id}: covariance of an unknown parameter '{unknown[0]}'")
-            at = np.array([index[name] for name in given["parameters"]], dtype=np.int64)
-            matrix = np.asarray(given["matrix"], float).reshape(len(at), len(at))
+            # (a rolling shutter's readout is not the lens's: its rows and columns are left out, its marginal)
+            kept = [k for k, name in enumerate(given["parameters"]) if name in index]
+            at = np.array([index[given["parameters"][k]] for k in kept], dtype=np.int64)
+            n = len(given["parameters"])
+            matrix = np.asarray(given["matrix"], float).reshape(n, n)[np.ix_(kept, kept)]
             covariance = np.zeros((len(names), len(names)))
             covariance[np.ix_(at, at)] = matrix
         return cls(camera_id, int(entry["width_px"]), int(entry["height_px"]), p, float(entry["focal_mm"]["value"]),

@@ -16,12 +16,24 @@ from selfcal.sensors import SENSORS
 
 from conftest import SHARED_DATA
 
-UNITS = {"m", "rad", "rad/s", "mm", "px", ""}
+UNITS = {"m", "rad", "rad/s", "mm", "ms", "px", ""}
 
 
 def _frame():
     from selfcal.simulate import simulate_uav
     return prune(simulate_uav(seed=3, points_per_mm2=0.3).blocks["type3"]), AdjustOptions(ap=APOptions("none"))
+
+
+def _frame_rolling():
+    """A rolling shutter (33 ms at 8 m/s, serpentine) with the attitude turning during the readout too (its rate
+    from the images' IMU attitudes): every term of the model's Jacobians."""
+    from dataclasses import replace
+    from selfcal.simulate import simulate_uav
+    block = prune(simulate_uav(seed=3, points_per_mm2=0.3, flight="serpentine", rolling_shutter_ms=33.0)
+                  .blocks["type2"])
+    camera = block.cameras["ilce7m3"]
+    return replace(block, cameras={"ilce7m3": replace(camera, readout_rotation=True)}), \
+        AdjustOptions(ap=APOptions("none"))
 
 
 def _bal():
@@ -132,7 +144,7 @@ def _dg():
     return _vendor("dg", [os.path.join(folder, "dg_example1.xml"), os.path.join(folder, "dg_example2.xml")])
 
 
-EXAMPLES = {"dimap": _dimap, "dg": _dg, "frame": _frame, "bal": _bal, "pushbroom": _pushbroom, "rpc": _rpc, "usgscsm": _usgscsm,
+EXAMPLES = {"dimap": _dimap, "dg": _dg, "frame": _frame, "frame-rolling": _frame_rolling, "bal": _bal, "pushbroom": _pushbroom, "rpc": _rpc, "usgscsm": _usgscsm,
             "usgscsm-line": _usgscsm_line}
 
 

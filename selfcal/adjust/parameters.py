@@ -30,6 +30,9 @@ class CameraParameters:
     n_core: int = 3           # the sensor's own parameters, before the AP coefficients
     core_screened: tuple = (False, False, False)   # which core parameters screening may hold at their start
     units: tuple = ()         # unit of every entry
+    #: per core parameter what screening tests it against and holds it at where not its start value (NaN: the
+    #: start value; a rolling shutter's readout: 0); empty: every start value
+    core_reference: tuple = ()
 
     @property
     def size(self) -> int:
@@ -43,9 +46,14 @@ class CameraParameters:
     @property
     def reference(self) -> np.ndarray:
         """What screening tests an entry against and holds it at: the start value of a core
-        parameter, zero for an AP coefficient (its given value for one held by block.toml, sigma 0)."""
+        parameter (or its sensor's reference, :attr:`core_reference`), zero for an AP coefficient (its given value
+        for one held by block.toml, sigma 0)."""
         ap = np.where(self.prior_sigma[self.n_core:] == 0, self.prior_value[self.n_core:], 0.0)
-        return np.concatenate([self.prior_value[:self.n_core], ap])
+        core = self.prior_value[:self.n_core]
+        if self.core_reference:
+            given = np.asarray(self.core_reference, float)
+            core = np.where(np.isfinite(given) & (self.prior_sigma[:self.n_core] != 0), given, core)
+        return np.concatenate([core, ap])
 
 
 

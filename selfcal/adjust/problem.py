@@ -450,7 +450,7 @@ def build_problem(block: Block, options: AdjustOptions = AdjustOptions(), ap_mod
                                   np.concatenate([value, ap_start]), np.concatenate([sigma, ap_sigma]),
                                   list(sensor.camera_names) + list(ap.parameter_names), sensor.name,
                                   len(sensor.camera_parameters), tuple(p.screened for p in sensor.camera_parameters),
-                                  units)
+                                  units, _core_reference(sensor))
         problem.cameras.append(camera)
         problem.d_offset.append(start)
         start += int(camera.free.sum())
@@ -458,3 +458,10 @@ def build_problem(block: Block, options: AdjustOptions = AdjustOptions(), ap_mod
     problem.residuals = build_residuals(block, problem, ResidualSettings(object_frame, options.trajectory))
     problem.settle_sigma()
     return problem
+
+
+def _core_reference(sensor: Sensor) -> tuple:
+    """The references of a sensor's core parameters that are not their start values (NaN for those that are);
+    empty where none has one."""
+    given = tuple(np.nan if p.reference is None else float(p.reference) for p in sensor.camera_parameters)
+    return given if np.isfinite(given).any() else ()

@@ -36,6 +36,16 @@ def calibrations(results: str) -> dict[str, Calibration]:
             out[camera_id] = Calibration.from_camera_json(camera_id, entry)
         except (KeyError, TypeError, ValueError, AttributeError, IndexError) as exc:   # the AP family's own keys
             raise BlockError(path, f"camera {camera_id}: cannot read its calibration ({exc})") from None
+        if entry.get("shutter") == "rolling":
+            readout = entry.get("readout_ms") or {}
+            value = readout.get("value")
+            sigma = readout.get("sigma")
+            said = f"{value:.2f} ms" + (f" +- {sigma:.2f}" if sigma is not None else " (held)") \
+                if isinstance(value, (int, float)) else "not in camera.json"
+            print(f"warning: camera {camera_id} has a rolling shutter (readout {said}): what is exported of it is "
+                  f"its lens; its images' poses are those of their middle lines, and a line read dt = (line - "
+                  f"middle) / lines x readout later saw the scene from X0 + v dt (the velocities v: "
+                  f"rolling_shutter.csv)", file=sys.stderr)
     if not out:
         raise BlockError(path, "no frame camera to export")
     return out

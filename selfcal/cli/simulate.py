@@ -5,7 +5,7 @@ import argparse
 import os
 
 from ..errors import UsageError
-from ..simulate import DISTORTIONS, SCENARIOS, simulate_uav, truth_files
+from ..simulate import DISTORTIONS, FLIGHTS, SCENARIOS, simulate_uav, truth_files
 from .outcome import finish
 from .options import count, force_option, number
 
@@ -30,6 +30,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="share of image observations with a 4-15 px blunder (default 0)")
     parser.add_argument("--points", type=count(7, 100000), default=28, metavar="N",
                         help="prism: ground points measured in the triplet (default 28, as seed 001)")
+    parser.add_argument("--flight", choices=FLIGHTS, default="seed000",
+                        help="uav: seed000 (the camera turns at the strip ends), serpentine (the same strips with a "
+                             "fixed heading) or corridor (2 long strips out and back, fixed heading); default seed000")
+    parser.add_argument("--speed-mps", type=number(0.0, 100.0, low_open=True), default=8.0, metavar="V",
+                        help="uav: ground speed along the strips (default 8 m/s)")
+    parser.add_argument("--rolling-shutter-ms", type=number(0.0, 1000.0), default=0.0, metavar="MS",
+                        help="uav: a rolling shutter read in MS from the first to the last row while the camera "
+                             "moves (default 0: a global shutter); the blocks declare it with a wide prior")
     parser.add_argument("--line-error", action="store_true",
                         help="prism: give the nadir camera a chip-wise error of its detector line that the block "
                              "does not know (chips misaligned by up to 0.9 px, a 1 px bow; for --ap wavelet1d)")
@@ -50,7 +58,8 @@ def run(args: argparse.Namespace) -> int:
     if args.distortion_scale < 0:
         raise UsageError("--distortion-scale must not be negative")
     sim = simulate_uav(seed=args.seed, distortion=args.distortion, distortion_scale=args.distortion_scale,
-                       image_sigma_px=args.noise_px, blunder_rate=args.blunder_rate)
+                       image_sigma_px=args.noise_px, blunder_rate=args.blunder_rate, flight=args.flight,
+                       speed_mps=args.speed_mps, rolling_shutter_ms=args.rolling_shutter_ms)
     scenarios = args.scenario or list(SCENARIOS)
     with atomic_folder(args.out) as tmp:
         for name in scenarios:
@@ -58,9 +67,12 @@ def run(args: argparse.Namespace) -> int:
         os.makedirs(os.path.join(tmp, "truth"))
         write_files(os.path.join(tmp, "truth"), truth_files(sim.truth))
     info = sim.info
-    return finish(args, f"simulated {info['n_images']} images, {info['n_points']} points, {info['n_observations']} "
-                        f"image observations ({info['points_per_image']:.0f} per image), distortion "
-                        f"{args.distortion}; wrote {', '.join(scenarios)} and truth/ to {args.out}",
+    shutter = f", a rolling shutter of {args.rolling_shutter_ms:g} ms at {args.speed_mps:g} m/s" \
+        if args.rolling_shutter_ms > 0 else ""
+    flight = f" ({args.flight} flight)" if args.flight != "seed000" else ""
+    return finish(args, f"simulated {info['n_images']} images{flight}, {info['n_points']} points, "
+                        f"{info['n_observations']} image observations ({info['points_per_image']:.0f} per image), "
+                        f"distortion {args.distortion}{shutter}; wrote {', '.join(scenarios)} and truth/ to {args.out}",
                   {k: info[k] for k in ("n_images", "n_points", "n_observations")},
                   [os.path.abspath(os.path.join(args.out, name)) for name in (*scenarios, "truth")])
 
@@ -72,6 +84,11 @@ def _prism(args: argparse.Namespace) -> int:
     from ..io.dem import write_dem
     from ..simulate.prism import LINE_ERROR_PX, dem_grid, prism_block, prism_truth_files, simulate_prism
 
+    for flag, given in (("--flight", args.flight != "seed000"), ("--speed-mps", args.speed_mps != 8.0),
+                        ("--rolling-shutter-ms", args.rolling_shutter_ms != 0.0)):
+        if given:
+            raise UsageError(f"{flag} is an option of 'simulate uav' (a frame camera's flight), not of the PRISM "
+                             f"triplet")
     noise = 0.3 if args.noise_px == 0.5 else args.noise_px       # seed 001's points: about 0.3 px
     if noise <= 0:
         raise UsageError("--noise-px must be positive")

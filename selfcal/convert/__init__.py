@@ -15,11 +15,12 @@ from .calibration import camera_from_calibration
 from .colmap import (DEFAULT_GCP_LIST_SIGMA_M, DEFAULT_PIXEL_SIZE_MM, MAX_RAY_MISS_DEG, MEASUREMENT_MISS_SIGMAS,
                      PLAN_ONLY_SIGMA_Z_M, block_from_colmap, colmap_distortion_as_brown, colmap_undistort)
 from .isis import FREE_SIGMA_M, adjusted_network, block_from_isis
-from .workspace import (FALLBACK_GREY, WORKSPACE_ROLES, ColmapWorkspace, PointColours, colmap_workspace, image_rgb_at,
-                        keypoints_and_matches)
+from .workspace import (FALLBACK_GREY, WORKSPACE_ROLES, ColmapWorkspace, PointColours, RollingShutters, colmap_workspace,
+                        image_rgb_at, keypoints_and_matches)
 
 __all__ = ["block_from_colmap", "colmap_undistort", "colmap_distortion_as_brown", "block_from_bal",
            "bal_behind_camera", "block_from_isis", "adjusted_network", "camera_from_calibration", "colmap_workspace", "ColmapWorkspace",
+           "RollingShutters",
            "WORKSPACE_ROLES", "FALLBACK_GREY", "PointColours", "image_rgb_at", "keypoints_and_matches",
            "PLAN_ONLY_SIGMA_Z_M", "FREE_SIGMA_M", "MEASUREMENT_MISS_SIGMAS", "MAX_RAY_MISS_DEG",
            "DEFAULT_PIXEL_SIZE_MM", "DEFAULT_GCP_LIST_SIGMA_M"]

@@ -20,7 +20,7 @@ if TYPE_CHECKING:
     from ..io.exif import ImageGnss
     from ..io.odm import GroundControl, ImagePositions
 
-__all__ = ["CameraPositions", "positions_from_images", "positions_from_geo", "block_with_gnss", "GnssImport",
+__all__ = ["CameraPositions", "positions_from_images", "positions_from_geo", "block_with_gnss", "GnssImport", "exif_cameras",
            "projected_control", "utm_crs"]
 
 
@@ -106,6 +106,15 @@ def _match(block_ids: np.ndarray, names: np.ndarray) -> tuple[np.ndarray, list[i
         stem.setdefault(os.path.splitext(str(i))[0], k)
     index = np.array([exact.get(str(n), stem.get(os.path.splitext(str(n))[0], -1)) for n in names], np.int64)
     return index, [k for k in range(len(names)) if index[k] < 0]
+
+
+def exif_cameras(block: Block, records: Sequence[ImageGnss]) -> dict[str, tuple]:
+    """Image id -> (EXIF Make, Model, width_px, height_px) of the block's images that ``records`` name (by file name,
+    or by its stem); what :func:`selfcal.convert.rolling.with_rolling_shutter` takes."""
+    names = np.array([r.name for r in records], dtype=object)
+    index, _ = _match(block.images.image_id, names)
+    return {str(block.images.image_id[k]): (r.camera_make, r.camera_model, r.width_px or None, r.height_px or None)
+            for r, k in zip(records, index) if k >= 0 and (r.camera_make or r.camera_model)}
 
 
 def block_with_gnss(block: Block, positions: CameraPositions, sigma_m: Sequence[float] | None = None,

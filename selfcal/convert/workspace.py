@@ -34,7 +34,7 @@ class ColmapWorkspace:
 
 
 def colmap_workspace(calibrations: dict, images: dict, points: dict, residuals: dict, image_names: dict,
-                     min_track: int = 2) -> ColmapWorkspace:
+                     min_track: int = 2, rolling: RollingShutters | None = None) -> ColmapWorkspace:
     """The COLMAP sparse model of the ideal images of a results folder.
 
     Parameters
@@ -44,6 +44,8 @@ def colmap_workspace(calibrations: dict, images: dict, points: dict, residuals: 
     image_names : image id -> file name in the workspace; only these images are exported (images of other
         cameras than ``calibrations`` must not be given)
     min_track : 3-D points seen in fewer exported images are left out
+    rolling : the rolling shutters of the cameras that have one (:class:`RollingShutters`): their 2-D points are
+        moved to where the image's middle line, whose pose the model has, would have seen the adjusted point
 
     The model has one PINHOLE camera per frame camera: fx = fy = the principal
     distance in pixels and the principal point, the ideal camera of
@@ -111,8 +113,12 @@ def colmap_workspace(calibrations: dict, images: dict, points: dict, residuals: 
         cal = calibrations[c]
         rows = np.flatnonzero(cam_of_image[o_img] == c)
         ideal[rows] = cal.ideal_from_measured(measured[rows])
-        photo = project(xyz[o_pt[rows]], eop[o_img[rows]], np.array([cal.focal_mm, cal.x0_mm, cal.y0_mm]))
+        iop = np.array([cal.focal_mm, cal.x0_mm, cal.y0_mm])
+        photo = project(xyz[o_pt[rows]], eop[o_img[rows]], iop)
         projected[rows] = pixel_from_photo(photo, cal.width_px, cal.height_px, cal.pixel_size_mm)
+        if rolling is not None and c in rolling.readout_ms:
+            ideal[rows] += projected[rows] - rolling.line_pixels(c, cal, img_ids[o_img[rows]], measured[rows],
+                                                                 xyz[o_pt[rows]], eop[o_img[rows]], iop)
     miss = np.hypot(*(ideal - projected).T)
     error = np.bincount(o_pt, miss, minlength=len(xyz))[exported] / np.maximum(track[exported], 1)
 
@@ -132,6 +138,31 @@ def colmap_workspace(calibrations: dict, images: dict, points: dict, residuals: 
     )
     return ColmapWorkspace(model, origin, np.asarray(points["point_id"], object)[exported], role[exported],
                            {k: c for c, k in colmap_cam.items()}, img_ids, projected, int(short.sum()))
+
+
+@dataclass
+class RollingShutters:
+    """The rolling shutters of a results folder: each rolling camera's ``readout_ms`` and ``direction``
+    (camera.json), each image's velocity (m/s) and attitude rate (rad/s) from rolling_shutter.csv."""
+
+    readout_ms: dict                # camera id -> readout (ms)
+    direction: dict                 # camera id -> readout direction
+    velocity: dict                  # image id -> (3,) m/s
+    rate: dict                      # image id -> (3,) rad/s
+    largest_shear_px: float = 0.0   # the largest image motion between an image's first and last line
+
+    def line_pixels(self, camera_id: str, cal, image_ids: np.ndarray, measured: np.ndarray, points: np.ndarray,
+                    eop: np.ndarray, iop: np.ndarray) -> np.ndarray:
+        """Pixels (n, 2) where the lines of the ``measured`` points saw the ``points``: the collinearity at the
+        time of the line (:mod:`selfcal.sensors.rolling`), without the lens."""
+        from ..sensors.rolling import line_share
+        dt = line_share(measured, cal.width_px, cal.height_px, self.direction[camera_id]) * \
+            self.readout_ms[camera_id] / 1000.0
+        zero = np.zeros(3)
+        velocity = np.array([self.velocity.get(i, zero) for i in image_ids]).reshape(-1, 3)
+        rate = np.array([self.rate.get(i, zero) for i in image_ids]).reshape(-1, 3)
+        moved = eop + np.column_stack([velocity, rate]) * dt[:, None]
+        return pixel_from_photo(project(points, moved, iop), cal.width_px, cal.height_px, cal.pixel_size_mm)
 
 
 #: the colour of a 3-D point that no 2-D point inside an undistorted image sees (COLMAP's own default grey)

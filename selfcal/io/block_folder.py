@@ -61,7 +61,8 @@ OBSERVATION_COLUMNS = [
 # numbers), "intlist", "pairlist".
 _TOP_KEYS = {"name": ("str", False), "crs": ("str", False), "datum": ("str", False)}
 #: a camera's block.toml keys come from its sensor (selfcal.sensors: Sensor.camera_type, Sensor.camera_keys)
-_CAMERA_MODELS = {name: (sensor.camera_type, sensor.camera_keys) for name, sensor in SENSORS.items()}
+_CAMERA_MODELS = {name: (sensor.camera_type, sensor.camera_keys) for name, sensor in SENSORS.items()
+                  if sensor.selectable}
 _SECTIONS = {
     "terrain": {"dem": ("str", False), "height_m": ("num", False)},
     "observations": {"image_sigma_px": ("pos", True)},
@@ -456,6 +457,7 @@ def read_block(folder: str | os.PathLike, min_gcp: int = 3) -> Block:
         if missing.size:
             raise BlockError(os.path.join(folder, "images.csv"), "a pushbroom image needs the time of its first "
                              "line", int(images.line[missing[0]]), "time_s")
+    _check_rolling(folder, images, cameras)
     terrain = settings.get("terrain", {})
     dem = terrain.get("dem")
     if dem is not None:
@@ -510,6 +512,32 @@ def read_block(folder: str | os.PathLike, min_gcp: int = 3) -> Block:
         raise BlockError(os.path.join(folder, "observations.csv"),
                          "no image has enough observed points to be oriented")
     return block
+
+
+def _check_rolling(folder, images, cameras) -> None:
+    """The images of a rolling-shutter camera have times, and each of its strips two images with positions and
+    times (their velocity comes from them, selfcal.sensors.rolling); with ``readout_rotation``, attitudes too."""
+    path = os.path.join(folder, "images.csv")
+    for camera_id, camera in cameras.items():
+        if not getattr(camera, "rolling_shutter", False):
+            continue
+        mine = np.flatnonzero(images.camera_id == camera_id)
+        untimed = mine[np.isnan(images.time_s[mine])]
+        if untimed.size:
+            raise BlockError(path, f"camera '{camera_id}' has shutter = \"rolling\": each of its images needs its "
+                                   f"time (of its middle line), the velocity during the readout comes from the times "
+                                   f"and positions of its strip", int(images.line[untimed[0]]), "time_s")
+        needs = [("position", images.position_m, "X0")]
+        if camera.readout_rotation:
+            needs.append(("attitude", images.attitude_rad, "omega_deg"))
+        for strip in dict.fromkeys(images.strip_id[mine].tolist()):
+            members = mine[images.strip_id[mine] == strip]
+            for what, values, column in needs:
+                given = members[np.isfinite(values[members]).all(axis=1)]
+                if len(np.unique(images.time_s[given])) < 2:
+                    raise BlockError(path, f"camera '{camera_id}' has shutter = \"rolling\": strip '{strip}' needs "
+                                           f"two images with a {what} at different times (the velocity during the "
+                                           f"readout comes from them)", int(images.line[members[0]]), column)
 
 
 def _require_trajectory(folder, images, names, values, section):

@@ -7,6 +7,8 @@ What is read, per image (plain numbers; geodesy is done by :mod:`selfcal.geometr
   with ``GPSAltitudeRef`` (1: below the reference, negative), ``GPSDateStamp`` + ``GPSTimeStamp`` (UTC).
 * **EXIF IFD** (0x8769): ``DateTimeOriginal`` with ``SubSecTimeOriginal`` and ``OffsetTimeOriginal`` (the camera
   clock; used for the time only when an image has no GPS time stamp).
+* **IFD0**: ``Make`` and ``Model`` (the camera: its rolling shutter's readout, :mod:`selfcal.convert.rolling`) and
+  the image's size.
 * **DJI XMP** (the ``drone-dji`` namespace; DJI's Zenmuse P1 / Matrice 4 manuals, "XMP Data List", and
   OpenDroneMap's ``opendm/photo.py``): ``Latitude``/``GpsLatitude``, ``Longitude``/``GpsLongitude`` (decimal
   degrees; they replace the EXIF rationals, as in ODM), ``AbsoluteAltitude`` ("geodetic height": WGS 84
@@ -42,6 +44,8 @@ GPS_LATITUDE_REF, GPS_LATITUDE, GPS_LONGITUDE_REF, GPS_LONGITUDE = 1, 2, 3, 4
 GPS_ALTITUDE_REF, GPS_ALTITUDE, GPS_TIME_STAMP, GPS_DATE_STAMP = 5, 6, 7, 29
 #: EXIF IFD tags
 DATE_TIME_ORIGINAL, SUBSEC_TIME_ORIGINAL, OFFSET_TIME_ORIGINAL = 0x9003, 0x9291, 0x9011
+#: TIFF IFD0 tags of the camera (EXIF 2.32, Table 4)
+MAKE, MODEL = 0x010F, 0x0110
 
 
 @dataclass(frozen=True)
@@ -65,6 +69,11 @@ class ImageGnss:
     flight_ypr_deg: tuple = (math.nan, math.nan, math.nan)
     gimbal_ypr_deg: tuple = (math.nan, math.nan, math.nan)
     sources: tuple = field(default=())        # "exif", "xmp"
+    #: the camera (EXIF Make, Model: "" where not written) and the image's size in pixels (0: unknown)
+    camera_make: str = ""
+    camera_model: str = ""
+    width_px: int = 0
+    height_px: int = 0
 
     @property
     def name(self) -> str:
@@ -183,6 +192,8 @@ def read_image_gnss(path: str | os.PathLike) -> ImageGnss:
             exif = image.getexif()
             gps = dict(exif.get_ifd(GPS_IFD))
             camera = dict(exif.get_ifd(EXIF_IFD))
+            make, model = _text(exif.get(MAKE)), _text(exif.get(MODEL))
+            size_px = image.size
     except FileNotFoundError:
         raise BlockError(path, "file not found") from None
     except (UnidentifiedImageError, OSError, SyntaxError) as exc:
@@ -218,8 +229,18 @@ def read_image_gnss(path: str | os.PathLike) -> ImageGnss:
         rtk_flag=_xmp_number(xmp, ("RtkFlag",), path),
         flight_ypr_deg=tuple(_xmp_number(xmp, (f"Flight{a}Degree",), path) for a in ("Yaw", "Pitch", "Roll")),
         gimbal_ypr_deg=tuple(_xmp_number(xmp, (f"Gimbal{a}Degree",), path) for a in ("Yaw", "Pitch", "Roll")),
-        sources=tuple(sources),
+        sources=tuple(sources), camera_make=make, camera_model=model, width_px=int(size_px[0]),
+        height_px=int(size_px[1]),
     )
+
+
+def _text(value) -> str:
+    """An EXIF ASCII tag as text ("" where absent), its NUL padding removed."""
+    if value is None:
+        return ""
+    if isinstance(value, (bytes, bytearray)):
+        value = value.decode("latin-1")
+    return str(value).strip("\0 ")
 
 
 def image_files(folder: str) -> list[str]:

@@ -33,11 +33,13 @@ RESULT_TABLES = {"images": "images.csv", "points": "points.csv", "residuals": "r
                  "correlation": "correlation.csv"}
 #: tables that only some results folders have: distortion_grid.csv (frame APs), detector_line.csv (line APs),
 #: trajectory.csv ([gnss] or [imu]), check_points.csv (seed 001's across / along / up), parameters.csv
-#: (schema 2 and later), attitude_corrections.csv (line scanners), control_loo.csv (the control's leave-one-out test)
+#: (schema 2 and later), attitude_corrections.csv (line scanners), control_loo.csv (the control's leave-one-out test),
+#: rolling_shutter.csv (rolling-shutter cameras)
 OPTIONAL_TABLES = {"parameters": "parameters.csv", "distortion_grid": "distortion_grid.csv",
                    "control_loo": "control_loo.csv",
                    "detector_line": "detector_line.csv", "trajectory": "trajectory.csv",
-                   "check_points": "check_points.csv", "attitude_corrections": "attitude_corrections.csv"}
+                   "check_points": "check_points.csv", "attitude_corrections": "attitude_corrections.csv",
+                   "rolling_shutter": "rolling_shutter.csv"}
 #: columns that hold names, not numbers
 _TEXT_COLUMNS = {"image_id", "camera_id", "strip_id", "point_id", "role", "parameter", "sensor", "term", "axis",
                  "unit", "owner", "group", "rejected_by"}

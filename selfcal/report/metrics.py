@@ -249,11 +249,16 @@ def camera_json(block: Block, result) -> dict:
     cameras = {}
     for k, (cam, values, sigma) in enumerate(zip(result.problem.cameras, result.state.cameras, sigmas)):
         cfg = block.cameras[cam.camera_id]
-        entry = {"model": cam.sensor}
+        sensor = _sensor(result, k)
+        # (a sensor variant that a camera's keys choose, a rolling shutter's, writes the camera's model and keys)
+        entry = {"model": cam.sensor if sensor.selectable else cfg.model}
         for key in ("width_px", "height_px", "pixel_size_mm", "columns", "rows"):
             if hasattr(cfg, key):
                 entry[key] = getattr(cfg, key)
-        for i, parameter in enumerate(_sensor(result, k).camera_parameters):
+        for key in ("shutter", "readout_direction"):
+            if getattr(cfg, key, None) is not None:
+                entry[key] = getattr(cfg, key)
+        for i, parameter in enumerate(sensor.camera_parameters):
             unit, factor = parameter.display
             entry[parameter.file_key] = {"value": float(values[i]) * factor,
                                          "sigma": None if np.isnan(sigma[i]) else float(sigma[i]) * factor,

@@ -5,12 +5,13 @@ initial values find it here and never branch on the name. Foreign descriptions t
 pushbroom camera are read by :mod:`selfcal.io` (usgscsm ISD; Pleiades and SPOT 5 DIMAP, DigitalGlobe XML) and
 built by the modules :mod:`.usgscsm` and :mod:`.vendor` (:mod:`.dimap`, :mod:`.spot`, :mod:`.dg`).
 """
-from . import bal, frame, pushbroom, rpc, usgscsm, usgscsm_frame, vendor
+from . import bal, frame, pushbroom, rolling, rpc, usgscsm, usgscsm_frame, vendor
 from .base import BoundSensor, Parameter, Sensor
 
 #: sensor name (``model =`` of a camera in block.toml) -> the sensor
 SENSORS: dict[str, Sensor] = {
     "frame": frame.SENSOR,
+    "frame-rolling": rolling.SENSOR,
     "bal": bal.SENSOR,
     "pushbroom": pushbroom.SENSOR,
     "rpc": rpc.SENSOR,
@@ -23,7 +24,7 @@ SENSORS: dict[str, Sensor] = {
 
 def sensor_of(camera) -> Sensor:
     """The sensor of a block camera: its ``model``, or the sensor its images need where one model covers
-    several (a usgscsm camera of frame or line-scan ISDs: ``camera.sensor``)."""
+    several (a usgscsm camera of frame or line-scan ISDs, a frame camera with a rolling shutter: ``camera.sensor``)."""
     try:
         return SENSORS[getattr(camera, "sensor", camera.model)]
     except KeyError:

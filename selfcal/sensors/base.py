@@ -69,6 +69,9 @@ class Parameter:
     #: how far it can move from its start, as a share of it, before the solution is absurd (None: no bound;
     #: :mod:`selfcal.stats.plausibility`)
     plausible: float | None = None
+    #: what screening tests it against and holds it at, where that is not its start value (a rolling shutter's
+    #: readout: 0, the global shutter); None: its start value
+    reference: float | None = None
 
     @property
     def display(self) -> tuple[str, float]:
@@ -206,6 +209,9 @@ class Sensor(ABC):
     #: whether a point behind one of its cameras at a solution means the block folded (a central projection: its
     #: mirror image fits; :mod:`selfcal.stats.plausibility`)
     central_projection: bool = False
+    #: whether block.toml's ``model = NAME`` names it; False for a variant that a camera's other keys choose (a frame
+    #: camera with ``shutter = "rolling"``: the camera's ``sensor``)
+    selectable: bool = True
     #: the named parameter sets it offers (seed 001's M1 ... M7), chosen by SensorOptions.model; with
     #: them come seed 001's workflow steps (focal-length calibration, GCP layouts, mono restitution)
     sensor_models: tuple[str, ...] = ()

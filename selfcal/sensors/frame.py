@@ -121,8 +121,9 @@ def project_with_jacobians(points_m: np.ndarray, eop: np.ndarray, iop: np.ndarra
 
 
 @njit(cache=True, nogil=True)
-def _project_indexed(points, eop, iop, m_img, dm_img, img, cam):
+def _project_indexed(points, eop, iop, m_img, dm_img, img, cam, shift):
     n = points.shape[0]
+    moved = shift.shape[0] > 0
     xy = np.empty((n, 2))
     j_e = np.empty((n, 2, 6))
     j_p = np.empty((n, 2, 3))
@@ -135,6 +136,9 @@ def _project_indexed(points, eop, iop, m_img, dm_img, img, cam):
         c = iop[k, 0]
         for a in range(3):
             d[a] = points[o, a] - eop[i, a]
+        if moved:
+            for a in range(3):
+                d[a] -= shift[o, a]
         for a in range(3):
             u[a] = m_img[i, a, 0] * d[0] + m_img[i, a, 1] * d[1] + m_img[i, a, 2] * d[2]
         inv_w = 1.0 / u[2]
@@ -164,9 +168,13 @@ def _project_indexed(points, eop, iop, m_img, dm_img, img, cam):
     return xy, j_e, j_p, j_i
 
 
+_NO_SHIFT = np.zeros((0, 3))
+
+
 def project_with_jacobians_indexed(points_m: np.ndarray, eop_images: np.ndarray, iop_cameras: np.ndarray,
                                    rotation: tuple[np.ndarray, np.ndarray], image_index: np.ndarray,
-                                   camera_index: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                                   camera_index: np.ndarray, shift_m: np.ndarray | None = None
+                                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """:func:`project_with_jacobians` for observations given by image and camera index.
 
     Parameters
@@ -176,16 +184,20 @@ def project_with_jacobians_indexed(points_m: np.ndarray, eop_images: np.ndarray,
     iop_cameras : (n_cameras, 3) interior orientation of every camera
     rotation : (M, dM) of every image, from ``matrix_from_opk_with_derivatives(eop_images[:, 3:])``
     image_index, camera_index : (n,) the observation's image and camera
+    shift_m : (n, 3), optional
+        Each observation's projection centre moved by this from its image's (a rolling shutter's line,
+        :mod:`selfcal.sensors.rolling`); the derivatives with respect to X0, Y0, Z0 are those of the moved centre.
 
     Same results as :func:`project_with_jacobians` (a compiled loop; the tests compare both).
     """
     m_img, dm_img = rotation
+    shift = _NO_SHIFT if shift_m is None else np.ascontiguousarray(shift_m, dtype=np.float64)
     return _project_indexed(np.ascontiguousarray(points_m, dtype=np.float64),
                             np.ascontiguousarray(eop_images, dtype=np.float64),
                             np.ascontiguousarray(iop_cameras, dtype=np.float64),
                             np.ascontiguousarray(m_img), np.ascontiguousarray(dm_img),
                             np.ascontiguousarray(image_index, dtype=np.int64),
-                            np.ascontiguousarray(camera_index, dtype=np.int64))
+                            np.ascontiguousarray(camera_index, dtype=np.int64), shift)
 
 
 def rays(xy_mm: np.ndarray, eop: np.ndarray, iop: np.ndarray, m: np.ndarray | None = None) -> np.ndarray:
@@ -261,7 +273,11 @@ class FrameBound(BoundSensor):
         image, iop, rotation, values = context[:4]
         cam = self.problem.image_camera[img]
         M = rotation[0] if isinstance(rotation, tuple) else rotation
-        xy = project(points, image[img], iop[cam], M[img])
+        return self.with_additional_parameters(project(points, image[img], iop[cam], M[img]), cam, values)
+
+    def with_additional_parameters(self, xy: np.ndarray, cam: np.ndarray, values: list) -> np.ndarray:
+        """Ideal photo coordinates ``xy`` (mm) of observations of cameras ``cam`` with the cameras' AP displacement
+        added (the parameters ``values`` of every camera), in place."""
         for k, camera in enumerate(self.problem.cameras):
             sel = np.flatnonzero(cam == k)
             a = values[k][camera.n_core:] * camera.free[camera.n_core:]
@@ -322,10 +338,33 @@ class FrameSensor(Sensor):
     "sigma_focal_mm": ("nonneg", False),
     "sigma_x0_mm": ("nonneg", False),
     "sigma_y0_mm": ("nonneg", False),
+    "shutter": ("str", False),
+    "readout_ms": ("nonneg", False),
+    "sigma_readout_ms": ("nonneg", False),
+    "readout_direction": ("str", False),
+    "readout_rotation": ("bool", False),
 }
 
     def bind(self, problem, block, o, pixel, sigma_px, options):
         return FrameBound(problem, block, o, pixel, sigma_px)
+
+    def check_camera(self, values):
+        """``shutter`` global or rolling; the readout keys only with a rolling shutter (:mod:`.rolling`)."""
+        from .rolling import READOUT_DIRECTIONS
+        shutter = values.get("shutter", "global")
+        if shutter not in ("global", "rolling"):
+            return [("shutter", f"shutter must be \"global\" or \"rolling\", found {shutter!r}")]
+        if shutter != "rolling":
+            given = [k for k in ("readout_ms", "sigma_readout_ms", "readout_direction", "readout_rotation")
+                     if k in values]
+            if given:
+                return [(given[0], f"{given[0]} is a rolling shutter's: give shutter = \"rolling\" with it")]
+        direction = values.get("readout_direction", "down")
+        if direction not in READOUT_DIRECTIONS:
+            return [("readout_direction", f"readout_direction must be one of {', '.join(READOUT_DIRECTIONS)} "
+                                          f"(the direction the sensor's lines are read in the image), "
+                                          f"found {direction!r}")]
+        return []
 
     def initial_images(self, bound, block, image_index):
         images = block.images

@@ -26,20 +26,28 @@ seed 000) plus noise.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..block import Block, Dropped, FrameCamera, Images, Observations, Points
+from ..block import Block, Dropped, FrameCamera, Images, Observations, Points, prune
 from ..geometry.rotation import matrix_from_opk, opk_from_matrix
 from ..sensors.frame import pixel_from_photo, project
 from .trajectory import TrajectoryErrors, TrajectoryTruth, draw_trajectory_errors
 
-__all__ = ["TrueDistortion", "UAVTruth", "UAVSimulation", "simulate_uav", "truth_files", "SCENARIOS", "DISTORTIONS"]
+__all__ = ["TrueDistortion", "UAVTruth", "UAVSimulation", "simulate_uav", "truth_files", "SCENARIOS", "DISTORTIONS",
+           "FLIGHTS"]
 
 SCENARIOS = ("type1", "type2", "type3", "type4")
 DISTORTIONS = ("none", "brown", "local", "local+brown")
+#: seed000: the camera turns with the aircraft at the end of a strip (kappa 0 / 180°); serpentine: the same strips
+#: flown with a fixed heading (the camera moves forwards on one strip, backwards on the next); corridor: two long
+#: strips out and back with a fixed heading
+FLIGHTS = ("seed000", "serpentine", "corridor")
+#: the a-priori readout a simulated rolling-shutter camera declares: the value of a camera nobody measured (ODM's
+#: default guess, selfcal.convert.rolling) with a wide sigma
+DECLARED_READOUT_MS, DECLARED_SIGMA_READOUT_MS = 30.0, 30.0
 
 # Nangang calibration field mark accuracy (NLSC 2015, quoted in seed 000)
 MARK_SIGMA_XY_M = 0.0167
@@ -101,6 +109,11 @@ class UAVTruth:
     gsd_m: float
     #: the trajectory errors as applied (per image without noise; drift origin; IMU drift)
     trajectory: TrajectoryTruth | None = None
+    #: the flight ("seed000", "serpentine", "corridor"), the rolling shutter's readout (0: a global shutter) and
+    #: each image's true velocity during its readout (m/s)
+    flight: str = "seed000"
+    readout_ms: float = 0.0
+    velocity_m_s: np.ndarray | None = None
 
 
 @dataclass
@@ -139,7 +152,8 @@ def simulate_uav(seed: int = 0, distortion: str = "local+brown", image_sigma_px:
                  distortion_scale: float = 1.0, lever_arm_m: tuple[float, float, float] = (0.0, 0.0, 0.0),
                  boresight_deg: tuple[float, float, float] = (0.0, 0.0, 0.0), n_strips: int = 4, images_per_strip: int = 7,
                  trajectory_errors: TrajectoryErrors | None = None, exposure_interval_s: float | None = None,
-                 declare_mounting: bool = False) -> UAVSimulation:
+                 declare_mounting: bool = False, flight: str = "seed000", speed_mps: float = 8.0,
+                 rolling_shutter_ms: float = 0.0, velocity_noise_mps: float = 0.1) -> UAVSimulation:
     """Simulate the seed-000 block; returns the four scenario blocks and the truth.
 
     Parameters
@@ -174,12 +188,36 @@ def simulate_uav(seed: int = 0, distortion: str = "local+brown", image_sigma_px:
         ``gnss_shift_m``, ``gnss_drift_mm_s``, ``imu_shift_deg`` and noise as declared. The images,
         points and measurements of a seed are the same either way (the trajectory is drawn last).
     exposure_interval_s : float, optional
-        Time between exposures along a strip (default: the 75 % base at 8 m/s, 11.35 s; 2 s gives
+        Time between exposures along a strip (default: the 75 % base at ``speed_mps``, 11.35 s at 8 m/s; 2 s gives
         strips of 12 s).
+    flight : {"seed000", "serpentine", "corridor"}
+        seed 000's strips with the camera turning at the strip ends; the same strips with a fixed heading; or a
+        corridor: 2 strips of ``2 * images_per_strip`` images out and back with a fixed heading, its 39 marks on a
+        13 x 3 grid along it (sparse control: every third column; dense: 27 of them).
+    speed_mps : float
+        Ground speed along the strips.
+    rolling_shutter_ms : float
+        Readout time of a rolling shutter (0: a global shutter). Each image's pose is that of its middle row at its
+        time; the row of an image point is read (row - H/2)/H x readout later, while the camera moves with the
+        image's velocity: the derivative of a cubic spline in time through its strip's true positions plus
+        ``velocity_noise_mps`` of noise per axis (drawn from a stream of its own: a seed's images, points, noise
+        and trajectory are those of the global shutter's). The blocks declare ``shutter = "rolling"`` with the readout a camera nobody measured gets
+        (:data:`DECLARED_READOUT_MS` +- :data:`DECLARED_SIGMA_READOUT_MS`). Image points that the motion moves off the
+        frame are left out (and the blocks pruned, :func:`selfcal.block.prune`, where that leaves a point with one ray).
     """
+    if flight not in FLIGHTS:
+        raise ValueError(f"unknown flight '{flight}' (known: {', '.join(FLIGHTS)})")
+    if not speed_mps > 0 or not rolling_shutter_ms >= 0:
+        raise ValueError(f"speed_mps must be positive and rolling_shutter_ms not negative, found {speed_mps}, "
+                         f"{rolling_shutter_ms}")
     rng = np.random.default_rng(seed)
     width_px, height_px, pixel = 6000, 4000, 0.0059
     nominal = FrameCamera("ilce7m3", width_px, height_px, pixel, focal_mm=21.0, x0_mm=0.0, y0_mm=0.0)
+    if rolling_shutter_ms > 0:
+        nominal = replace(nominal, shutter="rolling", readout_ms=DECLARED_READOUT_MS,
+                          sigma_readout_ms=DECLARED_SIGMA_READOUT_MS)
+    if flight == "corridor":
+        n_strips, images_per_strip = 2, 2 * images_per_strip
     true_cam = FrameCamera("ilce7m3", width_px, height_px, pixel, focal_mm=20.962, x0_mm=0.034, y0_mm=-0.021)
     field_ = _distortion(distortion, pixel, (true_cam.x0_mm, true_cam.y0_mm), distortion_scale)
     agl = 215.0
@@ -189,7 +227,7 @@ def simulate_uav(seed: int = 0, distortion: str = "local+brown", image_sigma_px:
     per_strip = images_per_strip
     if n_strips < 2 or per_strip < 3:
         raise ValueError(f"a block needs at least 2 strips of 3 images, asked for {n_strips} x {per_strip}")
-    speed = 8.0
+    speed = float(speed_mps)
     interval = base / speed if exposure_interval_s is None else float(exposure_interval_s)
 
     # --- exterior orientation (true)
@@ -204,7 +242,7 @@ def simulate_uav(seed: int = 0, distortion: str = "local+brown", image_sigma_px:
             x = j * base + rng.normal(0, 1.5)
             y = s * spacing + rng.normal(0, 1.5)
             z = 30.0 + agl + rng.normal(0, 1.0)            # constant flying height
-            kappa = (0.0 if eastbound else np.pi) + np.radians(rng.normal(0, 1.5))
+            kappa = (0.0 if eastbound or flight != "seed000" else np.pi) + np.radians(rng.normal(0, 1.5))
             eop_rows.append([x, y, z, np.radians(rng.normal(0, 1.2)), np.radians(rng.normal(0, 1.2)), kappa])
             image_id.append(f"S{s + 1}_{k + 1:02d}")
             strip_rows.append(s)
@@ -225,25 +263,44 @@ def simulate_uav(seed: int = 0, distortion: str = "local+brown", image_sigma_px:
     tz = _terrain(tx, ty) + rng.normal(0, 1.0, n_tie)
     tie = np.column_stack([tx, ty, tz])
 
-    gx = np.linspace(x_lo + 0.32 * foot_x, x_hi - 0.32 * foot_x, 8)
-    gy = np.linspace(y_lo + 0.25 * foot_y, y_hi - 0.25 * foot_y, 5)
-    grid = [(i, j) for j in range(5) for i in range(8) if (i, j) != (4, 2)]           # 39 marks
+    if flight == "corridor":
+        gx = np.linspace(x_lo + 0.32 * foot_x, x_hi - 0.32 * foot_x, 13)
+        gy = np.linspace(y_lo + 0.25 * foot_y, y_hi - 0.25 * foot_y, 3)
+        grid = [(i, j) for j in range(3) for i in range(13)]                            # 39 marks
+    else:
+        gx = np.linspace(x_lo + 0.32 * foot_x, x_hi - 0.32 * foot_x, 8)
+        gy = np.linspace(y_lo + 0.25 * foot_y, y_hi - 0.25 * foot_y, 5)
+        grid = [(i, j) for j in range(5) for i in range(8) if (i, j) != (4, 2)]       # 39 marks
     mx = np.array([gx[i] for i, _ in grid]) + rng.normal(0, 8.0, 39)
     my = np.array([gy[j] for _, j in grid]) + rng.normal(0, 8.0, 39)
     marks = np.column_stack([mx, my, _terrain(mx, my)])
-    periphery = [n for n, (i, j) in enumerate(grid) if i in (0, 7) or j in (0, 4)]     # 22 marks
-    interior = [n for n in range(39) if n not in periphery]                            # 17 marks
-    # sparse control: corners, four edge marks on the long sides, two on the short sides, five inner marks
-    sparse = [n for n, (i, j) in enumerate(grid)
-              if (i in (0, 7) and j in (0, 2, 4)) or (j in (0, 4) and i in (2, 5))
-              or (i, j) in ((2, 2), (5, 2), (3, 1), (4, 3), (6, 3))]
-    # dense control: the whole periphery plus the same inner marks
-    dense = sorted(set(periphery) | set(sparse))
+    if flight == "corridor":
+        # sparse control: every third column of marks across the corridor; dense: 9 of the 13 columns
+        sparse = [n for n, (i, _) in enumerate(grid) if i % 3 == 0]
+        dense = [n for n, (i, _) in enumerate(grid) if i in (0, 1, 3, 5, 6, 7, 9, 11, 12)]
+    else:
+        periphery = [n for n, (i, j) in enumerate(grid) if i in (0, 7) or j in (0, 4)]     # 22 marks
+        # sparse control: corners, four edge marks on the long sides, two on the short sides, five inner marks
+        sparse = [n for n, (i, j) in enumerate(grid)
+                  if (i in (0, 7) and j in (0, 2, 4)) or (j in (0, 4) and i in (2, 5))
+                  or (i, j) in ((2, 2), (5, 2), (3, 1), (4, 3), (6, 3))]
+        # dense control: the whole periphery plus the same inner marks
+        dense = sorted(set(periphery) | set(sparse))
     assert len(sparse) == 15 and len(dense) == 27, (len(sparse), len(dense))
-    del interior
 
     xyz_true = np.vstack([marks, tie])
     point_id = np.array([f"M{k + 1:02d}" for k in range(39)] + [f"T{k + 1:06d}" for k in range(n_tie)], dtype=object)
+
+    # --- the velocity of each image during its readout: the path through the images' positions (a cubic spline in
+    # time along each strip: the positions wander by metres about the strip's line) and noise drawn from a stream of
+    # its own (the rest of a seed stays the same)
+    velocity = np.zeros((n_img, 3))
+    if rolling_shutter_ms > 0:
+        from scipy.interpolate import CubicSpline
+        for s in range(n_strips):
+            members = np.flatnonzero(strip_of == s)
+            velocity[members] = CubicSpline(times[members], eop[members, :3]).derivative()(times[members])
+        velocity += np.random.default_rng([seed, 41]).normal(0, velocity_noise_mps, (n_img, 3))
 
     # --- project every point into every image
     iop = np.array([true_cam.focal_mm, true_cam.x0_mm, true_cam.y0_mm])
@@ -251,6 +308,7 @@ def simulate_uav(seed: int = 0, distortion: str = "local+brown", image_sigma_px:
     img_parts: list[np.ndarray] = []
     pt_parts: list[np.ndarray] = []
     pix_parts: list[np.ndarray] = []
+    off_parts: list[np.ndarray] = []
     half = 0.75 * max(foot_x, foot_y)                # beyond any footprint (tilts of a few degrees)
     order = np.argsort(xyz_true[:, 0], kind="stable")
     x_sorted = xyz_true[order, 0]
@@ -265,18 +323,24 @@ def simulate_uav(seed: int = 0, distortion: str = "local+brown", image_sigma_px:
         inside = ((pix[:, 0] > 1) & (pix[:, 0] < width_px - 1) & (pix[:, 1] > 1) & (pix[:, 1] < height_px - 1))
         idx = near[inside]
         pix = pix[inside]
+        if rolling_shutter_ms > 0:       # the same points, seen on the lines the moving camera reads them on
+            pix = _rolling_pixels(xyz_true[idx], eop[i], velocity[i], iop, field_, pix, rolling_shutter_ms,
+                                  (width_px, height_px, pixel))
         img_parts.append(np.full(idx.size, i))
         pt_parts.append(idx)
         pix_parts.append(pix)
+        off_parts.append((pix[:, 0] <= 0) | (pix[:, 0] >= width_px) | (pix[:, 1] <= 0) | (pix[:, 1] >= height_px))
     obs_img = np.concatenate(img_parts)
     obs_pt = np.concatenate(pt_parts)
     obs_pix = np.concatenate(pix_parts)
+    obs_off = np.concatenate(off_parts)
     # keep tie points seen at least twice, marks seen at least twice
     rays = np.bincount(obs_pt, minlength=n_pts)
     keep_pt = rays >= 2
     new_index = np.cumsum(keep_pt) - 1
     keep_obs = keep_pt[obs_pt]
     obs_img, obs_pt, obs_pix = obs_img[keep_obs], new_index[obs_pt[keep_obs]], obs_pix[keep_obs]
+    obs_off = obs_off[keep_obs]
     xyz_true, point_id = xyz_true[keep_pt], point_id[keep_pt]
     n_marks = int(keep_pt[:39].sum())
     mark_map = np.cumsum(keep_pt[:39]) - 1
@@ -294,6 +358,14 @@ def simulate_uav(seed: int = 0, distortion: str = "local+brown", image_sigma_px:
     measured[blunder_obs] += blunder_px
     measured[:, 0] = np.clip(measured[:, 0], 0.0, width_px)
     measured[:, 1] = np.clip(measured[:, 1], 0.0, height_px)
+    if obs_off.any():                   # moved off the frame by the rolling shutter
+        on = np.flatnonzero(~obs_off)
+        renumber = np.full(n_obs, -1)
+        renumber[on] = np.arange(on.size)
+        keep_blunder = ~obs_off[blunder_obs]
+        blunder_obs, blunder_px = renumber[blunder_obs[keep_blunder]], blunder_px[keep_blunder]
+        obs_img, obs_pt, measured = obs_img[on], obs_pt[on], measured[on]
+        n_obs = on.size
 
     # --- reference coordinates of the marks (with their survey noise)
     ref = xyz_true[:n_marks] + rng.normal(0, 1, (n_marks, 3)) * [MARK_SIGMA_XY_M, MARK_SIGMA_XY_M, MARK_SIGMA_Z_M]
@@ -363,16 +435,37 @@ def simulate_uav(seed: int = 0, distortion: str = "local+brown", image_sigma_px:
             imu_boresight_deg=tuple(np.degrees(boresight)) if with_traj and declare_mounting else None,
             dropped=Dropped(),
         )
+        if obs_off.any():       # points the motion left with one ray: out, as a block folder's reader does
+            blocks[scenario] = prune(blocks[scenario])
     truth = UAVTruth(
         camera=true_cam, distortion=field_, image_id=images.image_id, eop=eop,
         point_id=point_id, xyz=xyz_true, blunder_obs=blunder_obs, blunder_px=blunder_px,
         strip_id=strip_names, gnss_shift_m=shift, gnss_drift_m_s=drift, imu_shift_rad=imu_shift,
         lever_arm_m=lever_arm, boresight_rad=boresight, image_sigma_px=image_sigma_px, gsd_m=pixel * agl / true_cam.focal_mm,
-        trajectory=trajectory,
+        trajectory=trajectory, flight=flight, readout_ms=float(rolling_shutter_ms), velocity_m_s=velocity,
     )
     info = {"n_images": n_img, "n_points": len(xyz_true), "n_observations": n_obs,
-            "points_per_image": n_obs / n_img, "n_marks": n_marks, "seed": seed, "distortion": distortion}
+            "points_per_image": n_obs / n_img, "n_marks": n_marks, "seed": seed, "distortion": distortion,
+            "flight": flight, "speed_mps": speed, "rolling_shutter_ms": float(rolling_shutter_ms)}
     return UAVSimulation(blocks, truth, info)
+
+
+def _rolling_pixels(points: np.ndarray, eop: np.ndarray, velocity: np.ndarray, iop: np.ndarray,
+                    field_: TrueDistortion, pixel: np.ndarray, readout_ms: float, frame: tuple,
+                    iterations: int = 6) -> np.ndarray:
+    """Pixels (col, row) of ``points`` in one image whose rows are read down during ``readout_ms``: the projection
+    centre at the time of the row the point lands on, X0 + v (row - H/2)/H readout, found by iterating from the
+    global shutter's ``pixel`` (each step shrinks the error by the image motion during the readout over the image
+    height, ~1e-3)."""
+    width_px, height_px, size = frame
+    for _ in range(iterations):
+        dt = (pixel[:, 1] - height_px / 2.0) / height_px * readout_ms / 1000.0
+        moved = np.broadcast_to(eop, (len(points), 6)).copy()
+        moved[:, :3] += velocity[None, :] * dt[:, None]
+        xy = project(points, moved, iop)
+        dx, dy = field_.displacement_px(xy[:, 0], xy[:, 1])
+        pixel = pixel_from_photo(xy + np.column_stack([dx, dy]) * size, width_px, height_px, size)
+    return pixel
 
 
 def truth_files(truth: UAVTruth, nodes_x: int = 61) -> dict:
@@ -389,7 +482,13 @@ def truth_files(truth: UAVTruth, nodes_x: int = 61) -> dict:
         "camera_id": cam.camera_id, "width_px": cam.width_px, "height_px": cam.height_px,
         "pixel_size_mm": cam.pixel_size_mm, "focal_mm": cam.focal_mm, "x0_mm": cam.x0_mm, "y0_mm": cam.y0_mm,
         "distortion": truth.distortion.as_dict(), "image_sigma_px": truth.image_sigma_px, "gsd_m": truth.gsd_m,
+        "flight": truth.flight, "shutter": "rolling" if truth.readout_ms > 0 else "global",
+        "readout_ms": truth.readout_ms,
     }
+    # the velocities during the readout, where there is one (the poses are those of the middle rows)
+    velocity: tuple[list, list, list] = ([], [], [])
+    if truth.readout_ms > 0 and truth.velocity_m_s is not None:
+        velocity = (["vx_m_s", "vy_m_s", "vz_m_s"], list(truth.velocity_m_s.T), [".5f"] * 3)
     trajectory = {
         "strip_id": list(truth.strip_id),
         "gnss_shift_m": truth.gnss_shift_m, "gnss_drift_m_s": truth.gnss_drift_m_s,
@@ -399,8 +498,9 @@ def truth_files(truth: UAVTruth, nodes_x: int = 61) -> dict:
     return {
         "camera.json": camera,
         "trajectory.json": trajectory,
-        "images.csv": (["image_id", "X0", "Y0", "Z0", "omega_deg", "phi_deg", "kappa_deg"],
-                       [truth.image_id, *truth.eop[:, :3].T, *deg.T], ["", ".5f", ".5f", ".5f", ".8f", ".8f", ".8f"]),
+        "images.csv": (["image_id", "X0", "Y0", "Z0", "omega_deg", "phi_deg", "kappa_deg"] + velocity[0],
+                       [truth.image_id, *truth.eop[:, :3].T, *deg.T] + velocity[1],
+                       ["", ".5f", ".5f", ".5f", ".8f", ".8f", ".8f"] + velocity[2]),
         "points.csv": (["point_id", "X", "Y", "Z"], [truth.point_id, *truth.xyz.T], ["", ".5f", ".5f", ".5f"]),
         "distortion_grid.csv": (["col", "row", "dcol", "drow"], [col, row, dx, -dy], [".2f", ".2f", ".5f", ".5f"]),
         "blunders.csv": (["observation_row", "dcol_px", "drow_px"],

@@ -34,13 +34,13 @@ from typing import Callable
 import numpy as np
 
 from ..calibration import Calibration, undistort_image, undistortion_maps
-from ..convert import FALLBACK_GREY, PointColours, colmap_workspace, keypoints_and_matches
+from ..convert import FALLBACK_GREY, PointColours, RollingShutters, colmap_workspace, keypoints_and_matches
 from ..errors import BlockError
 from ..io.colmap_workspace import find_images, write_workspace
 from ..io.images import check_file_name, read_image
 from ..io.results import read_results
 
-__all__ = ["export_workspace"]
+__all__ = ["export_workspace", "rolling_shutters"]
 
 
 def export_workspace(results_folder: str, cams: dict[str, Calibration], images_folder: str, out: str,
@@ -67,7 +67,14 @@ def export_workspace(results_folder: str, cams: dict[str, Calibration], images_f
     if strangers:
         say(f"note: {len(strangers)} file(s) in {images_folder} are not images of the block and are ignored "
             f"(e.g. {strangers[0]})")
-    ws = colmap_workspace(cams, images, results.tables["points"], residuals, found)
+    rolling = rolling_shutters(results, cams)
+    if rolling is not None:
+        say(f"warning: camera(s) {', '.join(rolling.readout_ms)} have a rolling shutter: the poses are those of the "
+            f"images' middle lines and the 2-D points are moved to where the middle line would have seen their "
+            f"adjusted points (each line's own pose from rolling_shutter.csv); the images themselves are only "
+            f"undistorted, not resampled line by line: a dense matcher sees their shear (up to "
+            f"{rolling.largest_shear_px:.1f} px between the first and the last line)")
+    ws = colmap_workspace(cams, images, results.tables["points"], residuals, found, rolling=rolling)
     model = ws.model
     unoriented = len(found) - len(model.image_ids)
     if unoriented:
@@ -116,3 +123,25 @@ def export_workspace(results_folder: str, cams: dict[str, Calibration], images_f
     rms = float(np.sqrt(np.mean(model.point_error ** 2))) if len(model.point_error) else float("nan")
     return {"images": len(names), "points": len(model.point_ids), "observations": len(model.obs_point),
             "origin_m": ws.origin_m, "mean_error_px": rms, "grey_points": counts["grey_points"]}
+
+
+def rolling_shutters(results, cams: dict) -> RollingShutters | None:
+    """The rolling shutters of the cameras ``cams`` of a results folder (camera.json's ``shutter``, ``readout_ms``
+    and rolling_shutter.csv), or None where none has one. The velocities and rates are those the adjustment used."""
+    entries = results.camera.get("cameras", {})
+    rolling = {c: e for c, e in entries.items() if c in cams and e.get("shutter") == "rolling"}
+    if not rolling:
+        return None
+    table = results.tables.get("rolling_shutter")
+    if table is None:
+        raise BlockError(os.path.join(results.path or "", "rolling_shutter.csv"),
+                         "missing: camera.json has rolling-shutter cameras, and their images' velocities are here")
+    ids = table["image_id"]
+    velocity = np.column_stack([table["vx_m_s"], table["vy_m_s"], table["vz_m_s"]])
+    rate = np.radians(np.column_stack([table[f"{a}_rate_deg_s"] for a in ("omega", "phi", "kappa")]))
+    shutters = RollingShutters({c: float(e["readout_ms"]["value"]) for c, e in rolling.items()},
+                               {c: e.get("readout_direction", "down") for c, e in rolling.items()},
+                               dict(zip(ids, velocity)), dict(zip(ids, rate)))
+    shear = np.hypot(table["shear_col_px"], table["shear_row_px"])
+    shutters.largest_shear_px = float(np.nanmax(shear)) if len(shear) else 0.0
+    return shutters
