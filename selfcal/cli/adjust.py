@@ -197,7 +197,8 @@ def run(args: argparse.Namespace) -> int:
         for _, d in tested.screening_log:
             print(f"screening: dropped {d.camera_id}.{d.name} (t {d.t:.2f}, {d.reason})", file=sys.stderr)
     extra = {"seconds": time.perf_counter() - t0, "grid": list(args.grid)} | adjusted.summary_extra
-    files = result_files(adjusted.block, tested, extra, screening, adjusted.checks, adjusted.track)
+    files = result_files(adjusted.block, tested, extra, screening, adjusted.checks, adjusted.track,
+                         adjusted.plane)
     if adjusted.choice is not None:
         files["model_choice.csv"] = model_choice_table(adjusted.choice)
     if not args.no_report:

@@ -174,7 +174,8 @@ def bundle_adjust(block: Block | str | os.PathLike, ap: str | None = None, *, sn
     adjusted = adjust_block(block, request, progress=logging_progress(block.image_sigma_px),
                             report=logging_rounds(), say=LOG.info)
     extra = {"seconds": time.perf_counter() - t0, "grid": list(chosen.ap.grid)} | adjusted.summary_extra
-    files = result_files(adjusted.block, adjusted.tested, extra, screening, adjusted.checks, adjusted.track)
+    files = result_files(adjusted.block, adjusted.tested, extra, screening, adjusted.checks, adjusted.track,
+                         adjusted.plane)
     if adjusted.choice is not None:
         files["model_choice.csv"] = model_choice_table(adjusted.choice)
     return Outcome(adjusted, files, inputs)
