@@ -25,6 +25,7 @@ from ..stats.screening import ScreeningOptions
 from ..stats.snooping import SnoopingOptions
 from ..stats.variance import VarianceOptions
 from ..stats import checks as check_points
+from ..stats.correlation import correlation_figures
 from ..stats.plausibility import collapse
 from . import seed001
 from .frames import loo_in_crs, object_frame_block, tangent_plane_block
@@ -54,6 +55,9 @@ class AdjustRequest:
     height: object = None                   # terrain for mono restitution: a DEM callable or metres
     # validate the control point by point, each left out in turn (frame and BAL blocks; :mod:`.loo`)
     control_loo: bool = True
+    # Table 4's further figures: the correlations in an orthonormal AP basis, the canonical correlations and the
+    # design cosines (:func:`selfcal.stats.correlation.correlation_figures`)
+    orthonormal: bool = False
 
 
 @dataclass
@@ -124,6 +128,8 @@ def adjust_block(block: Block, request: AdjustRequest, progress: Callable | None
     Its ``summary_extra`` holds the run's options (:func:`run_options`: summary.json ``options``)."""
     adjusted = _adjust_block(block, request, progress, report, say, scores)
     adjusted.summary_extra = {"options": run_options(block, request)} | adjusted.summary_extra
+    if request.orthonormal and adjusted.tested.result.converged:
+        adjusted.summary_extra |= correlation_figures(adjusted.tested.result)
     return adjusted
 
 
@@ -163,6 +169,7 @@ def run_options(block: Block, request: AdjustRequest) -> dict:
         "image_ids": list(request.image_ids) if request.image_ids else None,
         "n_gcp": request.n_gcp,
         "keep_focal": bool(request.keep_focal),
+        "orthonormal": bool(request.orthonormal),
     }
 
 
