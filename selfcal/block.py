@@ -250,8 +250,9 @@ class Points:
         return len(self.point_id)
 
     def take(self, index: np.ndarray) -> "Points":
-        return Points(*(None if getattr(self, f) is None else getattr(self, f)[index]
-                        for f in self.__dataclass_fields__))
+        fields: list[Any] = [None if getattr(self, f) is None else getattr(self, f)[index]
+                             for f in self.__dataclass_fields__]
+        return Points(*fields)
 
 
 @dataclass(frozen=True)

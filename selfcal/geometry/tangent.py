@@ -81,7 +81,10 @@ class TangentPlane:
         parsed = CRS.from_user_input(self.crs)
         horizontal = parsed.sub_crs_list[0] if parsed.is_compound else parsed
         source = parsed if parsed.is_compound else parsed.to_3d()
-        geographic = horizontal.geodetic_crs.to_3d()
+        geodetic = horizontal.geodetic_crs
+        if geodetic is None or geodetic.ellipsoid is None:
+            raise ValueError(f"crs {self.crs!r} has no geodetic CRS with an ellipsoid")
+        geographic = geodetic.to_3d()
         if parsed.is_compound:
             require_best(source, geographic)
         try:
@@ -89,7 +92,7 @@ class TangentPlane:
             from_geo = Transformer.from_crs(geographic, source, always_xy=True, only_best=True)
         except ProjError as exc:
             raise ValueError(f"pyproj cannot convert {parsed.name} to {geographic.name}: {exc}") from None
-        ellipsoid = geographic.ellipsoid
+        ellipsoid = geodetic.ellipsoid
         a, f = float(ellipsoid.semi_major_metre), 1.0 / float(ellipsoid.inverse_flattening)
         set_ = object.__setattr__
         set_(self, "_to_geographic", to_geo)
@@ -97,7 +100,8 @@ class TangentPlane:
         set_(self, "semi_major_m", a)
         set_(self, "flattening", f)
         set_(self, "heights", "orthometric" if parsed.is_compound else "ellipsoidal")
-        lon, lat, h = to_geo.transform(*np.asarray(self.origin_crs, float), errcheck=True)
+        e0, n0, h0 = (float(v) for v in self.origin_crs)
+        lon, lat, h = to_geo.transform(e0, n0, h0, errcheck=True)
         set_(self, "origin_geodetic", (float(lat), float(lon), float(h)))
         la, lo = np.radians(lat), np.radians(lon)
         set_(self, "_origin_ecef", ecef_from_geodetic(la, lo, h, a, f))

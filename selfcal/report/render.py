@@ -96,9 +96,9 @@ def _summary_section(page: Page, s: dict) -> None:
     corr = s.get("max_abs_corr") or {}
     if corr:
         head = "".join(f"<th>{html.escape(k)}</th>" for k in corr)
-        rows = [(key, label) for key, label in _CORRELATION_ROWS if isinstance(s.get(key), dict)]
+        shown = [(key, label) for key, label in _CORRELATION_ROWS if isinstance(s.get(key), dict)]
         body = "".join(f'<tr><td class="text">{html.escape(label)}</td>'
-                       + "".join(summary_cell(s, f"{key}.{k}", ".3f") for k in corr) + "</tr>" for key, label in rows)
+                       + "".join(summary_cell(s, f"{key}.{k}", ".3f") for k in corr) + "</tr>" for key, label in shown)
         page.add('<p class="note">Table 4 of seed 000: the largest |correlation| of an AP coefficient with a '
                  "parameter of each group, from the cofactors of the final (snooped, screened) adjustment. A "
                  "correlation belongs to the AP basis, not to the fitted field: another basis of the same fields "

@@ -33,10 +33,12 @@ def place_in_crs(sim: UAVSimulation, crs: str, lon_deg: float, lat_deg: float, h
     declared sigmas of the marks and the GNSS scale with ``scale``."""
     from pyproj import CRS, Transformer
     parsed = CRS.from_user_input(crs)
-    geographic = (parsed.sub_crs_list[0] if parsed.is_compound else parsed).geodetic_crs.to_3d()
+    geodetic = (parsed.sub_crs_list[0] if parsed.is_compound else parsed).geodetic_crs
+    if geodetic is None:
+        raise ValueError(f"crs {crs!r} has no geodetic CRS")
     target = parsed if parsed.is_compound else parsed.to_3d()
-    origin = Transformer.from_crs(geographic, target, always_xy=True).transform(lon_deg, lat_deg, height_m)
-    plane = TangentPlane(crs, tuple(float(v) for v in origin))
+    e, n, h = Transformer.from_crs(geodetic.to_3d(), target, always_xy=True).transform(lon_deg, lat_deg, height_m)
+    plane = TangentPlane(crs, (float(e), float(n), float(h)))
     truth = sim.truth
     centre = np.r_[0.5 * (truth.xyz[:, :2].min(axis=0) + truth.xyz[:, :2].max(axis=0)), 0.0]
 
@@ -57,7 +59,8 @@ def place_in_crs(sim: UAVSimulation, crs: str, lon_deg: float, lat_deg: float, h
         images = replace(im, position_m=positions(im.position_m),
                          attitude_rad=attitudes(im.attitude_rad, true_positions))
         points = replace(pts, xyz_m=positions(pts.xyz_m), sigma_m=pts.sigma_m * scale)
-        gnss = None if block.gnss_sigma_m is None else tuple(float(s) * scale for s in block.gnss_sigma_m)
+        gnss = None if block.gnss_sigma_m is None else \
+            (block.gnss_sigma_m[0] * scale, block.gnss_sigma_m[1] * scale, block.gnss_sigma_m[2] * scale)
         blocks[name] = replace(block, crs=crs, images=images, points=points, gnss_sigma_m=gnss)
     eop = np.column_stack([positions(true_positions), attitudes(truth.eop[:, 3:], true_positions)])
     placed = replace(truth, xyz=positions(truth.xyz), eop=eop, gsd_m=truth.gsd_m * scale)

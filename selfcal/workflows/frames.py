@@ -20,6 +20,7 @@ from ..block import Block
 from ..errors import BlockError
 from ..geometry.tangent import TangentPlane, tangent_plane_reason
 from ..sensors import sensor_of
+from ..stats.loo import LeaveOneOut
 
 __all__ = ["object_frame_block", "tangent_plane_block", "loo_in_crs", "TANGENT_PLANE_LABEL", "ECEF_NAMES"]
 
@@ -91,8 +92,11 @@ def tangent_plane_block(block: Block) -> tuple[Block, TangentPlane | None]:
     if reason:
         raise BlockError("block.toml", reason, None, "crs")
     points, images = block.points, block.images
+    where = np.vstack([points.xyz_m, images.position_m])
+    if not np.isfinite(where).all(axis=1).any():
+        return block, None                  # (nothing placed yet: the adjustment says why it cannot start)
     try:
-        plane = TangentPlane.at_centre(crs, np.vstack([points.xyz_m, images.position_m]))
+        plane = TangentPlane.at_centre(crs, where)
         xyz = plane.from_crs(points.xyz_m)
         positions = plane.from_crs(images.position_m)
     except ValueError as exc:
@@ -128,7 +132,7 @@ def _diagonal(sigma: np.ndarray) -> np.ndarray:
     return np.einsum("ni,ij->nij", np.asarray(sigma, float) ** 2, np.eye(3))
 
 
-def loo_in_crs(loo, plane: TangentPlane, points) -> object:
+def loo_in_crs(loo: LeaveOneOut, plane: TangentPlane, points) -> LeaveOneOut:
     """A leave-one-out validation of the control (:class:`selfcal.stats.loo.LeaveOneOut`) of a block adjusted in
     ``plane``, its errors and cofactors turned into the CRS's coordinates at each control point (``points``: the
     adjusted block's, in the plane)."""
