@@ -111,3 +111,33 @@ def test_what_the_figures_measure(pair):
     # against the IOP whitened, the first coefficient's correlations are the first canonical correlation
     whitened = cross @ np.linalg.inv(np.linalg.cholesky(Q[np.ix_(iop, iop)])).T / np.sqrt(np.diag(Qb))[:, None]
     assert abs(np.linalg.norm(whitened[0]) - canonical["IOP"]) < 1e-9
+
+
+def test_selfcal_adjust_orthonormal_writes_the_figures_and_the_report_says_them(tmp_path):
+    """``selfcal adjust --orthonormal``: summary.json holds the four readings (valid against its schema), the
+    orthonormal basis has no intra-AP correlation, the canonical correlation is never below max_abs_corr, and the
+    report's Table 4 shows a row for each with what the figure is."""
+    import json
+
+    import jsonschema
+
+    from conftest import run_cli, simulation
+    from selfcal.io import write_block
+    from selfcal.io.results import summary_schema
+    from selfcal.report.page import Page
+    from selfcal.report.render import _summary_section
+    write_block(simulation(seed=2, distortion="brown", points_per_mm2=0.05).blocks["type2"], tmp_path / "block")
+    assert run_cli("adjust", str(tmp_path / "block"), "--out", str(tmp_path / "res"), "--ap", "brown",
+                   "--orthonormal", "--no-report", "--no-control-loo", "--quiet") == 0
+    with open(tmp_path / "res" / "summary.json") as handle:
+        s = json.load(handle)
+    jsonschema.validate(s, summary_schema(), cls=jsonschema.Draft202012Validator)
+    assert s["options"]["orthonormal"] is True
+    assert s["max_abs_corr_orthonormal"]["intra-AP"] < 1e-9 < s["max_abs_corr"]["intra-AP"]
+    for name in ("IOP", "EOP", "GNSS", "IMU"):
+        assert s["canonical_corr"][name] >= s["max_abs_corr"][name] - 1e-12
+    assert s["design_cosine"]["GNSS"] == 0.0
+    page = Page("t")
+    _summary_section(page, s)
+    html = "".join(page.parts)
+    assert "canonical correlation" in html and "orthonormal AP basis" in html and "belongs to the AP basis" in html
