@@ -250,6 +250,11 @@ class Points:
     ``xyz_m`` holds the reference coordinates of gcp/chk and the approximate
     coordinates of tie points where given (NaN otherwise); ``sigma_m`` the
     a-priori standard deviations sigma_X, sigma_Y, sigma_Z (NaN when not given).
+    ``sigma_axes`` (n, 3, 3), where given, says along what ``sigma_m`` is given when
+    that is not the block's own axes: row i of a point's matrix is the gradient of
+    the coordinate that ``sigma_m[:, i]`` belongs to with respect to ``xyz_m`` (a block
+    in the tangent plane of its CRS: the CRS's easting, northing and height,
+    :func:`selfcal.workflows.frames.tangent_plane_block`).
     """
 
     point_id: np.ndarray
@@ -257,12 +262,15 @@ class Points:
     xyz_m: np.ndarray
     sigma_m: np.ndarray
     line: np.ndarray
+    sigma_axes: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.point_id)
 
     def take(self, index: np.ndarray) -> "Points":
-        return Points(*(getattr(self, f)[index] for f in self.__dataclass_fields__))
+        fields: list[Any] = [None if getattr(self, f) is None else getattr(self, f)[index]
+                             for f in self.__dataclass_fields__]
+        return Points(*fields)
 
 
 @dataclass(frozen=True)

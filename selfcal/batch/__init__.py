@@ -76,7 +76,8 @@ def run_cell(scenario: str, block, model: str, settings: CellSettings = CellSett
         return Cell(scenario, model, None, str(exc), time.perf_counter() - t0)
     seconds = time.perf_counter() - t0
     extra = {"scenario": scenario, "seconds": seconds, "grid": list(settings.grid)} | adjusted.summary_extra
-    files = result_files(adjusted.block, adjusted.tested, extra, settings.screening, adjusted.checks, adjusted.track)
+    files = result_files(adjusted.block, adjusted.tested, extra, settings.screening, adjusted.checks, adjusted.track,
+                         adjusted.plane)
     return Cell(scenario, model, files, None, seconds)
 
 

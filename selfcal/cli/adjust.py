@@ -56,6 +56,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "pushbroom camera is adjusted)")
     parser.add_argument("--ap-sigma-px", type=number(0.0, low_open=True), metavar="S",
                         help="a-priori sigma of every AP coefficient in px (default: free)")
+    parser.add_argument("--orthonormal", action="store_true",
+                        help="add to summary.json the correlation figures of Table 4 in an AP basis orthonormal over "
+                             "the block's observations (max_abs_corr_orthonormal: the same fit, intra-AP 0), the "
+                             "canonical correlations no AP basis can change (canonical_corr) and the design "
+                             "cosines (design_cosine); see selfcal.stats.correlation")
 
 
 def _given(args, dest: str) -> bool:
@@ -184,7 +189,8 @@ def run(args: argparse.Namespace) -> int:
                             screening=screening, variance=VarianceOptions() if args.variance_components else None,
                             candidates=ap_candidates(args.ap, args.grid) if auto else None, image_ids=image_ids, n_gcp=args.gcps,
                             keep_focal=args.keep_focal, height=height,
-                            robust=robust_options(args), control_loo=not args.no_control_loo)
+                            robust=robust_options(args), control_loo=not args.no_control_loo,
+                            orthonormal=args.orthonormal)
     if request.candidates is not None and not args.quiet:         # --ap auto
         print(f"choosing the AP model among {len(request.candidates)} candidates by BIC (blunders first, with the "
               f"richest candidate) ...", file=sys.stderr)
@@ -197,7 +203,8 @@ def run(args: argparse.Namespace) -> int:
         for _, d in tested.screening_log:
             print(f"screening: dropped {d.camera_id}.{d.name} (t {d.t:.2f}, {d.reason})", file=sys.stderr)
     extra = {"seconds": time.perf_counter() - t0, "grid": list(args.grid)} | adjusted.summary_extra
-    files = result_files(adjusted.block, tested, extra, screening, adjusted.checks, adjusted.track)
+    files = result_files(adjusted.block, tested, extra, screening, adjusted.checks, adjusted.track,
+                         adjusted.plane)
     if adjusted.choice is not None:
         files["model_choice.csv"] = model_choice_table(adjusted.choice)
     if not args.no_report:

@@ -20,7 +20,6 @@ __all__ = ["horizon_covariance", "geodetic_jacobian", "WGS84_A_M", "WGS84_F", "u
 WGS84_A_M = 6378137.0
 WGS84_F = 1.0 / 298.257223563
 _E2 = WGS84_F * (2.0 - WGS84_F)
-_B_M = WGS84_A_M * (1.0 - WGS84_F)
 
 SECONDS_PER_DAY = 86400.0
 
@@ -85,35 +84,42 @@ def orbit_frame(position: np.ndarray, velocity: np.ndarray) -> np.ndarray:
     return np.stack([x, y, z], axis=2)
 
 
-def ecef_from_geodetic(lat_rad, lon_rad, height_m) -> np.ndarray:
-    """WGS 84 geodetic latitude, longitude (radians) and ellipsoidal height (m) to ECEF metres (n, 3)."""
+def ecef_from_geodetic(lat_rad, lon_rad, height_m, semi_major_m: float = WGS84_A_M,
+                       flattening: float = WGS84_F) -> np.ndarray:
+    """Geodetic latitude, longitude (radians) and ellipsoidal height (m) to Earth-centred Cartesian metres
+    (n, 3), on WGS 84 or the ellipsoid of ``semi_major_m`` and ``flattening``."""
     lat, lon, h = np.broadcast_arrays(np.asarray(lat_rad, float), np.asarray(lon_rad, float),
                                       np.asarray(height_m, float))
-    n = WGS84_A_M / np.sqrt(1.0 - _E2 * np.sin(lat) ** 2)
+    e2 = flattening * (2.0 - flattening)
+    n = semi_major_m / np.sqrt(1.0 - e2 * np.sin(lat) ** 2)
     return np.stack([(n + h) * np.cos(lat) * np.cos(lon), (n + h) * np.cos(lat) * np.sin(lon),
-                     (n * (1.0 - _E2) + h) * np.sin(lat)], axis=-1)
+                     (n * (1.0 - e2) + h) * np.sin(lat)], axis=-1)
 
 
-def geodetic_from_ecef(xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """ECEF metres (..., 3) to WGS 84 latitude, longitude (radians) and height (m).
+def geodetic_from_ecef(xyz: np.ndarray, semi_major_m: float = WGS84_A_M,
+                       flattening: float = WGS84_F) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Earth-centred metres (..., 3) to latitude, longitude (radians) and height (m) on WGS 84 or the
+    ellipsoid of ``semi_major_m`` and ``flattening``.
 
     Bowring's iteration on the parametric latitude; four iterations reach 1e-12 rad
     anywhere near the Earth's surface.
     """
     xyz = np.asarray(xyz, float)
+    e2 = flattening * (2.0 - flattening)
+    b = semi_major_m * (1.0 - flattening)
     x, y, z = xyz[..., 0], xyz[..., 1], xyz[..., 2]
     p = np.hypot(x, y)
     lon = np.arctan2(y, x)
-    ep2 = _E2 / (1.0 - _E2)
-    beta = np.arctan2(z, (1.0 - WGS84_F) * p)
+    ep2 = e2 / (1.0 - e2)
+    beta = np.arctan2(z, (1.0 - flattening) * p)
     for _ in range(4):
-        lat = np.arctan2(z + ep2 * _B_M * np.sin(beta) ** 3, p - _E2 * WGS84_A_M * np.cos(beta) ** 3)
-        beta = np.arctan2((1.0 - WGS84_F) * np.sin(lat), np.cos(lat))
-    n = WGS84_A_M / np.sqrt(1.0 - _E2 * np.sin(lat) ** 2)
+        lat = np.arctan2(z + ep2 * b * np.sin(beta) ** 3, p - e2 * semi_major_m * np.cos(beta) ** 3)
+        beta = np.arctan2((1.0 - flattening) * np.sin(lat), np.cos(lat))
+    n = semi_major_m / np.sqrt(1.0 - e2 * np.sin(lat) ** 2)
     cos_lat, sin_lat = np.cos(lat), np.sin(lat)
     # height from the better conditioned of the two forms (near the poles: from z)
     near_pole = np.abs(cos_lat) < 1e-3
-    h = np.where(near_pole, z / np.where(near_pole, sin_lat, 1.0) - n * (1.0 - _E2),
+    h = np.where(near_pole, z / np.where(near_pole, sin_lat, 1.0) - n * (1.0 - e2),
                  p / np.where(near_pole, 1.0, cos_lat) - n)
     return lat, lon, h
 

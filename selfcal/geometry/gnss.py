@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["HEIGHTS", "check_block_crs", "positions_in_crs", "detect_strips", "STRIP_TURN_DEG", "STRIP_GAP_FACTOR",
+__all__ = ["HEIGHTS", "require_best", "check_block_crs", "positions_in_crs", "detect_strips", "STRIP_TURN_DEG", "STRIP_GAP_FACTOR",
            "grid_bearing_of_north", "opk_from_yaw_pitch_roll"]
 
 HEIGHTS = ("ellipsoidal", "orthometric")
@@ -68,7 +68,7 @@ def positions_in_crs(xyz: np.ndarray, source_crs: str, target_crs: str, heights:
         if heights == "ellipsoidal":
             if source.is_geographic and len(source.axis_info) == 2:
                 source = source.to_3d()
-            _require_best(source, target)
+            require_best(source, target)
             transformer = Transformer.from_crs(source, target, always_xy=True, only_best=True)
             z = xyz[plan, 2]
             has_z = np.isfinite(z)
@@ -78,7 +78,7 @@ def positions_in_crs(xyz: np.ndarray, source_crs: str, target_crs: str, heights:
         else:
             horizontal = target.sub_crs_list[0] if target.is_compound else target
             src2d = source.sub_crs_list[0] if source.is_compound else source
-            _require_best(src2d, horizontal)
+            require_best(src2d, horizontal)
             transformer = Transformer.from_crs(src2d, horizontal, always_xy=True, only_best=True)
             e, n = transformer.transform(xyz[plan, 0], xyz[plan, 1], errcheck=True)
             done = np.column_stack([e, n, xyz[plan, 2]])
@@ -90,7 +90,7 @@ def positions_in_crs(xyz: np.ndarray, source_crs: str, target_crs: str, heights:
     return out
 
 
-def _require_best(source, target) -> None:
+def require_best(source, target) -> None:
     """Refuse when PROJ's best transformation is not available here (a geoid grid not installed): pyproj would
     fall back to a "ballpark" one that passes the ellipsoidal height through as an orthometric one."""
     import warnings

@@ -148,21 +148,25 @@ def check_points_geojson(checks: CheckPoints, crs: str, earth_fixed: bool, sigma
     return doc
 
 
-def object_points_ply(result) -> dict:
+def object_points_ply(result, view=None) -> dict:
     """points.ply: every adjusted object point (x, y, z as double, in points.csv's frame) with its sigma along
-    the axes (m), the number of images that see it and its role (:data:`PLY_ROLES`)."""
+    the axes (m), the number of images that see it and its role (:data:`PLY_ROLES`); ``view``
+    (:class:`~selfcal.report.frame.ResultView`): the points in the block's CRS."""
     block = result.block
     pts = block.points
-    sigma = np.sqrt(np.einsum("nii->ni", result.point_covariance()))
+    if view is None:
+        from .frame import ResultView
+        view = ResultView.of(result)
+    sigma = np.sqrt(np.einsum("nii->ni", view.point_covariance))
     vertices = np.zeros(len(pts), dtype=[("x", "f8"), ("y", "f8"), ("z", "f8"), ("sigma_x_m", "f4"),
                                          ("sigma_y_m", "f4"), ("sigma_z_m", "f4"), ("n_images", "i4"),
                                          ("role", "u1")])
-    xyz = result.state.points
+    xyz = view.points
     vertices["x"], vertices["y"], vertices["z"] = xyz.T
     vertices["sigma_x_m"], vertices["sigma_y_m"], vertices["sigma_z_m"] = sigma.T
     vertices["n_images"] = np.bincount(block.observations.point_index, minlength=len(pts))
     vertices["role"] = [PLY_ROLES.get(r, 0) for r in pts.role]
-    comments = [f"selfcal adjusted object points of block {block.name}", f"crs {block.crs}",
+    comments = [f"selfcal adjusted object points of block {block.name}", f"crs {view.crs}",
                 "role: " + ", ".join(f"{v} {k}" for k, v in PLY_ROLES.items()),
                 "sigma_*_m: a-posteriori standard deviations along x, y, z in metres"]
     return {"vertices": vertices, "comments": comments}

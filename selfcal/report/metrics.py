@@ -27,6 +27,7 @@ from ..stats.quality import quality_checks, worst_status
 from ..stats.checks import CheckPoints, check_point_sigmas_m, intersected
 from ..stats.correlation import max_abs_correlation_by_group
 from .exchange import check_points_geojson, object_points_ply
+from .frame import ResultView
 
 __all__ = ["SCHEMA_VERSION", "ground_sample_distance", "model_choice_table", "summary", "camera_json", "image_table",
            "point_table", "residual_table", "screening_json", "correlation_table", "distortion_grid_table",
@@ -77,22 +78,25 @@ def datum(block, problem, n_gcp: int) -> tuple[str, str]:
     return "a-priori", f"no control point: the images' given geometry, {weighted}"
 
 
-def summary(tested, extra: dict | None = None, checks=None) -> dict:
+def summary(tested, extra: dict | None = None, checks=None, view: ResultView | None = None) -> dict:
     """summary.json of DESIGN.md §4 for a (tested) adjustment. ``checks``: the check points
     (:mod:`selfcal.stats.checks`), by default those intersected in the adjustment. Errors and
-    precision are along the object frame's axes, or east, north, up for ECEF."""
+    precision are along the object frame's axes, or east, north, up for ECEF; ``view``: the
+    adjustment in the block's CRS (:class:`~selfcal.report.frame.ResultView`; a block adjusted in its
+    tangent plane), where errors and precision are along the CRS's coordinates."""
     from ..stats.checks import intersected, local_axes
     result = tested.result
     block = result.block
     pts = block.points
-    st = result.state
-    checks = intersected(result) if checks is None else checks
+    view = ResultView.of(result) if view is None else view
+    checks = view.checks(intersected(result) if checks is None else checks)
     d_chk = checks.errors_m
     gcp = pts.role == "gcp"
     tie = pts.role == "tie"
-    axes = local_axes(pts.xyz_m[gcp] if gcp.any() else st.points, _object_frame(result), block.crs)
-    d_gcp = (st.points[gcp] - pts.xyz_m[gcp]) @ axes.T
-    cov = np.einsum("ij,njk,lk->nil", axes, result.point_covariance(), axes)
+    axes = np.eye(3) if view.plane is not None else \
+        local_axes(pts.xyz_m[gcp] if gcp.any() else view.points, _object_frame(result), block.crs)
+    d_gcp = (view.points[gcp] - view.reference[gcp]) @ axes.T
+    cov = np.einsum("ij,njk,lk->nil", axes, view.point_covariance, axes)
     var = np.einsum("nii->ni", cov)
     gsd = ground_sample_distance(block, result)
     rmsd_xy = _rms(np.sum(d_chk[:, :2] ** 2, axis=1))
@@ -107,7 +111,7 @@ def summary(tested, extra: dict | None = None, checks=None) -> dict:
     out = {
         "schema_version": SCHEMA_VERSION,
         "selfcal_version": __version__,
-        "crs": block.crs,
+        "crs": view.crs,
         "sensors": sorted({cam.sensor for cam in result.problem.cameras}),
         "block": block.name,
         "ap_model": result.problem.cameras[0].ap.spec if result.problem.cameras else "none",
@@ -159,7 +163,7 @@ def summary(tested, extra: dict | None = None, checks=None) -> dict:
         "warnings": list(block.dropped.messages),
         "notes": list(result.notes),
         "seconds": result.seconds,
-        "diagnosis": diagnosis(tested, checks),
+        "diagnosis": diagnosis(tested, checks, view),
     }
     out["quality_check"] = quality_check(tested, d_gcp, pts.sigma_m[gcp], pts.point_id[gcp])
     if extra:
@@ -300,13 +304,14 @@ def _image_parameters(result):
     return result.problem.sensors[0].sensor.image_parameters if result.problem.sensors else ()
 
 
-def image_table(block: Block, result) -> CsvTable:
+def image_table(block: Block, result, view: ResultView | None = None) -> CsvTable:
     """images.csv: each image's parameters (a frame image's exterior orientation) and their sigma, in the
-    files' units (angles in degrees, wrapped to (-180, 180])."""
+    files' units (angles in degrees, wrapped to (-180, 180]); ``view``: in the block's CRS."""
     im = block.images
     parameters = _image_parameters(result)
-    values = result.state.image.copy()
-    sigma = result.image_sigma()
+    view = ResultView.of(result) if view is None else view
+    values = view.image.copy()
+    sigma = view.image_sigma
     header = ["image_id", "camera_id", "strip_id"] + [p.file_key for p in parameters] + \
         [p.sigma_key for p in parameters] + ["n_points"]
     cols = [im.image_id, im.camera_id, im.strip_id]
@@ -321,12 +326,15 @@ def image_table(block: Block, result) -> CsvTable:
     return header, cols, fmts
 
 
-def parameter_table(result) -> CsvTable:
+def parameter_table(result, view: ResultView | None = None) -> CsvTable:
     """parameters.csv: every image and camera parameter with its start value and a-posteriori sigma, in the
     files' units: ``owner`` (image or camera id), ``parameter``, ``group`` (EOP, IOP, AP), ``value``, ``sigma``
-    (empty where held), ``start``, ``unit``, ``active`` (0: held, by the sensor model or screening)."""
+    (empty where held), ``start``, ``unit``, ``active`` (0: held, by the sensor model or screening); ``view``:
+    the image parameters in the block's CRS."""
     from ..sensors.base import display_unit
     table = result.parameters()
+    if view is not None and view.plane is not None:
+        _image_rows_in_crs(table, result, view)
     rows = np.flatnonzero(table.kind != "trajectory")          # (the trajectory terms: trajectory.csv)
     shown = [display_unit(u) for u in table.unit[rows]]
     factor = np.array([f for _, f in shown])
@@ -338,6 +346,20 @@ def parameter_table(result) -> CsvTable:
     columns = [np.array(cols[h], dtype=object) if h in ("owner", "parameter", "group", "unit")
                else np.array(cols[h], dtype=int if h == "active" else float) for h in header]
     return header, columns, ["", "", "", ".9g", ".3g", ".9g", "", "d"]
+
+
+def _image_rows_in_crs(table, result, view: ResultView) -> None:
+    """The image parameters' values, sigmas and start values of ``table`` replaced by the CRS's (in place)."""
+    ids = {i: k for k, i in enumerate(result.problem.image_ids)}
+    rows = np.flatnonzero(table.kind == "image")
+    image = np.array([ids[o] for o in table.owner[rows]], np.int64)
+    position = table.position[rows].astype(np.int64)
+    start = np.full(view.image.shape, np.nan)
+    start[image, position] = table.start[rows]
+    start = view.poses(start)
+    table.value[rows] = view.image[image, position]
+    table.sigma[rows] = view.image_sigma[image, position]
+    table.start[rows] = start[image, position]
 
 
 def detector_line_table(result) -> CsvTable | None:
@@ -382,16 +404,18 @@ def control_loo_table(loo) -> CsvTable:
     return header, cols, ["", ""] + [".4f"] * 3 + [".5f"] * 3 + [".3f"] * 3 + [".3f", ".3g", "d"]
 
 
-def point_table(block: Block, result, tests=None) -> CsvTable:
+def point_table(block: Block, result, tests=None, view: ResultView | None = None) -> CsvTable:
     """points.csv: adjusted points with sigma; for control and check points d = adjusted - reference.
 
     For weighted control points, ``w_X, w_Y, w_Z`` are Baarda's w of the control
     coordinates (``tests``, :func:`selfcal.stats.observation_tests`); empty elsewhere.
+    ``view``: the points in the block's CRS.
     """
     pts = block.points
-    xyz = result.state.points
-    sd = np.sqrt(np.einsum("nii->ni", result.point_covariance()))
-    diff = np.where((pts.role != "tie")[:, None], xyz - pts.xyz_m, np.nan)
+    view = ResultView.of(result) if view is None else view
+    xyz = view.points
+    sd = np.sqrt(np.einsum("nii->ni", view.point_covariance))
+    diff = np.where((pts.role != "tie")[:, None], xyz - view.reference, np.nan)
     n_images = np.bincount(block.observations.point_index, minlength=len(pts))
     w = np.full((len(pts), 3), np.nan)
     if tests is not None:
@@ -541,29 +565,33 @@ def distortion_grid_table(block: Block, result, nodes_x: int = 61) -> CsvTable |
 
 
 def result_files(block_read: Block, tested, summary_extra: dict | None = None, screening_options=None, checks=None,
-                 track=None) -> dict:
+                 track=None, plane=None) -> dict:
     """Every file of the results folder as data: dicts become JSON, tuples CSV. ``checks``: the check points
     (default: intersected in the adjustment); ``track`` = (centre, axes) adds check_points.csv across /
-    along / up (seed 001)."""
+    along / up (seed 001); ``plane``: the tangent plane the block was adjusted in
+    (:class:`~selfcal.geometry.tangent.TangentPlane`): positions, attitudes and their precision are written back
+    in its CRS (:mod:`selfcal.report.frame`), the check points compared there."""
     result = tested.result
+    view = ResultView.of(result, plane)
     files = {
-        "summary.json": summary(tested, summary_extra, checks),
+        "summary.json": summary(tested, summary_extra, checks, view),
         "camera.json": camera_json(result.block, result),
-        "images.csv": image_table(result.block, result),
-        "points.csv": point_table(result.block, result, tested.tests),
+        "images.csv": image_table(result.block, result, view),
+        "points.csv": point_table(result.block, result, tested.tests, view),
         "residuals.csv": residual_table(block_read, tested),
-        "parameters.csv": parameter_table(result),
+        "parameters.csv": parameter_table(result, view),
         "screening.json": screening_json(tested, screening_options),
         "correlation.csv": correlation_table(result),
     }
-    files["points.ply"] = object_points_ply(result)
-    found = intersected(result) if checks is None else checks
+    files["points.ply"] = object_points_ply(result, view)
+    found = view.checks(intersected(result) if checks is None else checks)
+    sigmas = check_point_sigmas_m(found, result) if plane is None else \
+        view.check_sigmas(found, result.block.points.point_id)
     optional = {"check_points.geojson": check_points_geojson(
-                    found, result.block.crs, _object_frame(result) == "ECEF", check_point_sigmas_m(found, result),
-                    target_naif_code(result.block)),
+                    found, view.crs, _object_frame(result) == "ECEF", sigmas, target_naif_code(result.block)),
                 "distortion_grid.csv": distortion_grid_table(result.block, result),
                 "detector_line.csv": detector_line_table(result),
-                "trajectory.csv": trajectory_table(result) if result.problem.trajectory else None,
+                "trajectory.csv": trajectory_table(result, plane) if result.problem.trajectory else None,
                 "control_loo.csv": control_loo_table(tested.loo) if getattr(tested, "loo", None) is not None else None}
     if track is not None and checks is not None and len(checks):
         optional["check_points.csv"] = check_point_table(checks, track[1], track[0])
@@ -579,18 +607,21 @@ def target_naif_code(block: Block) -> int | None:
     return codes.pop() if len(codes) == 1 else None
 
 
-def trajectory_table(result) -> CsvTable:
+def trajectory_table(result, plane=None) -> CsvTable:
     """trajectory.csv: the strip-wise shift/drift (Eq. 12 of seed 000) and the mounting of each trajectory sensor.
 
     One row per parameter: ``sensor`` (GNSS, IMU), ``strip_id`` (empty for the mounting),
     ``term`` (D0, D1, D2, lever_arm, boresight), ``axis``, value and a-posteriori sigma in
     ``unit`` (m, m/s, m/s^2 for GNSS; deg, deg/s, deg/s^2 for IMU), and ``active``
-    (false: held at zero by screening, sigma empty).
+    (false: held at zero by screening, sigma empty). ``plane``: the tangent plane the block was adjusted in;
+    each strip's terms are turned into the CRS's axes at the strip's middle image
+    (:func:`~selfcal.report.frame.trajectory_in_crs`); the mounting is in the camera's and the IMU's axes.
     """
-    problem, state = result.problem, result.state
-    diag = result.Q_theta.diagonal()
+    from .frame import trajectory_in_crs
+    problem = result.problem
+    values, sigmas = trajectory_in_crs(result, plane)
     cols: dict[str, list] = {k: [] for k in ("sensor", "strip_id", "term", "axis", "value", "sigma", "unit", "active")}
-    full, free_col = 0, problem.n_e + problem.n_d
+    full = 0
     for t in problem.trajectory:
         gnss = t.offset == 0
         axes = ("X", "Y", "Z") if gnss else ("omega", "phi", "kappa")
@@ -603,9 +634,8 @@ def trajectory_table(result) -> CsvTable:
                 [("", "boresight", a, "deg") for a in axes]
         for j, (strip, term, axis, unit) in enumerate(meta):
             active = bool(t.free[j])
-            sigma = np.sqrt(result.variance_factor * diag[free_col]) * scale if active else np.nan
-            free_col += int(active)
-            for key, value in zip(cols, (t.sensor, strip, term, axis, state.extra[full + j] * scale, sigma, unit,
+            sigma = sigmas[full + j] * scale if active else np.nan
+            for key, value in zip(cols, (t.sensor, strip, term, axis, values[full + j] * scale, sigma, unit,
                                          int(active))):
                 cols[key].append(value)
         full += t.n_params
@@ -638,10 +668,11 @@ def model_choice_table(choice) -> CsvTable:
     return header, cols, fmts
 
 
-def diagnosis(tested, checks=None) -> dict:
+def diagnosis(tested, checks=None, view: ResultView | None = None) -> dict:
     """summary.json ``diagnosis`` (:mod:`selfcal.stats.diagnosis`): the residual-field test of each frame camera,
     the dome test of the check points' heights, and sentences naming what was found, its likely cause and the
-    remedy. The dome's centre is the centre of the images' positions (of the check points without them)."""
+    remedy. The dome's centre is the centre of the images' positions (of the check points without them).
+    ``view``: the frame ``checks`` are in (the block's CRS; default the adjustment's own)."""
     from ..stats.checks import intersected
     from ..stats.diagnosis import ALPHA, POWER, dome_test, findings, residual_field_tests
     result = tested.result
@@ -663,7 +694,7 @@ def diagnosis(tested, checks=None) -> dict:
     dome = None
     if len(checks):
         planar = checks.reference @ checks.axes.T
-        positions = block.images.position_m
+        positions = block.images.position_m if view is None else view.given_positions
         seen = np.isfinite(positions).all(axis=1)
         centre = (positions[seen] @ checks.axes.T)[:, :2].mean(axis=0) if seen.any() else planar[:, :2].mean(axis=0)
         dome = dome_test(planar[:, :2], checks.errors_m[:, 2], centre)

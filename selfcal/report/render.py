@@ -81,6 +81,13 @@ def _add_figure(page: Page, files: dict, fig, stem: str, caption: str) -> None:
     page.figure(png, f"figures/{stem}.svg", caption, alt=caption.split(".")[0])
 
 
+#: the rows of the report's Table 4 (summary.json keys; all but the first with selfcal adjust --orthonormal)
+_CORRELATION_ROWS = (("max_abs_corr", "max |rho|, the APs as estimated"),
+                     ("max_abs_corr_orthonormal", "max |rho|, orthonormal AP basis"),
+                     ("canonical_corr", "canonical correlation (any basis)"),
+                     ("design_cosine", "max |cos| of design columns"))
+
+
 def _summary_section(page: Page, s: dict) -> None:
     rows = []
     for label, keys in _SUMMARY_ROWS:
@@ -90,10 +97,17 @@ def _summary_section(page: Page, s: dict) -> None:
     corr = s.get("max_abs_corr") or {}
     if corr:
         head = "".join(f"<th>{html.escape(k)}</th>" for k in corr)
-        corr_cells = "".join(summary_cell(s, f"max_abs_corr.{k}", ".3f") for k in corr)
-        page.add('<p class="note">Largest |correlation| of the camera parameters with each group '
-                 "(Table 4 of seed 000):</p>"
-                 f"<table><thead><tr>{head}</tr></thead><tbody><tr>{corr_cells}</tr></tbody></table>")
+        shown = [(key, label) for key, label in _CORRELATION_ROWS if isinstance(s.get(key), dict)]
+        body = "".join(f'<tr><td class="text">{html.escape(label)}</td>'
+                       + "".join(summary_cell(s, f"{key}.{k}", ".3f") for k in corr) + "</tr>" for key, label in shown)
+        page.add('<p class="note">Table 4 of seed 000: the largest |correlation| of an AP coefficient with a '
+                 "parameter of each group, from the cofactors of the final (snooped, screened) adjustment. A "
+                 "correlation belongs to the AP basis, not to the fitted field: another basis of the same fields "
+                 "(the orthonormal one) gives other figures for the same fit, and no basis brings a group below its "
+                 "canonical correlation (the best-correlated combinations of each side); design cosines are angles "
+                 "between the design matrix's columns, not correlations of the estimates (selfcal.stats.correlation)."
+                 "</p>"
+                 f'<table><thead><tr><th></th>{head}</tr></thead><tbody>{body}</tbody></table>')
 
 
 #: the colour of a quality check's status

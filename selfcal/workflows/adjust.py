@@ -19,14 +19,16 @@ from ..ap import takes_grid
 from ..block import Block
 from ..convert.control import block_control_swapped
 from ..errors import AdjustmentError, BlockError, UsageError
+from ..geometry.tangent import TangentPlane
 from ..sensors import sensor_of
 from ..stats.screening import ScreeningOptions
 from ..stats.snooping import SnoopingOptions
 from ..stats.variance import VarianceOptions
 from ..stats import checks as check_points
+from ..stats.correlation import correlation_figures
 from ..stats.plausibility import collapse
 from . import seed001
-from .frames import object_frame_block
+from .frames import loo_in_crs, object_frame_block, tangent_plane_block
 from .loo import control_loo, loo_notes, loo_summary
 from .model_choice import ModelChoice, choose_ap_model
 from .tested import TestedAdjustment, adjust_with_tests
@@ -53,6 +55,9 @@ class AdjustRequest:
     height: object = None                   # terrain for mono restitution: a DEM callable or metres
     # validate the control point by point, each left out in turn (frame and BAL blocks; :mod:`.loo`)
     control_loo: bool = True
+    # Table 4's further figures: the correlations in an orthonormal AP basis, the canonical correlations and the
+    # design cosines (:func:`selfcal.stats.correlation.correlation_figures`)
+    orthonormal: bool = False
 
 
 @dataclass
@@ -63,6 +68,9 @@ class Adjusted:
     summary_extra: dict
     track: tuple | None = None              # (centre, axes) of seed 001's across / along / up errors
     choice: ModelChoice | None = None
+    #: the tangent plane a block in a projected CRS was adjusted in (``block``, ``tested`` and ``checks`` are in
+    #: it; :func:`selfcal.report.result_files` writes the results back in the CRS), None: the block's own frame
+    plane: TangentPlane | None = None
 
 
 #: the AP models a frame camera chooses between when no model is asked for (issue 45 item 4): on 12 simulated
@@ -120,6 +128,8 @@ def adjust_block(block: Block, request: AdjustRequest, progress: Callable | None
     Its ``summary_extra`` holds the run's options (:func:`run_options`: summary.json ``options``)."""
     adjusted = _adjust_block(block, request, progress, report, say, scores)
     adjusted.summary_extra = {"options": run_options(block, request)} | adjusted.summary_extra
+    if request.orthonormal and adjusted.tested.result.converged:
+        adjusted.summary_extra |= correlation_figures(adjusted.tested.result)
     return adjusted
 
 
@@ -159,6 +169,7 @@ def run_options(block: Block, request: AdjustRequest) -> dict:
         "image_ids": list(request.image_ids) if request.image_ids else None,
         "n_gcp": request.n_gcp,
         "keep_focal": bool(request.keep_focal),
+        "orthonormal": bool(request.orthonormal),
     }
 
 
@@ -169,6 +180,7 @@ def _adjust_block(block: Block, request: AdjustRequest, progress: Callable | Non
     block = object_frame_block(block)
     if offers_sensor_models(block):
         return _seed001(block, request, progress, report, say, scores)
+    block, plane = tangent_plane_block(block)
     options, choice = request.options, None
     _check_control(block)                   # before any work: the model choice adjusts too
     if request.candidates:
@@ -186,9 +198,13 @@ def _adjust_block(block: Block, request: AdjustRequest, progress: Callable | Non
     if request.control_loo and tested.result.converged and not tested.failure:
         tested.loo = control_loo(tested, options)
         if tested.loo is not None:
+            if plane is not None:           # (its errors along the CRS's coordinates, as the control's sigmas)
+                tested.loo = loo_in_crs(tested.loo, plane, tested.result.block.points)
             extra["control_loo"] = loo_summary(tested.loo)
             tested.result.notes.extend(loo_notes(tested.loo))
-    return Adjusted(tested, block, check_points.intersected(tested.result), extra, choice=choice)
+    if plane is not None:
+        extra["object_frame"] = plane.describe()
+    return Adjusted(tested, block, check_points.intersected(tested.result), extra, choice=choice, plane=plane)
 
 
 def _check_control_axes(block: Block) -> None:

@@ -39,12 +39,16 @@ def from_block(block: Block, problem, settings) -> list[PointResiduals]:
 
 
 def control_weights(block: Block, control: np.ndarray, object_frame: str) -> np.ndarray:
-    """W (n, 3, 3) with W^T W the inverse covariance of each control point: diagonal in the block's axes, or,
+    """W (n, 3, 3) with W^T W the inverse covariance of each control point: diagonal in the block's axes (or in
+    the axes ``Points.sigma_axes`` gives: rows diag(1 / sigma) times them), or,
     for points in an Earth- or body-fixed frame, diag(1 / sigma) times the local east, north and up (the WGS 84
     normal on the Earth, the radial direction of a body: ``crs = "body-fixed"``) at the point, so that a
     coordinate held loosely (sigma 1e6 m) and one held tightly do not meet in one inverted covariance."""
     sigma = block.points.sigma_m[control]
     if object_frame != "ECEF":
+        axes = block.points.sigma_axes
+        if axes is not None:        # sigma along other axes (a block in its CRS's tangent plane: the CRS's)
+            return np.einsum("ni,nij->nij", 1.0 / sigma, axes[control])
         return np.einsum("ni,ij->nij", 1.0 / sigma, np.eye(3))
     xyz = block.points.xyz_m[control]
     if block.crs == "body-fixed":
