@@ -280,7 +280,10 @@ class Observations:
     ``pixel`` holds (col, row) in pixels, ``sigma_px`` the a-priori standard
     deviation of each coordinate. ``row`` identifies each observation by its
     position in the block as read (0-based), so that subsets (after pruning or
-    data snooping) map back to it.
+    data snooping) map back to it. ``ap_at_px`` (col, row), where not None, is where the
+    additional parameters' correction of each observation is evaluated instead of ``pixel``: the
+    adjusted image coordinates of an earlier adjustment (:mod:`selfcal.adjust.engine` sets it; a block
+    as read has None). It belongs to these pixels: a block whose ``pixel`` is replaced must drop it.
     """
 
     image_index: np.ndarray
@@ -289,6 +292,7 @@ class Observations:
     sigma_px: np.ndarray
     line: np.ndarray
     row: np.ndarray = None  # type: ignore[assignment]  # None: 0 .. n - 1, set by __post_init__
+    ap_at_px: np.ndarray | None = None
 
     def __post_init__(self):
         if self.row is None:
@@ -298,7 +302,9 @@ class Observations:
         return len(self.image_index)
 
     def take(self, index: np.ndarray) -> "Observations":
-        return Observations(*(getattr(self, f)[index] for f in self.__dataclass_fields__))
+        fields: list[Any] = [None if getattr(self, f) is None else getattr(self, f)[index]
+                             for f in self.__dataclass_fields__]
+        return Observations(*fields)
 
 
 @dataclass(frozen=True)

@@ -231,6 +231,14 @@ def _gather(columns: np.ndarray, rows: np.ndarray, keep: np.ndarray | None, bloc
     return out
 
 
+def _same_positions(previous: np.ndarray | None, current: np.ndarray | None, source: np.ndarray) -> bool:
+    """Whether the AP basis of each observation is evaluated where it was in the previous problem (both at the
+    measured coordinates, or at the same adjusted ones)."""
+    if previous is None or current is None:
+        return previous is None and current is None
+    return bool(np.array_equal(previous[source], current))
+
+
 def carry_ap_columns(problem: Problem, rows: np.ndarray, previous: Problem, previous_rows: np.ndarray,
                      consume: bool = False) -> None:
     """Give ``problem`` the AP columns of ``previous`` where both use the same AP model object.
@@ -246,6 +254,8 @@ def carry_ap_columns(problem: Problem, rows: np.ndarray, previous: Problem, prev
     source = row_positions(previous_rows, rows)                 # previous observation of each observation
     if source is None:
         return                                                  # not a subset of the previous observations
+    if not _same_positions(previous.obs_ap_at, problem.obs_ap_at, source):
+        return                                                  # the AP basis is evaluated elsewhere now
     for k, cam in enumerate(problem.cameras):
         old_k = next((j for j, c in enumerate(previous.cameras) if c.camera_id == cam.camera_id), None)
         if old_k is None or previous.cameras[old_k].ap is not cam.ap or not cam.ap.n_params:

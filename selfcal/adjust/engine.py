@@ -1,7 +1,20 @@
 """The adjustment engine's entry: :func:`adjust` sets up the problem (:mod:`.problem`), finds initial values
 (:mod:`.initial`), iterates (:mod:`.solver`), weights robustly where asked (:mod:`.robust`) and extracts the
 cofactor matrices (:mod:`.covariance`) into one :class:`~selfcal.adjust.result.AdjustmentResult`. It never reads
-files and never prints; progress goes to an optional callback."""
+files and never prints; progress goes to an optional callback.
+
+Where the APs are evaluated. Eq. (1) of seed 000 adds Delta at the measured image coordinates l = m + e (m the
+true position, e the noise). Evaluated there, a basis function's column B(l) carries the noise it is regressed
+on: to first order E[B(l)ᵀ v] = -sigma^2 div B at the true parameters, so the normal equations are biased by
+sigma^2 times the summed divergence of the basis, and the estimate by Q (that sum): nothing in a fit of white
+noise, but in a block where the APs trade with c, x0, y0 and the scale of the object (a free close-range network:
+c with Brown's affinity b1 at -0.96) the bias is many sigmas (DESIGN-NOTES "Honest precision": on a simulated
+block with the true camera, c 11 sigma off at 0.45 px of noise, back to 0.7 sigma with the basis at the true
+positions). The adjusted coordinates l + v (v = f - l) are uncorrelated with the residuals (cov(l_hat, v) = 0
+in a linear adjustment), so with ``APOptions.evaluated_at == "adjusted"`` (default) an adjustment that starts with
+the basis at the measured coordinates converges, moves it to the adjusted ones
+(:func:`at_adjusted_coordinates`, ``Observations.ap_at_px``) and converges again from there; a re-adjustment of
+its block (snooping, screening) keeps them."""
 from __future__ import annotations
 
 import contextlib
@@ -146,6 +159,35 @@ def adjust(block: Block, options: AdjustOptions = AdjustOptions(),
         return _adjust(block, options, progress, start, free, ap_models, robust, threads)
 
 
+def _moves_ap_positions(options: AdjustOptions, problem: Problem, block: Block) -> bool:
+    """Whether the adjustment just converged evaluated free APs at the measured image coordinates, and they
+    are to move to the adjusted ones (``options.ap.evaluated_at``)."""
+    if options.ap.evaluated_at != "adjusted" or block.observations.ap_at_px is not None:
+        return False
+    with_aps = {k for k, cam in enumerate(problem.cameras) if cam.ap.n_params and cam.free[cam.n_core:].any()}
+    if not with_aps:
+        return False
+    for slot in problem.sensors:
+        if getattr(slot.bound, "adjusted_ap_positions", False) and \
+                np.isin(problem.image_camera[slot.images], list(with_aps)).any():
+            return True
+    return False
+
+
+def at_adjusted_coordinates(problem: Problem, block: Block, state) -> Block:
+    """``block`` whose observations carry, as where their AP correction is evaluated
+    (``Observations.ap_at_px``), their adjusted image coordinates at ``state``: the measured (col, row) plus the
+    residual f - l, i.e. the model's prediction with the APs. Observations of sensors that keep the basis at the
+    measured coordinates keep their measured pixels there."""
+    l_minus_f = image_residuals(problem, state)                 # problem (sorted) order
+    at = np.array(block.observations.pixel, float, copy=True)
+    for slot in problem.sensors:
+        if getattr(slot.bound, "adjusted_ap_positions", False):
+            o = slot.observations
+            at[problem.obs_order[o]] -= slot.bound.pixel_residuals(o, l_minus_f[o])
+    return replace(block, observations=replace(block.observations, ap_at_px=at))
+
+
 def _adjust(block: Block, options: AdjustOptions, progress, start, free, ap_models, robust,
             threads: contextlib.ExitStack) -> AdjustmentResult:
     t0 = time.perf_counter()
@@ -242,7 +284,14 @@ def _adjust(block: Block, options: AdjustOptions, progress, start, free, ap_mode
         history += [replace(record, iteration=record.iteration + done) for record in outcome.history]
         datum_null = outcome.datum_null
         if outcome.undetermined is None or len(history) >= options.solver.max_iterations:
-            break
+            if len(history) >= options.solver.max_iterations or not _moves_ap_positions(options, problem, block):
+                break
+            # the AP basis moves from the measured image coordinates to the adjusted ones, and the estimate
+            # converges again from where it is (module docstring)
+            previous = SimpleNamespace(block=block, state=outcome.state, problem=problem)
+            block = at_adjusted_coordinates(problem, block, outcome.state)
+            problem, state, notes = setup(block, previous, {cam.camera_id: cam.ap for cam in problem.cameras})
+            continue
         # a free network's points that their rays do not determine: left out, and on from the estimate so far
         flagged = np.zeros(len(block.points), bool)
         flagged[outcome.undetermined] = True

@@ -15,6 +15,10 @@ __all__ = ["APOptions", "AdjustOptions", "SensorOptions", "SolverOptions", "Traj
 DRIFT_ORDERS = (-1, 0, 1, 2)
 
 
+#: where the AP correction of an image observation may be evaluated (APOptions.evaluated_at)
+AP_POSITIONS = ("adjusted", "measured")
+
+
 @dataclass(frozen=True)
 class APOptions:
     """The additional parameters.
@@ -29,12 +33,19 @@ class APOptions:
         The cameras that get additional parameters (default: all).
     sigma_px : float, optional
         A-priori sigma of every AP coefficient (a prior observation of its start value); default free.
+    evaluated_at : str
+        Where a frame camera's AP correction of an observation is evaluated: ``"adjusted"`` (default) at its
+        adjusted image coordinates (the adjustment converges with the basis at the measured ones, moves it to
+        the adjusted ones and converges again), ``"measured"`` at the measured ones throughout (Eq. (1) of seed
+        000 read literally: an errors-in-variables estimate, biased where the APs trade with c, x0, y0; see
+        DESIGN-NOTES "Honest precision").
     """
 
     model: str = "none"
     grid: tuple[int, int] = (9, 6)
     cameras: tuple[str, ...] | None = None
     sigma_px: float | None = None
+    evaluated_at: str = "adjusted"
 
     def __post_init__(self) -> None:
         from ..ap import check_ap_spec
@@ -47,6 +58,8 @@ class APOptions:
         object.__setattr__(self, "grid", (int(self.grid[0]), int(self.grid[1])))
         if self.sigma_px is not None and not self.sigma_px > 0:
             raise UsageError(f"AP sigma {self.sigma_px} px: a positive number expected")
+        if self.evaluated_at not in AP_POSITIONS:
+            raise UsageError(f"AP evaluated_at '{self.evaluated_at}': one of {', '.join(AP_POSITIONS)} expected")
 
 
 @dataclass(frozen=True)

@@ -118,6 +118,9 @@ class Problem:
     sensors: list[SensorSlot] = field(default_factory=list)
     obs_sensor: np.ndarray = _filled((0,), np.int64)    # (n_obs,) index into sensors
     obs_pixel: np.ndarray = _filled((0, 2))     # (n_obs, 2) the measured (col, row), px
+    # (n_obs, 2) where the AP correction is evaluated (the adjusted (col, row) of an earlier adjustment), px;
+    # None: at obs_pixel (Observations.ap_at_px)
+    obs_ap_at: np.ndarray | None = None
     obs_value: np.ndarray = _filled((0, 2))     # (n_obs, 2) observation vector, the sensor's observation units
     # (n_obs, 2) the standard deviation its rows are whitened by: a-priori / sqrt(weight)
     obs_sigma: np.ndarray = _filled((0, 2))
@@ -393,6 +396,7 @@ def build_problem(block: Block, options: AdjustOptions = AdjustOptions(), ap_mod
     sensor_index = np.array([kinds.index(s.name) for s in sensors])[image_camera]
     problem.obs_sensor = sensor_index[problem.obs_image]
     problem.obs_pixel = obs.pixel[order]
+    problem.obs_ap_at = None if obs.ap_at_px is None else obs.ap_at_px[order]
     problem.obs_value = np.zeros((len(order), 2))
     problem.obs_sigma = np.ones((len(order), 2))
     widths = set()

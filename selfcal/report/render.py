@@ -21,6 +21,7 @@ import numpy as np
 from ..io.results import ResultsFolder
 from . import figures
 from .page import Page, fmt, summary_cell
+from .calibration_precision import calibration_precision_section
 from .rolling import rolling_shutter_section
 
 __all__ = ["render_report", "render_comparison_report", "best_cells", "images_per_point", "FIGURE_DPI",
@@ -882,6 +883,7 @@ def render_report(results: ResultsFolder, title: str | None = None,
     _correlation_section(page, files, results)
     heading("Interior orientation and additional parameters", anchor="camera")
     _camera_section(page, results)
+    calibration_precision_section(page, s)
     rolling_shutter_section(page, results)
     _parameters_section(page, results)
     heading("Exterior orientation", anchor="images")

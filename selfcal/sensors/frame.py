@@ -216,7 +216,15 @@ def rays(xy_mm: np.ndarray, eop: np.ndarray, iop: np.ndarray, m: np.ndarray | No
 class FrameBound(BoundSensor):
     """Frame images of a problem. Observations are photo coordinates in mm (DESIGN.md §2) measured
     in the image; the prediction is Eq. (1) without the additional parameters, whose Delta is a
-    linear basis at the measured coordinates (:mod:`selfcal.ap`)."""
+    linear basis at the measured coordinates (:mod:`selfcal.ap`), or at the adjusted ones of an earlier
+    adjustment where the block's observations carry them (``Observations.ap_at_px``: the basis at the
+    measured, noisy coordinates correlates with their noise, an errors-in-variables bias; the engine's
+    :func:`~selfcal.adjust.engine.adjust` moves it to the adjusted coordinates, DESIGN-NOTES "Honest
+    precision")."""
+
+    #: whether the AP basis may be evaluated at adjusted image coordinates (``Observations.ap_at_px``); a
+    #: subclass whose photo coordinates are not :func:`photo_from_pixel` of the pixels sets False
+    adjusted_ap_positions = True
 
     def __init__(self, problem, block, o, pixel, sigma_px):
         self.problem = problem
@@ -227,6 +235,12 @@ class FrameBound(BoundSensor):
         w, h, p = self.format_px[cam_of_obs].T
         self.xy_mm = np.zeros((problem.n_image_observations, 2))
         self.xy_mm[self.o] = photo_from_pixel(pixel, w, h, p)
+        # where the AP basis is evaluated: the measured coordinates (the same array), or the adjusted ones
+        self.ap_xy_mm = self.xy_mm
+        at = block.observations.ap_at_px
+        if at is not None and self.adjusted_ap_positions:
+            self.ap_xy_mm = np.zeros((problem.n_image_observations, 2))
+            self.ap_xy_mm[self.o] = photo_from_pixel(at[problem.obs_order[self.o]], w, h, p)
         self.pixel_size_mm = np.full(problem.n_image_observations, np.nan)
         self.pixel_size_mm[self.o] = p
         self.sigma_mm = np.repeat((np.asarray(sigma_px, float) * p)[:, None], 2, axis=1)
@@ -247,7 +261,7 @@ class FrameBound(BoundSensor):
         return project(points, image[img], iop[cam], rotation[img])
 
     def ap_columns(self, camera, o, ap, out=None):
-        bx, by = ap.basis(self.xy_mm[o, 0], self.xy_mm[o, 1])
+        bx, by = ap.basis(self.ap_xy_mm[o, 0], self.ap_xy_mm[o, 1])
         out = np.empty((len(o), 2, bx.shape[1])) if out is None else out
         pixel = self.pixel_size_mm[o][:, None]
         np.multiply(bx, pixel, out=out[:, 0])
@@ -255,7 +269,7 @@ class FrameBound(BoundSensor):
         return out
 
     def sparse_ap_columns(self, camera, o, ap):
-        sparse = ap.sparse_basis(self.xy_mm[o, 0], self.xy_mm[o, 1])
+        sparse = ap.sparse_basis(self.ap_xy_mm[o, 0], self.ap_xy_mm[o, 1])
         if sparse is None:
             return None
         return replace(sparse, values=sparse.values * self.pixel_size_mm[o][:, None, None])

@@ -429,6 +429,9 @@ class UsgscsmFrameBound(FrameBound):
     its Jacobians by the chain rule. The measured pixels become ideal photo coordinates through each ISD's
     pixel -> focal-plane affine and lens distortion (:func:`ideal_photo_from_pixel`), once."""
 
+    #: its photo coordinates come through each ISD's distortion: the AP basis stays at the measured ones
+    adjusted_ap_positions = False
+
     def __init__(self, problem, block, o, pixel, sigma_px):
         super().__init__(problem, block, o, pixel, sigma_px)
         self.isds, self.forms = {}, {}

@@ -92,4 +92,4 @@ def contaminate(block: Block, rate: float, anywhere_share: float = 0.5, patch: i
     kind = np.concatenate(kinds)
     order = np.argsort(index_all)
     truth = Contamination(index_all[order], kind[order], (pixel - obs.pixel)[index_all[order]])
-    return replace(block, observations=replace(obs, pixel=pixel)), truth
+    return replace(block, observations=replace(obs, pixel=pixel, ap_at_px=None)), truth

@@ -29,6 +29,7 @@ from ..stats.correlation import correlation_figures
 from ..stats.plausibility import collapse
 from . import seed001
 from .frames import loo_in_crs, object_frame_block, tangent_plane_block
+from .jackknife import calibration_precision
 from .loo import control_loo, loo_notes, loo_summary
 from .model_choice import ModelChoice, choose_ap_model
 from .tested import TestedAdjustment, adjust_with_tests
@@ -58,6 +59,8 @@ class AdjustRequest:
     # Table 4's further figures: the correlations in an orthonormal AP basis, the canonical correlations and the
     # design cosines (:func:`selfcal.stats.correlation.correlation_figures`)
     orthonormal: bool = False
+    # the jackknife of the calibration over this many groups of images (0: none; :mod:`.jackknife`)
+    jackknife: int = 0
 
 
 @dataclass
@@ -170,6 +173,7 @@ def run_options(block: Block, request: AdjustRequest) -> dict:
         "n_gcp": request.n_gcp,
         "keep_focal": bool(request.keep_focal),
         "orthonormal": bool(request.orthonormal),
+        "jackknife": int(request.jackknife),
     }
 
 
@@ -202,6 +206,12 @@ def _adjust_block(block: Block, request: AdjustRequest, progress: Callable | Non
                 tested.loo = loo_in_crs(tested.loo, plane, tested.result.block.points)
             extra["control_loo"] = loo_summary(tested.loo)
             tested.result.notes.extend(loo_notes(tested.loo))
+    if tested.result.converged and not tested.failure:
+        precision, note = calibration_precision(tested, options, request.jackknife)
+        if precision is not None:
+            extra["calibration_precision"] = precision
+        if note:
+            tested.result.notes.append(note)
     if plane is not None:
         extra["object_frame"] = plane.describe()
     return Adjusted(tested, block, check_points.intersected(tested.result), extra, choice=choice, plane=plane)
