@@ -9,8 +9,8 @@ import time
 from ..adjust import SolverOptions
 from ..errors import UsageError
 from .outcome import finish, progress, say, steps
-from .options import (ap_option, count, force_option, grid_option, number, progress_printer, robust_options,
-                      round_printer, screening_options, test_options, trajectory_options)
+from .options import (ap_at_option, ap_option, count, force_option, grid_option, number, progress_printer,
+                      robust_options, round_printer, screening_options, test_options, trajectory_options)
 
 #: options that only blocks whose sensors offer seed 001's sensor models take (dest -> flag)
 _SEED001_OPTIONS = {"sensor_model": "--sensor-model", "images": "--images", "gcps": "--gcps",
@@ -26,6 +26,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "that holds it)")
     force_option(parser)
     ap_option(parser)
+    ap_at_option(parser)
     grid_option(parser)
     test_options(parser)
     trajectory_options(parser)
@@ -185,7 +186,7 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError("a mono adjustment restitutes the check points on the terrain: give --dem or "
                          "[terrain] in block.toml")
     sensor_model = args.sensor_model or ("M6" if seed001 else None)
-    options = AdjustOptions(ap=APOptions("none" if auto else args.ap, grid=args.grid, cameras=_ap_cameras(block, args), sigma_px=args.ap_sigma_px), trajectory=TrajectoryOptions(gnss_drift=args.gnss_drift, imu_drift=args.imu_drift, lever_arm=args.lever_arm, boresight=args.boresight), sensor=SensorOptions(model=sensor_model, parameter_sigma=ATTITUDE_FREE_SIGMA if args.no_attitude and
+    options = AdjustOptions(ap=APOptions("none" if auto else args.ap, grid=args.grid, cameras=_ap_cameras(block, args), sigma_px=args.ap_sigma_px, evaluated_at=args.ap_at), trajectory=TrajectoryOptions(gnss_drift=args.gnss_drift, imu_drift=args.imu_drift, lever_arm=args.lever_arm, boresight=args.boresight), sensor=SensorOptions(model=sensor_model, parameter_sigma=ATTITUDE_FREE_SIGMA if args.no_attitude and
                             (sensor_model or "").upper() == "M6" else None, attitude_telemetry=not args.no_attitude), solver=SolverOptions(max_iterations=args.max_iterations))
     screening = screening_options(args) if args.screen else None
     image_ids = tuple(v.strip() for v in args.images.split(",") if v.strip()) if args.images else None

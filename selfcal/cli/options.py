@@ -110,6 +110,15 @@ def ap_option(parser: argparse.ArgumentParser) -> None:
                              "lens without distortion and brown for every distorted one); otherwise none")
 
 
+def ap_at_option(parser: argparse.ArgumentParser) -> None:
+    from ..adjust.options import AP_POSITIONS
+    parser.add_argument("--ap-at", choices=AP_POSITIONS, default=AP_POSITIONS[0],
+                        help="where a frame camera's AP correction of an observation is evaluated: at its adjusted "
+                             "image coordinates (default: converged with the measured ones first) or at the measured "
+                             "ones throughout (seed 000's Eq. (1) read literally: an errors-in-variables estimate, "
+                             "biased where the APs trade with c, x0, y0)")
+
+
 def grid_option(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--grid", type=grid, default=(9, 6), metavar="GxXGy",
                         help="grid of the wavelet APs over the frame (default: 9x6); for wavelet1d on a pushbroom "

@@ -154,6 +154,7 @@ def run_options(block: Block, request: AdjustRequest) -> dict:
         "ap_candidates": [f"{m}@{g[0]}x{g[1]}" if takes_grid(m) else m for m, g in request.candidates]
         if request.candidates else None,
         "grid": list(o.ap.grid),
+        "ap_at": o.ap.evaluated_at,
         "ap_cameras": list(o.ap.cameras) if o.ap.cameras else None,
         "ap_sigma_px": o.ap.sigma_px,
         "image_sigma_px": float(block.image_sigma_px),

@@ -27,6 +27,7 @@ __all__ = ["bundle_adjust", "Outcome", "OPTION_KEYWORDS", "adjust_options"]
 #: :class:`~selfcal.adjust.AdjustOptions` and the field each sets
 OPTION_KEYWORDS = {
     "grid": ("ap", "grid"), "ap_cameras": ("ap", "cameras"), "ap_sigma_px": ("ap", "sigma_px"),
+    "ap_at": ("ap", "evaluated_at"),
     "gnss_drift": ("trajectory", "gnss_drift"), "imu_drift": ("trajectory", "imu_drift"),
     "lever_arm": ("trajectory", "lever_arm"), "boresight": ("trajectory", "boresight"),
     "sensor_model": ("sensor", "model"), "parameter_sigma": ("sensor", "parameter_sigma"),
