@@ -50,7 +50,7 @@ MODELS = {
     "default": [],
     "brown --screen": ["--ap", "brown", "--screen"],
     "db4 --screen": ["--ap", "wavelet:db4", "--screen"],
-    "brown, at measured": ["--ap", "brown", "--ap-at", "measured"],
+    "brown at measured": ["--ap", "brown", "--ap-at", "measured"],
 }
 PIXEL_MM = 0.005
 FLIP = np.diag([1.0, -1.0, -1.0])
