@@ -139,7 +139,7 @@ def simulate_uav(seed: int = 0, distortion: str = "local+brown", image_sigma_px:
                  distortion_scale: float = 1.0, lever_arm_m: tuple[float, float, float] = (0.0, 0.0, 0.0),
                  boresight_deg: tuple[float, float, float] = (0.0, 0.0, 0.0), n_strips: int = 4, images_per_strip: int = 7,
                  trajectory_errors: TrajectoryErrors | None = None, exposure_interval_s: float | None = None,
-                 declare_mounting: bool = False) -> UAVSimulation:
+                 declare_mounting: bool = False, noise_seed: int | None = None) -> UAVSimulation:
     """Simulate the seed-000 block; returns the four scenario blocks and the truth.
 
     Parameters
@@ -176,6 +176,11 @@ def simulate_uav(seed: int = 0, distortion: str = "local+brown", image_sigma_px:
     exposure_interval_s : float, optional
         Time between exposures along a strip (default: the 75 % base at 8 m/s, 11.35 s; 2 s gives
         strips of 12 s).
+    noise_seed : int, optional
+        Draw the image measurement noise and the marks' survey noise from a generator of their own: every
+        ``noise_seed`` gives the same block (images, points, which point is seen where, blunders,
+        trajectory) with another noise (Monte-Carlo studies of precision). Default: from ``seed``'s
+        generator, as before.
     """
     rng = np.random.default_rng(seed)
     width_px, height_px, pixel = 6000, 4000, 0.0059
@@ -283,7 +288,8 @@ def simulate_uav(seed: int = 0, distortion: str = "local+brown", image_sigma_px:
     sparse = [int(mark_map[n]) for n in sparse if keep_pt[n]]
     dense = [int(mark_map[n]) for n in dense if keep_pt[n]]
 
-    noise = rng.normal(0.0, image_sigma_px, obs_pix.shape)
+    noise_rng = rng if noise_seed is None else np.random.default_rng([seed, noise_seed])
+    noise = noise_rng.normal(0.0, image_sigma_px, obs_pix.shape)
     measured = obs_pix + noise
     n_obs = len(measured)
     n_blunder = int(round(blunder_rate * n_obs))
@@ -296,7 +302,10 @@ def simulate_uav(seed: int = 0, distortion: str = "local+brown", image_sigma_px:
     measured[:, 1] = np.clip(measured[:, 1], 0.0, height_px)
 
     # --- reference coordinates of the marks (with their survey noise)
-    ref = xyz_true[:n_marks] + rng.normal(0, 1, (n_marks, 3)) * [MARK_SIGMA_XY_M, MARK_SIGMA_XY_M, MARK_SIGMA_Z_M]
+    mark_noise = rng.normal(0, 1, (n_marks, 3))
+    if noise_seed is not None:
+        mark_noise = noise_rng.normal(0, 1, (n_marks, 3))
+    ref = xyz_true[:n_marks] + mark_noise * [MARK_SIGMA_XY_M, MARK_SIGMA_XY_M, MARK_SIGMA_Z_M]
 
     # --- trajectory observations: per-strip shift + drift (Eq. 12) + noise
     gnss_sigma = np.array(gnss_sigma_m, float)

@@ -27,6 +27,7 @@ from ..stats import checks as check_points
 from ..stats.plausibility import collapse
 from . import seed001
 from .frames import object_frame_block
+from .half_block import half_block_check, half_block_notes, half_block_summary
 from .loo import control_loo, loo_notes, loo_summary
 from .model_choice import ModelChoice, choose_ap_model
 from .tested import TestedAdjustment, adjust_with_tests
@@ -53,6 +54,8 @@ class AdjustRequest:
     height: object = None                   # terrain for mono restitution: a DEM callable or metres
     # validate the control point by point, each left out in turn (frame and BAL blocks; :mod:`.loo`)
     control_loo: bool = True
+    # calibrate each half of the block on its own and compare (frame APs; :mod:`.half_block`)
+    half_block: bool = True
 
 
 @dataclass
@@ -188,6 +191,11 @@ def _adjust_block(block: Block, request: AdjustRequest, progress: Callable | Non
         if tested.loo is not None:
             extra["control_loo"] = loo_summary(tested.loo)
             tested.result.notes.extend(loo_notes(tested.loo))
+    if request.half_block and tested.result.converged and not tested.failure:
+        tested.half_block = half_block_check(tested, options)
+        if tested.half_block is not None:
+            extra["half_block"] = half_block_summary(tested.half_block)
+            tested.result.notes.extend(half_block_notes(tested.half_block))
     return Adjusted(tested, block, check_points.intersected(tested.result), extra, choice=choice)
 
 
