@@ -90,12 +90,16 @@ def distortion_covariance(core: np.ndarray, n: np.ndarray, cov_coefficients: np.
     return np.einsum("mai,ij,mbj->mab", J, cov_coefficients, J)
 
 
-def compare(seed: int = 1, n_frames: int = 20, board=(10, 8), distance_m: float = 1.2, nodes=(13, 9),
-            regularization: bool = False, sigma_px: float = 0.3, distortion: str = "rational") -> dict:
-    """One calibration by both tools and their numbers (module docstring)."""
+def compare(seed: int = 1, n_frames: int = 20, board=(10, 8), distance_m: float = 1.0, nodes=(13, 9),
+            regularization: bool = False, sigma_px: float = 0.3, distortion: str = "rational",
+            independent: bool = True) -> dict:
+    """One calibration by both tools and their numbers (module docstring); ``independent``: mrcal also from the
+    simulation's start (else only from selfcal's solution)."""
     from dataclasses import replace
-    from selfcal.simulate.chessboard import DEFAULT_CAMERA
-    from selfcal.sensors.opencv import DISTORTION_MODELS
+    from selfcal.block import OpenCVCamera
+    from selfcal.sensors.opencv import COEFFICIENT_NAMES, DISTORTION_MODELS
+    from selfcal.simulate.chessboard import DEFAULT_CAMERA, project_opencv
+    from selfcal.stats.field_sigma import observed_nodes
     camera = replace(DEFAULT_CAMERA, distortion=distortion)
     sim = simulate_chessboard(seed, camera=camera, n_frames=n_frames, board=board, image_sigma_px=sigma_px)
     block = sim.block
@@ -108,62 +112,62 @@ def compare(seed: int = 1, n_frames: int = 20, board=(10, 8), distance_m: float 
     cols, rows = np.meshgrid(np.linspace(0, W - 1, nodes[0]), np.linspace(0, H - 1, nodes[1]))
     query = np.column_stack([cols.ravel(), rows.ravel()])           # mrcal's pixels
     n = _undistorted(core, query + 0.5)
-    cov_s = projection_covariance(result, camera.camera_id, camera_points(n, distance_m), variance_factor=1.0)
-    start = block.cameras[camera.camera_id]
-    seed_intrinsics = np.r_[start.fx_px, start.fy_px, start.cx_px, start.cy_px, start.coefficients[:count]]
-    start_eop = np.column_stack([block.images.position_m, block.images.attitude_rad])
-    # mrcal from the same start (independent), and from selfcal's solution (the same point of an ill-conditioned
-    # model's valley: the linearised covariance is that point's)
-    alone = run_mrcal(block, board, seed_intrinsics, start_eop, query, distance_m, sigma_px, distortion,
-                      regularization)
+    p = camera_points(n, distance_m)
+    cov_s = projection_covariance(result, camera.camera_id, p, variance_factor=1.0)
+    # mrcal from selfcal's solution (the same point of an ill-conditioned model's valley: the linearised covariance
+    # is that point's), and from the simulation's start (independent)
     m = run_mrcal(block, board, core[:4 + count], result.state.image, query, distance_m, sigma_px, distortion,
                   regularization)
-    seconds_mrcal = alone["seconds"]
-    # the conventions: mrcal projects the seed as selfcal's start does
-    from selfcal.simulate.chessboard import project_opencv
-    from selfcal.block import OpenCVCamera
-    seed_camera = OpenCVCamera("c", W, H, *seed_intrinsics[:4], distortion=distortion,
-                               **dict(zip(("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6", "s1", "s2", "s3", "s4"),
-                                          seed_intrinsics[4:])))
-    M = matrix_from_opk(block.images.attitude_rad)
-    ours = np.array([project_opencv(seed_camera, M[i], block.images.position_m[i], sim.corners_m)
-                     for i in range(n_frames)]).reshape(alone["projected"].shape) - 0.5
-    convention_px = float(np.max(np.abs(ours - alone["projected"])))
-    # the solutions' projections of the same camera-frame points (selfcal's through the query pixels)
-    p = camera_points(n, distance_m)
+    alone = None
+    if independent:
+        start = block.cameras[camera.camera_id]
+        seed_intrinsics = np.r_[start.fx_px, start.fy_px, start.cx_px, start.cy_px, start.coefficients[:count]]
+        start_eop = np.column_stack([block.images.position_m, block.images.attitude_rad])
+        alone = run_mrcal(block, board, seed_intrinsics, start_eop, query, distance_m, sigma_px, distortion,
+                          regularization)
+    # the conventions: mrcal projects its seed (selfcal's solution) as selfcal does
+    solved = OpenCVCamera("c", W, H, *core[:4], distortion=distortion, **dict(zip(COEFFICIENT_NAMES, core[4:])))
+    M = matrix_from_opk(result.state.image[:, 3:])
+    ours = np.array([project_opencv(solved, M[i], result.state.image[i, :3], sim.corners_m)
+                     for i in range(n_frames)]).reshape(m["projected"].shape) - 0.5
+    convention_px = float(np.max(np.abs(ours - m["projected"])))
+    observed = observed_nodes(query[:, 0] + 0.5, query[:, 1] + 0.5, block.observations.pixel, 0.05 * W)
 
     def projected(intrinsics):
+        """Pixels (mrcal's) of the query points through intrinsics (fx, fy, cx, cy, coefficients)."""
         k = np.r_[intrinsics[4:], np.zeros(12 - count)]
         return distortion_with_jacobians(p[:, :2] / p[:, 2:], k, jacobians=False)[0] * intrinsics[:2] + intrinsics[2:4]
-    ours_of = projected(core[:4 + count])
-    solution_px = float(np.nanmax(np.linalg.norm(ours_of - projected(alone["intrinsics"]), axis=1)))
-    same_px = float(np.nanmax(np.linalg.norm(ours_of - projected(m["intrinsics"]), axis=1)))
-    cov_m = m["cov_q"]
-    cov_alone = alone["cov_q"]
 
     def rms(c):
         return np.sqrt(0.5 * np.trace(c, axis1=1, axis2=2))
 
     def worst(c):
         return np.sqrt(np.linalg.eigvalsh(c)[:, -1])
-    free = list(range(4 + count))
-    names = [f"{result.problem.cameras[0].camera_id}: {result.problem.cameras[0].names[j]}" for j in free]
+    ours_of = projected(core[:4 + count])
+    cov_m = m["cov_q"]
+    cam = result.problem.cameras[0]
+    names = [f"{cam.camera_id}: {cam.names[j]}" for j in range(4 + count)]
     cov_core = result.covariance(names) / result.variance_factor        # a-priori: variance factor 1
     var_m = m["var_intrinsics"]
     dist_s = distortion_covariance(core, n, cov_core[4:, 4:], count)
     dist_m = distortion_covariance(core, n, var_m[4:, 4:], count)
-    from selfcal.stats.field_sigma import observed_nodes
-    observed = observed_nodes(query[:, 0] + 0.5, query[:, 1] + 0.5, *block.observations.pixel.T, 0.05 * W)
-    return {"seed": seed, "frames": n_frames, "distortion": distortion, "regularization": regularization,
-            "distance_m": distance_m, "convention_px": convention_px, "solution_px": solution_px,
-            "same_solution_px": same_px, "observed": observed,
-            "rms_selfcal_px": float(result.sigma0_px), "rms_mrcal_px": float(m["rms_px"]),
-            "projection_rms_ratio": rms(cov_s) / rms(cov_m), "projection_worst_ratio": worst(cov_s) / worst(cov_m),
-            "projection_rms_ratio_independent": rms(cov_s) / rms(cov_alone),
-            "projection_rms_mrcal_px": rms(cov_m), "projection_rms_selfcal_px": rms(cov_s),
-            "distortion_ratio": rms(dist_s) / rms(dist_m), "distortion_rms_selfcal_px": rms(dist_s),
-            "intrinsics_sigma_ratio": np.sqrt(np.diag(cov_core) / np.diag(var_m)),
-            "seconds_selfcal": seconds_selfcal, "seconds_mrcal": seconds_mrcal}
+    out = {"seed": seed, "frames": n_frames, "distortion": distortion, "regularization": regularization,
+           "distance_m": distance_m, "convention_px": convention_px, "observed": observed,
+           "same_solution_px": float(np.nanmax(np.linalg.norm(ours_of - projected(m["intrinsics"]), axis=1))),
+           "rms_selfcal_px": float(result.sigma0_px), "rms_mrcal_px": float(m["rms_px"]),
+           "projection_rms_ratio": rms(cov_s) / rms(cov_m), "projection_worst_ratio": worst(cov_s) / worst(cov_m),
+           "projection_rms_mrcal_px": rms(cov_m), "projection_rms_selfcal_px": rms(cov_s),
+           "distortion_ratio": rms(dist_s) / rms(dist_m), "distortion_rms_selfcal_px": rms(dist_s),
+           "intrinsics_sigma_ratio": np.sqrt(np.diag(cov_core) / np.diag(var_m)),
+           "seconds_selfcal": seconds_selfcal, "seconds_mrcal": m["seconds"]}
+    if alone is not None:
+        apart = np.linalg.norm(ours_of - projected(alone["intrinsics"]), axis=1)
+        out |= {"solution_px": float(np.nanmax(apart)),
+                "solution_observed_px": float(np.nanmax(np.where(observed, apart, np.nan))),
+                "rms_mrcal_alone_px": float(alone["rms_px"]),
+                "projection_rms_ratio_independent": rms(cov_s) / rms(alone["cov_q"]),
+                "seconds_mrcal": alone["seconds"]}
+    return out
 
 
 def _range(values: np.ndarray, spec: str = ".4f") -> str:
@@ -182,20 +186,28 @@ def main() -> None:
         raise SystemExit(f"mrcal is not importable by {MRCAL_PYTHON}: apt-get install python3-mrcal")
     print(f"OpenCV '{args.distortion}' model, {args.frames} poses of a 10 x 8 board, 0.3 px, distance "
           f"{args.distance} m, mrcal regularisation {'on' if args.regularization else 'off'}; 13 x 9 query pixels\n")
-    print("| seed | query pixels with a ray | pixel convention [px] | solutions differ: independent / seeded [px] | "
-          "projection σ mrcal [px] | selfcal/mrcal rms-stdev | worst direction | same, mrcal independent | "
-          "distortion σ selfcal [px] | distortion selfcal/mrcal | intrinsics σ selfcal/mrcal | s selfcal / mrcal |")
+    print("Ratios selfcal / mrcal over the query pixels where observations lie (5 % of the width, as "
+          "distortion_sigma.csv's observed area) and, after the slash, over every query pixel with a ray.\n")
+    print("| seed | query pixels observed / with a ray | pixel convention [px] | solutions differ, observed / all "
+          "[px] | projection σ mrcal, observed [px] | rms-stdev ratio | worst-direction ratio | rms-stdev ratio, mrcal "
+          "from its own start | distortion σ selfcal, observed [px] | distortion σ ratio | intrinsics σ ratio | "
+          "s selfcal / mrcal |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for seed in (int(s) for s in args.seeds.split(",")):
         r = compare(seed, args.frames, distance_m=args.distance, regularization=args.regularization,
                     distortion=args.distortion)
-        valid = np.isfinite(r["projection_rms_ratio"])
-        print(f"| {seed} | {int(valid.sum())} of {valid.size} | {r['convention_px']:.1e} | {r['solution_px']:.1e} / "
-              f"{r['same_solution_px']:.1e} | {_range(r['projection_rms_mrcal_px'], '.3f')} | "
-              f"{_range(r['projection_rms_ratio'])} | {_range(r['projection_worst_ratio'])} | "
-              f"{_range(r['projection_rms_ratio_independent'])} | {_range(r['distortion_rms_selfcal_px'], '.3f')} | "
-              f"{_range(r['distortion_ratio'])} | {_range(r['intrinsics_sigma_ratio'])} | "
-              f"{r['seconds_selfcal']:.2f} / {r['seconds_mrcal']:.2f} |", flush=True)
+        ray = np.isfinite(r["projection_rms_ratio"])
+        seen = ray & r["observed"]
+
+        def both(key, spec=".4f"):
+            return f"{_range(r[key][seen], spec)} / {_range(r[key][ray], spec)}"
+        print(f"| {seed} | {int(seen.sum())} / {int(ray.sum())} of {ray.size} | {r['convention_px']:.1e} | "
+              f"{r['solution_observed_px']:.1e} / {r['solution_px']:.1e} | "
+              f"{_range(r['projection_rms_mrcal_px'][seen], '.3f')} | {both('projection_rms_ratio')} | "
+              f"{both('projection_worst_ratio')} | {both('projection_rms_ratio_independent')} | "
+              f"{_range(r['distortion_rms_selfcal_px'][seen], '.3f')} | {both('distortion_ratio')} | "
+              f"{_range(r['intrinsics_sigma_ratio'])} | {r['seconds_selfcal']:.2f} / {r['seconds_mrcal']:.2f} |",
+              flush=True)
 
 
 if __name__ == "__main__":

@@ -84,8 +84,8 @@ def sigma_section(page: Page, results, add_figure: Callable) -> None:
                     + "</tr>")
         page.paragraph(_sentence(camera_id, sigmas[camera_id], half, check))
     page.add('<table id="distortion-sigma"><thead><tr><th class="text">camera</th><th>APs</th>'
-             "<th>max σ observed [px]</th><th>RMS σ observed [px]</th><th>max σ frame [px]</th>"
-             "<th>half-block T</th><th>dof</th><th>critical</th><th>p</th><th>largest |ΔΔ|/σ</th><th>flag</th>"
+             "<th>max σ, observed [px]</th><th>RMS σ, observed [px]</th><th>max σ, frame [px]</th>"
+             "<th>halves' T</th><th>dof</th><th>critical</th><th>p</th><th>max |ΔΔ|/σ</th><th>flag</th>"
              f'</tr></thead><tbody>{"".join(rows)}</tbody></table>')
     page.paragraph("σ from the a-posteriori covariance of the AP coefficients (σ̂0² Q, their block of the whole "
                    "inverse); the half-block test is T = dᵀ(C₁ + C₂)⁻¹d on the coefficients' difference d over the "

@@ -19,6 +19,7 @@ additional parameters (its distortion is its own).
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ..block import OpenCVCamera
 from ..geometry.rotation import matrix_from_opk, matrix_from_opk_with_derivatives
@@ -35,20 +36,20 @@ DISTORTION_MODELS = {"opencv4": 4, "plumb_bob": 5, "rational": 8, "thin_prism": 
 CORE_NAMES = ("fx", "fy", "cx", "cy") + COEFFICIENT_NAMES
 
 
-def _padded(k: np.ndarray) -> np.ndarray:
+def _padded(k: ArrayLike) -> np.ndarray:
     c = np.zeros(12)
     k = np.asarray(k, float).ravel()
     c[:min(len(k), 12)] = k[:12]
     return c
 
 
-def opencv_radial_tangential(n: np.ndarray, k: np.ndarray) -> np.ndarray:
+def opencv_radial_tangential(n: np.ndarray, k: ArrayLike) -> np.ndarray:
     """OpenCV's distortion of normalised coordinates n (m, 2), coefficients (k1, k2, p1, p2, k3, k4, k5, k6,
     s1..s4; fewer: the rest zero) (the formula of cv::projectPoints)."""
     return distortion_with_jacobians(n, k, jacobians=False)[0]
 
 
-def distortion_with_jacobians(n: np.ndarray, k: np.ndarray, jacobians: bool = True):
+def distortion_with_jacobians(n: np.ndarray, k: ArrayLike, jacobians: bool = True):
     """(distorted (m, 2), d distorted / d n (m, 2, 2), d distorted / d coefficients (m, 2, 12)) of normalised
     coordinates n under OpenCV's coefficients ``k`` (the Jacobians None without ``jacobians``)."""
     c = _padded(k)
@@ -85,7 +86,7 @@ def distortion_with_jacobians(n: np.ndarray, k: np.ndarray, jacobians: bool = Tr
     return distorted, dn, dk
 
 
-def undistort(distorted: np.ndarray, k: np.ndarray, iterations: int = 20) -> np.ndarray:
+def undistort(distorted: np.ndarray, k: ArrayLike, iterations: int = 20) -> np.ndarray:
     """The normalised coordinates (m, 2) that ``k`` distorts to ``distorted``: Newton's method from the distorted
     ones (NaN where it does not converge to 1e-12)."""
     target = np.atleast_2d(np.asarray(distorted, float))

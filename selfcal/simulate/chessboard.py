@@ -5,7 +5,9 @@ The board lies in the object frame's XY plane (corners at (i s, j s, 0), row by 
 0.5-1.3 ``distance_m`` above, from a position up to ``spread`` distances aside, turned by a random kappa and aimed
 so that the board's centre images anywhere within 80 % of the frame's half-width and half-height of its centre
 (the corners of the frame get observations, as a careful calibration takes them); a pose is kept only where every
-corner images inside the frame (mrcal's "all cameras must see the full board"). The corners are control points with
+corner images inside the frame (mrcal's "all cameras must see the full board") and at most 90 % of the radius
+where the lens's (or the start camera's) image of the field folds back (:func:`fold_radius`: beyond it a point
+images on the other side of the centre, and the start would be meaningless). The corners are control points with
 :data:`BOARD_SIGMA_M` (a known board: held in effect, a thousandth of a pixel at 1 m); the images' orientations
 start off the truth by ``start_error`` (m, deg) and the camera at ``start_camera`` (default: fx = fy 2 % off,
 the principal point at the frame's centre, the distortion coefficients at 90 % of the truth's: a calibration of
@@ -24,16 +26,16 @@ from ..geometry.rotation import opk_from_matrix
 from ..sensors.opencv import distortion_with_jacobians
 
 __all__ = ["ChessboardSimulation", "simulate_chessboard", "DEFAULT_CAMERA", "BOARD_SIGMA_M", "board_corners",
-           "project_opencv"]
+           "project_opencv", "fold_radius"]
 
 #: a-priori sigma of the board's corners (m): far below an image point's footprint (1 px ~ 1 mm at 2 m)
 BOARD_SIGMA_M = 1e-6
 
 #: the simulated lens: 3000 x 2000 px, a wide angle (fx 1700 px) with strong barrel distortion of OpenCV's rational
 #: model (OPENCV8). The model's image of the field folds back at r = 1.56 (distorted radius 0.96 of fx): the
-#: frame's corners (1.07) are beyond it and no pixel there is imaged. Over the radii observed, the coefficients are
-#: well determined (sigma of k1..k6 0.002-0.003); a milder or narrower lens leaves OPENCV8's k4..k6 undoing
-#: k1..k3 along a valley of sigma 10-4000 (benchmarks/peer_mrcal_uncertainty.py)
+#: frame's corners (1.07) are beyond it and no pixel there is imaged. Over the radii observed (20 poses), the
+#: coefficients are determined to sigma 0.02-0.28; a milder or narrower lens leaves OPENCV8's k4..k6 undoing
+#: k1..k3 along a valley of sigma 10-4000 (docs/DESIGN-NOTES.md, the OpenCV sensor)
 DEFAULT_CAMERA = OpenCVCamera("cam", 3000, 2000, fx_px=1700.0, fy_px=1702.0, cx_px=1510.3, cy_px=991.7,
                               distortion="rational", k1=-0.28, k2=0.09, p1=4e-4, p2=-3e-4, k3=-0.012, k4=0.12,
                               k5=-0.03, k6=0.01)
@@ -69,13 +71,23 @@ def _looking_at(position: np.ndarray, target: np.ndarray, kappa: float, offset: 
     want = np.array([offset[0], offset[1], -1.0])
     want /= np.linalg.norm(want)
     axis = np.cross([0.0, 0.0, -1.0], want)
-    angle = np.arcsin(min(np.linalg.norm(axis), 1.0))
+    angle = float(np.arcsin(min(float(np.linalg.norm(axis)), 1.0)))
     if angle < 1e-12:
         return M
     k = axis / np.linalg.norm(axis)
     K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
     R = np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * K @ K      # turns (0, 0, -1) into ``want``
     return R.T @ M
+
+
+def fold_radius(camera: OpenCVCamera, largest: float = 4.0) -> float:
+    """The radius of normalised coordinates where the camera's radial distortion r R(r^2) stops growing (its image
+    of the field folds back; ``largest`` if it does not before)."""
+    r = np.linspace(0.0, largest, 4001)
+    d = distortion_with_jacobians(np.column_stack([r, np.zeros_like(r)]), camera.coefficients[:8] + (0.0,) * 4,
+                                  jacobians=False)[0][:, 0]
+    falls = np.flatnonzero(np.diff(d) <= 0)
+    return float(r[falls[0]]) if falls.size else largest
 
 
 def project_opencv(camera: OpenCVCamera, M: np.ndarray, position: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -99,14 +111,25 @@ def simulate_chessboard(seed: int = 0, camera: OpenCVCamera = DEFAULT_CAMERA, n_
     rng = np.random.default_rng(seed)
     corners = board_corners(*board, spacing_m)
     centre = corners.mean(axis=0)
-    eop, pixels = [], []
+    eop: list[np.ndarray] = []
+    pixels: list[np.ndarray] = []
     half = 0.8 * np.array([camera.width_px / camera.fx_px, camera.height_px / camera.fy_px]) / 2
+    if start_camera is None:
+        start_camera = replace(camera, fx_px=camera.fx_px * 1.02, fy_px=camera.fx_px * 1.02,
+                               cx_px=camera.width_px / 2 - 0.5, cy_px=camera.height_px / 2 - 0.5,
+                               **{k: 0.9 * getattr(camera, k) for k in ("k1", "k2", "p1", "p2", "k3", "k4", "k5",
+                                                                        "k6", "s1", "s2", "s3", "s4")})
+    # no corner beyond 90 % of the radius where the lens's (or the start's) image of the field folds back
+    valid = 0.9 * min(fold_radius(camera), fold_radius(start_camera))
     while len(eop) < n_frames:
         height = distance_m * rng.uniform(0.5, 1.3)
         position = centre + [*(rng.uniform(-spread, spread, 2) * distance_m), height]
         M = _looking_at(position, centre, rng.uniform(-np.pi, np.pi), rng.uniform(-half, half))
         pix = project_opencv(camera, M, position, corners)
-        inside = np.isfinite(pix).all() and (pix >= margin_px).all() and \
+        u = (corners - position) @ M.T
+        with np.errstate(divide="ignore", invalid="ignore"):
+            radius = np.hypot(u[:, 0], u[:, 1]) / np.abs(u[:, 2])
+        inside = np.isfinite(pix).all() and (pix >= margin_px).all() and (radius < valid).all() and \
             (pix[:, 0] <= camera.width_px - margin_px).all() and (pix[:, 1] <= camera.height_px - margin_px).all()
         if inside:
             eop.append(np.r_[position, opk_from_matrix(M[None])[0]])
@@ -132,11 +155,6 @@ def simulate_chessboard(seed: int = 0, camera: OpenCVCamera = DEFAULT_CAMERA, n_
                                 point_index=np.tile(np.arange(n_corners), n_frames),
                                 pixel=(clean + noise).reshape(-1, 2), sigma_px=np.full(n_obs, image_sigma_px),
                                 line=np.arange(2, n_obs + 2))
-    if start_camera is None:
-        start_camera = replace(camera, fx_px=camera.fx_px * 1.02, fy_px=camera.fx_px * 1.02,
-                               cx_px=camera.width_px / 2 - 0.5, cy_px=camera.height_px / 2 - 0.5,
-                               **{k: 0.9 * getattr(camera, k) for k in ("k1", "k2", "p1", "p2", "k3", "k4", "k5",
-                                                                        "k6", "s1", "s2", "s3", "s4")})
     block = Block(name="chessboard", crs="local", cameras={camera.camera_id: start_camera}, images=images,
                   points=points, observations=observations, image_sigma_px=image_sigma_px, dropped=Dropped())
     return ChessboardSimulation(block, camera, eop_true, corners, clean, noise)

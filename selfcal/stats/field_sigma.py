@@ -98,14 +98,14 @@ def field_covariance(bx: np.ndarray, by: np.ndarray, covariance: np.ndarray) -> 
                            np.einsum("ij,ij->i", gx, by))
 
 
-def observed_nodes(node_col: np.ndarray, node_row: np.ndarray, observed_col: np.ndarray, observed_row: np.ndarray,
-                   radius_px: float) -> np.ndarray:
-    """Which nodes (bool, n) have an observation within ``radius_px``: the observed area of an image."""
+def observed_nodes(node_col: np.ndarray, node_row: np.ndarray, observed_px: np.ndarray, radius_px: float) -> np.ndarray:
+    """Which nodes (bool, n) have an observation (``observed_px``: (m, 2) col, row) within ``radius_px``: the observed
+    area of an image."""
     from scipy.spatial import cKDTree
     nodes = np.column_stack([node_col, node_row])
-    if len(observed_col) == 0:
+    if len(observed_px) == 0:
         return np.zeros(len(nodes), bool)
-    tree = cKDTree(np.column_stack([observed_col, observed_row]))
+    tree = cKDTree(np.asarray(observed_px, float))
     distance, _ = tree.query(nodes, k=1, distance_upper_bound=radius_px)
     return np.isfinite(distance)
 
@@ -235,7 +235,6 @@ def correction_sigma(result: AdjustmentResult, k: int, nodes_x: int = GRID_NODES
     estimated, _, cov = ap_estimate(result, k)
     x, y, col, row = grid_nodes(result, k, nodes_x)
     bx, by = cam.ap.basis(x, y)
-    seen = observed_nodes(col, row, *observed_pixels(result, cam.camera_id).T,
-                          observed_radius_px(result, cam.camera_id))
+    seen = observed_nodes(col, row, observed_pixels(result, cam.camera_id), observed_radius_px(result, cam.camera_id))
     return CorrectionSigma(cam.camera_id, col, row, field_covariance(bx[:, estimated], by[:, estimated], cov), seen,
                            int(estimated.sum()))

@@ -87,6 +87,7 @@ def half_block_check(tested: TestedAdjustment, options: AdjustOptions) -> HalfBl
     """The half-block check of a tested adjustment (module docstring); None where no camera has estimated frame
     APs (nothing to compare)."""
     t0 = time.perf_counter()
+    c0 = time.process_time()
     result = tested.result
     cameras = estimated_frame_cameras(result)
     if not cameras:
@@ -133,12 +134,14 @@ def half_block_check(tested: TestedAdjustment, options: AdjustOptions) -> HalfBl
         bx, by = cam.ap.basis(x, y)
         bx, by = bx[:, estimated], by[:, estimated]
         radius = observed_radius_px(result, camera_id)
-        seen = [observed_nodes(col, row, *observed_pixels(h, camera_id).T, radius) for h in (a, b)]
+        seen = [observed_nodes(col, row, observed_pixels(h, camera_id), radius) for h in (a, b)]
         difference = compare_calibrations(values_a, cov_a, values_b, cov_b, bx, by, seen[0] & seen[1])
         check.cameras.append(HalfBlockCamera(camera_id, difference, col, row))
     if not check.cameras:
         check.reason = "no camera has images in both halves"
     check.seconds = time.perf_counter() - t0
+    with open("/tmp/h40/hb_times.txt", "a") as handle:                       # TEMPORARY measurement
+        handle.write(f"{check.seconds} {time.process_time() - c0} {len(block.observations)}\n")
     return check
 
 
