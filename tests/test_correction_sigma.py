@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import os
 import sys
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -142,7 +143,8 @@ def changed(small_block):
 def test_half_block_check_finds_a_camera_that_changed(small_block, changed):
     """A camera whose radial distortion grew by 4 px in the corners between strips 2 and 3 (σ of the halves'
     difference there: 0.6 px): the halves S1, S2 | S3, S4 differ beyond their precision (flagged, a note names the
-    camera and where the corrections differ most); the same block without the change passes."""
+    camera and where the corrections differ most); the same block without the change and without strip ids is
+    split by images (the first 14 against the last 14) and passes."""
     s = changed["summary.json"]
     check = s["half_block"]
     assert check["split"] == "strips" and check["halves"] == [["S1", "S2"], ["S3", "S4"]]
@@ -150,17 +152,23 @@ def test_half_block_check_finds_a_camera_that_changed(small_block, changed):
     assert check["flag"] and hb["flag"] and hb["p"] < HALF_BLOCK_ALPHA and hb["dof"] == 7
     assert hb["largest_ratio"] > 4.0
     assert any("half-block check: camera 'ilce7m3'" in n for n in s["notes"])
-    same = _files(small_block)["summary.json"]["half_block"]
-    assert not same["flag"] and same["cameras"]["ilce7m3"]["p"] > HALF_BLOCK_ALPHA
+    no_strips = replace(small_block, images=replace(small_block.images,
+                                                    strip_id=np.full(len(small_block.images), "", object)))
+    same = _files(no_strips)["summary.json"]["half_block"]
+    assert same["split"] == "images" and same["n_images"] == [14, 14]
+    assert same["done"] and not same["flag"] and same["cameras"]["ilce7m3"]["p"] > HALF_BLOCK_ALPHA
 
 
-def test_results_folder_and_report_section(changed, small_block):
+def test_results_folder_and_report_section(changed, small_block, tmp_path):
     """distortion_sigma.csv beside distortion_grid.csv (the same nodes), read back with the results folder; the
     report's section draws the σ map with the half-block difference and tabulates summary.json's numbers;
-    ``half_block=False`` (the CLI's --no-half-block) leaves the check out."""
-    from selfcal.io.results import results_from_files
+    ``selfcal adjust --no-half-block`` and ``bundle_adjust(half_block=False)`` leave the check out."""
+    from conftest import run_cli
+    from selfcal.io.block_folder import write_block
+    from selfcal.io.results import read_results, results_from_files
     from selfcal.report.page import Page
     from selfcal.report.sigma_section import sigma_section
+    from selfcal.workflows.api import bundle_adjust
     files = changed
     header, columns, _ = files["distortion_sigma.csv"]
     table = dict(zip(header, columns))
@@ -177,14 +185,17 @@ def test_results_folder_and_report_section(changed, small_block):
     assert 'id="distortion-sigma"' in html and "differ beyond their precision" in html
     assert 'data-summary="half_block.cameras.ilce7m3.flag" data-value="True"' in html
     assert figures == [("distortion-sigma", 4)]                  # the σ map and the difference, each with its colour bar
-    off = _files(small_block, half_block=False)
-    assert "half_block" not in off["summary.json"]
-    header, columns, _ = off["distortion_sigma.csv"]
-    assert not np.isfinite(dict(zip(header, columns))["half_ddcol_px"]).any()
-    assert off["summary.json"]["distortion_sigma"]["ilce7m3"]["n_estimated"] == 7
+    write_block(small_block, tmp_path / "block")
+    assert run_cli("adjust", str(tmp_path / "block"), "--out", str(tmp_path / "off"), "--ap", "brown", "--no-report",
+                   "--quiet", "--robust", "none", "--snoop", "0", "--no-control-loo", "--no-half-block") == 0
+    off = read_results(tmp_path / "off")
+    assert "half_block" not in off.summary and off.summary["distortion_sigma"]["ilce7m3"]["n_estimated"] == 7
+    assert not np.isfinite(off.tables["distortion_sigma"]["half_ddcol_px"]).any()
     page = Page("t")
-    sigma_section(page, results_from_files(off), lambda *args: None)
+    sigma_section(page, off, lambda *args: None)
     assert "half-block check was not run" in page.html()
+    api = bundle_adjust(small_block, "brown", robust="none", snoop=0, control_loo=False, half_block=False).files
+    assert "half_block" not in api["summary.json"] and "distortion_sigma.csv" in api
 
 
 def test_projection_sigma_of_opencv8_equals_mrcal():
@@ -202,3 +213,40 @@ def test_projection_sigma_of_opencv8_equals_mrcal():
     assert np.all(np.abs(r["projection_worst_ratio"][seen] - 1.0) < 0.10)
     assert np.all(np.abs(r["intrinsics_sigma_ratio"] - 1.0) < 0.01)
     assert np.all(np.abs(r["distortion_ratio"][seen] - 1.0) < 0.01)
+
+
+def test_opencv_camera_in_a_block_folder(tmp_path):
+    """A chessboard block (``model = "opencv"``) written and read back keeps its camera; an unknown distortion model
+    and a coefficient its model does not estimate are errors naming the key."""
+    from selfcal.errors import BlockError
+    from selfcal.io.block_folder import read_block, write_block
+    from selfcal.simulate.chessboard import simulate_chessboard
+    block = simulate_chessboard(seed=2, n_frames=4).block
+    # (points.csv holds sigmas to 0.1 mm: the board's 1e-6 m would be written as 0)
+    block = replace(block, points=replace(block.points, sigma_m=np.full_like(block.points.sigma_m, 1e-4)))
+    write_block(block, tmp_path / "board")
+    again = read_block(tmp_path / "board")
+    assert again.cameras["cam"] == block.cameras["cam"]
+    text = (tmp_path / "board" / "block.toml").read_text()
+    for wrong, key in (('distortion = "fisheye"', "distortion"), ('distortion = "opencv4"', "k3")):
+        (tmp_path / "board" / "block.toml").write_text(text.replace('distortion = "rational"', wrong))
+        with pytest.raises(BlockError, match=key):
+            read_block(tmp_path / "board")
+
+
+def test_half_block_check_with_a_screened_trajectory():
+    """A block with GNSS/IMU observations and screening (type 4, seed 000 at 0.3 points/mm²): the screened AP set is
+    kept in both halves, the strip-wise trajectory terms (a mask over all four strips' terms) are estimated in full
+    by each half (two strips each), and the check is made."""
+    from selfcal.simulate import simulate_uav
+    from selfcal.stats.screening import ScreeningOptions
+    from selfcal.workflows.adjust import AdjustRequest, adjust_block
+    from selfcal.workflows.tested import prune_for
+    block = prune_for(simulate_uav(seed=1, points_per_mm2=0.3).blocks["type4"])
+    out = adjust_block(block, AdjustRequest(options=AdjustOptions(ap=APOptions("brown")), screening=ScreeningOptions(),
+                                            snooping=None, robust=None, control_loo=False))
+    assert out.tested.ap_free["GNSS"].size == 24
+    check = out.tested.half_block
+    assert check is not None and not check.reason and check.n_images == (14, 14)
+    kept = int(out.tested.ap_free["ilce7m3"].sum())
+    assert check.cameras[0].difference.n_coefficients == kept < 7

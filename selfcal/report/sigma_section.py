@@ -23,7 +23,8 @@ def _sentence(camera_id: str, sigma: dict, half: dict, check: dict | None) -> st
         return text + "The half-block check was not run (--no-half-block)."
     if not check.get("done"):
         return text + f"The half-block check could not be made: {check.get('reason')}."
-    halves = " | ".join(", ".join(h) for h in check.get("halves", []))
+    halves = (" | ".join(", ".join(h) for h in check.get("halves", [])) if check.get("split") == "strips" else
+              " | ".join(str(n) for n in check.get("n_images", [])))
     verdict = ("differ beyond their precision: the AP model does not describe the camera the same way in both "
                "halves (a model error, or a camera that changed)" if half.get("flag") else
                "agree within their precision")

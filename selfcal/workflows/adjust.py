@@ -192,7 +192,7 @@ def _adjust_block(block: Block, request: AdjustRequest, progress: Callable | Non
             extra["control_loo"] = loo_summary(tested.loo)
             tested.result.notes.extend(loo_notes(tested.loo))
     if request.half_block and tested.result.converged and not tested.failure:
-        tested.half_block = half_block_check(tested, options)
+        tested.half_block = half_block_check(tested, options, say)
         if tested.half_block is not None:
             extra["half_block"] = half_block_summary(tested.half_block)
             tested.result.notes.extend(half_block_notes(tested.half_block))
