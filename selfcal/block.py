@@ -91,8 +91,24 @@ class FrameCamera:
         return self.height_px * self.pixel_size_mm
 
 
+class PixelUnits:
+    """A camera whose photo coordinates are pixels: pixel size 1 "mm" (BAL, OpenCV), its frame in those units."""
+
+    pixel_size_mm = 1.0
+    width_px: int
+    height_px: int
+
+    @property
+    def width_mm(self) -> float:
+        return float(self.width_px)
+
+    @property
+    def height_mm(self) -> float:
+        return float(self.height_px)
+
+
 @dataclass(frozen=True)
-class BalCamera:
+class BalCamera(PixelUnits):
     """A camera of Bundle Adjustment in the Large (``model = "bal"``): f, k1, k2 of
     ``pixel = f (1 + k1 |p|^2 + k2 |p|^4) p`` (see :mod:`selfcal.sensors.bal`).
 
@@ -108,23 +124,14 @@ class BalCamera:
     k2: float = 0.0
 
     model = "bal"
-    pixel_size_mm = 1.0
 
     @property
     def focal_mm(self) -> float:
         return self.focal_px
 
-    @property
-    def width_mm(self) -> float:
-        return float(self.width_px)
-
-    @property
-    def height_mm(self) -> float:
-        return float(self.height_px)
-
 
 @dataclass(frozen=True)
-class OpenCVCamera:
+class OpenCVCamera(PixelUnits):
     """OpenCV's camera (``model = "opencv"``, :mod:`selfcal.sensors.opencv`): focal lengths and principal point in
     pixels (OpenCV's: cx, cy from the centre of the first pixel) and the distortion coefficients of
     cv::projectPoints, ``distortion`` naming how many are estimated (``opencv4``, ``plumb_bob``, ``rational``,
@@ -152,7 +159,6 @@ class OpenCVCamera:
     s4: float = 0.0
 
     model = "opencv"
-    pixel_size_mm = 1.0
 
     @property
     def coefficients(self) -> tuple[float, ...]:
@@ -163,14 +169,6 @@ class OpenCVCamera:
     @property
     def focal_mm(self) -> float:
         return self.fx_px
-
-    @property
-    def width_mm(self) -> float:
-        return float(self.width_px)
-
-    @property
-    def height_mm(self) -> float:
-        return float(self.height_px)
 
 
 @dataclass(frozen=True)

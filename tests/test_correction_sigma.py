@@ -73,10 +73,10 @@ def test_the_correction_scatters_as_its_sigma_says():
     sum over seeds of (a - ā)^T Σ^-1 (a - ā) / ((n - 1) k), is 1 within 3.29 of its sampling sigma sqrt(2 / ((n - 1)
     k)); the correction's variance summed over the observed nodes of the 61 x 41 grid matches the predicted within
     3.29 of its own sampling sigma (a weighted sum of chi2(n - 1) variables, weights the eigenvalues of Σ^(1/2) G
-    Σ^(1/2): at 10 seeds 20-30 % for Brown, 5 % for db4; the benchmark's 50 seeds give 7 % and 4 %). Brown with 10
-    seeds, ADB4 on 9 x 6 with 6."""
+    Σ^(1/2): at 10 seeds 14 % for Brown, 3.5 % for db4; the benchmark's 50 seeds give 7 % and 4 %). Brown and
+    ADB4 on 9 x 6, 10 seeds each."""
     from study_sigma_map import monte_carlo
-    for model, seeds in (("brown", 10), ("wavelet:db4", 6)):
+    for model, seeds in (("brown", 10), ("wavelet:db4", 10)):
         mc = monte_carlo(model, range(seeds), truth="brown", points_per_mm2=0.3)
         chi2, dof = mc.chi2_per_dof()
         assert abs(chi2 - 1.0) < Z * np.sqrt(2.0 / dof), (model, chi2, dof)
@@ -184,7 +184,7 @@ def test_results_folder_and_report_section(changed, small_block, tmp_path):
     html = page.html()
     assert 'id="distortion-sigma"' in html and "differ beyond their precision" in html
     assert 'data-summary="half_block.cameras.ilce7m3.flag" data-value="True"' in html
-    assert figures == [("distortion-sigma", 4)]                  # the σ map and the difference, each with its colour bar
+    assert figures == [("distortion-sigma", 4)]           # the σ map and the difference, each with its colour bar
     write_block(small_block, tmp_path / "block")
     assert run_cli("adjust", str(tmp_path / "block"), "--out", str(tmp_path / "off"), "--ap", "brown", "--no-report",
                    "--quiet", "--robust", "none", "--snoop", "0", "--no-control-loo", "--no-half-block") == 0

@@ -71,14 +71,17 @@ def sigma_section(page: Page, results, add_figure: Callable) -> None:
         add_figure(page, fig, f"distortion-sigma{suffix}",
                    f"σ of the estimated correction Δ of camera {camera_id} ({model}), sqrt(σ_col² + σ_row²) from the "
                    "covariance of its AP coefficients (c, x0, y0 and the orientations estimated with them, by "
-                   "marginalisation); outlined: where observations lie, hatched: beyond them, where the σ grows."
+                   "marginalisation); outlined in blue: where observations lie, hatched: beyond them, where the σ "
+                   "grows (the colours span the observed area's σ up to its 95th percentile)."
                    + (" Below: the correction of the first half of the block minus the second's, each adjusted on "
                       "its own; colour |difference| / σ of the worse axis." if difference is not None else ""))
         key = f"distortion_sigma.{camera_id}"
         hkey = f"half_block.cameras.{camera_id}"
         rows.append(f'<tr><td class="text">{html.escape(camera_id)}</td>'
-                    + summary_cell(s, f"{key}.n_estimated", "") + summary_cell(s, f"{key}.max_sigma_observed_px", ".3f")
-                    + summary_cell(s, f"{key}.rms_sigma_observed_px", ".3f") + summary_cell(s, f"{key}.max_sigma_px", ".3f")
+                    + summary_cell(s, f"{key}.n_estimated", "")
+                    + summary_cell(s, f"{key}.max_sigma_observed_px", ".3f")
+                    + summary_cell(s, f"{key}.rms_sigma_observed_px", ".3f")
+                    + summary_cell(s, f"{key}.max_sigma_px", ".3f")
                     + summary_cell(s, f"{hkey}.statistic", ".1f") + summary_cell(s, f"{hkey}.dof", "")
                     + summary_cell(s, f"{hkey}.critical", ".1f") + summary_cell(s, f"{hkey}.p", ".3g")
                     + summary_cell(s, f"{hkey}.largest_ratio", ".1f") + summary_cell(s, f"{hkey}.flag", "")

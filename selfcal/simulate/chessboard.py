@@ -148,7 +148,8 @@ def simulate_chessboard(seed: int = 0, camera: OpenCVCamera = DEFAULT_CAMERA, n_
                     time_s=np.full(n_frames, np.nan), position_m=start[:, :3], attitude_rad=start[:, 3:],
                     line=np.arange(2, n_frames + 2))
     points = Points(point_id=np.array([f"C{k + 1:03d}" for k in range(n_corners)], object),
-                    role=np.full(n_corners, "gcp", object), xyz_m=corners, sigma_m=np.full((n_corners, 3), BOARD_SIGMA_M),
+                    role=np.full(n_corners, "gcp", object), xyz_m=corners,
+                    sigma_m=np.full((n_corners, 3), BOARD_SIGMA_M),
                     line=np.arange(2, n_corners + 2))
     n_obs = n_frames * n_corners
     observations = Observations(image_index=np.repeat(np.arange(n_frames), n_corners),
