@@ -131,7 +131,8 @@ def _argument(name: str, value: object, make: Callable[[], T]) -> T:
 
 def bundle_adjust(block: Block | str | os.PathLike, ap: str | None = None, *, snoop: float = 3.0, screen: bool = False,
                   variance_components: bool = False, max_iterations: int = 50, robust: str = "danish",
-                  control_loo: bool = True, orthonormal: bool = False, **options) -> Outcome:
+                  control_loo: bool = True, orthonormal: bool = False,
+                  half_block: bool = True, **options) -> Outcome:
     """The tested adjustment of ``block`` (a :class:`~selfcal.block.Block` or a block folder).
 
     ``ap``: the AP model (``"brown"``, ``"wavelet:db4"``..., ``"auto[:MODEL,...]"`` to choose by BIC; None: the
@@ -140,7 +141,9 @@ def bundle_adjust(block: Block | str | os.PathLike, ap: str | None = None, *, sn
     observation group's sigma; ``robust``: the loss of the robust cleaning before the tests (``"danish"``,
     ``"huber"``, ``"cauchy"``; ``"none"``: least squares throughout); ``control_loo``: the leave-one-out check
     of the control (``control_loo.csv``); ``orthonormal``: Table 4's further correlation figures in summary.json
-    (``selfcal adjust --orthonormal``); other keywords are named as the CLI's flags
+    (``selfcal adjust --orthonormal``); ``half_block``: the half-block check of the calibration (two more
+    adjustments: summary.json ``half_block``, the difference columns of ``distortion_sigma.csv``); other
+    keywords are named as the CLI's flags
     (:data:`OPTION_KEYWORDS`: ``grid``, ``gnss_drift``, ``sensor_model``...). Pushbroom blocks get seed 001's
     sensor model ``M6`` unless told. An argument that cannot be used (``snoop=-1``, an unknown keyword) is a
     :class:`~selfcal.errors.UsageError` naming it.
@@ -169,7 +172,8 @@ def bundle_adjust(block: Block | str | os.PathLike, ap: str | None = None, *, sn
     robust_options = None if robust == "none" else _argument("robust", robust, lambda: RobustOptions(loss=robust))
     request = AdjustRequest(chosen, snooping, screening,
                             VarianceOptions() if variance_components else None, robust_options, candidates=candidates,
-                            control_loo=bool(control_loo), orthonormal=bool(orthonormal))
+                            control_loo=bool(control_loo), orthonormal=bool(orthonormal),
+                            half_block=bool(half_block))
     LOG.info(f"{block.name}: {len(block.images)} images, {len(block.points)} points, {len(block.observations)} "
              f"image observations; AP model {ap}")
     adjusted = adjust_block(block, request, progress=logging_progress(block.image_sigma_px),
