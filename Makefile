@@ -6,7 +6,7 @@ STAMP  := $(VENV)/.installed-stamp
 # glibc keeps freed memory instead of re-mapping (and re-zeroing) it every iteration (selfcal/allocator.py)
 MALLOC := MALLOC_MMAP_THRESHOLD_=33554432 MALLOC_TRIM_THRESHOLD_=2147483647 MALLOC_TOP_PAD_=268435456
 
-.PHONY: install suitesparse browser colmap test test-fast examples docs typecheck demo bench clean
+.PHONY: install suitesparse browser colmap mrcal test test-fast examples docs typecheck demo bench clean
 
 install: suitesparse $(STAMP)
 
@@ -45,14 +45,22 @@ colmap:
 	  SUDO=$$(command -v sudo >/dev/null 2>&1 && [ "$$(id -u)" != 0 ] && echo sudo); \
 	  $$SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq colmap >/dev/null; }
 
+# The uncertainty peer test calibrates the same chessboard with mrcal (Debian's python3-mrcal, imported by the system
+# python3 in a subprocess: benchmarks/mrcal_side.py).
+mrcal:
+	@/usr/bin/python3 -c "import mrcal" >/dev/null 2>&1 || { \
+	  echo "installing Debian's python3-mrcal for the projection-uncertainty peer test"; \
+	  SUDO=$$(command -v sudo >/dev/null 2>&1 && [ "$$(id -u)" != 0 ] && echo sudo); \
+	  $$SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq python3-mrcal >/dev/null; }
+
 # one BLAS thread per test worker: two workers on two cores, not four threads fighting
 TEST_ENV := OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 MKL_NUM_THREADS=1 $(MALLOC)
 
-test: install browser colmap
+test: install browser colmap mrcal
 	$(TEST_ENV) $(PY) -m pytest -q -n 2 --durations=15
 
 # the tests not marked slow (pyproject.toml: whole-block adjustments and the like), for the edit-test loop
-test-fast: install browser colmap
+test-fast: install browser colmap mrcal
 	$(TEST_ENV) $(PY) -m pytest -q -n 2 --durations=15 -m "not slow"
 
 # every shell block of README.md and of the examples' READMEs, the long ones too (tests/test_readme.py; about 15 min)

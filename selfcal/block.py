@@ -22,6 +22,7 @@ __all__ = [
     "InitialAP",
     "FrameCamera",
     "BalCamera",
+    "OpenCVCamera",
     "PushbroomCamera",
     "Ephemeris",
     "AttitudeSamples",
@@ -108,8 +109,24 @@ class FrameCamera:
         return self.height_px * self.pixel_size_mm
 
 
+class PixelUnits:
+    """A camera whose photo coordinates are pixels: pixel size 1 "mm" (BAL, OpenCV), its frame in those units."""
+
+    pixel_size_mm = 1.0
+    width_px: int
+    height_px: int
+
+    @property
+    def width_mm(self) -> float:
+        return float(self.width_px)
+
+    @property
+    def height_mm(self) -> float:
+        return float(self.height_px)
+
+
 @dataclass(frozen=True)
-class BalCamera:
+class BalCamera(PixelUnits):
     """A camera of Bundle Adjustment in the Large (``model = "bal"``): f, k1, k2 of
     ``pixel = f (1 + k1 |p|^2 + k2 |p|^4) p`` (see :mod:`selfcal.sensors.bal`).
 
@@ -125,19 +142,51 @@ class BalCamera:
     k2: float = 0.0
 
     model = "bal"
-    pixel_size_mm = 1.0
 
     @property
     def focal_mm(self) -> float:
         return self.focal_px
 
-    @property
-    def width_mm(self) -> float:
-        return float(self.width_px)
+
+@dataclass(frozen=True)
+class OpenCVCamera(PixelUnits):
+    """OpenCV's camera (``model = "opencv"``, :mod:`selfcal.sensors.opencv`): focal lengths and principal point in
+    pixels (OpenCV's: cx, cy from the centre of the first pixel) and the distortion coefficients of
+    cv::projectPoints, ``distortion`` naming how many are estimated (``opencv4``, ``plumb_bob``, ``rational``,
+    ``thin_prism``). Its photo coordinates are pixels (pixel size 1)."""
+
+    camera_id: str
+    width_px: int
+    height_px: int
+    fx_px: float
+    fy_px: float
+    cx_px: float
+    cy_px: float
+    distortion: str = "rational"
+    k1: float = 0.0
+    k2: float = 0.0
+    p1: float = 0.0
+    p2: float = 0.0
+    k3: float = 0.0
+    k4: float = 0.0
+    k5: float = 0.0
+    k6: float = 0.0
+    s1: float = 0.0
+    s2: float = 0.0
+    s3: float = 0.0
+    s4: float = 0.0
+
+    model = "opencv"
 
     @property
-    def height_mm(self) -> float:
-        return float(self.height_px)
+    def coefficients(self) -> tuple[float, ...]:
+        """(k1, k2, p1, p2, k3, k4, k5, k6, s1, s2, s3, s4), OpenCV's order."""
+        return (self.k1, self.k2, self.p1, self.p2, self.k3, self.k4, self.k5, self.k6, self.s1, self.s2, self.s3,
+                self.s4)
+
+    @property
+    def focal_mm(self) -> float:
+        return self.fx_px
 
 
 @dataclass(frozen=True)

@@ -29,6 +29,7 @@ from numpy.typing import ArrayLike
 
 from .ap import ImageFrame, create_ap, fit_displacement, frame_nodes_mm
 from .sensors.frame import photo_from_pixel, pixel_from_photo
+from .sensors.opencv import opencv_radial_tangential
 
 if TYPE_CHECKING:
     from .calibration import Calibration
@@ -36,19 +37,6 @@ if TYPE_CHECKING:
 __all__ = ["CameraModel", "FittedModel", "InitialCalibration", "LensChoice", "MODELS", "FAMILIES", "LENS_MODELS",
            "FISHEYE_FIELD_DEG", "FRAME_MODEL_FAILS_PX", "fit_camera_model", "fit_best", "fit_for_lens",
            "field_of_view_deg", "propagate", "ideal_from_pixel", "initial_from_model", "opencv_radial_tangential"]
-
-
-def opencv_radial_tangential(n: np.ndarray, k: np.ndarray) -> np.ndarray:
-    """OpenCV's distortion of normalised coordinates, coefficients (k1, k2, p1, p2, k3, k4, k5, k6, s1..s4)
-    (the formula of cv::projectPoints)."""
-    c = np.zeros(12)
-    c[:len(k)] = k
-    x, y = n[:, 0], n[:, 1]
-    r2 = x * x + y * y
-    radial = (1 + c[0] * r2 + c[1] * r2**2 + c[4] * r2**3) / (1 + c[5] * r2 + c[6] * r2**2 + c[7] * r2**3)
-    xd = x * radial + 2 * c[2] * x * y + c[3] * (r2 + 2 * x * x) + c[8] * r2 + c[9] * r2**2
-    yd = y * radial + c[2] * (r2 + 2 * y * y) + 2 * c[3] * x * y + c[10] * r2 + c[11] * r2**2
-    return np.column_stack([xd, yd])
 
 
 def _opencv(n, q, w, h):

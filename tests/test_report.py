@@ -17,8 +17,8 @@ from selfcal.report.figures import grid_mean_vectors, nice_length
 from conftest import pruned, run_cli, simulation
 from report_page import read_report
 
-FIGURES = ["camera-layout", "distortion", "residual-grid", "residual-histogram", "control-errors", "tie-precision",
-           "correlation", "robust-weights", "rejection-map"]
+FIGURES = ["camera-layout", "distortion", "distortion-sigma", "residual-grid", "residual-histogram", "control-errors",
+           "tie-precision", "correlation", "robust-weights", "rejection-map"]
 #: every summary.json key that the summary section must print
 PRINTED = ["sigma0_px", "variance_factor", "iterations", "redundancy", "n_observations", "n_unknowns",
            "rmsd_chk_xy_m", "rmsd_chk_z_m", "rmsd_chk_xy_gsd", "rmsd_chk_z_gsd", "ce90_chk_m", "le90_chk_m",

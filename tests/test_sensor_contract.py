@@ -42,6 +42,12 @@ def _bal():
     return block_from_bal(read_bal(os.path.join(SHARED_DATA, "bal", "dubrovnik-3-7-pre.txt"))), AdjustOptions()
 
 
+def _opencv():
+    """A chessboard calibration with OpenCV's rational model (selfcal.simulate.chessboard): 6 poses of 80 corners."""
+    from selfcal.simulate.chessboard import simulate_chessboard
+    return simulate_chessboard(seed=2, n_frames=6).block, AdjustOptions(ap=APOptions("none"))
+
+
 def _pushbroom():
     from selfcal.simulate.prism import prism_block, simulate_prism
     return prism_block(simulate_prism(seed=1), seed=1), AdjustOptions(sensor=SensorOptions(model="M7"))
@@ -144,8 +150,8 @@ def _dg():
     return _vendor("dg", [os.path.join(folder, "dg_example1.xml"), os.path.join(folder, "dg_example2.xml")])
 
 
-EXAMPLES = {"dimap": _dimap, "dg": _dg, "frame": _frame, "frame-rolling": _frame_rolling, "bal": _bal, "pushbroom": _pushbroom, "rpc": _rpc, "usgscsm": _usgscsm,
-            "usgscsm-line": _usgscsm_line}
+EXAMPLES = {"dimap": _dimap, "dg": _dg, "frame": _frame, "frame-rolling": _frame_rolling, "bal": _bal,
+            "opencv": _opencv, "pushbroom": _pushbroom, "rpc": _rpc, "usgscsm": _usgscsm, "usgscsm-line": _usgscsm_line}
 
 
 def test_every_registered_sensor_has_an_example():
@@ -198,7 +204,7 @@ def test_jacobians_match_central_differences(bound):
     for k in range(problem.image_width):
         step = 1e-6 * max(1.0, float(np.max(np.abs(state.image[:, k]))))
         if units[k] == "m":                 # a metre offset of a body-fixed point of 1.7e6 m: rounding below 1 mm
-            step = max(step, 1e-3)
+            step = max(step, min(1e-3, 1e-9 * float(np.max(np.abs(points)))))
 
         def moved(d, k=k):
             s = state.copy()
@@ -219,10 +225,12 @@ def test_jacobians_match_central_differences(bound):
         numeric = _central(moved_core, 0.0, step)
         np.testing.assert_allclose(j_c[:, :, k], numeric, rtol=1e-5, atol=1e-9 * scale,
                                    err_msg=f"{name}: core parameter {k}")
+    # 1 mm, less for a close-range block (a chessboard 1 m away: 1 um)
+    point_step = min(1e-3, 1e-6 * max(1.0, float(np.ptp(points, axis=0).max())))
     for a in range(3):
         e = np.zeros(3)
-        e[a] = 1e-3
-        numeric = (evaluate(state, points + e) - evaluate(state, points - e)) / 2e-3
+        e[a] = point_step
+        numeric = (evaluate(state, points + e) - evaluate(state, points - e)) / (2 * point_step)
         np.testing.assert_allclose(j_p[:, :, a], numeric, rtol=1e-5, atol=1e-9 * scale,
                                    err_msg=f"{name}: point coordinate {a}")
     assert j_c.shape[2] >= n_core and np.all(cam >= 0)

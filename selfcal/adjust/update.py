@@ -204,6 +204,15 @@ def intersect_points(problem: Problem, state: State, points: np.ndarray, obs: np
             return
 
 
+def _left_out_rows(problem: Problem, state, removed: np.ndarray):
+    """:func:`observation_rows` of the left-out image observations; none (a control point turned check point
+    alone) gives empty rows without asking the sensors to predict nothing."""
+    if removed.size:
+        return observation_rows(problem, state, removed)
+    return (np.zeros((0, 2)), np.zeros((0, 2, problem.image_width)), np.zeros((0, 2, 3)),
+            np.zeros((0, 2, problem.n_d)))
+
+
 def _step(previous, S_old: np.ndarray, removed: np.ndarray, held, free_network: bool,
           dropped: np.ndarray = np.zeros(0, np.int64)):
     old, state, lin = previous.problem, previous.state, previous.linearisation
@@ -218,7 +227,7 @@ def _step(previous, S_old: np.ndarray, removed: np.ndarray, held, free_network: 
     dropped_points = old.control_index[dropped]
     r_c, J_c = old.control.rows(state.points[dropped_points], dropped)
     removed = np.union1d(removed, np.flatnonzero(gone[old.obs_point]))
-    r, j_e, j_p, j_d = observation_rows(old, state, removed)
+    r, j_e, j_p, j_d = _left_out_rows(old, state, removed)
     point = old.obs_point[removed]
     # the left-out rows (theta part, dense) and their gradient, negated
     J = np.zeros((len(removed), 2, old.n_theta))
@@ -293,11 +302,11 @@ def _step(previous, S_old: np.ndarray, removed: np.ndarray, held, free_network: 
         d_held = np.zeros(old.n_theta)
         d_held[index] = move
         state = old.apply(state, d_held, np.zeros_like(state.points))
-        plain = (evaluate_cost(old, state) - 0.5 * float(np.sum(observation_rows(old, state, removed)[0] ** 2))
+        plain = (evaluate_cost(old, state) - 0.5 * float(np.sum(_left_out_rows(old, state, removed)[0] ** 2))
                  - 0.5 * float(np.sum(old.control.rows(state.points[dropped_points], dropped)[0] ** 2)))
     else:
         plain = previous.cost - 0.5 * float(np.sum(r * r)) - 0.5 * float(np.sum(r_c * r_c))
-    new = (evaluate_cost(old, predicted) - 0.5 * float(np.sum(observation_rows(old, predicted, removed)[0] ** 2))
+    new = (evaluate_cost(old, predicted) - 0.5 * float(np.sum(_left_out_rows(old, predicted, removed)[0] ** 2))
            - 0.5 * float(np.sum(old.control.rows(predicted.points[dropped_points], dropped)[0] ** 2)))
     if not new < plain:
         return None

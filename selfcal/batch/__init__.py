@@ -66,10 +66,10 @@ def run_cell(scenario: str, block, model: str, settings: CellSettings = CellSett
     keep_freed_memory()
     t0 = time.perf_counter()
     options = AdjustOptions(ap=APOptions(model, grid=settings.grid), trajectory=TrajectoryOptions(gnss_drift=settings.gnss_drift, imu_drift=settings.imu_drift, lever_arm=settings.lever_arm, boresight=settings.boresight))
-    # no leave-one-out check of the control in a matrix: the comparison ranks the models by their check points,
-    # and one re-adjustment per GCP in every cell would multiply its cost
+    # no leave-one-out check of the control and no half-block check in a matrix: the comparison ranks the models by
+    # their check points, and one re-adjustment per GCP (two per cell for the halves) would multiply its cost
     request = AdjustRequest(options=options, snooping=settings.snooping, screening=settings.screening,
-                            variance=settings.variance, robust=settings.robust, control_loo=False)
+                            variance=settings.variance, robust=settings.robust, control_loo=False, half_block=False)
     try:
         adjusted = adjust_block(block, request)
     except AdjustmentError as exc:

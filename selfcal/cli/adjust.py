@@ -40,6 +40,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "each left out in turn and the block adjusted again; a camera parameter that scatters "
                              "over them beyond its sigma is named in summary.json calibration_precision and the "
                              "report (G more adjustments; default 0: not checked)")
+    parser.add_argument("--no-half-block", action="store_true",
+                        help="leave out the half-block check of the calibration (each half of the block, by strips, "
+                             "adjusted on its own and the two APs compared: two more adjustments)")
     parser.add_argument("--max-iterations", type=count(1), default=SolverOptions.max_iterations, metavar="N",
                         help=f"Gauss-Newton / Levenberg-Marquardt iterations at most (default "
                              f"{SolverOptions.max_iterations}); a weakly determined block may need more")
@@ -196,7 +199,8 @@ def run(args: argparse.Namespace) -> int:
                             candidates=ap_candidates(args.ap, args.grid) if auto else None, image_ids=image_ids, n_gcp=args.gcps,
                             keep_focal=args.keep_focal, height=height,
                             robust=robust_options(args), control_loo=not args.no_control_loo,
-                            orthonormal=args.orthonormal, jackknife=args.jackknife)
+                            orthonormal=args.orthonormal, jackknife=args.jackknife,
+                            half_block=not args.no_half_block)
     if request.candidates is not None and not args.quiet:         # --ap auto
         print(f"choosing the AP model among {len(request.candidates)} candidates by BIC (blunders first, with the "
               f"richest candidate) ...", file=sys.stderr)

@@ -35,8 +35,9 @@ RESULT_TABLES = {"images": "images.csv", "points": "points.csv", "residuals": "r
 #: trajectory.csv ([gnss] or [imu]), check_points.csv (seed 001's across / along / up), parameters.csv
 #: (schema 2 and later), attitude_corrections.csv (line scanners), control_loo.csv (the control's leave-one-out test),
 #: rolling_shutter.csv (rolling-shutter cameras)
+#: distortion_sigma.csv (the σ of the frame APs' correction and the half-block check's difference)
 OPTIONAL_TABLES = {"parameters": "parameters.csv", "distortion_grid": "distortion_grid.csv",
-                   "control_loo": "control_loo.csv",
+                   "distortion_sigma": "distortion_sigma.csv", "control_loo": "control_loo.csv",
                    "detector_line": "detector_line.csv", "trajectory": "trajectory.csv",
                    "check_points": "check_points.csv", "attitude_corrections": "attitude_corrections.csv",
                    "rolling_shutter": "rolling_shutter.csv"}

@@ -14,8 +14,8 @@ from collections.abc import Sequence
 import numpy as np
 from matplotlib.figure import Figure
 
-__all__ = ["distortion_figure", "residual_grid_figure", "residual_histogram_figure", "control_error_figure",
-           "correlation_figure", "precision_map_figure", "comparison_figure", "grid_mean_vectors",
+__all__ = ["distortion_figure", "sigma_map_figure", "residual_grid_figure", "residual_histogram_figure",
+           "control_error_figure", "correlation_figure", "precision_map_figure", "comparison_figure", "grid_mean_vectors",
            "robust_weight_figure", "rejection_map_figure", "camera_layout_figure", "OVERLAP_TOP",
            "nice_length", "length_unit"]
 
@@ -97,6 +97,66 @@ def distortion_figure(col: np.ndarray, row: np.ndarray, dcol: np.ndarray, drow: 
     _frame_axes(ax, width_px, height_px)
     ax.set_title(f"{title}: max |Δ| {float(np.max(magnitude)) if magnitude.size else 0:.2f} px", loc="left",
                  fontsize=10)
+    return fig
+
+
+def _observed_outline(ax, col: np.ndarray, row: np.ndarray, observed: np.ndarray, nx: int, ny: int) -> None:
+    """The observed area's outline (blue: it shows on both colour maps' ends) and the rest hatched."""
+    mask = observed.reshape(ny, nx).astype(float)
+    C, R = col.reshape(ny, nx), row.reshape(ny, nx)
+    if 0.0 < mask.mean() < 1.0:
+        ax.contourf(C, R, mask, levels=[-0.5, 0.5], colors="none", hatches=["////"], zorder=2)
+        ax.contour(C, R, mask, levels=[0.5], colors="#1f77b4", linewidths=1.8, zorder=3)
+
+
+def sigma_map_figure(col: np.ndarray, row: np.ndarray, sigma_px: np.ndarray, observed: np.ndarray, width_px: float,
+                     height_px: float, title: str, difference: tuple | None = None, step: int = 4) -> Figure:
+    """The σ of the correction Δ on the grid of distortion_sigma.csv (colour, its scale up to the observed area's
+    95th percentile: beyond it the σ may be a hundred times larger), the observed area outlined and the rest hatched; with ``difference`` =
+    (ddcol, ddrow, sigma_dcol, sigma_drow, label) a second panel: the half-block difference of the correction,
+    |difference| / σ of the worse axis as colour and the vectors on every ``step``-th observed node."""
+    nx = int(np.unique(col).size)
+    ny = col.size // max(nx, 1)
+    panels = 2 if difference is not None else 1
+    fig = Figure(figsize=(_WIDTH_IN, panels * (_WIDTH_IN * height_px / width_px * 0.85) + 0.7), layout="constrained")
+    axes = fig.subplots(panels, 1, squeeze=False)[:, 0]
+    gridded = nx * ny == col.size and nx > 1 and ny > 1
+    ax = axes[0]
+    seen = observed.astype(bool)
+    inside = float(np.max(sigma_px[seen])) if seen.any() else float("nan")
+    # the colours span the observed area's σ up to its 95th percentile (at the edge of the observations, and beyond
+    # them, it can be a hundred times larger)
+    top = float(np.percentile(sigma_px[seen], 95)) if seen.any() else float(np.max(sigma_px))
+    top = top if top > 0 else 1.0
+    if gridded:
+        mesh = ax.pcolormesh(col.reshape(ny, nx), row.reshape(ny, nx), sigma_px.reshape(ny, nx), shading="gouraud",
+                             cmap="magma", rasterized=True, vmin=0.0, vmax=top)
+        fig.colorbar(mesh, ax=ax, label="σ of Δ [px]", shrink=0.85,
+                     extend="max" if float(np.max(sigma_px)) > top * (1 + 1e-9) else "neither")
+        _observed_outline(ax, col, row, observed, nx, ny)
+    _frame_axes(ax, width_px, height_px)
+    ax.set_title(f"{title}: max σ {inside:.3f} px where observed (outlined), {float(np.max(sigma_px)):.3f} px on "
+                 "the frame", loc="left", fontsize=9)
+    if difference is not None:
+        ddcol, ddrow, scol, srow, label = difference
+        ax = axes[1]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            # (a node where the correction has no variance, Brown's centre, has no difference either: 0 there)
+            ratio = np.fmax(np.where(scol > 0, np.abs(ddcol) / scol, 0.0), np.where(srow > 0, np.abs(ddrow) / srow, 0.0))
+        if gridded:
+            shown = ratio[seen] if seen.any() else ratio
+            top = max(4.0, float(np.nanmax(shown)) if np.isfinite(shown).any() else 4.0)
+            mesh = ax.pcolormesh(col.reshape(ny, nx), row.reshape(ny, nx), ratio.reshape(ny, nx), shading="gouraud",
+                                 cmap="RdYlGn_r", rasterized=True, vmin=0.0, vmax=top)
+            fig.colorbar(mesh, ax=ax, label="|ΔΔ| / σ (worse axis)", shrink=0.85)
+            _observed_outline(ax, col, row, observed, nx, ny)
+            every = np.zeros((ny, nx), bool)
+            every[::step, ::step] = True
+            pick = every.ravel() & np.isfinite(ddcol) & (seen if seen.any() else True)
+            _vectors(ax, col[pick], row[pick], ddcol[pick], ddrow[pick], step * width_px / (nx - 1), "px",
+                     color="k")
+        _frame_axes(ax, width_px, height_px)
+        ax.set_title(label, loc="left", fontsize=9)
     return fig
 
 

@@ -28,11 +28,12 @@ from ..stats.checks import CheckPoints, check_point_sigmas_m, intersected
 from ..stats.correlation import max_abs_correlation_by_group
 from .exchange import check_points_geojson, object_points_ply
 from .frame import ResultView
+from .sigma_map import distortion_sigma_summary, distortion_sigma_table
 
 __all__ = ["SCHEMA_VERSION", "ground_sample_distance", "model_choice_table", "summary", "camera_json", "image_table",
            "point_table", "residual_table", "screening_json", "correlation_table", "distortion_grid_table",
            "trajectory_table", "parameter_table", "detector_line_table", "check_point_table", "control_loo_table",
-           "result_files"]
+           "distortion_sigma_table", "result_files"]
 
 #: a CSV file of the results folder as data: header, columns (equal-length sequences), format of each column
 #: (:func:`selfcal.io.table.write_table`)
@@ -164,6 +165,7 @@ def summary(tested, extra: dict | None = None, checks=None, view: ResultView | N
         "notes": list(result.notes),
         "seconds": result.seconds,
         "diagnosis": diagnosis(tested, checks, view),
+        "distortion_sigma": distortion_sigma_summary(result),
     }
     out["quality_check"] = quality_check(tested, d_gcp, pts.sigma_m[gcp], pts.point_id[gcp])
     if extra:
@@ -590,6 +592,7 @@ def result_files(block_read: Block, tested, summary_extra: dict | None = None, s
     optional = {"check_points.geojson": check_points_geojson(
                     found, view.crs, _object_frame(result) == "ECEF", sigmas, target_naif_code(result.block)),
                 "distortion_grid.csv": distortion_grid_table(result.block, result),
+                "distortion_sigma.csv": distortion_sigma_table(result, getattr(tested, "half_block", None)),
                 "detector_line.csv": detector_line_table(result),
                 "trajectory.csv": trajectory_table(result, plane) if result.problem.trajectory else None,
                 "control_loo.csv": control_loo_table(tested.loo) if getattr(tested, "loo", None) is not None else None}

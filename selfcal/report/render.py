@@ -23,6 +23,7 @@ from . import figures
 from .page import Page, fmt, summary_cell
 from .calibration_precision import calibration_precision_section
 from .rolling import rolling_shutter_section
+from .sigma_section import sigma_section
 
 __all__ = ["render_report", "render_comparison_report", "best_cells", "images_per_point", "FIGURE_DPI",
            "MAX_CAMERA_FIGURES", "MAX_AP_ROWS"]
@@ -875,6 +876,8 @@ def render_report(results: ResultsFolder, title: str | None = None,
     _diagnosis_section(page, s)
     heading("Image space: distortion and residuals", anchor="image-space")
     _image_space_section(page, files, results)
+    heading("Uncertainty of the correction and the half-block check", anchor="correction-sigma")
+    sigma_section(page, results, lambda page_, fig, stem, caption: _add_figure(page_, files, fig, stem, caption))
     heading("Object space: control and check points", anchor="control")
     _control_section(page, files, results)
     _control_loo_section(page, results)

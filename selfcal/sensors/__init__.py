@@ -5,7 +5,7 @@ initial values find it here and never branch on the name. Foreign descriptions t
 pushbroom camera are read by :mod:`selfcal.io` (usgscsm ISD; Pleiades and SPOT 5 DIMAP, DigitalGlobe XML) and
 built by the modules :mod:`.usgscsm` and :mod:`.vendor` (:mod:`.dimap`, :mod:`.spot`, :mod:`.dg`).
 """
-from . import bal, frame, pushbroom, rolling, rpc, usgscsm, usgscsm_frame, vendor
+from . import bal, frame, opencv, pushbroom, rolling, rpc, usgscsm, usgscsm_frame, vendor
 from .base import BoundSensor, Parameter, Sensor
 
 #: sensor name (``model =`` of a camera in block.toml) -> the sensor
@@ -13,6 +13,7 @@ SENSORS: dict[str, Sensor] = {
     "frame": frame.SENSOR,
     "frame-rolling": rolling.SENSOR,
     "bal": bal.SENSOR,
+    "opencv": opencv.SENSOR,
     "pushbroom": pushbroom.SENSOR,
     "rpc": rpc.SENSOR,
     "usgscsm": usgscsm_frame.SENSOR,
@@ -31,4 +32,4 @@ def sensor_of(camera) -> Sensor:
         raise ValueError(f"camera model {camera.model!r} has no sensor (known: {', '.join(SENSORS)})") from None
 
 
-__all__ = ["SENSORS", "Sensor", "BoundSensor", "Parameter", "sensor_of", "frame", "bal", "pushbroom", "rpc"]
+__all__ = ["SENSORS", "Sensor", "BoundSensor", "Parameter", "sensor_of", "frame", "bal", "opencv", "pushbroom", "rpc"]

@@ -413,7 +413,7 @@ class UsgscsmLineBound(PushbroomBound):
             s[sel] = (self.t[o[sel]] - image.t_ref) / image.half_duration_s
             j_axes[sel] = j_e[sel][:, :, [0, 2, 4]] @ self.axes[int(i)]                 # d/d(RA, DEC, TWIST)
         powers = s[:, None] ** np.arange(ATTITUDE_DEGREE_MAX + 1)[None, :]          # (m, degree + 1)
-        j = np.einsum("mra,mk->mrak", j_axes, powers).reshape(len(img), 2, -1)
+        j = np.einsum("mra,mk->mrak", j_axes, powers).reshape(len(img), 2, 3 * (ATTITUDE_DEGREE_MAX + 1))
         j_offset = np.zeros((len(img), 2, 3))                      # the photo coordinates see P - S - offset
         for i in np.unique(img):
             sel = img == i

@@ -153,7 +153,8 @@ def simulate_uav(seed: int = 0, distortion: str = "local+brown", image_sigma_px:
                  boresight_deg: tuple[float, float, float] = (0.0, 0.0, 0.0), n_strips: int = 4, images_per_strip: int = 7,
                  trajectory_errors: TrajectoryErrors | None = None, exposure_interval_s: float | None = None,
                  declare_mounting: bool = False, flight: str = "seed000", speed_mps: float = 8.0,
-                 rolling_shutter_ms: float = 0.0, velocity_noise_mps: float = 0.1) -> UAVSimulation:
+                 rolling_shutter_ms: float = 0.0, velocity_noise_mps: float = 0.1,
+                 noise_seed: int | None = None) -> UAVSimulation:
     """Simulate the seed-000 block; returns the four scenario blocks and the truth.
 
     Parameters
@@ -204,6 +205,11 @@ def simulate_uav(seed: int = 0, distortion: str = "local+brown", image_sigma_px:
         and trajectory are those of the global shutter's). The blocks declare ``shutter = "rolling"`` with the readout a camera nobody measured gets
         (:data:`DECLARED_READOUT_MS` +- :data:`DECLARED_SIGMA_READOUT_MS`). Image points that the motion moves off the
         frame are left out (and the blocks pruned, :func:`selfcal.block.prune`, where that leaves a point with one ray).
+    noise_seed : int, optional
+        Draw the image measurement noise and the marks' survey noise from a generator of their own: every
+        ``noise_seed`` gives the same block (images, points, which point is seen where, blunders,
+        trajectory) with another noise (Monte-Carlo studies of precision). Default: from ``seed``'s
+        generator, as before.
     """
     if flight not in FLIGHTS:
         raise ValueError(f"unknown flight '{flight}' (known: {', '.join(FLIGHTS)})")
@@ -347,7 +353,8 @@ def simulate_uav(seed: int = 0, distortion: str = "local+brown", image_sigma_px:
     sparse = [int(mark_map[n]) for n in sparse if keep_pt[n]]
     dense = [int(mark_map[n]) for n in dense if keep_pt[n]]
 
-    noise = rng.normal(0.0, image_sigma_px, obs_pix.shape)
+    noise_rng = rng if noise_seed is None else np.random.default_rng([seed, noise_seed])
+    noise = noise_rng.normal(0.0, image_sigma_px, obs_pix.shape)
     measured = obs_pix + noise
     n_obs = len(measured)
     n_blunder = int(round(blunder_rate * n_obs))
@@ -368,7 +375,10 @@ def simulate_uav(seed: int = 0, distortion: str = "local+brown", image_sigma_px:
         n_obs = on.size
 
     # --- reference coordinates of the marks (with their survey noise)
-    ref = xyz_true[:n_marks] + rng.normal(0, 1, (n_marks, 3)) * [MARK_SIGMA_XY_M, MARK_SIGMA_XY_M, MARK_SIGMA_Z_M]
+    mark_noise = rng.normal(0, 1, (n_marks, 3))
+    if noise_seed is not None:
+        mark_noise = noise_rng.normal(0, 1, (n_marks, 3))
+    ref = xyz_true[:n_marks] + mark_noise * [MARK_SIGMA_XY_M, MARK_SIGMA_XY_M, MARK_SIGMA_Z_M]
 
     # --- trajectory observations: per-strip shift + drift (Eq. 12) + noise
     gnss_sigma = np.array(gnss_sigma_m, float)

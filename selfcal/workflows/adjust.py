@@ -29,6 +29,7 @@ from ..stats.correlation import correlation_figures
 from ..stats.plausibility import collapse
 from . import seed001
 from .frames import loo_in_crs, object_frame_block, tangent_plane_block
+from .half_block import half_block_check, half_block_notes, half_block_summary
 from .jackknife import calibration_precision
 from .loo import control_loo, loo_notes, loo_summary
 from .model_choice import ModelChoice, choose_ap_model
@@ -61,6 +62,8 @@ class AdjustRequest:
     orthonormal: bool = False
     # the jackknife of the calibration over this many groups of images (0: none; :mod:`.jackknife`)
     jackknife: int = 0
+    # calibrate each half of the block on its own and compare (frame APs; :mod:`.half_block`)
+    half_block: bool = True
 
 
 @dataclass
@@ -207,6 +210,11 @@ def _adjust_block(block: Block, request: AdjustRequest, progress: Callable | Non
                 tested.loo = loo_in_crs(tested.loo, plane, tested.result.block.points)
             extra["control_loo"] = loo_summary(tested.loo)
             tested.result.notes.extend(loo_notes(tested.loo))
+    if request.half_block and tested.result.converged and not tested.failure:
+        tested.half_block = half_block_check(tested, options, say)
+        if tested.half_block is not None:
+            extra["half_block"] = half_block_summary(tested.half_block)
+            tested.result.notes.extend(half_block_notes(tested.half_block))
     if tested.result.converged and not tested.failure:
         precision, note = calibration_precision(tested, options, request.jackknife)
         if precision is not None:

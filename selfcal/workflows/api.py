@@ -138,7 +138,8 @@ def _groups(value: object) -> int:
 
 def bundle_adjust(block: Block | str | os.PathLike, ap: str | None = None, *, snoop: float = 3.0, screen: bool = False,
                   variance_components: bool = False, max_iterations: int = 50, robust: str = "danish",
-                  control_loo: bool = True, orthonormal: bool = False, jackknife: int = 0, **options) -> Outcome:
+                  control_loo: bool = True, orthonormal: bool = False, half_block: bool = True,
+                  jackknife: int = 0, **options) -> Outcome:
     """The tested adjustment of ``block`` (a :class:`~selfcal.block.Block` or a block folder).
 
     ``ap``: the AP model (``"brown"``, ``"wavelet:db4"``..., ``"auto[:MODEL,...]"`` to choose by BIC; None: the
@@ -146,10 +147,11 @@ def bundle_adjust(block: Block | str | os.PathLike, ap: str | None = None, *, sn
     ``screen``: drop insignificant and highly correlated APs; ``variance_components``: estimate each
     observation group's sigma; ``robust``: the loss of the robust cleaning before the tests (``"danish"``,
     ``"huber"``, ``"cauchy"``; ``"none"``: least squares throughout); ``control_loo``: the leave-one-out check
-    of the control (``control_loo.csv``); ``jackknife``: groups of images of the jackknife that checks the
-    calibration's sigma (0: none; summary.json ``calibration_precision``); ``orthonormal``: Table 4's further
-    correlation figures in summary.json
-    (``selfcal adjust --orthonormal``); other keywords are named as the CLI's flags
+    of the control (``control_loo.csv``); ``orthonormal``: Table 4's further correlation figures in summary.json
+    (``selfcal adjust --orthonormal``); ``half_block``: the half-block check of the calibration (two more
+    adjustments: summary.json ``half_block``, the difference columns of ``distortion_sigma.csv``); ``jackknife``:
+    groups of images of the jackknife that checks the calibration's sigma (0: none; summary.json
+    ``calibration_precision``); other keywords are named as the CLI's flags
     (:data:`OPTION_KEYWORDS`: ``grid``, ``gnss_drift``, ``sensor_model``...). Pushbroom blocks get seed 001's
     sensor model ``M6`` unless told. An argument that cannot be used (``snoop=-1``, an unknown keyword) is a
     :class:`~selfcal.errors.UsageError` naming it.
@@ -179,6 +181,7 @@ def bundle_adjust(block: Block | str | os.PathLike, ap: str | None = None, *, sn
     request = AdjustRequest(chosen, snooping, screening,
                             VarianceOptions() if variance_components else None, robust_options, candidates=candidates,
                             control_loo=bool(control_loo), orthonormal=bool(orthonormal),
+                            half_block=bool(half_block),
                             jackknife=_argument("jackknife", jackknife, lambda: _groups(jackknife)))
     LOG.info(f"{block.name}: {len(block.images)} images, {len(block.points)} points, {len(block.observations)} "
              f"image observations; AP model {ap}")

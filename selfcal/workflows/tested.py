@@ -21,7 +21,7 @@ strips, at the frame's edges) is taken back, and the result is the round before'
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
@@ -34,6 +34,9 @@ from ..stats.screening import ScreeningDecision, ScreeningOptions, ScreeningRoun
 from ..stats.loo import LeaveOneOut
 from ..stats.snooping import SnoopingOptions, SnoopingRound, image_w, left_without_rays, reject_candidates
 from ..stats.variance import VarianceComponent, VarianceOptions, estimate_variance_components
+
+if TYPE_CHECKING:
+    from .half_block import HalfBlock
 
 __all__ = ["TestedAdjustment", "adjust_with_tests", "MAX_REJECTED_SHARE", "prune_for"]
 
@@ -82,6 +85,7 @@ class TestedAdjustment:
     cleaning: Cleaning | None = None                 # the robust cleaning before the tests, if there was one
     control_demoted: list[tuple[str, float]] = field(default_factory=list)   # (point id, |w|) checked instead
     loo: LeaveOneOut | None = None                   # the control's leave-one-out validation (workflows.loo)
+    half_block: HalfBlock | None = None              # the half-block check of the calibration (workflows.half_block)
 
     @property
     def robust_rows(self) -> np.ndarray:
