@@ -149,11 +149,23 @@ def _said(p: ParameterPrecision) -> str:
     return text
 
 
-def precision_statement(cameras: list[CameraPrecision], jackknife_done: bool) -> tuple[bool | None, str]:
+def precision_statement(cameras: list[CameraPrecision], jackknife_done: bool,
+                        findings: list[str] | tuple[str, ...] = ()) -> tuple[bool | None, str]:
     """The verdict on the cameras' sigmas and one sentence that says why: (True, ...) a jackknife found every
     parameter's spread within its sigma; (False, ...) it did not for some (named, with the jackknife's sigma and
-    their strongest correlation); (None, ...) not verified (no jackknife), naming the weakly determined core
-    parameters if any."""
+    their strongest correlation), or another check found a model error (``findings``: sentences, e.g. the
+    half-block check's); (None, ...) not verified (no jackknife), naming the weakly determined core parameters if
+    any."""
+    trusted, statement = _jackknife_statement(cameras, jackknife_done)
+    if not findings:
+        return trusted, statement
+    found = "; ".join(findings)
+    if trusted is False:
+        return False, f"{statement}; and {found}"
+    return False, f"the calibration's sigma does not hold: {found} (a model error the sigma does not describe)"
+
+
+def _jackknife_statement(cameras: list[CameraPrecision], jackknife_done: bool) -> tuple[bool | None, str]:
     if jackknife_done:
         flagged = [(c.camera_id, p) for c in cameras for p in c.parameters if p.flagged]
         checked = [p for c in cameras for p in c.parameters if p.ratio is not None]

@@ -23,7 +23,7 @@ from ..stats.calibration_precision import (JACKKNIFE_ALPHA, WEAK_INFLATION, Came
 from .tested import TestedAdjustment
 
 __all__ = ["Jackknife", "image_groups", "jackknife", "precision_summary", "calibration_precision",
-           "MIN_REPLICATES"]
+           "half_block_findings", "MIN_REPLICATES"]
 
 #: a jackknife needs at least this many replicates
 MIN_REPLICATES = 3
@@ -98,15 +98,17 @@ def jackknife(tested: TestedAdjustment, options: AdjustOptions, groups: int,
     return out
 
 
-def precision_summary(precision: list[CameraPrecision], jack: Jackknife | None) -> dict:
+def precision_summary(precision: list[CameraPrecision], jack: Jackknife | None, findings: list[str] | None = None
+                      ) -> dict:
     """summary.json ``calibration_precision``: the verdict, its sentence, the jackknife's settings and every
-    camera's parameters (:mod:`selfcal.stats.calibration_precision`); fills ``precision``'s jackknife fields."""
+    camera's parameters (:mod:`selfcal.stats.calibration_precision`); fills ``precision``'s jackknife fields.
+    ``findings``: other checks' model errors (the half-block check's), which make the verdict "not trusted"."""
     done = jack is not None and jack.done
     if done:
         assert jack is not None
         for cam in precision:
             jackknife_spread(cam, jack.replicates.get(cam.camera_id, {}))
-    trusted, statement = precision_statement(precision, done)
+    trusted, statement = precision_statement(precision, done, findings or ())
     return {
         "trusted": trusted,
         "statement": statement,
@@ -119,15 +121,25 @@ def precision_summary(precision: list[CameraPrecision], jack: Jackknife | None) 
     }
 
 
+def half_block_findings(check) -> list[str]:
+    """The half-block check's (:mod:`.half_block`) flagged cameras as sentences for the verdict."""
+    if check is None:
+        return []
+    return [f"the half-block check finds camera {c.camera_id}'s APs differ between the halves of the block "
+            f"(T = {c.difference.statistic:.1f}, chi2({c.difference.dof}), p = {c.difference.p_value:.2g})"
+            for c in check.cameras if c.difference.flag]
+
+
 def calibration_precision(tested: TestedAdjustment, options: AdjustOptions, groups: int) -> tuple[dict | None, str]:
     """summary.json ``calibration_precision`` of a tested adjustment (None where no camera parameter is
-    estimated), and the note it makes: the statement where the verdict is not "trusted" and a core parameter is
-    named in it, else empty. ``groups``: the jackknife's groups (0: none)."""
+    estimated), and the note it makes: the statement where the verdict is "not trusted", or "not verified" with a
+    weakly determined core parameter named, else empty. ``groups``: the jackknife's groups (0: none); the
+    half-block check's flags (``tested.half_block``, where it was made) count as model errors."""
     precision = camera_precision(tested.result)
     if not precision:
         return None, ""
     jack = jackknife(tested, options, groups, precision) if groups else None
-    summary = precision_summary(precision, jack)
+    summary = precision_summary(precision, jack, half_block_findings(getattr(tested, "half_block", None)))
     weak = any(p.core and (p.ap_inflation or 0.0) >= WEAK_INFLATION for cam in precision for p in cam.parameters)
     said = summary["trusted"] is False or (summary["trusted"] is None and weak)
     return summary, (summary["statement"] if said else "")
