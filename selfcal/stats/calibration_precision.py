@@ -20,7 +20,7 @@ and the active AP coefficients):
 
 :func:`precision_statement` turns these into the verdict summary.json ``calibration_precision`` and the report
 give: trusted (a jackknife found no parameter flagged), not trusted (it did: the honest sigma is the jackknife's),
-or not verified (no jackknife: the parameters whose sigma the APs inflate at least :data:`WEAK_INFLATION` times
+or not verified (no jackknife: the parameters whose sigma the APs inflate at least :data:`NAMED_INFLATION` times
 are named with their partner).
 """
 from __future__ import annotations
@@ -31,15 +31,16 @@ import numpy as np
 from scipy.stats import chi2
 
 from ..adjust.result import AdjustmentResult
+from .correlation import correlation_matrix
 
 __all__ = ["ParameterPrecision", "CameraPrecision", "camera_precision", "jackknife_spread", "critical_ratio",
-           "precision_statement", "JACKKNIFE_ALPHA", "WEAK_INFLATION"]
+           "precision_statement", "JACKKNIFE_ALPHA", "NAMED_INFLATION"]
 
 #: the jackknife flags a parameter whose spread exceeds its sigma at this level (the diagnosis's level)
 JACKKNIFE_ALPHA = 0.001
 #: a core parameter whose sigma the APs inflate this many times (R >= 0.87 with them) is named as weakly
 #: determined when no jackknife checked it
-WEAK_INFLATION = 2.0
+NAMED_INFLATION = 2.0
 
 
 @dataclass
@@ -91,11 +92,12 @@ def camera_precision(result: AdjustmentResult) -> list[CameraPrecision]:
         if not free.size:
             continue
         start = result.problem.d_offset[k]
-        Q = np.asarray(result.Q_theta[start:start + free.size, start:start + free.size], float)
+        index = np.arange(start, start + free.size)
+        Q = np.asarray(result.Q_theta[np.ix_(index, index)], float)
         s2 = result.variance_factor
         sigma = np.sqrt(s2 * np.maximum(Q.diagonal(), 0.0))
-        d = np.where(sigma > 0, 1.0 / np.maximum(np.sqrt(np.maximum(Q.diagonal(), 0.0)), 1e-300), 0.0)
-        rho = Q * d[:, None] * d[None, :]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            rho = np.nan_to_num(correlation_matrix(result.Q_theta, index))
         values = np.asarray(result.state.cameras[k], float)[free]
         aps = np.flatnonzero(~core)
         entries = []
@@ -144,7 +146,7 @@ def _said(p: ParameterPrecision) -> str:
         text += f" (jackknife {p.sigma_jackknife:.2g}, {p.ratio:.1f}x)"
     if p.partner is not None and p.rho is not None and abs(p.rho) >= 0.8:
         text += f", ρ({p.name}, {p.partner}) = {p.rho:+.2f}"
-    if p.ap_inflation is not None and p.ap_inflation >= WEAK_INFLATION:
+    if p.ap_inflation is not None and p.ap_inflation >= NAMED_INFLATION:
         text += f", σ {p.ap_inflation:.1f}x its value with the APs held"
     return text
 
@@ -180,7 +182,7 @@ def _jackknife_statement(cameras: list[CameraPrecision], jackknife_done: bool) -
                        f"about them more than the noise explains (a model error; the jackknife's sigma is the "
                        f"honest one): {listed}")
     weak = [(c.camera_id, p) for c in cameras for p in c.parameters
-            if p.core and p.ap_inflation is not None and p.ap_inflation >= WEAK_INFLATION]
+            if p.core and p.ap_inflation is not None and p.ap_inflation >= NAMED_INFLATION]
     if not weak:
         return None, ("the calibration's sigma is not verified (no jackknife: selfcal adjust --jackknife G); no "
                       "core parameter's sigma is inflated by its correlation with the APs")

@@ -18,8 +18,9 @@ import numpy as np
 
 from ..adjust import AdjustOptions
 from ..errors import AdjustmentError
-from ..stats.calibration_precision import (JACKKNIFE_ALPHA, WEAK_INFLATION, CameraPrecision, camera_precision,
-                                           critical_ratio, jackknife_spread, precision_statement)
+from ..stats.calibration_precision import (JACKKNIFE_ALPHA, NAMED_INFLATION, CameraPrecision,
+                                           camera_precision, critical_ratio, jackknife_spread,
+                                           precision_statement)
 from .tested import TestedAdjustment
 
 __all__ = ["Jackknife", "image_groups", "jackknife", "precision_summary", "calibration_precision",
@@ -140,6 +141,6 @@ def calibration_precision(tested: TestedAdjustment, options: AdjustOptions, grou
         return None, ""
     jack = jackknife(tested, options, groups, precision) if groups else None
     summary = precision_summary(precision, jack, half_block_findings(getattr(tested, "half_block", None)))
-    weak = any(p.core and (p.ap_inflation or 0.0) >= WEAK_INFLATION for cam in precision for p in cam.parameters)
+    weak = any(p.core and (p.ap_inflation or 0.0) >= NAMED_INFLATION for cam in precision for p in cam.parameters)
     said = summary["trusted"] is False or (summary["trusted"] is None and weak)
     return summary, (summary["statement"] if said else "")
