@@ -1,0 +1,96 @@
+"""Screening against not screening at the check points (issue 44 item 2), Types 1-4 of seed 000's block.
+
+For each lens field, seed and control scenario, the tested workflow (robust cleaning off: the blocks have no
+blunders; data snooping on) with wavelet APs, three ways:
+
+* unscreened;
+* screened as before issue 44 (t-tests, correlations, joint F-guard only: ``--min-effect-px 0 --min-support 0
+  --no-screen-cv``);
+* screened as now (plus the practical significance of 0.1 px, the support of 20 observations, and the
+  cross-validation guard).
+
+The trajectory of Types 2 and 4 carries GNSS/IMU errors drawn independently of the adjustment's shift/drift model
+(:class:`selfcal.simulate.trajectory.TrajectoryErrors`), as in the issue's measurement.
+
+    python benchmarks/study_screening.py [--seeds 5] [--fields local+brown,ripple] [--ap wavelet:db4]
+                                         [--density 1.0]
+
+Prints one line per block and the mean over seeds per field and type of the check-point RMSD (XY, Z) of each
+variant against the unscreened one: issue 44 asks for screened <= unscreened.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+import numpy as np
+
+VARIANTS = ("unscreened", "before", "now")
+
+
+def _rmsd(tested) -> tuple[float, float]:
+    from selfcal.stats.checks import intersected
+    found = intersected(tested.result)
+    return found.rmsd_xy_m(), found.rmsd_z_m()
+
+
+def run(field: str, seed: int, ap: str, density: float) -> list[dict]:
+    from selfcal.adjust import AdjustOptions, APOptions
+    from selfcal.block import prune
+    from selfcal.simulate import simulate_uav
+    from selfcal.simulate.trajectory import TrajectoryErrors
+    from selfcal.stats.screening import ScreeningOptions
+    from selfcal.workflows.tested import adjust_with_tests
+
+    sim = simulate_uav(seed=seed, distortion=field, points_per_mm2=density, trajectory_errors=TrajectoryErrors(),
+                       exposure_interval_s=2.0)
+    screenings = {"unscreened": None,
+                  "before": ScreeningOptions(min_effect_px=0.0, min_support=0, cross_validate=False),
+                  "now": ScreeningOptions()}
+    rows = []
+    for scenario in ("type1", "type2", "type3", "type4"):
+        block = prune(sim.blocks[scenario])
+        row: dict = {"field": field, "seed": seed, "type": scenario}
+        for name, screening in screenings.items():
+            t0 = time.perf_counter()
+            tested = adjust_with_tests(block, AdjustOptions(ap=APOptions(ap)), screening=screening)
+            row[name] = (*_rmsd(tested), tested.n_ap_significant, time.perf_counter() - t0)
+        rows.append(row)
+        u, b, n = row["unscreened"], row["before"], row["now"]
+        print(f"{field:11s} seed {seed:3d} {scenario}: XY {u[0]:.4f} / {b[0]:.4f} / {n[0]:.4f} m, Z {u[1]:.4f} / "
+              f"{b[1]:.4f} / {n[1]:.4f} m (unscreened / before / now), APs {u[2]} / {b[2]} / {n[2]}, "
+              f"{u[3]:.0f} / {b[3]:.0f} / {n[3]:.0f} s", flush=True)
+    return rows
+
+
+def summary(rows: list[dict]) -> None:
+    print("\nmean over seeds of the check-point RMSD against the unscreened one (ratio of the means)")
+    for field in dict.fromkeys(r["field"] for r in rows):
+        for scenario in ("type1", "type2", "type3", "type4"):
+            sel = [r for r in rows if r["field"] == field and r["type"] == scenario]
+            mean = {v: np.mean([r[v][:2] for r in sel], axis=0) for v in VARIANTS}
+            print(f"  {field:11s} {scenario}: before XY {mean['before'][0] / mean['unscreened'][0]:.3f} Z "
+                  f"{mean['before'][1] / mean['unscreened'][1]:.3f}; now XY "
+                  f"{mean['now'][0] / mean['unscreened'][0]:.3f} Z {mean['now'][1] / mean['unscreened'][1]:.3f} "
+                  f"({len(sel)} seeds; unscreened XY {mean['unscreened'][0]:.4f} Z {mean['unscreened'][1]:.4f} m)")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seeds", type=int, default=5)
+    parser.add_argument("--first-seed", type=int, default=1)
+    parser.add_argument("--fields", default="local+brown,ripple")
+    parser.add_argument("--ap", default="wavelet:db4")
+    parser.add_argument("--density", type=float, default=1.0, help="image points per mm^2 (seed 000: 3.5)")
+    args = parser.parse_args(argv)
+    rows = []
+    for field in args.fields.split(","):
+        for seed in range(args.first_seed, args.first_seed + args.seeds):
+            rows += run(field, seed, args.ap, args.density)
+    summary(rows)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
