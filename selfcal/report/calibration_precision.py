@@ -23,8 +23,9 @@ def calibration_precision_section(page: Page, summary: dict) -> None:
     if jack.get("done"):
         said = (f"Jackknife over {jack['n_replicates']} groups of consecutive images, each left out in turn "
                 f"(the AP set and basis kept; no tests): σ_J = sqrt((G−1)/G Σ (θ_g − mean)²); a ratio σ_J/σ above "
-                f"{fmt(jack.get('critical_ratio'), '.2f')} (χ²(G−1)/(G−1) at α = {jack.get('alpha')}) flags a "
-                f"parameter.")
+                f"{fmt(jack.get('critical_ratio'), '.2f')} (twice, or χ²(G−1)/(G−1) at α = {jack.get('alpha')} where "
+                f"larger) flags a parameter; the verdict is the core parameters' (c, x0, y0), the APs' field is the "
+                f"half-block check's.")
     elif jack:
         said = f"The jackknife was asked for and not done: {jack.get('reason', '')}."
     else:

@@ -15,11 +15,13 @@ and the active AP coefficients):
 * with a jackknife over groups of images (:func:`jackknife_spread`; the replicates come from
   :mod:`selfcal.workflows.jackknife`): ``sigma_jackknife`` = sqrt((G - 1)/G sum_g (theta_(g) - mean)^2) of the G
   estimates with one group left out, and ``ratio`` = sigma_jackknife / sigma. With the model right the ratio is
-  about 1 (its square scatters about as chi^2(G - 1)/(G - 1)); a ratio above the chi^2 bound at ``alpha`` flags the
-  parameter: the images disagree about it more than the noise explains.
+  about 1; a ratio above :func:`critical_ratio` (twice, or the chi^2(G - 1) bound at ``alpha`` where that is larger)
+  flags the parameter: the images disagree about it more than the noise explains.
 
 :func:`precision_statement` turns these into the verdict summary.json ``calibration_precision`` and the report
-give: trusted (a jackknife found no parameter flagged), not trusted (it did: the honest sigma is the jackknife's),
+give: trusted (a jackknife found no core parameter flagged: c, x0, y0 of a frame camera; the AP coefficients' ratios
+are given, their field is judged by the half-block check), not trusted (it did, or the half-block check flags the
+camera: the honest sigma is the jackknife's),
 or not verified (no jackknife: the parameters whose sigma the APs inflate at least :data:`NAMED_INFLATION` times
 are named with their partner).
 """
@@ -36,8 +38,13 @@ from .correlation import correlation_matrix
 __all__ = ["ParameterPrecision", "CameraPrecision", "camera_precision", "jackknife_spread", "critical_ratio",
            "precision_statement", "JACKKNIFE_ALPHA", "NAMED_INFLATION"]
 
-#: the jackknife flags a parameter whose spread exceeds its sigma at this level (the diagnosis's level)
+#: the jackknife flags a parameter whose spread exceeds its sigma at this level (the diagnosis's level) ...
 JACKKNIFE_ALPHA = 0.001
+#: ... and by more than this factor (issue 44: a sigma must cover the error within 2x). The delete-one-group
+#: jackknife's variance over a few unequal groups (the end images of an arc weigh more) scatters more than
+#: chi^2(G - 1): over 20 seeds of the simulated close-range block with the right model the ratios of c, x0, y0 reached
+#: 1.99 (90th percentile 1.3-1.8), where chi^2(10) at 0.001 allows 1.72 (benchmarks/study_honest_precision.py)
+JACKKNIFE_FACTOR = 2.0
 #: a core parameter whose sigma the APs inflate this many times (R >= 0.87 with them) is named as weakly
 #: determined when no jackknife checked it
 NAMED_INFLATION = 2.0
@@ -119,10 +126,10 @@ def camera_precision(result: AdjustmentResult) -> list[CameraPrecision]:
 
 
 def critical_ratio(groups: int, alpha: float = JACKKNIFE_ALPHA) -> float:
-    """The largest sigma_jackknife / sigma that G groups give a right model at level ``alpha``:
-    sqrt(chi^2_{G-1}(1 - alpha) / (G - 1))."""
+    """The largest sigma_jackknife / sigma accepted from G groups: the larger of :data:`JACKKNIFE_FACTOR` and
+    what a right model gives at level ``alpha``, sqrt(chi^2_{G-1}(1 - alpha) / (G - 1))."""
     dof = groups - 1
-    return float(np.sqrt(chi2.ppf(1.0 - alpha, dof) / dof))
+    return max(JACKKNIFE_FACTOR, float(np.sqrt(chi2.ppf(1.0 - alpha, dof) / dof)))
 
 
 def jackknife_spread(precision: CameraPrecision, replicates: dict[str, np.ndarray],
@@ -169,14 +176,14 @@ def precision_statement(cameras: list[CameraPrecision], jackknife_done: bool,
 
 def _jackknife_statement(cameras: list[CameraPrecision], jackknife_done: bool) -> tuple[bool | None, str]:
     if jackknife_done:
-        flagged = [(c.camera_id, p) for c in cameras for p in c.parameters if p.flagged]
-        checked = [p for c in cameras for p in c.parameters if p.ratio is not None]
+        flagged = [(c.camera_id, p) for c in cameras for p in c.parameters if p.flagged and p.core]
+        checked = [p for c in cameras for p in c.parameters if p.ratio is not None and p.core]
         if not checked:
             return None, "the jackknife left too few replicates to judge the calibration's sigma"
         if not flagged:
             worst = max(checked, key=lambda p: p.ratio or 0.0)
-            return True, (f"the calibration's sigma holds: over the jackknife's replicates every estimated camera "
-                          f"parameter scatters within its sigma (largest ratio {worst.ratio:.2f}, {worst.name})")
+            return True, (f"the calibration's sigma holds: over the jackknife's replicates every core parameter "
+                          f"scatters within twice its sigma (largest ratio {worst.ratio:.2f}, {worst.name})")
         listed = "; ".join(f"camera {cid}: {_said(p)}" for cid, p in flagged)
         return False, (f"the calibration's sigma does not hold for {len(flagged)} parameter(s): the images disagree "
                        f"about them more than the noise explains (a model error; the jackknife's sigma is the "
