@@ -141,9 +141,10 @@ def truth_error_field(project, K: np.ndarray, nodes: np.ndarray) -> np.ndarray:
     return np.hypot(*(project(n) - nodes).T)
 
 
-def held_truth_sigma0(block, truth) -> float:
-    """RMS image residual (px per coordinate) of the tie points triangulated with the true cameras held (a few
-    Gauss-Newton steps per point), rays off by more than 3 px left out."""
+def held_truth(block, truth):
+    """The tie points triangulated with the true cameras held (rays intersected, then three Gauss-Newton steps per
+    point on the image residuals, rays off by more than 3 px left out): (their true projection of every
+    observation (m, 2), which observations are within 3 px of it)."""
     from selfcal.geometry.similarity import intersect_rays
     obs = block.observations
     names = list(block.images.image_id)
@@ -172,9 +173,14 @@ def held_truth_sigma0(block, truth) -> float:
         np.add.at(b, pt[ok], np.einsum("nki,nk->ni", J[ok], r[ok]))
         good = np.abs(np.linalg.det(A)) > 1e-12
         X[good] += np.linalg.solve(A[good], b[good][..., None])[..., 0]
-    v = obs.pixel - project(X)
-    ok = np.isfinite(v).all(1) & (np.hypot(*v.T) < 3)
-    return float(np.sqrt(np.mean(v[ok] ** 2)))
+    exact = project(X)
+    return exact, np.isfinite(exact).all(1) & (np.hypot(*(obs.pixel - exact).T) < 3)
+
+
+def held_truth_sigma0(block, truth) -> float:
+    """RMS image residual (px per coordinate) of the tie points with the true cameras held (:func:`held_truth`)."""
+    exact, ok = held_truth(block, truth)
+    return float(np.sqrt(np.mean((block.observations.pixel - exact)[ok] ** 2)))
 
 
 def read_opencv_export(path: str) -> dict:
@@ -263,19 +269,10 @@ def simulated_at_real_geometry(block, truth, seeds: int, noise_px: float) -> lis
 
     from selfcal.adjust import AdjustOptions, APOptions, adjust
     from selfcal.block import prune
-    from selfcal.geometry.similarity import intersect_rays
     obs = block.observations
-    names = list(block.images.image_id)
-    K = np.array([truth[n][0] for n in names])[obs.image_index]
-    R = np.array([truth[n][1] for n in names])[obs.image_index]
-    C = np.array([truth[n][2] for n in names])[obs.image_index]
-    pt = obs.point_index
-    rays = np.linalg.solve(K, np.column_stack([obs.pixel, np.ones(len(pt))])[..., None])[..., 0]
-    X = intersect_rays(C, np.einsum("nji,nj->ni", R, rays), pt, len(block.points))
-    u = np.einsum("nij,nj->ni", K, np.einsum("nij,nj->ni", R, X[pt] - C))
-    exact = u[:, :2] / u[:, 2:]
-    keep = np.flatnonzero(np.isfinite(exact).all(1) & (np.hypot(*(obs.pixel - exact).T) < 3))
-    K0 = K[0]
+    exact, ok = held_truth(block, truth)
+    keep = np.flatnonzero(ok)
+    K0 = next(iter(truth.values()))[0]
     cam = next(iter(block.cameras.values()))
     r0_px = 0.5 * float(np.hypot(cam.width_px, cam.height_px))
     truth_of = {"c": K0[1, 1], "x0": K0[0, 2] - cam.width_px / 2, "y0": cam.height_px / 2 - K0[1, 2],

@@ -27,13 +27,7 @@ BLOCK = dict(n_images=11, n_points=1500, image_sigma_px=1.0, turn_sd_deg=0.7)
 
 def _errors(result, truth) -> dict[str, float]:
     """Error / sigma of c (against fy: selfcal's c with b1), x0, y0 and b1."""
-    values, sigma = result.state.cameras[0], result.camera_sigma()[0]
-    cam = truth.camera
-    out = {"c": (values[0] - cam.focal_mm) / sigma[0], "x0": (values[1] - cam.x0_mm) / sigma[1],
-           "y0": (values[2] - cam.y0_mm) / sigma[2]}
-    if len(values) > 3:
-        out["b1"] = (values[3 + 5] - truth.b1_px) / sigma[3 + 5]
-    return out
+    return truth.z_scores(result.state.cameras[0], result.camera_sigma()[0], result.problem.cameras[0].names)
 
 
 @pytest.mark.parametrize("seed", [0, 1])

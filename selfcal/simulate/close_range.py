@@ -52,6 +52,13 @@ class CloseRangeTruth:
     xyz: np.ndarray                     # (n_points, 3)
     image_sigma_px: float
 
+    def z_scores(self, values: np.ndarray, sigma: np.ndarray, names: list[str]) -> dict[str, float]:
+        """(estimate - truth) / sigma of c (against p fy), x0, y0 and Brown's b1 where it is among ``names``, from
+        a camera's parameter vector (c, x0, y0 in mm, then its AP coefficients in px) and its sigma."""
+        cam = self.camera
+        truth = {"c": cam.focal_mm, "x0": cam.x0_mm, "y0": cam.y0_mm, "b1": self.b1_px}
+        return {name: float((values[k] - truth[name]) / sigma[k]) for k, name in enumerate(names) if name in truth}
+
 
 @dataclass
 class CloseRangeSimulation:
