@@ -11,8 +11,8 @@ up to 150 ms with four runs on two cores) and no program's handler can exist. se
 lines of ``selfcal.cli.main`` (:func:`selfcal.interrupts.exit_early`), before NumPy and the verbs' modules load.
 
 The campaign (``slow``: ``make test`` runs it, ``make test-fast`` keeps only the signals during the module load)
-sends 208 signals (4 verbs x 2 signals x 26 delays), and more within the runs' time until 200 interrupted a run (how many finish
-first depends on the load); ``SELFCAL_SIGNAL_SEED`` draws another.
+sends 208 signals (4 verbs x 2 signals x 26 delays), and more within the runs' time until 200 interrupted a run
+(how many finish first depends on the load); ``SELFCAL_SIGNAL_SEED`` draws another.
 """
 from __future__ import annotations
 
