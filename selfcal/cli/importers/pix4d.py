@@ -43,7 +43,7 @@ def run(args: argparse.Namespace) -> int:
                                     crs=args.crs, name=os.path.basename(os.path.normpath(args.out)))
     for note in notes:
         print(note, file=sys.stderr)
-    write_block(block, args.out, source=params_folder(args.source))
+    write_block(block, args.out, source=params_folder(args.source), say=progress)
     roles = {r: int((block.points.role == r).sum()) for r in ("gcp", "chk", "tie")}
     line = (f"imported {len(block.images)} images, {len(block.points)} points ({roles['gcp']} gcp, {roles['chk']} "
             f"chk, {roles['tie']} tie), {len(block.observations)} observations into {args.out}")
