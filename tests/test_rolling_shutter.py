@@ -206,3 +206,57 @@ def test_workspace_moves_2d_points_to_the_middle_line(serpentine):
         errors.append(float(np.sqrt(np.mean(ws.model.point_error ** 2))))
     print(f"2-D points against the middle line's projection: {errors[0]:.3f} px moved, {errors[1]:.3f} px as measured")
     assert errors[0] < 0.6 < 1.0 < errors[1]
+
+
+def test_images_spread_of_the_readout_against_known_velocity_errors(serpentine, monkeypatch):
+    """The velocities are data: with the true ones the images agree on the readout (chi^2 / dof about 1, sigma
+    hardly more than the adjustment's
+    (the spread's estimate at none: a few tenths of a ms, its sampling noise); with each image's velocity scaled
+    by a known 1 + a_i (a_i of sd 8 %) each image sees a readout a_i tau off:
+    the images' deviations follow a_i tau (each with its noise and some of its neighbours'), their spread is
+    the draws' (8 % of 33 ms, 6.7 % in the 28 draws), and camera.json's sigma adds it. Each
+    image's share h_i in the estimate is what moving that image's velocity does to the readout re-adjusted (2 %:
+    the linear response; 20 % would also weigh the image 1.44x)."""
+    import selfcal.sensors.rolling as rolling
+    from selfcal.stats.image_spread import image_spread
+    sim, _ = serpentine
+    block = sim.blocks["type2"]
+    index = {i: k for k, i in enumerate(sim.truth.image_id)}
+    truth = sim.truth.velocity_m_s[[index[i] for i in block.images.image_id]]
+    scale = np.ones(len(truth))
+
+    def given(time_s, values, groups, unwrap=False):
+        return truth * scale[:, None], []
+    monkeypatch.setattr(rolling, "strip_rates", given)
+    exact = bundle_adjust(block, ap="none", **FAST)
+    spread = image_spread(exact.result, 0, 3)
+    print(f"true velocities: chi2 {spread.chi2:.1f} / {spread.dof}, spread {spread.spread:.3f} ms, "
+          f"sum of shares {spread.share.sum():.4f}")
+    assert 0.5 < spread.chi2 / spread.dof < 1.6 and spread.sigma_total < 1.2 * spread.sigma_adjustment
+    assert 0.99 < spread.share.sum() <= 1.0
+    # the share of one image: its velocity 2 % faster moves the readout by - h_i x 2 % x tau
+    k = int(np.argmax(spread.share))
+    scale[k] = 1.02
+    moved = _readout(bundle_adjust(block, ap="none", **FAST))["value"] - _readout(exact)["value"]
+    predicted = -spread.share[k] * 0.02 * _readout(exact)["value"]
+    print(f"image {k}: readout moved {moved:.4f} ms, predicted {predicted:.4f} ms")
+    assert moved == pytest.approx(predicted, rel=0.05)
+    # every velocity off by a known share
+    a = np.random.default_rng(7).normal(0.0, 0.08, len(truth))
+    scale[:] = 1.0 + a
+    off = bundle_adjust(block, ap="none", **FAST)
+    spread = image_spread(off.result, 0, 3)
+    readout = _readout(off)
+    realised = TRUE_READOUT_MS * a.std()                    # 2.22 ms: these 28 draws' spread
+    print(f"velocities 8 % off: spread {spread.spread:.3f} ms (the draws': {realised:.3f}), chi2 {spread.chi2:.1f} / "
+          f"{spread.dof}, sigma {readout['sigma_adjustment']:.3f} -> {readout['sigma']:.3f} ms, corr(deviation, "
+          f"-a tau) {np.corrcoef(spread.deviation, -a)[0, 1]:.3f}")
+    assert 0.75 * realised < spread.spread < 1.3 * realised
+    assert np.corrcoef(spread.deviation, -a)[0, 1] > 0.5
+    assert readout["sigma"] == pytest.approx(np.hypot(readout["sigma_adjustment"],
+                                                      spread.spread * np.linalg.norm(spread.share)), rel=1e-9)
+    # the readout moves by what the images' shares make of their errors (linearly: -tau sum h_i a_i / (1 + a_i))
+    shifted = -TRUE_READOUT_MS * float(spread.share @ (a / (1.0 + a)))
+    print(f"readout {readout['value']:.3f} ms: {readout['value'] - TRUE_READOUT_MS:+.3f} off, the shares' "
+          f"{shifted:+.3f}")
+    assert abs(readout["value"] - TRUE_READOUT_MS - shifted) < 2 * readout["sigma_adjustment"]
