@@ -260,3 +260,75 @@ def test_images_spread_of_the_readout_against_known_velocity_errors(serpentine, 
     print(f"readout {readout['value']:.3f} ms: {readout['value'] - TRUE_READOUT_MS:+.3f} off, the shares' "
           f"{shifted:+.3f}")
     assert abs(readout["value"] - TRUE_READOUT_MS - shifted) < 2 * readout["sigma_adjustment"]
+
+
+def _jpegs(folder, names, times, make=None, model=None):
+    """Tiny JPEGs with GPS time stamps (seconds after GPS_DAY) and, where given, EXIF Make and Model."""
+    from PIL import Image
+    from test_gnss_import import GPS_DAY, write_jpeg
+    folder.mkdir()
+    for k, (name, t) in enumerate(zip(names, times)):
+        path = folder / name
+        write_jpeg(path, 9.0 + 1e-5 * k, 47.0, 500.0, GPS_DAY + t)
+        if make:
+            with Image.open(path) as image:
+                exif = image.getexif()
+                exif[0x010F], exif[0x0110] = make, model
+                image.save(path, exif=exif)
+
+
+def test_import_colmap_takes_times_and_readout_from_the_images(tmp_path, cli, capsys):
+    """COLMAP's files hold no exposure times: ``--images`` brings them from the JPEGs' EXIF with the camera model
+    (a DJI FC330, Phantom 4: 33 +- 5 ms); without it the error says how to give them; an image without a JPEG is
+    named."""
+    from front_door import write_colmap
+    sparse, images, out = tmp_path / "sparse", tmp_path / "images", tmp_path / "block"
+    write_colmap(str(sparse), binary=False)
+    names = [f"img{k}.jpg" for k in range(1, 5)]
+    _jpegs(images, names, [0.0, 2.1, 4.0, 6.2], "DJI", "FC330")
+    argv = ["import", "colmap", str(sparse), "--pixel-size-mm", "0.005", "--rolling-shutter"]
+    assert cli(*argv, "--images", str(images), "--out", str(out)) == 0
+    assert "dji fc330" in capsys.readouterr().err
+    block = read_block(out)
+    camera = block.cameras["cam1"]
+    assert (camera.shutter, camera.readout_ms, camera.sigma_readout_ms) == ("rolling", 33.0, 5.0)
+    np.testing.assert_allclose(block.images.time_s, [0.0, 2.1, 4.0, 6.2], atol=1e-3)
+    assert list(block.images.strip_id) == ["S1"] * 4
+    assert cli(*argv, "--out", str(tmp_path / "b2")) == 2
+    err = capsys.readouterr().err
+    assert "exposure time" in err and "--images DIR" in err and "selfcal import gnss" in err
+    (images / "img3.jpg").unlink()
+    assert cli(*argv, "--images", str(images), "--out", str(tmp_path / "b3")) == 2
+    err = capsys.readouterr().err
+    assert str(images) in err and "img3.jpg" in err
+    assert cli("import", "colmap", str(sparse), "--images", str(images), "--out", str(tmp_path / "b4")) == 2
+    assert "give --rolling-shutter" in capsys.readouterr().err
+    assert not any((tmp_path / b).exists() for b in ("b2", "b3", "b4"))
+
+
+def test_import_pix4d_maps_its_camera_name_to_the_readout(tmp_path, cli, capsys):
+    """Pix4D names the camera in the BINGO headers (``FC6310_8.8_5472x3648``: the Phantom 4 Pro's model, 33 ms in
+    OpenDroneMap's table); the JPEGs give the times, the strips follow from them and the positions (the
+    simulator's two strips), and an EXIF model, where the JPEGs have one, comes first (an FC220, Mavic Pro: 64 ms)."""
+    from test_import_uav import write_pix4d
+    sim = simulate_uav(seed=5, distortion="none", n_strips=2, images_per_strip=3, points_per_mm2=0.1)
+    project = tmp_path / "project"
+    _, gcp = write_pix4d(str(project), sim)
+    bingo = project / "1_initial" / "params" / "proj_tp_bingo.txt"
+    bingo.write_text(bingo.read_text().replace("ilce7m3_20.96_35.4", "FC6310_8.8_5472x3648"))
+    images = sim.blocks["type1"].images
+    argv = ["import", "pix4d", str(project), "--gcp", gcp, "--rolling-shutter"]
+    for folder, exif, expect in (("plain", (None, None), (33.0, 5.0)), ("exif", ("DJI", "FC220"), (64.0, 9.6))):
+        _jpegs(tmp_path / folder, [f"{i}.JPG" for i in images.image_id], images.time_s, *exif)
+        out = tmp_path / f"block-{folder}"
+        assert cli(*argv, "--images", str(tmp_path / folder), "--out", str(out)) == 0
+        block = read_block(out)
+        camera = block.cameras["pix4d"]
+        assert (camera.shutter, camera.readout_ms, camera.sigma_readout_ms) == ("rolling", *expect)
+        order = [list(images.image_id).index(i) for i in block.images.image_id]
+        np.testing.assert_allclose(block.images.time_s, images.time_s[order] - images.time_s.min(), atol=1e-3)
+        pairs = {(a, b) for a, b in zip(block.images.strip_id, images.strip_id[order])}
+        assert len(pairs) == len(set(images.strip_id)) == len(set(block.images.strip_id)) == 2
+    assert "fc6310" in capsys.readouterr().err
+    assert cli(*argv, "--out", str(tmp_path / "none")) == 2
+    assert "Pix4D's params folder" in capsys.readouterr().err
