@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import os
 import time
+
+import numpy as np
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -75,10 +77,23 @@ def run_cell(scenario: str, block, model: str, settings: CellSettings = CellSett
     except AdjustmentError as exc:
         return Cell(scenario, model, None, str(exc), time.perf_counter() - t0)
     seconds = time.perf_counter() - t0
-    extra = {"scenario": scenario, "seconds": seconds, "grid": list(settings.grid)} | adjusted.summary_extra
+    extra = {"scenario": scenario, "seconds": seconds, "grid": list(settings.grid),
+             "prediction": _prediction(adjusted.tested.result)} | adjusted.summary_extra
     files = result_files(adjusted.block, adjusted.tested, extra, settings.screening, adjusted.checks, adjusted.track,
                          adjusted.plane)
     return Cell(scenario, model, files, None, seconds)
+
+
+def _prediction(result) -> dict | None:
+    """summary.json ``prediction`` of a cell: the cross-validated prediction error of held-out tie points of its
+    tested adjustment (:mod:`selfcal.stats.prediction`; the comparison's CV column), None where it cannot be had."""
+    from ..stats.prediction import converged_fold_systems, prediction_error
+    if not result.converged:
+        return None
+    try:
+        return prediction_error(converged_fold_systems(result), result.block.image_sigma_px).as_dict()
+    except (ValueError, np.linalg.LinAlgError):
+        return None
 
 
 def run_matrix(blocks: dict, models: list[str], settings: CellSettings = CellSettings(),

@@ -193,10 +193,11 @@ def run(args: argparse.Namespace) -> int:
                             candidates=ap_candidates(args.ap, args.grid) if auto else None, image_ids=image_ids, n_gcp=args.gcps,
                             keep_focal=args.keep_focal, height=height,
                             robust=robust_options(args), control_loo=not args.no_control_loo,
-                            orthonormal=args.orthonormal, half_block=not args.no_half_block)
+                            orthonormal=args.orthonormal, half_block=not args.no_half_block,
+                            min_effect_px=args.min_effect_px)
     if request.candidates is not None and not args.quiet:         # --ap auto
-        print(f"choosing the AP model among {len(request.candidates)} candidates by BIC (blunders first, with the "
-              f"richest candidate) ...", file=sys.stderr)
+        print(f"choosing the AP model among {len(request.candidates)} candidates by their cross-validated "
+              f"prediction error (blunders first, with a reference candidate) ...", file=sys.stderr)
     adjusted = adjust_block(block, request, progress=None if args.quiet else progress_printer(block.image_sigma_px),
                             report=None if args.quiet else round_printer(),
                             say=say,
@@ -260,9 +261,14 @@ _FIGURES = ("converged", "sigma0_px", "rmsd_chk_xy_m", "rmsd_chk_z_m", "rmse_chk
 
 
 def _show_score(score) -> None:
-    status = f"BIC {score.bic:.1f}, sigma0 {score.sigma0_px:.4f} px" if score.bic is not None else \
-        f"failed: {(score.error or '').splitlines()[0]}"
-    print(f"  {score.label}: {score.n_ap} camera parameters, {status}", file=sys.stderr, flush=True)
+    if score.prediction is not None:
+        status = (f"{score.n_ap} camera parameters, prediction error {score.prediction.rmse_px:.4f} ± "
+                  f"{score.prediction.se_px:.4f} px, BIC {score.bic:.1f}, sigma0 {score.sigma0_px:.4f} px")
+    elif score.error:
+        status = f"failed: {score.error.splitlines()[0]}"
+    else:
+        status = f"image-space BIC {score.field_bic:.1f} ({score.field_k} coefficients): not short-listed"
+    print(f"  {score.label}: {status}", file=sys.stderr, flush=True)
 
 
 def _m(value) -> str:
