@@ -55,7 +55,9 @@ def _command(ws: Workspace, verb: str, work: str) -> tuple[list[str], str, list[
         return ["import", "colmap", ws.colmap_text, "--out", out], out, [ws.colmap_text]
     if verb == "adjust":
         out = os.path.join(work, "res")
-        return ["adjust", ws.block, "--out", out, "--quiet"], out, [ws.block]
+        # no report: its rendering is the report verb's (5 of adjust's 7 s here, all before anything is written);
+        # the signals fall on the adjustment's own work and its writing of the results folder
+        return ["adjust", ws.block, "--out", out, "--quiet", "--no-report"], out, [ws.block]
     if verb == "export":
         out = os.path.join(work, "cam.yaml")
         return ["export", "opencv", ws.results, "--out", out], out, [ws.results]

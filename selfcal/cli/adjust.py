@@ -148,12 +148,12 @@ def _terrain(block, args):
 
 
 def run(args: argparse.Namespace) -> int:
+    progress(f"reading {args.block} ...")       # at once: the engine's import takes a second of its own
     # the engine, the readers and the report load here, not for --help (issue 45: help answers at once)
     from ..adjust import AdjustOptions, APOptions, SensorOptions, TrajectoryOptions
     from ..io import read_block
     from ..io.output import check_inputs, failed_run_folder, output_folder
     from ..io.results import results_from_files, write_results
-    from ..report import model_choice_table, render_report, result_files
     from ..stats import SnoopingOptions, VarianceOptions
     from ..workflows.adjust import AdjustRequest, adjust_block, ap_candidates, default_ap_model, is_auto, \
         offers_sensor_models
@@ -207,6 +207,7 @@ def run(args: argparse.Namespace) -> int:
         for _, d in tested.screening_log:
             print(f"screening: dropped {d.camera_id}.{d.name} (t {d.t:.2f}, {d.reason})", file=sys.stderr)
     extra = {"seconds": time.perf_counter() - t0, "grid": list(args.grid)} | adjusted.summary_extra
+    from ..report import model_choice_table, render_report, result_files     # the report's code after the work
     files = result_files(adjusted.block, tested, extra, screening, adjusted.checks, adjusted.track,
                          adjusted.plane)
     if adjusted.choice is not None:

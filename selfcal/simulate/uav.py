@@ -37,17 +37,12 @@ from numpy.typing import ArrayLike
 from ..block import Block, Dropped, FrameCamera, Images, Observations, Points, prune
 from ..geometry.rotation import matrix_from_opk, opk_from_matrix
 from ..sensors.frame import pixel_from_photo, project
+from .names import DISTORTIONS, FLIGHTS, SCENARIOS
 from .trajectory import TrajectoryErrors, TrajectoryTruth, draw_trajectory_errors
 
 __all__ = ["TrueDistortion", "UAVTruth", "UAVSimulation", "simulate_uav", "truth_files", "SCENARIOS", "DISTORTIONS",
            "FLIGHTS"]
 
-SCENARIOS = ("type1", "type2", "type3", "type4")
-DISTORTIONS = ("none", "brown", "local", "local+brown", "ripple", "edge")
-#: seed000: the camera turns with the aircraft at the end of a strip (kappa 0 / 180°); serpentine: the same strips
-#: flown with a fixed heading (the camera moves forwards on one strip, backwards on the next); corridor: two long
-#: strips out and back with a fixed heading
-FLIGHTS = ("seed000", "serpentine", "corridor")
 #: the a-priori readout a simulated rolling-shutter camera declares: the value of a camera nobody measured (ODM's
 #: default guess, selfcal.convert.rolling) with a wide sigma
 DECLARED_READOUT_MS, DECLARED_SIGMA_READOUT_MS = 30.0, 30.0

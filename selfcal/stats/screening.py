@@ -58,7 +58,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import f as f_distribution
+from .distributions import f_ppf
 
 from ..adjust import parameter_table
 from ..adjust.linalg import rank_one_update
@@ -372,7 +372,7 @@ def screen_once(result, options: ScreeningOptions, before: ScreeningRound | None
     if not decisions:
         return free, [], None
     n = n_before + len(decisions)
-    joint = ScreeningRound(n, float(increase()), float(f_distribution.ppf(1 - alpha, n, result.redundancy)),
+    joint = ScreeningRound(n, float(increase()), float(f_ppf(1 - alpha, n, result.redundancy)),
                            groups=guards.records() if guards.grouped else (), reference=guards.reference,
                            effect_moved_px=(before.effect_moved_px if before else 0.0)
                            + (effects.largest_px(moved[0]) if effects is not None and moved[0] is not None else 0.0))

@@ -203,7 +203,7 @@ def _adjust_block(block: Block, request: AdjustRequest, progress: Callable | Non
     _check_collapse(tested)
     extra = _check_points_determined(block, tested)
     if request.control_loo and tested.result.converged and not tested.failure:
-        tested.loo = control_loo(tested, options)
+        tested.loo = control_loo(tested, options, say)
         if tested.loo is not None:
             if plane is not None:           # (its errors along the CRS's coordinates, as the control's sigmas)
                 tested.loo = loo_in_crs(tested.loo, plane, tested.result.block.points)

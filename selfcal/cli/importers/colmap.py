@@ -52,7 +52,7 @@ def run(args: argparse.Namespace) -> int:
         print(note, file=sys.stderr)
     block = rolling.rolling_block(args, block)
     progress(f"writing {args.out} ({len(block.observations)} observations) ...")
-    write_block(block, args.out, source=args.source)
+    write_block(block, args.out, source=args.source, say=progress)
     line = (f"imported {len(block.images)} images, {len(block.points)} points, {len(block.observations)} "
             f"observations into {args.out}")
     return finish(args, line, {"n_images": len(block.images), "n_points": len(block.points),

@@ -83,7 +83,7 @@ def run(args: argparse.Namespace) -> int:
         result = replace(result, block=block)
         for note in notes:
             progress(note)
-    write_block(result.block, args.out, source=args.source)
+    write_block(result.block, args.out, source=args.source, say=progress)
     warnings += result.warnings
     for note in warnings:
         print(f"warning: {note}", file=sys.stderr)

@@ -49,7 +49,7 @@ def run(args: argparse.Namespace) -> int:
     # the camera's name in the BINGO headers ("image camera": Pix4D's FC6310_8.8_5472x3648) names its model
     names = {photo: header[0] for photo, header in params.bingo.header.items() if header}
     block = rolling.rolling_block(args, block, names)
-    write_block(block, args.out, source=params_folder(args.source))
+    write_block(block, args.out, source=params_folder(args.source), say=progress)
     roles = {r: int((block.points.role == r).sum()) for r in ("gcp", "chk", "tie")}
     line = (f"imported {len(block.images)} images, {len(block.points)} points ({roles['gcp']} gcp, {roles['chk']} "
             f"chk, {roles['tie']} tie), {len(block.observations)} observations into {args.out}")
