@@ -266,10 +266,28 @@ def distortion_extrapolation(result) -> list:
     return out
 
 
-def camera_json(block: Block, result) -> dict:
+def image_spreads(result) -> dict:
+    """(camera index, core parameter index) -> :class:`selfcal.stats.image_spread.ImageSpread` of every estimated
+    core parameter whose sensor marks it ``spread_by_image`` (a rolling shutter's readout)."""
+    from ..stats.image_spread import image_spread
+    out = {}
+    for k, cam in enumerate(result.problem.cameras):
+        for i, parameter in enumerate(_sensor(result, k).camera_parameters):
+            if parameter.spread_by_image and cam.free[i]:
+                spread = image_spread(result, k, i)
+                if spread is not None:
+                    out[k, i] = spread
+    return out
+
+
+def camera_json(block: Block, result, spreads: dict | None = None) -> dict:
     """camera.json: each camera's sensor parameters and AP coefficients with sigma (files' units), and the
-    extrapolation of a frame camera's correction beyond its observations (``extrapolation``)."""
+    extrapolation of a frame camera's correction beyond its observations (``extrapolation``). A parameter the
+    images may see each with its own error (``spreads``, default :func:`image_spreads`) has the sigma with their
+    spread, and ``sigma_adjustment`` (the adjustment's alone), ``spread_between_images`` (beyond their noise),
+    ``images_chi2`` and ``images_dof`` (the test of their agreement)."""
     sigmas = result.camera_sigma()
+    spreads = image_spreads(result) if spreads is None else spreads
     extrapolated = {e.camera_id: e.as_dict() for e in distortion_extrapolation(result)}
     cameras = {}
     for k, (cam, values, sigma) in enumerate(zip(result.problem.cameras, result.state.cameras, sigmas)):
@@ -288,6 +306,12 @@ def camera_json(block: Block, result) -> dict:
             entry[parameter.file_key] = {"value": float(values[i]) * factor,
                                          "sigma": None if np.isnan(sigma[i]) else float(sigma[i]) * factor,
                                          "estimated": bool(cam.free[i]), "unit": unit}
+            if (k, i) in spreads:
+                spread = spreads[k, i]
+                entry[parameter.file_key] |= {
+                    "sigma": spread.sigma_total * factor, "sigma_adjustment": spread.sigma_adjustment * factor,
+                    "spread_between_images": spread.spread * factor, "images_chi2": spread.chi2,
+                    "images_dof": spread.dof}
         nc = cam.n_core
         coefficients = [
             {"name": name, "value_px": float(values[nc + j]),
@@ -298,7 +322,7 @@ def camera_json(block: Block, result) -> dict:
         for j, c in enumerate(coefficients):
             if not cam.free[nc + j] and cam.prior_sigma[nc + j] == 0:
                 c["held"] = True                    # held at its given value (an imported calibration, --fixed)
-        entry["covariance"] = _camera_covariance(result, k, cam)
+        entry["covariance"] = _camera_covariance(result, k, cam, spreads)
         ap = {**cam.ap.to_dict(), "coefficient_unit": "px", "n_active": int(cam.free[nc:].sum())}
         if hasattr(cam.ap, "active_ranges"):
             # the translation ranges that remain after screening (Table 3 of seed 000)
@@ -310,14 +334,19 @@ def camera_json(block: Block, result) -> dict:
     return {"cameras": cameras}
 
 
-def _camera_covariance(result, k: int, cam) -> dict:
+def _camera_covariance(result, k: int, cam, spreads: dict) -> dict:
     """The full covariance of a camera's estimated parameters (files' units: c, x0, y0 in mm, APs in px), for
-    the exports that carry it through a fit into another tool's parameters (correlation.csv is rounded)."""
+    the exports that carry it through a fit into another tool's parameters (correlation.csv is rounded); the
+    images' spread of a parameter (:func:`image_spreads`) on its diagonal."""
     start = result.problem.d_offset[k]
     free = np.flatnonzero(cam.free)
     core = _sensor(result, k).camera_parameters
     factor = np.array([core[i].display[1] if i < cam.n_core else 1.0 for i in free])
     block = result.variance_factor * result.Q_theta[start:start + len(free), start:start + len(free)]
+    for (camera, i), spread in spreads.items():
+        if camera == k:
+            j = int(np.flatnonzero(free == i)[0])
+            block[j, j] = spread.sigma_total ** 2
     return {"parameters": [cam.names[i] for i in free],
             "matrix": (block * factor[:, None] * factor[None, :]).tolist()}
 
@@ -349,13 +378,16 @@ def image_table(block: Block, result, view: ResultView | None = None) -> CsvTabl
     return header, cols, fmts
 
 
-def parameter_table(result, view: ResultView | None = None) -> CsvTable:
+def parameter_table(result, view: ResultView | None = None, spreads: dict | None = None) -> CsvTable:
     """parameters.csv: every image and camera parameter with its start value and a-posteriori sigma, in the
     files' units: ``owner`` (image or camera id), ``parameter``, ``group`` (EOP, IOP, AP), ``value``, ``sigma``
-    (empty where held), ``start``, ``unit``, ``active`` (0: held, by the sensor model or screening); ``view``:
-    the image parameters in the block's CRS."""
+    (empty where held; with the images' spread where ``spreads``, as camera.json), ``start``, ``unit``, ``active``
+    (0: held, by the sensor model or screening); ``view``: the image parameters in the block's CRS."""
     from ..sensors.base import display_unit
     table = result.parameters()
+    from ..stats.image_spread import theta_index
+    for (k, i), spread in (spreads or {}).items():
+        table.sigma[table.index == theta_index(result.problem, k, i)] = spread.sigma_total
     if view is not None and view.plane is not None:
         _image_rows_in_crs(table, result, view)
     rows = np.flatnonzero(table.kind != "trajectory")          # (the trajectory terms: trajectory.csv)
@@ -599,13 +631,14 @@ def result_files(block_read: Block, tested, summary_extra: dict | None = None, s
     in its CRS (:mod:`selfcal.report.frame`), the check points compared there."""
     result = tested.result
     view = ResultView.of(result, plane)
+    spreads = image_spreads(result)
     files = {
         "summary.json": summary(tested, summary_extra, checks, view),
-        "camera.json": camera_json(result.block, result),
+        "camera.json": camera_json(result.block, result, spreads),
         "images.csv": image_table(result.block, result, view),
         "points.csv": point_table(result.block, result, tested.tests, view),
         "residuals.csv": residual_table(block_read, tested),
-        "parameters.csv": parameter_table(result, view),
+        "parameters.csv": parameter_table(result, view, spreads),
         "screening.json": screening_json(tested, screening_options),
         "correlation.csv": correlation_table(result),
     }
