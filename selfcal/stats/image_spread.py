@@ -37,7 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..adjust.residuals.image import observation_rows
+from ..adjust.residuals.image import point_rays
 
 __all__ = ["ImageSpread", "image_spread", "theta_index"]
 
@@ -125,21 +125,12 @@ def image_spread(result, camera: int, parameter: int) -> ImageSpread | None:
 def _accumulate(problem, state, positions: np.ndarray, index: int, local: np.ndarray, G: np.ndarray, M: np.ndarray,
                 z: np.ndarray) -> None:
     """Add the points at ``positions`` to G, M (c_i' P c_k) and z (module docstring)."""
-    counts = problem.point_start[positions + 1] - problem.point_start[positions]
-    o = np.repeat(problem.point_start[positions], counts) + np.arange(counts.sum()) \
-        - np.repeat(np.cumsum(counts) - counts, counts)
-    starts = np.cumsum(counts) - counts
-    owner = np.repeat(np.arange(len(positions)), counts)
-    r, j_e, j_p, j_d = observation_rows(problem, state, o)
-    img = problem.obs_image[o]
-    m, n, n_e, width = len(o), problem.n_theta, problem.n_e, problem.image_width
-    J = np.zeros((m, 2, n))
-    columns = (width * img)[:, None] + np.arange(width)[None, :]
-    J[np.arange(m)[:, None, None], np.arange(2)[None, :, None], columns[:, None, :]] = j_e
-    J[:, :, n_e:n_e + problem.n_d] = j_d
+    rays = point_rays(problem, state, positions)
+    counts, starts, owner, r, J, j_p, V, W = (rays.counts, rays.starts, rays.owner, rays.r, rays.J, rays.j_p,
+                                              rays.V, rays.W)
+    img = problem.obs_image[rays.o]
+    m = len(rays.o)
     c = J[:, :, index].copy()                                       # (m, 2): zero off the camera's images
-    V = np.add.reduceat(np.einsum("oki,okj->oij", j_p, j_p), starts, axis=0)
-    W = np.add.reduceat(np.einsum("oki,okt->oit", j_p, J), starts, axis=0)
     V_inv = np.linalg.inv(V)
     response = V_inv @ W                                            # (points, 3, n)
     u = np.einsum("oki,ok->oi", j_p, c)                             # J_p' c of each ray
