@@ -303,7 +303,10 @@ def test_import_colmap_takes_times_and_readout_from_the_images(tmp_path, cli, ca
     assert str(images) in err and "img3.jpg" in err
     assert cli("import", "colmap", str(sparse), "--images", str(images), "--out", str(tmp_path / "b4")) == 2
     assert "give --rolling-shutter" in capsys.readouterr().err
-    assert not any((tmp_path / b).exists() for b in ("b2", "b3", "b4"))
+    for wrong in (tmp_path / "no-such-folder", images / "img1.jpg"):        # refused before the import's work
+        assert cli(*argv, "--images", str(wrong), "--out", str(tmp_path / "b5")) == 2
+        assert f"{wrong}: not a folder" in capsys.readouterr().err
+    assert not any((tmp_path / b).exists() for b in ("b2", "b3", "b4", "b5"))
 
 
 def test_import_pix4d_maps_its_camera_name_to_the_readout(tmp_path, cli, capsys):

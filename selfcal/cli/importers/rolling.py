@@ -4,6 +4,7 @@ images' EXIF (``--images``)."""
 from __future__ import annotations
 
 import argparse
+import os
 
 from ...errors import BlockError, UsageError
 from ..options import number
@@ -34,6 +35,9 @@ def check(args: argparse.Namespace, tool: str | None = None) -> None:
                         (getattr(args, "images", None) is not None, "--images")):
         if given and not args.rolling_shutter:
             raise UsageError(f"{name} is for a rolling shutter: give --rolling-shutter with it")
+    images = getattr(args, "images", None)
+    if images is not None and not os.path.isdir(images):      # before the import's work, with exit code 2
+        raise BlockError(images, "not a folder (--images: the folder of the images' JPEGs)")
     if tool is not None and args.rolling_shutter and args.images is None:
         raise UsageError(f"--rolling-shutter: {NEEDS_TIMES}, and {tool}'s files hold none: give --images DIR (the "
                          f"images' folder: their EXIF times and camera model), or import without --rolling-shutter "
