@@ -63,6 +63,9 @@ class Calibration:
     #: covariance of :attr:`theta_names` (c, x0, y0 in mm, AP coefficients in px; zero rows and columns for
     #: held ones), from camera.json's ``covariance``; None when the results folder has none
     covariance: np.ndarray | None = None
+    #: the warning that the correction is extrapolated beyond the observations (camera.json ``extrapolation``,
+    #: :mod:`selfcal.stats.extrapolation`), or ""
+    extrapolation_warning: str = ""
 
     @property
     def theta_names(self) -> tuple[str, ...]:
@@ -101,7 +104,8 @@ class Calibration:
             covariance = np.zeros((len(names), len(names)))
             covariance[np.ix_(at, at)] = matrix
         return cls(camera_id, int(entry["width_px"]), int(entry["height_px"]), p, float(entry["focal_mm"]["value"]),
-                   float(entry["x0_mm"]["value"]), float(entry["y0_mm"]["value"]), ap, values, covariance)
+                   float(entry["x0_mm"]["value"]), float(entry["y0_mm"]["value"]), ap, values, covariance,
+                   str((entry.get("extrapolation") or {}).get("warning") or ""))
 
     @property
     def focal_px(self) -> float:

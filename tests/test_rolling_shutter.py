@@ -206,3 +206,132 @@ def test_workspace_moves_2d_points_to_the_middle_line(serpentine):
         errors.append(float(np.sqrt(np.mean(ws.model.point_error ** 2))))
     print(f"2-D points against the middle line's projection: {errors[0]:.3f} px moved, {errors[1]:.3f} px as measured")
     assert errors[0] < 0.6 < 1.0 < errors[1]
+
+
+def test_images_spread_of_the_readout_against_known_velocity_errors(serpentine, monkeypatch):
+    """The velocities are data: with the true ones the images agree on the readout (chi^2 / dof about 1, sigma
+    hardly more than the adjustment's
+    (the spread's estimate at none: a few tenths of a ms, its sampling noise); with each image's velocity scaled
+    by a known 1 + a_i (a_i of sd 8 %) each image sees a readout a_i tau off:
+    the images' deviations follow a_i tau (each with its noise and some of its neighbours'), their spread is
+    the draws' (8 % of 33 ms, 6.7 % in the 28 draws), and camera.json's sigma adds it. Each
+    image's share h_i in the estimate is what moving that image's velocity does to the readout re-adjusted (2 %:
+    the linear response; 20 % would also weigh the image 1.44x)."""
+    import selfcal.sensors.rolling as rolling
+    from selfcal.stats.image_spread import image_spread
+    sim, _ = serpentine
+    block = sim.blocks["type2"]
+    index = {i: k for k, i in enumerate(sim.truth.image_id)}
+    truth = sim.truth.velocity_m_s[[index[i] for i in block.images.image_id]]
+    scale = np.ones(len(truth))
+
+    def given(time_s, values, groups, unwrap=False):
+        return truth * scale[:, None], []
+    monkeypatch.setattr(rolling, "strip_rates", given)
+    exact = bundle_adjust(block, ap="none", **FAST)
+    spread = image_spread(exact.result, 0, 3)
+    print(f"true velocities: chi2 {spread.chi2:.1f} / {spread.dof}, spread {spread.spread:.3f} ms, "
+          f"sum of shares {spread.share.sum():.4f}")
+    assert 0.5 < spread.chi2 / spread.dof < 1.6 and spread.sigma_total < 1.2 * spread.sigma_adjustment
+    assert 0.99 < spread.share.sum() <= 1.0
+    # the share of one image: its velocity 2 % faster moves the readout by - h_i x 2 % x tau
+    k = int(np.argmax(spread.share))
+    scale[k] = 1.02
+    moved = _readout(bundle_adjust(block, ap="none", **FAST))["value"] - _readout(exact)["value"]
+    predicted = -spread.share[k] * 0.02 * _readout(exact)["value"]
+    print(f"image {k}: readout moved {moved:.4f} ms, predicted {predicted:.4f} ms")
+    assert moved == pytest.approx(predicted, rel=0.05)
+    # every velocity off by a known share
+    a = np.random.default_rng(7).normal(0.0, 0.08, len(truth))
+    scale[:] = 1.0 + a
+    off = bundle_adjust(block, ap="none", **FAST)
+    spread = image_spread(off.result, 0, 3)
+    readout = _readout(off)
+    realised = TRUE_READOUT_MS * a.std()                    # 2.22 ms: these 28 draws' spread
+    print(f"velocities 8 % off: spread {spread.spread:.3f} ms (the draws': {realised:.3f}), chi2 {spread.chi2:.1f} / "
+          f"{spread.dof}, sigma {readout['sigma_adjustment']:.3f} -> {readout['sigma']:.3f} ms, corr(deviation, "
+          f"-a tau) {np.corrcoef(spread.deviation, -a)[0, 1]:.3f}")
+    assert 0.75 * realised < spread.spread < 1.3 * realised
+    assert np.corrcoef(spread.deviation, -a)[0, 1] > 0.5
+    assert readout["sigma"] == pytest.approx(np.hypot(readout["sigma_adjustment"],
+                                                      spread.spread * np.linalg.norm(spread.share)), rel=1e-9)
+    # the readout moves by what the images' shares make of their errors (linearly: -tau sum h_i a_i / (1 + a_i))
+    shifted = -TRUE_READOUT_MS * float(spread.share @ (a / (1.0 + a)))
+    print(f"readout {readout['value']:.3f} ms: {readout['value'] - TRUE_READOUT_MS:+.3f} off, the shares' "
+          f"{shifted:+.3f}")
+    assert abs(readout["value"] - TRUE_READOUT_MS - shifted) < 2 * readout["sigma_adjustment"]
+
+
+def _jpegs(folder, names, times, make=None, model=None):
+    """Tiny JPEGs with GPS time stamps (seconds after GPS_DAY) and, where given, EXIF Make and Model."""
+    from PIL import Image
+    from test_gnss_import import GPS_DAY, write_jpeg
+    folder.mkdir()
+    for k, (name, t) in enumerate(zip(names, times)):
+        path = folder / name
+        write_jpeg(path, 9.0 + 1e-5 * k, 47.0, 500.0, GPS_DAY + t)
+        if make:
+            with Image.open(path) as image:
+                exif = image.getexif()
+                exif[0x010F], exif[0x0110] = make, model
+                image.save(path, exif=exif)
+
+
+def test_import_colmap_takes_times_and_readout_from_the_images(tmp_path, cli, capsys):
+    """COLMAP's files hold no exposure times: ``--images`` brings them from the JPEGs' EXIF with the camera model
+    (a DJI FC330, Phantom 4: 33 +- 5 ms); without it the error says how to give them; an image without a JPEG is
+    named."""
+    from front_door import write_colmap
+    sparse, images, out = tmp_path / "sparse", tmp_path / "images", tmp_path / "block"
+    write_colmap(str(sparse), binary=False)
+    names = [f"img{k}.jpg" for k in range(1, 5)]
+    _jpegs(images, names, [0.0, 2.1, 4.0, 6.2], "DJI", "FC330")
+    argv = ["import", "colmap", str(sparse), "--pixel-size-mm", "0.005", "--rolling-shutter"]
+    assert cli(*argv, "--images", str(images), "--out", str(out)) == 0
+    assert "dji fc330" in capsys.readouterr().err
+    block = read_block(out)
+    camera = block.cameras["cam1"]
+    assert (camera.shutter, camera.readout_ms, camera.sigma_readout_ms) == ("rolling", 33.0, 5.0)
+    np.testing.assert_allclose(block.images.time_s, [0.0, 2.1, 4.0, 6.2], atol=1e-3)
+    assert list(block.images.strip_id) == ["S1"] * 4
+    assert cli(*argv, "--out", str(tmp_path / "b2")) == 2
+    err = capsys.readouterr().err
+    assert "exposure time" in err and "--images DIR" in err and "selfcal import gnss" in err
+    (images / "img3.jpg").unlink()
+    assert cli(*argv, "--images", str(images), "--out", str(tmp_path / "b3")) == 2
+    err = capsys.readouterr().err
+    assert str(images) in err and "img3.jpg" in err
+    assert cli("import", "colmap", str(sparse), "--images", str(images), "--out", str(tmp_path / "b4")) == 2
+    assert "give --rolling-shutter" in capsys.readouterr().err
+    for wrong in (tmp_path / "no-such-folder", images / "img1.jpg"):        # refused before the import's work
+        assert cli(*argv, "--images", str(wrong), "--out", str(tmp_path / "b5")) == 2
+        assert f"{wrong}: not a folder" in capsys.readouterr().err
+    assert not any((tmp_path / b).exists() for b in ("b2", "b3", "b4", "b5"))
+
+
+def test_import_pix4d_maps_its_camera_name_to_the_readout(tmp_path, cli, capsys):
+    """Pix4D names the camera in the BINGO headers (``FC6310_8.8_5472x3648``: the Phantom 4 Pro's model, 33 ms in
+    OpenDroneMap's table); the JPEGs give the times, the strips follow from them and the positions (the
+    simulator's two strips), and an EXIF model, where the JPEGs have one, comes first (an FC220, Mavic Pro: 64 ms)."""
+    from test_import_uav import write_pix4d
+    sim = simulate_uav(seed=5, distortion="none", n_strips=2, images_per_strip=3, points_per_mm2=0.1)
+    project = tmp_path / "project"
+    _, gcp = write_pix4d(str(project), sim)
+    bingo = project / "1_initial" / "params" / "proj_tp_bingo.txt"
+    bingo.write_text(bingo.read_text().replace("ilce7m3_20.96_35.4", "FC6310_8.8_5472x3648"))
+    images = sim.blocks["type1"].images
+    argv = ["import", "pix4d", str(project), "--gcp", gcp, "--rolling-shutter"]
+    for folder, exif, expect in (("plain", (None, None), (33.0, 5.0)), ("exif", ("DJI", "FC220"), (64.0, 9.6))):
+        _jpegs(tmp_path / folder, [f"{i}.JPG" for i in images.image_id], images.time_s, *exif)
+        out = tmp_path / f"block-{folder}"
+        assert cli(*argv, "--images", str(tmp_path / folder), "--out", str(out)) == 0
+        block = read_block(out)
+        camera = block.cameras["pix4d"]
+        assert (camera.shutter, camera.readout_ms, camera.sigma_readout_ms) == ("rolling", *expect)
+        order = [list(images.image_id).index(i) for i in block.images.image_id]
+        np.testing.assert_allclose(block.images.time_s, images.time_s[order] - images.time_s.min(), atol=1e-3)
+        pairs = {(a, b) for a, b in zip(block.images.strip_id, images.strip_id[order])}
+        assert len(pairs) == len(set(images.strip_id)) == len(set(block.images.strip_id)) == 2
+    assert "fc6310" in capsys.readouterr().err
+    assert cli(*argv, "--out", str(tmp_path / "none")) == 2
+    assert "Pix4D's params folder" in capsys.readouterr().err

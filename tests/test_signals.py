@@ -11,7 +11,8 @@ up to 150 ms with four runs on two cores) and no program's handler can exist. se
 lines of ``selfcal.cli.main`` (:func:`selfcal.interrupts.exit_early`), before NumPy and the verbs' modules load.
 
 The campaign (``slow``: ``make test`` runs it, ``make test-fast`` keeps only the signals during the module load)
-sends 208 signals (4 verbs x 2 signals x 26 delays); ``SELFCAL_SIGNAL_SEED`` draws another.
+sends 208 signals (4 verbs x 2 signals x 26 delays), and more within the runs' time until 200 interrupted a run
+(how many finish first depends on the load); ``SELFCAL_SIGNAL_SEED`` draws another.
 """
 from __future__ import annotations
 
@@ -54,7 +55,9 @@ def _command(ws: Workspace, verb: str, work: str) -> tuple[list[str], str, list[
         return ["import", "colmap", ws.colmap_text, "--out", out], out, [ws.colmap_text]
     if verb == "adjust":
         out = os.path.join(work, "res")
-        return ["adjust", ws.block, "--out", out, "--quiet"], out, [ws.block]
+        # no report: its rendering is the report verb's (5 of adjust's 7 s here, all before anything is written);
+        # the signals fall on the adjustment's own work and its writing of the results folder
+        return ["adjust", ws.block, "--out", out, "--quiet", "--no-report"], out, [ws.block]
     if verb == "export":
         out = os.path.join(work, "cam.yaml")
         return ["export", "opencv", ws.results, "--out", out], out, [ws.results]
@@ -157,7 +160,11 @@ def _durations(ws: Workspace, exe: str, root: str) -> dict[str, float]:
     return times
 
 
-def _campaign(ws: Workspace, exe: str, root: str, per_verb_and_signal: int, seed: int) -> list[Run]:
+def _campaign(ws: Workspace, exe: str, root: str, per_verb_and_signal: int, seed: int,
+              interrupted_at_least: int = 0) -> list[Run]:
+    """Signals at random delays; with ``interrupted_at_least``, more (within the runs' measured time) until that
+    many runs were interrupted: how many finish first depends on how loaded the machine is against the moment
+    the runs' times were measured."""
     for path in (ws.colmap_text, ws.block, ws.results):
         INPUT_DIGESTS[path] = digest(path)
     times = _durations(ws, exe, root)
@@ -170,6 +177,20 @@ def _campaign(ws: Workspace, exe: str, root: str, per_verb_and_signal: int, seed
                 # small machine take longer than the one measured alone
                 delay = rng.uniform(0.0, 1.5 * times[verb])
                 jobs.append((verb, signum, delay, os.path.join(root, f"{verb}-{signum}-{k}"), k % 2 == 1))
+    runs = _send(ws, exe, jobs, rng)
+    extra = 0
+    while sum(r.code != 0 for r in runs) < interrupted_at_least and extra < 3 * per_verb_and_signal:
+        more = []
+        for _ in range(interrupted_at_least - sum(r.code != 0 for r in runs)):
+            verb, signum = rng.choice(VERBS), rng.choice((signal.SIGINT, signal.SIGTERM))
+            more.append((verb, signum, rng.uniform(0.0, times[verb]),
+                         os.path.join(root, f"{verb}-{signum}-more-{extra}"), extra % 2 == 1))
+            extra += 1
+        runs += _send(ws, exe, more, rng)
+    return runs
+
+
+def _send(ws: Workspace, exe: str, jobs: list, rng: random.Random) -> list[Run]:
     rng.shuffle(jobs)
     with ThreadPoolExecutor(WORKERS) as pool:
         runs = list(pool.map(lambda job: _run(ws, exe, *job), jobs))
@@ -195,9 +216,9 @@ def _report(runs: list[Run]) -> str:
 @pytest.mark.slow
 def test_two_hundred_signals_leave_nothing_half_written(ws, selfcal_exe, tmp_path):
     seed = int(os.environ.get("SELFCAL_SIGNAL_SEED", "4646"))      # another campaign: set it
-    runs = _campaign(ws, selfcal_exe, str(tmp_path), per_verb_and_signal=26, seed=seed)
+    runs = _campaign(ws, selfcal_exe, str(tmp_path), per_verb_and_signal=26, seed=seed, interrupted_at_least=200)
     print(_report(runs))
-    assert len(runs) == 208
+    assert 208 <= len(runs) <= 208 + 3 * 26
     assert not any(r.problems for r in runs), _report(runs)
     assert sum(r.code != 0 for r in runs) >= 200       # at least 200 interrupted the run (not only its end)
 

@@ -72,6 +72,11 @@ def test_screening_of_waps_on_the_brown_field():
     before = model.active_ranges(np.ones(model.n_params, bool))
     after = model.active_ranges(screened.ap_free["ilce7m3"])
     assert after[0] >= before[0] and after[1] <= before[1] and after[2] >= before[2] and after[3] <= before[3]
-    assert not any(joint.jointly_significant for _, joint in screened.screening_rounds)
+    # the joint F-test guards the drops by t and by correlation; the coefficients dropped because their effect on the
+    # adjusted rays and points is below 0.1 px (issue 44, together below it too) may be significant, and make the
+    # dropped set so
+    by_effect = [d for _, d in screened.screening_log if d.reason.startswith("its effect is")]
+    assert all(d.reason.endswith("(< 0.1 px)") for d in by_effect)
+    assert by_effect or not any(joint.jointly_significant for _, joint in screened.screening_rounds)
     log_names = {d.name for _, d in screened.screening_log}
     assert len(log_names) == screened.n_ap_initial - screened.n_ap_significant

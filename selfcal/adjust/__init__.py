@@ -17,7 +17,7 @@ from ..lazy import attach
 #: robust losses, does not load the engine)
 _MODULES = {
     ".datum": ("behind_camera", "control_far_away", "control_on_a_line", "undetermined_points"),
-    ".engine": ("adjust", "camera_models", "start_values"),
+    ".engine": ("adjust", "camera_models", "problem_at", "start_values"),
     ".options": ("AdjustOptions", "APOptions", "SensorOptions", "SolverOptions", "TrajectoryOptions"),
     ".parameters": ("CameraParameters", "ParameterTable", "apply_free", "parameter_table"),
     ".problem": ("Problem", "State"),
@@ -29,7 +29,7 @@ __getattr__, __dir__ = attach(__name__, _MODULES)
 
 if TYPE_CHECKING:
     from .datum import behind_camera, control_far_away, control_on_a_line, undetermined_points
-    from .engine import adjust, camera_models, start_values
+    from .engine import adjust, camera_models, problem_at, start_values
     from .options import AdjustOptions, APOptions, SensorOptions, SolverOptions, TrajectoryOptions
     from .parameters import CameraParameters, ParameterTable, apply_free, parameter_table
     from .problem import Problem, State
@@ -39,6 +39,6 @@ if TYPE_CHECKING:
 
 __all__ = ["AdjustOptions", "APOptions", "SensorOptions", "TrajectoryOptions", "AdjustmentResult", "IterationRecord",
            "RobustOptions", "SolverOptions", "LOSSES",
-           "adjust", "apply_free", "start_values", "camera_models", "Problem", "State", "CameraParameters",
+           "adjust", "apply_free", "start_values", "camera_models", "problem_at", "Problem", "State", "CameraParameters",
            "ParameterTable", "parameter_table", "Termination",
            "behind_camera", "control_far_away", "control_on_a_line", "undetermined_points"]

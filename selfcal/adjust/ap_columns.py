@@ -148,16 +148,17 @@ def evaluate_ap_columns(problem: Problem) -> None:
 AP_COLUMN_BLOCK = 8192
 
 
-def sparse_gram(sparse, o0: int, o1: int) -> np.ndarray:
-    """The Gram matrix of the sparse rows of observations o0:o1 over the raw columns (n_raw, n_raw): one
-    product per pattern and axis over its few columns."""
+def sparse_gram(sparse, o0: int, o1: int, rows: np.ndarray | None = None) -> np.ndarray:
+    """The Gram matrix of the sparse rows of observations o0:o1 (or of the observations ``rows``) over the raw
+    columns (n_raw, n_raw): one product per pattern and axis over its few columns."""
     n_raw = sparse.to_params.shape[0]
     out = np.zeros((n_raw, n_raw))
-    pattern = sparse.pattern[o0:o1]
-    for rows in pattern_groups(pattern):
+    index = np.arange(o0, o1) if rows is None else np.asarray(rows)
+    pattern = sparse.pattern[index]
+    for group in pattern_groups(pattern):
         for k in range(2):
-            cols = sparse.columns[pattern[rows[0]], k]
-            X = sparse.values[o0 + rows, k]
+            cols = sparse.columns[pattern[group[0]], k]
+            X = sparse.values[index[group], k]
             out[np.ix_(cols, cols)] += X.T @ X
     return out
 

@@ -43,7 +43,7 @@ from .schur import SingularPoints, reduce
 from .solver import IterationRecord, solve
 from .update import UPDATE_LIMIT, downdated_start
 
-__all__ = ["adjust", "start_values", "camera_models", "weakly_determined", "WEAK_INFLATION"]
+__all__ = ["adjust", "start_values", "camera_models", "problem_at", "weakly_determined", "WEAK_INFLATION"]
 
 
 def start_values(block: Block, options: AdjustOptions = AdjustOptions()):
@@ -52,6 +52,29 @@ def start_values(block: Block, options: AdjustOptions = AdjustOptions()):
     or intersected from the rays."""
     problem = build_problem(block, options)
     return initial_state(problem, block)[0]
+
+
+def problem_at(block: Block, options: AdjustOptions = AdjustOptions(), start: "AdjustmentResult | None" = None,
+               free: dict | None = None, ap_models: dict | None = None):
+    """The problem an adjustment of ``block`` with ``options`` sets up, and its state at ``start``'s estimates
+    (where the ids match; the others at their initial values) as :func:`adjust` would begin from them without a
+    downdated step: what a linearisation at another adjustment's estimate needs (the model choice's candidates,
+    :mod:`selfcal.workflows.model_choice`)."""
+    key = None if start is None else inherited_point_key(block, start.block, start.problem)
+    problem = build_problem(block, options, ap_models=ap_models, point_key=key)
+    if free:
+        apply_free(problem, free)
+    return problem, _initial(problem, block, start, False)[0]
+
+
+def _initial(problem: Problem, block: Block, start, robust: bool):
+    """The initial state and its notes (:func:`~selfcal.adjust.initial.initial_state`), the sensors' sigmas refined
+    at it and settled as the a-priori ones."""
+    state, notes = initial_state(problem, block, start, robust)
+    for slot in problem.sensors:
+        slot.bound.refine_sigma(state, problem.obs_sigma)
+    problem.settle_sigma()
+    return state, notes
 
 
 def camera_models(block: Block, options: AdjustOptions = AdjustOptions()) -> tuple[dict, int]:
@@ -214,10 +237,7 @@ def _adjust(block: Block, options: AdjustOptions, progress, start, free, ap_mode
                                         block.datum == "free" or options.solver.free_network) or start
             carry_ap_columns(problem, block.observations.row[problem.obs_order],
                              start.problem, start.block.observations.row[start.problem.obs_order], consume=True)
-        state, notes = initial_state(problem, block, start, robust is not None)
-        for slot in problem.sensors:
-            slot.bound.refine_sigma(state, problem.obs_sigma)
-        problem.settle_sigma()
+        state, notes = _initial(problem, block, start, robust is not None)
         return problem, state, notes
 
     left_out: list[str] = []

@@ -33,7 +33,7 @@ from .problem import Problem, State
 from .ap_columns import sparse_ap_rows, sparse_gram
 from .kernels import (accumulate_observations, camera_couplings, point_blocks_times, schur_image_blocks,
                       subtract_image_couplings)
-from .residuals.image import chunk_rows, contexts, observation_rows
+from .residuals.image import chunk_rows, contexts, point_rays
 from .schur import back_substitute, linearise, reduce
 
 __all__ = ["FoldSystems", "fold_systems", "point_folds", "projected_rows", "FOLD_LIMIT"]
@@ -241,19 +241,10 @@ def projected_rows(problem: Problem, state: State, positions: np.ndarray):
     value of its rays' point Jacobians, the median over its rays). Ã δθ is the change of the rays' adjusted
     coordinates when θ moves by δθ and the points follow (whitened units)."""
     positions = np.sort(np.asarray(positions, np.int64))
-    counts = problem.point_start[positions + 1] - problem.point_start[positions]
-    o = np.repeat(problem.point_start[positions], counts) + np.arange(counts.sum()) \
-        - np.repeat(np.cumsum(counts) - counts, counts)
-    starts = np.cumsum(counts) - counts
-    owner = np.repeat(np.arange(len(positions)), counts)
-    _, j_e, j_p, j_d = observation_rows(problem, state, o)
-    m, n, n_e, width = len(o), problem.n_theta, problem.n_e, problem.image_width
-    J = np.zeros((m, 2, n))
-    columns = (width * problem.obs_image[o])[:, None] + np.arange(width)[None, :]
-    J[np.arange(m)[:, None, None], np.arange(2)[None, :, None], columns[:, None, :]] = j_e
-    J[:, :, n_e:n_e + problem.n_d] = j_d
-    V = np.add.reduceat(np.einsum("oki,okj->oij", j_p, j_p), starts, axis=0)
-    W = np.add.reduceat(np.einsum("oki,okt->oit", j_p, J), starts, axis=0)
+    rays = point_rays(problem, state, positions)
+    o, counts, starts, owner, J, j_p, V, W = (rays.o, rays.counts, rays.starts, rays.owner, rays.J, rays.j_p,
+                                              rays.V, rays.W)
+    m, n = len(o), problem.n_theta
     response = np.linalg.inv(V) @ W                                    # (points, 3, n)
     A = J - np.einsum("oki,oit->okt", j_p, response[owner])
     across = np.linalg.svd(j_p, compute_uv=False)[:, 0]                # whitened units per metre, per ray

@@ -25,7 +25,7 @@ import scipy.linalg as la
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-__all__ = ["SingularSystem", "Factor", "factorise", "pseudo_factorise", "null_directions", "band_structure",
+__all__ = ["SingularSystem", "Factor", "factorise", "rank_one_update", "pseudo_factorise", "null_directions", "band_structure",
            "DENSE_LIMIT", "DENSE_ASSEMBLY_LIMIT", "dense_assembly", "PSEUDO_INVERSE_LIMIT", "DEFECT_TOLERANCE", "CHOLMOD_AVAILABLE"]
 
 #: reduced systems up to this size are assembled and factorised densely, larger ones sparse (CHOLMOD or the
@@ -464,3 +464,17 @@ def null_directions(S: np.ndarray | sp.csr_matrix | sp.csc_matrix, names: list[s
         parts = ", ".join(f"{names[i]} ({vec[i]:+.2f})" for i in order)
         out.append(f"eigenvalue {w[k]:.1e}: {parts}")
     return out
+
+
+def rank_one_update(a: np.ndarray, alpha: float, x: np.ndarray, y: np.ndarray) -> None:
+    """a += alpha x y^T in place, by BLAS dger on a's Fortran-ordered view (no temporary of a's size: the sweeps of
+    the screening's eliminations, a few hundred per round on matrices of a few hundred unknowns)."""
+    from scipy.linalg.blas import dger
+    if a.flags.f_contiguous:
+        out = dger(alpha, x, y, a=a, overwrite_a=1)
+    elif a.flags.c_contiguous:
+        out = dger(alpha, y, x, a=a.T, overwrite_a=1)
+    else:
+        a += alpha * np.outer(x, y)
+        return
+    assert np.shares_memory(out, a)

@@ -194,15 +194,14 @@ def robust_scale(u: np.ndarray, trim: float = 3.0, iterations: int = 5, dof: int
     """The scale of normalised residual sizes ``u`` (module docstring): the median over those below ``trim``
     scales, divided by the truncated median of their distribution, from the plain median on. ``dof``: 2 for the
     sizes of image points (Rayleigh), 1 for those of two-ray points, whose rays share one parallax (half-normal)."""
-    from scipy.stats import chi
+    from ..stats.distributions import chi_cdf, chi_ppf
     u = np.asarray(u, float)
     u = u[np.isfinite(u)]
     if not u.size:
         return 1.0
-    law = chi(dof)
-    scale = float(np.median(u)) / float(law.median())
+    scale = float(np.median(u)) / float(chi_ppf(0.5, dof))
     # the median of the distribution truncated at `trim` scales, in units of its scale
-    truncated = float(law.ppf(0.5 * law.cdf(trim)))
+    truncated = float(chi_ppf(0.5 * chi_cdf(trim, dof), dof))
     for _ in range(iterations):
         inside = u[u <= trim * scale]
         if inside.size < 10:

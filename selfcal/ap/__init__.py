@@ -20,7 +20,7 @@ from .none import NoAP
 from .wavelet import WaveletAP
 
 __all__ = ["AP_FAMILIES", "APModel", "ImageFrame", "create_ap", "ap_from_dict", "parse_ap_spec", "frame_nodes_mm",
-           "fit_displacement", "ap_settings", "takes_grid", "ALL_MODELS", "check_ap_spec"]
+           "fit_displacement", "absorbed_fields", "ap_settings", "takes_grid", "ALL_MODELS", "check_ap_spec"]
 
 #: the ten frame AP models of seed 000's comparison (``selfcal compare``, ``--ap auto``)
 ALL_MODELS = ("none", "brown", "ebner", "gruen", "legendre", "fourier",
@@ -103,6 +103,17 @@ def frame_nodes_mm(frame: ImageFrame, nodes_x: int = 61) -> tuple[np.ndarray, np
     return x.ravel(), y.ravel()
 
 
+def absorbed_fields(x_mm: np.ndarray, y_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The six image-space fields an adjustment's orientation and interior orientation take up, at photo
+    coordinates: shifts in x and y (the principal point), scale (the principal distance), rotation (kappa) and the
+    two projective fields of omega and phi; (n, 6) for x and for y, scaled to order one over the points."""
+    x, y = np.asarray(x_mm, float), np.asarray(y_mm, float)
+    s = 1.0 / max(np.max(np.abs(x), initial=0.0), np.max(np.abs(y), initial=0.0), 1e-300)
+    one, zero = np.ones_like(x), np.zeros_like(x)
+    u, v = s * x, s * y
+    return (np.column_stack([one, zero, u, v, u * u, u * v]), np.column_stack([zero, one, v, -u, u * v, v * v]))
+
+
 def fit_displacement(model: APModel, x_mm: np.ndarray, y_mm: np.ndarray, dx_px: np.ndarray,
                      dy_px: np.ndarray, absorbed: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Coefficients (px) of ``model`` that fit a displacement field Delta(x, y) in the least-squares sense.
@@ -117,11 +128,7 @@ def fit_displacement(model: APModel, x_mm: np.ndarray, y_mm: np.ndarray, dx_px: 
     bx, by = model.basis(x, y)
     design = np.vstack([bx, by])
     if absorbed:
-        s = 1.0 / max(np.max(np.abs(x)), np.max(np.abs(y)), 1e-300)
-        one, zero = np.ones_like(x), np.zeros_like(x)
-        u, v = s * x, s * y
-        design = np.hstack([design, np.vstack([np.column_stack([one, zero, u, v, u * u, u * v]),
-                                               np.column_stack([zero, one, v, -u, u * v, v * v])])])
+        design = np.hstack([design, np.vstack(absorbed_fields(x, y))])
     target = np.concatenate([dx_px, dy_px])
     if design.shape[1] == 0:
         return np.zeros(0), np.column_stack([dx_px, dy_px])

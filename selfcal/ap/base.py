@@ -171,6 +171,11 @@ class APModel(ABC):
         """
         raise NotImplementedError(f"{type(self).__name__} has no basis derivatives")
 
+    def support_counts(self, x_mm: np.ndarray, y_mm: np.ndarray) -> np.ndarray | None:
+        """For a basis of local functions, how many of the points (photo coordinates) lie in each coefficient's
+        support, (n_params,); None for a basis of global functions (the default: polynomials, Fourier terms)."""
+        return None
+
     def displacement_px(self, x_mm, y_mm, coefficients_px) -> tuple[np.ndarray, np.ndarray]:
         """Delta in pixels along the photo axes (x right, y up) at photo coordinates."""
         bx, by = self.basis(np.atleast_1d(x_mm), np.atleast_1d(y_mm))

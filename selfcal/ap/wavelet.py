@@ -153,7 +153,7 @@ class WaveletAP(APModel):
     examples = ("wavelet:db4", "wavelet:sym4", "wavelet:meyer", "wavelet:bl4", "wavelet:sym4+details")
 
     def __init__(self, frame: ImageFrame, wavelet: str, grid: tuple[int, int], ranges: tuple[int, int, int, int],
-                 formulation: str = "scaling", left_out: list[str] | None = None):
+                 formulation: str = "scaling", left_out: list[str] | None = None, span_only: bool = False):
         super().__init__(frame)
         if formulation not in ("scaling", "details"):
             raise ValueError(f"WAP formulation must be 'scaling' or 'details', found '{formulation}'")
@@ -180,7 +180,9 @@ class WaveletAP(APModel):
                 prefix = f"a{axis}" if part == "phi" else f"a{axis}{part}"
                 kxs, kys = uses[part]
                 names += [f"{prefix}[{kx:+d},{ky:+d}]" for ky in kys for kx in kxs]
-        if left_out is None:
+        if span_only:               # the raw functions: their span with the camera fields (from_spec)
+            self._kept, self._field_projection = np.ones(len(names), bool), np.zeros((6, len(names)))
+        elif left_out is None:
             self._kept, self._field_projection = self._orthogonalise()
         else:
             # as written by to_dict: a file's coefficients are in the order of the functions it kept (and a file
@@ -318,6 +320,22 @@ class WaveletAP(APModel):
         to_params[2 * n_raw:] = -self._field_projection
         return SparseBasis(pattern.reshape(-1), columns, values, to_params)
 
+    def support_counts(self, x_mm, y_mm) -> np.ndarray:
+        """How many of the points lie in each coefficient's effective support: where both factors of its tensor
+        product (phi or psi) are at least the wavelet's truncation threshold times phi's peak (the support that
+        qualifies a translation, :data:`MIN_OBSERVATIONS`)."""
+        xw, yw = self._domain(np.asarray(x_mm, float), np.asarray(y_mm, float))
+        w = self.wavelet
+        level = w.threshold * np.abs(w.phi_table).max()
+        within = {("x", f): (np.abs(fn(xw[:, None] + k[None, :])) >= level).astype(float)
+                  for f, fn, k in (("phi", w.phi, self.kx), ("psi", w.psi, self.kx_psi))}
+        within |= {("y", f): (np.abs(fn(yw[:, None] + k[None, :])) >= level).astype(float)
+                   for f, fn, k in (("phi", w.phi, self.ky), ("psi", w.psi, self.ky_psi))}
+        pick = {"phi": ("phi", "phi"), "h": ("phi", "psi"), "v": ("psi", "phi"), "d": ("psi", "psi")}
+        counts = [(within[("y", pick[part][1])].T @ within[("x", pick[part][0])]).ravel() for part in self._parts]
+        one_axis = np.concatenate(counts)
+        return np.concatenate([one_axis, one_axis])[self._kept].astype(np.int64)
+
     def basis_derivatives(self, x_mm, y_mm):
         x_mm, y_mm = np.asarray(x_mm, float), np.asarray(y_mm, float)
         xw, yw = self._domain(x_mm, y_mm)
@@ -374,7 +392,12 @@ class WaveletAP(APModel):
         check_wavelet_name(name)
 
     @classmethod
-    def from_spec(cls, option, frame: ImageFrame, observed_xy_mm=None, grid=(9, 6), **settings):
+    def from_spec(cls, option, frame: ImageFrame, observed_xy_mm=None, grid=(9, 6), span_only: bool = False,
+                  **settings):
+        """``span_only``: the raw tensor-product functions of the grid's translations, neither orthogonalised to the
+        camera fields nor thinned (with those fields they span what the model spans, for fits that include them:
+        cheap to build on large grids; not for an adjustment, where they are singular with the interior
+        orientation)."""
         cls.check_option(option)
         name, _, form = option.partition("+")
         w = get_wavelet(name)
@@ -390,4 +413,4 @@ class WaveletAP(APModel):
             n_min, xw, yw = MIN_OBSERVATIONS, None, None
         kx = _translations(w, gx / 2.0, xw, n_min)
         ky = _translations(w, gy / 2.0, yw, n_min)
-        return cls(frame, name, (gx, gy), (*kx, *ky), "details" if form else "scaling")
+        return cls(frame, name, (gx, gy), (*kx, *ky), "details" if form else "scaling", span_only=span_only)

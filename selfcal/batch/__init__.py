@@ -11,9 +11,12 @@ the same as those of the serial run.
 from __future__ import annotations
 
 import os
+import threading
 import time
 from dataclasses import dataclass, field
 from typing import Callable
+
+import numpy as np
 
 from ..adjust import AdjustOptions, APOptions, RobustOptions, TrajectoryOptions
 from ..ap import ALL_MODELS, AP_FAMILIES, parse_ap_spec, takes_grid
@@ -75,10 +78,23 @@ def run_cell(scenario: str, block, model: str, settings: CellSettings = CellSett
     except AdjustmentError as exc:
         return Cell(scenario, model, None, str(exc), time.perf_counter() - t0)
     seconds = time.perf_counter() - t0
-    extra = {"scenario": scenario, "seconds": seconds, "grid": list(settings.grid)} | adjusted.summary_extra
+    extra = {"scenario": scenario, "seconds": seconds, "grid": list(settings.grid),
+             "prediction": _prediction(adjusted.tested.result)} | adjusted.summary_extra
     files = result_files(adjusted.block, adjusted.tested, extra, settings.screening, adjusted.checks, adjusted.track,
                          adjusted.plane)
     return Cell(scenario, model, files, None, seconds)
+
+
+def _prediction(result) -> dict | None:
+    """summary.json ``prediction`` of a cell: the cross-validated prediction error of held-out tie points of its
+    tested adjustment (:mod:`selfcal.stats.prediction`; the comparison's CV column), None where it cannot be had."""
+    from ..stats.prediction import converged_fold_systems, prediction_error
+    if not result.converged:
+        return None
+    try:
+        return prediction_error(converged_fold_systems(result), result.block.image_sigma_px).as_dict()
+    except (ValueError, np.linalg.LinAlgError):
+        return None
 
 
 def run_matrix(blocks: dict, models: list[str], settings: CellSettings = CellSettings(),
@@ -108,43 +124,98 @@ def run_matrix(blocks: dict, models: list[str], settings: CellSettings = CellSet
         return cells
     from dask.distributed import Client, LocalCluster, wait
 
-    tell = say if say is not None else (lambda text: None)
-    cluster = None
-    if scheduler == "local":
-        single_thread = {k: "1" for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",
-                                          "SELFCAL_THREADS")}
-        workers = n_workers or os.cpu_count() or 1
-        tell(f"starting a local Dask cluster of {workers} worker process{'es' if workers > 1 else ''} ...")
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1,
-                               processes=True, dashboard_address=":0", env=single_thread)   # ":0": a free port (two runs at once raced for 8787)
-    else:
-        tell(f"connecting to the Dask scheduler at {scheduler} ...")
-    client = Client(cluster if cluster is not None else scheduler)
-    try:
-        shared = {name: client.scatter(block, broadcast=True) for name, block in blocks.items()}
-        # the wavelet cells take 3-4 times as long as the others: submitted first, they leave no worker idle at the end
-        first = sorted(range(len(cases)), key=lambda i: not takes_grid(cases[i][1]))
-        submitted = {}
-        for i in first:
-            name, model = cases[i]
-            submitted[i] = client.submit(run_cell, name, shared[name], model, settings, pure=False,
-                                         key=f"selfcal-{name}-{model}-{time.time_ns()}")
-        futures = [submitted[i] for i in range(len(cases))]      # in the cells' order
-        t0, pending = time.perf_counter(), set(futures)
-        while pending:
-            try:
-                finished, pending = wait(pending, timeout=every_s, return_when="FIRST_COMPLETED")
-            except TimeoutError:
-                tell(f"{len(cases) - len(pending)}/{len(cases)} adjustments done in "
-                     f"{time.perf_counter() - t0:.0f} s ...")
-                continue
-            for future in finished:
-                cell = future.result()
-                if done is not None:
-                    done(cell)
-        return client.gather(futures)
-    finally:
-        _close(client, cluster)
+    with _Ticker(say if say is not None else (lambda text: None), every_s) as ticker:
+        cluster = None
+        if scheduler == "local":
+            single_thread = {k: "1" for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",
+                                              "SELFCAL_THREADS")}
+            workers = n_workers or os.cpu_count() or 1
+            ticker.say(f"starting a local Dask cluster of {workers} worker process{'es' if workers > 1 else ''} ...")
+            ticker.status = lambda t: f"starting the Dask cluster ({t:.0f} s) ..."
+            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                                   dashboard_address=":0", env=single_thread)   # ":0": a free port (two runs raced)
+        else:
+            ticker.say(f"connecting to the Dask scheduler at {scheduler} ...")
+            ticker.status = lambda t: f"connecting to the Dask scheduler ({t:.0f} s) ..."
+        client = Client(cluster if cluster is not None else scheduler)
+        try:
+            ticker.status = lambda t: f"sending the blocks to the workers ({t:.0f} s) ..."
+            shared = {name: client.scatter(block, broadcast=True) for name, block in blocks.items()}
+            # the wavelet cells take 3-4 times as long as the others: submitted first, they leave no worker idle
+            first = sorted(range(len(cases)), key=lambda i: not takes_grid(cases[i][1]))
+            submitted = {}
+            for i in first:
+                name, model = cases[i]
+                submitted[i] = client.submit(run_cell, name, shared[name], model, settings, pure=False,
+                                             key=f"selfcal-{name}-{model}-{time.time_ns()}")
+            futures = [submitted[i] for i in range(len(cases))]      # in the cells' order
+            t0, pending = time.perf_counter(), set(futures)
+            ticker.status = lambda _: (f"{len(cases) - len(pending)}/{len(cases)} adjustments done in "
+                                       f"{time.perf_counter() - t0:.0f} s ...")
+            while pending:
+                try:
+                    finished, pending = wait(pending, timeout=0.5, return_when="FIRST_COMPLETED")
+                except TimeoutError:
+                    continue
+                for future in finished:
+                    cell = future.result()
+                    if done is not None:
+                        ticker.call(done, cell)
+            ticker.status = None
+            return client.gather(futures)
+        finally:
+            ticker.status = None
+            _close(client, cluster)
+
+
+class _Ticker:
+    """The batch's voice on Dask: ``say`` a line, and whenever ``every_s`` pass without one, the ``status`` line
+    (a function of the seconds since the status was set; None: quiet). Dask's calls block without a word: the
+    workers' start takes 2-4 s on a loaded machine (each imports the engine), a cell of a 28-image block 10-20 s."""
+
+    def __init__(self, tell: Callable[[str], None], every_s: float) -> None:
+        self._tell, self._every_s = tell, every_s
+        self._status: Callable[[float], str] | None = None
+        self._since = self._last = time.perf_counter()
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+
+    @property
+    def status(self) -> Callable[[float], str] | None:
+        return self._status
+
+    @status.setter
+    def status(self, status: Callable[[float], str] | None) -> None:
+        with self._lock:
+            self._status, self._since = status, time.perf_counter()
+
+    def say(self, text: str) -> None:
+        with self._lock:
+            self._tell(text)
+            self._last = time.perf_counter()
+
+    def call(self, function: Callable[[Cell], None], cell: Cell) -> None:
+        """The caller's ``function(cell)``, which may print, without the status line in between."""
+        with self._lock:
+            function(cell)
+            self._last = time.perf_counter()
+
+    def _run(self) -> None:
+        while not self._stop.wait(0.1):
+            with self._lock:
+                now = time.perf_counter()
+                if self._status is not None and now - self._last >= self._every_s:
+                    self._tell(self._status(now - self._since))
+                    self._last = now
+
+    def __enter__(self) -> _Ticker:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._stop.set()
+        self._thread.join()
 
 
 def _quiet_dask() -> None:

@@ -154,12 +154,12 @@ def _terrain(block, args):
 
 
 def run(args: argparse.Namespace) -> int:
+    progress(f"reading {args.block} ...")       # at once: the engine's import takes a second of its own
     # the engine, the readers and the report load here, not for --help (issue 45: help answers at once)
     from ..adjust import AdjustOptions, APOptions, SensorOptions, TrajectoryOptions
     from ..io import read_block
     from ..io.output import check_inputs, failed_run_folder, output_folder
     from ..io.results import results_from_files, write_results
-    from ..report import model_choice_table, render_report, result_files
     from ..stats import SnoopingOptions, VarianceOptions
     from ..workflows.adjust import AdjustRequest, adjust_block, ap_candidates, default_ap_model, is_auto, \
         offers_sensor_models
@@ -200,10 +200,10 @@ def run(args: argparse.Namespace) -> int:
                             keep_focal=args.keep_focal, height=height,
                             robust=robust_options(args), control_loo=not args.no_control_loo,
                             orthonormal=args.orthonormal, jackknife=args.jackknife,
-                            half_block=not args.no_half_block)
+                            half_block=not args.no_half_block, min_effect_px=args.min_effect_px)
     if request.candidates is not None and not args.quiet:         # --ap auto
-        print(f"choosing the AP model among {len(request.candidates)} candidates by BIC (blunders first, with the "
-              f"richest candidate) ...", file=sys.stderr)
+        print(f"choosing the AP model among {len(request.candidates)} candidates by their cross-validated "
+              f"prediction error (blunders first, with a reference candidate) ...", file=sys.stderr)
     adjusted = adjust_block(block, request, progress=None if args.quiet else progress_printer(block.image_sigma_px),
                             report=None if args.quiet else round_printer(),
                             say=say,
@@ -213,6 +213,7 @@ def run(args: argparse.Namespace) -> int:
         for _, d in tested.screening_log:
             print(f"screening: dropped {d.camera_id}.{d.name} (t {d.t:.2f}, {d.reason})", file=sys.stderr)
     extra = {"seconds": time.perf_counter() - t0, "grid": list(args.grid)} | adjusted.summary_extra
+    from ..report import model_choice_table, render_report, result_files     # the report's code after the work
     files = result_files(adjusted.block, tested, extra, screening, adjusted.checks, adjusted.track,
                          adjusted.plane)
     if adjusted.choice is not None:
@@ -267,9 +268,14 @@ _FIGURES = ("converged", "sigma0_px", "rmsd_chk_xy_m", "rmsd_chk_z_m", "rmse_chk
 
 
 def _show_score(score) -> None:
-    status = f"BIC {score.bic:.1f}, sigma0 {score.sigma0_px:.4f} px" if score.bic is not None else \
-        f"failed: {(score.error or '').splitlines()[0]}"
-    print(f"  {score.label}: {score.n_ap} camera parameters, {status}", file=sys.stderr, flush=True)
+    if score.prediction is not None:
+        status = (f"{score.n_ap} camera parameters, prediction error {score.prediction.rmse_px:.4f} ± "
+                  f"{score.prediction.se_px:.4f} px, BIC {score.bic:.1f}, sigma0 {score.sigma0_px:.4f} px")
+    elif score.error:
+        status = f"failed: {score.error.splitlines()[0]}"
+    else:
+        status = f"image-space BIC {score.field_bic:.1f} ({score.field_k} coefficients): not short-listed"
+    print(f"  {score.label}: {status}", file=sys.stderr, flush=True)
 
 
 def _m(value) -> str:

@@ -14,7 +14,7 @@ from .options import number
 from .outcome import progress
 
 __all__ = ["calibrations", "pick_camera", "maps_of", "models", "report_fit", "camera_options", "tool_options",
-           "fit_tool", "lens_reason", "fitted_covariance", "tool_calibration"]
+           "fit_tool", "lens_reason", "fitted_covariance", "tool_calibration", "warn_extrapolated"]
 
 
 def camera_options(parser) -> None:
@@ -96,6 +96,14 @@ def models(option: str, allowed) -> tuple[str, ...]:
     if option not in allowed:
         raise UsageError(f"--opencv-model {option}: not one of auto, {', '.join(allowed)}")
     return (option,)
+
+
+def warn_extrapolated(cal: Calibration) -> str:
+    """Print the camera's extrapolation warning (camera.json ``extrapolation``) and return it for the export to
+    write ("" when its correction is not extrapolated)."""
+    if cal.extrapolation_warning:
+        print(f"warning: {cal.extrapolation_warning}", file=sys.stderr)
+    return cal.extrapolation_warning
 
 
 def report_fit(camera_id, fitted, tolerance_px) -> None:
@@ -188,4 +196,5 @@ def tool_calibration(args, tool: str, with_covariance: bool = False):
     fitted = fit_tool(cal, tool, args.tool_model, args.tolerance_px, args.tool_model_option)
     covariance = fitted_covariance(cal, fitted) if with_covariance else None
     return ToolCalibration(tool, fitted.model.name, fitted.as_dict(), cal.width_px, cal.height_px,
-                           fitted.names if covariance is not None else (), covariance, cal.camera_id)
+                           fitted.names if covariance is not None else (), covariance, cal.camera_id,
+                           warn_extrapolated(cal))

@@ -39,6 +39,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    progress(f"reading {', '.join(map(str, args.blocks))} ...")     # at once: the engine's import takes a second
     # the engine, Dask and the report load here, not for --help (issue 45)
     from ..ap import AP_FAMILIES, parse_ap_spec
     from ..batch import CellSettings, run_matrix

@@ -103,11 +103,13 @@ def grid(text: str) -> tuple[int, int]:
 def ap_option(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--ap", default=None, metavar="MODEL", type=ap_spec,
                         help="additional-parameter model: none, brown, ebner, gruen, legendre[:deg], "
-                             "fourier[:order], wavelet:db4 | sym4 | meyer | bl4; auto[:MODEL,...] chooses by BIC; "
-                             "pushbroom blocks: wavelet1d:db4 | sym4 | meyer | bl4 along the detector line. Default: "
-                             "for frame cameras whose calibration is not held, auto:none,brown (the better of no APs "
-                             "and Brown's by BIC on the same observations: on simulated blocks it kept none for every "
-                             "lens without distortion and brown for every distorted one); otherwise none")
+                             "fourier[:order], wavelet:db4 | sym4 | meyer | bl4; auto[:MODEL@GxXGy,...] chooses by the "
+                             "cross-validated prediction error of held-out tie points (the simplest model within one "
+                             "standard error of the best; auto alone: the ten families, the wavelets on grids 3x2 ... "
+                             "15x10, short-listed by BIC); pushbroom blocks: wavelet1d:db4 | sym4 | meyer | bl4 along "
+                             "the detector line. Default: for frame cameras whose calibration is not held, "
+                             "auto:none,brown (Brown's only where it predicts the held-out observations better than "
+                             "no APs by more than a standard error); otherwise none")
 
 
 def ap_at_option(parser: argparse.ArgumentParser) -> None:
@@ -155,6 +157,16 @@ def test_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--trajectory-significance", type=number(0.0), default=None, metavar="T",
                         help="screening: drop a GNSS/IMU shift/drift term only with t < T before the screening "
                              "and at the drop (default 1.355 = 3 - z(0.95): shown smaller than 3 sigma)")
+    parser.add_argument("--min-effect-px", type=number(0.0), default=0.1, metavar="PX",
+                        help="screening: an AP coefficient stays only if holding it moves some adjusted image "
+                             "coordinate over the observed area by PX or more (default 0.1; 0: no test); --ap auto: "
+                             "a richer model must predict better than a simpler one by more than a field of PX")
+    parser.add_argument("--min-support", type=count(0), default=20, metavar="N",
+                        help="screening: a coefficient of a local basis (a WAP) stays only if N observations or "
+                             "more lie in its support (default 20)")
+    parser.add_argument("--no-screen-cv", action="store_true",
+                        help="screening: do not cross-validate (by default it stops where the screened set would "
+                             "predict held-out tie points worse than the unscreened one)")
     parser.add_argument("--robust", choices=["none", *LOSSES], default=RobustOptions.loss, metavar="LOSS",
                         help=f"robust cleaning before the tests: {', '.join(LOSSES)} (default {RobustOptions.loss}: "
                              "gross errors of matcher output rejected first), or none (least squares throughout)")
@@ -176,7 +188,9 @@ def screening_options(args: argparse.Namespace) -> ScreeningOptions:
     from ..stats import ScreeningOptions
     extra = {} if args.trajectory_significance is None else {"trajectory_significance": args.trajectory_significance}
     return ScreeningOptions(args.significance, args.max_correlation,
-                            joint_alpha=args.joint_alpha if args.joint_alpha > 0 else None, **extra)
+                            joint_alpha=args.joint_alpha if args.joint_alpha > 0 else None,
+                            min_effect_px=args.min_effect_px, min_support=args.min_support,
+                            cross_validate=not args.no_screen_cv, **extra)
 
 
 def round_printer() -> Callable[[Any], None]:

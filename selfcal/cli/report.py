@@ -14,6 +14,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    progress(f"reading {args.results} ...")     # at once: the report's import takes a second of its own
     from ..io.atomic import atomic_update
     from ..io.output import update_folder
     from ..io.results import read_results, write_files

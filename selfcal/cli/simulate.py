@@ -5,7 +5,7 @@ import argparse
 import os
 
 from ..errors import UsageError
-from ..simulate import DISTORTIONS, FLIGHTS, SCENARIOS, simulate_uav, truth_files
+from ..simulate.names import DISTORTIONS, FLIGHTS, SCENARIOS
 from .outcome import finish
 from .options import count, force_option, number
 
@@ -44,6 +44,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..simulate import simulate_uav, truth_files
     from ..io.atomic import atomic_folder
     from ..io.block_folder import write_block
     from ..io.output import output_folder

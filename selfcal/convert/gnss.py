@@ -21,7 +21,7 @@ if TYPE_CHECKING:
     from ..io.odm import GroundControl, ImagePositions
 
 __all__ = ["CameraPositions", "positions_from_images", "positions_from_geo", "block_with_gnss", "GnssImport", "exif_cameras",
-           "projected_control", "utm_crs"]
+           "exposure_times", "match_images", "projected_control", "utm_crs"]
 
 
 @dataclass(frozen=True)
@@ -67,17 +67,9 @@ def positions_from_images(records: Sequence[ImageGnss]) -> tuple[CameraPositions
         else:
             warnings.append(f"{r.path}: no GPS position in its EXIF or XMP tags; the image keeps no GNSS "
                             f"observation (it is oriented by resection)")
-    sources = {r.time_source for r in kept}
-    time = np.array([r.time_s for r in kept], float)
-    if kept and sources != {"gps"}:
-        if sources == {"camera"}:
-            warnings.append("exposure times from the camera clock (DateTimeOriginal): no GPS time stamps")
-        else:
-            missing = [r.path for r in kept if r.time_source == ""]
-            mixed = "some images have GPS time stamps and others only the camera clock" if not missing else \
-                f"{len(missing)} image(s) have no time ({', '.join(missing[:3])})"
-            warnings.append(f"no exposure times used: {mixed}; strips follow the file names' order")
-            time = np.full(len(kept), np.nan)
+    time, note = exposure_times(kept)
+    if note:
+        warnings.append(note if np.isfinite(time).all() else f"{note}; strips follow the file names' order")
     positions = CameraPositions(
         names=np.array([r.name for r in kept], dtype=object),
         xyz=np.array([[r.longitude_deg, r.latitude_deg, r.height_m] for r in kept], float).reshape(-1, 3),
@@ -89,6 +81,22 @@ def positions_from_images(records: Sequence[ImageGnss]) -> tuple[CameraPositions
     return positions, warnings
 
 
+def exposure_times(records: Sequence[ImageGnss]) -> tuple[np.ndarray, str]:
+    """The exposure time of every record from one clock: the GPS time stamps when every record has one, else the
+    camera clock when every record has it, else none (all NaN); and a note where it is not the GPS clock (which
+    clock, or why none: the files without a time named)."""
+    sources = {r.time_source for r in records}
+    time = np.array([r.time_s for r in records], float)
+    if not records or sources == {"gps"}:
+        return time, ""
+    if sources == {"camera"}:
+        return time, "exposure times from the camera clock (DateTimeOriginal): no GPS time stamps"
+    missing = [r.path for r in records if r.time_source == ""]
+    mixed = "some images have GPS time stamps and others only the camera clock" if not missing else \
+        f"{len(missing)} image(s) have no time ({', '.join(missing[:3])})"
+    return np.full(len(records), np.nan), f"no exposure times used: {mixed}"
+
+
 def positions_from_geo(geo: ImagePositions, path: str) -> CameraPositions:
     """CameraPositions from an ODM geo.txt (:class:`selfcal.io.odm.ImagePositions`): its horizontal and
     vertical accuracies become the sigmas east, north (both the horizontal one) and up; it has no times."""
@@ -97,7 +105,7 @@ def positions_from_geo(geo: ImagePositions, path: str) -> CameraPositions:
                            np.array([f"{path}, line {n}" for n in geo.line], dtype=object))
 
 
-def _match(block_ids: np.ndarray, names: np.ndarray) -> tuple[np.ndarray, list[int]]:
+def match_images(block_ids: np.ndarray, names: np.ndarray) -> tuple[np.ndarray, list[int]]:
     """Block image index of each name (-1: not in the block): the same name, else the same name without its
     extension (image id ``S1_01`` for ``S1_01.JPG``)."""
     exact = {str(i): k for k, i in enumerate(block_ids)}
@@ -112,7 +120,7 @@ def exif_cameras(block: Block, records: Sequence[ImageGnss]) -> dict[str, tuple]
     """Image id -> (EXIF Make, Model, width_px, height_px) of the block's images that ``records`` name (by file name,
     or by its stem); what :func:`selfcal.convert.rolling.with_rolling_shutter` takes."""
     names = np.array([r.name for r in records], dtype=object)
-    index, _ = _match(block.images.image_id, names)
+    index, _ = match_images(block.images.image_id, names)
     return {str(block.images.image_id[k]): (r.camera_make, r.camera_model, r.width_px or None, r.height_px or None)
             for r, k in zip(records, index) if k >= 0 and (r.camera_make or r.camera_model)}
 
@@ -145,7 +153,7 @@ def block_with_gnss(block: Block, positions: CameraPositions, sigma_m: Sequence[
     if reason:
         raise ValueError(reason)
     warnings = []
-    index, unknown = _match(block.images.image_id, positions.names)
+    index, unknown = match_images(block.images.image_id, positions.names)
     for k in unknown:
         warnings.append(f"{positions.where[k]}: image '{positions.names[k]}' is not in the block; left out")
     dup = np.flatnonzero(np.bincount(index[index >= 0], minlength=len(block.images)) > 1)

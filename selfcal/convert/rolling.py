@@ -11,16 +11,22 @@ millisecond and one camera reads faster or slower in another capture mode).
 """
 from __future__ import annotations
 
+import re
 from collections import Counter
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..block import Block, FrameCamera
+from ..geometry.gnss import STRIP_GAP_FACTOR, STRIP_TURN_DEG, detect_strips
+
+if TYPE_CHECKING:
+    from ..io.exif import ImageGnss
 
 __all__ = ["READOUT_MS", "UNKNOWN_READOUT_MS", "UNKNOWN_SIGMA_MS", "ReadoutPrior", "readout_prior",
-           "with_rolling_shutter", "camera_model_key"]
+           "with_rolling_shutter", "camera_model_key", "pix4d_camera_model", "with_exposure_times", "NEEDS_TIMES"]
 
 #: camera make and model (lower case, as EXIF Make + " " + Model) -> readout (ms), or steps by the capture's size:
 #: ((below this many megapixels, readout ms), ..., (inf, readout ms)); source: OpenDroneMap, opendm/rollingshutter.py
@@ -63,8 +69,28 @@ TABLE_SIGMA_SHARE, MIN_TABLE_SIGMA_MS = 0.15, 5.0
 
 
 def camera_model_key(make: str, model: str) -> str:
-    """The table's key of an EXIF Make and Model: ``"dji fc6310"``."""
+    """The table's key of an EXIF Make and Model: ``"dji fc6310"``; without the make, the key whose model it is
+    (``"FC6310"``: ``"dji fc6310"``; a model name the table does not hold as the key's model: the name)."""
+    if not make.strip():
+        model = model.strip().lower()
+        return next((key for key in READOUT_MS if key.split(" ", 1)[-1] == model), model)
     return f"{make.strip()} {model.strip()}".lower().strip()
+
+
+#: Pix4D's name of a camera: ``MODEL_FOCAL_WIDTHxHEIGHT`` (``FC6310_8.8_5472x3648``, as its camera database and
+#: quality report write it, sometimes followed by `` (RGB)``), or an older ``MODEL_FOCAL_...`` (``H_8.07_6.0525``)
+_PIX4D_NAME = re.compile(r"^(?P<model>.+?)_(?P<focal>\d+(?:\.\d+)?)(?:_(?P<width>\d+)x(?P<height>\d+))?(?:[_ ].*)?$")
+
+
+def pix4d_camera_model(name: str) -> tuple[str, int | None, int | None]:
+    """The camera model and the image size (None where the name has none) in Pix4D's name of a camera (the BINGO
+    file's headers ``image camera``): ``"FC6310_8.8_5472x3648"`` -> ``("FC6310", 5472, 3648)``; a name of another
+    form is the model as it is."""
+    match = _PIX4D_NAME.match(name.strip())
+    if match is None:
+        return name.strip(), None, None
+    width, height = match.group("width"), match.group("height")
+    return match.group("model"), (int(width) if width else None), (int(height) if height else None)
 
 
 @dataclass(frozen=True)
@@ -83,7 +109,8 @@ def readout_prior(make: str | None, model: str | None, width_px: int | None = No
     key = camera_model_key(make or "", model or "")
     entry = READOUT_MS.get(key)
     if entry is None:
-        named = f"'{make} {model}'" if make or model else "a camera whose images name no model"
+        named = f"'{' '.join(n for n in (make, model) if n)}'" if make or model else \
+            "a camera whose images name no model"
         return ReadoutPrior(UNKNOWN_READOUT_MS, UNKNOWN_SIGMA_MS, f"{named} is not in OpenDroneMap's readout table: "
                             f"{UNKNOWN_READOUT_MS:g} +- {UNKNOWN_SIGMA_MS:g} ms, for the block to determine")
     if isinstance(entry, tuple):
@@ -128,3 +155,41 @@ def with_rolling_shutter(block: Block, camera_of_images: Mapping[str, tuple] | N
                                      sigma_readout_ms=prior.sigma_ms)
         notes.append(f"camera {camera_id}: rolling shutter, readout {prior.source}")
     return replace(block, cameras=cameras), notes
+
+
+#: what the rolling-shutter model needs that a tool's orientation files do not hold, and how to give it
+NEEDS_TIMES = ("a rolling shutter needs each image's exposure time (the velocity during its readout comes from the "
+               "positions and times of its strip)")
+
+
+def with_exposure_times(block: Block, records: Sequence[ImageGnss], turn_deg: float = STRIP_TURN_DEG,
+                        gap_factor: float = STRIP_GAP_FACTOR) -> tuple[Block, list[str]]:
+    """``block`` with each image's exposure time from its JPEG's EXIF (``records``, :class:`selfcal.io.exif.ImageGnss`
+    matched by file name or stem; seconds since the first exposure, one clock for all:
+    :func:`selfcal.convert.gnss.exposure_times`) and its strips found from the times and the block's positions
+    (:func:`selfcal.geometry.gnss.detect_strips`: a turn or a pause starts a strip), for the rolling-shutter model.
+    Notes say which clock; a ValueError names the images without a JPEG or a time (the CLI's exit 2)."""
+    from .gnss import exposure_times, match_images
+    names = np.array([r.name for r in records], dtype=object)
+    index, _ = match_images(block.images.image_id, names)
+    time, note = exposure_times([r for r, k in zip(records, index) if k >= 0])
+    notes = [note] if note else []
+    n = len(block.images)
+    times = np.full(n, np.nan)
+    times[index[index >= 0]] = time
+    untimed = block.images.image_id[~np.isfinite(times)]
+    if untimed.size:
+        matched = np.zeros(n, bool)
+        matched[index[index >= 0]] = True
+        without = [str(i) for i in block.images.image_id[~matched]]
+        why = (f"{len(without)} image(s) of the block have no JPEG among the images ({', '.join(without[:3])})"
+               if without else note)
+        raise ValueError(f"{NEEDS_TIMES}: {why}")
+    times -= times.min()
+    has = np.isfinite(block.images.position_m).all(axis=1)
+    strips = np.array([f"S{s + 1}" for s in detect_strips(times, block.images.position_m, turn_deg, gap_factor)],
+                      dtype=object)
+    k = len(set(strips[has]))
+    notes.append(f"exposure times of {n} images from their EXIF, {k} strip{'s' if k != 1 else ''} from the times "
+                 f"and the positions")
+    return replace(block, images=replace(block.images, time_s=times, strip_id=strips)), notes

@@ -24,20 +24,12 @@ STRIP_GAP_FACTOR = 3.0
 
 def check_block_crs(crs: str) -> str:
     """The reason (a sentence) why GNSS positions cannot be put into a block whose ``crs`` is this, or ""."""
-    from pyproj import CRS
-    from pyproj.exceptions import CRSError
+    from .tangent import tangent_plane_reason
     if crs in ("local", "", None):
         return ("the block's crs is \"local\" (an arbitrary frame): GNSS positions need a block in a projected CRS "
                 "(set crs in block.toml, e.g. \"EPSG:32632\", with the block's coordinates in it)")
-    try:
-        parsed = CRS.from_user_input(crs)
-    except CRSError as exc:
-        return f"the block's crs {crs!r} is not a coordinate reference system pyproj knows: {exc}"
-    horizontal = parsed.sub_crs_list[0] if parsed.is_compound else parsed
-    if not horizontal.is_projected:
-        return (f"the block's crs {crs!r} is not projected; a frame-camera block works in metres (a projected CRS, "
-                f"e.g. UTM)")
-    return ""
+    reason = tangent_plane_reason(crs)          # the CRS must be one pyproj knows, and projected
+    return f"the block's {reason}" if reason else ""
 
 
 def positions_in_crs(xyz: np.ndarray, source_crs: str, target_crs: str, heights: str = "ellipsoidal") -> np.ndarray:

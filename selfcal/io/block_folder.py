@@ -11,7 +11,7 @@ import math
 import os
 import re
 import tomllib
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 import tomli_w
@@ -602,15 +602,19 @@ def block_toml_text(block: Block) -> str:
     return tomli_w.dumps(block_toml_document(block))
 
 
-def write_block(block: Block, folder: str | os.PathLike, source: str | None = None) -> None:
+def write_block(block: Block, folder: str | os.PathLike, source: str | None = None,
+                say: Callable[[str], None] | None = None) -> None:
     """Write a block folder (atomically: the folder appears complete or not at all).
 
     With ``source`` (the file or folder an importer read), the folder is read back with :func:`read_block` before
-    it appears: a block the reader would refuse is never written, and the BlockError names ``source``.
+    it appears: a block the reader would refuse is never written, and the BlockError names ``source``. ``say``
+    receives a line as the reading back begins (a second or more for 300,000 observations).
     """
     with atomic_folder(folder) as tmp:
         _write_block_files(block, tmp, os.path.abspath(folder))
         if source is not None:
+            if say is not None:
+                say(f"reading {folder} back as selfcal adjust will ...")
             try:
                 read_block(tmp)
             except BlockError as exc:

@@ -71,6 +71,9 @@ class ToolCalibration:
     covariance_names: tuple[str, ...] = ()
     covariance: np.ndarray | None = None
     camera_id: str = ""
+    #: selfcal's warning that the calibration is extrapolated beyond its observations (written as a comment, or a
+    #: key the tool does not read), or ""
+    warning: str = ""
 
 
 def _number(text: str) -> str:
@@ -92,6 +95,8 @@ def write_metashape_xml(path: str | os.PathLike, calibration: ToolCalibration) -
         ElementTree.SubElement(cov, "params").text = " ".join(calibration.covariance_names)
         ElementTree.SubElement(cov, "coeffs").text = " ".join(repr(float(v)) for v in
                                                               np.asarray(calibration.covariance).ravel())
+    if calibration.warning:
+        root.insert(0, ElementTree.Comment(f" selfcal warning: {calibration.warning.replace('--', '- -')} "))
     ElementTree.indent(root)
     with atomic_write(path) as handle:
         handle.write('<?xml version="1.0" encoding="UTF-8"?>\n')
@@ -214,6 +219,8 @@ def write_opensfm_cameras(path: str | os.PathLike, calibration: ToolCalibration,
     entry = {"projection_type": calibration.model, "width": int(calibration.width_px),
              "height": int(calibration.height_px)}
     entry.update({name: float(calibration.values[name]) for name in OPENSFM_NAMES[calibration.model]})
+    if calibration.warning:
+        entry["selfcal_warning"] = calibration.warning          # (OpenSfM reads its parameters by name)
     with atomic_write(path) as handle:
         json.dump({key or opensfm_camera_key(calibration): entry}, handle, indent=4)
         handle.write("\n")
@@ -279,6 +286,8 @@ def write_kalibr_camchain(path: str | os.PathLike, calibration: ToolCalibration,
            "rostopic": str(rostopic),
            "cam_overlaps": []}
     with atomic_write(path) as handle:
+        if calibration.warning:
+            handle.write(f"# selfcal warning: {calibration.warning}\n")
         yaml.safe_dump({"cam0": cam}, handle, default_flow_style=None, sort_keys=False)
 
 

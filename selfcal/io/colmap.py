@@ -317,12 +317,14 @@ def read_colmap(folder: str | os.PathLike) -> ColmapModel:
                        oi[obs_order], oxy[obs_order], op[obs_order], pids[porder], xyz[porder], err[porder])
 
 
-def write_cameras_txt(path: str | os.PathLike, cameras: list[tuple[int, str, int, int, list[float]]]) -> None:
-    """COLMAP's cameras.txt: one ``CAMERA_ID MODEL WIDTH HEIGHT PARAMS[]`` line per camera."""
+def write_cameras_txt(path: str | os.PathLike, cameras: list[tuple[int, str, int, int, list[float]]],
+                      warnings: tuple[str, ...] | list[str] = ()) -> None:
+    """COLMAP's cameras.txt: one ``CAMERA_ID MODEL WIDTH HEIGHT PARAMS[]`` line per camera (``warnings`` as comment
+    lines after the header)."""
     names = {name: params for name, params in CAMERA_MODELS.values()}
     lines = ["# Camera list with one line of data per camera:",
              "#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]",
-             f"# Number of cameras: {len(cameras)}"]
+             f"# Number of cameras: {len(cameras)}"] + [f"# selfcal warning: {w}" for w in warnings]
     for camera_id, model, width, height, params in cameras:
         if len(params) != len(names[model]):
             raise ValueError(f"COLMAP's {model} has {len(names[model])} parameters, given {len(params)}")

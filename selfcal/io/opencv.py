@@ -44,7 +44,7 @@ def _extension(path) -> str:
 
 
 def opencv_file_text(camera: OpenCVCamera, ext: str = ".yaml", source: str = "", camera_id: str = "",
-                     covariance: np.ndarray | None = None) -> str:
+                     covariance: np.ndarray | None = None, warning: str = "") -> str:
     """The FileStorage text of an :class:`selfcal.calibration.OpenCVCamera` (``ext`` selects the format)."""
     import cv2
 
@@ -60,6 +60,8 @@ def opencv_file_text(camera: OpenCVCamera, ext: str = ".yaml", source: str = "",
         storage.write("camera_id", camera_id)
     if source:
         storage.write("source", source)
+    if warning:
+        storage.write("selfcal_warning", warning)
     if covariance is not None:
         names = ("fx", "fy", "cx", "cy") + DISTORTION_NAMES[:len(camera.distortion)]
         covariance = np.asarray(covariance, float)
@@ -70,8 +72,8 @@ def opencv_file_text(camera: OpenCVCamera, ext: str = ".yaml", source: str = "",
 
 
 def write_opencv_file(camera: OpenCVCamera, path: str | os.PathLike, source: str = "", camera_id: str = "",
-                      covariance: np.ndarray | None = None) -> None:
-    text = opencv_file_text(camera, _extension(path), source, camera_id, covariance)
+                      covariance: np.ndarray | None = None, warning: str = "") -> None:
+    text = opencv_file_text(camera, _extension(path), source, camera_id, covariance, warning)
     with atomic_write(path) as handle:
         handle.write(text)
 

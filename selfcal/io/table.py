@@ -181,7 +181,9 @@ def _quoted(text: str) -> str:
 def _column_text(column, fmt: str) -> list[str]:
     values = np.asarray(column).tolist()
     if fmt == "":
-        return [_quoted(str(v)) for v in values]
+        # each distinct text quoted once (an observation table repeats its few thousand ids 300,000 times)
+        quoted = {v: _quoted(str(v)) for v in set(values)}
+        return [quoted[v] for v in values]
     return ["" if isinstance(v, float) and not math.isfinite(v) else format(v, fmt) for v in values]
 
 

@@ -1,7 +1,8 @@
 """The comparison table of a (scenario x AP model) matrix: the columns of seed 000's tables and figures.
 
 One row per cell: GCP/CHK used (Table 1), RMSD(XY) and RMSD(Z) at check points in
-GSD (Fig. 3), RMS of the tie points' a-posteriori sigma (Fig. 4), sigma0 (Fig. 5),
+GSD (Fig. 3), RMS of the tie points' a-posteriori sigma (Fig. 4), sigma0 (Fig. 5), the cross-validated
+prediction error of held-out tie points with its standard error (issue 44: ``--ap auto``'s criterion),
 significant/initial APs (Table 2), translation ranges of wavelet APs (Table 3),
 max |rho| of the APs by group (Table 4), and the reduction of RMSD relative to
 ``none`` in the same scenario.
@@ -21,6 +22,7 @@ COLUMNS = [
     ("rmsd_xy_gsd", "RMSD XY (GSD)", ".2f"), ("rmsd_z_gsd", "RMSD Z (GSD)", ".2f"),
     ("rms_sigma_xy_gsd", "RMS σ̂XY (GSD)", ".2f"), ("rms_sigma_z_gsd", "RMS σ̂Z (GSD)", ".2f"),
     ("sigma0_px", "σ̂0 (px)", ".3f"),
+    ("cv_px", "CV error (px)", ".4f"), ("cv_se_px", "CV ± (px)", ".4f"),
     ("aps", "APs sig./init.", ""), ("k_ranges", "k_x; k_y", ""),
     ("corr_iop", "max|ρ| IOP", ".2f"), ("corr_intra_ap", "max|ρ| intra-AP", ".2f"),
     ("corr_eop", "max|ρ| EOP", ".2f"), ("corr_gnss", "max|ρ| GNSS", ".2f"), ("corr_imu", "max|ρ| IMU", ".2f"),
@@ -62,6 +64,8 @@ def comparison_rows(cells) -> list[dict]:
             "rmsd_xy_m": s["rmsd_chk_xy_m"], "rmsd_z_m": s["rmsd_chk_z_m"],
             "rms_sigma_xy_gsd": s["rms_sigma_tie_xy_gsd"], "rms_sigma_z_gsd": s["rms_sigma_tie_z_gsd"],
             "sigma0_px": s["sigma0_px"],
+            "cv_px": (s.get("prediction") or {}).get("cv_rmse_px"),
+            "cv_se_px": (s.get("prediction") or {}).get("cv_se_px"),
             "aps": f"{s['n_ap_significant']}/{s['n_ap_initial']}",
             "k_ranges": _ranges(cell.files["camera.json"]),
             "corr_iop": corr["IOP"], "corr_intra_ap": corr["intra-AP"], "corr_eop": corr["EOP"],

@@ -10,9 +10,19 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
-from matplotlib.figure import Figure
+
+if TYPE_CHECKING:                     # matplotlib loads with the first figure, not with the report's import
+    from matplotlib.figure import Figure
+
+
+def _figure(**kwargs) -> Figure:
+    """A matplotlib Figure without pyplot (matplotlib imported here, at the first figure: 0.4 s of a report)."""
+    from matplotlib.figure import Figure
+    return Figure(**kwargs)
+
 
 __all__ = ["distortion_figure", "sigma_map_figure", "residual_grid_figure", "residual_histogram_figure",
            "control_error_figure", "correlation_figure", "precision_map_figure", "comparison_figure", "grid_mean_vectors",
@@ -76,7 +86,7 @@ def distortion_figure(col: np.ndarray, row: np.ndarray, dcol: np.ndarray, drow: 
 
     The colour is |Δ| on every node; arrows are drawn on every ``step``-th node.
     """
-    fig = Figure(figsize=(_WIDTH_IN, _WIDTH_IN * height_px / width_px * 0.85 + 0.6), layout="constrained")
+    fig = _figure(figsize=(_WIDTH_IN, _WIDTH_IN * height_px / width_px * 0.85 + 0.6), layout="constrained")
     ax = fig.add_subplot()
     nx = int(np.unique(col).size)
     ny = col.size // max(nx, 1)
@@ -118,7 +128,7 @@ def sigma_map_figure(col: np.ndarray, row: np.ndarray, sigma_px: np.ndarray, obs
     nx = int(np.unique(col).size)
     ny = col.size // max(nx, 1)
     panels = 2 if difference is not None else 1
-    fig = Figure(figsize=(_WIDTH_IN, panels * (_WIDTH_IN * height_px / width_px * 0.85) + 0.7), layout="constrained")
+    fig = _figure(figsize=(_WIDTH_IN, panels * (_WIDTH_IN * height_px / width_px * 0.85) + 0.7), layout="constrained")
     axes = fig.subplots(panels, 1, squeeze=False)[:, 0]
     gridded = nx * ny == col.size and nx > 1 and ny > 1
     ax = axes[0]
@@ -184,7 +194,7 @@ def residual_grid_figure(col: np.ndarray, row: np.ndarray, vcol: np.ndarray, vro
                          title: str) -> Figure:
     """Image residuals averaged in the cells of a Gx x Gy grid (Fig. 7 of seed 000): what the model left."""
     cx, cy, mc, mr, count = grid_mean_vectors(col, row, vcol, vrow, width_px, height_px, grid)
-    fig = Figure(figsize=(_WIDTH_IN, _WIDTH_IN * height_px / width_px * 0.85 + 0.6), layout="constrained")
+    fig = _figure(figsize=(_WIDTH_IN, _WIDTH_IN * height_px / width_px * 0.85 + 0.6), layout="constrained")
     ax = fig.add_subplot()
     gx, gy = grid
     for k in range(1, gx):
@@ -208,7 +218,7 @@ def residual_histogram_figure(vx: np.ndarray, vy: np.ndarray, sigma0_px: float, 
     ±σ̂0 is that of this density. Values beyond ±``half_width``·σ̂0 are counted in
     the outermost bins (said in the legend).
     """
-    fig = Figure(figsize=(_WIDTH_IN, 3.0), layout="constrained")
+    fig = _figure(figsize=(_WIDTH_IN, 3.0), layout="constrained")
     axes = fig.subplots(1, 2, sharey=True)
     s = sigma0_px if sigma0_px and sigma0_px > 0 else float(np.std(np.concatenate([vx, vy])) or 1.0)
     edges = np.arange(-half_width, half_width + 1e-9, 1.0) * s
@@ -238,7 +248,7 @@ def control_error_figure(xy_m: np.ndarray, d_m: np.ndarray, role: np.ndarray, na
 
     ``d_m`` = adjusted - reference (n, 3); ``role`` "gcp" or "chk".
     """
-    fig = Figure(figsize=(_WIDTH_IN, 3.8), layout="constrained")
+    fig = _figure(figsize=(_WIDTH_IN, 3.8), layout="constrained")
     axes = fig.subplots(1, 2, sharex=True, sharey=True)
     unit, factor = length_unit(d_m)
     span = float(np.ptp(xy_m[:, 0]) + np.ptp(xy_m[:, 1])) / 2 if len(xy_m) > 1 else 1.0
@@ -268,7 +278,7 @@ def correlation_figure(names: list[str], rho: np.ndarray, title: str,
                        groups: Sequence[tuple[int, str]] = ()) -> Figure:
     """Correlation matrix as a heat map (−1 blue … +1 red); ``groups`` = (first index, label) separators."""
     n = len(names)
-    fig = Figure(figsize=(_WIDTH_IN, _WIDTH_IN * 0.82), layout="constrained")
+    fig = _figure(figsize=(_WIDTH_IN, _WIDTH_IN * 0.82), layout="constrained")
     ax = fig.add_subplot()
     image = ax.imshow(rho, cmap="RdBu_r", vmin=-1, vmax=1, interpolation="nearest")
     fig.colorbar(image, ax=ax, label="correlation ρ", shrink=0.85)
@@ -290,7 +300,7 @@ def correlation_figure(names: list[str], rho: np.ndarray, title: str,
 
 def precision_map_figure(xy_m: np.ndarray, sigma_m: np.ndarray, title: str) -> Figure:
     """A-posteriori σ_XY = sqrt(σX² + σY²) and σ_Z of the tie points, in plan."""
-    fig = Figure(figsize=(_WIDTH_IN, 3.6), layout="constrained")
+    fig = _figure(figsize=(_WIDTH_IN, 3.6), layout="constrained")
     axes = fig.subplots(1, 2, sharex=True, sharey=True)
     sxy = np.hypot(sigma_m[:, 0], sigma_m[:, 1])
     origin = xy_m.mean(axis=0) if len(xy_m) else np.zeros(2)
@@ -319,7 +329,7 @@ def comparison_figure(scenarios: list[str], models: list[str], values: dict[str,
     the small values stay readable next to those of ``none``.
     """
     panels = list(values)
-    fig = Figure(figsize=(_WIDTH_IN, 2.8 * len(panels) + 0.4), layout="constrained")
+    fig = _figure(figsize=(_WIDTH_IN, 2.8 * len(panels) + 0.4), layout="constrained")
     axes = np.atleast_1d(fig.subplots(len(panels), 1, sharex=True))
     width = 0.8 / max(len(models), 1)
     x = np.arange(len(scenarios))
@@ -345,7 +355,7 @@ def attitude_correction_figure(series: list[tuple[str, np.ndarray, np.ndarray, n
                                title: str) -> Figure:
     """The attitude corrections along the images: one panel per axis, one curve per image (``series``: image id,
     lines, values (n, axes) and sigmas (n, axes) in urad) with its +/- sigma band."""
-    fig = Figure(figsize=(_WIDTH_IN, 1.9 * len(axes) + 0.5), layout="constrained")
+    fig = _figure(figsize=(_WIDTH_IN, 1.9 * len(axes) + 0.5), layout="constrained")
     panels = fig.subplots(len(axes), 1, sharex=True, squeeze=False)[:, 0]
     for a, (ax, name) in enumerate(zip(panels, axes)):
         for k, (image_id, lines, values, sigmas) in enumerate(series):
@@ -364,7 +374,7 @@ def attitude_correction_figure(series: list[tuple[str, np.ndarray, np.ndarray, n
 def robust_weight_figure(weight: np.ndarray, u: np.ndarray, reject: float, title: str) -> Figure:
     """The robust cleaning's weights (left: how many observations ended with which weight, logarithmic counts) and
     the residual sizes u in robust sigmas (right), with the rejection threshold."""
-    fig = Figure(figsize=(_WIDTH_IN, 2.8), layout="constrained")
+    fig = _figure(figsize=(_WIDTH_IN, 2.8), layout="constrained")
     left, right = fig.subplots(1, 2)
     w = weight[np.isfinite(weight)]
     left.hist(np.clip(w, 0.0, 1.0), bins=np.linspace(0.0, 1.0, 21), color="C0", edgecolor="white")
@@ -392,7 +402,7 @@ def rejection_map_figure(images: list[tuple[str, np.ndarray, np.ndarray, np.ndar
     n = max(len(images), 1)
     columns = min(n, 3)
     rows = -(-n // columns)
-    fig = Figure(figsize=(_WIDTH_IN, 1.9 * rows + 0.6), layout="constrained")
+    fig = _figure(figsize=(_WIDTH_IN, 1.9 * rows + 0.6), layout="constrained")
     axes = np.atleast_1d(fig.subplots(rows, columns)).ravel()
     for ax, (name, kept, robust, snooped) in zip(axes, images):
         ax.scatter(kept[:, 0], kept[:, 1], s=0.3, color="0.75", rasterized=True)
@@ -428,7 +438,7 @@ def camera_layout_figure(points_xy_m: np.ndarray, images_per_point: np.ndarray, 
     """
     from matplotlib import colormaps
     from matplotlib.colors import BoundaryNorm
-    fig = Figure(figsize=(_WIDTH_IN, _WIDTH_IN * 0.72), layout="constrained")
+    fig = _figure(figsize=(_WIDTH_IN, _WIDTH_IN * 0.72), layout="constrained")
     ax = fig.add_subplot()
     origin = points_xy_m.mean(axis=0) if len(points_xy_m) else np.zeros(2)
     e, n = (points_xy_m - origin).T

@@ -102,6 +102,7 @@ def summary(tested, extra: dict | None = None, checks=None, view: ResultView | N
     gsd = ground_sample_distance(block, result)
     rmsd_xy = _rms(np.sum(d_chk[:, :2] ** 2, axis=1))
     rmsd_z = _rms(d_chk[:, 2] ** 2)
+    extrapolated = distortion_extrapolation(result)
     sig_xy = _rms(var[tie, 0] + var[tie, 1])
     sig_z = _rms(var[tie, 2])
     v = result.residuals_px
@@ -161,7 +162,8 @@ def summary(tested, extra: dict | None = None, checks=None, view: ResultView | N
             "converged": tested.variance_converged,
             "groups": [c.as_dict() for c in tested.variance_components]},
         "dropped": block.dropped.as_dict(),
-        "warnings": list(block.dropped.messages),
+        "distortion_extrapolation": [e.as_dict() for e in extrapolated],
+        "warnings": list(block.dropped.messages) + [e.warning for e in extrapolated if e.warning],
         "notes": list(result.notes),
         "seconds": result.seconds,
         "diagnosis": diagnosis(tested, checks, view),
@@ -249,9 +251,44 @@ def _sensor(result, camera_index: int):
                 if np.any(problem.image_camera[slot.images] == camera_index))
 
 
-def camera_json(block: Block, result) -> dict:
-    """camera.json: each camera's sensor parameters and AP coefficients with sigma (files' units)."""
+def distortion_extrapolation(result) -> list:
+    """The extrapolation of each frame camera's correction beyond its observations
+    (:mod:`selfcal.stats.extrapolation`)."""
+    from ..stats.extrapolation import extrapolation
+    problem = result.problem
+    cam_of = problem.image_camera[problem.obs_image]
+    out = []
+    for k, (cam, values) in enumerate(zip(problem.cameras, result.state.cameras)):
+        if getattr(cam.ap, "frame", None) is None or getattr(cam.ap, "domain", "frame") != "frame":
+            continue
+        out.append(extrapolation(cam.camera_id, cam.ap, values[cam.n_core:] * cam.free[cam.n_core:],
+                                 problem.obs_value[cam_of == k]))
+    return out
+
+
+def image_spreads(result) -> dict:
+    """(camera index, core parameter index) -> :class:`selfcal.stats.image_spread.ImageSpread` of every estimated
+    core parameter whose sensor marks it ``spread_by_image`` (a rolling shutter's readout)."""
+    from ..stats.image_spread import image_spread
+    out = {}
+    for k, cam in enumerate(result.problem.cameras):
+        for i, parameter in enumerate(_sensor(result, k).camera_parameters):
+            if parameter.spread_by_image and cam.free[i]:
+                spread = image_spread(result, k, i)
+                if spread is not None:
+                    out[k, i] = spread
+    return out
+
+
+def camera_json(block: Block, result, spreads: dict | None = None) -> dict:
+    """camera.json: each camera's sensor parameters and AP coefficients with sigma (files' units), and the
+    extrapolation of a frame camera's correction beyond its observations (``extrapolation``). A parameter the
+    images may see each with its own error (``spreads``, default :func:`image_spreads`) has the sigma with their
+    spread, and ``sigma_adjustment`` (the adjustment's alone), ``spread_between_images`` (beyond their noise),
+    ``images_chi2`` and ``images_dof`` (the test of their agreement)."""
     sigmas = result.camera_sigma()
+    spreads = image_spreads(result) if spreads is None else spreads
+    extrapolated = {e.camera_id: e.as_dict() for e in distortion_extrapolation(result)}
     cameras = {}
     for k, (cam, values, sigma) in enumerate(zip(result.problem.cameras, result.state.cameras, sigmas)):
         cfg = block.cameras[cam.camera_id]
@@ -269,6 +306,12 @@ def camera_json(block: Block, result) -> dict:
             entry[parameter.file_key] = {"value": float(values[i]) * factor,
                                          "sigma": None if np.isnan(sigma[i]) else float(sigma[i]) * factor,
                                          "estimated": bool(cam.free[i]), "unit": unit}
+            if (k, i) in spreads:
+                spread = spreads[k, i]
+                entry[parameter.file_key] |= {
+                    "sigma": spread.sigma_total * factor, "sigma_adjustment": spread.sigma_adjustment * factor,
+                    "spread_between_images": spread.spread * factor, "images_chi2": spread.chi2,
+                    "images_dof": spread.dof}
         nc = cam.n_core
         coefficients = [
             {"name": name, "value_px": float(values[nc + j]),
@@ -279,24 +322,31 @@ def camera_json(block: Block, result) -> dict:
         for j, c in enumerate(coefficients):
             if not cam.free[nc + j] and cam.prior_sigma[nc + j] == 0:
                 c["held"] = True                    # held at its given value (an imported calibration, --fixed)
-        entry["covariance"] = _camera_covariance(result, k, cam)
+        entry["covariance"] = _camera_covariance(result, k, cam, spreads)
         ap = {**cam.ap.to_dict(), "coefficient_unit": "px", "n_active": int(cam.free[nc:].sum())}
         if hasattr(cam.ap, "active_ranges"):
             # the translation ranges that remain after screening (Table 3 of seed 000)
             ap["active_ranges"] = cam.ap.active_ranges(cam.free[nc:])
         entry["ap"] = {**ap, "coefficients": coefficients}
+        if cam.camera_id in extrapolated:
+            entry["extrapolation"] = extrapolated[cam.camera_id]
         cameras[cam.camera_id] = entry
     return {"cameras": cameras}
 
 
-def _camera_covariance(result, k: int, cam) -> dict:
+def _camera_covariance(result, k: int, cam, spreads: dict) -> dict:
     """The full covariance of a camera's estimated parameters (files' units: c, x0, y0 in mm, APs in px), for
-    the exports that carry it through a fit into another tool's parameters (correlation.csv is rounded)."""
+    the exports that carry it through a fit into another tool's parameters (correlation.csv is rounded); the
+    images' spread of a parameter (:func:`image_spreads`) on its diagonal."""
     start = result.problem.d_offset[k]
     free = np.flatnonzero(cam.free)
     core = _sensor(result, k).camera_parameters
     factor = np.array([core[i].display[1] if i < cam.n_core else 1.0 for i in free])
     block = result.variance_factor * result.Q_theta[start:start + len(free), start:start + len(free)]
+    for (camera, i), spread in spreads.items():
+        if camera == k:
+            j = int(np.flatnonzero(free == i)[0])
+            block[j, j] = spread.sigma_total ** 2
     return {"parameters": [cam.names[i] for i in free],
             "matrix": (block * factor[:, None] * factor[None, :]).tolist()}
 
@@ -328,13 +378,16 @@ def image_table(block: Block, result, view: ResultView | None = None) -> CsvTabl
     return header, cols, fmts
 
 
-def parameter_table(result, view: ResultView | None = None) -> CsvTable:
+def parameter_table(result, view: ResultView | None = None, spreads: dict | None = None) -> CsvTable:
     """parameters.csv: every image and camera parameter with its start value and a-posteriori sigma, in the
     files' units: ``owner`` (image or camera id), ``parameter``, ``group`` (EOP, IOP, AP), ``value``, ``sigma``
-    (empty where held), ``start``, ``unit``, ``active`` (0: held, by the sensor model or screening); ``view``:
-    the image parameters in the block's CRS."""
+    (empty where held; with the images' spread where ``spreads``, as camera.json), ``start``, ``unit``, ``active``
+    (0: held, by the sensor model or screening); ``view``: the image parameters in the block's CRS."""
     from ..sensors.base import display_unit
     table = result.parameters()
+    from ..stats.image_spread import theta_index
+    for (k, i), spread in (spreads or {}).items():
+        table.sigma[table.index == theta_index(result.problem, k, i)] = spread.sigma_total
     if view is not None and view.plane is not None:
         _image_rows_in_crs(table, result, view)
     rows = np.flatnonzero(table.kind != "trajectory")          # (the trajectory terms: trajectory.csv)
@@ -496,7 +549,9 @@ def residual_table(block_read: Block, tested) -> CsvTable:
 
 def screening_json(tested, options=None) -> dict:
     """screening.json: which parameter was dropped (AP coefficient, calibration parameter, trajectory term),
-    in which round, and why."""
+    in which round, and why; ``prediction``: the cross-validated prediction error unscreened and screened and, per
+    group, what the screening removed and what that cost (+) or gained (-) (:class:`selfcal.stats.screening.
+    PredictionGuard`), or why it was not cross-validated."""
     n_kept = int(sum(int(v.sum()) for v in tested.ap_free.values()))
     return {
         "options": None if options is None else vars(options),
@@ -512,6 +567,7 @@ def screening_json(tested, options=None) -> dict:
                                          "f_critical": g.f_critical, "jointly_significant": g.jointly_significant}
                                         for g in j.groups]} if j.groups else {})}
                         for k, j in tested.screening_rounds],
+        "prediction": tested.screening_prediction,
     }
 
 
@@ -575,13 +631,14 @@ def result_files(block_read: Block, tested, summary_extra: dict | None = None, s
     in its CRS (:mod:`selfcal.report.frame`), the check points compared there."""
     result = tested.result
     view = ResultView.of(result, plane)
+    spreads = image_spreads(result)
     files = {
         "summary.json": summary(tested, summary_extra, checks, view),
-        "camera.json": camera_json(result.block, result),
+        "camera.json": camera_json(result.block, result, spreads),
         "images.csv": image_table(result.block, result, view),
         "points.csv": point_table(result.block, result, tested.tests, view),
         "residuals.csv": residual_table(block_read, tested),
-        "parameters.csv": parameter_table(result, view),
+        "parameters.csv": parameter_table(result, view, spreads),
         "screening.json": screening_json(tested, screening_options),
         "correlation.csv": correlation_table(result),
     }
@@ -649,25 +706,42 @@ def trajectory_table(result, plane=None) -> CsvTable:
 
 
 def model_choice_table(choice) -> CsvTable:
-    """model_choice.csv: every candidate of ``--ap auto`` with its score (selfcal.workflows.model_choice)."""
+    """model_choice.csv: every candidate of ``--ap auto`` with its scores (selfcal.workflows.model_choice): the
+    image-space BIC of the pre-filter (``field_bic``, with the coefficients it counted), and for the short-listed
+    candidates the cross-validated prediction error with its standard error over the folds (``cv_rmse_px``,
+    ``cv_se_px``; ``cv_se_diff_px`` of its difference to the best, the rule's), the same rays' fit (``fit_rmse_px``),
+    and the linearised adjustment's Omega, sigma0 and BIC."""
+    from ..stats.prediction import paired_se_px
     header = ["model", "grid", "n_camera_parameters", "n_observations", "n_unknowns", "omega", "sigma0_px",
-              "bic", "delta_bic", "chosen", "rmsd_chk_xy_m", "rmsd_chk_z_m", "error"]
+              "bic", "delta_bic", "field_bic", "field_coefficients", "cv_rmse_px", "cv_se_px", "cv_se_diff_px",
+              "fit_rmse_px", "chosen", "rmsd_chk_xy_m", "rmsd_chk_z_m", "error"]
     best = min((s.bic for s in choice.candidates if s.bic is not None), default=np.nan)   # nan: none converged
 
     def num(value):
         return np.nan if value is None else value
+
+    def cv(s, name):
+        return np.nan if s.prediction is None else getattr(s.prediction, name)
     rows = choice.candidates
+    scored = [s.prediction for s in rows if s.prediction is not None]
+    best_cv = min(scored, key=lambda p: p.rmse_px) if scored else None
     cols = [np.array([s.model for s in rows], dtype=object),
             np.array([f"{s.grid[0]}x{s.grid[1]}" if takes_grid(s.model) else "" for s in rows],
                      dtype=object),
             np.array([s.n_ap for s in rows]), np.array([s.n_observations for s in rows]),
             np.array([s.n_unknowns for s in rows]), np.array([s.omega for s in rows]),
             np.array([s.sigma0_px for s in rows]), np.array([num(s.bic) for s in rows]),
-            np.array([num(s.bic) - best for s in rows]),
+            np.array([num(s.bic) - best for s in rows]), np.array([num(s.field_bic) for s in rows]),
+            np.array([-1 if s.field_k is None else s.field_k for s in rows]),
+            np.array([cv(s, "rmse_px") for s in rows]), np.array([cv(s, "se_px") for s in rows]),
+            np.array([np.nan if s.prediction is None or best_cv is None else paired_se_px(s.prediction, best_cv)
+                      for s in rows]),
+            np.array([cv(s, "fit_px") for s in rows]),
             np.array([int(s.model == choice.model and s.grid == choice.grid) for s in rows]),
             np.array([num(s.rmsd_chk_xy_m) for s in rows]), np.array([num(s.rmsd_chk_z_m) for s in rows]),
             np.array([s.error.splitlines()[0].replace(",", ";") if s.error else "" for s in rows], dtype=object)]
-    fmts = ["", "", "d", "d", "d", ".3f", ".4f", ".2f", ".2f", "d", ".4f", ".4f", ""]
+    fmts = ["", "", "d", "d", "d", ".3f", ".4f", ".2f", ".2f", ".2f", "d", ".5f", ".5f", ".5f", ".5f", "d", ".4f", ".4f",
+            ""]
     return header, cols, fmts
 
 

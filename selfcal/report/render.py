@@ -575,6 +575,13 @@ def _camera_section(page: Page, results) -> None:
         coefficients = ap.get("coefficients", [])
         if not coefficients:
             continue
+        extra = cam.get("extrapolation")
+        if extra:
+            page.paragraph(f"Correction at most {extra['max_inside_px']:.2f} px over the observed area "
+                           f"({100 * extra['observed_share']:.0f} % of the frame's cells hold observations), "
+                           f"{extra['max_outside_px']:.2f} px where none lies"
+                           + (": extrapolated, not supported there." if extra.get("warning") else "."),
+                           "bad" if extra.get("warning") else "note")
         rows, ts = [], []
         for c in coefficients:
             value, sigma = c.get("value_px"), c.get("sigma_px")
@@ -639,6 +646,28 @@ def _joint_tests_section(page: Page, results) -> None:
     rows = [[g["group"], str(g["n_dropped"]), fmt(g["f_statistic"], ".3f"), fmt(g["f_critical"], ".3f"),
              "significant" if g["jointly_significant"] else "passes"] for g in groups]
     page.table(["group", "dropped", "F", "F critical", ""], rows, text_columns={0, 4}, ident="joint-tests")
+
+
+def _screening_prediction_section(page: Page, results) -> None:
+    """What the screening removed per group and what that cost or gained in the cross-validated prediction error
+    of held-out tie points (screening.json ``prediction``)."""
+    prediction = (results.screening or {}).get("prediction")
+    if not prediction:
+        return
+    page.heading("Screening: what it cost in prediction", 3)
+    if prediction.get("note"):
+        page.paragraph(prediction["note"], "note")
+        return
+    page.paragraph(f"Prediction error of held-out tie points ({prediction['n_folds']} folds, "
+                   f"{prediction['n_rays']} rays): {prediction['unscreened_cv_rmse_px']:.5f} ± "
+                   f"{prediction['unscreened_cv_se_px']:.5f} px unscreened, {prediction['screened_cv_rmse_px']:.5f} px "
+                   f"screened ({prediction['change_px']:+.6f} px). Per group: the error with that group's drops "
+                   "alone (+ a loss, − a gain), in the unscreened adjustment's linearisation."
+                   + (f" {prediction['stopped']}." if prediction.get("stopped") else ""), "note")
+    rows = [[g["group"], str(g["n_removed"]), fmt(g["cv_rmse_px"], ".5f"), fmt(g["change_px"], "+.6f")]
+            for g in prediction.get("groups", [])]
+    page.table(["group", "removed", "prediction error [px]", "change [px]"], rows, text_columns={0},
+               ident="screening-prediction")
 
 
 #: images drawn in the attitude-correction figure at most (all are in attitude_corrections.csv)
@@ -894,6 +923,7 @@ def render_report(results: ResultsFolder, title: str | None = None,
     _attitude_section(page, files, results)
     _trajectory_section(page, results)
     _joint_tests_section(page, results)
+    _screening_prediction_section(page, results)
     heading("Rejected observations", anchor="rejected")
     _robust_section(page, files, results)
     _rejected_section(page, results)

@@ -36,13 +36,20 @@ def rolling_shutter_section(page: Page, results) -> None:
             continue
         readout = cam.get("readout_ms") or {}
         state = "estimated" if readout.get("estimated") else "held (given, or screened out: a global shutter)"
+        chi2, dof = readout.get("images_chi2"), readout.get("images_dof")
         rows.append([camera_id, fmt(readout.get("value"), ".3f"), fmt(readout.get("sigma"), ".3f"),
+                     fmt(readout.get("sigma_adjustment"), ".3f"), fmt(readout.get("spread_between_images"), ".3f"),
+                     f"{chi2:.1f} / {dof}" if chi2 is not None and dof is not None else "–",
                      cam.get("readout_direction", "down"), state])
     page.paragraph("Each image's pose is that of its middle line, at its time; an image point on a line read "
                    "dt = (line − lines/2)/lines × readout later was seen from X0 + v·dt, v the image's velocity from "
-                   "its strip's positions and times (rolling_shutter.csv, with the values of every image).", "note")
-    page.table(["camera", "readout [ms]", "σ [ms]", "lines read", ""], rows, text_columns={0, 3, 4},
-               ident="rolling-readout")
+                   "its strip's positions and times (rolling_shutter.csv, with the values of every image). The "
+                   "velocities are data with errors of their own, which the adjustment's σ does not know: an image "
+                   "whose velocity is 2 % off sees a readout 2 % off. σ adds the spread of the images' own readouts "
+                   "beyond their noise (χ² of their agreement over its degrees of freedom) to the adjustment's "
+                   "σ.", "note")
+    page.table(["camera", "readout [ms]", "σ [ms]", "σ of the adjustment [ms]", "spread between images [ms]",
+                "images' χ² / dof", "lines read", ""], rows, text_columns={0, 5, 6, 7}, ident="rolling-readout")
     strips = list(dict.fromkeys(table["strip_id"].tolist()))
     shear = np.column_stack([table["shear_col_px"], table["shear_row_px"]])
     per_strip: list[list[str]] = []

@@ -72,6 +72,10 @@ class Parameter:
     #: what screening tests it against and holds it at, where that is not its start value (a rolling shutter's
     #: readout: 0, the global shutter); None: its start value
     reference: float | None = None
+    #: it enters each image's equations through data of the image that carry errors of their own (a rolling
+    #: shutter's readout, through the image's velocity): its sigma in the results adds the spread of the images' own
+    #: values beyond their noise (:mod:`selfcal.stats.image_spread`)
+    spread_by_image: bool = False
 
     @property
     def display(self) -> tuple[str, float]:

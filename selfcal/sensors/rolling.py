@@ -204,7 +204,8 @@ class RollingFrameSensor(FrameSensor):
     name = "frame-rolling"
     selectable = False
     camera_parameters = FrameSensor.camera_parameters + (
-        Parameter("readout", "ms", "IOP", screened=True, key="readout_ms", reference=0.0),)
+        Parameter("readout", "ms", "IOP", screened=True, key="readout_ms", reference=0.0,
+                  spread_by_image=True),)
 
     def bind(self, problem, block, o, pixel, sigma_px, options):
         return RollingFrameBound(problem, block, o, pixel, sigma_px)

@@ -1,4 +1,17 @@
 """Synthetic blocks with known truth, for tests, benchmarks and the demo."""
-from .uav import DISTORTIONS, FLIGHTS, SCENARIOS, TrueDistortion, UAVSimulation, UAVTruth, simulate_uav, truth_files
+from typing import TYPE_CHECKING
 
-__all__ = ["simulate_uav", "truth_files", "UAVSimulation", "UAVTruth", "TrueDistortion", "SCENARIOS", "DISTORTIONS", "FLIGHTS"]
+from ..lazy import attach
+from .names import DISTORTIONS, FLIGHTS, SCENARIOS
+
+#: module -> the public names it defines (imported on first use: ``simulate --help`` reads only :mod:`.names`)
+_MODULES = {
+    ".uav": ("TrueDistortion", "UAVSimulation", "UAVTruth", "simulate_uav", "truth_files"),
+}
+__getattr__, __dir__ = attach(__name__, _MODULES)
+
+if TYPE_CHECKING:
+    from .uav import TrueDistortion, UAVSimulation, UAVTruth, simulate_uav, truth_files
+
+__all__ = ["simulate_uav", "truth_files", "UAVSimulation", "UAVTruth", "TrueDistortion", "SCENARIOS", "DISTORTIONS",
+           "FLIGHTS"]

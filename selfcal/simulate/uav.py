@@ -20,7 +20,10 @@ differ in which marks are control and whether the trajectory is observed.
 
 The camera's true interior orientation differs from its nominal one, and the
 image measurements carry a systematic distortion field (``none``, ``brown``,
-``local``, ``local+brown``), Gaussian noise and optionally blunders. The
+``local``, ``local+brown``, ``ripple``, ``edge``), Gaussian noise and optionally blunders. The fields span three
+spatial scales: Brown's over the whole frame, local bumps a few hundred pixels wide, and ripples of a higher
+spatial frequency than seed 000's 9 x 6 grid (``ripple``) or confined to the frame's border (``edge``); none but
+the first is represented exactly by an AP family. The
 trajectory observations carry a per-strip shift and a linear drift (Eq. 12 of
 seed 000) plus noise.
 """
@@ -34,17 +37,12 @@ from numpy.typing import ArrayLike
 from ..block import Block, Dropped, FrameCamera, Images, Observations, Points, prune
 from ..geometry.rotation import matrix_from_opk, opk_from_matrix
 from ..sensors.frame import pixel_from_photo, project
+from .names import DISTORTIONS, FLIGHTS, SCENARIOS
 from .trajectory import TrajectoryErrors, TrajectoryTruth, draw_trajectory_errors
 
 __all__ = ["TrueDistortion", "UAVTruth", "UAVSimulation", "simulate_uav", "truth_files", "SCENARIOS", "DISTORTIONS",
            "FLIGHTS"]
 
-SCENARIOS = ("type1", "type2", "type3", "type4")
-DISTORTIONS = ("none", "brown", "local", "local+brown")
-#: seed000: the camera turns with the aircraft at the end of a strip (kappa 0 / 180°); serpentine: the same strips
-#: flown with a fixed heading (the camera moves forwards on one strip, backwards on the next); corridor: two long
-#: strips out and back with a fixed heading
-FLIGHTS = ("seed000", "serpentine", "corridor")
 #: the a-priori readout a simulated rolling-shutter camera declares: the value of a camera nobody measured (ODM's
 #: default guess, selfcal.convert.rolling) with a wide sigma
 DECLARED_READOUT_MS, DECLARED_SIGMA_READOUT_MS = 30.0, 30.0
@@ -59,13 +57,20 @@ class TrueDistortion:
     """A known distortion field Delta (pixels, photo axes), observed = ideal + Delta.
 
     ``brown`` holds k1, k2 (mm^-2, mm^-4), p1, p2 (mm^-1) about the principal
-    point; ``bumps`` are Gaussian displacements (x_mm, y_mm, sigma_mm, dx_px, dy_px).
+    point; ``bumps`` are Gaussian displacements (x_mm, y_mm, sigma_mm, dx_px, dy_px); ``waves`` plane waves
+    (dx_px, dy_px, kx, ky per mm, phase): (dx, dy) sin(2 pi (kx x + ky y) + phase); ``edges`` ripples along the
+    frame's border (amplitude_px, decay_mm, wavelength_mm): dx = a exp(-d / decay) sin(2 pi y / wavelength),
+    dy = a exp(-d / decay) sin(2 pi x / wavelength), d the distance to the nearest edge of the frame of half size
+    ``half_size_mm``.
     """
 
     pixel_size_mm: float
     principal_point_mm: tuple[float, float] = (0.0, 0.0)
     brown: dict | None = None
     bumps: tuple[tuple[float, float, float, float, float], ...] = ()
+    waves: tuple[tuple[float, float, float, float, float], ...] = ()
+    edges: tuple[tuple[float, float, float], ...] = ()
+    half_size_mm: tuple[float, float] = (0.0, 0.0)
 
     def displacement_px(self, x_mm: ArrayLike, y_mm: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         x_mm, y_mm = np.asarray(x_mm, float), np.asarray(y_mm, float)
@@ -82,11 +87,21 @@ class TrueDistortion:
             g = np.exp(-((x_mm - cx) ** 2 + (y_mm - cy) ** 2) / (2 * s * s))
             dx += ax * g
             dy += ay * g
+        for ax, ay, kx, ky, phase in self.waves:
+            wave = np.sin(2 * np.pi * (kx * x_mm + ky * y_mm) + phase)
+            dx += ax * wave
+            dy += ay * wave
+        for amplitude, decay, wavelength in self.edges:
+            d = np.minimum(self.half_size_mm[0] - np.abs(x_mm), self.half_size_mm[1] - np.abs(y_mm))
+            g = amplitude * np.exp(-np.clip(d, 0.0, None) / decay)
+            dx += g * np.sin(2 * np.pi * y_mm / wavelength)
+            dy += g * np.sin(2 * np.pi * x_mm / wavelength)
         return dx, dy
 
     def as_dict(self) -> dict:
         return {"pixel_size_mm": self.pixel_size_mm, "principal_point_mm": list(self.principal_point_mm),
-                "brown": self.brown, "bumps": [list(b) for b in self.bumps]}
+                "brown": self.brown, "bumps": [list(b) for b in self.bumps], "waves": [list(w) for w in self.waves],
+                "edges": [list(e) for e in self.edges], "half_size_mm": list(self.half_size_mm)}
 
 
 @dataclass
@@ -129,11 +144,14 @@ def _terrain(x, y):
             + 6.0 * np.sin(2 * np.pi * (x + 0.6 * y) / 260.0))
 
 
-def _distortion(name: str, pixel_size_mm: float, pp: tuple[float, float], scale: float = 1.0) -> TrueDistortion:
+def _distortion(name: str, pixel_size_mm: float, pp: tuple[float, float], scale: float = 1.0,
+                half_size_mm: tuple[float, float] = (17.7, 11.8)) -> TrueDistortion:
     if name not in DISTORTIONS:
         raise ValueError(f"unknown distortion field '{name}' (known: {', '.join(DISTORTIONS)})")
     brown = None
     bumps: tuple = ()
+    waves: tuple = ()
+    edges: tuple = ()
     if "brown" in name:
         # about -11 px of radial distortion in the corners, 1 px decentering
         brown = {k: scale * v for k, v in {"k1": -9.1e-6, "k2": 5.0e-9, "p1": 4.0e-6, "p2": -3.0e-6}.items()}
@@ -141,7 +159,15 @@ def _distortion(name: str, pixel_size_mm: float, pp: tuple[float, float], scale:
         # a non-stationary defect near the upper-right corner and a weaker one at the left edge
         bumps = tuple((x, y, s, scale * dx, scale * dy)
                       for x, y, s, dx, dy in ((12.5, 7.0, 3.5, 2.4, -1.6), (-14.0, -2.0, 2.5, -1.2, 0.9)))
-    return TrueDistortion(pixel_size_mm, pp, brown, bumps)
+    if name == "ripple":
+        # two plane waves of 500 and 430 px wavelength (12 and 14 periods across the frame: finer than a 9 x 6
+        # grid's cells of 667 px), 0.8 and 0.6 px
+        waves = tuple((scale * ax, scale * ay, kx, ky, phase) for ax, ay, kx, ky, phase in
+                      ((0.8, 0.3, 1 / 2.95, 0.08, 0.4), (-0.2, 0.6, 0.05, 1 / 2.54, 1.3)))
+    if name == "edge":
+        # a 2 px ripple of 600 px wavelength along the border, decaying inwards over 150 px
+        edges = ((scale * 2.0, 150 * pixel_size_mm, 600 * pixel_size_mm),)
+    return TrueDistortion(pixel_size_mm, pp, brown, bumps, waves, edges, half_size_mm)
 
 
 def simulate_uav(seed: int = 0, distortion: str = "local+brown", image_sigma_px: float = 0.5,
@@ -154,14 +180,14 @@ def simulate_uav(seed: int = 0, distortion: str = "local+brown", image_sigma_px:
                  trajectory_errors: TrajectoryErrors | None = None, exposure_interval_s: float | None = None,
                  declare_mounting: bool = False, flight: str = "seed000", speed_mps: float = 8.0,
                  rolling_shutter_ms: float = 0.0, velocity_noise_mps: float = 0.1,
-                 noise_seed: int | None = None) -> UAVSimulation:
+                 noise_seed: int | None = None, tilt_deg: float = 0.0) -> UAVSimulation:
     """Simulate the seed-000 block; returns the four scenario blocks and the truth.
 
     Parameters
     ----------
     seed : int
         Random seed: the same seed gives the same block.
-    distortion : {"none", "brown", "local", "local+brown"}
+    distortion : {"none", "brown", "local", "local+brown", "ripple", "edge"}
     distortion_scale : float
         Multiplies the whole field (1: about -11 px of radial distortion in the corners and local
         bumps of 2-3 px).
@@ -205,6 +231,9 @@ def simulate_uav(seed: int = 0, distortion: str = "local+brown", image_sigma_px:
         and trajectory are those of the global shutter's). The blocks declare ``shutter = "rolling"`` with the readout a camera nobody measured gets
         (:data:`DECLARED_READOUT_MS` +- :data:`DECLARED_SIGMA_READOUT_MS`). Image points that the motion moves off the
         frame are left out (and the blocks pruned, :func:`selfcal.block.prune`, where that leaves a point with one ray).
+    tilt_deg : float
+        Convergent images: each image pitched forwards and backwards along its strip in turn by this angle (its phi
+        +tilt, -tilt, ...; 0: seed 000's nadir block). The draws of a seed are the nadir block's.
     noise_seed : int, optional
         Draw the image measurement noise and the marks' survey noise from a generator of their own: every
         ``noise_seed`` gives the same block (images, points, which point is seen where, blunders,
@@ -225,7 +254,8 @@ def simulate_uav(seed: int = 0, distortion: str = "local+brown", image_sigma_px:
     if flight == "corridor":
         n_strips, images_per_strip = 2, 2 * images_per_strip
     true_cam = FrameCamera("ilce7m3", width_px, height_px, pixel, focal_mm=20.962, x0_mm=0.034, y0_mm=-0.021)
-    field_ = _distortion(distortion, pixel, (true_cam.x0_mm, true_cam.y0_mm), distortion_scale)
+    field_ = _distortion(distortion, pixel, (true_cam.x0_mm, true_cam.y0_mm), distortion_scale,
+                         (0.5 * nominal.width_mm, 0.5 * nominal.height_mm))
     agl = 215.0
     scale = agl / true_cam.focal_mm                                     # m per mm
     foot_x, foot_y = nominal.width_mm * scale, nominal.height_mm * scale
@@ -258,6 +288,11 @@ def simulate_uav(seed: int = 0, distortion: str = "local+brown", image_sigma_px:
     times = np.array(time_rows)
     strip_of = np.array(strip_rows)
     n_img = len(image_id)
+    if tilt_deg:
+        if not 0.0 < tilt_deg <= 30.0:
+            raise ValueError(f"tilt_deg must be in (0, 30], not {tilt_deg}")
+        within = np.array([np.count_nonzero(strip_of[:i] == strip_of[i]) for i in range(n_img)])
+        eop[:, 4] += np.radians(tilt_deg) * np.where(within % 2 == 0, 1.0, -1.0)
 
     # --- object points: tie points over the covered area, and 39 marks
     x_lo, x_hi = -foot_x / 2, (per_strip - 1) * base + foot_x / 2
@@ -315,7 +350,8 @@ def simulate_uav(seed: int = 0, distortion: str = "local+brown", image_sigma_px:
     pt_parts: list[np.ndarray] = []
     pix_parts: list[np.ndarray] = []
     off_parts: list[np.ndarray] = []
-    half = 0.75 * max(foot_x, foot_y)                # beyond any footprint (tilts of a few degrees)
+    # beyond any footprint (tilts of a few degrees, and the convergent images' along their strip)
+    half = 0.75 * max(foot_x, foot_y) + agl * np.tan(np.radians(tilt_deg))
     order = np.argsort(xyz_true[:, 0], kind="stable")
     x_sorted = xyz_true[order, 0]
     for i in range(n_img):

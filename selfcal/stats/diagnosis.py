@@ -22,7 +22,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 
 import numpy as np
-from scipy import stats
+from .distributions import chi2_isf, chi2_sf, ncx2_sf, normal_ppf, t_isf, t_sf
 
 __all__ = ["FieldTest", "DomeTest", "residual_field_test", "residual_field_tests", "dome_test", "findings", "ALPHA",
            "FIELD_GRIDS", "PRACTICAL_FIELD_PX"]
@@ -87,8 +87,8 @@ class DomeTest:
 def _noncentrality(dof: int, alpha: float = ALPHA, power: float = POWER) -> float:
     """The non-centrality at which a chi^2(dof) test at ``alpha`` rejects with ``power``."""
     from scipy.optimize import brentq
-    critical = stats.chi2.isf(alpha, dof)
-    return float(brentq(lambda lam: stats.ncx2.sf(critical, dof, lam) - power, 1e-9, 1e6))
+    critical = chi2_isf(alpha, dof)
+    return float(brentq(lambda lam: ncx2_sf(critical, dof, lam) - power, 1e-9, 1e6))
 
 
 def _morans_i(values: np.ndarray, cells: np.ndarray, grid: tuple[int, int], rng) -> tuple[float | None, float | None]:
@@ -139,13 +139,13 @@ def residual_field_test(camera_id: str, col_px: np.ndarray, row_px: np.ndarray, 
     length = np.hypot(mean[:, 0], mean[:, 1])
     worst = int(np.argmax(length))
     detectable = float(np.sqrt(2.0 * _noncentrality(dof, alpha) / np.sum(1.0 / var)))  # vector RMS, equal axes
-    critical = float(stats.chi2.isf(alpha, dof))
-    zone_critical = float(stats.chi2.isf(alpha / len(kept), 2))
+    critical = float(chi2_isf(alpha, dof))
+    zone_critical = float(chi2_isf(alpha / len(kept), 2))
     largest = int(np.argmax(per_zone))
     moran, moran_p = _morans_i(mean / np.sqrt(var), kept, grid, np.random.default_rng(seed))
     significant = statistic > critical or float(per_zone[largest]) > zone_critical
     found = significant and float(length[worst]) >= PRACTICAL_FIELD_PX
-    return FieldTest(camera_id, (gx, gy), len(kept), statistic, critical, float(stats.chi2.sf(statistic, dof)),
+    return FieldTest(camera_id, (gx, gy), len(kept), statistic, critical, float(chi2_sf(statistic, dof)),
                      float(per_zone[largest]), zone_critical,
                      float(length[worst]), (int(kept[worst] % gx), int(kept[worst] // gx)),
                      float(np.sqrt(np.mean(length ** 2))), detectable, moran, moran_p, found)
@@ -182,12 +182,12 @@ def dome_test(xy_m: np.ndarray, dz_m: np.ndarray, centre_xy_m: np.ndarray) -> Do
     sigma_b = float(np.sqrt(s2 * q[1, 1]))
     b = float(coef[1])
     t = b / sigma_b if sigma_b > 0 else 0.0
-    critical = float(stats.t.isf(ALPHA / 2, dof))
+    critical = float(t_isf(ALPHA / 2, dof))
     # the shift of t at which |t| > critical with POWER (t's critical value plus the normal quantile of the power:
     # the non-central t's own quantiles fail numerically at a few points and differ little)
-    delta = critical + float(stats.norm.ppf(POWER))
+    delta = critical + float(normal_ppf(POWER))
     r_max2 = float(np.max(r2))
-    return DomeTest(n, b, sigma_b, t, critical, float(2 * stats.t.sf(abs(t), dof)), float(np.sqrt(r_max2)),
+    return DomeTest(n, b, sigma_b, t, critical, float(2 * t_sf(abs(t), dof)), float(np.sqrt(r_max2)),
                     b * r_max2, sigma_b * r_max2, delta * sigma_b * r_max2, abs(t) > critical)
 
 

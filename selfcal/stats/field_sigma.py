@@ -31,7 +31,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy import stats
+from .distributions import chi2_isf, chi2_sf
 
 if TYPE_CHECKING:
     from ..adjust import AdjustmentResult
@@ -154,8 +154,8 @@ def compare_calibrations(a1: np.ndarray, covariance1: np.ndarray, a2: np.ndarray
         keep = w > DEFECT_TOLERANCE * w.max()
         z = V[:, keep].T @ (d / scale)
         statistic, dof = float(np.sum(z * z / w[keep])), int(keep.sum())
-    p = float(stats.chi2.sf(statistic, dof)) if dof else 1.0
-    critical = float(stats.chi2.isf(alpha, dof)) if dof else float("nan")
+    p = float(chi2_sf(statistic, dof)) if dof else 1.0
+    critical = float(chi2_isf(alpha, dof)) if dof else float("nan")
     field = np.column_stack([np.atleast_2d(bx) @ d, np.atleast_2d(by) @ d]) if k else np.zeros((len(bx), 2))
     cov = field_covariance(bx, by, C)
     sigma = np.column_stack([cov.sigma_x, cov.sigma_y])

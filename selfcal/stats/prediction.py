@@ -146,6 +146,8 @@ class PredictionPath:
     def __init__(self, systems, sigma_px: float):
         self.systems, self.sigma_px = systems, sigma_px
         self.used = np.flatnonzero(systems.dof > 0)
+        if self.used.size < 2:
+            raise ValueError("cross-validation needs tie points with at least two rays in two folds")
         self.Q = [_inverse(systems.S if f is None else systems.S - systems.C[f], systems.free_network)
                   for f in [None, *self.used]]
         self.delta = [Q @ (systems.g if f is None else systems.g - systems.b[f])

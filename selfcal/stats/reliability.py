@@ -23,7 +23,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import norm
+from .distributions import normal_ppf
 
 __all__ = ["ObservationTests", "observation_tests", "noncentrality"]
 
@@ -32,7 +32,7 @@ POWER = 0.80
 
 def noncentrality(critical: float, power: float = POWER) -> float:
     """delta0 of Baarda's test: the blunder (in sigma) detected with probability ``power``."""
-    return float(critical + norm.ppf(power))
+    return float(critical + normal_ppf(power))
 
 
 @dataclass

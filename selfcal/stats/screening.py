@@ -58,13 +58,25 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import f as f_distribution
+from .distributions import f_ppf
 
 from ..adjust import parameter_table
+from ..adjust.linalg import rank_one_update
+from ..ap.wavelet import MIN_OBSERVATIONS
 from .correlation import parameter_groups
+from .effect import MIN_EFFECT_PX, effect_tracker
+from .prediction import PredictionPath, paired_se_px
 from .trajectory_screening import TRAJECTORY_SIGNIFICANCE, GroupGuards
 
-__all__ = ["ScreeningOptions", "ScreeningDecision", "ScreeningRound", "screen_once", "screening_masks"]
+#: a coefficient of a local basis is determined only by the observations in its support: at least this many, the
+#: count that qualifies a wavelet translation (selfcal.ap.wavelet.MIN_OBSERVATIONS). With fewer its estimate rests on
+#: a handful of rays (a 2-observation WAP of a real block: -4694 +- 1739 px), and a blunder among them is absorbed
+#: rather than found: with n rays of weight phi^2 ~ 0.25 in the support a blunder moves the coefficient by about
+#: 4 / n of itself, a tenth at 40, half at 8
+MIN_SUPPORT = MIN_OBSERVATIONS
+
+__all__ = ["ScreeningOptions", "ScreeningDecision", "ScreeningRound", "screen_once", "screening_masks",
+           "PredictionGuard", "MIN_SUPPORT", "GUARD_LIMIT"]
 
 
 @dataclass(frozen=True)
@@ -79,12 +91,24 @@ class ScreeningOptions:
     trajectory_significance: float | None = TRAJECTORY_SIGNIFICANCE
     #: w above which a strip's GNSS/IMU observation after a drop refuses it
     trajectory_w_critical: float = 3.0
+    #: an AP coefficient stays only if holding it moves some adjusted image coordinate over the observed area by at
+    #: least this much (px; 0: no test of practical significance; selfcal.stats.effect)
+    min_effect_px: float = MIN_EFFECT_PX
+    #: an AP coefficient of a local basis (a WAP) stays only if its support holds at least this many observations
+    min_support: int = MIN_SUPPORT
+    #: the screened set must predict held-out tie points no worse than the unscreened one: screening stops at the
+    #: drop where the cross-validated prediction error would exceed the unscreened adjustment's (tested workflow)
+    cross_validate: bool = True
 
     def __post_init__(self):
         if self.significance < 0:
             raise ValueError(f"the significance threshold must not be negative, found {self.significance}")
         if not 0 < self.max_correlation <= 1:
             raise ValueError(f"the correlation threshold must be in (0, 1], found {self.max_correlation}")
+        if self.min_effect_px < 0:
+            raise ValueError(f"the smallest effect must not be negative, found {self.min_effect_px}")
+        if self.min_support < 0:
+            raise ValueError(f"the smallest support must not be negative, found {self.min_support}")
 
 
 @dataclass(frozen=True)
@@ -95,6 +119,7 @@ class ScreeningDecision:
     reason: str
     value: float = float("nan")     # the estimate when dropped (unit of the parameter: px, m, rad, ...)
     sigma: float = float("nan")     # its a-posteriori sigma then
+    parameter: str = ""             # its name among the adjustment's unknowns (AdjustmentResult.theta_names)
 
 
 @dataclass(frozen=True)
@@ -114,6 +139,9 @@ class ScreeningRound:
     #: (name, value, sigma) of every trajectory term in the adjustment before any screening (kept for the later
     #: rounds: a term significant there is never dropped, see selfcal.stats.trajectory_screening)
     reference: tuple[tuple[str, float, float], ...] = ()
+    #: how far the coefficients dropped for their small effect moved a sampled ray or point together (px; summed
+    #: over the rounds' largest moves): the practical test's joint guard
+    effect_moved_px: float = 0.0
 
     @property
     def f_statistic(self) -> float:
@@ -155,7 +183,7 @@ def _screenable(problem) -> tuple[dict[int, tuple], np.ndarray]:
             reference[column] = table.reference[k]
         if table.screenable[k] and (table.kind[k] != "image" or table.free[k]):
             owner[column] = (table.key[k], int(table.position[k]), str(table.name[k]), str(table.owner[k]),
-                             table.kind[k] != "trajectory")
+                             table.kind[k] != "trajectory", str(table.kind[k]))
     return owner, reference
 
 
@@ -167,6 +195,7 @@ class _Elimination:
         self.Q = np.array(Q, dtype=float)    # a copy; dense (a BandedCofactor of a large block included)
         self.omega0 = self.omega = omega
         self.redundancy = redundancy
+        self.followers: list = []           # told of each drop before its sweep (EffectTracker.drop(i, q))
 
     @property
     def variance_factor(self) -> float:
@@ -178,9 +207,11 @@ class _Elimination:
     def drop(self, i: int):
         q = self.Q[:, i].copy()
         qii = q[i]
+        for follower in self.followers:
+            follower.drop(i, q)
         self.omega += self.theta[i] ** 2 / qii
         self.theta -= q * (self.theta[i] / qii)
-        self.Q -= np.outer(q, q / qii)
+        rank_one_update(self.Q, -1.0 / qii, q, q)
         self.Q[i, :] = 0.0
         self.Q[:, i] = 0.0
         self.Q[i, i] = 1.0          # keeps the diagonal positive; index i is never tested again
@@ -188,12 +219,14 @@ class _Elimination:
         self.redundancy += 1
 
 
-def screen_once(result, options: ScreeningOptions, before: ScreeningRound | None = None
+def screen_once(result, options: ScreeningOptions, before: ScreeningRound | None = None,
+                max_drops: int | None = None
                 ) -> tuple[dict[str, np.ndarray], list[ScreeningDecision], ScreeningRound | None]:
     """One round of screening: backward elimination on the linearised block of ``result``.
 
     ``before`` is the joint record of the earlier rounds: the guard tests
     everything dropped since the unscreened adjustment, not only this round.
+    ``max_drops``: the round stops after that many drops (the cross-validation's guard, in the tested workflow).
 
     Returns
     -------
@@ -211,21 +244,38 @@ def screen_once(result, options: ScreeningOptions, before: ScreeningRound | None
     is_ap[[k for k, o in owner.items() if o[4]]] = True
     orientation = np.concatenate([groups["IOP"], groups["EOP"]]).astype(np.int64)
     orientation = orientation[~is_ap[orientation] & _active(problem)[orientation]]
+    partners = np.concatenate([orientation, groups["GNSS"], groups["IMU"]]).astype(np.int64)
     state = _Elimination(problem.pack(result.state) - reference, result.Q_theta,
                          result.variance_factor * result.redundancy, result.redundancy)
     guards = GroupGuards(result, state, options, before, owner)
     active = np.array(sorted(owner), dtype=np.int64)
+    is_coefficient = np.zeros(problem.n_theta, bool)     # the cameras' AP coefficients (practical significance)
+    is_coefficient[[k for k, o in owner.items() if o[5] == "ap"]] = True
+    effects = effect_tracker(result, state.Q) if options.min_effect_px > 0 and is_coefficient.any() else None
+    if effects is not None:
+        state.followers.append(effects)
     decisions: list[ScreeningDecision] = []
 
     def drop(index: int, t: float, reason: str):
         nonlocal active
-        key, position, name, label, _ = owner[index]
+        key, position, name, label = owner[index][:4]
         free[key][position] = False
         sigma = float(np.sqrt(state.variance_factor * state.Q[index, index]))
-        decisions.append(ScreeningDecision(label, name, t, reason, float(state.theta[index]), sigma))
+        decisions.append(ScreeningDecision(label, name, t, reason, float(state.theta[index]), sigma,
+                                           result.theta_names[index]))
         guards.record(index)
         state.drop(index)
         active = active[active != index]
+
+    def full() -> bool:
+        return max_drops is not None and len(decisions) >= max_drops
+
+    if before is None and options.min_support > 0:
+        # the first round: the coefficients of local functions that too few observations determine
+        for index, count in _support(problem, owner, is_coefficient):
+            if count < options.min_support and not full():
+                drop(index, float(state.t(np.array([index]))[0]),
+                     f"its support holds {count} observations (< {options.min_support})")
 
     n_before = before.n_dropped if before else 0
     increase_before = before.increase if before else 0.0
@@ -272,15 +322,46 @@ def screen_once(result, options: ScreeningOptions, before: ScreeningRound | None
             protected.add(index)
         return False
 
-    while active.size:
-        if significance_step():
+    moved: list[np.ndarray | None] = [None]      # the sampled rays' and points' move by this round's effect drops (px)
+    allowance = options.min_effect_px - (before.effect_moved_px if before else 0.0)
+
+    def effect_step() -> bool:
+        """Drop the AP coefficient of the smallest effect if it is below ``min_effect_px`` and the coefficients
+        dropped for their effect (in this round and before) stay below it together: each alone may be nothing, but
+        twenty WAPs of 0.03-0.1 px each dropped from a Brown field made the check-point heights 23 % worse. A set
+        that matters together keeps its members, whose effects grow as their partners go."""
+        if effects is None:
+            return False
+        coefficients = active[is_coefficient[active]]
+        if not coefficients.size:
+            return False
+        size = effects.effects_px(coefficients, state.theta, np.diag(state.Q))
+        k = int(np.argmin(size))
+        if size[k] >= options.min_effect_px:
+            return False
+        index = int(coefficients[k])
+        move = effects.move_px(index, state.theta, np.diag(state.Q))
+        together = move if moved[0] is None else moved[0] + move
+        if effects.largest_px(together) >= allowance:
+            return False
+        moved[0] = together
+        drop(index, float(state.t(np.array([index]))[0]),
+             f"its effect is {size[k]:.3f} px over the observed area (< {options.min_effect_px:g} px)")
+        return True
+
+    while active.size and not full():
+        if significance_step() or effect_step():
             continue
         ap = active[is_ap[active]]
-        pick = _most_correlated(state.Q, ap, orientation, options.max_correlation, state.t(ap),
+        pick = _most_correlated(state.Q, ap, partners, options.max_correlation, state.t(ap),
                                 guards.ap_jointly_insignificant(ap))
         if pick is None:
             break
         a, other, rho = pick
+        if other < 0:                                      # traded with the orientation and trajectory terms together
+            drop(a, float(state.t(np.array([a]))[0]), f"its estimate is {rho:.3f} correlated with the orientation "
+                 "and trajectory terms together (multiple correlation)")
+            continue
         if is_ap[other]:                                   # a pair of APs: the less significant goes
             t_a, t_o = state.t(np.array([a, other]))
             weaker, stronger, t_w = (a, other, t_a) if t_a <= t_o else (other, a, t_o)
@@ -291,8 +372,10 @@ def screen_once(result, options: ScreeningOptions, before: ScreeningRound | None
     if not decisions:
         return free, [], None
     n = n_before + len(decisions)
-    joint = ScreeningRound(n, float(increase()), float(f_distribution.ppf(1 - alpha, n, result.redundancy)),
-                           groups=guards.records() if guards.grouped else (), reference=guards.reference)
+    joint = ScreeningRound(n, float(increase()), float(f_ppf(1 - alpha, n, result.redundancy)),
+                           groups=guards.records() if guards.grouped else (), reference=guards.reference,
+                           effect_moved_px=(before.effect_moved_px if before else 0.0)
+                           + (effects.largest_px(moved[0]) if effects is not None and moved[0] is not None else 0.0))
     return free, decisions, joint
 
 
@@ -303,15 +386,32 @@ def _active(problem) -> np.ndarray:
     return out
 
 
-def _most_correlated(Q: np.ndarray, ap: np.ndarray, orientation: np.ndarray, threshold: float,
+def _support(problem, owner: dict, is_coefficient: np.ndarray) -> list[tuple[int, int]]:
+    """(theta index, observations in its support) of every free AP coefficient of a local basis, fewest first."""
+    out = []
+    cam_of = problem.image_camera[problem.obs_image]
+    by_key = {(o[0], o[1]): k for k, o in owner.items() if is_coefficient[k]}
+    for c, cam in enumerate(problem.cameras):
+        xy = problem.obs_value[cam_of == c]
+        counts = cam.ap.support_counts(xy[:, 0], xy[:, 1]) if cam.ap.n_params and len(xy) else None
+        if counts is None:
+            continue
+        out += [(by_key[(cam.camera_id, j)], int(n)) for j, n in enumerate(counts) if (cam.camera_id, j) in by_key]
+    return sorted(out, key=lambda item: item[1])
+
+
+def _most_correlated(Q: np.ndarray, ap: np.ndarray, partners: np.ndarray, threshold: float,
                      t: np.ndarray, droppable: np.ndarray):
-    """(AP index, other index, |rho|) of the largest |rho| above ``threshold`` among the pairs whose
-    member to drop (the AP against orientation, the less significant of two APs) may be dropped; None
-    when there is none. ``t`` and ``droppable`` are over ``ap``."""
+    """(AP index, other index, |rho|) of the largest correlation above ``threshold`` among the pairs whose member
+    to drop (the AP against an orientation or trajectory unknown, the less significant of two APs) may be dropped,
+    or (AP index, -1, R) of the largest multiple correlation R of an AP with all ``partners`` together (the
+    orientation and trajectory unknowns: an AP whose estimate they explain between them, as a tilt-like field the
+    strips' IMU shifts and the attitudes share) when that is larger; None when there is none. ``t`` and
+    ``droppable`` are over ``ap``."""
     if ap.size == 0:
         return None
     d = np.sqrt(np.diag(Q))
-    others = np.concatenate([ap, orientation])
+    others = np.concatenate([ap, partners])
     rho = np.abs(Q[np.ix_(ap, others)]) / d[ap][:, None] / d[others][None, :]
     rho[np.arange(ap.size), np.arange(ap.size)] = 0.0
     pair = rho[:, :ap.size]
@@ -319,6 +419,137 @@ def _most_correlated(Q: np.ndarray, ap: np.ndarray, orientation: np.ndarray, thr
     pair[~np.where(weaker_row, droppable[:, None], droppable[None, :])] = 0.0
     rho[~droppable, ap.size:] = 0.0
     r, c = np.unravel_index(int(np.argmax(rho)), rho.shape)
-    if rho[r, c] <= threshold:
-        return None
-    return int(ap[r]), int(others[c]), float(rho[r, c])
+    best = (int(ap[r]), int(others[c]), float(rho[r, c]))
+    if partners.size and droppable.any():
+        multiple = _multiple_correlation(Q, ap, partners)
+        multiple[~droppable] = 0.0
+        k = int(np.argmax(multiple))
+        if multiple[k] > best[2]:
+            best = (int(ap[k]), -1, float(multiple[k]))
+    return best if best[2] > threshold else None
+
+
+def _multiple_correlation(Q: np.ndarray, index: np.ndarray, partners: np.ndarray) -> np.ndarray:
+    """R of each estimate ``index`` with the estimates ``partners`` together: sqrt(q_iP Q_PP^-1 q_Pi / q_ii)."""
+    Q_pp = Q[np.ix_(partners, partners)]
+    d = np.sqrt(np.diag(Q_pp))
+    try:
+        L = np.linalg.cholesky(Q_pp / d[:, None] / d[None, :])
+    except np.linalg.LinAlgError:
+        return np.zeros(index.size)
+    X = np.linalg.solve(L, (Q[np.ix_(partners, index)] / d[:, None]))
+    return np.sqrt(np.clip(np.sum(X * X, axis=0) / np.diag(Q)[index], 0.0, 1.0))
+
+
+#: the cross-validation guard keeps a dozen dense systems of the orientation and camera unknowns: up to this many
+GUARD_LIMIT = 1200
+#: the screened set predicts worse than the unscreened one when its prediction error is higher by more than this many
+#: standard errors of their difference over the folds (one-sided, about 5 % with ten folds): one standard error
+#: stopped the screening of a simulated Brown block at b1 (t 1.6, truly zero), whose drop moved the error by
+#: 4.1e-6 px against a standard error of 4.0e-6 px
+GUARD_STANDARD_ERRORS = 2.0
+
+
+def _group_of(parameter: str) -> str:
+    """The group a screened parameter is reported in: its camera, the image parameters, GNSS or IMU."""
+    if parameter.startswith("camera "):
+        return parameter.split(":")[0]
+    if parameter.startswith("image "):
+        return "image parameters"
+    return parameter.split(" ")[0]
+
+
+class PredictionGuard:
+    """Screening that pays for itself: the screened parameter set must predict held-out tie points no worse than
+    the unscreened one (:mod:`selfcal.stats.prediction`).
+
+    Built on the unscreened adjustment: its fold systems (ten folds of tie points) and the path of the prediction
+    error as the screening holds one parameter after another at its reference value (:class:`PredictionPath`, in
+    the unscreened adjustment's linearisation: the re-adjustments between rounds move the estimates by a fraction of
+    their sigma). :meth:`accepted` says how many of a round's drops keep the prediction error no worse than the
+    unscreened one (within :data:`GUARD_STANDARD_ERRORS` standard errors of their difference over the folds: a
+    parameter that is truly zero moves the error by a few 1e-6 px either way): the longest prefix of the round's
+    drops that does, the screening stopping there if it is not all of them.
+    """
+
+    def __init__(self, result):
+        from .prediction import converged_fold_systems
+        problem = result.problem
+        if problem.n_theta > GUARD_LIMIT:
+            raise ValueError(f"{problem.n_theta} orientation and camera unknowns (the guard is built up to "
+                             f"{GUARD_LIMIT})")
+        self.origin = PredictionPath(converged_fold_systems(result), result.block.image_sigma_px)
+        self.path = self.origin.copy()
+        self.unscreened = self.origin.error()
+        _, reference = _screenable(problem)
+        self.move = reference - problem.pack(result.state)
+        self.index = {name: i for i, name in enumerate(result.theta_names)}
+        self.decisions: list[ScreeningDecision] = []
+        self.stopped = ""
+        self._evaluated: tuple[list[ScreeningDecision], PredictionPath] | None = None     # (decisions, their path)
+
+    def _no_worse(self, path) -> bool:
+        error = path.error()
+        return bool(error.rmse_px <= self.unscreened.rmse_px
+                    + GUARD_STANDARD_ERRORS * paired_se_px(error, self.unscreened))
+
+    def _hold(self, path, decisions: list[ScreeningDecision]) -> None:
+        for d in decisions:
+            i = self.index.get(d.parameter)
+            if i is not None:
+                path.hold(i, self.move[i])
+
+    def accepted(self, decisions: list[ScreeningDecision]) -> int:
+        """How many of ``decisions`` (in order, after those committed) keep the prediction error no worse than the
+        unscreened adjustment's: all of them if their whole set does, else the longest prefix that does."""
+        path = self.path.copy()
+        self._hold(path, decisions)
+        if self._no_worse(path):
+            self._evaluated = (list(decisions), path)
+            return len(decisions)
+        path, accepted = self.path.copy(), 0
+        for k, d in enumerate(decisions):
+            self._hold(path, [d])
+            if self._no_worse(path):
+                accepted = k + 1
+        if accepted < len(decisions):
+            d = decisions[accepted]
+            self.stopped = (f"screening stopped before dropping {d.camera_id}.{d.name}: with the drops after it the "
+                            f"prediction error of held-out tie points rises above the unscreened "
+                            f"{self.unscreened.rmse_px:.6f} px by more than {GUARD_STANDARD_ERRORS:g} standard errors "
+                            f"of the difference")
+        return accepted
+
+    def commit(self, decisions: list[ScreeningDecision]) -> None:
+        if self._evaluated is not None and self._evaluated[0] == decisions:
+            self.path = self._evaluated[1]
+        else:
+            self._hold(self.path, decisions)
+        self._evaluated = None
+        self.decisions += decisions
+
+    def summary(self) -> dict:
+        """screening.json ``prediction``: the prediction error unscreened and screened, and per group what the
+        screening removed and what that alone cost (+) or gained (-)."""
+        screened = self.path.error()
+        groups: dict[str, list[int]] = {}
+        for d in self.decisions:
+            i = self.index.get(d.parameter)
+            if i is not None:
+                groups.setdefault(_group_of(d.parameter), []).append(i)
+        rows = []
+        for name, held in groups.items():
+            if len(groups) == 1:
+                error = screened
+            else:
+                path = self.origin.copy()
+                for i in held:
+                    path.hold(i, self.move[i])
+                error = path.error()
+            rows.append({"group": name, "n_removed": len(held), "cv_rmse_px": error.rmse_px,
+                         "change_px": error.rmse_px - self.unscreened.rmse_px})
+        return {"n_folds": self.unscreened.n_folds, "n_rays": self.unscreened.n_rays,
+                "unscreened_cv_rmse_px": self.unscreened.rmse_px, "unscreened_cv_se_px": self.unscreened.se_px,
+                "screened_cv_rmse_px": screened.rmse_px,
+                "change_px": screened.rmse_px - self.unscreened.rmse_px, "stopped": self.stopped or None,
+                "groups": rows}

@@ -41,9 +41,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import chi2 as chi2_distribution
-from scipy.stats import f as f_distribution
-from scipy.stats import norm
+from .distributions import chi2_ppf, f_ppf, normal_ppf
 
 __all__ = ["AP_GROUP", "CONFOUNDED_SHARE", "TRAJECTORY_SIGNIFICANCE", "GroupGuards", "StripObservations",
            "trajectory_strips", "group_of_parameters", "strip_residual_tests", "joint_test_passes"]
@@ -52,7 +50,7 @@ AP_GROUP = "AP"
 
 #: a trajectory term is dropped only when its estimate shows it smaller than 3 sigma at 95 % (one-sided):
 #: t < 3 - z(0.95), before the screening and at the drop
-TRAJECTORY_SIGNIFICANCE = 3.0 - float(norm.ppf(0.95))
+TRAJECTORY_SIGNIFICANCE = 3.0 - float(normal_ppf(0.95))
 
 #: a trajectory term whose variance is more than this share explained by the interior orientation is not
 #: dropped: its t measures the camera calibration, not the term (the strip heights against c over flat ground)
@@ -138,7 +136,7 @@ def strip_residual_tests(strip: StripObservations, theta: np.ndarray, theta0: np
     v = strip.v0 - strip.J @ (theta[c] - theta0[c])
     r = np.clip(1.0 - np.einsum("ij,jk,ik->i", strip.J, Q_strip, strip.J), 1e-12, None)
     dof = float(np.sum(r))
-    significant = bool(dof > 0.5 and np.sum(v * v) > chi2_distribution.ppf(1 - alpha, dof))
+    significant = bool(dof > 0.5 and np.sum(v * v) > chi2_ppf(1 - alpha, dof))
     return float((np.abs(v) / np.sqrt(r)).max()) if v.size else 0.0, significant
 
 
@@ -146,7 +144,7 @@ def joint_test_passes(increase: float, n_dropped: int, redundancy: int, alpha: f
     """Whether a dropped set with quadratic form ``increase`` (units of sigma0^2) stays jointly insignificant."""
     if alpha is None or n_dropped == 0:
         return True
-    return increase / n_dropped <= f_distribution.ppf(1 - alpha, n_dropped, redundancy)
+    return increase / n_dropped <= f_ppf(1 - alpha, n_dropped, redundancy)
 
 
 class GroupGuards:
@@ -239,7 +237,7 @@ class GroupGuards:
         k = n0 + len(self.dropped.get(AP_GROUP, [])) + 1
         s = self.ap_state
         chi2 = self.increase(AP_GROUP) + s.theta[index] ** 2 / np.diag(s.Q)[index] / self.vf0
-        return chi2 / k <= f_distribution.ppf(1 - self.alpha, k, self.redundancy)
+        return chi2 / k <= f_ppf(1 - self.alpha, k, self.redundancy)
 
     def _set_passes(self, name: str, index: int) -> bool:
         n0, inc0 = self._prior(name)
@@ -288,6 +286,6 @@ class GroupGuards:
             n = self._prior(name)[0] + len(self.dropped.get(name, []))
             if n:
                 out.append(ScreeningRound(n, float(self.increase(name)),
-                                          float(f_distribution.ppf(1 - self.alpha, n, self.redundancy)), name))
+                                          float(f_ppf(1 - self.alpha, n, self.redundancy)), name))
         return tuple(out)
 

@@ -1,6 +1,6 @@
 """``selfcal adjust``: one block, whatever its sensors, from the block to what the results folder holds.
 
-Frame and BAL blocks: the AP model (or its choice by BIC, :mod:`.model_choice`) and the tested
+Frame and BAL blocks: the AP model (or its choice by prediction, :mod:`.model_choice`) and the tested
 adjustment (:mod:`.tested`); the check points are those intersected in it. Blocks of a sensor that
 offers seed 001's sensor models (pushbroom images): the focal-length step, the GCP layout, the images
 of the case and the check points by intersection or mono restitution (:mod:`.seed001`). Either way
@@ -21,6 +21,7 @@ from ..convert.control import block_control_swapped
 from ..errors import AdjustmentError, BlockError, UsageError
 from ..geometry.tangent import TangentPlane
 from ..sensors import sensor_of
+from ..stats.effect import MIN_EFFECT_PX
 from ..stats.screening import ScreeningOptions
 from ..stats.snooping import SnoopingOptions
 from ..stats.variance import VarianceOptions
@@ -49,7 +50,9 @@ class AdjustRequest:
     variance: VarianceOptions | None = None
     # robust cleaning before the tests (None: least squares throughout)
     robust: RobustOptions | None = field(default_factory=RobustOptions)
-    candidates: list | None = None          # (model, grid) of --ap auto: choose the AP model by BIC
+    candidates: list | None = None          # (model, grid) of --ap auto: choose the AP model by prediction
+    #: --ap auto: a richer model must predict better than a simpler one by more than a field of this (px)
+    min_effect_px: float = MIN_EFFECT_PX
     # seed 001 (sensors with sensor models)
     image_ids: tuple[str, ...] | None = None
     n_gcp: int | None = None
@@ -98,17 +101,20 @@ def default_ap_model(block: Block) -> str:
 
 
 def is_auto(spec: str) -> bool:
-    """Whether an AP model spec asks for the choice by BIC (``auto`` or ``auto:MODEL,...``)."""
+    """Whether an AP model spec asks for the model choice (``auto`` or ``auto:MODEL,...``)."""
     return spec == "auto" or spec.startswith("auto:")
 
 
 def ap_candidates(spec: str, grid: tuple[int, int]) -> list[tuple[str, tuple[int, int]]]:
-    """The (model, grid) candidates of ``auto`` (the ten default models) or ``auto:MODEL,MODEL@GxXGy,...``;
-    UsageError for an unknown model."""
-    from ..ap import ALL_MODELS, AP_FAMILIES, parse_ap_spec
-    from .model_choice import parse_candidate
+    """The (model, grid) candidates of ``auto`` (the ten models of seed 000's comparison, each wavelet family on
+    every grid of :data:`~selfcal.workflows.model_choice.GRID_LADDER`) or ``auto:MODEL,MODEL@GxXGy,...`` (a wavelet
+    without a grid on ``grid``); UsageError for an unknown model."""
+    from ..ap import ALL_MODELS, AP_FAMILIES, parse_ap_spec, takes_grid
+    from .model_choice import GRID_LADDER, parse_candidate
     listed = spec.partition(":")[2]
-    names = [m for m in listed.split(",") if m.strip()] if listed else list(ALL_MODELS)
+    if not listed:
+        return [(m, g) for m in ALL_MODELS for g in (GRID_LADDER if takes_grid(m) else (grid,))]
+    names = [m for m in listed.split(",") if m.strip()]
     candidates = []
     for name in names:
         try:
@@ -141,7 +147,7 @@ def adjust_block(block: Block, request: AdjustRequest, progress: Callable | None
 
 def run_options(block: Block, request: AdjustRequest) -> dict:
     """What the run was asked to do, for summary.json ``options`` (the report's processing parameters): the
-    request's options (the AP model asked for, ``auto`` for a choice by BIC; snooping, screening, robust cleaning,
+    request's options (the AP model asked for, ``auto`` for the model choice; snooping, screening, robust cleaning,
     variance components, solver) and the block's a-priori weights: the sigma of an image coordinate, the median
     sigma of the control points (XY, Z; None where none is given), the GNSS and IMU sigmas."""
     o = request.options
@@ -193,18 +199,16 @@ def _adjust_block(block: Block, request: AdjustRequest, progress: Callable | Non
     _check_control(block)                   # before any work: the model choice adjusts too
     if request.candidates:
         choice = choose_ap_model(block, request.candidates, options, request.snooping, progress=scores,
-                                 robust=request.robust)
+                                 robust=request.robust, min_effect_px=request.min_effect_px)
         options = replace(options, ap=replace(options.ap, model=choice.model, grid=choice.grid))
         say(f"chosen AP model: {choice.model}" + (f"@{choice.grid[0]}x{choice.grid[1]}" if
-                                                  takes_grid(choice.model) else "") +
-            (f" (smallest BIC; {choice.n_blunders} observations left out as blunders for every candidate; scores in "
-             "model_choice.csv)" if choice.by_bic else " (no candidate converged: the first one is adjusted)"))
+                                                  takes_grid(choice.model) else "") + _choice_reason(choice))
     tested = adjust_with_tests(block, options, request.snooping, request.screening, progress=progress,
                                report=report, variance=request.variance, robust=request.robust)
     _check_collapse(tested)
     extra = _check_points_determined(block, tested)
     if request.control_loo and tested.result.converged and not tested.failure:
-        tested.loo = control_loo(tested, options)
+        tested.loo = control_loo(tested, options, say)
         if tested.loo is not None:
             if plane is not None:           # (its errors along the CRS's coordinates, as the control's sigmas)
                 tested.loo = loo_in_crs(tested.loo, plane, tested.result.block.points)
@@ -224,6 +228,23 @@ def _adjust_block(block: Block, request: AdjustRequest, progress: Callable | Non
     if plane is not None:
         extra["object_frame"] = plane.describe()
     return Adjusted(tested, block, check_points.intersected(tested.result), extra, choice=choice, plane=plane)
+
+
+def _choice_reason(choice: ModelChoice) -> str:
+    """What the chosen-model line says of the choice (:mod:`.model_choice`)."""
+    if choice.rule == "bic":
+        return (f" (smallest BIC: the block has more orientation and camera unknowns than the cross-validation's "
+                f"fold systems take; scores in model_choice.csv)")
+    if not choice.by_prediction:
+        return (" (no candidate converged: the first one is adjusted)" if not choice.reference else
+                f" (no candidate could be cross-validated: the reference {choice.reference} is adjusted)")
+    scored = [s for s in choice.candidates if s.prediction is not None]
+    best = min(scored, key=lambda s: s.prediction.rmse_px)          # type: ignore[union-attr]
+    chosen = next(s for s in scored if s.model == choice.model and s.grid == choice.grid)
+    assert chosen.prediction is not None and best.prediction is not None
+    return (f" (the simplest within one standard error of the best prediction: {chosen.prediction.rmse_px:.4f} px "
+            f"against {best.label}'s {best.prediction.rmse_px:.4f} ± {best.prediction.se_px:.4f} px; "
+            f"{choice.n_blunders} observations left out as blunders for every candidate; scores in model_choice.csv)")
 
 
 def _check_control_axes(block: Block) -> None:
@@ -294,10 +315,11 @@ def _seed001(block: Block, request: AdjustRequest, progress, report, say, scores
     choice = None
     if request.candidates:
         sub = seed001.case_block(block, image_set, gcps)
-        choice = choose_ap_model(sub, request.candidates, replace(options, sensor=replace(options.sensor, model=model)), request.snooping,
-                                 progress=scores, robust=request.robust)
+        choice = choose_ap_model(sub, request.candidates, replace(options, sensor=replace(options.sensor, model=model)),
+                                 request.snooping, progress=scores, robust=request.robust,
+                                 min_effect_px=request.min_effect_px)
         options = replace(options, ap=replace(options.ap, model=choice.model, grid=choice.grid))
-        say(f"chosen AP model: {choice.model} (smallest BIC; scores in model_choice.csv)")
+        say(f"chosen AP model: {choice.model}" + _choice_reason(choice))
     case = seed001.run_case(block, model, gcps, image_set, request.height, "+".join(chosen), options,
                             request.snooping, request.screening, progress, report, request.variance, request.robust)
     if case.tested is None:

@@ -142,7 +142,7 @@ def bundle_adjust(block: Block | str | os.PathLike, ap: str | None = None, *, sn
                   jackknife: int = 0, **options) -> Outcome:
     """The tested adjustment of ``block`` (a :class:`~selfcal.block.Block` or a block folder).
 
-    ``ap``: the AP model (``"brown"``, ``"wavelet:db4"``..., ``"auto[:MODEL,...]"`` to choose by BIC; None: the
+    ``ap``: the AP model (``"brown"``, ``"wavelet:db4"``..., ``"auto[:MODEL,...]"`` to choose by prediction; None: the
     default of ``selfcal adjust``, :func:`~selfcal.workflows.adjust.default_ap_model`); ``snoop``: Baarda's critical value (0: none);
     ``screen``: drop insignificant and highly correlated APs; ``variance_components``: estimate each
     observation group's sigma; ``robust``: the loss of the robust cleaning before the tests (``"danish"``,

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import replace
+from typing import Callable
 
 import numpy as np
 
@@ -40,10 +41,13 @@ def _frame(result) -> str:
     return result.problem.sensors[0].sensor.object_frame if result.problem.sensors else "block"
 
 
-def control_loo(tested: TestedAdjustment, options: AdjustOptions) -> LeaveOneOut | None:
+def control_loo(tested: TestedAdjustment, options: AdjustOptions,
+                say: Callable[[str], None] | None = None) -> LeaveOneOut | None:
     """Every control point's leave-one-out error (module docstring); None where the block has no control datum
-    or too few control points."""
+    or too few control points. ``say`` receives a line as the re-adjustments begin and one at most every second
+    after (how many are done)."""
     t0 = time.perf_counter()
+    said = t0
     result = tested.result
     block = result.block
     control = result.problem.control
@@ -63,7 +67,13 @@ def control_loo(tested: TestedAdjustment, options: AdjustOptions) -> LeaveOneOut
     linear, _ = downdate(control.W, result.Q_points[control.index], result.state.points[control.index] - control.xyz)
     names, roles = [], []
     whole = fully_controlled(control.W)
+    if say is not None:
+        say(f"leave-one-out control validation: the block re-adjusted without each of {len(control.index)} "
+            "control points")
     for k, p in enumerate(control.index):
+        if say is not None and k and time.perf_counter() - said >= 1.0:
+            said = time.perf_counter()
+            say(f"leave-one-out control validation: {k}/{len(control.index)} done")
         name = str(block.points.point_id[p])
         names.append(name)
         roles.append("gcp")

@@ -30,7 +30,8 @@ from ..block import Block, prune
 from ..errors import AdjustmentError
 from ..stats.cleaning import Cleaning, clean, readmissible
 from ..stats.reliability import ObservationTests, observation_tests
-from ..stats.screening import ScreeningDecision, ScreeningOptions, ScreeningRound, screen_once, screening_masks
+from ..stats.screening import (PredictionGuard, ScreeningDecision, ScreeningOptions, ScreeningRound, screen_once,
+                               screening_masks)
 from ..stats.loo import LeaveOneOut
 from ..stats.snooping import SnoopingOptions, SnoopingRound, image_w, left_without_rays, reject_candidates
 from ..stats.variance import VarianceComponent, VarianceOptions, estimate_variance_components
@@ -86,6 +87,9 @@ class TestedAdjustment:
     control_demoted: list[tuple[str, float]] = field(default_factory=list)   # (point id, |w|) checked instead
     loo: LeaveOneOut | None = None                   # the control's leave-one-out validation (workflows.loo)
     half_block: HalfBlock | None = None              # the half-block check of the calibration (workflows.half_block)
+    #: what the screening cost or gained in prediction error (stats.screening.PredictionGuard.summary), or why it
+    #: was not cross-validated (``{"note": ...}``); None without screening
+    screening_prediction: dict | None = None
 
     @property
     def robust_rows(self) -> np.ndarray:
@@ -168,12 +172,26 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
     joint_tests: list[tuple[int, ScreeningRound]] = []
     failure = ""
     limit = max(1, int(MAX_REJECTED_SHARE * len(block.observations)))
+    guard: PredictionGuard | None = None
+    guard_note = ""
     while len(rounds) < max_rounds:
         k = len(rounds) + 1
         dropped = 0
         if screening is not None and screenable:
             before = joint_tests[-1][1] if joint_tests else None
             new_free, decisions, joint = screen_once(result, screening, before)
+            if decisions and screening.cross_validate and guard is None and not guard_note:
+                try:
+                    guard = PredictionGuard(result)
+                except ValueError as exc:            # (too large a system, no tie points in two folds)
+                    guard_note = f"the screening was not cross-validated: {exc}"
+            if decisions and guard is not None:
+                accepted = guard.accepted(decisions)
+                if accepted < len(decisions):       # screening stops where it started to lose
+                    screenable = 0
+                    new_free, decisions, joint = screen_once(result, screening, before, max_drops=accepted) \
+                        if accepted else (free, [], None)
+                guard.commit(decisions)
             if decisions:
                 assert joint is not None                # (the joint test of what the round dropped)
                 free = new_free
@@ -295,9 +313,13 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
         given, result.block, rejected, () if cleaning is None else cleaning.control_lost)
     if cleaning is not None:
         result.notes[:0] = cleaning.messages
+    prediction = guard.summary() if guard is not None else {"note": guard_note} if guard_note else None
+    if guard is not None and guard.stopped:
+        result.notes.append(guard.stopped)
     order = np.argsort(rejected)
     return TestedAdjustment(result, tests, rejected[order], rejected_w[order], rejected_mdb[order], free, n_ap_initial,
-                            rounds, log, joint_tests, components, converged, failure, cleaning, control_demoted)
+                            rounds, log, joint_tests, components, converged, failure, cleaning, control_demoted,
+                            screening_prediction=prediction)
 
 
 #: the control group is tested only while at least this many control points remain (a datum and redundancy)

@@ -9,6 +9,8 @@ re-weighted observation is a rescaled one everywhere in the engine.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from ..ap_columns import bound_of, camera_jacobian, camera_terms, evaluate_ap_columns
@@ -75,6 +77,40 @@ def observation_rows(problem: Problem, state: State, o: np.ndarray):
             j_d[sel, :, start:start + int(core_free.sum())] = j_i[sel][:, :, :cam.n_core][:, :, core_free]
     r, w = whiten(problem, o, img, f, delta, j_e, j_p)
     return r, j_e, j_p, j_d * w[:, :, None]
+
+
+@dataclass
+class PointRays:
+    """The rays of a set of points (problem order, point after point) with their dense rows in θ:
+    :func:`point_rays`."""
+    o: np.ndarray            # (m,) observation indices in problem order
+    counts: np.ndarray       # (points,) rays per point
+    starts: np.ndarray       # (points,) each point's first ray in ``o``
+    owner: np.ndarray        # (m,) each ray's point (0 .. points - 1)
+    r: np.ndarray            # (m, 2) whitened residuals
+    J: np.ndarray            # (m, 2, n_θ) whitened Jacobian in θ (image, then camera unknowns)
+    j_p: np.ndarray          # (m, 2, 3) whitened point Jacobians
+    V: np.ndarray            # (points, 3, 3) Σ J_pᵀ J_p over each point's rays
+    W: np.ndarray            # (points, 3, n_θ) Σ J_pᵀ J over each point's rays
+
+
+def point_rays(problem: Problem, state: State, positions: np.ndarray) -> PointRays:
+    """Every ray of the points at ``positions`` (indices of the problem's points) with its residual and its dense
+    row in θ, and per point the normal blocks V and W: what the projections off the points' own unknowns need
+    (a few thousand rays at a time: J is dense in θ)."""
+    counts = problem.point_start[positions + 1] - problem.point_start[positions]
+    starts = np.cumsum(counts) - counts
+    o = np.repeat(problem.point_start[positions], counts) + np.arange(counts.sum()) - np.repeat(starts, counts)
+    owner = np.repeat(np.arange(len(positions)), counts)
+    r, j_e, j_p, j_d = observation_rows(problem, state, o)
+    m, n_e, width = len(o), problem.n_e, problem.image_width
+    J = np.zeros((m, 2, problem.n_theta))
+    columns = (width * problem.obs_image[o])[:, None] + np.arange(width)[None, :]
+    J[np.arange(m)[:, None, None], np.arange(2)[None, :, None], columns[:, None, :]] = j_e
+    J[:, :, n_e:n_e + problem.n_d] = j_d
+    V = np.add.reduceat(np.einsum("oki,okj->oij", j_p, j_p), starts, axis=0)
+    W = np.add.reduceat(np.einsum("oki,okt->oit", j_p, J), starts, axis=0)
+    return PointRays(o, counts, starts, owner, r, J, j_p, V, W)
 
 
 def point_rows(problem: Problem, state: State, o: np.ndarray, delta: np.ndarray):

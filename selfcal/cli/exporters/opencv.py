@@ -9,7 +9,7 @@ import numpy as np
 from ...calibration import OpenCVCamera
 from ...io.opencv import write_opencv_file
 from ...io.output import output_file
-from ..calibrations import calibrations, fit_tool, fitted_covariance, pick_camera, tool_options
+from ..calibrations import calibrations, fit_tool, fitted_covariance, pick_camera, tool_options, warn_extrapolated
 from ..outcome import finish
 
 
@@ -29,7 +29,8 @@ def run(args: argparse.Namespace) -> int:
     camera = OpenCVCamera(fitted.model.name, np.array([[q[0], 0, q[2]], [0, q[1], q[3]], [0, 0, 1]]), q[4:].copy(),
                           fitted.misfit_rms_px, fitted.misfit_max_px, cal.width_px, cal.height_px)
     write_opencv_file(camera, args.out, source=f"selfcal {cal.ap.spec} calibration of camera {cal.camera_id}",
-                      camera_id=cal.camera_id, covariance=fitted_covariance(cal, fitted))
+                      camera_id=cal.camera_id, covariance=fitted_covariance(cal, fitted),
+                      warning=warn_extrapolated(cal))
     line = f"wrote {args.out}"
     return finish(args, line, {"camera_id": cal.camera_id, "model": fitted.model.name,
                                "misfit_rms_px": fitted.misfit_rms_px},

@@ -10,7 +10,7 @@ from ...io.bal import read_bal
 from ...io.block_folder import write_block
 from ...io.output import output_folder
 from ..options import number
-from ..outcome import finish
+from ..outcome import finish, progress
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -27,7 +27,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"warning: {int(behind.sum())} observations of {len(set(problem.obs_point[behind]))} points lie "
               f"behind their camera; BAL's formula still gives them a residual (COLMAP would ignore them)",
               file=sys.stderr)
-    write_block(block, args.out, source=args.source)
+    write_block(block, args.out, source=args.source, say=progress)
     line = (f"imported {len(block.images)} images (one BAL camera each), {len(block.points)} points, "
             f"{len(block.observations)} observations into {args.out}; BAL has no datum: adjust it with "
             f"ground control, or use it as a relative problem")

@@ -63,7 +63,7 @@ def run(args: argparse.Namespace) -> int:
                  "; the adjustment refines them"), file=sys.stderr)
     cameras = dict(block.cameras)
     cameras[args.camera] = new_camera
-    write_block(replace(block, cameras=cameras), args.out, source=args.source)
+    write_block(replace(block, cameras=cameras), args.out, source=args.source, say=progress)
     line = f"wrote {args.out}"
     return finish(args, line, {"camera_id": args.camera, "focal_mm": new_camera.focal_mm, "misfit_px": misfit_px},
                   [os.path.abspath(args.out)])

@@ -12,6 +12,7 @@ from ...io.odm import read_gcp_list
 from ...io.output import output_folder
 from ..options import number
 from ..outcome import finish, progress
+from . import rolling
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -27,10 +28,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "with a warning: gcp_list.txt carries no accuracy; surveyed targets: e.g. 0.01)")
     parser.add_argument("--gcp-sigma-z", type=number(0.0, low_open=True), default=None,
                         help="a-priori sigma of the control heights (default 5 m, with a warning; surveyed: e.g. 0.02)")
+    rolling.add_arguments(parser, images=True)
 
 
 def run(args: argparse.Namespace) -> int:
-    args.out = output_folder(args.out, (args.source, args.gcp), args.force)
+    rolling.check(args, "COLMAP")
+    args.out = output_folder(args.out, (args.source, args.gcp, args.images), args.force)
     progress(f"reading {args.source} ...")
     model = read_colmap(args.source)
     control = read_gcp_list(args.gcp) if args.gcp else None
@@ -47,8 +50,9 @@ def run(args: argparse.Namespace) -> int:
                                      name=os.path.basename(os.path.normpath(args.out)))
     for note in notes:
         print(note, file=sys.stderr)
+    block = rolling.rolling_block(args, block)
     progress(f"writing {args.out} ({len(block.observations)} observations) ...")
-    write_block(block, args.out, source=args.source)
+    write_block(block, args.out, source=args.source, say=progress)
     line = (f"imported {len(block.images)} images, {len(block.points)} points, {len(block.observations)} "
             f"observations into {args.out}")
     return finish(args, line, {"n_images": len(block.images), "n_points": len(block.points),

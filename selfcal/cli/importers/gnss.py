@@ -9,6 +9,7 @@ import sys
 from ...errors import BlockError, UsageError
 from ..options import number
 from ..outcome import finish, progress
+from . import rolling
 
 
 def _three(text: str) -> tuple[float, float, float]:
@@ -37,13 +38,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="a change of the direction of flight by more than this starts a strip (default 30)")
     parser.add_argument("--strip-gap", type=number(1.0, low_open=True), default=3.0, metavar="K",
                         help="a pause of more than K median intervals between exposures starts a strip (default 3)")
-    parser.add_argument("--rolling-shutter", action="store_true",
-                        help="the cameras read their sensors line by line: block.toml gets shutter = \"rolling\" "
-                             "with the readout of the images' camera model (EXIF Make and Model in OpenDroneMap's "
-                             "table) as its prior, or 30 +- 30 ms for a model the table does not know")
-    parser.add_argument("--readout-ms", type=number(0.0, 1000.0), metavar="MS",
-                        help="with --rolling-shutter: this readout as every camera's prior (sigma 5 ms) instead of "
-                             "the table's")
+    rolling.add_arguments(parser, images=False)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -57,8 +52,7 @@ def run(args: argparse.Namespace) -> int:
     from ...io.odm import read_geo_txt
     from ...io.output import output_folder
 
-    if args.readout_ms is not None and not args.rolling_shutter:
-        raise UsageError("--readout-ms is the prior of a rolling shutter: give --rolling-shutter with it")
+    rolling.check(args)
     args.out = output_folder(args.out, (args.source, args.block), args.force)
     block = read_block(args.block)
     warnings = []
@@ -89,7 +83,7 @@ def run(args: argparse.Namespace) -> int:
         result = replace(result, block=block)
         for note in notes:
             progress(note)
-    write_block(result.block, args.out, source=args.source)
+    write_block(result.block, args.out, source=args.source, say=progress)
     warnings += result.warnings
     for note in warnings:
         print(f"warning: {note}", file=sys.stderr)

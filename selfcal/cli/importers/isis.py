@@ -9,7 +9,7 @@ from ...errors import BlockError, UsageError
 from ...io.block_folder import write_block
 from ...io.output import output_folder
 from ..options import count, number
-from ..outcome import finish
+from ..outcome import finish, progress
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -82,7 +82,7 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"--hold-radii must be positive, found {args.hold_radii}")
     block, counts = block_from_isis(network, images, sigma_px, os.path.basename(os.path.normpath(args.out)), settings,
                                     hold_radii_m=args.hold_radii)
-    write_block(block, args.out, source=args.source)
+    write_block(block, args.out, source=args.source, say=progress)
     if args.hold_radii is not None and (block.points.role == "tie").any():
         from ...io import read_block
         from ...workflows.isis import hold_radii

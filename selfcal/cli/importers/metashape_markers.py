@@ -13,7 +13,7 @@ from ...io.metashape import read_markers_xml, read_reference_csv
 from ...io.output import output_folder
 from ..options import number
 from .patb import checks, control_arguments
-from ..outcome import finish
+from ..outcome import finish, progress
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -38,7 +38,7 @@ def run(args: argparse.Namespace) -> int:
                                     control_sigma_m=(args.gcp_sigma_xy, args.gcp_sigma_z), check_points=checks(args))
     for note in notes:
         print(note, file=sys.stderr)
-    write_block(new, args.out, source=args.source)
+    write_block(new, args.out, source=args.source, say=progress)
     line = (f"wrote {args.out}: {len(new.images)} images, {len(new.points)} points, {len(new.observations)} "
             f"observations")
     return finish(args, line, {"n_images": len(new.images), "n_points": len(new.points),

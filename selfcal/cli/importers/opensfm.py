@@ -11,7 +11,7 @@ from ...io.block_folder import write_block
 from ...io.opensfm import read_reconstruction, read_tracks
 from ...io.output import output_folder
 from ..options import number
-from ..outcome import finish
+from ..outcome import finish, progress
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -36,7 +36,7 @@ def run(args: argparse.Namespace) -> int:
                                       args.image_sigma_px, name=os.path.basename(os.path.normpath(args.out)))
     for note in notes:
         print(note, file=sys.stderr)
-    write_block(block, args.out, source=source)
+    write_block(block, args.out, source=source, say=progress)
     line = (f"imported {len(block.images)} shots, {len(block.points)} points, {len(block.observations)} "
             f"observations into {args.out}")
     return finish(args, line, {"n_images": len(block.images), "n_points": len(block.points),

@@ -12,7 +12,7 @@ from ...io.block_folder import write_block
 from ...io.output import output_folder
 from ...io.patb import find_patb, read_con, read_ori, read_photo_blocks
 from ..options import number
-from ..outcome import finish
+from ..outcome import finish, progress
 
 
 def image_size(text: str) -> tuple[int, int]:
@@ -85,7 +85,7 @@ def run(args: argparse.Namespace) -> int:
                                    crs=args.crs, name=os.path.basename(os.path.normpath(args.out)))
     for note in notes:
         print(note, file=sys.stderr)
-    write_block(block, args.out, source=files["im"])
+    write_block(block, args.out, source=files["im"], say=progress)
     roles = {r: int((block.points.role == r).sum()) for r in ("gcp", "chk", "tie")}
     line = (f"imported {len(block.images)} photos, {len(block.points)} points ({roles['gcp']} gcp, {roles['chk']} "
             f"chk, {roles['tie']} tie), {len(block.observations)} observations into {args.out}")

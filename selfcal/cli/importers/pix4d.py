@@ -13,6 +13,7 @@ from ...io.pix4d import params_folder, read_gcps_position, read_pix4d_params
 from ..options import number
 from .patb import checks, control_arguments, image_size
 from ..outcome import finish, progress
+from . import rolling
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -25,10 +26,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--image-sigma-px", type=number(0.0, low_open=True), default=1.0,
                         help="a-priori sigma of an image measurement (default 1.0 px)")
     control_arguments(parser)
+    rolling.add_arguments(parser, images=True)
 
 
 def run(args: argparse.Namespace) -> int:
-    args.out = output_folder(args.out, (args.source, args.gcp), args.force)
+    rolling.check(args, "Pix4D's params folder")
+    args.out = output_folder(args.out, (args.source, args.gcp, args.images), args.force)
     if not args.crs.strip():
         raise UsageError("--crs is empty")
     params = read_pix4d_params(args.source, args.image_size)
@@ -43,7 +46,10 @@ def run(args: argparse.Namespace) -> int:
                                     crs=args.crs, name=os.path.basename(os.path.normpath(args.out)))
     for note in notes:
         print(note, file=sys.stderr)
-    write_block(block, args.out, source=params_folder(args.source))
+    # the camera's name in the BINGO headers ("image camera": Pix4D's FC6310_8.8_5472x3648) names its model
+    names = {photo: header[0] for photo, header in params.bingo.header.items() if header}
+    block = rolling.rolling_block(args, block, names)
+    write_block(block, args.out, source=params_folder(args.source), say=progress)
     roles = {r: int((block.points.role == r).sum()) for r in ("gcp", "chk", "tie")}
     line = (f"imported {len(block.images)} images, {len(block.points)} points ({roles['gcp']} gcp, {roles['chk']} "
             f"chk, {roles['tie']} tie), {len(block.observations)} observations into {args.out}")
