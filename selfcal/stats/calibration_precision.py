@@ -30,10 +30,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.stats import chi2
 
 from ..adjust.result import AdjustmentResult
 from .correlation import correlation_matrix
+from .distributions import chi2_isf
 
 __all__ = ["ParameterPrecision", "CameraPrecision", "camera_precision", "jackknife_spread", "critical_ratio",
            "precision_statement", "JACKKNIFE_ALPHA", "NAMED_INFLATION"]
@@ -129,7 +129,7 @@ def critical_ratio(groups: int, alpha: float = JACKKNIFE_ALPHA) -> float:
     """The largest sigma_jackknife / sigma accepted from G groups: the larger of :data:`JACKKNIFE_FACTOR` and
     what a right model gives at level ``alpha``, sqrt(chi^2_{G-1}(1 - alpha) / (G - 1))."""
     dof = groups - 1
-    return max(JACKKNIFE_FACTOR, float(np.sqrt(chi2.ppf(1.0 - alpha, dof) / dof)))
+    return max(JACKKNIFE_FACTOR, float(np.sqrt(chi2_isf(alpha, dof) / dof)))
 
 
 def jackknife_spread(precision: CameraPrecision, replicates: dict[str, np.ndarray],

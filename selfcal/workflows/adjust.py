@@ -220,7 +220,7 @@ def _adjust_block(block: Block, request: AdjustRequest, progress: Callable | Non
             extra["half_block"] = half_block_summary(tested.half_block)
             tested.result.notes.extend(half_block_notes(tested.half_block))
     if tested.result.converged and not tested.failure:
-        precision, note = calibration_precision(tested, options, request.jackknife)
+        precision, note = calibration_precision(tested, options, request.jackknife, say)
         if precision is not None:
             extra["calibration_precision"] = precision
         if note:

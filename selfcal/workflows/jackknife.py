@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from typing import Callable
 
 import numpy as np
 
@@ -61,10 +62,12 @@ def _values(result, camera_id: str, names: list[str]) -> dict[str, float]:
 
 
 def jackknife(tested: TestedAdjustment, options: AdjustOptions, groups: int,
-              precision: list[CameraPrecision] | None = None) -> Jackknife:
+              precision: list[CameraPrecision] | None = None,
+              say: Callable[[str], None] | None = None) -> Jackknife:
     """The replicates of every camera's estimated parameters, each group of images left out in turn (module
-    docstring)."""
+    docstring). ``say`` receives a line as the re-adjustments begin and one at most every second after."""
     t0 = time.perf_counter()
+    said = t0
     result = tested.result
     block = result.block
     precision = camera_precision(result) if precision is None else precision
@@ -76,7 +79,12 @@ def jackknife(tested: TestedAdjustment, options: AdjustOptions, groups: int,
     names = {cam.camera_id: [p.name for p in cam.parameters] for cam in precision}
     rows: dict[str, dict[str, list[float]]] = {cid: {n: [] for n in ns} for cid, ns in names.items()}
     obs = block.observations
-    for part in parts:
+    if say is not None:
+        say(f"jackknife of the calibration: the block re-adjusted without each of {len(parts)} groups of images")
+    for k, part in enumerate(parts):
+        if say is not None and k and time.perf_counter() - said >= 1.0:
+            said = time.perf_counter()
+            say(f"jackknife of the calibration: {k}/{len(parts)} done")
         label = ", ".join(str(block.images.image_id[i]) for i in part[:3]) + (", ..." if part.size > 3 else "")
         try:
             replicate = result.readjust(options, without_rows=obs.row[np.isin(obs.image_index, part)])
@@ -131,7 +139,8 @@ def half_block_findings(check) -> list[str]:
             for c in check.cameras if c.difference.flag]
 
 
-def calibration_precision(tested: TestedAdjustment, options: AdjustOptions, groups: int) -> tuple[dict | None, str]:
+def calibration_precision(tested: TestedAdjustment, options: AdjustOptions, groups: int,
+                          say: Callable[[str], None] | None = None) -> tuple[dict | None, str]:
     """summary.json ``calibration_precision`` of a tested adjustment (None where no camera parameter is
     estimated), and the note it makes: the statement where the verdict is "not trusted", or "not verified" with a
     weakly determined core parameter named, else empty. ``groups``: the jackknife's groups (0: none); the
@@ -139,7 +148,7 @@ def calibration_precision(tested: TestedAdjustment, options: AdjustOptions, grou
     precision = camera_precision(tested.result)
     if not precision:
         return None, ""
-    jack = jackknife(tested, options, groups, precision) if groups else None
+    jack = jackknife(tested, options, groups, precision, say) if groups else None
     summary = precision_summary(precision, jack, half_block_findings(getattr(tested, "half_block", None)))
     weak = any(p.core and (p.ap_inflation or 0.0) >= NAMED_INFLATION for cam in precision for p in cam.parameters)
     said = summary["trusted"] is False or (summary["trusted"] is None and weak)
