@@ -48,7 +48,9 @@ def test_leverages_add_up_to_the_number_of_unknowns(result):
     total = h_image.sum() + h_control.sum() + h_parameters.sum()
     assert total == pytest.approx(result.n_unknowns, rel=1e-8)
     assert h_image.shape == v.shape == (len(result.block.observations), 2)
-    assert 0.0 < h_image.min() and h_image.max() < 1.0
+    # at most 1 (to rounding: a tie point of two rays along the base has leverages 1 - 8e-7 and 1 + 1e-8 with the
+    # AP basis at the measured and at the adjusted coordinates)
+    assert 0.0 < h_image.min() and h_image.max() < 1.0 + 1e-6
 
 
 def test_readjust_equals_a_fresh_adjustment_of_what_is_left(result):
