@@ -34,14 +34,21 @@ from .reliability import ObservationTests, observation_tests
 __all__ = ["VarianceComponent", "VarianceOptions", "group_redundancy", "estimate_variance_components"]
 
 GROUPS = ("image", "GCP", "GNSS", "IMU")
+TRAJECTORY_GROUPS = ("GNSS", "IMU")
 UNITS = {"image": "px", "GCP": "m", "GNSS": "m", "IMU": "deg"}
 
 
 @dataclass(frozen=True)
 class VarianceOptions:
+    """``groups``: the groups whose factor is estimated (None: every group). The others are pooled into one
+    reference group whose factor stays 1, and each listed group's factor is relative to it:
+    (Omega_g / r_g) / (Omega_ref / r_ref). ``groups=TRAJECTORY_GROUPS`` weighs the GNSS and IMU observations
+    against the images and control as declared, without rescaling those (:func:`trajectory_weights`)."""
+
     tolerance: float = 0.01
     max_iterations: int = 10
     min_redundancy: float = 3.0
+    groups: tuple[str, ...] | None = None
 
 
 @dataclass(frozen=True)
@@ -141,7 +148,7 @@ def estimate_variance_components(block: Block, options: AdjustOptions, vce: Vari
     converged = False
     for iteration in range(vce.max_iterations + 1):
         groups = group_redundancy(result, tests)
-        factors = {g: omega / r for g, (_, omega, r) in groups.items() if r >= vce.min_redundancy}
+        factors = _factors(groups, vce)
         converged = all(abs(f - 1.0) <= vce.tolerance for f in factors.values())
         if converged or iteration == vce.max_iterations:
             break
@@ -151,7 +158,21 @@ def estimate_variance_components(block: Block, options: AdjustOptions, vce: Vari
                         ap_models=ap_models)
         tests = observation_tests(result, critical)
     groups = group_redundancy(result, tests)
-    components = [VarianceComponent(g, n, r, scale.get(g, 1.0) if r >= vce.min_redundancy else 1.0,
-                                    _apriori(block, g), r >= vce.min_redundancy, UNITS[g])
+    estimated = _factors(groups, vce)
+    components = [VarianceComponent(g, n, r, scale.get(g, 1.0) if g in estimated else 1.0,
+                                    _apriori(block, g), g in estimated, UNITS[g])
                   for g, (n, _, r) in groups.items()]
     return result, tests, components, converged
+
+
+def _factors(groups: dict[str, tuple[int, float, float]], vce: VarianceOptions) -> dict[str, float]:
+    """The variance factor of each group to estimate (its redundancy at least ``vce.min_redundancy``): Omega_g / r_g,
+    or relative to the pooled others where ``vce.groups`` lists the groups to estimate."""
+    if vce.groups is None:
+        return {g: omega / r for g, (_, omega, r) in groups.items() if r >= vce.min_redundancy}
+    rest = [(omega, r) for g, (_, omega, r) in groups.items() if g not in vce.groups]
+    omega_ref, r_ref = (sum(v) for v in zip(*rest)) if rest else (0.0, 0.0)
+    if r_ref < vce.min_redundancy or omega_ref <= 0:
+        return {}
+    return {g: (omega / r) / (omega_ref / r_ref) for g, (_, omega, r) in groups.items()
+            if g in vce.groups and r >= vce.min_redundancy}

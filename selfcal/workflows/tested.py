@@ -34,7 +34,8 @@ from ..stats.screening import (PredictionGuard, ScreeningDecision, ScreeningOpti
                                screening_masks)
 from ..stats.loo import LeaveOneOut
 from ..stats.snooping import SnoopingOptions, SnoopingRound, image_w, left_without_rays, reject_candidates
-from ..stats.variance import VarianceComponent, VarianceOptions, estimate_variance_components
+from ..stats.variance import (TRAJECTORY_GROUPS, VarianceComponent, VarianceOptions, estimate_variance_components,
+                              reweighted)
 
 if TYPE_CHECKING:
     from .half_block import HalfBlock
@@ -90,6 +91,9 @@ class TestedAdjustment:
     #: what the screening cost or gained in prediction error (stats.screening.PredictionGuard.summary), or why it
     #: was not cross-validated (``{"note": ...}``); None without screening
     screening_prediction: dict | None = None
+    #: the GNSS/IMU groups' weights against the images and control, estimated before the tests
+    #: (:data:`TRAJECTORY_WEIGHTS`); None: the declared sigmas were used (no trajectory, or switched off)
+    trajectory_weights: list[VarianceComponent] | None = None
 
     @property
     def robust_rows(self) -> np.ndarray:
@@ -108,7 +112,8 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
                       progress: Callable | None = None,
                       report: Callable[[SnoopingRound], None] | None = None,
                       variance: VarianceOptions | None = None, ap_models: dict | None = None,
-                      robust: RobustOptions | None = None) -> TestedAdjustment:
+                      robust: RobustOptions | None = None,
+                      trajectory_weights: VarianceOptions | None = None) -> TestedAdjustment:
     """Adjust ``block`` (pruned, as read) with data snooping and AP screening.
 
     With ``robust``, the block is first adjusted with that robust loss and cleaned of what it finds to be gross
@@ -153,6 +158,16 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
             readmitted = cleaning.apply(read, prune_for)
     else:
         result = adjust(block, rough, progress=progress, ap_models=ap_models)
+    weights = None
+    if trajectory_weights is not None and result.problem.trajectory:
+        # the GNSS/IMU sigmas against the images' and the control's as the block gives them, before any test:
+        # issue 44 item 6 (DESIGN-NOTES "GNSS/IMU never hurts")
+        result, _, weights, _ = estimate_variance_components(
+            result.block, rough, replace(trajectory_weights, groups=TRAJECTORY_GROUPS), start=result,
+            ap_models={cam.camera_id: cam.ap for cam in result.problem.cameras}, critical=critical, progress=progress)
+        scale = {c.group: c.scale for c in weights if c.estimated}
+        if readmitted is not None and scale:
+            readmitted = reweighted(readmitted, scale)
     finished = rough is options or _meets(result, options)
     block = result.block                # a free network's adjustment leaves out what it cannot determine
     models = {cam.camera_id: cam.ap for cam in result.problem.cameras}
@@ -309,6 +324,10 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
         result, tests, components, converged = estimate_variance_components(
             result.block, options, variance, start=result, free=free, ap_models=models, critical=critical,
             progress=progress)
+    if weights is not None and any(c.estimated for c in weights):
+        result.notes.append("the GNSS/IMU sigmas were scaled by their variance components against the image and "
+                            "control observations before the tests: " + ", ".join(
+                                f"{c.group} x{c.scale:.3g}" for c in weights if c.estimated))
     result.notes[:0] = control_notes + left_without_rays(
         given, result.block, rejected, () if cleaning is None else cleaning.control_lost)
     if cleaning is not None:
@@ -319,7 +338,7 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
     order = np.argsort(rejected)
     return TestedAdjustment(result, tests, rejected[order], rejected_w[order], rejected_mdb[order], free, n_ap_initial,
                             rounds, log, joint_tests, components, converged, failure, cleaning, control_demoted,
-                            screening_prediction=prediction)
+                            screening_prediction=prediction, trajectory_weights=weights)
 
 
 #: the control group is tested only while at least this many control points remain (a datum and redundancy)
