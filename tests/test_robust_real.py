@@ -52,9 +52,11 @@ def copr():
 def test_copr_camera_survives_wrong_observations(copr, share):
     """The real COPR block (a free network, 313,000 COLMAP observations, Brown APs) with 5 % and 20 % of its
     observations moved by 20-500 px: the moved observations out (99.9 %); the adjusted camera (c, x0, y0 and every Brown
-    term) within 0.6 sigma of the least-squares adjustment of the observations that were not moved (what a perfect
-    cleaning would give; measured at 20 %: 0.50 at most) and within 1.25 sigma of the clean run's (0.99 at most;
-    the unmoved 80 % alone differ from the clean run by up to 1.08 sigma). Sigma: the clean run's."""
+    term) within 0.9 sigma of the least-squares adjustment of the observations that were not moved (what a perfect
+    cleaning would give) and within 1.75 sigma of the clean run's. Sigma: the clean run's. Measured at 20 %, with the
+    AP basis at the measured image coordinates: 0.40 and 1.12 at most; at the adjusted ones (the default since issue
+    44 item 5): 0.61-0.80 and 1.54-1.56 (the spread: the same code after other adjustments in the process or
+    not), while the unmoved 80 % alone differ from the clean run by up to 0.84-0.93 sigma in either."""
     block, clean = copr
     wrong, rows = _moved(block, share, 20.0, 500.0, seed=int(share * 100))
     tested = adjust_with_tests(wrong, AdjustOptions(ap=APOptions("brown")), SnoopingOptions(), robust=RobustOptions())
@@ -71,8 +73,8 @@ def test_copr_camera_survives_wrong_observations(copr, share):
     to_clean = np.abs(now - clean.result.state.cameras[0]) / sigma
     print(share, "to the unmoved:", dict(zip(names, np.round(to_ideal, 2))), "to clean:",
           dict(zip(names, np.round(to_clean, 2))))
-    assert np.all(to_ideal < 0.6), dict(zip(names, to_ideal))
-    assert np.all(to_clean < 1.25), dict(zip(names, to_clean))
+    assert np.all(to_ideal < 0.9), dict(zip(names, to_ideal))
+    assert np.all(to_clean < 1.75), dict(zip(names, to_clean))
 
 
 @pytest.mark.slow
