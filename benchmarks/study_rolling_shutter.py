@@ -139,8 +139,8 @@ def study(flight: str, lens: str, seeds: int, density: float, global_only: bool 
             ratios["odm_off"].append(_rmsd(odm_two_step(rolling, ap, TABLE_OFF * READOUT_MS)) / gs)
             value, sigma, _ = readouts[-1]
             line += (f" GS XY {gs[0]:.4f} Z {gs[1]:.4f} m; model/GS {ratios['model'][-1][0]:.3f} "
-                     f"{ratios['model'][-1][1]:.3f}, global {ratios['global'][-1][0]:.2f} {ratios['global'][-1][1]:.2f}, "
-                     f"brown {ratios['brown'][-1][0]:.2f} {ratios['brown'][-1][1]:.2f}, odm {ratios['odm'][-1][0]:.3f} "
+                     f"{ratios['model'][-1][1]:.3f}, global {ratios['global'][-1][0]:.2f} "
+                     f"{ratios['global'][-1][1]:.2f}, brown {ratios['brown'][-1][0]:.2f} {ratios['brown'][-1][1]:.2f}, odm {ratios['odm'][-1][0]:.3f} "
                      f"{ratios['odm'][-1][1]:.3f}; readout {value:.2f} +- {sigma:.2f} ms,")
         # the model on the global-shutter block
         declared = replace(taken_global, cameras=rolling.cameras)
