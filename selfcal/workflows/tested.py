@@ -179,7 +179,8 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
         dropped = 0
         if screening is not None and screenable:
             before = joint_tests[-1][1] if joint_tests else None
-            decisions, joint = [], None
+            decisions: list[ScreeningDecision] = []
+            joint: ScreeningRound | None = None
             if k == 1:
                 # the sensors' own parameters held at nothing first (a rolling shutter's readout): a block that does
                 # not show them is re-adjusted without them, and screened from there as with the simpler model
