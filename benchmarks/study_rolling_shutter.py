@@ -3,6 +3,7 @@ and OpenDroneMap's two-step correction, on simulated blocks with known truth.
 
     python benchmarks/study_rolling_shutter.py [--seeds 10] [--density 1.0] [--flights serpentine,corridor]
                                                [--lens none,field] [--no-cost] [--coverage 30] [--sweep 3]
+                                               [--global-only]
 
 Blocks: seed 000's camera and terrain (selfcal.simulate.simulate_uav), flown ``serpentine`` (4 strips of 7 with a
 fixed heading: the camera moves forwards on one strip, backwards on the next) or as a ``corridor`` (2 strips of 14
@@ -22,7 +23,11 @@ Rows, per flight and lens (median and largest over the seeds of check-point RMSD
   the tabulated readout (the truth: ODM's best case), and adjust again; ``ODM, 0.8x``: the same with a table value
   20 % short of the truth (a camera in another capture mode: ODM's table gives the Mavic 2 Pro 47 or 56 ms);
 * on the global-shutter block: the model's readout within 2 sigma of 0 (count of seeds), screened out by ``--screen``
-  (count; lens none), and the check points against today's (largest relative difference).
+  (count), and the check points against today's (largest relative difference; screened: against today's screened
+  adjustment, over all seeds and over those where the readout was screened out);
+* on the rolling-shutter block with ``--screen``: the readout kept (count).
+
+``--global-only``: only the global-shutter block's rows and the rolling-shutter block screened.
 
 Then the readout's coverage: its z-scores over 30 more seeds (lens none); a sweep over the simulator's range of
 readouts (20-75 ms) and speeds (5-12 m/s). Then the cost: the engine's time (and time per iteration) of the rolling-shutter model against the global-shutter
@@ -103,91 +108,120 @@ def _rmsd(outcome) -> np.ndarray:
     return np.array([outcome.summary["rmsd_chk_xy_m"], outcome.summary["rmsd_chk_z_m"]])
 
 
-def study(flight: str, lens: str, seeds: int, density: float) -> dict:
+def _screened_readout(outcome) -> tuple[bool, str]:
+    """Whether screening held the readout (at 0), and why (the decision's reason, or "kept")."""
+    held = not outcome.files["camera.json"]["cameras"]["ilce7m3"]["readout_ms"]["estimated"]
+    why = next((d["reason"] for d in outcome.files["screening.json"]["dropped"] if d["name"] == "readout"), "kept")
+    return held, why
+
+
+def study(flight: str, lens: str, seeds: int, density: float, global_only: bool = False) -> dict:
+    """One flight and lens over ``seeds`` seeds; ``global_only``: only the rows of the global-shutter block and the
+    rolling-shutter block screened (not the model against today's, Brown and ODM on the rolling-shutter block)."""
     distortion, ap = LENSES[lens]
     ratios: dict[str, list] = {k: [] for k in ("model", "global", "brown", "odm", "odm_off")}
-    reference, readouts, zero, screened, today = [], [], [], [], []
+    reference, readouts, zero, screened, today, rolling_screened = [], [], [], [], [], []
     for seed in range(seeds):
         kw = dict(seed=100 + seed, distortion=distortion, flight=flight, speed_mps=SPEED_MPS, points_per_mm2=density)
         rolling = simulate_uav(rolling_shutter_ms=READOUT_MS, **kw).blocks["type2"]
         taken_global = simulate_uav(**kw).blocks["type2"]
         t0 = time.perf_counter()
-        gs = _rmsd(bundle_adjust(global_shutter(taken_global), ap=ap, **FAST))
-        reference.append(gs)
-        model = bundle_adjust(rolling, ap=ap, **FAST)
-        ratios["model"].append(_rmsd(model) / gs)
-        readouts.append(_readout(model))
-        ratios["global"].append(_rmsd(bundle_adjust(global_shutter(rolling), ap=ap, **FAST)) / gs)
-        ratios["brown"].append(_rmsd(bundle_adjust(global_shutter(rolling), ap="brown", **FAST)) / gs)
-        ratios["odm"].append(_rmsd(odm_two_step(rolling, ap, READOUT_MS)) / gs)
-        ratios["odm_off"].append(_rmsd(odm_two_step(rolling, ap, TABLE_OFF * READOUT_MS)) / gs)
+        line = f"  {flight:10s} {lens:5s} seed {100 + seed}:"
+        if not global_only:
+            gs = _rmsd(bundle_adjust(global_shutter(taken_global), ap=ap, **FAST))
+            reference.append(gs)
+            model = bundle_adjust(rolling, ap=ap, **FAST)
+            ratios["model"].append(_rmsd(model) / gs)
+            readouts.append(_readout(model))
+            ratios["global"].append(_rmsd(bundle_adjust(global_shutter(rolling), ap=ap, **FAST)) / gs)
+            ratios["brown"].append(_rmsd(bundle_adjust(global_shutter(rolling), ap="brown", **FAST)) / gs)
+            ratios["odm"].append(_rmsd(odm_two_step(rolling, ap, READOUT_MS)) / gs)
+            ratios["odm_off"].append(_rmsd(odm_two_step(rolling, ap, TABLE_OFF * READOUT_MS)) / gs)
+            value, sigma, _ = readouts[-1]
+            line += (f" GS XY {gs[0]:.4f} Z {gs[1]:.4f} m; model/GS {ratios['model'][-1][0]:.3f} "
+                     f"{ratios['model'][-1][1]:.3f}, global {ratios['global'][-1][0]:.2f} "
+                     f"{ratios['global'][-1][1]:.2f}, brown {ratios['brown'][-1][0]:.2f} {ratios['brown'][-1][1]:.2f}, odm {ratios['odm'][-1][0]:.3f} "
+                     f"{ratios['odm'][-1][1]:.3f}; readout {value:.2f} +- {sigma:.2f} ms,")
         # the model on the global-shutter block
         declared = replace(taken_global, cameras=rolling.cameras)
         gs_model = bundle_adjust(declared, ap=ap, **FAST)
         zero.append(_readout(gs_model))
-        today.append(np.abs(_rmsd(gs_model) / gs - 1.0))
+        if reference:
+            today.append(np.abs(_rmsd(gs_model) / reference[-1] - 1.0))
         with_screen = bundle_adjust(declared, ap=ap, screen=True, **FAST)
         today_screened = bundle_adjust(global_shutter(taken_global), ap=ap, screen=True, **FAST)
-        held = not with_screen.files["camera.json"]["cameras"]["ilce7m3"]["readout_ms"]["estimated"]
-        why = next((d["reason"] for d in with_screen.files["screening.json"]["dropped"] if d["name"] == "readout"),
-                   "kept")
+        held, why = _screened_readout(with_screen)
         screened.append((held, float(np.max(np.abs(_rmsd(with_screen) / _rmsd(today_screened) - 1.0))), why))
-        value, sigma, _ = readouts[-1]
-        print(f"  {flight:10s} {lens:5s} seed {100 + seed}: GS XY {gs[0]:.4f} Z {gs[1]:.4f} m; model/GS "
-              f"{ratios['model'][-1][0]:.3f} {ratios['model'][-1][1]:.3f}, global {ratios['global'][-1][0]:.2f} "
-              f"{ratios['global'][-1][1]:.2f}, brown {ratios['brown'][-1][0]:.2f} {ratios['brown'][-1][1]:.2f}, "
-              f"odm {ratios['odm'][-1][0]:.3f} {ratios['odm'][-1][1]:.3f}; readout {value:.2f} +- {sigma:.2f} ms, "
-              f"on the GS block {zero[-1][0]:+.2f} +- {zero[-1][1]:.2f}, screened: {screened[-1][2]} "
-              f"({time.perf_counter() - t0:.0f} s)", flush=True)
+        # the model on the rolling-shutter block, screened: the readout must stay
+        rolling_screen = bundle_adjust(rolling, ap=ap, screen=True, **FAST)
+        rolling_screened.append((*_screened_readout(rolling_screen), _readout(rolling_screen)[0]))
+        print(f"{line} on the GS block {zero[-1][0]:+.2f} +- {zero[-1][1]:.2f}, screened: {why} (vs today's "
+              f"{100 * screened[-1][1]:.4f} %); rolling block screened: {rolling_screened[-1][1]} "
+              f"({rolling_screened[-1][2]:.2f} ms) ({time.perf_counter() - t0:.0f} s)", flush=True)
     return {"ratios": {k: np.array(v) for k, v in ratios.items()}, "readouts": np.array(readouts),
-            "zero": np.array(zero), "screened": screened, "today": np.array(today), "reference": np.array(reference)}
+            "zero": np.array(zero), "screened": screened, "today": np.array(today), "reference": np.array(reference),
+            "rolling_screened": rolling_screened}
 
 
 def print_study(flight: str, lens: str, out: dict) -> None:
-    n = len(out["readouts"])
+    n = len(out["zero"])
     print(f"\n{flight}, lens {lens} ({LENSES[lens][1]} APs), {n} seeds: check-point RMSD / the global-shutter block's "
           f"(median, max)")
-    print(f"  {'':8s} {'XY median':>10s} {'XY max':>8s} {'Z median':>10s} {'Z max':>8s}  within 1.15x (XY and Z)")
-    for row, label in (("model", "model"), ("global", "no model"), ("brown", "brown+aff"), ("odm", "ODM 2-step"),
-                       ("odm_off", f"ODM, {TABLE_OFF:g}x")):
-        r = out["ratios"][row]
-        inside = int(np.sum((r[:, 0] <= 1.15) & (r[:, 1] <= 1.15)))
-        print(f"  {label:10s} {np.median(r[:, 0]):8.3f} {r[:, 0].max():8.3f} {np.median(r[:, 1]):10.3f} "
-              f"{r[:, 1].max():8.3f}  {inside}/{n}")
-    value, sigma, sigma_adjustment = out["readouts"].T
-    within = int(np.sum(np.abs(value - READOUT_MS) <= 2 * sigma))
-    print(f"  readout: mean {value.mean():.3f} ms (truth {READOUT_MS:g}), sd over seeds {value.std(ddof=1):.3f}, "
-          f"mean sigma {sigma.mean():.3f} (the adjustment's {sigma_adjustment.mean():.3f}); within 2 sigma of the "
-          f"truth in {within}/{n} ({int(np.sum(np.abs(value - READOUT_MS) <= 2 * sigma_adjustment))}/{n} with the "
-          f"adjustment's sigma)")
+    if len(out["readouts"]):
+        print(f"  {'':8s} {'XY median':>10s} {'XY max':>8s} {'Z median':>10s} {'Z max':>8s}  within 1.15x (XY and Z)")
+        for row, label in (("model", "model"), ("global", "no model"), ("brown", "brown+aff"),
+                           ("odm", "ODM 2-step"), ("odm_off", f"ODM, {TABLE_OFF:g}x")):
+            r = out["ratios"][row]
+            inside = int(np.sum((r[:, 0] <= 1.15) & (r[:, 1] <= 1.15)))
+            print(f"  {label:10s} {np.median(r[:, 0]):8.3f} {r[:, 0].max():8.3f} {np.median(r[:, 1]):10.3f} "
+                  f"{r[:, 1].max():8.3f}  {inside}/{n}")
+        value, sigma, sigma_adjustment = out["readouts"].T
+        within = int(np.sum(np.abs(value - READOUT_MS) <= 2 * sigma))
+        print(f"  readout: mean {value.mean():.3f} ms (truth {READOUT_MS:g}), sd over seeds {value.std(ddof=1):.3f}, "
+              f"mean sigma {sigma.mean():.3f} (the adjustment's {sigma_adjustment.mean():.3f}); within 2 sigma of the "
+              f"truth in {within}/{n} ({int(np.sum(np.abs(value - READOUT_MS) <= 2 * sigma_adjustment))}/{n} with the "
+              f"adjustment's sigma)")
     z_value, z_sigma, _ = out["zero"].T
+    unscreened = (f"; check points against today's (no screening): largest |difference| "
+                  f"{100 * out['today'].max():.2f} %") if len(out["today"]) else ""
     print(f"  global-shutter block: readout {z_value.mean():+.3f} ms (sd {z_value.std(ddof=1):.3f}, mean sigma "
-          f"{z_sigma.mean():.3f}), within 2 sigma of 0 in {int(np.sum(np.abs(z_value) <= 2 * z_sigma))}/{n}; check "
-          f"points against today's (no screening): largest |difference| {100 * out['today'].max():.2f} %")
+          f"{z_sigma.mean():.3f}), within 2 sigma of 0 in {int(np.sum(np.abs(z_value) <= 2 * z_sigma))}/{n}"
+          f"{unscreened}")
     held = sum(h for h, _, _ in out["screened"])
     worst = max(d for _, d, _ in out["screened"])
+    worst_held = max((d for h, d, _ in out["screened"] if h), default=float("nan"))
     reasons = sorted({why.split(" (")[0].split(" px")[0] for h, _, why in out["screened"] if h})
     print(f"  with --screen: readout screened out in {held}/{n} ({'; '.join(reasons) or 'none'}); check points "
-          f"against today's screened adjustment: largest |difference| {100 * worst:.4f} %")
+          f"against today's screened adjustment: largest |difference| {100 * worst:.4f} % ({100 * worst_held:.4f} % "
+          f"where screened out)")
+    kept = [value for h, _, value in out["rolling_screened"] if not h]
+    print(f"  rolling-shutter block with --screen: readout kept in {len(kept)}/{n}"
+          + (f" ({min(kept):.2f}-{max(kept):.2f} ms)" if kept else ""))
 
 
 def acceptance(results: dict) -> None:
     """Issue 41's acceptance, one row per flight and lens."""
     print("\nacceptance (issue 41), per flight and lens over the seeds:")
     print(f"  {'flight, lens':18s} {'model within 1.15x':>18s} {'readout within 2 sigma':>22s} "
-          f"{'GS: screened out or within 2 sigma':>34s} {'GS, screened: vs today':>22s}")
+          f"{'GS: screened out or within 2 sigma':>34s} {'GS, screened: vs today':>22s} {'(where out)':>11s} "
+          f"{'RS, screened: kept':>18s}")
     for (flight, lens), out in results.items():
-        n = len(out["readouts"])
-        r = out["ratios"]["model"]
-        inside = int(np.sum((r[:, 0] <= 1.15) & (r[:, 1] <= 1.15)))
-        value, sigma, _ = out["readouts"].T
-        within = int(np.sum(np.abs(value - READOUT_MS) <= 2 * sigma))
+        n = len(out["zero"])
+        if len(out["readouts"]):
+            r = out["ratios"]["model"]
+            inside = f"{int(np.sum((r[:, 0] <= 1.15) & (r[:, 1] <= 1.15)))}/{n}"
+            value, sigma, _ = out["readouts"].T
+            within = f"{int(np.sum(np.abs(value - READOUT_MS) <= 2 * sigma))}/{n}"
+        else:
+            inside = within = "-"
         z_value, z_sigma, _ = out["zero"].T
         held = np.array([h for h, _, _ in out["screened"]])
         zero = int(np.sum(held | (np.abs(z_value) <= 2 * z_sigma)))
         worst = max(d for _, d, _ in out["screened"])
-        print(f"  {flight + ', ' + lens:18s} {inside:>15d}/{n} {within:>19d}/{n} {zero:>31d}/{n} "
-              f"{100 * worst:>19.3f} %")
+        worst_held = max((d for h, d, _ in out["screened"] if h), default=float("nan"))
+        kept = sum(not h for h, _, _ in out["rolling_screened"])
+        print(f"  {flight + ', ' + lens:18s} {inside:>18s} {within:>22s} {zero:>31d}/{n} "
+              f"{100 * worst:>19.3f} % {100 * worst_held:>9.3f} % {kept:>15d}/{n}")
 
 
 def coverage(seeds: int, density: float = 0.6) -> None:
@@ -270,6 +304,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--flights", default="serpentine,corridor")
     parser.add_argument("--lens", default="none,field")
     parser.add_argument("--no-cost", action="store_true")
+    parser.add_argument("--global-only", action="store_true",
+                        help="only the global-shutter block's rows and the rolling-shutter block screened")
     parser.add_argument("--coverage", type=int, default=30, metavar="N",
                         help="seeds of the readout's coverage study (0: none; default 30)")
     parser.add_argument("--sweep", type=int, default=3, metavar="N",
@@ -278,7 +314,7 @@ def main(argv: list[str] | None = None) -> int:
     results = {}
     for flight in args.flights.split(","):
         for lens in args.lens.split(","):
-            results[flight, lens] = study(flight, lens, args.seeds, args.density)
+            results[flight, lens] = study(flight, lens, args.seeds, args.density, args.global_only)
     for (flight, lens), out in results.items():
         print_study(flight, lens, out)
     acceptance(results)

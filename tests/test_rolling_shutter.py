@@ -1,8 +1,9 @@
 """Rolling-shutter cameras (issue 41): the readout recovered on simulated blocks against the truth, the check points
 of a rolling-shutter block as good as the same block's with a global shutter, the readout screened out of a
-global-shutter block, block.toml's keys checked, the import taking the readout from the images' camera model, the
-dense workspace's 2-D points moved to the middle line. The Jacobians: tests/test_sensor_contract.py (frame-rolling).
-Whole studies (10 seeds, corridor, WAPs, ODM's two-step correction, cost): benchmarks/study_rolling_shutter.py."""
+global-shutter block (for its effect where its t-test would keep it), block.toml's keys checked, the import taking
+the readout from the images' camera model, the dense workspace's 2-D points moved to the middle line. The Jacobians:
+tests/test_sensor_contract.py (frame-rolling). Whole studies (10 seeds, corridor, WAPs, ODM's two-step correction,
+cost): benchmarks/study_rolling_shutter.py."""
 from __future__ import annotations
 
 import json
@@ -89,6 +90,59 @@ def test_global_shutter_block_screens_the_readout_out(serpentine):
     for key in ("rmsd_chk_xy_m", "rmsd_chk_z_m", "sigma0_px"):
         assert model.summary[key] == pytest.approx(today.summary[key], rel=1e-6)
     np.testing.assert_allclose(model.result.state.image, today.result.state.image, rtol=0, atol=1e-6)
+
+
+def _readout_effect_px(result) -> float:
+    """What holding the readout at 0 moves a sampled ray (px) or point (ground px) by (selfcal.stats.effect)."""
+    from selfcal.stats.effect import effect_tracker
+    from selfcal.stats.screening import _screenable
+    owner, reference = _screenable(result.problem)
+    i = next(k for k, o in owner.items() if o[2] == "readout")
+    theta = result.problem.pack(result.state) - reference
+    Q = np.asarray(result.Q_theta, float)
+    return float(effect_tracker(result, Q).effects_px(np.array([i]), theta, np.diag(Q))[0])
+
+
+def test_readout_without_practical_effect_is_dropped_first():
+    """A global-shutter block whose readout passes the t-test (seed 26, GNSS + IMU: -0.63 ms at t 2.46, the false
+    alarm of one block in 20 at 5 %) is a global shutter in practice: holding the readout at 0 moves no sampled ray
+    or point by 0.1 px (0.04 px). Screening drops it for its effect, first (before the trajectory terms), and the
+    screened adjustment is today's global-shutter one; held at 0 from the start it is the frame model bit for bit.
+    On the rolling-shutter block (33 ms at 8 m/s: 0.26 m, 5 ground pixels, during the readout) its effect is about
+    2 px, and it stays."""
+    from selfcal.stats.screening import ScreeningOptions, screen_once
+    kw = dict(seed=26, distortion="none", flight="serpentine", speed_mps=8.0, points_per_mm2=0.3)
+    rolling = simulate_uav(rolling_shutter_ms=TRUE_READOUT_MS, **kw).blocks["type2"]
+    taken_global = simulate_uav(**kw).blocks["type2"]
+    declared = replace(taken_global, cameras=rolling.cameras)
+    unscreened = bundle_adjust(declared, ap="none", **FAST)
+    effect = _readout_effect_px(unscreened.result)
+    readout = _readout(unscreened)
+    t = abs(readout["value"]) / readout["sigma_adjustment"]
+    print(f"global shutter: readout {readout['value']:+.3f} ms, t {t:.2f}, effect {effect:.3f} px")
+    assert t > 1.96 and effect < 0.1
+    model = bundle_adjust(declared, ap="none", screen=True, **FAST)
+    today = bundle_adjust(_global(declared), ap="none", screen=True, **FAST)
+    first = model.files["screening.json"]["dropped"][0]
+    assert first["name"] == "readout" and first["round"] == 1 and first["t"] > 1.96
+    assert first["reason"].startswith("its effect is 0.0") and "(< 0.1 px)" in first["reason"]
+    assert not _readout(model)["estimated"] and _readout(model)["value"] == 0.0
+    names = [d["name"] for d in model.files["screening.json"]["dropped"]][1:]
+    assert names == [d["name"] for d in today.files["screening.json"]["dropped"]] and names
+    for key in ("rmsd_chk_xy_m", "rmsd_chk_z_m", "sigma0_px"):
+        assert model.summary[key] == pytest.approx(today.summary[key], rel=1e-9)
+    np.testing.assert_allclose(model.result.state.image, today.result.state.image, rtol=0, atol=1e-9)
+    # the readout held at 0 from the start: the frame model's arithmetic (AP none: the same sparse-free paths)
+    camera = next(iter(rolling.cameras.values()))
+    held = replace(declared, cameras={camera.camera_id: replace(camera, readout_ms=0.0, sigma_readout_ms=0.0)})
+    a, b = bundle_adjust(held, ap="none", **FAST).result, bundle_adjust(_global(declared), ap="none", **FAST).result
+    assert np.array_equal(a.state.image, b.state.image) and np.array_equal(a.state.points, b.state.points)
+    # the rolling-shutter block keeps it
+    outcome = bundle_adjust(rolling, ap="none", **FAST)
+    effect = _readout_effect_px(outcome.result)
+    print(f"rolling shutter: readout {_readout(outcome)['value']:.2f} ms, effect {effect:.2f} px")
+    assert effect > 1.0
+    assert screen_once(outcome.result, ScreeningOptions(), sensor_model=True)[1] == []
 
 
 def _block_folder(tmp_path, rolling=True):

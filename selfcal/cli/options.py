@@ -158,9 +158,10 @@ def test_options(parser: argparse.ArgumentParser) -> None:
                         help="screening: drop a GNSS/IMU shift/drift term only with t < T before the screening "
                              "and at the drop (default 1.355 = 3 - z(0.95): shown smaller than 3 sigma)")
     parser.add_argument("--min-effect-px", type=number(0.0), default=0.1, metavar="PX",
-                        help="screening: an AP coefficient stays only if holding it moves some adjusted image "
-                             "coordinate over the observed area by PX or more (default 0.1; 0: no test); --ap auto: "
-                             "a richer model must predict better than a simpler one by more than a field of PX")
+                        help="screening: an AP coefficient or a rolling shutter's readout stays only if holding "
+                             "it (at 0) moves some adjusted image coordinate over the observed area by PX or more "
+                             "(default 0.1; 0: no test); --ap auto: a richer model must predict better than a "
+                             "simpler one by more than a field of PX")
     parser.add_argument("--min-support", type=count(0), default=20, metavar="N",
                         help="screening: a coefficient of a local basis (a WAP) stays only if N observations or "
                              "more lie in its support (default 20)")

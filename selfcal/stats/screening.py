@@ -50,6 +50,16 @@ the interior orientation, and no drop that makes the residuals of its strip's
 observations significant. Tested on 30 blocks simulated with trajectory errors
 drawn independently of the model (benchmarks/study_trajectory.py).
 
+Practical significance (selfcal.stats.effect): an AP coefficient, or a sensor's parameter held at nothing (a
+rolling shutter's readout, held at 0 ms: :func:`_held_at_nothing`), also goes when holding it moves no sampled ray
+or point over the observed area by ``min_effect_px``. A sensor's parameters held at nothing are tested first, on
+their own (``screen_once(..., sensor_model=True)``, the tested workflow's first round): a block that does not show
+a rolling shutter is re-adjusted as a global shutter, and its APs and trajectory terms are then screened as with
+the frame model. Tested among the WAPs instead, the readout of a global-shutter block went (t 0.76) in the course of
+the WAPs' elimination, and the WAPs dropped with it still free differed from the frame model's screening (check
+points 2.9 % apart; benchmarks/study_rolling_shutter.py, serpentine, local + Brown field, seed 105); tested first,
+1e-6 apart.
+
 Seed 000 takes its thresholds from the BINGO manual (Kruck 2021), which is not
 public; the defaults above are ours and can be set on the command line.
 """
@@ -91,8 +101,9 @@ class ScreeningOptions:
     trajectory_significance: float | None = TRAJECTORY_SIGNIFICANCE
     #: w above which a strip's GNSS/IMU observation after a drop refuses it
     trajectory_w_critical: float = 3.0
-    #: an AP coefficient stays only if holding it moves some adjusted image coordinate over the observed area by at
-    #: least this much (px; 0: no test of practical significance; selfcal.stats.effect)
+    #: an AP coefficient (or a sensor's parameter held at nothing, a rolling shutter's readout: _held_at_nothing)
+    #: stays only if holding it moves some adjusted image coordinate over the observed area by at least this much
+    #: (px; 0: no test of practical significance; selfcal.stats.effect)
     min_effect_px: float = MIN_EFFECT_PX
     #: an AP coefficient of a local basis (a WAP) stays only if its support holds at least this many observations
     min_support: int = MIN_SUPPORT
@@ -167,24 +178,45 @@ def screening_masks(problem) -> dict:
 
 
 def _screenable(problem) -> tuple[dict[int, tuple], np.ndarray]:
-    """theta index -> (owner key, position in the owner's mask, name, owner label, calibration) of every
-    active screenable parameter, and the reference values of theta (what screening tests a parameter
-    against and holds it at: the start value of a sensor's parameter, zero for APs and trajectory terms), from
-    the problem's :class:`~selfcal.adjust.ParameterTable`. ``calibration`` marks the parameters of the correlation
-    test (not the trajectory terms)."""
+    """theta index -> (owner key, position in the owner's mask, name, owner label, calibration, kind, held at
+    nothing) of every active screenable parameter, and the reference values of theta (what screening tests a
+    parameter against and holds it at: the start value of a sensor's parameter or the reference its sensor
+    declares, zero for APs and trajectory terms), from the problem's :class:`~selfcal.adjust.ParameterTable`.
+    ``calibration`` marks the parameters of the correlation test (not the trajectory terms); ``kind`` is the
+    table's ("core", "ap", "image", "trajectory"); ``held at nothing`` the parameters of the test of practical
+    significance (:func:`_held_at_nothing`)."""
     table = parameter_table(problem)
     owner = {}
     reference = np.zeros(problem.n_theta)
     image = np.flatnonzero(table.kind == "image")
     reference[table.index[image]] = table.reference[image]
+    declared = {cam.camera_id: cam.core_reference for cam in problem.cameras}
     for k in np.flatnonzero(table.free & (table.index >= 0)):
         column = int(table.index[k])
         if table.kind[k] in ("core", "ap"):
             reference[column] = table.reference[k]
         if table.screenable[k] and (table.kind[k] != "image" or table.free[k]):
-            owner[column] = (table.key[k], int(table.position[k]), str(table.name[k]), str(table.owner[k]),
-                             table.kind[k] != "trajectory", str(table.kind[k]))
+            kind, position = str(table.kind[k]), int(table.position[k])
+            owner[column] = (table.key[k], position, str(table.name[k]), str(table.owner[k]),
+                             kind != "trajectory", kind,
+                             _held_at_nothing(kind, declared.get(str(table.owner[k]), ()), position))
     return owner, reference
+
+
+def _held_at_nothing(kind: str, core_reference: tuple, position: int) -> bool:
+    """Whether screening holds a parameter at the value where what it models is absent: the parameters of the test
+    of practical significance (:mod:`selfcal.stats.effect`), whose question "does holding it there change the
+    result by 0.1 px?" is then "does the block show what it models at all?".
+
+    The rule: an AP coefficient (held at 0, no correction) and a sensor's screened core parameter whose sensor
+    declares the reference it is held at (:attr:`selfcal.sensors.base.Parameter.reference`, in
+    ``CameraParameters.core_reference``): a rolling shutter's readout, held at 0 ms, a global shutter. Not a core
+    parameter held at its start value (a line scanner's calibration parameters, tested against the given
+    calibration: holding one returns to a prior, not to nothing), nor a frame camera's c, x0, y0 (not screened),
+    an image's parameters or a trajectory term (with their own guards, selfcal.stats.trajectory_screening)."""
+    if kind == "ap":
+        return True
+    return kind == "core" and position < len(core_reference) and bool(np.isfinite(core_reference[position]))
 
 
 class _Elimination:
@@ -220,13 +252,18 @@ class _Elimination:
 
 
 def screen_once(result, options: ScreeningOptions, before: ScreeningRound | None = None,
-                max_drops: int | None = None
+                max_drops: int | None = None, sensor_model: bool = False
                 ) -> tuple[dict[str, np.ndarray], list[ScreeningDecision], ScreeningRound | None]:
     """One round of screening: backward elimination on the linearised block of ``result``.
 
     ``before`` is the joint record of the earlier rounds: the guard tests
     everything dropped since the unscreened adjustment, not only this round.
     ``max_drops``: the round stops after that many drops (the cross-validation's guard, in the tested workflow).
+    ``sensor_model``: only the sensors' core parameters held at nothing (a rolling shutter's readout,
+    :func:`_held_at_nothing`), by the same tests (significance, practical significance, correlation) but before
+    any AP coefficient or trajectory term: whether the block shows what the sensor's model adds at all, asked
+    first, so that a block that does not (a global shutter) is then screened as with the simpler model (the
+    tested workflow's first round, :func:`selfcal.workflows.tested.adjust_with_tests`).
 
     Returns
     -------
@@ -237,7 +274,8 @@ def screen_once(result, options: ScreeningOptions, before: ScreeningRound | None
     problem = result.problem
     free = screening_masks(problem)
     owner, reference = _screenable(problem)
-    if not owner:
+    candidates = [k for k, o in owner.items() if not sensor_model or (o[5] == "core" and o[6])]
+    if not candidates:
         return free, [], None
     groups = parameter_groups(problem)
     is_ap = np.zeros(problem.n_theta, bool)       # the calibration parameters of the correlation test
@@ -248,10 +286,12 @@ def screen_once(result, options: ScreeningOptions, before: ScreeningRound | None
     state = _Elimination(problem.pack(result.state) - reference, result.Q_theta,
                          result.variance_factor * result.redundancy, result.redundancy)
     guards = GroupGuards(result, state, options, before, owner)
-    active = np.array(sorted(owner), dtype=np.int64)
-    is_coefficient = np.zeros(problem.n_theta, bool)     # the cameras' AP coefficients (practical significance)
+    active = np.array(sorted(candidates), dtype=np.int64)
+    is_coefficient = np.zeros(problem.n_theta, bool)     # the cameras' AP coefficients (their support)
     is_coefficient[[k for k, o in owner.items() if o[5] == "ap"]] = True
-    effects = effect_tracker(result, state.Q) if options.min_effect_px > 0 and is_coefficient.any() else None
+    is_practical = np.zeros(problem.n_theta, bool)       # practical significance: held at nothing (_held_at_nothing)
+    is_practical[[k for k, o in owner.items() if o[6]]] = True
+    effects = effect_tracker(result, state.Q) if options.min_effect_px > 0 and is_practical.any() else None
     if effects is not None:
         state.followers.append(effects)
     decisions: list[ScreeningDecision] = []
@@ -270,7 +310,7 @@ def screen_once(result, options: ScreeningOptions, before: ScreeningRound | None
     def full() -> bool:
         return max_drops is not None and len(decisions) >= max_drops
 
-    if before is None and options.min_support > 0:
+    if before is None and options.min_support > 0 and not sensor_model:
         # the first round: the coefficients of local functions that too few observations determine
         for index, count in _support(problem, owner, is_coefficient):
             if count < options.min_support and not full():
@@ -326,13 +366,14 @@ def screen_once(result, options: ScreeningOptions, before: ScreeningRound | None
     allowance = options.min_effect_px - (before.effect_moved_px if before else 0.0)
 
     def effect_step() -> bool:
-        """Drop the AP coefficient of the smallest effect if it is below ``min_effect_px`` and the coefficients
-        dropped for their effect (in this round and before) stay below it together: each alone may be nothing, but
-        twenty WAPs of 0.03-0.1 px each dropped from a Brown field made the check-point heights 23 % worse. A set
-        that matters together keeps its members, whose effects grow as their partners go."""
+        """Drop the parameter held at nothing (an AP coefficient, a rolling shutter's readout: _held_at_nothing) of
+        the smallest effect if it is below ``min_effect_px`` and the parameters dropped for their effect (in this
+        round and before) stay below it together: each alone may be nothing, but twenty WAPs of 0.03-0.1 px each
+        dropped from a Brown field made the check-point heights 23 % worse. A set that matters together keeps its
+        members, whose effects grow as their partners go."""
         if effects is None:
             return False
-        coefficients = active[is_coefficient[active]]
+        coefficients = active[is_practical[active]]
         if not coefficients.size:
             return False
         size = effects.effects_px(coefficients, state.theta, np.diag(state.Q))

@@ -194,13 +194,20 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
         dropped = 0
         if screening is not None and screenable:
             before = joint_tests[-1][1] if joint_tests else None
-            new_free, decisions, joint = screen_once(result, screening, before)
-            if decisions and screening.cross_validate and guard is None and not guard_note:
+            decisions: list[ScreeningDecision] = []
+            joint: ScreeningRound | None = None
+            if k == 1:
+                # the sensors' own parameters held at nothing first (a rolling shutter's readout): a block that does
+                # not show them is re-adjusted without them, and screened from there as with the simpler model
+                new_free, decisions, _ = screen_once(result, screening, sensor_model=True)
+            if not decisions:
+                new_free, decisions, joint = screen_once(result, screening, before)
+            if joint is not None and screening.cross_validate and guard is None and not guard_note:
                 try:
                     guard = PredictionGuard(result)
                 except ValueError as exc:            # (too large a system, no tie points in two folds)
                     guard_note = f"the screening was not cross-validated: {exc}"
-            if decisions and guard is not None:
+            if joint is not None and guard is not None:
                 accepted = guard.accepted(decisions)
                 if accepted < len(decisions):       # screening stops where it started to lose
                     screenable = 0
@@ -208,11 +215,11 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
                         if accepted else (free, [], None)
                 guard.commit(decisions)
             if decisions:
-                assert joint is not None                # (the joint test of what the round dropped)
                 free = new_free
                 dropped = len(decisions)
                 log += [(k, d) for d in decisions]
-                joint_tests.append((k, joint))
+                if joint is not None:                   # (the joint test of what the round dropped; the sensors'
+                    joint_tests.append((k, joint))      # parameters alone: their own tests, not the APs' guard)
         picks = np.zeros(0, np.int64)
         largest = 0.0
         demoted = None
