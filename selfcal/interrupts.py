@@ -83,7 +83,12 @@ def install() -> dict:
 def _unraisable(unraisable) -> None:
     """An Interrupted raised where Python cannot propagate it (the handler ran inside a weakref callback or a
     ``__del__``: "Exception ignored in ..." and a traceback) is sent again to this process, so that it is raised
-    at a statement of the program instead; anything else goes to the previous hook."""
+    at a statement of the program instead. Once an interrupted run is over (released), nothing is printed: objects
+    the signal left half-built (a module cut short while it was imported: pyparsing's ``Forward`` under
+    matplotlib) fail in ``__del__`` as the interpreter finalises them, and their traceback would follow the one
+    line that says what happened. Anything else goes to the previous hook."""
+    if _state.released and _state.signum is not None:
+        return
     if isinstance(unraisable.exc_value, Interrupted) and not _state.released:
         # from another thread, a moment later: a signal sent here would run the handler inside this hook
         # (the timer can fire before start() returns, under load: the handler then raises here, inside the hook,
