@@ -92,7 +92,7 @@ class TestedAdjustment:
     #: was not cross-validated (``{"note": ...}``); None without screening
     screening_prediction: dict | None = None
     #: the GNSS/IMU groups' weights against the images and control, estimated before the tests
-    #: (:data:`TRAJECTORY_WEIGHTS`); None: the declared sigmas were used (no trajectory, or switched off)
+    #: (``adjust_with_tests(trajectory_weights=...)``, opt-in); None: the declared sigmas were used (no trajectory, or switched off)
     trajectory_weights: list[VarianceComponent] | None = None
 
     @property
