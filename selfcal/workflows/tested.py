@@ -92,7 +92,8 @@ class TestedAdjustment:
     #: was not cross-validated (``{"note": ...}``); None without screening
     screening_prediction: dict | None = None
     #: the GNSS/IMU groups' weights against the images and control, estimated before the tests
-    #: (``adjust_with_tests(trajectory_weights=...)``, opt-in); None: the declared sigmas were used (no trajectory, or switched off)
+    #: (``adjust_with_tests(trajectory_weights=...)``, opt-in); None: the declared sigmas were used (no trajectory,
+    #: or not asked for)
     trajectory_weights: list[VarianceComponent] | None = None
 
     @property
