@@ -1,5 +1,6 @@
 """Rotation convention of DESIGN.md §2 and its derivatives."""
 import numpy as np
+import pytest
 
 from selfcal.geometry import matrix_from_opk, matrix_from_opk_with_derivatives, opk_from_matrix
 
@@ -44,3 +45,18 @@ def test_interpolated_earth_rotation_matches_the_direct_iau_2006_value():
     fast = itrs_from_gcrs("2007-05-12T01:45:00Z", t)
     exact = itrs_from_gcrs("2007-05-12T01:45:00Z", t, exact=True)
     assert np.max(np.abs(fast - exact)) < 1e-12
+
+
+def test_looking_at_points_the_axis_at_the_target():
+    """The simulators' camera that looks at a point: a rotation (det +1), the target straight ahead on -z, the
+    image's x axis perpendicular to the given up direction and y on its side."""
+    from selfcal.geometry.rotation import looking_at
+    rng = np.random.default_rng(3)
+    for up in ((0.0, 0.0, 1.0), (0.0, 1.0, 0.0)):
+        for _ in range(20):
+            position, target = rng.normal(size=3) * 10, rng.normal(size=3)
+            M = looking_at(position, target, up)
+            assert np.allclose(M @ M.T, np.eye(3), atol=1e-12) and np.linalg.det(M) == pytest.approx(1.0)
+            ahead = M @ (target - position)
+            assert np.allclose(ahead / np.linalg.norm(ahead), [0.0, 0.0, -1.0], atol=1e-12)
+            assert abs(M[0] @ np.array(up)) < 1e-12 and M[1] @ np.array(up) > 0

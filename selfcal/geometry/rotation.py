@@ -16,10 +16,11 @@ All functions are vectorised over a leading axis; angles are radians.
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 __all__ = ["matrix_from_opk", "matrix_from_opk_with_derivatives", "opk_from_matrix",
            "opk_from_matrix_with_derivatives", "matrix_from_quaternion", "quaternion_from_matrix",
-           "matrix_from_rotation_vector", "slerp"]
+           "matrix_from_rotation_vector", "slerp", "looking_at"]
 
 
 def _elementary(omega, phi, kappa, derivatives: bool = True):
@@ -180,3 +181,13 @@ def slerp(times: np.ndarray, quaternions: np.ndarray, t: np.ndarray) -> np.ndarr
     w1 = np.where(small, u, np.sin(u * angle) / sin)
     out = w0[:, None] * q0 + w1[:, None] * q1
     return out / np.linalg.norm(out, axis=1, keepdims=True)
+
+
+def looking_at(position: ArrayLike, target: ArrayLike, up: ArrayLike) -> np.ndarray:
+    """M (object to image axes: x right, y up, z towards the viewer; the camera looks along its -z) of a camera at
+    ``position`` whose axis points at ``target``, its x axis perpendicular to the object's direction ``up``."""
+    z = np.asarray(position, float) - np.asarray(target, float)
+    z /= np.linalg.norm(z)
+    x = np.cross(np.asarray(up, float), z)
+    x /= np.linalg.norm(x)
+    return np.vstack([x, np.cross(z, x), z])

@@ -22,7 +22,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..block import Block, Dropped, Images, Observations, OpenCVCamera, Points
-from ..geometry.rotation import opk_from_matrix
+from ..geometry.rotation import looking_at, opk_from_matrix
 from ..sensors.opencv import distortion_with_jacobians
 
 __all__ = ["ChessboardSimulation", "simulate_chessboard", "DEFAULT_CAMERA", "BOARD_SIGMA_M", "board_corners",
@@ -60,11 +60,7 @@ def board_corners(columns: int, rows: int, spacing_m: float) -> np.ndarray:
 def _looking_at(position: np.ndarray, target: np.ndarray, kappa: float, offset: np.ndarray) -> np.ndarray:
     """M (object to image axes, the camera looking along its -z) of a camera at ``position`` that images
     ``target`` at the normalised photo coordinates ``offset`` (x right, y up), turned by ``kappa``."""
-    z = position - target
-    z /= np.linalg.norm(z)
-    x = np.cross([0.0, 1.0, 0.0], z)
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
+    x, y, z = looking_at(position, target, (0.0, 1.0, 0.0))
     c, s = np.cos(kappa), np.sin(kappa)
     M = np.array([c * x + s * y, -s * x + c * y, z])
     # turn the camera so that the target's direction -(0, 0, 1) becomes (offset, -1) (normalised)

@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..block import Block, Dropped, FrameCamera, Images, Observations, Points, prune
-from ..geometry.rotation import matrix_from_opk, opk_from_matrix
+from ..geometry.rotation import looking_at, matrix_from_opk, opk_from_matrix
 from ..sensors.frame import pixel_from_photo
 
 __all__ = ["CloseRangeTruth", "CloseRangeSimulation", "simulate_close_range", "STRECHA_K"]
@@ -73,16 +73,6 @@ def _relief(x: np.ndarray, z: np.ndarray) -> np.ndarray:
     columns = 0.4 * (np.cos(2 * np.pi * x / 3.3) > 0.6)
     niche = -0.5 * np.exp(-(((x - 2.5) / 0.8) ** 2 + ((z - 4.0) / 0.9) ** 2))
     return basin + columns + niche + 0.1 * np.sin(1.7 * x) * np.cos(1.3 * z)
-
-
-def _looking_at(centre: np.ndarray, target: np.ndarray) -> np.ndarray:
-    """M (object -> image axes: x right, y up, z towards the viewer) of a camera at ``centre`` looking at
-    ``target`` with the image's x axis horizontal."""
-    forward = (target - centre) / np.linalg.norm(target - centre)
-    right = np.cross(forward, [0.0, 0.0, 1.0])
-    right /= np.linalg.norm(right)
-    up = np.cross(right, forward)
-    return np.vstack([right, up, -forward])
 
 
 def simulate_close_range(seed: int = 0, n_images: int = 11, n_points: int = 3000, image_sigma_px: float = 0.5,
@@ -139,7 +129,7 @@ def simulate_close_range(seed: int = 0, n_images: int = 11, n_points: int = 3000
     for k in range(n_images):
         turn = matrix_from_opk(np.radians(rng.normal(0.0, turn_sd_deg, 3))[None])[0]
         eop[k, :3] = centres[k]
-        eop[k, 3:] = opk_from_matrix((turn @ _looking_at(centres[k], target))[None])[0]
+        eop[k, 3:] = opk_from_matrix((turn @ looking_at(centres[k], target, (0.0, 0.0, 1.0)))[None])[0]
     M = matrix_from_opk(eop[:, 3:])
     focal_scale = 1.0 + rng.normal(0.0, focal_sd, n_images) if focal_sd > 0 else np.ones(n_images)
 
