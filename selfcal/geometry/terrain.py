@@ -28,14 +28,43 @@ class GridDem:
         if a <= 0 or e >= 0:
             raise ValueError("the DEM grid must be north-up (pixel width > 0, height < 0)")
 
-    def __call__(self, lat_deg, lon_deg) -> np.ndarray:
+    def _cells(self, lat_deg, lon_deg):
+        """Column and row positions (between cell centres, clamped to the grid), the cell's corner and the
+        fractions within it."""
         a, _, c, _, e, f = self.transform
         rows, cols = self.heights_m.shape
         x = np.clip((np.asarray(lon_deg, float) - c) / a - 0.5, 0.0, cols - 1.0)
         y = np.clip((np.asarray(lat_deg, float) - f) / e - 0.5, 0.0, rows - 1.0)
         x0 = np.minimum(np.floor(x).astype(int), cols - 2)
         y0 = np.minimum(np.floor(y).astype(int), rows - 2)
-        fx, fy = x - x0, y - y0
+        return x0, y0, x - x0, y - y0
+
+    def __call__(self, lat_deg, lon_deg) -> np.ndarray:
+        x0, y0, fx, fy = self._cells(lat_deg, lon_deg)
         h = self.heights_m
         return ((1 - fy) * ((1 - fx) * h[y0, x0] + fx * h[y0, x0 + 1])
                 + fy * ((1 - fx) * h[y0 + 1, x0] + fx * h[y0 + 1, x0 + 1]))
+
+    def gradient(self, lat_deg, lon_deg) -> tuple[np.ndarray, np.ndarray]:
+        """The slope of the interpolated heights: (dh/dlat, dh/dlon) in m per degree, the derivative of
+        :meth:`__call__` (within a cell; 0 across an edge where the heights are clamped)."""
+        a, _, c, _, e, f = self.transform
+        rows, cols = self.heights_m.shape
+        x0, y0, fx, fy = self._cells(lat_deg, lon_deg)
+        h = self.heights_m
+        d_col = (1 - fy) * (h[y0, x0 + 1] - h[y0, x0]) + fy * (h[y0 + 1, x0 + 1] - h[y0 + 1, x0])
+        d_row = (1 - fx) * (h[y0 + 1, x0] - h[y0, x0]) + fx * (h[y0 + 1, x0 + 1] - h[y0, x0 + 1])
+        x = (np.asarray(lon_deg, float) - c) / a - 0.5
+        y = (np.asarray(lat_deg, float) - f) / e - 0.5
+        d_col = np.where((x < 0) | (x > cols - 1), 0.0, d_col)
+        d_row = np.where((y < 0) | (y > rows - 1), 0.0, d_row)
+        return d_row / e, d_col / a
+
+    def covers(self, lat_deg, lon_deg) -> np.ndarray:
+        """Whether each position lies between the outermost cell centres (where the heights are interpolated,
+        not the edge's carried on)."""
+        a, _, c, _, e, f = self.transform
+        rows, cols = self.heights_m.shape
+        x = (np.asarray(lon_deg, float) - c) / a - 0.5
+        y = (np.asarray(lat_deg, float) - f) / e - 0.5
+        return (x >= 0) & (x <= cols - 1) & (y >= 0) & (y <= rows - 1)
