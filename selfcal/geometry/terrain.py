@@ -5,7 +5,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["GridDem"]
+__all__ = ["GridDem", "VERTICAL_DATUMS", "ellipsoidal_dem"]
 
 
 @dataclass(frozen=True)
@@ -68,3 +68,38 @@ class GridDem:
         x = (np.asarray(lon_deg, float) - c) / a - 0.5
         y = (np.asarray(lat_deg, float) - f) / e - 0.5
         return (x >= 0) & (x <= cols - 1) & (y >= 0) & (y <= rows - 1)
+
+
+#: the vertical datums a DEM's heights may be given in (``selfcal adjust --terrain-datum``): the EPSG code of the
+#: geoid's height, None for ellipsoidal heights
+VERTICAL_DATUMS = {"ellipsoid": None, "egm96": 5773, "egm2008": 3855}
+
+
+def ellipsoidal_dem(dem: GridDem, datum: str) -> GridDem:
+    """``dem`` with its heights over the geoid ``datum`` (a key of :data:`VERTICAL_DATUMS`) made ellipsoidal (WGS 84)
+    with PROJ's geoid grid, cell by cell; ``dem`` itself for "ellipsoid". ValueError, naming the grid, where PROJ
+    has no grid for the geoid (offline without it, PROJ falls back to a "ballpark" transformation that adds
+    nothing, which would be a silent error of tens of metres)."""
+    if datum not in VERTICAL_DATUMS:
+        raise ValueError(f"unknown vertical datum '{datum}' (one of {', '.join(VERTICAL_DATUMS)})")
+    code = VERTICAL_DATUMS[datum]
+    if code is None:
+        return dem
+    from pyproj.transformer import TransformerGroup
+    import warnings
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        group = TransformerGroup(f"EPSG:4326+{code}", "EPSG:4979", always_xy=True)
+    usable = [t for t in group.transformers if "ballpark" not in t.description.lower()]
+    if not usable:
+        grids = sorted({g.short_name for op in group.unavailable_operations for g in op.grids if not g.available})
+        raise ValueError(f"PROJ has no grid for {datum} heights ({', '.join(grids) or 'none found'}; not in PROJ's "
+                         f"data directory and the network is off): install it (projsync --file "
+                         f"{grids[0] if grids else 'GRID'}, or set PROJ_DATA to a directory that holds it) or give the "
+                         f"DEM in ellipsoidal heights")
+    a, _, c, _, e, f = dem.transform
+    rows, cols = dem.heights_m.shape
+    lon = np.broadcast_to(c + a * (np.arange(cols) + 0.5), (rows, cols))
+    lat = np.broadcast_to((f + e * (np.arange(rows) + 0.5))[:, None], (rows, cols))
+    _, _, h = usable[0].transform(lon.ravel(), lat.ravel(), dem.heights_m.ravel())
+    return GridDem(np.asarray(h, float).reshape(rows, cols), dem.transform)

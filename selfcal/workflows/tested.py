@@ -364,6 +364,7 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
             # tolerance): the round's estimate, converged to ROUND_TOLERANCE, is the result
             failure += (f"; the last adjustment is converged to {ROUND_TOLERANCE:g} of a sigma only (further, "
                         f"{_first_clause(str(exc))})")
+    terrain_note = terrain_notes(result.block, terrain_rejected)     # (with the sigma given, before any rescaling)
     components = converged = None
     if variance is not None:
         result, tests, components, converged = estimate_variance_components(
@@ -375,7 +376,7 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
                                 f"{c.group} x{c.scale:.3g}" for c in weights if c.estimated))
     result.notes[:0] = control_notes + left_without_rays(
         given, result.block, rejected, () if cleaning is None else cleaning.control_lost)
-    result.notes += terrain_notes(result.block, terrain_rejected)
+    result.notes += terrain_note
     if cleaning is not None:
         result.notes[:0] = cleaning.messages
     prediction = guard.summary() if guard is not None else {"note": guard_note} if guard_note else None

@@ -56,9 +56,9 @@ def terrain_frame_problem(block: Block, object_frame: str) -> str | None:
     if object_frame != "ECEF":
         return (f"terrain observations need points in ECEF (pushbroom, RPC and satellite line sensors); this block's "
                 f"points are in {block.crs} (frame cameras): not built")
-    if block.crs == "body-fixed":
-        return ("terrain observations need heights over WGS 84; this block is on a planetary body (crs "
-                "body-fixed): not built")
+    if block.crs == "body-fixed" or block.crs.upper().startswith("IAU"):
+        return (f"terrain observations need heights over WGS 84; this block is on a planetary body (crs "
+                f"{block.crs}): not built")
     return None
 
 
