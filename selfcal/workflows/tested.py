@@ -282,20 +282,20 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
             assert spec is not None
             block = replace(block, terrain_observations=replace(spec, rejected=spec.rejected + tuple(
                 name for name, _ in terrain_rejected[len(terrain_rejected) - terrain_picks.size:])))
-        back: list[str] = []
+        taken_back: list[str] = []
         if dropped == 0 and picks.size == 0 and terrain_picks.size == 0 and demoted is None and terrain_rejected \
                 and not terrain_settled:
             # the tests pass: the terrain heights rejected in a batch, tested against this adjustment without them,
             # are taken back where they fit it (once: DESIGN-NOTES "Terrain as observations")
             terrain_settled = True
-            back = readmissible_terrain(result, critical)
-            if back:
+            taken_back = readmissible_terrain(result, critical)
+            if taken_back:
                 spec = block.terrain_observations
                 assert spec is not None
                 block = replace(block, terrain_observations=replace(
-                    spec, rejected=tuple(p for p in spec.rejected if p not in back)))
-                terrain_rejected = [(p, w) for p, w in terrain_rejected if p not in back]
-        if dropped == 0 and picks.size == 0 and terrain_picks.size == 0 and demoted is None and not back:
+                    spec, rejected=tuple(p for p in spec.rejected if p not in taken_back)))
+                terrain_rejected = [(p, w) for p, w in terrain_rejected if p not in taken_back]
+        if dropped == 0 and picks.size == 0 and terrain_picks.size == 0 and demoted is None and not taken_back:
             if finished:
                 break
             # the rough adjustment passed the tests: converge it, and test again (reported, not a round of its own)

@@ -28,7 +28,7 @@ class TerrainHeights(PointResiduals):
     group = "terrain"
     width = 1
 
-    def __init__(self, index: np.ndarray, dem, sigma_m: np.ndarray):
+    def __init__(self, index: np.ndarray, dem, sigma_m: "float | np.ndarray"):
         super().__init__(index)
         self.dem = dem
         self.sigma_m = np.broadcast_to(np.asarray(sigma_m, float), (len(self.index),)).copy()
