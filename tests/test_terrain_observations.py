@@ -109,6 +109,15 @@ def test_data_snooping_flags_a_biased_patch_of_the_dem():
     assert tested.result.problem.terrain is not None
     kept = set(tested.result.block.points.point_id[tested.result.problem.terrain.index])
     assert not kept & flagged                          # rejected: no row in the final adjustment
+    from selfcal.io.results import results_from_files
+    from selfcal.report import render_report, result_files
+    files = result_files(terrain, tested)
+    header, columns, _ = files["terrain.csv"]
+    status = dict(zip(columns[0], columns[header.index("status")]))
+    assert {p for p, s in status.items() if s == "rejected"} == flagged
+    assert files["summary.json"]["terrain_observations"]["n_rejected"] == len(flagged)
+    html = render_report(results_from_files(files))["report.html"]
+    assert "terrain-rejected" in html and "Terrain as observations" in html
 
 
 def test_dem_heights_agree_with_gdal_bilinear_interpolation(tmp_path):
