@@ -389,7 +389,9 @@ class Dropped:
 class TerrainObservations:
     """Terrain heights as observations of tie points (issue 42; DESIGN-NOTES "Terrain as observations").
 
-    ``dem``: a :class:`~selfcal.geometry.terrain.GridDem` of ellipsoidal heights (EPSG:4326); ``sigma_m``: the
+    ``dem``: a :class:`~selfcal.geometry.terrain.GridDem` of ellipsoidal heights (EPSG:4326) or a ground point
+    cloud's :class:`~selfcal.geometry.cloud.CloudSurface` (anything with their ``__call__``, ``gradient`` and
+    ``covers``); ``sigma_m``: the
     a-priori standard deviation of a DEM height at a point; ``point_ids``: the tie points observed (None: every tie
     point whose coordinates in the block are known and lie on the DEM; the tested workflow names them from the
     start values); ``rejected``: those whose terrain height data snooping rejected (kept out of the adjustment);

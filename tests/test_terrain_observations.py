@@ -262,3 +262,85 @@ def test_cli_terrain_observations_refuse_a_frame_block(tmp_path, capsys):
     assert run_cli("adjust", str(tmp_path / "frame"), "--out", str(tmp_path / "out"), "--terrain-observations",
                    str(tmp_path / "dem.tif"), "--terrain-sigma-m", "1", "--quiet") == 2
     assert "need points in ECEF" in capsys.readouterr().err
+
+
+# --- a ground point cloud as the terrain (issue 42 item 2 (b)) ---------------------------------------------------
+
+def _cloud_over(sim, n: int, noise_m: float, seed: int = 11):
+    """``n`` ground points spread over the scene (and 0.02 degrees around it) on the simulated terrain, with
+    ``noise_m`` of height noise each: (lat_deg, lon_deg, h_m)."""
+    lat, lon, _ = geodetic_from_ecef(sim.points_ecef)
+    lat, lon = np.degrees(lat), np.degrees(lon)
+    rng = np.random.default_rng(seed)
+    cloud_lat = rng.uniform(lat.min() - 0.02, lat.max() + 0.02, n)
+    cloud_lon = rng.uniform(lon.min() - 0.02, lon.max() + 0.02, n)
+    return cloud_lat, cloud_lon, sim.dem(cloud_lat, cloud_lon) + rng.normal(0.0, noise_m, n)
+
+
+def test_cloud_surface_follows_the_terrain():
+    from selfcal.geometry.cloud import CloudSurface
+    from selfcal.geometry.earth import ecef_from_geodetic
+    from selfcal.simulate.prism import AnalyticDem
+    terrain = AnalyticDem()                            # a lidar-like cloud: 40,000 points on 11 x 9 km (50 m apart)
+    rng = np.random.default_rng(2)
+    lat = terrain.lat0_deg + rng.uniform(-0.05, 0.05, 40_000)
+    lon = terrain.lon0_deg + rng.uniform(-0.05, 0.05, 40_000)
+    h = terrain(lat, lon)
+    surface = CloudSurface(lat, lon, h)
+    sim = type("Sim", (), {"dem": terrain})
+    q_lat, q_lon = rng.uniform(lat.min() + 0.03, lat.max() - 0.03, 400), rng.uniform(lon.min() + 0.03,
+                                                                                       lon.max() - 0.03, 400)
+    height = np.abs(surface(q_lat, q_lon) - sim.dem(q_lat, q_lon)).max()
+    step = 1e-6
+    slope = np.stack([(sim.dem(q_lat + step, q_lon) - sim.dem(q_lat - step, q_lon)) / (2 * step),
+                      (sim.dem(q_lat, q_lon + step) - sim.dem(q_lat, q_lon - step)) / (2 * step)])
+    fitted = np.stack(surface.gradient(q_lat, q_lon))
+    print(f"cloud of 40,000 points (gap {surface.max_gap_m:.0f} m): heights within {height:.3f} m of the terrain, "
+          f"slopes within {np.abs(fitted - slope).max() / np.abs(slope).max():.1%} of the steepest")
+    assert height < 0.1 and np.abs(fitted - slope).max() < 0.05 * np.abs(slope).max()
+    assert surface.covers(q_lat, q_lon).all() and not surface.covers(np.array([lat.max() + 0.1]),
+                                                                      np.array([lon.mean()])).any()
+    ecef = CloudSurface.from_ecef(ecef_from_geodetic(np.radians(lat), np.radians(lon), h))
+    assert np.allclose(ecef(q_lat, q_lon), surface(q_lat, q_lon), atol=1e-6)
+
+
+def test_point_cloud_heights_improve_the_tie_points_and_their_variance_component_finds_the_noise(triplet):
+    from selfcal.geometry.cloud import CloudSurface
+    sim, block = triplet
+    cloud = CloudSurface(*_cloud_over(sim, 50_000, 2.0))     # 2 m per point: about 0.9 m for a plane of 8
+    without = adjust_with_tests(block, M6, snooping=None, robust=None)
+    terrain = replace(block, terrain_observations=TerrainObservations(cloud, 1.0))
+    tested = adjust_with_tests(terrain, M6, snooping=None, robust=None, variance=VarianceOptions())
+    rms0, rms1 = (float(np.sqrt(np.mean(_tie_height_errors(sim, t) ** 2))) for t in (without, tested))
+    rows = tested.result.problem.terrain
+    lat, lon, h = geodetic_from_ecef(sim.points_ecef)
+    index = [sim.point_ids.index(p) for p in tested.result.block.points.point_id[rows.index]]
+    true_sigma = float(np.sqrt(np.mean((cloud(np.degrees(lat), np.degrees(lon)) - h)[index] ** 2)))
+    components = {c.group: c for c in tested.variance_components}
+    estimated = components["terrain"].sigma_aposteriori[0]
+    print(f"tie heights RMS {rms0:.3f} m without, {rms1:.3f} m with {len(rows)} cloud heights; sigma estimated "
+          f"{estimated:.3f} m, true {true_sigma:.3f} m")
+    assert tested.result.converged and len(rows) > 300
+    assert rms1 < 0.6 * rms0
+    assert abs(estimated / true_sigma - 1.0) < 0.2
+
+
+def test_cli_adjust_with_a_point_cloud(block_folder, tmp_path, capsys):
+    sim = simulate_prism(seed=3, n_points=100)
+    lat, lon, h = _cloud_over(sim, 20_000, 0.3)
+    cloud = tmp_path / "cloud.csv"
+    cloud.write_text("lat_deg,lon_deg,h_m\n" + "".join(f"{a:.9f},{b:.9f},{c:.3f}\n" for a, b, c in zip(lat, lon, h)))
+    out = tmp_path / "results"
+    assert run_cli("adjust", str(block_folder / "triplet"), "--out", str(out), "--terrain-cloud", str(cloud),
+                   "--terrain-sigma-m", "0.5", "--no-report", "--quiet") == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["terrain_observations"]["surface"] == "cloud" and summary["terrain_observations"]["n_used"] > 30
+    assert (out / "terrain.csv").exists()
+    bad = tmp_path / "bad.csv"
+    bad.write_text("x,y,z\n1,2,3\n")
+    assert run_cli("adjust", str(block_folder / "triplet"), "--out", str(tmp_path / "b"), "--terrain-cloud",
+                   str(bad), "--terrain-sigma-m", "0.5", "--quiet") == 2
+    assert "bad.csv" in capsys.readouterr().err
+    assert run_cli("adjust", str(block_folder / "triplet"), "--out", str(tmp_path / "c"), "--terrain-cloud",
+                   str(cloud), "--terrain-observations", "--terrain-sigma-m", "0.5", "--quiet") == 2
+    assert "one terrain at a time" in capsys.readouterr().err

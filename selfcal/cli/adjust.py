@@ -67,6 +67,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                             "are tested with the rays (data snooping rejects a changed or vegetated area) and "
                             "--variance-components estimates their sigma (group terrain). Not --dem, which is the "
                             "terrain of mono restitution")
+    group.add_argument("--terrain-cloud", metavar="CSV",
+                       help="observe every tie point's height on a ground point cloud instead of a DEM (CSV with "
+                            "lat_deg,lon_deg,h_m: WGS 84, ellipsoidal, or X,Y,Z: ECEF m): a plane through the 8 "
+                            "nearest cloud points at the tie point; with --terrain-sigma-m, tested and weighted as "
+                            "--terrain-observations")
     group.add_argument("--terrain-sigma-m", type=number(0.0, low_open=True), metavar="S",
                        help="a-priori sigma of a DEM height at a tie point, m (required with --terrain-observations)")
     group.add_argument("--terrain-datum", choices=("ellipsoid", "egm96", "egm2008"), default="ellipsoid",
@@ -176,6 +181,8 @@ def _terrain_observations(block, args):
     from ..geometry.terrain import ellipsoidal_dem
     from ..io.dem import read_dem
     from ..workflows.terrain import check_terrain_block
+    if args.terrain_cloud is not None:
+        return _terrain_cloud(block, args)
     if args.terrain_observations is None:
         for flag, given in (("--terrain-sigma-m", args.terrain_sigma_m is not None),
                             ("--terrain-datum", args.terrain_datum != "ellipsoid")):
@@ -199,6 +206,33 @@ def _terrain_observations(block, args):
                                                                    source=str(path)))
 
 
+def _terrain_cloud(block, args):
+    """``block`` with the terrain observations of --terrain-cloud (see :func:`_terrain_observations`)."""
+    from dataclasses import replace
+
+    from ..block import TerrainObservations
+    from ..errors import BlockError
+    from ..geometry.cloud import CloudSurface
+    from ..io.cloud import read_point_cloud
+    from ..workflows.terrain import check_terrain_block
+    if args.terrain_observations is not None:
+        raise UsageError("--terrain-cloud and --terrain-observations: one terrain at a time (a DEM and a cloud "
+                         "together are not built)")
+    if args.terrain_datum != "ellipsoid":
+        raise UsageError("--terrain-datum applies to a DEM; a cloud's heights are ellipsoidal (or ECEF)")
+    if args.terrain_sigma_m is None:
+        raise UsageError("--terrain-cloud needs --terrain-sigma-m S: the a-priori sigma of the cloud's height at a "
+                         "tie point (m; --variance-components estimates it from the block)")
+    check_terrain_block(block)
+    kind, values = read_point_cloud(args.terrain_cloud)
+    try:
+        surface = CloudSurface.from_ecef(values) if kind == "ECEF" else CloudSurface(*values.T)
+    except ValueError as exc:
+        raise BlockError(args.terrain_cloud, str(exc)) from None
+    return replace(block, terrain_observations=TerrainObservations(surface, float(args.terrain_sigma_m),
+                                                                   source=str(args.terrain_cloud)))
+
+
 def run(args: argparse.Namespace) -> int:
     progress(f"reading {args.block} ...")       # at once: the engine's import takes a second of its own
     # the engine, the readers and the report load here, not for --help (issue 45: help answers at once)
@@ -213,7 +247,8 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     if args.max_iterations < 1:
         raise UsageError(f"--max-iterations must be at least 1, found {args.max_iterations}")
-    out = output_folder(args.out, (args.block, args.dem, args.terrain_observations or None), args.force)
+    out = output_folder(args.out, (args.block, args.dem, args.terrain_observations or None, args.terrain_cloud),
+                        args.force)
     block = read_block(args.block)
     defaulted = args.ap is None
     if defaulted:

@@ -534,7 +534,9 @@ def terrain_summary(tested) -> dict | None:
     tests = tested.tests
     component = next((c for c in tested.variance_components or () if c.group == "terrain"), None)
     apriori = terrain.sigma_m if component is None else component.sigma_apriori[0]
-    return {"dem": terrain.source or None, "sigma_apriori_m": float(apriori), "sigma_m": float(terrain.sigma_m),
+    from ..geometry.cloud import CloudSurface
+    return {"dem": terrain.source or None, "surface": "cloud" if isinstance(terrain.dem, CloudSurface) else "dem",
+            "sigma_apriori_m": float(apriori), "sigma_m": float(terrain.sigma_m),
             "n_used": int(tests.terrain_w.size), "n_rejected": len(tested.terrain_rejected),
             "n_off_dem": len(terrain.off_dem), "redundancy": float(tests.terrain_redundancy.sum()),
             "rejected": [{"point_id": p, "w": w} for p, w in tested.terrain_rejected]}
