@@ -34,6 +34,7 @@ from .half_block import half_block_check, half_block_notes, half_block_summary
 from .jackknife import calibration_precision
 from .loo import control_loo, loo_notes, loo_summary
 from .model_choice import ModelChoice, choose_ap_model
+from .terrain import name_terrain_points
 from .tested import TestedAdjustment, adjust_with_tests
 
 __all__ = ["AdjustRequest", "Adjusted", "adjust_block", "offers_sensor_models", "default_ap_model", "ap_candidates",
@@ -192,6 +193,8 @@ def _adjust_block(block: Block, request: AdjustRequest, progress: Callable | Non
     say = say or (lambda text: None)
     _check_control_axes(block)
     block = object_frame_block(block)
+    # the tie points of the terrain observations named once, for every adjustment below (issue 42)
+    block = name_terrain_points(block, request.options)
     if offers_sensor_models(block):
         return _seed001(block, request, progress, report, say, scores)
     block, plane = tangent_plane_block(block)
