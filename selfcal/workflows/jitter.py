@@ -138,7 +138,7 @@ def estimate_jitter_power(block, options: AdjustOptions, progress: Callable | No
         new_sigma = sigma * np.sqrt(factors)
         effect = new_sigma * _pixels_per_rad(result)
         newly = (effect < MIN_EFFECT_PX) & ~held
-        if say:
+        if say and not held.all():
             say("jitter sigma " + ", ".join(f"{n} {s * 1e6:.3f} urad ({e:.2f} px)" for n, s, e, h in
                                             zip(axes_names, new_sigma, effect, held) if not h))
         sigma = np.where(held, sigma, new_sigma)
