@@ -30,6 +30,7 @@ __all__ = [
     "Points",
     "Observations",
     "Dropped",
+    "TerrainObservations",
     "Block",
     "prune",
     "leave_out",
@@ -385,6 +386,32 @@ class Dropped:
 
 
 @dataclass(frozen=True)
+class TerrainObservations:
+    """Terrain heights as observations of tie points (issue 42; DESIGN-NOTES "Terrain as observations").
+
+    ``dem``: a :class:`~selfcal.geometry.terrain.GridDem` of ellipsoidal heights (EPSG:4326); ``sigma_m``: the
+    a-priori standard deviation of a DEM height at a point; ``point_ids``: the tie points observed (None: every tie
+    point whose coordinates in the block are known and lie on the DEM; the tested workflow names them from the
+    start values); ``rejected``: those whose terrain height data snooping rejected (kept out of the adjustment);
+    ``source``: where the DEM came from (a path, for the reports)."""
+
+    dem: Any
+    sigma_m: float
+    point_ids: tuple[str, ...] | None = None
+    rejected: tuple[str, ...] = ()
+    source: str = ""
+    #: the tie points left without a terrain row because they lie off the DEM (named with ``point_ids``)
+    off_dem: tuple[str, ...] = ()
+
+    def observed_ids(self) -> tuple[str, ...] | None:
+        """The tie points with a terrain row: ``point_ids`` without ``rejected`` (None: not yet named)."""
+        if self.point_ids is None:
+            return None
+        gone = set(self.rejected)
+        return tuple(p for p in self.point_ids if p not in gone)
+
+
+@dataclass(frozen=True)
 class Block:
     """Everything an adjustment needs, as read from a block folder."""
 
@@ -419,6 +446,8 @@ class Block:
     image_files: dict | None = None
     #: the block folder it was read from (None: built in memory); an output never goes there
     folder: str | None = None
+    #: terrain heights as observations of the tie points (``selfcal adjust --terrain-observations``); None: none
+    terrain_observations: TerrainObservations | None = None
 
     @property
     def has_trajectory(self) -> bool:

@@ -79,7 +79,7 @@ def test_termination_says_how_it_ended(result):
 def test_every_residual_kind_is_one_registry_line_behind_one_interface(result):
     """The registry builds the problem's blocks; each is a point or a parameter kind, and the problem's count of
     observations is the image coordinates plus what the blocks say."""
-    assert list(RESIDUALS) == ["control", "priors", "trajectory"]
+    assert list(RESIDUALS) == ["control", "terrain", "priors", "trajectory"]     # (terrain: issue 42, none without it)
     problem = result.problem
     assert problem.residuals and all(isinstance(b, (PointResiduals, ParameterResiduals)) for b in problem.residuals)
     n = 2 * problem.n_image_observations + sum(b.width * len(b) for b in problem.point_residuals)

@@ -173,6 +173,13 @@ class Problem:
         return next(b for b in self.residuals if isinstance(b, ControlCoordinates))
 
     @property
+    def terrain(self):
+        """The terrain heights' block (:class:`~.residuals.terrain.TerrainHeights`), None without terrain
+        observations."""
+        from .residuals.terrain import TerrainHeights
+        return next((b for b in self.residuals if isinstance(b, TerrainHeights)), None)
+
+    @property
     def control_index(self) -> np.ndarray:
         """The control points (the block's ``gcp``): their indices among the points."""
         return self.control.index

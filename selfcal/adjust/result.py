@@ -154,6 +154,16 @@ class AdjustmentResult:
         h = np.einsum("nij,njk,nik->ni", J, self.Q_points[control.index], J)        # diag(J Q_pp J^T)
         return control.index, h, -r
 
+    def terrain_leverages(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The tie points with a terrain height (indices among ``block``'s points), the leverage (n,) and the
+        whitened residual v = f - l (n,) of their terrain observations (empty without them)."""
+        terrain = self.problem.terrain
+        if terrain is None or not len(terrain):
+            return np.zeros(0, np.int64), np.zeros(0), np.zeros(0)
+        r, J = terrain.rows(self.state.points[terrain.index])
+        h = np.einsum("nij,njk,nik->ni", J, self.Q_points[terrain.index], J)
+        return terrain.index, h[:, 0], -r[:, 0]
+
     def parameter_observations(self):
         """The whitened Jacobian (k, n_theta, sparse) and residuals l - f of the observations of parameters alone
         (priors, GNSS/IMU with their shift and drift), and the group of each row."""

@@ -106,6 +106,8 @@ def downdated_start(previous, problem: Problem, block, free_network: bool = Fals
         return None
     if np.any(old.obs_weight != 1.0) or np.any(old.control.weight != 1.0):
         return None                         # a robust adjustment's rows were re-weighted
+    if not _same_terrain(old, old_block, problem, block):
+        return None                         # terrain heights rejected, or their sigma changed: a cold start
     dropped = _dropped_control(old, old_block, problem, block)
     if dropped is None:
         return None                         # a check point became a control point, or a survey sigma changed
@@ -118,6 +120,19 @@ def downdated_start(previous, problem: Problem, block, free_network: bool = Fals
         return _step(previous, S, removed, held, free_network, dropped)
     except (SingularPoints, SingularSystem, np.linalg.LinAlgError):
         return None
+
+
+def _same_terrain(old: Problem, old_block, problem: Problem, block) -> bool:
+    """Whether both problems observe the same points' terrain heights with the same sigmas (or neither has any):
+    the downdate takes out image rows only."""
+    before, now = old.terrain, problem.terrain
+    if before is None or not len(before):
+        return now is None or not len(now)
+    if now is None:
+        return False
+    return bool(np.array_equal(np.asarray(old_block.points.point_id)[before.index],
+                               np.asarray(block.points.point_id)[now.index])
+                and np.array_equal(before.sigma_m, now.sigma_m) and np.all(before.weight == 1.0))
 
 
 def _dropped_control(old: Problem, old_block, problem: Problem, block) -> np.ndarray | None:

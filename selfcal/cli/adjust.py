@@ -79,6 +79,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--jitter-sigma-urad", type=number(0.0, low_open=True), metavar="S",
                         help="a-priori sigma of every jitter coefficient (urad); default: estimated (variance "
                              "components)")
+    group = parser.add_argument_group("terrain as observations (issue 42; satellite and pushbroom blocks in ECEF)")
+    group.add_argument("--terrain-observations", nargs="?", const="", default=None, metavar="GEOTIFF",
+                       help="observe every tie point's height on this DEM (EPSG:4326; default: [terrain] dem of "
+                            "block.toml), with --terrain-sigma-m; control and check points get none. The heights "
+                            "are tested with the rays (data snooping rejects a changed or vegetated area) and "
+                            "--variance-components estimates their sigma (group terrain). Not --dem, which is the "
+                            "terrain of mono restitution")
+    group.add_argument("--terrain-sigma-m", type=number(0.0, low_open=True), metavar="S",
+                       help="a-priori sigma of a DEM height at a tie point, m (required with --terrain-observations)")
+    group.add_argument("--terrain-datum", choices=("ellipsoid", "egm96", "egm2008"), default="ellipsoid",
+                       help="what the DEM's heights are over (default: the WGS 84 ellipsoid); egm96/egm2008 are "
+                            "converted with PROJ's geoid grid, and refused where PROJ does not have it")
     parser.add_argument("--ap-cameras", metavar="ID,ID",
                         help="the cameras that get the APs (default all; required for wavelet1d when more than one "
                              "pushbroom camera is adjusted)")
@@ -172,6 +184,40 @@ def _terrain(block, args):
     return block.terrain_height_m
 
 
+def _terrain_observations(block, args):
+    """``block`` with the terrain observations of --terrain-observations (unchanged without it); UsageError or
+    BlockError (exit 2) for a missing sigma, a DEM that cannot be read or converted, a block that cannot take
+    them."""
+    from dataclasses import replace
+
+    from ..block import TerrainObservations
+    from ..errors import BlockError
+    from ..geometry.terrain import ellipsoidal_dem
+    from ..io.dem import read_dem
+    from ..workflows.terrain import check_terrain_block
+    if args.terrain_observations is None:
+        for flag, given in (("--terrain-sigma-m", args.terrain_sigma_m is not None),
+                            ("--terrain-datum", args.terrain_datum != "ellipsoid")):
+            if given:
+                raise UsageError(f"{flag} applies to --terrain-observations, which is not given")
+        return block
+    path = args.terrain_observations or block.dem_path
+    if not path:
+        raise UsageError("--terrain-observations without a DEM: give a GeoTIFF after it, or [terrain] dem in "
+                         "block.toml")
+    if args.terrain_sigma_m is None:
+        raise UsageError("--terrain-observations needs --terrain-sigma-m S: the a-priori sigma of a DEM height at a "
+                         "tie point (m; --variance-components estimates it from the block)")
+    check_terrain_block(block)
+    dem = read_dem(path)
+    try:
+        dem = ellipsoidal_dem(dem, args.terrain_datum)
+    except ValueError as exc:
+        raise BlockError(path, f"--terrain-datum {args.terrain_datum}: {exc}") from None
+    return replace(block, terrain_observations=TerrainObservations(dem, float(args.terrain_sigma_m),
+                                                                   source=str(path)))
+
+
 def run(args: argparse.Namespace) -> int:
     progress(f"reading {args.block} ...")       # at once: the engine's import takes a second of its own
     # the engine, the readers and the report load here, not for --help (issue 45: help answers at once)
@@ -186,13 +232,14 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     if args.max_iterations < 1:
         raise UsageError(f"--max-iterations must be at least 1, found {args.max_iterations}")
-    out = output_folder(args.out, (args.block, args.dem), args.force)
+    out = output_folder(args.out, (args.block, args.dem, args.terrain_observations or None), args.force)
     block = read_block(args.block)
     defaulted = args.ap is None
     if defaulted:
         args.ap = default_ap_model(block)
     check_inputs(out, [*(block.image_files or {}).values(), block.dem_path])
     _check_options(block, args)
+    block = _terrain_observations(block, args)
     for message in block.dropped.messages[:20]:
         print(f"warning: {message}", file=sys.stderr)
     if len(block.dropped.messages) > 20:

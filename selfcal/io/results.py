@@ -40,10 +40,10 @@ OPTIONAL_TABLES = {"parameters": "parameters.csv", "distortion_grid": "distortio
                    "distortion_sigma": "distortion_sigma.csv", "control_loo": "control_loo.csv",
                    "detector_line": "detector_line.csv", "trajectory": "trajectory.csv",
                    "check_points": "check_points.csv", "attitude_corrections": "attitude_corrections.csv",
-                   "rolling_shutter": "rolling_shutter.csv"}
+                   "rolling_shutter": "rolling_shutter.csv", "terrain": "terrain.csv"}
 #: columns that hold names, not numbers
 _TEXT_COLUMNS = {"image_id", "camera_id", "strip_id", "point_id", "role", "parameter", "sensor", "term", "axis",
-                 "unit", "owner", "group", "rejected_by"}
+                 "unit", "owner", "group", "rejected_by", "status"}
 
 
 def to_jsonable(value):

@@ -170,6 +170,8 @@ def summary(tested, extra: dict | None = None, checks=None, view: ResultView | N
         "distortion_sigma": distortion_sigma_summary(result),
     }
     out["quality_check"] = quality_check(tested, d_gcp, pts.sigma_m[gcp], pts.point_id[gcp])
+    if block.terrain_observations is not None:
+        out["terrain_observations"] = terrain_summary(tested)
     if extra:
         out.update(extra)
     return out
@@ -484,6 +486,62 @@ def point_table(block: Block, result, tests=None, view: ResultView | None = None
     return header, cols, fmts
 
 
+def terrain_table(tested) -> CsvTable | None:
+    """terrain.csv (issue 42): every tie point named for a terrain observation, its DEM height H and adjusted
+    ellipsoidal height h at the adjusted latitude and longitude, v = h - H (m), its a-priori sigma and, for a
+    used height, the redundancy number and Baarda's w; ``status`` used, rejected (by data snooping: w when it was
+    rejected) or off_dem (no row: its start value lay off the DEM). None without terrain observations."""
+    from ..geometry.earth import geodetic_from_ecef
+    result = tested.result
+    block = result.block
+    terrain = block.terrain_observations
+    if terrain is None:
+        return None
+    ids = list(terrain.point_ids or ()) + list(terrain.off_dem)
+    where = {p: k for k, p in enumerate(block.points.point_id)}
+    status = np.array(["used"] * len(terrain.point_ids or ()) + ["off_dem"] * len(terrain.off_dem), object)
+    rejected = dict(tested.terrain_rejected)
+    status[[k for k, p in enumerate(ids) if p in rejected]] = "rejected"
+    n = len(ids)
+    lat, lon, h, H, r, w = (np.full(n, np.nan) for _ in range(6))
+    known = np.array([p in where for p in ids], bool)
+    index = np.array([where.get(p, 0) for p in ids], np.int64)
+    if known.any():
+        la, lo, hh = geodetic_from_ecef(result.state.points[index[known]])
+        lat[known], lon[known], h[known] = np.degrees(la), np.degrees(lo), hh
+        H[known] = terrain.dem(lat[known], lon[known])
+    if result.problem.terrain is not None and len(result.problem.terrain):
+        position = {int(p): k for k, p in enumerate(result.problem.terrain.index)}
+        for k in range(n):
+            j = position.get(int(index[k]), -1) if known[k] and status[k] == "used" else -1
+            if j >= 0:
+                r[k], w[k] = tested.tests.terrain_redundancy[j], tested.tests.terrain_w[j]
+    for k, p in enumerate(ids):
+        if p in rejected:
+            w[k] = rejected[p]
+    header = ["point_id", "status", "lat_deg", "lon_deg", "h_m", "dem_h_m", "v_m", "sigma_m", "redundancy", "w"]
+    cols = [np.array(ids, object), status, lat, lon, h, H, h - H, np.full(n, terrain.sigma_m), r, w]
+    fmts = ["", "", ".9f", ".9f", ".4f", ".4f", ".4f", ".4f", ".4f", ".3f"]
+    return header, cols, fmts
+
+
+def terrain_summary(tested) -> dict | None:
+    """summary.json ``terrain_observations`` (issue 42): the DEM, the sigma given (``sigma_apriori_m``) and the one
+    the final adjustment used (``sigma_m``: rescaled by the variance component where it was estimated), how many
+    heights were used, rejected by data snooping and off the DEM; None without them."""
+    block = tested.result.block
+    terrain = block.terrain_observations
+    if terrain is None:
+        return None
+    tests = tested.tests
+    component = next((c for c in tested.variance_components or () if c.group == "terrain"), None)
+    apriori = terrain.sigma_m if component is None else component.sigma_apriori[0]
+    return {"dem": terrain.source or None, "sigma_apriori_m": float(apriori), "sigma_m": float(terrain.sigma_m),
+            "n_used": int(tests.terrain_w.size), "n_rejected": len(tested.terrain_rejected),
+            "n_off_dem": len(terrain.off_dem), "redundancy": float(tests.terrain_redundancy.sum()),
+            "rejected": [{"point_id": p, "w": w} for p, w in tested.terrain_rejected]}
+
+
 def residual_table(block_read: Block, tested) -> CsvTable:
     """residuals.csv: every observation of the block as read, rejected ones included.
 
@@ -654,7 +712,8 @@ def result_files(block_read: Block, tested, summary_extra: dict | None = None, s
                 "distortion_sigma.csv": distortion_sigma_table(result, getattr(tested, "half_block", None)),
                 "detector_line.csv": detector_line_table(result),
                 "trajectory.csv": trajectory_table(result, plane) if result.problem.trajectory else None,
-                "control_loo.csv": control_loo_table(tested.loo) if getattr(tested, "loo", None) is not None else None}
+                "control_loo.csv": control_loo_table(tested.loo) if getattr(tested, "loo", None) is not None else None,
+                "terrain.csv": terrain_table(tested) if getattr(tested, "terrain_rejected", None) is not None else None}
     if track is not None and checks is not None and len(checks):
         optional["check_points.csv"] = check_point_table(checks, track[1], track[0])
     for slot in result.problem.sensors:

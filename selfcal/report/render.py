@@ -523,6 +523,27 @@ def _control_loo_section(page: Page, results) -> None:
                    "note")
 
 
+def _terrain_section(page: Page, results) -> None:
+    """summary.json terrain_observations and terrain.csv's rejected heights (issue 42); nothing without them."""
+    t = results.summary.get("terrain_observations")
+    if not t:
+        return
+    page.paragraph(f"Terrain as observations: {t['n_used']} tie points' heights from the DEM {t.get('dem') or ''} "
+                   f"(σ {fmt(t.get('sigma_apriori_m'), '.3g')} m given, {fmt(t.get('sigma_m'), '.3g')} m in the final "
+                   f"adjustment; redundancy {fmt(t.get('redundancy'), '.1f')}), {t['n_rejected']} rejected by data "
+                   f"snooping, {t['n_off_dem']} tie points off the DEM. v = h − H (adjusted ellipsoidal height "
+                   f"minus the DEM's) and Baarda's w in terrain.csv.", "note")
+    table = results.tables.get("terrain")
+    if table is None:
+        return
+    rejected = np.flatnonzero(np.asarray(table["status"]) == "rejected")
+    if rejected.size:
+        rows = [[table["point_id"][i], fmt(table["lat_deg"][i], ".6f"), fmt(table["lon_deg"][i], ".6f"),
+                 fmt(table["v_m"][i], ".2f"), fmt(table["w"][i], ".1f")] for i in rejected]
+        page.table(["point", "lat [°]", "lon [°]", "v [m]", "w when rejected"], rows, text_columns=1,
+                   ident="terrain-rejected")
+
+
 def _precision_section(page: Page, files: dict, results) -> None:
     pts = results.tables["points"]
     tie = pts["role"] == "tie"
@@ -910,6 +931,7 @@ def render_report(results: ResultsFolder, title: str | None = None,
     heading("Object space: control and check points", anchor="control")
     _control_section(page, files, results)
     _control_loo_section(page, results)
+    _terrain_section(page, results)
     heading("Precision and correlations", anchor="precision")
     _precision_section(page, files, results)
     _correlation_section(page, files, results)

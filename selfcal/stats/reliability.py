@@ -20,7 +20,7 @@ value k of the test and the power beta0 = 80 %.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from .distributions import normal_ppf
@@ -49,10 +49,14 @@ class ObservationTests:
     parameter_w: np.ndarray           # (k,)
     critical: float
     delta0: float
+    #: the terrain heights of tie points (issue 42; ``result.problem.terrain``'s order), empty without them
+    terrain_redundancy: np.ndarray = field(default_factory=lambda: np.zeros(0))     # (n_terrain,)
+    terrain_w: np.ndarray = field(default_factory=lambda: np.zeros(0))              # (n_terrain,)
 
     @property
     def total_redundancy(self) -> float:
-        return float(self.image_redundancy.sum() + self.control_redundancy.sum() + self.parameter_redundancy.sum())
+        return float(self.image_redundancy.sum() + self.control_redundancy.sum() + self.parameter_redundancy.sum()
+                     + self.terrain_redundancy.sum())
 
     def image_w_max(self) -> np.ndarray:
         """Per image observation, the w of the coordinate with the larger ``|w|`` (sign kept)."""
@@ -75,9 +79,11 @@ def observation_tests(result, critical: float = 3.0) -> ObservationTests:
     ctl_r = np.clip(1.0 - ctl_h, 1e-12, None)
     par_h, par_v = result.parameter_leverages()
     par_r = np.clip(1.0 - par_h, 1e-12, None)
+    _, ter_h, ter_v = result.terrain_leverages()
+    ter_r = np.clip(1.0 - ter_h, 1e-12, None)
     return ObservationTests(
         image_redundancy=image_r, image_w=image_w, image_mdb_px=mdb, image_external=external,
         control_redundancy=ctl_r, control_w=ctl_v / np.sqrt(ctl_r),
         parameter_redundancy=par_r, parameter_w=par_v / np.sqrt(par_r),
-        critical=critical, delta0=delta0,
+        critical=critical, delta0=delta0, terrain_redundancy=ter_r, terrain_w=ter_v / np.sqrt(ter_r),
     )

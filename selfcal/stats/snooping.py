@@ -24,7 +24,7 @@ import numpy as np
 from ..block import Block
 from .reliability import ObservationTests
 
-__all__ = ["SnoopingOptions", "SnoopingRound", "image_w", "reject_candidates"]
+__all__ = ["SnoopingOptions", "SnoopingRound", "image_w", "reject_candidates", "terrain_w", "with_terrain"]
 
 
 @dataclass(frozen=True)
@@ -74,6 +74,36 @@ def reject_candidates(block: Block, w: np.ndarray, critical: float, mode: str) -
     first = np.ones(order.size, bool)
     first[1:] = pts[order][1:] != pts[order][:-1]
     return above[order[first]]
+
+
+def terrain_w(tests: ObservationTests, min_redundancy: float) -> np.ndarray:
+    """|w| per terrain height (``result.problem.terrain``'s order); 0 where not controlled."""
+    w = np.abs(tests.terrain_w)
+    w[tests.terrain_redundancy < min_redundancy] = 0.0
+    return w
+
+
+def with_terrain(block: Block, w_image: np.ndarray, image_picks: np.ndarray, terrain_point: np.ndarray,
+                 w_terrain: np.ndarray, critical: float, mode: str) -> tuple[np.ndarray, np.ndarray]:
+    """The image observations (indices into ``block.observations``) and the terrain heights (positions in
+    ``terrain_point``, the points they observe) to reject this round, the terrain heights tested with the image
+    observations (issue 42): ``single`` rejects the one largest |w| of either; ``batch`` a point's terrain height
+    where its |w| is above ``critical`` and at least that of every ray of the point (at most one observation
+    per point in a round, as for the rays: a wrong DEM height pulls the point, and with it the rays' w), and no
+    ray in a round that rejects terrain heights: an area of wrong DEM heights pulls the block, and with it the
+    rays of points elsewhere; they are tested again in the next round, without it."""
+    none = np.zeros(0, np.int64)
+    above = np.flatnonzero(w_terrain > critical)
+    if not above.size:
+        return image_picks, none
+    if mode == "single":
+        k = int(above[np.argmax(w_terrain[above])])
+        best_image = float(w_image[image_picks].max()) if image_picks.size else 0.0
+        return (none, np.array([k], np.int64)) if w_terrain[k] > best_image else (image_picks, none)
+    rays = np.zeros(len(block.points))
+    np.maximum.at(rays, block.observations.point_index, w_image)
+    terrain = above[w_terrain[above] >= rays[terrain_point[above]]]
+    return (none, terrain) if terrain.size else (image_picks, none)
 
 
 #: the fewest rays that determine a point of each role (:func:`selfcal.block.prune`)

@@ -33,9 +33,9 @@ from .reliability import ObservationTests, observation_tests
 
 __all__ = ["VarianceComponent", "VarianceOptions", "group_redundancy", "estimate_variance_components"]
 
-GROUPS = ("image", "GCP", "GNSS", "IMU")
+GROUPS = ("image", "GCP", "GNSS", "IMU", "terrain")
 TRAJECTORY_GROUPS = ("GNSS", "IMU")
-UNITS = {"image": "px", "GCP": "m", "GNSS": "m", "IMU": "deg"}
+UNITS = {"image": "px", "GCP": "m", "GNSS": "m", "IMU": "deg", "terrain": "m"}
 
 
 @dataclass(frozen=True)
@@ -87,6 +87,9 @@ def group_redundancy(result: AdjustmentResult, tests: ObservationTests) -> dict[
         sel = labels == group
         if sel.any():
             out[group] = (int(sel.sum()), float(np.sum(tests.parameter_w[sel] ** 2 * r[sel])), float(r[sel].sum()))
+    r = tests.terrain_redundancy
+    if r.size:
+        out["terrain"] = (r.size, float(np.sum(tests.terrain_w ** 2 * r)), float(r.sum()))
     return out
 
 
@@ -96,6 +99,9 @@ def _apriori(block: Block, group: str) -> tuple[float, ...]:
     if group == "GCP":
         gcp = block.points.role == "gcp"
         return tuple(float(v) for v in np.nanmedian(block.points.sigma_m[gcp], axis=0))
+    if group == "terrain":
+        assert block.terrain_observations is not None
+        return (float(block.terrain_observations.sigma_m),)
     if group == "GNSS":
         assert block.gnss_sigma_m is not None           # (the group's observations have it as their sigma)
         return tuple(float(v) for v in block.gnss_sigma_m)
@@ -127,6 +133,10 @@ def reweighted(block: Block, scale: dict[str, float]) -> Block:
             images["imu_sigma_rad"] = scale["IMU"] * block.images.imu_sigma_rad
     if images:
         changes["images"] = replace(block.images, **images)
+    if scale.get("terrain", 1.0) != 1.0:
+        assert block.terrain_observations is not None, "the block has no terrain observations to reweight"
+        changes["terrain_observations"] = replace(block.terrain_observations,
+                                                  sigma_m=scale["terrain"] * block.terrain_observations.sigma_m)
     return replace(block, **changes) if changes else block
 
 

@@ -33,9 +33,11 @@ from ..stats.reliability import ObservationTests, observation_tests
 from ..stats.screening import (PredictionGuard, ScreeningDecision, ScreeningOptions, ScreeningRound, screen_once,
                                screening_masks)
 from ..stats.loo import LeaveOneOut
-from ..stats.snooping import SnoopingOptions, SnoopingRound, image_w, left_without_rays, reject_candidates
+from ..stats.snooping import (SnoopingOptions, SnoopingRound, image_w, left_without_rays, reject_candidates, terrain_w,
+                              with_terrain)
 from ..stats.variance import (TRAJECTORY_GROUPS, VarianceComponent, VarianceOptions, estimate_variance_components,
                               reweighted)
+from .terrain import name_terrain_points, readmissible_terrain, terrain_notes
 
 if TYPE_CHECKING:
     from .half_block import HalfBlock
@@ -95,6 +97,8 @@ class TestedAdjustment:
     #: (``adjust_with_tests(trajectory_weights=...)``, opt-in); None: the declared sigmas were used (no trajectory,
     #: or not asked for)
     trajectory_weights: list[VarianceComponent] | None = None
+    #: (point id, |w|) of each tie point's terrain height that data snooping rejected (issue 42), in order
+    terrain_rejected: list[tuple[str, float]] = field(default_factory=list)
 
     @property
     def robust_rows(self) -> np.ndarray:
@@ -127,6 +131,7 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
     then those of the reweighted block. ``ap_models`` (camera id -> APModel)
     replaces the models built from ``options.ap``.
     """
+    block = name_terrain_points(block, options)     # (the tie points on the DEM, from the start values)
     given = block
     snoop = snooping if snooping is not None and snooping.critical > 0 else None     # None: no snooping
     critical = snoop.critical if snoop is not None else 3.0
@@ -181,6 +186,8 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
     rejected_mdb = np.full((len(rejected), 2), np.nan)
     snooped = 0
     control_demoted: list[tuple[str, float]] = []
+    terrain_rejected: list[tuple[str, float]] = []
+    terrain_settled = False             # the rejected terrain heights were tested again (once)
     control_settled = False             # a demotion was not confirmed: the control group is not tested again
     control_notes: list[str] = []       # what the test of the control group did, for the final result's notes
     rounds: list[SnoopingRound] = []
@@ -222,6 +229,7 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
                 if joint is not None:                   # (the joint test of what the round dropped; the sensors'
                     joint_tests.append((k, joint))      # parameters alone: their own tests, not the APs' guard)
         picks = np.zeros(0, np.int64)
+        terrain_picks = np.zeros(0, np.int64)
         largest = 0.0
         demoted = None
         if snoop is not None:
@@ -233,6 +241,14 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
                 control_candidate(result, tests, critical, snoop.min_redundancy, largest)
             picks = np.zeros(0, np.int64) if demoted is not None else \
                 reject_candidates(result.block, w, critical, snoop.mode)
+            terrain = result.problem.terrain
+            if demoted is None and terrain is not None and len(terrain):
+                # the terrain heights are tested with the rays (issue 42): a DEM that is wrong there is rejected
+                w_terrain = terrain_w(tests, snoop.min_redundancy)
+                picks, terrain_picks = with_terrain(result.block, w, picks, terrain.index, w_terrain, critical,
+                                                    snoop.mode)
+                terrain_rejected += [(str(result.block.points.point_id[terrain.index[k]]), float(w_terrain[k]))
+                                     for k in terrain_picks]
             if picks.size and snooped + picks.size > limit:
                 failure = _too_many(tests, largest, snooped, robust is not None)
                 break
@@ -242,7 +258,7 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
             rejected_mdb = np.concatenate([rejected_mdb, tests.image_mdb_px[picks]])
         if readmitted is not None:
             block, readmitted = readmitted, None
-            if dropped == 0 and picks.size == 0 and demoted is None:
+            if dropped == 0 and picks.size == 0 and terrain_picks.size == 0 and demoted is None:
                 result = adjust(block, rough, progress=progress, start=result, free=free, ap_models=models)
                 finished = rough is options or _meets(result, options)
                 block = result.block
@@ -261,7 +277,25 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
             roles = np.asarray(block.points.role).copy()
             roles[where] = "chk"
             block = replace(block, points=replace(block.points, role=roles))
-        if dropped == 0 and picks.size == 0 and demoted is None:
+        if terrain_picks.size:
+            spec = block.terrain_observations
+            assert spec is not None
+            block = replace(block, terrain_observations=replace(spec, rejected=spec.rejected + tuple(
+                name for name, _ in terrain_rejected[len(terrain_rejected) - terrain_picks.size:])))
+        taken_back: list[str] = []
+        if dropped == 0 and picks.size == 0 and terrain_picks.size == 0 and demoted is None and terrain_rejected \
+                and not terrain_settled:
+            # the tests pass: the terrain heights rejected in a batch, tested against this adjustment without them,
+            # are taken back where they fit it (once: DESIGN-NOTES "Terrain as observations")
+            terrain_settled = True
+            taken_back = readmissible_terrain(result, critical)
+            if taken_back:
+                spec = block.terrain_observations
+                assert spec is not None
+                block = replace(block, terrain_observations=replace(
+                    spec, rejected=tuple(p for p in spec.rejected if p not in taken_back)))
+                terrain_rejected = [(p, w) for p, w in terrain_rejected if p not in taken_back]
+        if dropped == 0 and picks.size == 0 and terrain_picks.size == 0 and demoted is None and not taken_back:
             if finished:
                 break
             # the rough adjustment passed the tests: converge it, and test again (reported, not a round of its own)
@@ -280,12 +314,15 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
         try:
             result = adjust(sub, rough, progress=progress, start=result, free=free, ap_models=models)
         except AdjustmentError as exc:
-            if not picks.size:
+            if not picks.size and not terrain_picks.size:
                 raise
+            if terrain_picks.size:
+                del terrain_rejected[len(terrain_rejected) - terrain_picks.size:]
             # the round's rejections cut what held the block together (the rays between strips, where a model
             # that misses the lens puts its largest residuals): they are taken back and the tests stop there
             n = int(picks.size)
-            rejected, rejected_w, rejected_mdb = rejected[:-n], rejected_w[:-n], rejected_mdb[:-n]
+            if n:
+                rejected, rejected_w, rejected_mdb = rejected[:-n], rejected_w[:-n], rejected_mdb[:-n]
             snooped -= n
             rounds.pop()
             failure = _disconnected(k, n, largest, str(exc))
@@ -327,6 +364,7 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
             # tolerance): the round's estimate, converged to ROUND_TOLERANCE, is the result
             failure += (f"; the last adjustment is converged to {ROUND_TOLERANCE:g} of a sigma only (further, "
                         f"{_first_clause(str(exc))})")
+    terrain_note = terrain_notes(result.block, terrain_rejected)     # (with the sigma given, before any rescaling)
     components = converged = None
     if variance is not None:
         result, tests, components, converged = estimate_variance_components(
@@ -338,6 +376,7 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
                                 f"{c.group} x{c.scale:.3g}" for c in weights if c.estimated))
     result.notes[:0] = control_notes + left_without_rays(
         given, result.block, rejected, () if cleaning is None else cleaning.control_lost)
+    result.notes += terrain_note
     if cleaning is not None:
         result.notes[:0] = cleaning.messages
     prediction = guard.summary() if guard is not None else {"note": guard_note} if guard_note else None
@@ -346,7 +385,8 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
     order = np.argsort(rejected)
     return TestedAdjustment(result, tests, rejected[order], rejected_w[order], rejected_mdb[order], free, n_ap_initial,
                             rounds, log, joint_tests, components, converged, failure, cleaning, control_demoted,
-                            screening_prediction=prediction, trajectory_weights=weights)
+                            screening_prediction=prediction, trajectory_weights=weights,
+                            terrain_rejected=terrain_rejected)
 
 
 #: the control group is tested only while at least this many control points remain (a datum and redundancy)

@@ -15,7 +15,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..options import TrajectoryOptions
-from . import control, priors, trajectory
+from . import control, priors, terrain, trajectory
 from .base import ParameterResiduals, PointResiduals, Triplets
 
 __all__ = ["RESIDUALS", "ResidualSettings", "PointResiduals", "ParameterResiduals", "Triplets", "build_residuals",
@@ -35,6 +35,7 @@ class ResidualSettings:
 #: kind name -> builder (block, problem, settings) -> list of residual blocks, in the order of theta's x part
 RESIDUALS: dict[str, Callable] = {
     "control": control.from_block,
+    "terrain": terrain.from_block,
     "priors": priors.from_block,
     "trajectory": trajectory.from_block,
 }
