@@ -31,29 +31,6 @@ from selfcal.workflows.jitter import choose_jitter
 TRUE_FOCAL_MM = {"F": 1938.20, "N": 1937.45, "B": 1936.66}
 
 
-def jitter_error_urad(result, sim, samples=2001):
-    slot = result.problem.sensors[0]
-    bound = slot.bound
-    errors = []
-    for i in slot.images:
-        image = bound.images[int(i)]
-        rows = np.linspace(0, image.rows, samples)
-        estimate = np.zeros((samples, 3))
-        if bound.jitter is not None:
-            G = bound.attitude_design(int(i), rows)
-            estimate = G[:, :, bound.jitter_offset:] @ result.state.image[int(i), bound.jitter_offset:]
-        truth = sim.truth.jitter_rad(image.time_of_row(rows))
-        V = np.stack([np.ones(samples), 2 * rows / image.rows - 1], -1)
-        truth -= V @ np.linalg.lstsq(V, truth, rcond=None)[0]
-        errors.append((estimate - truth)[:, :2])
-    errors = np.array(errors)
-    roll = errors[:, :, 0] - errors[:, :, 0].mean(axis=0)
-    pitch = np.einsum("k,kn->n", np.array([1.0, -2.0, 1.0]) / np.sqrt(6.0), errors[:, :, 1])
-    total = np.sqrt(np.mean(errors ** 2, axis=(0, 1))) * 1e6
-    seen = np.array([np.sqrt(np.mean(roll ** 2)), np.sqrt(np.mean(pitch ** 2) / 3)]) * 1e6
-    return total, seen
-
-
 def case(block, gcps, options):
     c = seed001.run_case(block, "M5", gcps, (0, 1, 2), None, "F+N+B", options, SnoopingOptions())
     r = c.tested.result if c.tested is not None else None
@@ -86,7 +63,7 @@ def main() -> None:
             for name, options, chosen_s in rows:
                 c, r, rejected = case(block, gcps, options)
                 rmse = c.rmse_m if c.rmse_m is not None else np.full(3, np.nan)
-                error = jitter_error_urad(r, sim) if (r is not None and jitter) else (np.full(2, np.nan),) * 2
+                error = sim.truth.jitter_error_urad(r) if (r is not None and jitter) else (np.full(2, np.nan),) * 2
                 sub = seed001.case_block(block, (0, 1, 2), gcps)
                 t = time.perf_counter()
                 adjust(sub, options)

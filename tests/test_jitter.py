@@ -73,30 +73,6 @@ def test_jitter_columns_match_finite_differences():
         assert np.max(np.abs(numeric)) > 0 or column >= off + 2 * m
 
 
-def _jitter_error_urad(result, sim, samples=1001):
-    """RMS over the lines of the estimated jitter's error against the truth beyond each image's linear part, roll and
-    pitch (urad): in all, and in what the tie points of a fore-nadir-aft triplet can see: the roll beyond the part
-    common to the three images (the ground under them moving alike) and the pitch along (1, -2, 1) (the common part
-    moves the ground along the track, fore minus aft its heights)."""
-    slot = result.problem.sensors[0]
-    bound = slot.bound
-    errors = []
-    for i in slot.images:
-        image = bound.images[int(i)]
-        rows = np.linspace(0, image.rows, samples)
-        G = bound.attitude_design(int(i), rows)
-        estimate = G[:, :, bound.jitter_offset:] @ result.state.image[int(i), bound.jitter_offset:]
-        truth = sim.truth.jitter_rad(image.time_of_row(rows))
-        V = np.stack([np.ones(samples), 2 * rows / image.rows - 1], -1)
-        truth -= V @ np.linalg.lstsq(V, truth, rcond=None)[0]
-        errors.append((estimate - truth)[:, :2])
-    errors = np.array(errors)                                             # (F, N, B), lines, (roll, pitch)
-    roll = errors[:, :, 0] - errors[:, :, 0].mean(axis=0)
-    pitch = np.einsum("k,kn->n", np.array([1.0, -2.0, 1.0]) / np.sqrt(6.0), errors[:, :, 1])
-    total = np.sqrt(np.mean(errors ** 2, axis=(0, 1))) * 1e6
-    return total, np.array([np.sqrt(np.sum(roll ** 2) / roll.size), np.sqrt(np.mean(pitch ** 2) / 3)]) * 1e6
-
-
 def test_jitter_of_a_triplet_is_found_where_tie_points_see_it():
     """A triplet of 300 points with 5 urad of roll and pitch jitter (0.7-0.9 px RMS per axis, 2.5 urad) unknown to
     the telemetry: bias and drift leave sigma0 at 2.5x the noise; level 6 with the jitter's power estimated brings it
@@ -113,7 +89,7 @@ def test_jitter_of_a_triplet_is_found_where_tie_points_see_it():
     assert np.sqrt(result.variance_factor) < 1.1                   # measured 1.08
     roll_sigma, pitch_sigma = choice.sigma_rad[:2]
     assert 1.5e-6 < roll_sigma < 3.5e-6 and 1.5e-6 < pitch_sigma < 3.5e-6      # measured 2.2, 2.5; truth 2.5 RMS
-    total, seen = _jitter_error_urad(result, sim)
+    total, seen = sim.truth.jitter_error_urad(result, samples=1001)
     assert np.all(seen < 0.85), seen                  # of 2.5 urad RMS
     assert np.all(total < 2.2), total                 # the unseen part bounded (measured 1.4, 1.8)
 

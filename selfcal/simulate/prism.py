@@ -138,6 +138,32 @@ class PrismTruth:
         t = np.atleast_1d(np.asarray(t, float))
         return np.zeros((len(t), 3)) if self.jitter is None else self.jitter.angles(t, self.jitter_phases)
 
+    def jitter_error_urad(self, result, samples: int = 2001) -> tuple[np.ndarray, np.ndarray]:
+        """The error of an adjustment's jitter (``result`` of the triplet F, N, B) against this truth beyond each
+        image's linear part (bias and drift take that), RMS over the lines in urad, (roll, pitch): in all, and in what
+        the tie points of one scene's fore-nadir-aft views can see: the roll beyond the part common to the three
+        images (the ground under them moving alike) and the pitch along (1, -2, 1) (the common part moves the ground
+        along the track, fore minus aft its heights)."""
+        slot = result.problem.sensors[0]
+        bound = slot.bound
+        errors = []
+        for i in slot.images:
+            image = bound.images[int(i)]
+            rows = np.linspace(0, image.rows, samples)
+            estimate = np.zeros((samples, 3))
+            if bound.jitter is not None:
+                G = bound.attitude_design(int(i), rows)
+                estimate = G[:, :, bound.jitter_offset:] @ result.state.image[int(i), bound.jitter_offset:]
+            truth = self.jitter_rad(image.time_of_row(rows))
+            V = np.stack([np.ones(samples), 2 * rows / image.rows - 1], -1)
+            truth -= V @ np.linalg.lstsq(V, truth, rcond=None)[0]
+            errors.append((estimate - truth)[:, :2])
+        error = np.array(errors)                                         # (F, N, B), lines, (roll, pitch)
+        roll = error[:, :, 0] - error[:, :, 0].mean(axis=0)
+        pitch = np.einsum("k,kn->n", np.array([1.0, -2.0, 1.0]) / np.sqrt(6.0), error[:, :, 1])
+        total = np.sqrt(np.mean(error ** 2, axis=(0, 1))) * 1e6
+        return total, np.array([np.sqrt(np.mean(roll ** 2)), np.sqrt(np.mean(pitch ** 2) / 3)]) * 1e6
+
 
 @dataclass
 class PrismSimulation:

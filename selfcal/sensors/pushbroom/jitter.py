@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ...ap.base import independent_functions
+from ...ap.line import orthogonal_beyond
 from ...errors import UsageError
 from ...wavelets import check_wavelet_name, get_wavelet
 
@@ -132,13 +132,7 @@ def time_basis(wavelet: str, level: int, degree: int) -> TimeWaveletBasis:
                              np.zeros((degree + 1, len(translations))))
     n = SAMPLES_PER_CELL * max(cells, 8)
     tau = (np.arange(n) + 0.5) / n
-    raw, F = draft._raw(tau), draft._powers(tau)
-    projection = np.linalg.lstsq(F, raw, rcond=None)[0]
-    orthogonal = raw - F @ projection
-    fit = np.linalg.lstsq(raw, F, rcond=None)[0]
-    misfit = np.linalg.norm(F - raw @ fit, axis=0) / np.linalg.norm(F, axis=0)
-    n_dependent = int(np.sum(misfit < REPRODUCTION_TOLERANCE))
-    keep = np.flatnonzero(independent_functions(orthogonal.T @ orthogonal, n_dependent))
+    keep, projection = orthogonal_beyond(draft._raw(tau), draft._powers(tau), REPRODUCTION_TOLERANCE)
     if not keep.size:
         raise UsageError(f"--jitter wavelet1d:{wavelet}:{level}: no function of that level is left beyond the "
                          f"sensor's polynomial of degree {degree}; choose a higher level")
