@@ -135,7 +135,7 @@ class SensorOptions:
                 sigma is not None and not np.all(np.asarray(sigma, float) > 0):
             raise UsageError(f"jitter sigma {sigma} rad: a positive number, or one per attitude axis, expected")
         if sigma is not None and np.ndim(sigma):
-            object.__setattr__(self, "jitter_sigma_rad", tuple(float(v) for v in sigma))
+            object.__setattr__(self, "jitter_sigma_rad", tuple(float(v) for v in np.asarray(sigma, float)))
 
 
 @dataclass(frozen=True)

@@ -383,7 +383,9 @@ class UsgscsmLineBound(PushbroomBound):
 
     def roll_pitch_yaw(self, i: int) -> np.ndarray:
         """The roll, pitch, yaw increments of unit RA, DEC, TWIST increments of image ``i``."""
-        return self.axes[i]
+        axes = self.axes[i]
+        assert axes is not None                 # (a line scan of an ISD has its jigsaw axes)
+        return axes
 
     def polynomial_design(self, i, rows):
         """d(RA, DEC, TWIST increments)/d(coefficients) at ``rows``: the powers of s."""

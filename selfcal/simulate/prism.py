@@ -24,6 +24,7 @@ Times count from the simulation's epoch; the nadir scene is centred at
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from typing import Callable
 
 import numpy as np
 
@@ -111,7 +112,7 @@ JITTER = Jitter()
 class _Jittered:
     """A fitted attitude plus the platform's jitter (a time function of :class:`Trajectory`)."""
 
-    smooth: object
+    smooth: Callable
     jitter: Jitter
     phases: tuple
 

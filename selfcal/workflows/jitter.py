@@ -147,7 +147,7 @@ def estimate_jitter_power(block, options: AdjustOptions, progress: Callable | No
             continue
         if np.all(np.abs(factors[~held] - 1.0) <= VCE_TOLERANCE):
             break
-    kept = tuple(a for a, h in zip(axes_names, held) if not h)
+    kept = tuple(a for a, h in zip(axes_names or (), held) if not h)
     return result, tuple(float(s) for s in sigma), kept
 
 

@@ -205,6 +205,7 @@ class PushbroomBound(BoundSensor):
 
     def jitter_coefficients(self, state, i: int) -> np.ndarray:
         """(3, m) the jitter coefficients of image ``i`` along :attr:`attitude_axes` (rad)."""
+        assert self.jitter is not None
         m = self.jitter.size
         return np.asarray(state.image[i, self.jitter_offset:self.jitter_offset + 3 * m], float).reshape(3, m)
 
@@ -480,11 +481,13 @@ class PushbroomSensor(Sensor):
         if self.jitter is None:
             return free, sigma
         spec = self.jitter_spec
+        assert spec is not None                 # (a configured copy has both)
         m = self.jitter.size
         axes = spec.axes or self.attitude_axes
         # an axis whose attitude polynomial is held (seed 001's M1 holds yaw; a usgscsm camera with twist = false)
         # has no jitter either
-        axis_free = free[:, list(self.bound_type.attitude_constant_columns)] & \
+        columns = list(getattr(self.bound_type, "attitude_constant_columns"))
+        axis_free = free[:, columns] & \
             np.array([a in axes for a in self.attitude_axes])[None, :]
         jitter_sigma = np.repeat(np.broadcast_to(np.nan if spec.sigma_rad is None else spec.sigma_rad, 3), m)
         n = len(image_index)
