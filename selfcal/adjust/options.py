@@ -7,6 +7,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from ..errors import UsageError
 
 __all__ = ["APOptions", "AdjustOptions", "SensorOptions", "SolverOptions", "TrajectoryOptions"]
@@ -106,11 +108,34 @@ class SensorOptions:
     attitude_telemetry : bool
         Pushbroom images: fit the attitude of attitude.csv (False: roll = pitch = yaw = 0 before the
         corrections, seed 001 Table 5).
+    jitter : str
+        Line images: the attitude jitter (``none``; ``wavelet1d:NAME:LEVEL``, 1-D wavelet scaling functions in
+        time, :mod:`selfcal.sensors.pushbroom.jitter`; ``auto`` or ``wavelet1d:NAME`` for the tested workflow, which
+        chooses the level).
+    jitter_sigma_rad : float or (float, float, float), optional
+        A-priori sigma of every jitter coefficient (rad), one for all axes or one per axis; default free (the tested
+        workflow estimates it: :mod:`selfcal.workflows.jitter`).
+    jitter_axes : tuple of str, optional
+        The attitude axes that get jitter (the sensor's names: roll, pitch, yaw; ra, dec, twist); default every axis
+        whose attitude polynomial is estimated.
     """
 
     model: str | None = None
     parameter_sigma: dict | None = None
     attitude_telemetry: bool = True
+    jitter: str = "none"
+    jitter_sigma_rad: float | tuple[float, ...] | None = None
+    jitter_axes: tuple[str, ...] | None = None
+
+    def __post_init__(self) -> None:
+        from ..sensors.pushbroom.jitter import parse_jitter
+        parse_jitter(self.jitter)
+        sigma = self.jitter_sigma_rad
+        if sigma is not None and not (np.ndim(sigma) == 0 or np.shape(sigma) == (3,)) or \
+                sigma is not None and not np.all(np.asarray(sigma, float) > 0):
+            raise UsageError(f"jitter sigma {sigma} rad: a positive number, or one per attitude axis, expected")
+        if sigma is not None and np.ndim(sigma):
+            object.__setattr__(self, "jitter_sigma_rad", tuple(float(v) for v in np.asarray(sigma, float)))
 
 
 @dataclass(frozen=True)

@@ -375,7 +375,7 @@ def build_problem(block: Block, options: AdjustOptions = AdjustOptions(), ap_mod
     position[point_order] = np.arange(len(point_order))             # (Problem.point_positions)
     order = np.lexsort((obs.image_index, position[obs.point_index]))
     point_start = np.searchsorted(position[obs.point_index[order]], np.arange(len(block.points) + 1))
-    sensors = [sensor_of(block.cameras[c]) for c in camera_ids]
+    sensors = [sensor_of(block.cameras[c]).configured(options.sensor) for c in camera_ids]
     object_frames = {s.object_frame for s in sensors}
     if len(object_frames) > 1:
         raise UsageError("a block mixes sensors with different object frames: "
@@ -432,7 +432,8 @@ def build_problem(block: Block, options: AdjustOptions = AdjustOptions(), ap_mod
     problem.image_screenable = np.zeros((problem.n_images, width), bool)
     for s_index, (images, free, sigma) in image_setup.items():
         slot = problem.sensors[s_index]
-        problem.image_free[images] = free
+        undetermined = slot.bound.undetermined_image_parameters(images)
+        problem.image_free[images] = free if undetermined is None else free & ~undetermined
         problem.image_prior_sigma[images] = sigma
         problem.image_prior_value[images] = slot.sensor.initial_images(slot.bound, block, images)
         problem.image_screenable[images] = [p.screened for p in slot.sensor.image_parameters]

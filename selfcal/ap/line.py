@@ -116,6 +116,19 @@ class LineWaveletAP:
         return np.stack([B @ coefficients[:m], B @ coefficients[m:]], -1)
 
 
+def orthogonal_beyond(raw: np.ndarray, fields: np.ndarray, tolerance: float) -> tuple[np.ndarray, np.ndarray]:
+    """Sampled basis functions ``raw`` (n, m) made orthogonal to the sampled ``fields`` (n, f) that another part of
+    the model represents: (the indices of the functions kept, the projection (f, m) taken off each). Each field that
+    the raw span reproduces to ``tolerance`` (relative RMS) costs one function, the last of a greedy
+    orthogonalisation (:func:`selfcal.ap.base.independent_functions`)."""
+    projection = np.linalg.lstsq(fields, raw, rcond=None)[0]
+    orthogonal = raw - fields @ projection
+    fit = np.linalg.lstsq(raw, fields, rcond=None)[0]
+    misfit = np.linalg.norm(fields - raw @ fit, axis=0) / np.linalg.norm(fields, axis=0)
+    n_dependent = int(np.sum(misfit < tolerance))
+    return np.flatnonzero(independent_functions(orthogonal.T @ orthogonal, n_dependent)), projection
+
+
 def create_line_ap(spec: str, columns: int, center_col: float, chip_starts=(), grid: int = 12) -> LineWaveletAP:
     """``wavelet1d:NAME`` for a line of ``columns`` detectors in chips starting at ``chip_starts``."""
     family, _, name = spec.partition(":")
@@ -131,13 +144,6 @@ def create_line_ap(spec: str, columns: int, center_col: float, chip_starts=(), g
                           np.arange(sum(len(k) for k in translations)), np.zeros((2, 0)))
     samples = np.concatenate([np.linspace(a, b, SAMPLES_PER_CELL * g, endpoint=False) + 0.5 * (b - a) /
                               (SAMPLES_PER_CELL * g) for (a, b), g in zip(chips, cells)])
-    raw, F = draft._raw(samples), draft._fields(samples)
-    projection = np.linalg.lstsq(F, raw, rcond=None)[0]
-    orthogonal = raw - F @ projection
-    # each of {1, s} that the raw span reproduces (to REPRODUCTION_TOLERANCE) costs one dimension
-    fit = np.linalg.lstsq(raw, F, rcond=None)[0]
-    misfit = np.linalg.norm(F - raw @ fit, axis=0) / np.linalg.norm(F, axis=0)
-    n_dependent = int(np.sum(misfit < REPRODUCTION_TOLERANCE))
-    keep = np.flatnonzero(independent_functions(orthogonal.T @ orthogonal, n_dependent))
+    keep, projection = orthogonal_beyond(draft._raw(samples), draft._fields(samples), REPRODUCTION_TOLERANCE)
     return LineWaveletAP(name, int(columns), float(center_col), chips, cells, translations, keep, projection)
 

@@ -15,6 +15,17 @@ from .options import (ap_at_option, ap_option, count, force_option, grid_option,
 #: options that only blocks whose sensors offer seed 001's sensor models take (dest -> flag)
 _SEED001_OPTIONS = {"sensor_model": "--sensor-model", "images": "--images", "gcps": "--gcps",
                     "keep_focal": "--keep-focal", "dem": "--dem", "no_attitude": "--no-attitude"}
+def _jitter_option(text: str) -> str:
+    """``--jitter``: checked as it is read (a wrong name is exit 2 before any work)."""
+    import argparse
+    from ..sensors.pushbroom.jitter import parse_jitter
+    try:
+        parse_jitter(text)
+    except UsageError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return text
+
+
 #: options that only frame blocks take
 _FRAME_OPTIONS = {"lever_arm": "--lever-arm", "boresight": "--boresight"}
 
@@ -60,6 +71,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                             "block.toml)")
     group.add_argument("--no-attitude", action="store_true",
                        help="ignore attitude.csv; M6's corrections take the whole attitude (seed 001, Table 5)")
+    parser.add_argument("--jitter", type=_jitter_option, default="none", metavar="SPEC",
+                        help="line images (pushbroom, usgscsm-line, dimap, dg): attitude jitter as 1-D wavelet scaling "
+                             "functions in time: auto (db4, the level and the power per axis chosen by the data), "
+                             "wavelet1d:NAME (level chosen), wavelet1d:NAME:LEVEL (2^LEVEL cells per image), or none "
+                             "(default)")
+    parser.add_argument("--jitter-sigma-urad", type=number(0.0, low_open=True), metavar="S",
+                        help="a-priori sigma of every jitter coefficient (urad); default: estimated (variance "
+                             "components)")
     group = parser.add_argument_group("terrain as observations (issue 42; satellite and pushbroom blocks in ECEF)")
     group.add_argument("--terrain-observations", nargs="?", const="", default=None, metavar="GEOTIFF",
                        help="observe every tie point's height on this DEM (EPSG:4326; default: [terrain] dem of "
@@ -272,7 +291,7 @@ def run(args: argparse.Namespace) -> int:
                          "[terrain] in block.toml")
     sensor_model = args.sensor_model or ("M6" if seed001 else None)
     options = AdjustOptions(ap=APOptions("none" if auto else args.ap, grid=args.grid, cameras=_ap_cameras(block, args), sigma_px=args.ap_sigma_px, evaluated_at=args.ap_at), trajectory=TrajectoryOptions(gnss_drift=args.gnss_drift, imu_drift=args.imu_drift, lever_arm=args.lever_arm, boresight=args.boresight), sensor=SensorOptions(model=sensor_model, parameter_sigma=ATTITUDE_FREE_SIGMA if args.no_attitude and
-                            (sensor_model or "").upper() == "M6" else None, attitude_telemetry=not args.no_attitude), solver=SolverOptions(max_iterations=args.max_iterations))
+                            (sensor_model or "").upper() == "M6" else None, attitude_telemetry=not args.no_attitude, jitter=args.jitter, jitter_sigma_rad=None if args.jitter_sigma_urad is None else args.jitter_sigma_urad * 1e-6), solver=SolverOptions(max_iterations=args.max_iterations))
     screening = screening_options(args) if args.screen else None
     image_ids = tuple(v.strip() for v in args.images.split(",") if v.strip()) if args.images else None
     # by keyword, so that a field added to AdjustRequest does not shift the others

@@ -41,6 +41,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--line-error", action="store_true",
                         help="prism: give the nadir camera a chip-wise error of its detector line that the block "
                              "does not know (chips misaligned by up to 0.9 px, a 1 px bow; for --ap wavelet1d)")
+    parser.add_argument("--jitter", action="store_true",
+                        help="prism: the platform's attitude jitter that the telemetry does not record: 5 urad "
+                             "(about 1.4 px) in roll and pitch at two frequencies of 1.3-4.1 Hz (for adjust --jitter)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -83,7 +86,7 @@ def _prism(args: argparse.Namespace) -> int:
     from ..io.block_folder import write_block
     from ..io.results import write_files
     from ..io.dem import write_dem
-    from ..simulate.prism import LINE_ERROR_PX, dem_grid, prism_block, prism_truth_files, simulate_prism
+    from ..simulate.prism import JITTER, LINE_ERROR_PX, dem_grid, prism_block, prism_truth_files, simulate_prism
 
     for flag, given in (("--flight", args.flight != "seed000"), ("--speed-mps", args.speed_mps != 8.0),
                         ("--rolling-shutter-ms", args.rolling_shutter_ms != 0.0)):
@@ -96,7 +99,8 @@ def _prism(args: argparse.Namespace) -> int:
     if args.points < 7:
         raise UsageError("--points must be at least 7")
     sim = simulate_prism(seed=args.seed, image_sigma_px=noise, n_points=args.points,
-                         detector_error_px=LINE_ERROR_PX if args.line_error else None)
+                         detector_error_px=LINE_ERROR_PX if args.line_error else None,
+                         jitter=JITTER if args.jitter else None)
     block = prism_block(sim, seed=args.seed)
     with atomic_folder(args.out) as tmp:
         folder = os.path.join(tmp, "triplet")

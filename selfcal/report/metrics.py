@@ -354,8 +354,10 @@ def _camera_covariance(result, k: int, cam, spreads: dict) -> dict:
 
 
 def _image_parameters(result):
-    """The image parameters of the problem's first sensor (those of images.csv)."""
-    return result.problem.sensors[0].sensor.image_parameters if result.problem.sensors else ()
+    """The image parameters of the problem's first sensor (those of images.csv), by their column in the image block:
+    a line scanner's jitter coefficients are left to jitter_terms.csv."""
+    parameters = result.problem.sensors[0].sensor.image_parameters if result.problem.sensors else ()
+    return [(k, p) for k, p in enumerate(parameters) if p.group != "jitter"]
 
 
 def image_table(block: Block, result, view: ResultView | None = None) -> CsvTable:
@@ -366,17 +368,17 @@ def image_table(block: Block, result, view: ResultView | None = None) -> CsvTabl
     view = ResultView.of(result) if view is None else view
     values = view.image.copy()
     sigma = view.image_sigma
-    header = ["image_id", "camera_id", "strip_id"] + [p.file_key for p in parameters] + \
-        [p.sigma_key for p in parameters] + ["n_points"]
+    header = ["image_id", "camera_id", "strip_id"] + [p.file_key for _, p in parameters] + \
+        [p.sigma_key for _, p in parameters] + ["n_points"]
     cols = [im.image_id, im.camera_id, im.strip_id]
-    for k, p in enumerate(parameters):
+    for k, p in parameters:
         v = values[:, k]
         if p.unit == "rad":
             v = (v + np.pi) % (2 * np.pi) - np.pi
         cols.append(v * p.display[1])
-    cols += [sigma[:, k] * p.display[1] for k, p in enumerate(parameters)]
+    cols += [sigma[:, k] * p.display[1] for k, p in parameters]
     cols.append(np.bincount(block.observations.image_index, minlength=len(im)))
-    fmts = ["", "", ""] + [".4f" if p.unit == "m" else ".6f" if p.unit == "rad" else ".9g" for p in parameters] * 2 + ["d"]
+    fmts = ["", "", ""] + [".4f" if p.unit == "m" else ".6f" if p.unit == "rad" else ".9g" for _, p in parameters] * 2 + ["d"]
     return header, cols, fmts
 
 

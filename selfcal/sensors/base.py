@@ -181,6 +181,11 @@ class BoundSensor(ABC):
         meet ``height`` (metres above the ellipsoid, or a callable ``height(lat_deg, lon_deg)``: a DEM)."""
         raise NotImplementedError(f"{type(self).__name__} has no mono restitution")
 
+    def undetermined_image_parameters(self, images: np.ndarray) -> np.ndarray | None:
+        """(n, width) bool: the image parameters of ``images`` its observations cannot determine (a local basis
+        function of time with too few observations in its support), held by the problem; None: none."""
+        return None
+
     @abstractmethod
     def pixel_residuals(self, o: np.ndarray, v: np.ndarray) -> np.ndarray:
         """Residuals v (m, 2) of observations ``o`` in observation units, as (v_col, v_row) pixels."""
@@ -227,6 +232,11 @@ class Sensor(ABC):
     @property
     def camera_names(self) -> tuple[str, ...]:
         return tuple(p.name for p in self.camera_parameters)
+
+    def configured(self, options: SensorOptions) -> "Sensor":
+        """This sensor as ``options`` ask for it in one adjustment: itself, or a copy whose parameters depend on them
+        (a line scanner's attitude jitter: more image parameters). The problem keeps what this returns."""
+        return self
 
     @abstractmethod
     def bind(self, problem: Any, block: Block, o: np.ndarray, pixel: np.ndarray, sigma_px: np.ndarray,

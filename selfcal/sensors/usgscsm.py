@@ -328,7 +328,7 @@ class UsgscsmLineBound(PushbroomBound):
 
     def context(self, state, jacobians: bool = True):
         out = _Context(super().context(state, jacobians))
-        out.offsets = {i: self.body_from_j2000[i] @ state.image[i, _ATTITUDE_WIDTH:] for i in self.images}
+        out.offsets = {i: self.body_from_j2000[i] @ state.image[i, _ATTITUDE_WIDTH:_ATTITUDE_WIDTH + 3] for i in self.images}
         return out
 
     def _shift(self, context, img):
@@ -379,13 +379,20 @@ class UsgscsmLineBound(PushbroomBound):
         return out
 
     attitude_axes = _AXES
+    attitude_constant_columns = tuple(a * (ATTITUDE_DEGREE_MAX + 1) for a in range(3))
 
-    def attitude_design(self, i, rows):
+    def roll_pitch_yaw(self, i: int) -> np.ndarray:
+        """The roll, pitch, yaw increments of unit RA, DEC, TWIST increments of image ``i``."""
+        axes = self.axes[i]
+        assert axes is not None                 # (a line scan of an ISD has its jigsaw axes)
+        return axes
+
+    def polynomial_design(self, i, rows):
         """d(RA, DEC, TWIST increments)/d(coefficients) at ``rows``: the powers of s."""
         image = self.images[i]
         s = (image.time_of_row(rows) - image.t_ref) / image.half_duration_s
         powers = s[:, None] ** np.arange(ATTITUDE_DEGREE_MAX + 1)[None, :]
-        out = np.zeros((len(rows), 3, len(IMAGE_PARAMETERS)))
+        out = np.zeros((len(rows), 3, self.problem.image_width))
         for a in range(3):
             out[:, a, a * (ATTITUDE_DEGREE_MAX + 1):(a + 1) * (ATTITUDE_DEGREE_MAX + 1)] = powers
         return out
@@ -398,10 +405,11 @@ class UsgscsmLineBound(PushbroomBound):
         c = self.axes[i] @ state.image[i, :_ATTITUDE_WIDTH].reshape(3, ATTITUDE_DEGREE_MAX + 1)
         T = image.half_duration_s
         standard = np.array([c[0, 0], c[0, 1] / T, c[1, 0], c[1, 1] / T, c[2, 0], c[2, 1] / T])
-        return image.with_parameters(np.concatenate([standard, state.cameras[k][:4]]), c[:, 2:])
+        return image.with_parameters(np.concatenate([standard, state.cameras[k][:4]]), c[:, 2:],
+                                     jitter=self._with_jitter(state, i))
 
-    def predict(self, context, o, img, cam, points, jacobians):
-        out = super().predict(context, o, img, cam, points - self._shift(context, img), jacobians)
+    def _predict(self, context, o, img, cam, points, jacobians):
+        out = super()._predict(context, o, img, cam, points - self._shift(context, img), jacobians)
         if not jacobians:
             return out
         f, j_e, j_p, j_c = out
@@ -418,7 +426,9 @@ class UsgscsmLineBound(PushbroomBound):
         for i in np.unique(img):
             sel = img == i
             j_offset[sel] = -j_p[sel] @ self.body_from_j2000[int(i)]
-        return f, np.concatenate([j, j_offset], axis=2), j_p, j_c
+        j_e = np.zeros_like(j_e)
+        j_e[:, :, :_ATTITUDE_WIDTH + 3] = np.concatenate([j, j_offset], axis=2)
+        return f, j_e, j_p, j_c
 
 
 class UsgscsmLineSensor(PushbroomSensor):
@@ -429,17 +439,18 @@ class UsgscsmLineSensor(PushbroomSensor):
 
     name = "usgscsm-line"
     image_parameters = IMAGE_PARAMETERS
+    polynomial_parameters = IMAGE_PARAMETERS
+    attitude_axes = _AXES
+    attitude_degree = ATTITUDE_DEGREE_MAX
     sensor_models = ()
     needs_telemetry = False
-
-    def bind(self, problem, block, o, pixel, sigma_px, options):
-        return UsgscsmLineBound(problem, block, o, pixel, sigma_px, options)
+    bound_type = UsgscsmLineBound
 
     def line_image(self, block, k, given_attitude=True):
         """The line image of image ``k``'s ISD, as usgscsm interpolates it."""
         return _scan(block, k).image
 
-    def image_setup(self, block, image_index, options):
+    def polynomial_setup(self, block, image_index, options):
         free = np.zeros((len(image_index), len(IMAGE_PARAMETERS)), bool)
         sigma = np.full(free.shape, np.nan)
         for row, i in enumerate(image_index):

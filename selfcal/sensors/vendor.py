@@ -185,8 +185,7 @@ class VendorLineSensor(PushbroomSensor):
         self.name = name
         self.camera_type = camera_type
 
-    def bind(self, problem, block, o, pixel, sigma_px, options):
-        return VendorLineBound(problem, block, o, pixel, sigma_px, options)
+    bound_type = VendorLineBound
 
     def line_image(self, block, k, given_attitude=True):
         """The vendor's line camera of image ``k`` (its sensor_file as read)."""

@@ -11,7 +11,11 @@ What the telemetry gets wrong is the truth the adjustment must find:
   1937.45 nadir, 1938.20 forward, 1936.66 backward);
 * the attitude telemetry has a bias and a drift (rad, rad/s) against the true attitude,
   and each telescope is misaligned by small boresight angles;
-* quaternions (10 Hz) and ephemeris (1 Hz) carry white noise.
+* quaternions (10 Hz) and ephemeris (1 Hz) carry white noise;
+* with ``jitter`` (:class:`Jitter`), the platform oscillates in roll and pitch: sinusoids of absolute time (the
+  three cameras share the platform, so each image sees the same motion at its own times) that the attitude
+  telemetry does not record (the star trackers and gyros are too slow or filtered), as CTX, HiRISE, ASTER
+  and PRISM images show it.
 
 Times count from the simulation's epoch; the nadir scene is centred at
 :data:`NADIR_CENTRE_S`. All geometry is in ECEF (ITRS) metres with telemetry in the ECI
@@ -20,6 +24,7 @@ Times count from the simulation's epoch; the nadir scene is centred at
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from typing import Callable
 
 import numpy as np
 
@@ -28,7 +33,7 @@ from ..geometry.rotation import quaternion_from_matrix
 from ..sensors.pushbroom import (LineCamera, LineImage, Trajectory, fit_polynomial, ground_to_image, image_to_ground,
                                  rotation_x, rotation_y, rotation_z)
 
-__all__ = ["PrismSimulation", "PrismTruth", "AnalyticDem", "simulate_prism", "detector_error", "prism_block",
+__all__ = ["PrismSimulation", "PrismTruth", "AnalyticDem", "Jitter", "JITTER", "simulate_prism", "detector_error", "prism_block",
            "dem_grid", "prism_truth_files", "LINE_ERROR_PX", "CAMERAS", "TRUE_FOCAL_MM", "NOMINAL_FOCAL_MM",
            "NADIR_CENTRE_S", "GCP_SIGMA_M"]
 
@@ -78,6 +83,45 @@ class AnalyticDem:
                 + 150.0 * np.sin(2 * np.pi * (east + north) / 47_000.0))
 
 
+@dataclass(frozen=True)
+class Jitter:
+    """Attitude jitter of the platform: per axis (roll, pitch, yaw) sinusoids ``amplitude_rad[a][k] sin(2 pi
+    frequency_hz[a][k] t + phase)`` of absolute time, their phases drawn per seed. Not in the telemetry."""
+
+    frequency_hz: tuple[tuple[float, ...], ...] = ((1.3, 4.1), (2.2, 3.7), ())
+    amplitude_rad: tuple[tuple[float, ...], ...] = ((3.0e-6, 2.0e-6), (3.0e-6, 2.0e-6), ())
+
+    def phases(self, rng: np.random.Generator) -> tuple[np.ndarray, ...]:
+        return tuple(rng.uniform(0.0, 2 * np.pi, len(f)) for f in self.frequency_hz)
+
+    def angles(self, t, phases) -> np.ndarray:
+        """(n, 3) roll, pitch, yaw jitter at times t."""
+        t = np.atleast_1d(np.asarray(t, float))
+        out = np.zeros((len(t), 3))
+        for a, (f, amp, ph) in enumerate(zip(self.frequency_hz, self.amplitude_rad, phases)):
+            for fk, ak, pk in zip(f, amp, ph):
+                out[:, a] += ak * np.sin(2 * np.pi * fk * t + pk)
+        return out
+
+
+#: the jitter of issue 42's triplet: 5 urad (about 1.4 px at 2.5 m) in roll and pitch at two frequencies of 1-4.5 Hz
+JITTER = Jitter()
+
+
+@dataclass(frozen=True)
+class _Jittered:
+    """A fitted attitude plus the platform's jitter (a time function of :class:`Trajectory`)."""
+
+    smooth: Callable
+    jitter: Jitter
+    phases: tuple
+
+    def __call__(self, t):
+        smooth = self.smooth(t)
+        return smooth + (self.jitter.angles(t, self.phases) if np.ndim(smooth) > 1 else
+                         self.jitter.angles(t, self.phases)[0])
+
+
 @dataclass
 class PrismTruth:
     images: list[LineImage]          # true trajectories and parameters (focal, boresight; zero attitude corrections)
@@ -87,6 +131,39 @@ class PrismTruth:
     attitude_drift_rad_s: np.ndarray
     points_ecef: np.ndarray          # (n, 3)
     detector_error_px: dict = field(default_factory=dict)   # camera -> detector_error() arguments
+    jitter: Jitter | None = None
+    jitter_phases: tuple = ()
+
+    def jitter_rad(self, t) -> np.ndarray:
+        """(n, 3) the true roll, pitch, yaw jitter at times t (zero without jitter)."""
+        t = np.atleast_1d(np.asarray(t, float))
+        return np.zeros((len(t), 3)) if self.jitter is None else self.jitter.angles(t, self.jitter_phases)
+
+    def jitter_error_urad(self, result, samples: int = 2001) -> tuple[np.ndarray, np.ndarray]:
+        """The error of an adjustment's jitter (``result`` of the triplet F, N, B) against this truth beyond each
+        image's linear part (bias and drift take that), RMS over the lines in urad, (roll, pitch): in all, and in what
+        the tie points of one scene's fore-nadir-aft views can see: the roll beyond the part common to the three
+        images (the ground under them moving alike) and the pitch along (1, -2, 1) (the common part moves the ground
+        along the track, fore minus aft its heights)."""
+        slot = result.problem.sensors[0]
+        bound = slot.bound
+        errors = []
+        for i in slot.images:
+            image = bound.images[int(i)]
+            rows = np.linspace(0, image.rows, samples)
+            estimate = np.zeros((samples, 3))
+            if bound.jitter is not None:
+                G = bound.attitude_design(int(i), rows)
+                estimate = G[:, :, bound.jitter_offset:] @ result.state.image[int(i), bound.jitter_offset:]
+            truth = self.jitter_rad(image.time_of_row(rows))
+            V = np.stack([np.ones(samples), 2 * rows / image.rows - 1], -1)
+            truth -= V @ np.linalg.lstsq(V, truth, rcond=None)[0]
+            errors.append((estimate - truth)[:, :2])
+        error = np.array(errors)                                         # (F, N, B), lines, (roll, pitch)
+        roll = error[:, :, 0] - error[:, :, 0].mean(axis=0)
+        pitch = np.einsum("k,kn->n", np.array([1.0, -2.0, 1.0]) / np.sqrt(6.0), error[:, :, 1])
+        total = np.sqrt(np.mean(error ** 2, axis=(0, 1))) * 1e6
+        return total, np.array([np.sqrt(np.mean(roll ** 2)), np.sqrt(np.mean(pitch ** 2) / 3)]) * 1e6
 
 
 @dataclass
@@ -176,10 +253,12 @@ def detector_error(camera: LineCamera, chip_px=(), bow_px=(0.0, 0.0)) -> LineCam
 def simulate_prism(seed: int = 0, image_sigma_px: float = 0.3, n_points: int = 28,
                    ephemeris_sigma_m: float = 0.3, attitude_sigma_rad: float = 1.0e-6,
                    attitude_bias_rad=ATTITUDE_BIAS_RAD, attitude_drift_rad_s=ATTITUDE_DRIFT_RAD_S,
-                   detector_error_px: dict | None = None) -> PrismSimulation:
+                   detector_error_px: dict | None = None, jitter: Jitter | None = None) -> PrismSimulation:
     """Simulate the PRISM triplet (see the module docstring); the attitude error (roll, pitch, yaw) can
     be chosen. ``detector_error_px``: camera -> :func:`detector_error` arguments, an error of its
-    detector line that the block does not know (the block keeps the known chip offsets)."""
+    detector line that the block does not know (the block keeps the known chip offsets). ``jitter``: the
+    platform's attitude jitter (:class:`Jitter`, :data:`JITTER`), unknown to the telemetry; its phases are drawn
+    from a generator of their own, so that the rest of the simulation is the same with and without it."""
     attitude_bias_rad = np.asarray(attitude_bias_rad, float)
     attitude_drift_rad_s = np.asarray(attitude_drift_rad_s, float)
     rng = np.random.default_rng(seed)
@@ -190,6 +269,7 @@ def simulate_prism(seed: int = 0, image_sigma_px: float = 0.3, n_points: int = 2
     duration = ROWS * LINE_PERIOD_S
     span = (NADIR_CENTRE_S - 80.0, NADIR_CENTRE_S + 80.0)
     true_traj = _true_trajectory(raan, u0, *span)
+    phases = jitter.phases(np.random.default_rng(seed + 4200)) if jitter is not None else ()
 
     def true_image(k: str, t_first: float) -> LineImage:
         camera = detector_error(nominal[k], **(detector_error_px or {}).get(k, {}))
@@ -226,6 +306,9 @@ def simulate_prism(seed: int = 0, image_sigma_px: float = 0.3, n_points: int = 2
     rr = (0.04 + 0.92 * rr.ravel() + rng.uniform(-jitter_y, jitter_y, rr.size)) * ROWS
     points = image_to_ground(images[1], rr[:n_points], cc[:n_points], dem)
 
+    if jitter is not None:      # the scene and the points are placed as without jitter; the images see it
+        shaken = replace(true_traj, attitude=_Jittered(true_traj.attitude, jitter, phases))
+        images = [replace(image, trajectory=shaken) for image in images]
     obs_image, obs_point, obs_row, obs_col = [], [], [], []
     for i, image in enumerate(images):
         row, col = ground_to_image(image, points)
@@ -249,7 +332,7 @@ def simulate_prism(seed: int = 0, image_sigma_px: float = 0.3, n_points: int = 2
     quaternion = quaternion_from_matrix(orbit_frame(p_true, v_true) @ R_OB, scalar_first=False)
 
     truth = PrismTruth(images, dict(TRUE_FOCAL_MM), dict(TRUE_BORESIGHT_RAD), attitude_bias_rad.copy(),
-                       attitude_drift_rad_s.copy(), points, dict(detector_error_px or {}))
+                       attitude_drift_rad_s.copy(), points, dict(detector_error_px or {}), jitter, phases)
     return PrismSimulation(EPOCH_UTC, nominal, list(CAMERAS), t_first, ROWS,
                            {"t": t_e, "position": pos, "velocity": vel}, {"t": t_a, "quaternion": quaternion},
                            [f"p{k + 1:02d}" for k in range(len(points))], points, np.array(obs_image),
@@ -332,6 +415,11 @@ def prism_truth_files(sim: PrismSimulation) -> dict:
     cameras = {k: {"focal_mm": truth.focal_mm[k], "boresight_roll_pitch_yaw_rad": list(truth.boresight_rad[k]),
                    "center_col": sim.cameras[k].center_col, "nominal_focal_mm": NOMINAL_FOCAL_MM}
                for k in sim.image_ids}
+    jitter = {} if truth.jitter is None else {"jitter": {
+        "axes": ["roll", "pitch", "yaw"], "frequency_hz": [list(f) for f in truth.jitter.frequency_hz],
+        "amplitude_rad": [list(a) for a in truth.jitter.amplitude_rad],
+        "phase_rad": [[float(v) for v in p] for p in truth.jitter_phases],
+        "note": "true attitude = telemetry + bias + drift + sum amplitude sin(2 pi frequency t + phase), t in s"}}
     for k, error in truth.detector_error_px.items():
         cameras[k]["detector_error_px"] = {"chip_px": [list(map(float, c)) for c in error.get("chip_px", ())],
                                            "bow_px": list(map(float, error.get("bow_px", (0.0, 0.0))))}
@@ -340,7 +428,7 @@ def prism_truth_files(sim: PrismSimulation) -> dict:
                               "attitude_bias_rad": truth.attitude_bias_rad.tolist(),
                               "attitude_drift_rad_s": truth.attitude_drift_rad_s.tolist(),
                               "attitude_error_reference_time_s": NADIR_CENTRE_S,
-                              "note": "true attitude = telemetry + bias + drift (t - reference time)"},
+                              "note": "true attitude = telemetry + bias + drift (t - reference time)"} | jitter,
         "points_truth.csv": (["point_id", "X", "Y", "Z"],
                              [np.array(sim.point_ids, object), *truth.points_ecef.T], ["", ".4f", ".4f", ".4f"]),
     }

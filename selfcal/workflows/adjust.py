@@ -206,10 +206,12 @@ def _adjust_block(block: Block, request: AdjustRequest, progress: Callable | Non
         options = replace(options, ap=replace(options.ap, model=choice.model, grid=choice.grid))
         say(f"chosen AP model: {choice.model}" + (f"@{choice.grid[0]}x{choice.grid[1]}" if
                                                   takes_grid(choice.model) else "") + _choice_reason(choice))
+    jitter: dict = {}
+    options = _resolve_jitter(block, options, say, jitter)
     tested = adjust_with_tests(block, options, request.snooping, request.screening, progress=progress,
                                report=report, variance=request.variance, robust=request.robust)
     _check_collapse(tested)
-    extra = _check_points_determined(block, tested)
+    extra = _check_points_determined(block, tested) | jitter
     if request.control_loo and tested.result.converged and not tested.failure:
         tested.loo = control_loo(tested, options, say)
         if tested.loo is not None:
@@ -231,6 +233,31 @@ def _adjust_block(block: Block, request: AdjustRequest, progress: Callable | Non
     if plane is not None:
         extra["object_frame"] = plane.describe()
     return Adjusted(tested, block, check_points.intersected(tested.result), extra, choice=choice, plane=plane)
+
+
+def _without_jitter(options: AdjustOptions) -> AdjustOptions:
+    return replace(options, sensor=replace(options.sensor, jitter="none", jitter_sigma_rad=None, jitter_axes=None))
+
+
+def _resolve_jitter(block: Block, options: AdjustOptions, say: Callable[[str], None], extra: dict) -> AdjustOptions:
+    """``options`` with the line images' jitter chosen by the data where ``--jitter`` leaves its level or its sigma to
+    it (:mod:`.jitter`); the choice goes to ``extra["jitter"]`` (summary.json)."""
+    from ..sensors.pushbroom.jitter import parse_jitter
+    from .jitter import choose_jitter
+    spec = parse_jitter(options.sensor.jitter)
+    if spec is None:
+        return options
+    if spec.level is not None and options.sensor.jitter_sigma_rad is not None:
+        extra["jitter"] = {"jitter": spec.text, "sigma_urad": list(np.atleast_1d(options.sensor.jitter_sigma_rad) * 1e6),
+                           "chosen": False}
+        return options
+    say(f"choosing the attitude jitter ({spec.text}): levels and their power by the data")
+    choice = choose_jitter(block, options, say=say)
+    extra["jitter"] = choice.as_dict() | {"chosen": True}
+    say(f"chosen jitter: {choice.spec}" + ("" if choice.sigma_rad is None else
+                                           " (" + ", ".join(f"{a} {s * 1e6:.2f} urad" for a, s in
+                                                            zip(choice.axes, choice.sigma_rad)) + ")"))
+    return choice.options(options)
 
 
 def _choice_reason(choice: ModelChoice) -> str:
@@ -302,7 +329,8 @@ def _seed001(block: Block, request: AdjustRequest, progress, report, say, scores
     model = options.sensor.model or "M6"
     extra: dict = {"sensor_model": model}
     if not request.keep_focal and seed001.needs_focal_step(model):
-        focal, sigma = seed001.calibrate_focal(block, options=options, robust=request.robust)
+        # (the focal length's step without jitter: the jitter is chosen for the case's images below)
+        focal, sigma = seed001.calibrate_focal(block, options=_without_jitter(options), robust=request.robust)
         block = seed001.with_focal(block, focal)
         extra["calibrated_focal_mm"] = {k: {"value": v, "sigma": sigma[k]} for k, v in focal.items()}
         say("focal lengths (M7 on all images): " + ", ".join(f"{k} {v:.3f} ± {sigma[k]:.3f} mm"
@@ -318,11 +346,13 @@ def _seed001(block: Block, request: AdjustRequest, progress, report, say, scores
     choice = None
     if request.candidates:
         sub = seed001.case_block(block, image_set, gcps)
-        choice = choose_ap_model(sub, request.candidates, replace(options, sensor=replace(options.sensor, model=model)),
+        choice = choose_ap_model(sub, request.candidates,
+                                 replace(options, sensor=replace(_without_jitter(options).sensor, model=model)),
                                  request.snooping, progress=scores, robust=request.robust,
                                  min_effect_px=request.min_effect_px)
         options = replace(options, ap=replace(options.ap, model=choice.model, grid=choice.grid))
         say(f"chosen AP model: {choice.model}" + _choice_reason(choice))
+    options = _resolve_jitter(seed001.case_block(block, image_set, gcps), options, say, extra)
     case = seed001.run_case(block, model, gcps, image_set, request.height, "+".join(chosen), options,
                             request.snooping, request.screening, progress, report, request.variance, request.robust)
     if case.tested is None:

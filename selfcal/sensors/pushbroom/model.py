@@ -288,6 +288,9 @@ class LineImage:
     #: higher-order attitude corrections (3, m): roll, pitch, yaw coefficients (rad) of s^2 .. s^(m+1) with
     #: s = (t - t_ref) / half_duration_s, beyond Eq. 6's constant and linear terms (ISIS jigsaw's CKDEGREE 3)
     attitude_terms: np.ndarray | None = None
+    #: attitude jitter (:mod:`.jitter`): a basis of tau = row / rows (callable, (n,) -> (n, m)) and the roll, pitch,
+    #: yaw coefficients (3, m) in rad
+    jitter: tuple | None = None
 
     @classmethod
     def nominal(cls, image_id: str, camera: LineCamera, trajectory: Trajectory, t_first_s: float,
@@ -306,12 +309,14 @@ class LineImage:
         """Half the time of the image's lines: the unit of the higher-order attitude terms' time."""
         return 0.5 * self.rows * abs(self.camera.line_period_s)
 
-    def with_parameters(self, parameters: np.ndarray, attitude_terms: np.ndarray | None = None) -> "LineImage":
+    def with_parameters(self, parameters: np.ndarray, attitude_terms: np.ndarray | None = None,
+                        jitter: tuple | None = None) -> "LineImage":
         return replace(self, parameters=np.asarray(parameters, float).copy(),
-                       attitude_terms=self.attitude_terms if attitude_terms is None else attitude_terms)
+                       attitude_terms=self.attitude_terms if attitude_terms is None else attitude_terms,
+                       jitter=self.jitter if jitter is None else jitter)
 
     def attitude_correction(self, t: ArrayLike) -> np.ndarray:
-        """The corrections (n, 3) of roll, pitch, yaw at times t: Eq. 6 and the higher-order terms."""
+        """The corrections (n, 3) of roll, pitch, yaw at times t: Eq. 6, the higher-order terms and the jitter."""
         a = self.parameters
         tau = np.atleast_1d(np.asarray(t, float)) - self.t_ref
         out = np.stack([a[0] + a[1] * tau, a[2] + a[3] * tau, a[4] + a[5] * tau], -1)
@@ -319,6 +324,9 @@ class LineImage:
             s = tau / self.half_duration_s
             powers = s[:, None] ** (2 + np.arange(self.attitude_terms.shape[1]))[None, :]
             out = out + powers @ np.asarray(self.attitude_terms, float).T
+        if self.jitter is not None:
+            basis, coefficients = self.jitter
+            out = out + basis(self.row_of_time(tau + self.t_ref) / self.rows) @ np.asarray(coefficients, float).T
         return out
 
     def time_of_row(self, row: ArrayLike) -> np.ndarray:

@@ -17,18 +17,20 @@ weighted right. Object points are ECEF metres.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+import copy
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from ...block import PushbroomCamera
 from ...errors import BlockError, UsageError
 from ..base import BoundSensor, ImageGeometry, Parameter, Sensor
+from .jitter import JitterSpec, TimeWaveletBasis, parse_jitter, time_basis
 from .model import (PARAMETER_NAMES, LineCamera, LineImage, fit_trajectory, ground_to_image, image_scales,
                     image_to_ground, line_of_sight, photo_coordinates, track)
 
 __all__ = ["SENSOR_MODELS", "M6_SIGMA", "SensorModel", "sensor_model", "PushbroomSensor", "PushbroomBound", "attitude_table",
-           "SENSOR", "line_images", "FIT_ORDERS", "TELEMETRY_MARGIN_S", "IMAGE_PARAMETERS", "CAMERA_PARAMETERS"]
+           "SENSOR", "line_images", "jitter_table", "FIT_ORDERS", "TELEMETRY_MARGIN_S", "IMAGE_PARAMETERS", "CAMERA_PARAMETERS"]
 
 _P = {name: k for k, name in enumerate(PARAMETER_NAMES)}
 
@@ -169,6 +171,53 @@ class PushbroomBound(BoundSensor):
         self._track_row = np.zeros(n, np.int64)
         for o in self._by_image.values():
             self._track_row[o] = np.arange(len(o))
+        self.jitter: TimeWaveletBasis | None = None
+        self.jitter_offset = 0
+
+    def attach_jitter(self, basis: TimeWaveletBasis | None, offset: int) -> None:
+        """Give the images the attitude jitter ``basis`` (:mod:`.jitter`), its coefficients in the image block from
+        column ``offset`` on: the functions of every axis of :attr:`attitude_axes` in turn."""
+        self.jitter, self.jitter_offset = basis, int(offset)
+        if basis is None:
+            return
+        tau = np.zeros(self.problem.n_image_observations)
+        for i, o in self._by_image.items():
+            tau[o] = self.row[o] / self.images[i].rows
+        self._jitter_row = np.full(self.problem.n_image_observations, -1, np.int64)
+        self._jitter_row[self.o] = np.arange(len(self.o))
+        self._jitter_B = basis(tau[self.o])                           # (len(o), m): constant over the adjustment
+
+    def undetermined_image_parameters(self, images):
+        """The jitter functions of an image with fewer than :data:`JITTER_MIN_OBSERVATIONS` observations where they
+        reach a tenth of their largest value (the functions at the ends of the lines, or over a gap of tie points)."""
+        if self.jitter is None:
+            return None
+        out = np.zeros((len(images), self.problem.image_width), bool)
+        B = np.abs(self._jitter_B)
+        peak = np.max(np.abs(self.jitter(np.linspace(0.0, 1.0, 64 * self.jitter.cells + 1))), axis=0)
+        m = B.shape[1]
+        for row, i in enumerate(images):
+            mine = self._jitter_row[self._by_image.get(int(i), np.zeros(0, np.int64))]
+            count = np.sum(B[mine] >= 0.1 * peak, axis=0)
+            weak = np.tile(count < JITTER_MIN_OBSERVATIONS, 3)
+            out[row, self.jitter_offset:self.jitter_offset + 3 * m] = weak
+        return out
+
+    def jitter_coefficients(self, state, i: int) -> np.ndarray:
+        """(3, m) the jitter coefficients of image ``i`` along :attr:`attitude_axes` (rad)."""
+        assert self.jitter is not None
+        m = self.jitter.size
+        return np.asarray(state.image[i, self.jitter_offset:self.jitter_offset + 3 * m], float).reshape(3, m)
+
+    def _with_jitter(self, state, i: int) -> tuple | None:
+        """(basis, roll/pitch/yaw coefficients (3, m)) of image ``i``, or None without jitter."""
+        if self.jitter is None:
+            return None
+        return self.jitter, self.roll_pitch_yaw(i) @ self.jitter_coefficients(state, i)
+
+    def roll_pitch_yaw(self, i: int) -> np.ndarray:
+        """(3, 3): the roll, pitch, yaw increments of unit increments of :attr:`attitude_axes` (here the same)."""
+        return np.eye(3)
 
     def line_images(self, block, images: np.ndarray, options) -> dict[int, LineImage]:
         """The nominal line image of each of ``images``: given in the block (its sensor_file), or fitted to the
@@ -184,7 +233,8 @@ class PushbroomBound(BoundSensor):
 
     def _image(self, state, i: int) -> LineImage:
         k = self.problem.image_camera[i]
-        return self.images[i].with_parameters(np.concatenate([state.image[i], state.cameras[k][:4]]))
+        return self.images[i].with_parameters(np.concatenate([state.image[i, :6], state.cameras[k][:4]]),
+                                              jitter=self._with_jitter(state, i))
 
     def refine_sigma(self, state, sigma):
         context = self.context(state)
@@ -196,11 +246,28 @@ class PushbroomBound(BoundSensor):
     def context(self, state, jacobians: bool = True):
         return {i: self._image(state, i) for i in self.images}
 
+    #: the image block's columns of a constant increment of each of :attr:`attitude_axes` (d_roll0, d_pitch0, d_yaw0)
+    attitude_constant_columns: tuple[int, ...] = (0, 2, 4)
+
     def predict(self, context, o, img, cam, points, jacobians):
+        """The sensor's prediction (:meth:`_predict`) and, with jitter, its columns: d f / d c_ak = d f / d(constant
+        increment of axis a) phi_k(tau) (:meth:`attach_jitter`)."""
+        out = self._predict(context, o, img, cam, points, jacobians)
+        if not jacobians or self.jitter is None:
+            return out
+        f, j_e, j_p, j_c = out
+        B = self._jitter_B[self._jitter_row[o]]                                         # (n, m)
+        j_axes = j_e[:, :, list(self.attitude_constant_columns)]                       # (n, 2, 3)
+        m = B.shape[1]
+        j_e[:, :, self.jitter_offset:self.jitter_offset + 3 * m] = \
+            np.einsum("nra,nk->nrak", j_axes, B).reshape(len(o), 2, 3 * m)
+        return f, j_e, j_p, j_c
+
+    def _predict(self, context, o, img, cam, points, jacobians):
         m = len(img)
         f = np.zeros((m, 2))
         if jacobians:
-            j_e, j_p, j_c = np.zeros((m, 2, 6)), np.zeros((m, 2, 3)), np.zeros((m, 2, 4))
+            j_e, j_p, j_c = np.zeros((m, 2, self.problem.image_width)), np.zeros((m, 2, 3)), np.zeros((m, 2, 4))
         for i in np.unique(img):
             sel = np.flatnonzero(img == i)
             telemetry = self._track[int(i)].take(self._track_row[o[sel]])
@@ -209,7 +276,7 @@ class PushbroomBound(BoundSensor):
                 f[sel] = out
                 continue
             f[sel] = out[0]
-            j_e[sel], j_c[sel] = out[1][:, :, :6], out[1][:, :, 6:]
+            j_e[sel, :, :6], j_c[sel] = out[1][:, :, :6], out[1][:, :, 6:]
             j_p[sel] = out[2]
         return (f, j_e, j_p, j_c) if jacobians else f
 
@@ -268,7 +335,17 @@ class PushbroomBound(BoundSensor):
 
     def attitude_design(self, i: int, rows: np.ndarray) -> np.ndarray:
         """(n, 3, width): d(correction of each of :attr:`attitude_axes`, rad)/d(image parameters) at ``rows`` of
-        image ``i``: Eq. 6, d_0 + d_1 (t - t_ref)."""
+        image ``i``: the sensor's polynomial (:meth:`polynomial_design`) and the jitter's functions."""
+        out = self.polynomial_design(i, rows)
+        if self.jitter is not None:
+            B = self.jitter(np.asarray(rows, float) / self.images[i].rows)
+            m = B.shape[1]
+            for a in range(3):
+                out[:, a, self.jitter_offset + a * m:self.jitter_offset + (a + 1) * m] = B
+        return out
+
+    def polynomial_design(self, i: int, rows: np.ndarray) -> np.ndarray:
+        """:meth:`attitude_design` of the sensor's polynomial alone: Eq. 6, d_0 + d_1 (t - t_ref)."""
         tau = self.images[i].time_of_row(rows) - self.images[i].t_ref
         out = np.zeros((len(rows), 3, self.problem.image_width))
         for a in range(3):
@@ -311,8 +388,49 @@ class PushbroomSensor(Sensor):
     "chip_offsets_px": ("pairlist", False),
 }
 
+    #: its bound images (:class:`PushbroomBound` or a subclass)
+    bound_type: type = PushbroomBound
+    #: the attitude jitter of its images (:meth:`configured`): None, or the basis
+    jitter: TimeWaveletBasis | None = None
+    jitter_spec: JitterSpec | None = None
+    #: the image parameters of its attitude polynomial (and whatever else it corrects), before the jitter's
+    polynomial_parameters: tuple[Parameter, ...] = IMAGE_PARAMETERS
+    #: the axes its attitude corrections turn about (the names of attitude_corrections.csv's columns)
+    attitude_axes: tuple[str, ...] = ("roll", "pitch", "yaw")
+    #: the degree of its attitude polynomial in time (the jitter's functions are orthogonal to it)
+    attitude_degree = 1
+
     def bind(self, problem, block, o, pixel, sigma_px, options):
-        return PushbroomBound(problem, block, o, pixel, sigma_px, options)
+        bound = self.bound_type(problem, block, o, pixel, sigma_px, options)
+        bound.attach_jitter(self.jitter, len(self.polynomial_parameters))
+        return bound
+
+    def configured(self, options) -> "PushbroomSensor":
+        """This sensor with the attitude jitter of ``options.jitter`` (:mod:`.jitter`; a level must be given: ``auto``
+        is resolved by the workflow, :mod:`selfcal.workflows.jitter`): its image block grows by the coefficients of
+        every axis of :attr:`attitude_axes`, named ``jitter_{axis}_L{level}k{translation}``."""
+        spec = parse_jitter(getattr(options, "jitter", None))
+        if spec is None:
+            return self
+        spec = replace(spec, sigma_rad=getattr(options, "jitter_sigma_rad", None), axes=getattr(options, "jitter_axes", None))
+        unknown = sorted(set(spec.axes or ()) - set(self.attitude_axes))
+        if unknown:
+            raise UsageError(f"jitter axes {', '.join(unknown)}: a {self.name} image's attitude axes are "
+                             f"{', '.join(self.attitude_axes)}")
+        if spec.level is None:
+            raise UsageError(f"--jitter {spec.text}: the level is chosen by the tested workflow (selfcal adjust "
+                             f"--jitter auto); a single adjustment needs wavelet1d:NAME:LEVEL")
+        key = (id(self), spec)
+        hit = _CONFIGURED.get(key)
+        if hit is None or hit[0] is not self:
+            basis = time_basis(spec.wavelet, spec.level, self.attitude_degree)
+            sensor = copy.copy(self)
+            sensor.jitter = basis
+            sensor.jitter_spec = spec
+            sensor.image_parameters = tuple(self.polynomial_parameters) + tuple(
+                Parameter(f"jitter_{axis}_{name}", "rad", "jitter") for axis in self.attitude_axes for name in basis.names)
+            hit = _CONFIGURED[key] = (self, sensor)
+        return hit[1]
 
     def line_image(self, block, k: int, given_attitude: bool = True) -> LineImage:
         """The nominal line image of image ``k`` of ``block`` (no corrections): given in the block, or fitted to its
@@ -357,6 +475,27 @@ class PushbroomSensor(Sensor):
         return []
 
     def image_setup(self, block, image_index, options):
+        """(free, a-priori sigma) of the image parameters: the attitude polynomial's (:meth:`polynomial_setup`), then
+        the jitter's (free, weighted by ``--jitter``'s sigma where given; axes the spec leaves out held)."""
+        free, sigma = self.polynomial_setup(block, image_index, options)
+        if self.jitter is None:
+            return free, sigma
+        spec = self.jitter_spec
+        assert spec is not None                 # (a configured copy has both)
+        m = self.jitter.size
+        axes = spec.axes or self.attitude_axes
+        # an axis whose attitude polynomial is held (seed 001's M1 holds yaw; a usgscsm camera with twist = false)
+        # has no jitter either
+        columns = list(getattr(self.bound_type, "attitude_constant_columns"))
+        axis_free = free[:, columns] & \
+            np.array([a in axes for a in self.attitude_axes])[None, :]
+        jitter_sigma = np.repeat(np.broadcast_to(np.nan if spec.sigma_rad is None else spec.sigma_rad, 3), m)
+        n = len(image_index)
+        return (np.hstack([free, np.repeat(axis_free, m, axis=1)]),
+                np.hstack([sigma, np.broadcast_to(jitter_sigma, (n, 3 * m))]))
+
+    def polynomial_setup(self, block, image_index, options):
+        """:meth:`image_setup` of the attitude polynomial alone (seed 001's sensor model)."""
         model = _model_of(options)
         sigma = model.sigmas()[:6]
         shape = (len(image_index), 6)
@@ -364,8 +503,12 @@ class PushbroomSensor(Sensor):
                 np.broadcast_to(np.where(np.isfinite(sigma), sigma, np.nan), shape).copy())
 
     def result_files(self, result, slot):
-        """attitude_corrections.csv: the estimated attitude corrections along each image with their sigma."""
-        return {"attitude_corrections.csv": attitude_table(result, slot)}
+        """attitude_corrections.csv: the estimated attitude corrections along each image with their sigma; with jitter
+        also jitter_terms.csv (:func:`jitter_table`)."""
+        files = {"attitude_corrections.csv": attitude_table(result, slot)}
+        if slot.bound.jitter is not None:
+            files["jitter_terms.csv"] = jitter_table(result, slot)
+        return files
 
     def camera_setup(self, camera, options):
         model = _model_of(options)
@@ -393,8 +536,15 @@ class PushbroomSensor(Sensor):
         return ap, np.zeros(ap.n_params)
 
 
-#: attitude_corrections.csv samples every image at this many lines
+#: attitude_corrections.csv samples every image at this many lines (with jitter: this many per cell of its basis, at
+#: least)
 ATTITUDE_SAMPLES = 41
+#: the minimal detectable bias of a jitter coefficient is this many sigma (Baarda's delta_0: a test at alpha 0.1 %,
+#: two-sided, of power 80 %)
+MDB_SIGMA = 4.13
+_CONFIGURED: dict = {}
+#: a jitter function is held in an image with fewer observations than this where it reaches a tenth of its peak
+JITTER_MIN_OBSERVATIONS = 4
 
 
 def attitude_table(result, slot, samples: int = ATTITUDE_SAMPLES) -> tuple:
@@ -408,6 +558,8 @@ def attitude_table(result, slot, samples: int = ATTITUDE_SAMPLES) -> tuple:
     axes = bound.attitude_axes
     for a in axes:
         cols[f"{a}_urad"], cols[f"sigma_{a}_urad"] = [], []
+    if bound.jitter is not None:
+        samples = max(samples, 8 * bound.jitter.cells + 1)
     for i in slot.images:
         i = int(i)
         image = bound.images[i]
@@ -426,6 +578,35 @@ def attitude_table(result, slot, samples: int = ATTITUDE_SAMPLES) -> tuple:
     header = list(cols)
     columns = [np.array(cols[h], dtype=object if h == "image_id" else float) for h in header]
     return header, columns, [""] + [".1f", ".4f"] + [".4f"] * (len(header) - 3)
+
+
+def jitter_table(result, slot) -> tuple:
+    """jitter_terms.csv: per image, attitude axis and function of the jitter basis (``term``: level and translation),
+    its coefficient and a-posteriori sigma (urad), t = value / sigma, the minimal detectable bias (MDB_SIGMA sigma,
+    urad) and whether it was estimated (0: held, an axis without jitter)."""
+    problem, bound = result.problem, slot.bound
+    width, offset, m = problem.image_width, bound.jitter_offset, bound.jitter.size
+    Q = result.variance_factor * result.Q_theta
+    cols: dict = {k: [] for k in ("image_id", "axis", "term", "value_urad", "sigma_urad", "t", "mdb_urad", "active")}
+    names = bound.jitter.names
+    for i in slot.images:
+        i = int(i)
+        index = np.arange(i * width + offset, i * width + offset + 3 * m)
+        free = problem.image_free[i, offset:offset + 3 * m]
+        sigma = np.where(free, np.sqrt(np.maximum(np.asarray(Q.diagonal())[index], 0.0)), np.nan)
+        value = result.state.image[i, offset:offset + 3 * m]
+        cols["image_id"] += [str(result.block.images.image_id[i])] * 3 * m
+        cols["axis"] += [a for a in bound.attitude_axes for _ in range(m)]
+        cols["term"] += names * 3
+        cols["value_urad"] += list(value * 1e6)
+        cols["sigma_urad"] += list(sigma * 1e6)
+        cols["t"] += list(np.abs(value) / sigma)
+        cols["mdb_urad"] += list(MDB_SIGMA * sigma * 1e6)
+        cols["active"] += list(free.astype(int))
+    header = list(cols)
+    columns = [np.array(cols[h], dtype=object if h in ("image_id", "axis", "term") else
+                        int if h == "active" else float) for h in header]
+    return header, columns, ["", "", "", ".4f", ".4f", ".2f", ".4f", "d"]
 
 
 SENSOR = PushbroomSensor()

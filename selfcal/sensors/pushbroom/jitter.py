@@ -1,0 +1,139 @@
+"""Attitude jitter of a line scanner as 1-D wavelet scaling functions in time (issue 42).
+
+A line image's attitude is corrected by its sensor's polynomial in time (seed 001's bias and drift, Eq. 6;
+usgscsm's degree up to 3, jigsaw's CKDEGREE). What oscillates faster (jitter: a fraction of a pixel to a
+few pixels at several hertz) is modelled per image and per attitude axis as
+
+    correction_a(t) = polynomial_a(t) + sum_k c_ak phi_k(tau),   tau = row / rows in [0, 1],
+
+with phi_k(tau) = phi(tau G + k) the scaling functions of one of :mod:`selfcal.wavelets`' families at
+level L (G = 2^L cells over the image's lines), every translation k whose effective support meets [0, G]:
+the multi-resolution space V_L of seed 000's wavelet APs, in time instead of over the image plane.
+
+Datum: the polynomial of the sensor is in the span of the scaling functions (a partition of unity and its
+moments), so every function is made orthogonal, over the image's lines, to the powers of s = 2 tau - 1 up to
+the sensor's degree, and the functions that become dependent are left out (as the line APs of
+:mod:`selfcal.ap.line` do: :func:`selfcal.ap.base.independent_functions`). The polynomial keeps the slow part;
+the coefficients c (rad, the functions being of order 1) are the jitter.
+
+Names: ``wavelet1d:NAME`` (level chosen by the data: :mod:`selfcal.workflows.jitter`) or
+``wavelet1d:NAME:LEVEL``; ``auto`` is ``wavelet1d:db4`` with the level chosen.
+"""
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ...ap.line import orthogonal_beyond
+from ...errors import UsageError
+from ...wavelets import check_wavelet_name, get_wavelet
+
+__all__ = ["JitterSpec", "TimeWaveletBasis", "parse_jitter", "time_basis", "JITTER_LEVELS", "DEFAULT_WAVELET",
+           "SAMPLES_PER_CELL"]
+
+#: the levels a jitter basis may have: 2^L cells over the image's lines
+JITTER_LEVELS = range(0, 11)
+#: the family of ``--jitter auto``
+DEFAULT_WAVELET = "db4"
+#: the lines are sampled this densely (per cell) for the orthogonalisation
+SAMPLES_PER_CELL = 32
+#: a power of s that the raw functions reproduce to this relative RMS costs one function
+REPRODUCTION_TOLERANCE = 0.01
+
+
+@dataclass(frozen=True)
+class JitterSpec:
+    """``--jitter``: the wavelet family and the level (None: chosen by the data), the attitude axes it corrects
+    (None: every axis the sensor corrects) and the a-priori sigma of each coefficient (rad; None: free)."""
+
+    wavelet: str = DEFAULT_WAVELET
+    level: int | None = None
+    axes: tuple[str, ...] | None = None
+    sigma_rad: float | tuple[float, ...] | None = None
+
+    @property
+    def text(self) -> str:
+        return f"wavelet1d:{self.wavelet}" + ("" if self.level is None else f":{self.level}")
+
+    def at_level(self, level: int) -> "JitterSpec":
+        return JitterSpec(self.wavelet, int(level), self.axes, self.sigma_rad)
+
+
+def parse_jitter(text: str | None) -> JitterSpec | None:
+    """``none`` (None), ``auto`` or ``wavelet1d:NAME[:LEVEL]``; UsageError for anything else."""
+    if text is None or text.strip().lower() in ("", "none"):
+        return None
+    text = text.strip()
+    if text.lower() == "auto":
+        return JitterSpec()
+    family, _, rest = text.partition(":")
+    name, _, level = rest.partition(":")
+    if family != "wavelet1d" or not name:
+        raise UsageError(f"--jitter {text}: none, auto or wavelet1d:NAME[:LEVEL] (NAME = dbN, symN, meyer, blN; "
+                         f"LEVEL {JITTER_LEVELS.start}-{JITTER_LEVELS.stop - 1}: 2^LEVEL cells over an image's lines)")
+    try:
+        name = check_wavelet_name(name)
+    except ValueError as exc:
+        raise UsageError(f"--jitter {text}: {exc}") from None
+    if level and (not level.isdigit() or int(level) not in JITTER_LEVELS):
+        raise UsageError(f"--jitter {text}: the level is a whole number {JITTER_LEVELS.start}-"
+                         f"{JITTER_LEVELS.stop - 1} (2^LEVEL cells over an image's lines), found {level!r}")
+    return JitterSpec(name, int(level) if level else None)
+
+
+@dataclass(frozen=True)
+class TimeWaveletBasis:
+    """The kept, orthogonalised scaling functions of one level over tau = row / rows in [0, 1]."""
+
+    wavelet: str
+    level: int
+    degree: int                                     # the sensor's polynomial it is orthogonal to
+    translations: tuple[int, ...]                   # k of every raw function
+    keep: np.ndarray = field(repr=False)            # indices of the raw functions kept
+    projection: np.ndarray = field(repr=False)      # (degree + 1, n_raw): the polynomial taken off each
+
+    @property
+    def cells(self) -> int:
+        return 2 ** self.level
+
+    @property
+    def size(self) -> int:
+        return len(self.keep)
+
+    @property
+    def names(self) -> list[str]:
+        return [f"L{self.level}k{self.translations[i]:+d}" for i in self.keep]
+
+    def _raw(self, tau: np.ndarray) -> np.ndarray:
+        w = get_wavelet(self.wavelet)
+        x = tau * self.cells
+        return np.stack([w.phi(x + k) for k in self.translations], -1)
+
+    def _powers(self, tau: np.ndarray) -> np.ndarray:
+        s = 2.0 * tau - 1.0
+        return s[:, None] ** np.arange(self.degree + 1)[None, :]
+
+    def __call__(self, tau) -> np.ndarray:
+        """B (n, size) at tau = row / rows (dimensionless)."""
+        tau = np.atleast_1d(np.asarray(tau, float))
+        return (self._raw(tau) - self._powers(tau) @ self.projection)[:, self.keep]
+
+
+@functools.lru_cache(maxsize=64)
+def time_basis(wavelet: str, level: int, degree: int) -> TimeWaveletBasis:
+    """The jitter basis of ``wavelet`` at ``level``, orthogonal to the powers of s up to ``degree``."""
+    w = get_wavelet(wavelet)
+    cells = 2 ** int(level)
+    lo, hi = w.support
+    translations = tuple(range(int(np.floor(lo - cells)) + 1, int(np.ceil(hi))))
+    draft = TimeWaveletBasis(wavelet, int(level), int(degree), translations, np.arange(len(translations)),
+                             np.zeros((degree + 1, len(translations))))
+    n = SAMPLES_PER_CELL * max(cells, 8)
+    tau = (np.arange(n) + 0.5) / n
+    keep, projection = orthogonal_beyond(draft._raw(tau), draft._powers(tau), REPRODUCTION_TOLERANCE)
+    if not keep.size:
+        raise UsageError(f"--jitter wavelet1d:{wavelet}:{level}: no function of that level is left beyond the "
+                         f"sensor's polynomial of degree {degree}; choose a higher level")
+    return TimeWaveletBasis(wavelet, int(level), int(degree), translations, keep, projection)
