@@ -124,9 +124,17 @@ def _clone(top, shared: bool):
     repo = top / "selfcal"
     repo.mkdir()
     for name in os.listdir(ROOT):
-        if name in ("examples", ".git") or name.endswith("-results"):
+        if name in ("examples", ".git", "pyproject.toml") or name.endswith("-results"):
             continue
         os.symlink(os.path.join(ROOT, name), repo / name)
+    # pyproject.toml copied, no newer than the .venv's install stamp: the README's `make install` in the clone finds
+    # the linked .venv installed and leaves it alone (a reinstall from here would point the developer's editable
+    # install and console scripts at this temporary folder; it did, from a worktree sharing the .venv)
+    shutil.copy2(os.path.join(ROOT, "pyproject.toml"), repo / "pyproject.toml")
+    stamp = os.path.join(ROOT, ".venv", ".installed-stamp")
+    if os.path.exists(stamp):
+        mtime = min(os.path.getmtime(stamp), os.path.getmtime(repo / "pyproject.toml"))
+        os.utime(repo / "pyproject.toml", (mtime, mtime))
     shutil.copytree(os.path.join(ROOT, "examples"), repo / "examples",
                     ignore=shutil.ignore_patterns("results", "__pycache__"))
     if shared:
