@@ -1,7 +1,8 @@
 """Attitude jitter of line images (issue 42): a PRISM-like triplet with platform jitter that the telemetry does not
 record, adjusted with bias and drift alone, with ``--jitter auto``, and the same triplet without jitter.
 
-    python benchmarks/study_jitter.py [--seeds 1,2,3] [--points 1500] [--levels auto|N]
+    python benchmarks/study_jitter.py [--seeds 1,2,3] [--points 1500] [--levels auto|N] [--ties]
+                                      [--terrain-sigma-m 2]
 
 The triplet of :func:`selfcal.simulate.prism.simulate_prism` (three views at +23.8, 0, -23.8 deg, 14,000 lines of
 0.37 ms each, 2.5 m pixels, 5 GCP, 0.3 px noise) with :data:`~selfcal.simulate.prism.JITTER`: 5 urad in roll and in
@@ -14,6 +15,11 @@ error of the estimated jitter against the truth beyond each image's linear part 
 and in what the tie points can see (roll beyond the part common to the three images; pitch along fore - 2 nadir +
 aft: the common part moves the ground along the track, fore minus aft moves its heights; neither is in the tie
 points, both need control or terrain).
+
+``--ties``: every tenth point a check point, the others tie points without coordinates (the simulator makes every
+non-control point a check point); with it, the rows ``+ terrain``: the same with the heights of a DEM of the
+simulated terrain (50 m cells, each with ``--terrain-sigma-m`` of noise) observed at the tie points with that sigma
+(issue 42 item 2), which fixes what fore minus aft pitch does to heights.
 """
 from __future__ import annotations
 
@@ -22,13 +28,32 @@ import time
 
 import numpy as np
 
+from dataclasses import replace
+
 from selfcal.adjust import AdjustOptions, SensorOptions, adjust
-from selfcal.simulate.prism import JITTER, prism_block, simulate_prism
+from selfcal.block import TerrainObservations
+from selfcal.geometry.terrain import GridDem
+from selfcal.simulate.prism import JITTER, dem_grid, prism_block, simulate_prism
 from selfcal.stats.snooping import SnoopingOptions
 from selfcal.workflows import seed001
 from selfcal.workflows.jitter import choose_jitter
 
 TRUE_FOCAL_MM = {"F": 1938.20, "N": 1937.45, "B": 1936.66}
+
+
+def tie_block(block, gcps):
+    """Every tenth non-control point a check point, the others tie points without coordinates."""
+    role = np.full(len(block.points), "tie", object)
+    role[np.arange(len(role)) % 10 == 5] = "chk"
+    role[gcps] = "gcp"
+    xyz = np.where((role == "tie")[:, None], np.nan, block.points.xyz_m)
+    return replace(block, points=replace(block.points, role=role, xyz_m=xyz))
+
+
+def noisy_dem(sim, sigma_m: float, seed: int) -> GridDem:
+    dem = dem_grid(sim)
+    noise = np.random.default_rng(seed + 77).normal(0.0, sigma_m, dem.heights_m.shape)
+    return GridDem(dem.heights_m + noise, dem.transform)
 
 
 def case(block, gcps, options):
@@ -43,33 +68,43 @@ def main() -> None:
     parser.add_argument("--seeds", default="1,2,3")
     parser.add_argument("--points", type=int, default=1500)
     parser.add_argument("--levels", default="auto")
+    parser.add_argument("--ties", action="store_true")
+    parser.add_argument("--terrain-sigma-m", type=float, default=2.0)
     args = parser.parse_args()
     spec = "auto" if args.levels == "auto" else f"wavelet1d:db4:{int(args.levels)}"
-    print(f"{'seed':>4} {'case':<22} {'sigma0':>6} {'rej %':>6} {'across':>7} {'along':>7} {'up':>7}  "
+    print(f"{'seed':>4} {'case':<32} {'sigma0':>6} {'rej %':>6} {'across':>7} {'along':>7} {'up':>7}  "
           f"{'jitter err roll/pitch':>22} {'seen roll/pitch':>16}  time")
     for seed in (int(s) for s in args.seeds.split(",")):
         for jitter in (False, True):
             sim = simulate_prism(seed=seed, n_points=args.points, jitter=JITTER if jitter else None)
             block = seed001.with_focal(prism_block(sim, seed=seed), TRUE_FOCAL_MM)
             gcps = seed001.choose_gcps(block, None)
+            if args.ties:
+                block = tie_block(block, gcps)
             base = AdjustOptions(sensor=SensorOptions(model="M5"))
-            rows = [("bias+drift", base, 0.0)]
-            if jitter:
-                t = time.perf_counter()
-                choice = choose_jitter(seed001.case_block(block, (0, 1, 2), gcps),
-                                       AdjustOptions(sensor=SensorOptions(model="M5", jitter=spec)))
-                rows.append((f"jitter {choice.spec.replace('wavelet1d:', '')}", choice.options(base),
-                             time.perf_counter() - t))
-            for name, options, chosen_s in rows:
+            blocks = [("", block)]
+            if args.ties:
+                terrain = TerrainObservations(noisy_dem(sim, args.terrain_sigma_m, seed), args.terrain_sigma_m)
+                blocks.append((" + terrain", replace(block, terrain_observations=terrain)))
+            rows = []
+            for label, b in blocks:
+                rows.append(("bias+drift" + label, b, base, 0.0))
+                if jitter:
+                    t = time.perf_counter()
+                    choice = choose_jitter(seed001.case_block(b, (0, 1, 2), gcps),
+                                           AdjustOptions(sensor=SensorOptions(model="M5", jitter=spec)))
+                    rows.append((f"{choice.spec.replace('wavelet1d:', '')}" + label, b, choice.options(base),
+                                 time.perf_counter() - t))
+            for name, block, options, chosen_s in rows:
                 c, r, rejected = case(block, gcps, options)
                 rmse = c.rmse_m if c.rmse_m is not None else np.full(3, np.nan)
                 error = sim.truth.jitter_error_urad(r) if (r is not None and jitter) else (np.full(2, np.nan),) * 2
-                sub = seed001.case_block(block, (0, 1, 2), gcps)
+                sub = seed001.case_block(replace(block, terrain_observations=None), (0, 1, 2), gcps)
                 t = time.perf_counter()
                 adjust(sub, options)
                 one_s = time.perf_counter() - t
                 status = "" if not c.failure else "  FAILS: " + c.failure.split(":")[0][:60]
-                print(f"{seed:>4} {('jitter ' if jitter else 'no jitter ') + name:<22} {c.sigma0 * 0.3:6.3f} "
+                print(f"{seed:>4} {('jitter ' if jitter else 'no jitter ') + name:<32} {c.sigma0 * 0.3:6.3f} "
                       f"{100 * rejected:6.2f} {rmse[0]:7.2f} {rmse[1]:7.2f} {rmse[2]:7.2f}  "
                       f"{error[0][0]:10.2f} {error[0][1]:10.2f}  {error[1][0]:7.2f} {error[1][1]:7.2f}  "
                       f"choice {chosen_s:.1f} s, one adjustment {one_s:.2f} s{status}", flush=True)
