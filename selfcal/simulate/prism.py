@@ -147,7 +147,7 @@ class PrismTruth:
         along the track, fore minus aft its heights)."""
         slot = result.problem.sensors[0]
         bound = slot.bound
-        errors = []
+        images, estimates = [], []
         for i in slot.images:
             image = bound.images[int(i)]
             rows = np.linspace(0, image.rows, samples)
@@ -155,10 +155,22 @@ class PrismTruth:
             if bound.jitter is not None:
                 G = bound.attitude_design(int(i), rows)
                 estimate = G[:, :, bound.jitter_offset:] @ result.state.image[int(i), bound.jitter_offset:]
+            images.append(image)
+            estimates.append(estimate)
+        return self.jitter_error_of(images, estimates)
+
+    def jitter_error_of(self, images, estimates) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`jitter_error_urad` of estimated jitter curves: per image of the triplet (F, N, B) its
+        :class:`LineImage` and the estimated roll, pitch, yaw (rad, (samples, 3)) at ``linspace(0, rows, samples)``
+        (an estimator that is not selfcal's, e.g. ``benchmarks/referee_asp_jitter.py``, gives its own curves)."""
+        errors = []
+        for image, estimate in zip(images, estimates):
+            samples = len(estimate)
+            rows = np.linspace(0, image.rows, samples)
             truth = self.jitter_rad(image.time_of_row(rows))
             V = np.stack([np.ones(samples), 2 * rows / image.rows - 1], -1)
             truth -= V @ np.linalg.lstsq(V, truth, rcond=None)[0]
-            errors.append((estimate - truth)[:, :2])
+            errors.append((np.asarray(estimate, float) - truth)[:, :2])
         error = np.array(errors)                                         # (F, N, B), lines, (roll, pitch)
         roll = error[:, :, 0] - error[:, :, 0].mean(axis=0)
         pitch = np.einsum("k,kn->n", np.array([1.0, -2.0, 1.0]) / np.sqrt(6.0), error[:, :, 1])
