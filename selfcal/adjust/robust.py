@@ -290,8 +290,13 @@ class RobustWeighting:
         moving = int(np.sum(np.abs(new - problem.obs_weight) > tolerance))
         moving += int(np.sum(np.abs(w - block.weight) > tolerance)) if weigh_control else 0
         if self.history and moving <= max(10, self.options.settled * len(image)):
+            # settled: the weights stay as the last linearisation had them, and they are the weights of this scale
+            # (those at it moved no more than the tolerance), so the scale is this one: the scale of an update at a
+            # poor start (a pushbroom image's attitude bias uncorrected: 45x the a-priori sigma) would otherwise
+            # judge the gross errors and make the diagnosis after the adjustment has removed that bias
+            self.scale, self.control_scale = scale, control_scale
             self.history.append((self.scale, 0))
-            return False                    # settled: the weights stay as the last linearisation had them
+            return False
         self.scale, self.control_scale = scale, control_scale
         reweight_observations(problem, new, tolerance)
         if weigh_control:
