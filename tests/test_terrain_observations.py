@@ -54,20 +54,27 @@ def triplet():
     return sim, _tie_block(sim)
 
 
-def test_terrain_heights_improve_the_tie_points_and_their_variance_component_finds_the_dem_noise(triplet):
-    sim, block = triplet
-    dem = _noisy_dem(sim, 2.0)                       # 2 m per cell: about 1.3 m at a point, bilinearly
+def _heights_with_and_without(sim, block, surface, sigma_m: float):
+    """The tie points' height errors without and with ``surface``'s heights as observations at ``sigma_m`` (variance
+    components estimated): RMS without, RMS with, the tested adjustment with them, the terrain rows, the estimated
+    sigma of the terrain group and the true RMS of the surface's heights at the observed tie points."""
     without = adjust_with_tests(block, M6, snooping=None, robust=None)
-    terrain = replace(block, terrain_observations=TerrainObservations(dem, 1.0))     # sigma 1 m given
+    terrain = replace(block, terrain_observations=TerrainObservations(surface, sigma_m))
     tested = adjust_with_tests(terrain, M6, snooping=None, robust=None, variance=VarianceOptions())
-    d0, d1 = _tie_height_errors(sim, without), _tie_height_errors(sim, tested)
-    rms0, rms1 = float(np.sqrt(np.mean(d0 ** 2))), float(np.sqrt(np.mean(d1 ** 2)))
+    rms0, rms1 = (float(np.sqrt(np.mean(_tie_height_errors(sim, t) ** 2))) for t in (without, tested))
     rows = tested.result.problem.terrain
     lat, lon, h = geodetic_from_ecef(sim.points_ecef)
     index = [sim.point_ids.index(p) for p in tested.result.block.points.point_id[rows.index]]
-    true_sigma = float(np.sqrt(np.mean((dem(np.degrees(lat), np.degrees(lon)) - h)[index] ** 2)))
+    true_sigma = float(np.sqrt(np.mean((surface(np.degrees(lat), np.degrees(lon)) - h)[index] ** 2)))
+    estimated = {c.group: c for c in tested.variance_components}["terrain"].sigma_aposteriori[0]
+    return rms0, rms1, tested, rows, estimated, true_sigma
+
+
+def test_terrain_heights_improve_the_tie_points_and_their_variance_component_finds_the_dem_noise(triplet):
+    sim, block = triplet
+    dem = _noisy_dem(sim, 2.0)                       # 2 m per cell: about 1.3 m at a point, bilinearly
+    rms0, rms1, tested, rows, estimated, true_sigma = _heights_with_and_without(sim, block, dem, 1.0)   # 1 m given
     components = {c.group: c for c in tested.variance_components}
-    estimated = components["terrain"].sigma_aposteriori[0]
     print(f"tie heights RMS {rms0:.3f} m without, {rms1:.3f} m with {len(rows)} terrain heights; terrain sigma "
           f"estimated {estimated:.3f} m, true {true_sigma:.3f} m; image scale {components['image'].scale:.3f}")
     assert tested.result.converged and len(rows) > 300
@@ -312,16 +319,7 @@ def test_point_cloud_heights_improve_the_tie_points_and_their_variance_component
     from selfcal.geometry.cloud import CloudSurface
     sim, block = triplet
     cloud = CloudSurface(*_cloud_over(sim, 50_000, 2.0))     # 2 m per point: about 0.9 m for a plane of 8
-    without = adjust_with_tests(block, M6, snooping=None, robust=None)
-    terrain = replace(block, terrain_observations=TerrainObservations(cloud, 1.0))
-    tested = adjust_with_tests(terrain, M6, snooping=None, robust=None, variance=VarianceOptions())
-    rms0, rms1 = (float(np.sqrt(np.mean(_tie_height_errors(sim, t) ** 2))) for t in (without, tested))
-    rows = tested.result.problem.terrain
-    lat, lon, h = geodetic_from_ecef(sim.points_ecef)
-    index = [sim.point_ids.index(p) for p in tested.result.block.points.point_id[rows.index]]
-    true_sigma = float(np.sqrt(np.mean((cloud(np.degrees(lat), np.degrees(lon)) - h)[index] ** 2)))
-    components = {c.group: c for c in tested.variance_components}
-    estimated = components["terrain"].sigma_aposteriori[0]
+    rms0, rms1, tested, rows, estimated, true_sigma = _heights_with_and_without(sim, block, cloud, 1.0)
     print(f"tie heights RMS {rms0:.3f} m without, {rms1:.3f} m with {len(rows)} cloud heights; sigma estimated "
           f"{estimated:.3f} m, true {true_sigma:.3f} m")
     assert tested.result.converged and len(rows) > 300
