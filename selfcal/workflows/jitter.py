@@ -43,6 +43,9 @@ MIN_EFFECT_PX = 0.1
 #: the variance factors of the jitter priors are 1 within this
 VCE_TOLERANCE = 0.02
 VCE_ITERATIONS = 12
+#: over-relaxation of the sigmas' update: sigma * factor^(relaxation / 2) (1: Förstner's plain update, whose steps
+#: shrink slowly where an axis trades with another, a yaw with the roll of a tilted view)
+VCE_RELAXATION = 2.0
 #: the a-priori sigma the estimation starts from (rad)
 START_SIGMA_RAD = 1.0e-5
 #: a level needs this many observations of an image per function of one axis
@@ -135,7 +138,7 @@ def estimate_jitter_power(block, options: AdjustOptions, progress: Callable | No
             omega = float(np.sum((x / sigma[a]) ** 2))
             redundancy = float(np.sum(1.0 - diagonal[cols] / sigma[a] ** 2))
             factors[a] = omega / max(redundancy, 1e-9) / image_factor
-        new_sigma = sigma * np.sqrt(factors)
+        new_sigma = sigma * np.clip(factors, 0.25, 4.0) ** (0.5 * VCE_RELAXATION)
         effect = new_sigma * _pixels_per_rad(result)
         newly = (effect < MIN_EFFECT_PX) & ~held
         if say and not held.all():
