@@ -103,3 +103,13 @@ def test_a_triplet_without_jitter_keeps_its_bias_and_drift():
     options = choice.options(AdjustOptions(sensor=SensorOptions(model="M5")))
     a, b = adjust(block, options), adjust(block, AdjustOptions(sensor=SensorOptions(model="M5")))
     assert np.array_equal(a.state.image, b.state.image)
+
+
+def test_jitter_on_a_block_without_line_images_is_refused():
+    """A frame block asked for jitter (a level and a sigma given: nothing to choose) is a usage error, not ignored."""
+    from selfcal.simulate import simulate_uav
+    from selfcal.workflows.adjust import AdjustRequest, adjust_block
+    block = simulate_uav(seed=0).blocks["type1"]
+    options = AdjustOptions(sensor=SensorOptions(jitter="wavelet1d:db4:4", jitter_sigma_rad=3e-6))
+    with pytest.raises(UsageError, match="no line images"):
+        adjust_block(block, AdjustRequest(options=options))

@@ -244,9 +244,15 @@ def _resolve_jitter(block: Block, options: AdjustOptions, say: Callable[[str], N
     it (:mod:`.jitter`); the choice goes to ``extra["jitter"]`` (summary.json)."""
     from ..sensors.pushbroom.jitter import parse_jitter
     from .jitter import choose_jitter
+    from ..errors import UsageError
+    from ..sensors import sensor_of
+    from ..sensors.pushbroom import PushbroomSensor
     spec = parse_jitter(options.sensor.jitter)
     if spec is None:
         return options
+    if not any(isinstance(sensor_of(c), PushbroomSensor) for c in block.cameras.values()):
+        raise UsageError(f"--jitter {options.sensor.jitter}: the block has no line images (pushbroom, usgscsm-line, "
+                         f"dimap, dg) whose attitude it could correct")
     if spec.level is not None and options.sensor.jitter_sigma_rad is not None:
         extra["jitter"] = {"jitter": spec.text, "sigma_urad": list(np.atleast_1d(options.sensor.jitter_sigma_rad) * 1e6),
                            "chosen": False}
