@@ -329,7 +329,7 @@ def test_leverages_through_the_sparse_wavelet_rows_equal_the_dense_ones(monkeypa
     block = pruned(simulation(seed=5, distortion="local+brown", points_per_mm2=0.04, blunder_rate=0.003), "type3")
     # the screening by t-tests alone (issue 44's support test holds more WAPs of this sparse block, one of which an
     # observation then determines alone: h = 1 + 1e-7 by rounding, not a leverage to compare)
-    screening = ScreeningOptions(min_effect_px=0.0, min_support=0, cross_validate=False)
+    screening = ScreeningOptions(min_effect_px=0.0, min_support=0, cross_validate=False, max_iop_move_sigma=0.0)
     tested = adjust_with_tests(block, AdjustOptions(ap=APOptions("wavelet:sym4")), screening=screening)
     result = tested.result
     problem = result.problem

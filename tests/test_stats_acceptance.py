@@ -55,16 +55,22 @@ def test_snooping_with_waps_finds_the_blunders():
 
 
 def test_screening_of_waps_on_the_brown_field():
-    """Brown-only field: screening removes >= 20 % of the WAPs and costs <= 5 % of check-point RMSD,
-    pooled over two seeds (12 check points each; one seed alone ranged 0.94-1.05 over seeds 1-4)."""
+    """Brown-only field: screening removes >= 20 % of the WAPs over two seeds (>= 15 % on each: the interior
+    orientation's guard keeps the WAPs whose drop would move c, x0 or y0 by 0.1 sigma; measured 18.5 and 32.3 %,
+    without the guard 34.6 and 36.2 %) and costs <= 5 % of check-point RMSD, pooled over the two seeds (12 check
+    points each; one seed alone ranged 0.94-1.05 over seeds 1-4; measured XY 0.984, Z 0.982, without the guard
+    0.963, 1.012)."""
     squares = np.zeros((2, 2))                   # (full, screened) x (XY, Z)
+    kept = 0
     for seed in (1, 2):
         block = pruned(simulation(seed=seed, distortion="brown"), "type3")
         full = adjust(block, WAP)
         screened = adjust_with_tests(block, WAP, None, ScreeningOptions())
         assert screened.n_ap_initial == 254
-        assert screened.n_ap_significant <= 0.80 * screened.n_ap_initial, screened.n_ap_significant
+        assert screened.n_ap_significant <= 0.85 * screened.n_ap_initial, screened.n_ap_significant
+        kept += screened.n_ap_significant
         squares += np.array([chk_rmsd(full), chk_rmsd(screened.result)]) ** 2
+    assert kept <= 0.80 * 2 * 254, kept
     assert np.all(squares[1] <= 1.05 ** 2 * squares[0]), np.sqrt(squares)
     assert screened.result.converged
     # the translation ranges shrink with the screening (Table 3 of seed 000)

@@ -165,6 +165,10 @@ def test_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--min-support", type=count(0), default=20, metavar="N",
                         help="screening: a coefficient of a local basis (a WAP) stays only if N observations or "
                              "more lie in its support (default 20)")
+    parser.add_argument("--max-iop-move", type=number(0.0), default=0.1, metavar="S",
+                        help="screening: stop before a drop that would move a camera's c, x0 or y0 by more than S of "
+                             "its sigma (default 0.1; 0: no guard): where a few control points hold the heights, c "
+                             "carries them")
     parser.add_argument("--no-screen-cv", action="store_true",
                         help="screening: do not cross-validate (by default it stops where the screened set would "
                              "predict held-out tie points worse than the unscreened one)")
@@ -191,7 +195,7 @@ def screening_options(args: argparse.Namespace) -> ScreeningOptions:
     return ScreeningOptions(args.significance, args.max_correlation,
                             joint_alpha=args.joint_alpha if args.joint_alpha > 0 else None,
                             min_effect_px=args.min_effect_px, min_support=args.min_support,
-                            cross_validate=not args.no_screen_cv, **extra)
+                            cross_validate=not args.no_screen_cv, max_iop_move_sigma=args.max_iop_move, **extra)
 
 
 def round_printer() -> Callable[[Any], None]:

@@ -310,6 +310,8 @@ def _processing_rows(s: dict) -> list[tuple[str, list[str]]]:
         rows.append(("parameter screening", [_text_cell(
             f"one at a time while t < {fmt(screening.get('significance'), 'g')} or |ρ| > "
             f"{fmt(screening.get('max_correlation'), 'g')}; joint F-test α = {fmt(screening.get('joint_alpha'), 'g')}"
+            + (f"; c, x0, y0 kept within {fmt(screening.get('max_iop_move_sigma'), 'g')} σ"
+               if screening.get('max_iop_move_sigma') else "")
             if screening else "off: every parameter kept")]))
         rows.append(("variance components", [_text_cell("estimated per observation group"
                                                         if o.get("variance_components") else "not estimated")]))
