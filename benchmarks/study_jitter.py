@@ -73,7 +73,7 @@ def main() -> None:
     args = parser.parse_args()
     spec = "auto" if args.levels == "auto" else f"wavelet1d:db4:{int(args.levels)}"
     print(f"{'seed':>4} {'case':<32} {'sigma0':>6} {'rej %':>6} {'across':>7} {'along':>7} {'up':>7}  "
-          f"{'jitter err roll/pitch':>22} {'seen roll/pitch':>16}  time")
+          f"{'jitter err roll/pitch':>22} {'seen roll/pitch':>16} {'sigma roll/pitch':>14}  time")
     for seed in (int(s) for s in args.seeds.split(",")):
         for jitter in (False, True):
             sim = simulate_prism(seed=seed, n_points=args.points, jitter=JITTER if jitter else None)
@@ -99,6 +99,7 @@ def main() -> None:
                 c, r, rejected = case(block, gcps, options)
                 rmse = c.rmse_m if c.rmse_m is not None else np.full(3, np.nan)
                 error = sim.truth.jitter_error_urad(r) if (r is not None and jitter) else (np.full(2, np.nan),) * 2
+                floor = sim.truth.jitter_sigma_urad(r) if r is not None else np.full(2, np.nan)
                 sub = seed001.case_block(replace(block, terrain_observations=None), (0, 1, 2), gcps)
                 t = time.perf_counter()
                 adjust(sub, options)
@@ -107,6 +108,7 @@ def main() -> None:
                 print(f"{seed:>4} {('jitter ' if jitter else 'no jitter ') + name:<32} {c.sigma0 * 0.3:6.3f} "
                       f"{100 * rejected:6.2f} {rmse[0]:7.2f} {rmse[1]:7.2f} {rmse[2]:7.2f}  "
                       f"{error[0][0]:10.2f} {error[0][1]:10.2f}  {error[1][0]:7.2f} {error[1][1]:7.2f}  "
+                      f"{floor[0]:6.2f} {floor[1]:6.2f}  "
                       f"choice {chosen_s:.1f} s, one adjustment {one_s:.2f} s{status}", flush=True)
 
 

@@ -92,6 +92,10 @@ def test_jitter_of_a_triplet_is_found_where_tie_points_see_it():
     total, seen = sim.truth.jitter_error_urad(result, samples=1001)
     assert np.all(seen < 0.85), seen                  # of 2.5 urad RMS
     assert np.all(total < 2.2), total                 # the unseen part bounded (measured 1.4, 1.8)
+    # the precision the adjustment states for its jitter covers that error (the floor the issue measures against)
+    sigma = sim.truth.jitter_sigma_urad(result, samples=1001)
+    assert np.all(total < 1.5 * sigma) and np.all(sigma < 1.5 * total), (total, sigma)   # measured 1.37 / 1.82 against 1.40 / 1.89
+    assert np.array_equal(sim.truth.jitter_sigma_urad(without), np.zeros(2))
 
 
 def test_a_triplet_without_jitter_keeps_its_bias_and_drift():

@@ -159,6 +159,28 @@ class PrismTruth:
             estimates.append(estimate)
         return self.jitter_error_of(images, estimates)
 
+    def jitter_sigma_urad(self, result, samples: int = 2001) -> np.ndarray:
+        """The precision an adjustment states for its jitter (``result`` of the triplet), RMS over the lines and images
+        of the a-posteriori sigma of the jitter's correction (urad, roll and pitch; the coefficients' covariance
+        carried through, the priors' share included, held coefficients contributing nothing): what the observations
+        and the priors determine, the floor against which :meth:`jitter_error_urad` is measured (zero without
+        jitter)."""
+        slot = result.problem.sensors[0]
+        bound = slot.bound
+        if bound.jitter is None:
+            return np.zeros(2)
+        problem, offset, width = result.problem, bound.jitter_offset, result.problem.image_width
+        Q = result.variance_factor * result.Q_theta
+        variances = []
+        for i in slot.images:
+            i = int(i)
+            G = bound.attitude_design(i, np.linspace(0, bound.images[i].rows, samples))[:, :2, offset:]
+            free = problem.image_free[i, offset:]
+            block = slice(i * width + offset, (i + 1) * width)
+            Qi = Q[block, block] * np.outer(free, free)
+            variances.append(np.einsum("nak,kl,nal->na", G, Qi, G))
+        return np.sqrt(np.maximum(np.mean(variances, axis=(0, 1)), 0.0)) * 1e6
+
     def jitter_error_of(self, images, estimates) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`jitter_error_urad` of estimated jitter curves: per image of the triplet (F, N, B) its
         :class:`LineImage` and the estimated roll, pitch, yaw (rad, (samples, 3)) at ``linspace(0, rows, samples)``
