@@ -867,6 +867,7 @@ for _command, _options, _names in [
         ("adjust", ("--significance", "-2"), "--significance"),
         ("adjust", ("--max-correlation", "1.5"), "--max-correlation"),
         ("adjust", ("--joint-alpha", "1"), "--joint-alpha"),
+        ("adjust", ("--max-iop-move", "-0.1"), "--max-iop-move"),
         ("adjust", ("--gnss-drift", "7"), "--gnss-drift"),
         ("adjust", ("--gnss-drift", "x"), "--gnss-drift"),
         ("adjust", ("--gcps", "0"), "--gcps"),
