@@ -11,9 +11,14 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
+from typing import TYPE_CHECKING
+
 from ..block import Block
 from ..errors import UsageError
 from ..stats.plan import MB, BlockSizes, Plan, machine_speed, plan_adjustment
+
+if TYPE_CHECKING:
+    from ..adjust.problem import Problem
 
 __all__ = ["plan_block", "image_graph_sizes", "available_mb", "check_fits", "TooLarge"]
 
@@ -54,7 +59,7 @@ def image_graph_sizes(obs_image: np.ndarray, obs_point: np.ndarray, n_images: in
             "factor_block_flops": float(np.sum(counts ** 2))}
 
 
-def _model_sizes(block: Block, ap: str, grid: tuple[int, int]) -> tuple[int, int, int, int, object]:
+def _model_sizes(block: Block, ap: str, grid: tuple[int, int]) -> tuple[int, int, int, int, Problem]:
     """(image width, camera parameters, AP coefficients, trajectory terms, problem) of the block with AP model
     ``ap``: the problem arranged as the adjustment arranges it (no linearisation)."""
     from ..adjust import AdjustOptions, APOptions
@@ -81,17 +86,18 @@ def plan_block(block: Block, ap: str | None = None, grid: tuple[int, int] = (9, 
     assert widest is not None
     image_width, n_d, n_ap, n_extra, problem = widest
     graph = image_graph_sizes(problem.obs_image, problem.obs_point, problem.n_images, problem.n_points)
-    sizes = BlockSizes(n_images=problem.n_images, n_cameras=len(problem.cameras), n_points=problem.n_points,
+    block_sizes = BlockSizes(n_images=problem.n_images, n_cameras=len(problem.cameras), n_points=problem.n_points,
                        n_observations=problem.n_image_observations, image_width=image_width,
                        n_camera_parameters=n_d, n_ap=n_ap, n_extra=n_extra, **graph)
-    return plan_adjustment(sizes, machine_speed() if probe else 1.0)
+    return plan_adjustment(block_sizes, machine_speed() if probe else 1.0)
 
 
 def available_mb() -> float:
     """Memory available to a new process now (MB): psutil's ``available`` where psutil is installed, else
     /proc/meminfo's MemAvailable; NaN where neither can be read."""
+    import importlib
     try:
-        import psutil
+        psutil = importlib.import_module("psutil")            # the bench extra's; not a dependency
         return float(psutil.virtual_memory().available) / MB
     except ImportError:
         pass
