@@ -34,7 +34,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from ..adjust.linalg import BAND_FLOPS, BAND_SHARE, BORDER_SHARE, CHOLMOD_AVAILABLE, DENSE_ASSEMBLY_LIMIT, DENSE_LIMIT
+from ..adjust.linalg import BAND_FLOPS, BAND_SHARE, CHOLMOD_AVAILABLE, DENSE_ASSEMBLY_LIMIT, DENSE_LIMIT
 
 __all__ = ["BlockSizes", "Plan", "plan_adjustment", "machine_speed", "MB"]
 
@@ -132,7 +132,7 @@ class Plan:
 def _band_width(sizes: BlockSizes) -> int:
     """S's half bandwidth in unknowns as :func:`selfcal.adjust.linalg.band_structure` finds it (0: no band): the
     image graph's band times the image block; the camera parameters, which couple more than BORDER_SHARE of the
-    images, form the border."""
+    images (``linalg.BORDER_SHARE``), form the border."""
     n_inner = sizes.n_images * sizes.image_width
     border = sizes.n_camera_parameters + sizes.n_extra
     if n_inner < 1000 or border > 0.1 * sizes.n_theta:

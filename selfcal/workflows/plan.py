@@ -8,10 +8,10 @@ n_images unknowns instead of n_theta) and hands them to :func:`selfcal.stats.pla
 """
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 import scipy.sparse as sp
-
-from typing import TYPE_CHECKING
 
 from ..block import Block
 from ..errors import UsageError
