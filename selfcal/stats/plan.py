@@ -181,12 +181,13 @@ def plan_adjustment(sizes: BlockSizes, speed: float = 1.0, cholmod: bool = CHOLM
     return plan
 
 
-def machine_speed(size: int = 400, repeat: int = 5) -> float:
+def machine_speed(size: int = 400, repeat: int = 15) -> float:
     """This machine's speed now against the constants': the best of ``repeat`` dense Cholesky factorisations of a
     ``size`` x ``size`` matrix and a pass over 8 MB (the two kinds of work an iteration does), on one BLAS thread, in
-    seconds, over :data:`PROBE_SECONDS` (> 1: slower than when the constants were measured). About 0.2 s. On two
-    threads the probe was bimodal on a loaded machine (0.4 or 2.6 of itself, one or the other in consecutive runs);
-    on one it stayed within 0.2-0.4."""
+    seconds, over :data:`PROBE_SECONDS` (> 1: slower than when the constants were measured). About 0.6 s. On two
+    threads the probe was bimodal on this loaded machine (0.4 or 2.6 of itself, one or the other in consecutive
+    runs); on one thread the best of 5 spread by 2x between processes (2.8-5.9 at a load average of 8), the best of
+    15 by 1.2x (3.5-4.2); the constants were measured with the best of 5."""
     from threadpoolctl import threadpool_limits
 
     rng = np.random.default_rng(0)
