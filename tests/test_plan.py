@@ -12,7 +12,7 @@ from conftest import run_cli
 #: blocks in benchmarks/bench_plan.py; this block is mostly the process's own base)
 PEAK_TOLERANCE = 0.20
 
-PLAN_KEYS = {"sizes", "factorisation", "covariance", "band_width", "memory_mb", "peak_mb", "seconds",
+PLAN_KEYS = {"sizes", "ap_model", "factorisation", "covariance", "band_width", "memory_mb", "peak_mb", "seconds",
              "seconds_per_iteration", "machine_speed", "available_mb"}
 SIZE_KEYS = {"n_images", "n_cameras", "n_points", "n_observations", "image_width", "n_camera_parameters", "n_ap",
              "n_extra", "image_pairs", "band_images", "factor_blocks", "factor_block_flops", "n_theta"}
@@ -96,7 +96,9 @@ def test_default_ap_plans_the_widest_candidate(block_folder):
     from selfcal.workflows.plan import plan_block
 
     block = read_block(block_folder)
-    assert plan_block(block, probe=False).sizes.n_ap > plan_block(block, ap="none", probe=False).sizes.n_ap == 0
+    default = plan_block(block, probe=False)
+    assert default.ap_model == "brown (the widest of auto:none,brown)"
+    assert default.sizes.n_ap > plan_block(block, ap="none", probe=False).sizes.n_ap == 0
 
 
 def test_too_large_block_exits_2_before_any_work(block_folder, capsys, monkeypatch):

@@ -13,7 +13,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     grid_option(parser)
 
 
-def _table(plan) -> str:
+def _table(plan, available_mb: float) -> str:
     """The plan as a short table: component, MB, seconds per iteration."""
     rows = [f"{'component':<16}{'MB':>9}{'s/iter.':>9}"]
     names = list(dict.fromkeys([*plan.memory_mb, *plan.seconds]))
@@ -26,7 +26,8 @@ def _table(plan) -> str:
     sizes = plan.sizes
     rows.append(f"{sizes.n_images} images, {sizes.n_points} points, {sizes.n_observations} observations, "
                 f"{sizes.n_theta} unknowns in the reduced system ({sizes.image_pairs} image pairs): "
-                f"{plan.factorisation} factorisation, {plan.covariance}")
+                f"{plan.factorisation} factorisation, {plan.covariance}; AP model {plan.ap_model}")
+    rows.append(f"memory available now: {available_mb:.0f} MB")
     return "\n".join(rows)
 
 
@@ -40,4 +41,4 @@ def run(args: argparse.Namespace) -> int:
     available = available_mb()
     figures = {**plan.as_dict(), "available_mb": available}
     check_fits(plan, available)
-    return finish(args, _table(plan), figures)
+    return finish(args, _table(plan, available), figures)

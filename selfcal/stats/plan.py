@@ -110,6 +110,8 @@ class Plan:
     memory_mb: dict = field(default_factory=dict)
     seconds: dict = field(default_factory=dict)
     speed: float = 1.0               # this machine's probe against the constants' (> 1: slower now)
+    #: the AP model planned for (set by the caller that knows it)
+    ap_model: str = ""
     #: the counts the constants multiply (observations, numbers of the system and of Q_theta, flops): for the fit
     numbers: dict = field(default_factory=dict)
 
@@ -123,7 +125,7 @@ class Plan:
 
     def as_dict(self) -> dict:
         return {"sizes": {**asdict(self.sizes), "n_theta": self.sizes.n_theta},
-                "factorisation": self.factorisation, "covariance": self.covariance, "band_width": self.band_width,
+                "ap_model": self.ap_model, "factorisation": self.factorisation, "covariance": self.covariance, "band_width": self.band_width,
                 "memory_mb": dict(self.memory_mb), "peak_mb": self.peak_mb, "seconds": dict(self.seconds),
                 "seconds_per_iteration": self.seconds_per_iteration, "machine_speed": self.speed,
                 "numbers": dict(self.numbers)}

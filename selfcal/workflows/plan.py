@@ -79,17 +79,20 @@ def plan_block(block: Block, ap: str | None = None, grid: tuple[int, int] = (9, 
     spec = default_ap_model(block) if ap is None else ap
     candidates = ap_candidates(spec, grid) if is_auto(spec) else [(spec, grid)]
     widest = None
+    planned = spec
     for model, model_grid in candidates:
         sizes = _model_sizes(block, model, model_grid)
         if widest is None or sizes[1] + sizes[3] > widest[1] + widest[3]:
-            widest = sizes
+            widest, planned = sizes, model
     assert widest is not None
     image_width, n_d, n_ap, n_extra, problem = widest
     graph = image_graph_sizes(problem.obs_image, problem.obs_point, problem.n_images, problem.n_points)
     block_sizes = BlockSizes(n_images=problem.n_images, n_cameras=len(problem.cameras), n_points=problem.n_points,
                        n_observations=problem.n_image_observations, image_width=image_width,
                        n_camera_parameters=n_d, n_ap=n_ap, n_extra=n_extra, **graph)
-    return plan_adjustment(block_sizes, machine_speed() if probe else 1.0)
+    plan = plan_adjustment(block_sizes, machine_speed() if probe else 1.0)
+    plan.ap_model = planned if planned == spec else f"{planned} (the widest of {spec})"
+    return plan
 
 
 def available_mb() -> float:
