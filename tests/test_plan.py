@@ -12,7 +12,7 @@ from conftest import run_cli
 #: blocks in benchmarks/bench_plan.py; this block is mostly the process's own base)
 PEAK_TOLERANCE = 0.20
 
-PLAN_KEYS = {"sizes", "ap_model", "factorisation", "covariance", "band_width", "memory_mb", "peak_mb", "seconds",
+PLAN_KEYS = {"sizes", "ap_model", "workflow_peak_mb", "factorisation", "covariance", "band_width", "memory_mb", "peak_mb", "seconds",
              "seconds_per_iteration", "machine_speed", "available_mb"}
 SIZE_KEYS = {"n_images", "n_cameras", "n_points", "n_observations", "image_width", "n_camera_parameters", "n_ap",
              "n_extra", "image_pairs", "band_images", "factor_blocks", "factor_block_flops", "n_theta"}
@@ -109,6 +109,10 @@ def test_too_large_block_exits_2_before_any_work(block_folder, capsys, monkeypat
     captured = capsys.readouterr()
     assert "the machine has 0.0 GB available" in captured.err and "the block needs about 0." in captured.err
     assert json.loads(captured.out)["exit_code"] == 2
+    # room for one adjustment (about 200 MB) but not for selfcal adjust's default tests (about 340 MB)
+    monkeypatch.setattr(plan_module, "available_mb", lambda: 280.0)
+    assert run_cli("plan", str(block_folder), "--ap", "none") == 2
+    assert "(selfcal adjust with its default tests)" in capsys.readouterr().err
 
 
 def test_missing_block_folder_exits_2_naming_it(tmp_path, capsys):

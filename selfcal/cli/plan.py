@@ -22,7 +22,8 @@ def _table(plan, available_mb: float) -> str:
         s = plan.seconds.get(name)
         rows.append(f"{name.replace('_', ' '):<16}{'' if mb is None else f'{mb:.0f}':>9}"
                     f"{'' if s is None else f'{s:.3f}':>9}")
-    rows.append(f"{'peak / total':<16}{plan.peak_mb:>9.0f}{plan.seconds_per_iteration:>9.3f}")
+    rows.append(f"{'peak / total':<16}{plan.peak_mb:>9.0f}{plan.seconds_per_iteration:>9.3f}   (one adjustment)")
+    rows.append(f"{'selfcal adjust':<16}{plan.workflow_peak_mb:>9.0f}{'':>9}   (its default tested workflow)")
     sizes = plan.sizes
     rows.append(f"{sizes.n_images} images, {sizes.n_points} points, {sizes.n_observations} observations, "
                 f"{sizes.n_theta} unknowns in the reduced system ({sizes.image_pairs} image pairs): "

@@ -114,11 +114,14 @@ def available_mb() -> float:
     return float("nan")
 
 
-def check_fits(plan: Plan, available: float) -> None:
-    """Raise :class:`TooLarge` when the plan's peak exceeds ``available`` MB (no check when it is unknown)."""
-    if np.isfinite(available) and plan.peak_mb > available:
+def check_fits(plan: Plan, available: float, workflow: bool = True) -> None:
+    """Raise :class:`TooLarge` when the plan's peak exceeds ``available`` MB (no check when it is unknown): the one
+    adjustment's peak, or with ``workflow`` that of ``selfcal adjust``'s default tested workflow."""
+    need = plan.workflow_peak_mb if workflow else plan.peak_mb
+    if np.isfinite(available) and need > available:
         largest = max(plan.memory_mb, key=lambda k: plan.memory_mb[k])
-        raise TooLarge(f"the block needs about {plan.peak_mb / 1024:.1f} GB, the machine has {available / 1024:.1f} GB "
-                       f"available; the largest part is the {largest.replace('_', ' ')} "
+        what = "selfcal adjust with its default tests" if workflow else "one adjustment"
+        raise TooLarge(f"the block needs about {need / 1024:.1f} GB ({what}), the machine has {available / 1024:.1f} "
+                       f"GB available; the largest part of one adjustment is the {largest.replace('_', ' ')} "
                        f"({plan.memory_mb[largest] / 1024:.1f} GB, {plan.factorisation} factorisation, "
                        f"{plan.covariance}): free memory, use a larger machine, or split the block")
