@@ -1,14 +1,18 @@
 """`selfcal plan` against the run it plans: predicted and measured peak memory and seconds per iteration.
 
 The synthetic frame blocks of bench_scaling.py (seed-000 simulator, more and longer strips, 0.5 tie points per
-mm^2, Type 3 control, no distortion, AP model none) from 28 to 2000 images. For each block one process plans it
-(:func:`selfcal.workflows.plan.plan_block`, no adjustment) and another adjusts it from its block folder
-(written once by a third) as the engine of ``selfcal adjust``
-does, with the sigma of every unknown (Q_theta, the image sigma, every point's covariance), so that its peak
-resident memory (``resource.getrusage``'s ru_maxrss) is its own. Printed side by side: predicted and measured peak
-MB and median seconds per iteration, with their ratios (issue 43 asks within 20 %), and the factorisation path.
+mm^2, Type 3 control, no distortion, AP model none) from 28 to 2000 images, then two blocks of another density
+(OTHER_BLOCKS), which the constants were not fitted on. Each block is written once as a block folder (one process);
+another plans it (:func:`selfcal.workflows.plan.plan_block`, no adjustment) and a third adjusts it from the folder
+as the engine of ``selfcal adjust`` does, with the sigma of every unknown (Q_theta, the image sigma, every point's
+covariance), so that its peak resident memory (``resource.getrusage``'s ru_maxrss) is its own. Printed side by
+side: predicted and measured peak MB and median seconds per iteration, with their ratios (issue 43 asks within
+20 %), and the factorisation and covariance paths; each block's details as JSON on stderr.
 
-Run: ``python benchmarks/bench_plan.py [--largest 2000] [--blocks 4x7,10x20]``.
+``--lattice STRIPS PER_STRIP ALONG ACROSS`` measures instead the image graph of a lattice strip block as the plan
+measures a block's (pairs, band, CHOLMOD's factor): the paper estimate of DESIGN-NOTES (issue 43 item 4).
+
+Run: ``python benchmarks/bench_plan.py [--largest 2000] [--blocks 4x7,14x36@1.0]``.
 """
 from __future__ import annotations
 
