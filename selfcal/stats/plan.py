@@ -63,7 +63,8 @@ BYTES_PER_COVARIANCE_NUMBER = 12.3
 #: choice, leave-one-out control, the half-block check, the report) holds more than one adjustment: its peak over
 #: the one adjustment's, MB at no observation and bytes per image observation, fitted to the command's measured
 #: peaks (``/usr/bin/time``'s maximum resident size, one run each) on the strip blocks of 28, 102, 200 and 504 images
-#: (331, 709, 1142, 2270 MB; the fit within 8 % of each, no block left out to check it on; docs/DESIGN-NOTES.md)
+#: (331, 709, 1142, 2270 MB; the fit within 8 % of each; 504 images at 1.0 tie points per mm^2, not fitted: 4412 MB
+#: predicted, 3844 MB measured; docs/DESIGN-NOTES.md)
 WORKFLOW_BASE_MB = 40.7
 WORKFLOW_BYTES_PER_OBSERVATION = 9147.0
 
