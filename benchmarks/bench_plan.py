@@ -72,6 +72,8 @@ def _adjust_child(folder: str) -> dict:
     result.Q_points                     # the points' cofactors, made on first use
     sigma_ok = bool(np.all(np.isfinite(result.image_sigma())) and np.all(np.isfinite(result.point_covariance())))
     per_iteration = float(np.median(np.diff(stamps))) if len(stamps) > 1 else float("nan")
+    # ru_maxrss also holds the peak of the process this one was forked from (Linux keeps it over the exec): the bench's
+    # parent, about 100 MB, below every block's peak; tests/test_plan.py, run inside pytest, reads /proc's VmHWM
     return {"images": len(block.images), "observations": len(block.observations), "iterations": result.iterations,
             "seconds_per_iteration": per_iteration, "sigma_ok": sigma_ok,
             "machine_speed": speed, "peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0}
