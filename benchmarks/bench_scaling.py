@@ -45,7 +45,7 @@ def _block(n_strips: int, per_strip: int):
 
 
 def _child(n_strips: int, per_strip: int, dense_covariance: bool) -> dict:
-    import selfcal.adjust as adjust_module
+    import selfcal.adjust.result as result_module           # where the adjustment's result makes the points' cofactors
     from selfcal.adjust import AdjustOptions, adjust, linalg
 
     block = _block(n_strips, per_strip)
@@ -69,7 +69,7 @@ def _child(n_strips: int, per_strip: int, dense_covariance: bool) -> dict:
         return cofactor(self)
 
     setattr(linalg.Factor, stage, timed(cofactor_noted))
-    adjust_module.point_cofactors = timed(adjust_module.point_cofactors)
+    result_module.point_cofactors = timed(result_module.point_cofactors)
     stamps = []
     t0 = time.perf_counter()
     result = adjust(block, AdjustOptions(), progress=lambda record: stamps.append(time.perf_counter()))

@@ -55,6 +55,8 @@ COMMANDS = {
     "simulate": ("simulate", "Simulate a block with known truth (the UAV block of seed 000, the PRISM triplet of "
                              "seed 001)."),
     "compare": ("compare", "Adjust blocks with several AP models and tabulate the comparison (seed 000's tables)."),
+    "plan": ("plan", "Predict the peak memory and the seconds per iteration of adjusting a block, before any "
+                     "adjustment."),
     "report": ("report", "Render the report of a results folder again (report.html, figures/), without adjusting."),
     "import": ("import_", "Import another program's model, control, camera GNSS or calibration as a block folder."),
     "export": ("export", "Export a results folder to other programs: camera models (OpenCV, COLMAP, Metashape, "
