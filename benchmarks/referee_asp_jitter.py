@@ -82,6 +82,11 @@ class Hats:
         u = np.atleast_1d(np.asarray(tau, float)) * self.rows / self.lines
         return np.maximum(0.0, 1.0 - np.abs(u[:, None] - np.arange(self.size)[None, :]))
 
+    def combine(self, tau, coefficients) -> np.ndarray:
+        """The poses' corrections at tau, (n, k) for ``coefficients`` (k, size): what a line image asks of its
+        jitter basis (:meth:`selfcal.sensors.pushbroom.jitter.TimeWaveletBasis.combine`)."""
+        return self(tau) @ np.atleast_2d(np.asarray(coefficients, float)).T
+
 
 def start_case(seed: int, n_points: int):
     """The simulated triplet with jitter, its block, GCPs and seed 001's M5 (bias and drift) on it."""

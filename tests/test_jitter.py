@@ -73,6 +73,62 @@ def test_jitter_columns_match_finite_differences():
         assert np.max(np.abs(numeric)) > 0 or column >= off + 2 * m
 
 
+@pytest.mark.parametrize("name, level, degree", [("db4", 7, 1), ("db4", 3, 3), ("sym6", 5, 1), ("bl3", 4, 1)])
+def test_the_local_form_is_the_basis(name, level, degree):
+    """The few raw functions at each tau (what the working columns are made of) give B to rounding, and the working
+    map T takes [powers, raw functions] to B: the rows in working columns times T are the rows in the coefficients."""
+    basis = time_basis(name, level, degree)
+    tau = np.random.default_rng(0).random(3000)
+    tau[:3] = [0.0, 1.0, 0.5]
+    c = np.random.default_rng(1).normal(size=(3, basis.size))
+    dense = basis(tau)
+    assert np.max(np.abs(basis.combine(tau, c) - dense @ c.T)) < 1e-12 * np.max(np.abs(dense @ c.T))
+    index, value = basis.local(tau)
+    raw = np.zeros((len(tau), basis.size + 1))
+    np.add.at(raw, (np.arange(len(tau))[:, None], index), value)
+    working = np.concatenate([np.ones((len(tau), 2)), basis.powers(tau), raw[:, :-1]], axis=1)   # one axis, offset 2
+    T = basis.working_map(2, 2 + 3 * basis.size)
+    p, m = basis.n_powers, basis.size
+    rows = np.concatenate([working[:, :2 + p], np.zeros((len(tau), 2 * p)), working[:, 2 + p:],
+                           np.zeros((len(tau), 2 * m))], axis=1) @ T
+    assert np.allclose(rows[:, 2:2 + m], dense, atol=1e-13)
+    assert np.all(rows[:, 2 + m:] == 0.0)
+
+
+@pytest.mark.parametrize("model", ["M1", "M6"])
+def test_working_columns_change_nothing_but_the_time(model, monkeypatch):
+    """The engine assembles a jitter problem in the working columns (few per observation) and maps the blocks to the
+    coefficients; the tested adjustment (snooping: leverages, point cofactors, the updates) gives what the dense rows
+    give. M1 holds the drifts and yaw (the map's columns zeroed), M6 weights them (parameter observations)."""
+    from selfcal.sensors.pushbroom.sensor import PushbroomBound
+    from selfcal.stats.snooping import SnoopingOptions
+    from selfcal.workflows.tested import adjust_with_tests
+    sim = simulate_prism(seed=2, n_points=1200, jitter=JITTER)
+    block = seed001.with_focal(prism_block(sim, seed=2, dem_file=None), TRUE_FOCAL_MM)
+    block = seed001.case_block(block, (0, 2), seed001.choose_gcps(block, None))
+    options = AdjustOptions(sensor=SensorOptions(model=model, jitter="wavelet1d:db4:6", jitter_sigma_rad=3e-6))
+
+    def run():
+        tested = adjust_with_tests(block, options, SnoopingOptions())
+        r = tested.result
+        return tested, r, r.image_leverages()[0], r.Q_points, r.image_sigma()
+    working = run()
+    assert working[1].problem.sensors[0].bound.working_columns() is not None
+    monkeypatch.setattr(PushbroomBound, "working_columns", lambda self: None)
+    dense = run()
+    # the same rejections round by round (a point of two rays has the same |w| at both: either may go)
+    assert [r.rejected for r in working[0].rounds] == [r.rejected for r in dense[0].rounds]
+    assert np.allclose(np.sort(working[0].rejected_w), np.sort(dense[0].rejected_w), rtol=1e-6)
+    obs = block.observations
+    assert set(obs.point_index[np.isin(obs.row, working[0].rejected_rows)]) == \
+        set(obs.point_index[np.isin(obs.row, dense[0].rejected_rows)])
+    assert np.allclose(working[1].state.image, dense[1].state.image, rtol=0, atol=1e-6 * np.abs(dense[1].state.image).max())
+    assert np.max(np.abs(working[1].state.points - dense[1].state.points)) < 1e-4           # m (points 700 km away)
+    assert np.max(np.abs(working[2] - dense[2])) < 1e-6                                     # leverages
+    assert np.max(np.abs(working[3] - dense[3])) < 1e-6 * np.max(np.abs(dense[3]))
+    assert np.allclose(working[4], dense[4], rtol=1e-6, equal_nan=True)                      # (NaN: held)
+
+
 def test_jitter_of_a_triplet_is_found_where_tie_points_see_it():
     """A triplet of 300 points with 5 urad of roll and pitch jitter (0.7-0.9 px RMS per axis, 2.5 urad) unknown to
     the telemetry: bias and drift leave sigma0 at 2.5x the noise; level 6 with the jitter's power estimated brings it

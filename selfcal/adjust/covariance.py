@@ -23,7 +23,8 @@ from .linalg import shared_product
 from .parallel import over_chunks
 from .schur import Linearisation
 from .problem import Problem
-from .kernels import add_point_image_products, point_blocks_times, point_cofactor_pairs
+from .kernels import NO_SLOTS, add_point_image_products, point_blocks_times, point_cofactor_pairs
+from .working import blocks_to_working, image_maps, pairs_to_working, working_columns
 
 __all__ = ["point_cofactors", "some_point_cofactors", "PointCofactors", "PointTerms", "image_blocks", "observation_columns", "lower_cholesky",
            "times_lower", "block_grams"]
@@ -81,10 +82,21 @@ class PointCofactors:
         # observations like the image parameters alone (no dense point x camera coupling, no Q_dd products)
         self.compact = bool(n_d) and problem.compact_cameras
         self.Q_diag, self.Q_pair = image_blocks(Q, problem, observation_columns(problem) if self.compact else None)
+        # image rows in working columns (:mod:`.working`): the image blocks of Q_theta as T Q T^T
+        self.working = working_columns(problem)
+        maps = None
+        if self.working is not None:
+            maps = image_maps(problem, self.working)
+            structure = problem.structure()
+            self.Q_diag = blocks_to_working(maps, self.Q_diag)
+            self.Q_pair = pairs_to_working(maps, self.Q_pair, structure.image_pair_a, structure.image_pair_b)
+        self.rows_width = problem.image_width if self.working is None else self.working.width
         self.Q_dd = self.Q_ed = self.L_dd = None
         if n_d and not self.compact:
             self.Q_dd = Q[n_e:n_e + n_d, n_e:n_e + n_d]
             self.Q_ed = np.ascontiguousarray(Q[:n_e, n_e:n_e + n_d])          # (n_e, n_d)
+            if maps is not None:                                               # (n_images * working, n_d)
+                self.Q_ed = (maps @ self.Q_ed.reshape(problem.n_images, problem.image_width, n_d)).reshape(-1, n_d)
             # Q_dd = L L^T: the products with Q_dd are triangular ones, unless the caller needs A + Z Q_dd itself
             self.L_dd = None if full_product else lower_cholesky(self.Q_dd)
 
@@ -93,12 +105,14 @@ class PointCofactors:
         n_pc = ch.p1 - ch.p0
         Z_e = (ch.couplings() if self.compact else ch.w_e) @ Vi[cs.ptl]                                             # (m, w, 3)
         Qp = Vi.copy()
-        point_cofactor_pairs(Z_e, cs.img, cs.ptl, cs.pair_a, cs.pair_b, cs.pair_key, self.Q_diag, self.Q_pair, Qp)
+        slots = NO_SLOTS if self.compact else ch.slots
+        point_cofactor_pairs(Z_e, cs.img, cs.ptl, cs.pair_a, cs.pair_b, cs.pair_key, self.Q_diag, self.Q_pair, Qp,
+                             slots)
         Z = A = ZL = H = None
         if n_d and not self.compact:
             Z = point_blocks_times(Vi, ch.W_pd, False)                     # Z[p] = Vi[p] W_pd[p]
             A = np.zeros((3 * n_pc, n_d))
-            add_point_image_products(Z_e, cs.img, cs.ptl, self.Q_ed, A)
+            add_point_image_products(Z_e, cs.img, cs.ptl, self.Q_ed, A, slots, self.rows_width)
             # per point Z Q_dd Z^T + A Z^T + Z A^T, made symmetric below: the blocks (Z Q_dd + 2 A) Z^T, one
             # product per point
             if self.L_dd is None:

@@ -20,6 +20,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .working import image_maps, working_columns
+
 __all__ = ["control_on_a_line", "control_far_away", "undetermined_points", "behind_camera",
            "points_not_determined_by_rays", "LINE_FRACTION", "POINT_SIGMA_RATIO", "FAR_FACTOR", "POINT_BLOCK_RCOND",
            "FREE_POINT_SIGMA_RATIO", "similarity_directions"]
@@ -183,10 +185,17 @@ def similarity_directions(problem, state, lin) -> np.ndarray | None:
         moves[:, :, 3 + j] = np.cross(axis, d)
     moves[:, :, 6] = d
     moves[~np.isfinite(moves)] = 0.0
-    rhs = np.zeros((problem.n_images, problem.image_width, 7))
+    working = working_columns(problem)
+    rows_width = problem.image_width if working is None else working.width
+    rhs = np.zeros((problem.n_images, rows_width, 7))
     for ch, cs in zip(lin.chunks, problem.structure().chunks):
-        shifted = ch.w_e @ moves[ch.points[cs.ptl]]                             # (m, width, 7)
-        rhs -= (cs.sum_by_image @ shifted.reshape(len(shifted), -1)).reshape(rhs.shape)
+        shifted = ch.w_e @ moves[ch.points[cs.ptl]]                             # (m, width or slots, 7)
+        if ch.columns is None:
+            rhs -= (cs.sum_by_image @ shifted.reshape(len(shifted), -1)).reshape(rhs.shape)
+        else:                                                                   # slots in working columns
+            np.subtract.at(rhs, (cs.img[:, None], ch.columns), shifted)
+    if working is not None:
+        rhs = image_maps(problem, working).transpose(0, 2, 1) @ rhs
     try:
         fitted = np.linalg.solve(lin.U_ee, rhs)
     except np.linalg.LinAlgError:                         # an image that its observations do not determine

@@ -31,7 +31,7 @@ import scipy.linalg as la
 from .linalg import DEFECT_TOLERANCE
 from .problem import Problem, State
 from .ap_columns import sparse_ap_rows, sparse_gram
-from .kernels import (accumulate_observations, camera_couplings, point_blocks_times, schur_image_blocks,
+from .kernels import (NO_SLOTS, accumulate_observations, camera_couplings, point_blocks_times, schur_image_blocks,
                       subtract_image_couplings)
 from .residuals.image import chunk_rows, contexts, point_rays
 from .schur import back_substitute, linearise, reduce
@@ -140,7 +140,7 @@ def fold_systems(problem: Problem, state: State, folds: np.ndarray, n_folds: int
         held = fold_of_obs >= 0
         if not held.any():
             continue
-        r, j_e, j_p, j_d = chunk_rows(problem, state, cs, context)
+        r, j_e, j_p, j_d, _ = chunk_rows(problem, state, cs, context)
         pair_fold = fold_of_obs[cs.pair_a]
         for f in np.unique(fold_of_obs[held]):
             o = np.flatnonzero(fold_of_obs == f)
@@ -187,11 +187,11 @@ class _FoldPart:
         new = np.r_[True, point[1:] != point[:-1]]
         ptl = np.cumsum(new) - 1
         n_p = int(ptl[-1]) + 1
-        V, g_p, w_e = accumulate_observations(j_e, j_p, r, img, ptl, self.diag, self.g_e, n_p)
+        V, g_p, w_e = accumulate_observations(j_e, j_p, r, img, ptl, self.diag, self.g_e, n_p, NO_SLOTS)
         Vi = np.linalg.inv(V)
         self.cost += float(np.sum(r * r) - np.einsum("pi,pij,pj->", g_p, Vi, g_p))
         Y_t = schur_image_blocks(Vi, ptl, np.ascontiguousarray(w_e.transpose(0, 2, 1)), img, pair_a, pair_b,
-                                 pair_key, self.diag, self.off)             # V^-1 W^T per ray, (m, 3, width)
+                                 pair_key, self.diag, self.off, NO_SLOTS)   # V^-1 W^T per ray, (m, 3, width)
         np.subtract.at(self.g_e, img, np.einsum("oki,ok->oi", Y_t, g_p[ptl]))
         if not n_d:
             return
@@ -204,10 +204,10 @@ class _FoldPart:
             self.S_dd[gram[1]:, gram[1]:] += gram[0]
             varying = np.arange(gram[1])
         U_vd = np.zeros((len(varying), n_d))
-        camera_couplings(j_d, j_e, j_p, r, img, ptl, varying, self.S_ed, W_pd, self.g_d, U_vd)
+        camera_couplings(j_d, j_e, j_p, r, img, ptl, varying, self.S_ed, W_pd, self.g_d, U_vd, NO_SLOTS, self.width)
         self.S_dd[varying, :] += U_vd
         self.S_dd[gram[1] if gram else 0:, varying] += U_vd[:, gram[1] if gram else 0:].T
-        subtract_image_couplings(Y_t, W_pd, img, ptl, self.S_ed)
+        subtract_image_couplings(Y_t, W_pd, img, ptl, self.S_ed, NO_SLOTS, self.width)
         self.S_dd -= W_pd.T @ point_blocks_times(Vi, W_pd, False)
         self.g_d -= W_pd.T @ np.einsum("pij,pj->pi", Vi, g_p).ravel()
 

@@ -16,22 +16,28 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["accumulate_observations", "schur_image_blocks", "point_cofactor_pairs", "leverage_pairs", "camera_couplings", "point_blocks_times", "subtract_image_couplings", "rows_dot_blocks",
+#: the ``cols`` of a kernel whose image rows are in the image's own columns (no working columns)
+NO_SLOTS = np.zeros((0, 0), np.int64)
+
+__all__ = ["NO_SLOTS", "accumulate_observations", "schur_image_blocks", "point_cofactor_pairs", "leverage_pairs", "camera_couplings", "point_blocks_times", "subtract_image_couplings", "rows_dot_blocks",
            "camera_couplings_compact", "leverage_camera_cross", "compact_rows",
-           "add_point_image_products", "spd_inverse_3x3", "best_ray_pairs"]
+           "add_point_image_products", "spd_inverse_3x3", "best_ray_pairs", "image_quadratic"]
 
 
 @njit(cache=True, nogil=True)
-def accumulate_observations(j_e, j_p, r, img, ptl, U_ee, g_e, n_pc):
+def accumulate_observations(j_e, j_p, r, img, ptl, U_ee, g_e, n_pc, cols):
     """Per-image and per-point normal blocks of whitened rows; the image blocks are summed into the caller's.
 
     U_ee[i] += sum_o j_e[o]^T j_e[o] over observations of image i, g_e[i] += j_e^T r (in place, not a zeroed
     (n_images, w, w) copy per chunk added to the total: each chunk's points lie anywhere in the block);
     V[p] += j_p^T j_p, g_p[p] += j_p^T r over observations of point p;
     w_e[o] = j_e[o]^T j_p[o] (the 6x3 coupling of the observation's image and point).
+    ``cols`` (m, slots): the image column of each of j_e's slots (working columns, :mod:`.working`); an empty
+    (0, 0) array: j_e's columns are the image's.
     Returns V, g_p, w_e.
     """
     m, _, ne = j_e.shape
+    slotted = cols.shape[0] > 0
     V = np.zeros((n_pc, 3, 3))
     g_p = np.zeros((n_pc, 3))
     w_e = np.zeros((m, ne, 3))
@@ -42,9 +48,14 @@ def accumulate_observations(j_e, j_p, r, img, ptl, U_ee, g_e, n_pc):
             rk = r[o, k]
             for a in range(ne):
                 ea = j_e[o, k, a]
-                g_e[i, a] += ea * rk
-                for b in range(ne):
-                    U_ee[i, a, b] += ea * j_e[o, k, b]
+                ca = cols[o, a] if slotted else a
+                g_e[i, ca] += ea * rk
+                if slotted:
+                    for b in range(ne):
+                        U_ee[i, ca, cols[o, b]] += ea * j_e[o, k, b]
+                else:
+                    for b in range(ne):
+                        U_ee[i, a, b] += ea * j_e[o, k, b]
                 for b in range(3):
                     w_e[o, a, b] += ea * j_p[o, k, b]
             for a in range(3):
@@ -56,15 +67,17 @@ def accumulate_observations(j_e, j_p, r, img, ptl, U_ee, g_e, n_pc):
 
 
 @njit(cache=True, nogil=True)
-def schur_image_blocks(V_inv, ptl, w_t, img, pair_a, pair_b, pair_key, diag, off):
+def schur_image_blocks(V_inv, ptl, w_t, img, pair_a, pair_b, pair_key, diag, off, cols):
     """Subtract W V^-1 W^T from the image blocks; returns Y_t = V^-1 W^T per observation, (m, 3, ne).
 
     w_t[o] (3, ne) is observation o's coupling with its point, transposed (each row contiguous: the inner loops
     run along it, 35 % faster than along the coupling's 3 columns on BAL problem-49).
     Y_t[o] = V_inv[ptl[o]] w_t[o]; diag[img[o]] -= Y_t[o]^T w_t[o] for every observation;
     off[pair_key[q]] -= Y_t[a]^T w_t[b] for every pair q = (a, b), a < b, of observations of the same point.
+    ``cols``: as in :func:`accumulate_observations` (the blocks in working columns).
     """
     m, _, ne = w_t.shape
+    slotted = cols.shape[0] > 0
     Y_t = np.empty((m, 3, ne))
     for o in range(m):
         p = ptl[o]
@@ -79,8 +92,13 @@ def schur_image_blocks(V_inv, ptl, w_t, img, pair_a, pair_b, pair_key, diag, off
             y0 = Y_t[o, 0, a]
             y1 = Y_t[o, 1, a]
             y2 = Y_t[o, 2, a]
-            for b in range(ne):
-                diag[i, a, b] -= y0 * w_t[o, 0, b] + y1 * w_t[o, 1, b] + y2 * w_t[o, 2, b]
+            if slotted:
+                ca = cols[o, a]
+                for b in range(ne):
+                    diag[i, ca, cols[o, b]] -= y0 * w_t[o, 0, b] + y1 * w_t[o, 1, b] + y2 * w_t[o, 2, b]
+            else:
+                for b in range(ne):
+                    diag[i, a, b] -= y0 * w_t[o, 0, b] + y1 * w_t[o, 1, b] + y2 * w_t[o, 2, b]
     for q in range(pair_a.shape[0]):
         oa = pair_a[q]
         ob = pair_b[q]
@@ -89,8 +107,13 @@ def schur_image_blocks(V_inv, ptl, w_t, img, pair_a, pair_b, pair_key, diag, off
             y0 = Y_t[oa, 0, a]
             y1 = Y_t[oa, 1, a]
             y2 = Y_t[oa, 2, a]
-            for b in range(ne):
-                off[key, a, b] -= y0 * w_t[ob, 0, b] + y1 * w_t[ob, 1, b] + y2 * w_t[ob, 2, b]
+            if slotted:
+                ca = cols[oa, a]
+                for b in range(ne):
+                    off[key, ca, cols[ob, b]] -= y0 * w_t[ob, 0, b] + y1 * w_t[ob, 1, b] + y2 * w_t[ob, 2, b]
+            else:
+                for b in range(ne):
+                    off[key, a, b] -= y0 * w_t[ob, 0, b] + y1 * w_t[ob, 1, b] + y2 * w_t[ob, 2, b]
     return Y_t
 
 
@@ -133,23 +156,26 @@ def spd_inverse_3x3(V, out):
 
 
 @njit(cache=True, nogil=True)
-def point_cofactor_pairs(Z_e, img, ptl, pair_a, pair_b, pair_key, Q_diag, Q_pair, out):
+def point_cofactor_pairs(Z_e, img, ptl, pair_a, pair_b, pair_key, Q_diag, Q_pair, out, cols):
     """out[p] += sum over ordered pairs (a, b) of point p of Z_e[a]^T Q(img a, img b) Z_e[b].
 
     ``pair_a``, ``pair_b`` hold the unordered pairs a < b; the diagonal (a = b)
     and both orders are added here. Q(i, i) = Q_diag[i]; Q(img a, img b) = Q_pair[pair_key[q]]: the blocks of
     Q_theta on the pattern of the reduced matrix (see :func:`selfcal.adjust.covariance.image_blocks`).
+    ``cols``: as in :func:`accumulate_observations` (the blocks in working columns).
     """
     m, ne, _ = Z_e.shape
+    slotted = cols.shape[0] > 0
     tmp = np.zeros((ne, 3))
     for o in range(m):
         i = img[o]
         p = ptl[o]
         for a in range(ne):
+            ca = cols[o, a] if slotted else a
             for j in range(3):
                 s = 0.0
                 for b in range(ne):
-                    s += Q_diag[i, a, b] * Z_e[o, b, j]
+                    s += Q_diag[i, ca, cols[o, b] if slotted else b] * Z_e[o, b, j]
                 tmp[a, j] = s
         for i in range(3):
             for j in range(3):
@@ -163,10 +189,11 @@ def point_cofactor_pairs(Z_e, img, ptl, pair_a, pair_b, pair_key, Q_diag, Q_pair
         key = pair_key[q]
         p = ptl[oa]
         for a in range(ne):
+            ca = cols[oa, a] if slotted else a
             for j in range(3):
                 s = 0.0
                 for b in range(ne):
-                    s += Q_pair[key, a, b] * Z_e[ob, b, j]
+                    s += Q_pair[key, ca, cols[ob, b] if slotted else b] * Z_e[ob, b, j]
                 tmp[a, j] = s
         for i in range(3):
             for j in range(3):
@@ -178,40 +205,68 @@ def point_cofactor_pairs(Z_e, img, ptl, pair_a, pair_b, pair_key, Q_diag, Q_pair
 
 
 @njit(cache=True, nogil=True)
-def leverage_pairs(Z_e, img, pair_a, pair_b, pair_key, Q_diag, Q_pair, G):
+def leverage_pairs(Z_e, img, pair_a, pair_b, pair_key, Q_diag, Q_pair, G, cols):
     """G[a] += Q(img a, img b) Z_e[b] for every ordered pair of the same point, diagonal included
-    (Q_diag, Q_pair as in :func:`point_cofactor_pairs`)."""
+    (Q_diag, Q_pair, ``cols`` as in :func:`point_cofactor_pairs`)."""
     m, ne, _ = Z_e.shape
+    slotted = cols.shape[0] > 0
     for o in range(m):
         i = img[o]
         for a in range(ne):
+            ca = cols[o, a] if slotted else a
             for j in range(3):
                 s = 0.0
                 for b in range(ne):
-                    s += Q_diag[i, a, b] * Z_e[o, b, j]
+                    s += Q_diag[i, ca, cols[o, b] if slotted else b] * Z_e[o, b, j]
                 G[o, a, j] += s
     for q in range(pair_a.shape[0]):
         oa = pair_a[q]
         ob = pair_b[q]
         key = pair_key[q]
         for a in range(ne):
+            ca = cols[oa, a] if slotted else a
+            cb = cols[ob, a] if slotted else a
             for j in range(3):
                 s1 = 0.0
                 s2 = 0.0
                 for b in range(ne):
-                    s1 += Q_pair[key, a, b] * Z_e[ob, b, j]
-                    s2 += Q_pair[key, b, a] * Z_e[oa, b, j]
+                    s1 += Q_pair[key, ca, cols[ob, b] if slotted else b] * Z_e[ob, b, j]
+                    s2 += Q_pair[key, cols[oa, b] if slotted else b, cb] * Z_e[oa, b, j]
                 G[oa, a, j] += s1
                 G[ob, a, j] += s2
 
 
 @njit(cache=True, nogil=True)
-def camera_couplings(j_d, j_e, j_p, r, img, ptl, varying, U_ed, W_pd, g_d, U_vd):
+def image_quadratic(j_e, Q_diag, img, cols):
+    """h[o, k] = j_e[o, k] Q_diag[img o] j_e[o, k]^T, (m, 2) (``cols`` as in :func:`accumulate_observations`)."""
+    m, _, ne = j_e.shape
+    slotted = cols.shape[0] > 0
+    h = np.zeros((m, 2))
+    for o in range(m):
+        Qi = Q_diag[img[o]]
+        for k in range(2):
+            s = 0.0
+            for a in range(ne):
+                ea = j_e[o, k, a]
+                if ea == 0.0:
+                    continue
+                row = Qi[cols[o, a] if slotted else a]
+                t = 0.0
+                for b in range(ne):
+                    t += row[cols[o, b] if slotted else b] * j_e[o, k, b]
+                s += ea * t
+            h[o, k] = s
+    return h
+
+
+@njit(cache=True, nogil=True)
+def camera_couplings(j_d, j_e, j_p, r, img, ptl, varying, U_ed, W_pd, g_d, U_vd, cols, row_width):
     """Accumulate, in one pass over the camera-parameter rows j_d (m, 2, n_d):
 
-    U_ed[ne i + a] += sum over observations of image i of j_e[o, :, a] j_d[o]  (the image x camera block),
+    U_ed[row_width i + a] += sum over observations of image i of j_e[o, :, a] j_d[o]  (the image x camera block),
     W_pd[3 p + a] += sum over observations of point p of j_p[o, :, a] j_d[o]  (point x camera coupling),
     g_d += j_d^T r, and U_vd[v] += j_d[:, :, varying[v]]^T j_d (the rows of U_dd that change).
+    ``cols``: as in :func:`accumulate_observations` (slot a is row cols[o, a] of its image's ``row_width``).
 
     The NumPy form reads the large j_d four times (sparse products and a transpose);
     here every row of j_d is loaded once and the accumulators stay in cache.
@@ -219,8 +274,9 @@ def camera_couplings(j_d, j_e, j_p, r, img, ptl, varying, U_ed, W_pd, g_d, U_vd)
     m = j_d.shape[0]
     n_d = j_d.shape[2]
     ne = j_e.shape[2]
+    slotted = cols.shape[0] > 0
     for o in range(m):
-        i6 = ne * img[o]
+        i6 = row_width * img[o]
         p3 = 3 * ptl[o]
         x, y = j_d[o, 0], j_d[o, 1]
         rx, ry = r[o, 0], r[o, 1]
@@ -229,7 +285,7 @@ def camera_couplings(j_d, j_e, j_p, r, img, ptl, varying, U_ed, W_pd, g_d, U_vd)
         for a in range(ne):
             cx, cy = j_e[o, 0, a], j_e[o, 1, a]
             if cx != 0.0 or cy != 0.0:
-                out = U_ed[i6 + a]
+                out = U_ed[i6 + (cols[o, a] if slotted else a)]
                 for d in range(n_d):
                     out[d] += cx * x[d] + cy * y[d]
         for a in range(3):
@@ -265,37 +321,41 @@ def point_blocks_times(B, W_pd, transpose):
 
 
 @njit(cache=True, nogil=True)
-def subtract_image_couplings(Y_t, W_pd, img, ptl, S_ed):
-    """S_ed[ne i + a] -= sum over observations of image i of sum_k Y_t[o, k, a] W_pd[3 p + k]:
-    the image x camera part of W V^-1 W^T (Y_t = V^-1 w_e^T per observation, :func:`schur_image_blocks`)."""
+def subtract_image_couplings(Y_t, W_pd, img, ptl, S_ed, cols, row_width):
+    """S_ed[row_width i + a] -= sum over observations of image i of sum_k Y_t[o, k, a] W_pd[3 p + k]:
+    the image x camera part of W V^-1 W^T (Y_t = V^-1 w_e^T per observation, :func:`schur_image_blocks`).
+    ``cols``: as in :func:`camera_couplings`."""
     n = W_pd.shape[1]
     ne = Y_t.shape[2]
+    slotted = cols.shape[0] > 0
     for o in range(Y_t.shape[0]):
-        i6 = ne * img[o]
+        i6 = row_width * img[o]
         p3 = 3 * ptl[o]
         w0, w1, w2 = W_pd[p3], W_pd[p3 + 1], W_pd[p3 + 2]
         for a in range(ne):
             c0, c1, c2 = Y_t[o, 0, a], Y_t[o, 1, a], Y_t[o, 2, a]
-            row = S_ed[i6 + a]
+            row = S_ed[i6 + (cols[o, a] if slotted else a)]
             for d in range(n):              # one read-modify-write of the row for the three terms
                 row[d] -= c0 * w0[d] + c1 * w1[d] + c2 * w2[d]
 
 
 @njit(cache=True, nogil=True)
-def add_point_image_products(Z_e, img, ptl, Q_ed, out):
-    """out[3 p + c] += sum over observations of point p of sum_a Z_e[o, a, c] Q_ed[ne i + a] (i the
-    observation's image): per point, Z_e^T times its images' rows of Q_ed (n_e, n), summed."""
+def add_point_image_products(Z_e, img, ptl, Q_ed, out, cols, row_width):
+    """out[3 p + c] += sum over observations of point p of sum_a Z_e[o, a, c] Q_ed[row_width i + a] (i the
+    observation's image): per point, Z_e^T times its images' rows of Q_ed (n_e, n), summed (``cols`` as in
+    :func:`camera_couplings`)."""
     n = Q_ed.shape[1]
     ne = Z_e.shape[1]
+    slotted = cols.shape[0] > 0
     for o in range(Z_e.shape[0]):
-        i6 = ne * img[o]
+        i6 = row_width * img[o]
         p3 = 3 * ptl[o]
         for c in range(3):
             row = out[p3 + c]
             for a in range(ne):
                 z = Z_e[o, a, c]
                 if z != 0.0:
-                    q = Q_ed[i6 + a]
+                    q = Q_ed[i6 + (cols[o, a] if slotted else a)]
                     for d in range(n):
                         row[d] += z * q[d]
 
@@ -355,7 +415,7 @@ def camera_couplings_compact(j_c, j_e, j_p, r, img, cam, cols, U_ed, U_dd, g_d):
 
 
 @njit(cache=True, nogil=True, fastmath=True)
-def leverage_camera_cross(j_e, j_d, img, ptl, Q_ed, Z, jp_term, h):
+def leverage_camera_cross(j_e, j_d, img, ptl, Q_ed, Z, jp_term, h, cols):
     """The image x camera cross terms of the leverages, without the (m, 2, n_d) product j_e Q_ed:
 
     jp_term[o] += j_e[o] Q_ed[img o] Z[ptl o]^T      (2 x 3)
@@ -364,10 +424,11 @@ def leverage_camera_cross(j_e, j_d, img, ptl, Q_ed, Z, jp_term, h):
     Q_ed (n_img, ne, n_d), Z (n_pc, 3, n_d), j_d (m, 2, n_d). Per observation u = j_e[o] Q_ed[img o]
     (2 x n_d) is formed once and dotted with the point's three rows of Z and with j_d (5 n_d ne
     multiply-adds fewer than Q_ed times [Z^T, j_d^T] first); ``fastmath`` only lets the sums be
-    reassociated.
+    reassociated. ``cols``: as in :func:`accumulate_observations` (Q_ed's rows in working columns).
     """
     m, _, n = j_d.shape
     ne = j_e.shape[2]
+    slotted = cols.shape[0] > 0
     u = np.zeros((2, n))
     for o in range(m):
         Qi = Q_ed[img[o]]
@@ -378,7 +439,7 @@ def leverage_camera_cross(j_e, j_d, img, ptl, Q_ed, Z, jp_term, h):
             for e in range(ne):
                 c = j_e[o, k, e]
                 if c != 0.0:
-                    q = Qi[e]
+                    q = Qi[cols[o, e] if slotted else e]
                     for d in range(n):
                         uk[d] += c * q[d]
             for c in range(3):

@@ -17,7 +17,7 @@ import numpy as np
 from ..ap.base import pattern_groups
 from .ap_columns import evaluate_ap_columns, sparse_ap_rows
 from .covariance import PointCofactors, times_lower
-from .kernels import leverage_camera_cross, leverage_pairs, rows_dot_blocks
+from .kernels import NO_SLOTS, image_quadratic, leverage_camera_cross, leverage_pairs, rows_dot_blocks
 from .parallel import over_chunks
 from .residuals.image import chunk_rows, contexts
 
@@ -41,7 +41,7 @@ def parameter_leverages(J, Q) -> np.ndarray:
 def image_leverages(problem, state, lin, v_inv, Q, Q_points=None):
     """h (m, 2) of every image coordinate (sorted order), whitened residuals l - f, and the points' cofactor
     blocks: ``Q_points`` if given, else computed in the same pass (they share its products)."""
-    n_img, n_d, width = problem.n_images, problem.n_d, problem.image_width
+    n_img, n_d = problem.n_images, problem.n_d
     sparse = sparse_ap_rows(problem) if n_d else None
     parts = PointCofactors(problem, Q, full_product=sparse is not None)  # Q_theta on the reduced matrix's pattern only
     Q_diag, L_dd = parts.Q_diag, parts.L_dd
@@ -55,7 +55,7 @@ def image_leverages(problem, state, lin, v_inv, Q, Q_points=None):
         T[:n_core, :n_core] = np.eye(n_core)
         T[n_core:, n_core:] = sparse.to_params
         G_sparse = T @ parts.Q_dd @ T.T
-    Q_ed = parts.Q_ed.reshape(n_img, width, n_d) if parts.Q_ed is not None else None     # (dense: not None)
+    Q_ed = parts.Q_ed.reshape(n_img, parts.rows_width, n_d) if parts.Q_ed is not None else None  # (dense: not None)
     context = contexts(problem, state)
     h_all = np.zeros((problem.n_image_observations, 2))
     r_all = np.zeros((problem.n_image_observations, 2))
@@ -68,20 +68,22 @@ def image_leverages(problem, state, lin, v_inv, Q, Q_points=None):
         n_pc = ch.p1 - ch.p0
         img, ptl = cs.img, cs.ptl
         m = len(img)
-        r, j_e, j_p, j_d = chunk_rows(problem, state, cs, context, parts.compact)
+        # the rows in working columns where the linearisation has them (its couplings are in the same slots)
+        r, j_e, j_p, j_d, columns = chunk_rows(problem, state, cs, context, parts.compact, ch.columns is not None)
+        slots = NO_SLOTS if columns is None else columns
         if parts.compact:
             j_e = np.concatenate([j_e, j_d], axis=2)        # the image's and its camera's columns, one block
         terms = parts.chunk(ch, cs, Vi)
         if Q_points is None:
             points[ch.points] = terms.Q_pp
         G = np.zeros((m, j_e.shape[2], 3))
-        leverage_pairs(terms.Z_e, img, cs.pair_a, cs.pair_b, cs.pair_key, Q_diag, parts.Q_pair, G)  # sum_b Q_ab Z_b
-        h = np.einsum("oki,oij,okj->ok", j_e, Q_diag[img], j_e)
+        leverage_pairs(terms.Z_e, img, cs.pair_a, cs.pair_b, cs.pair_key, Q_diag, parts.Q_pair, G, slots)  # Q_ab Z_b
+        h = image_quadratic(j_e, Q_diag, img, slots)
         jp_term = j_e @ G                                                   # (m, 2, 3), completed below
         if dense:
             assert terms.Z is not None and terms.A is not None          # (the products of the dense camera part)
             Z = terms.Z.reshape(n_pc, 3, n_d)
-            leverage_camera_cross(j_e, j_d, img, ptl, Q_ed, Z, jp_term, h)   # j_e Q_ed terms
+            leverage_camera_cross(j_e, j_d, img, ptl, Q_ed, Z, jp_term, h, slots)   # j_e Q_ed terms
             # H_p = Q_dd Z_d(p) + sum over the point's observations of Q_ed(image)^T Z_e, H_p^T stored
             if terms.ZL is None:
                 assert terms.H is not None                              # (H without the factor L_dd)

@@ -29,12 +29,14 @@ import scipy.sparse as sp
 
 from ..errors import AdjustmentError
 from .ap_columns import evaluate_ap_columns, sparse_ap_rows, sparse_gram
-from .kernels import (accumulate_observations, camera_couplings, camera_couplings_compact, point_blocks_times,
-                      schur_image_blocks, spd_inverse_3x3, subtract_image_couplings)
+from .kernels import (NO_SLOTS, accumulate_observations, camera_couplings, camera_couplings_compact,
+                      point_blocks_times, schur_image_blocks, spd_inverse_3x3, subtract_image_couplings)
 from .parallel import over_chunks
 from .problem import Problem, State
 from .residuals import parameter_observations
 from .residuals.image import chunk_rows, contexts, image_residuals
+from .working import (blocks_to_parameters, image_maps, pairs_to_parameters, rows_to_parameters,
+                      vectors_to_parameters, vectors_to_working, working_columns)
 
 __all__ = ["ChunkLinearisation", "Linearisation", "linearise", "reduce", "back_substitute", "evaluate_cost",
            "cost_and_residuals",
@@ -53,6 +55,13 @@ class ChunkLinearisation:
     w_e: np.ndarray      # (m_c, width, 3) coupling of each observation's image with its point
     W_pd: np.ndarray | None      # (3 n_pc, n_d) coupling of the points with the camera parameters (dense form)
     w_d: np.ndarray | None = None  # (m_c, 3, width) its non-zero parts per observation (compact form)
+    #: (m_c, slots): the working column (:mod:`.working`) of each of w_e's slots; None: w_e is in the image's columns
+    columns: np.ndarray | None = None
+
+    @property
+    def slots(self) -> np.ndarray:
+        """``columns`` as the kernels take them (:data:`~.kernels.NO_SLOTS` without working columns)."""
+        return NO_SLOTS if self.columns is None else self.columns
 
     def couplings(self, transposed: bool = False) -> np.ndarray:
         """Each observation's coupling with its point over the columns it touches, (m_c, w, 3): its image's,
@@ -124,20 +133,25 @@ def linearise(problem: Problem, state: State) -> Linearisation:
         sparse = None
     gram_size = sparse.to_params.shape[0] if sparse is not None else constant.size
     evaluate_ap_columns(problem)
+    # the image rows in working columns where the sensor gives them (:mod:`.working`): the image blocks are summed
+    # there and mapped to the image parameters afterwards
+    working = working_columns(problem)
+    rows_width = width if working is None else working.width
 
     def new_sums() -> dict:
-        return {"U_ee": np.zeros((n_img, width, width)), "U_ed": np.zeros((n_e, n_d)), "U_dd": np.zeros((n_d, n_d)),
-                "g_e": np.zeros((n_img, width)), "g_d": np.zeros(n_d), "cost": np.zeros(1),
-                "gram": np.zeros((gram_size, gram_size)) if build_gram else None}
+        return {"U_ee": np.zeros((n_img, rows_width, rows_width)), "U_ed": np.zeros((n_img * rows_width, n_d)),
+                "U_dd": np.zeros((n_d, n_d)), "g_e": np.zeros((n_img, rows_width)), "g_d": np.zeros(n_d),
+                "cost": np.zeros(1), "gram": np.zeros((gram_size, gram_size)) if build_gram else None}
 
     def work(cs, sums: dict) -> ChunkLinearisation:
         p0, p1, o0, o1 = cs.p0, cs.p1, cs.o0, cs.o1
         m, n_pc = o1 - o0, p1 - p0
-        r, j_e, j_p, j_d = chunk_rows(problem, state, cs, context, compact)
+        r, j_e, j_p, j_d, columns = chunk_rows(problem, state, cs, context, compact, working is not None)
+        slots = NO_SLOTS if columns is None else columns
         sums["cost"] += 0.5 * float(np.sum(r * r))
 
         # image and point blocks, and the coupling of each observation's image and point
-        V, g_p, w_e = accumulate_observations(j_e, j_p, r, cs.img, cs.ptl, sums["U_ee"], sums["g_e"], n_pc)
+        V, g_p, w_e = accumulate_observations(j_e, j_p, r, cs.img, cs.ptl, sums["U_ee"], sums["g_e"], n_pc, slots)
         W_pd, w_d = None, None
         if n_d and compact:
             w_d = camera_couplings_compact(j_d, j_e, j_p, r, cs.img, problem.image_camera[cs.img], cols,
@@ -145,7 +159,8 @@ def linearise(problem: Problem, state: State) -> Linearisation:
         elif n_d:
             W_pd = np.zeros((3 * n_pc, n_d))
             U_vd = np.zeros((varying.size, n_d))
-            camera_couplings(j_d, j_e, j_p, r, cs.img, cs.ptl, varying, sums["U_ed"], W_pd, sums["g_d"], U_vd)
+            camera_couplings(j_d, j_e, j_p, r, cs.img, cs.ptl, varying, sums["U_ed"], W_pd, sums["g_d"], U_vd,
+                             slots, rows_width)
             U_dd = sums["U_dd"]
             if constant.size:
                 # the AP columns are constant: their Gram block is summed once per problem
@@ -166,12 +181,16 @@ def linearise(problem: Problem, state: State) -> Linearisation:
                 sums["cost"] += 0.5 * float(np.sum(rc * rc))
                 V[has] += np.einsum("nki,nkj->nij", J, J)
                 g_p[has] += np.einsum("nki,nk->ni", J, rc)
-        return ChunkLinearisation(p0, p1, o0, o1, cs.points, V, g_p, w_e, W_pd, w_d)
+        return ChunkLinearisation(p0, p1, o0, o1, cs.points, V, g_p, w_e, W_pd, w_d, columns)
 
     chunks, parts = over_chunks(structure.chunks, work, new_sums)
     U_ee, U_ed, U_dd, g_e, g_d, cost = (sum(part[name] for part in parts)
                                         for name in ("U_ee", "U_ed", "U_dd", "g_e", "g_d", "cost"))
     cost = float(cost[0])
+    if working is not None:
+        maps = image_maps(problem, working)
+        U_ee, g_e, U_ed = (blocks_to_parameters(maps, U_ee), vectors_to_parameters(maps, g_e),
+                           rows_to_parameters(maps, U_ed))
     if build_gram:
         gram = sum(part["gram"] for part in parts)
         if sparse is not None:
@@ -281,18 +300,31 @@ def reduce(problem: Problem, lin: Linearisation, lam: float = 0.0, dense: bool =
         wide_diag = np.zeros((n_img, wide, wide))
         wide_off = np.zeros((len(structure.pair_keys), wide, wide))
     n_pairs = len(structure.pair_keys)
+    # image rows in working columns (:mod:`.working`): the Schur terms are summed there, then mapped
+    working = working_columns(problem)
+    rows_width = w if working is None else working.width
 
     def new_sums() -> dict:
-        wider = wide if compact else w
+        wider = wide if compact else rows_width
         return {"diag": np.zeros((n_img, wider, wider)), "off": np.zeros((n_pairs, wider, wider)),
-                "g": np.zeros(n_t), "S_ed": np.zeros((n_e, n_d)), "S_dd": np.zeros((n_d, n_d))}
+                "g": np.zeros(n_t), "S_ed": np.zeros((n_img * rows_width, n_d)), "S_dd": np.zeros((n_d, n_d)),
+                "g_w": np.zeros(n_img * rows_width) if working is not None else None}
 
     def work(pair, sums: dict) -> np.ndarray:
         ch, cs = pair
         Vi = damped_inverse(ch.V, lam, ch.points)
         g = sums["g"]
         Y_t = schur_image_blocks(Vi, cs.ptl, ch.couplings(transposed=True), cs.img, cs.pair_a, cs.pair_b,
-                                 cs.pair_key, sums["diag"], sums["off"])          # (m, 3, w or wide) = V^-1 W^T
+                                 cs.pair_key, sums["diag"], sums["off"], ch.slots)  # (m, 3, w or wide) = V^-1 W^T
+        if ch.columns is not None:
+            yg = np.einsum("oki,ok->oi", Y_t, ch.g_p[cs.ptl])
+            at = (rows_width * cs.img[:, None] + ch.columns).ravel()
+            sums["g_w"] -= np.bincount(at, weights=yg.ravel(), minlength=n_img * rows_width)
+            if n_d:
+                subtract_image_couplings(Y_t, ch.W_pd, cs.img, cs.ptl, sums["S_ed"], ch.slots, rows_width)
+                sums["S_dd"] -= _point_schur(Vi, ch.W_pd)
+                g[n_e:n_e + n_d] -= ch.W_pd.T @ np.einsum("pij,pj->pi", Vi, ch.g_p).ravel()
+            return Vi
         if compact:
             yg = np.einsum("oki,ok->oi", Y_t, ch.g_p[cs.ptl])
             g[:n_e] -= (cs.sum_by_image @ yg[:, :w]).ravel()
@@ -301,23 +333,31 @@ def reduce(problem: Problem, lin: Linearisation, lam: float = 0.0, dense: bool =
             return Vi
         g[:n_e] -= (cs.sum_by_image @ np.einsum("oki,ok->oi", Y_t, ch.g_p[cs.ptl])).ravel()
         if n_d:
-            subtract_image_couplings(Y_t, ch.W_pd, cs.img, cs.ptl, sums["S_ed"])
+            subtract_image_couplings(Y_t, ch.W_pd, cs.img, cs.ptl, sums["S_ed"], NO_SLOTS, w)
             sums["S_dd"] -= _point_schur(Vi, ch.W_pd)
             g[n_e:n_e + n_d] -= ch.W_pd.T @ np.einsum("pij,pj->pi", Vi, ch.g_p).ravel()
         return Vi
 
     v_inv, parts = over_chunks(list(zip(lin.chunks, structure.chunks)), work, new_sums)
+    ia, ib = structure.image_pair_a, structure.image_pair_b
+    if working is not None:
+        maps = image_maps(problem, working)
+        diag_blocks += blocks_to_parameters(maps, sum(part["diag"] for part in parts))
+        off_blocks += pairs_to_parameters(maps, sum(part["off"] for part in parts), ia, ib)
+        g[:n_e] += vectors_to_parameters(maps, sum(part["g_w"] for part in parts).reshape(n_img, -1)).ravel()
+        S_ed += rows_to_parameters(maps, sum(part["S_ed"] for part in parts))
     for part in parts:
         g += part["g"]
-        S_ed += part["S_ed"]
         S_dd += part["S_dd"]
+        if working is not None:
+            continue
+        S_ed += part["S_ed"]
         if compact:
             wide_diag += part["diag"]
             wide_off += part["off"]
         else:
             diag_blocks += part["diag"]
             off_blocks += part["off"]
-    ia, ib = structure.image_pair_a, structure.image_pair_b
     if compact:
         diag_blocks += wide_diag[:, :w, :w]
         off_blocks += wide_off[:, :w, :w]
@@ -383,6 +423,9 @@ def back_substitute(problem: Problem, lin: Linearisation, v_inv: list, d_theta: 
     """Point corrections d_p = V^-1 (g_p - W^T d_theta), shape (n_points, 3)."""
     n_e, n_d = problem.n_e, problem.n_d
     d_e = d_theta[:n_e].reshape(-1, problem.image_width)
+    working = working_columns(problem)
+    if working is not None:                      # the corrections in the working columns of w_e (:mod:`.working`)
+        d_e = vectors_to_working(image_maps(problem, working), d_e)
     d_d = d_theta[n_e:n_e + n_d]
     d_p = np.zeros((problem.n_points, 3))
     columns = problem.camera_columns()             # (n_cameras, 0) without camera parameters (n_d 0)
@@ -391,7 +434,8 @@ def back_substitute(problem: Problem, lin: Linearisation, v_inv: list, d_theta: 
         ch, Vi = chunk
         img = problem.obs_image[ch.o0:ch.o1]
         starts = problem.point_start[ch.p0:ch.p1] - ch.o0
-        wt = np.add.reduceat(np.einsum("oik,oi->ok", ch.w_e, d_e[img]), starts, axis=0)
+        d_img = d_e[img] if ch.columns is None else d_e[img[:, None], ch.columns]
+        wt = np.add.reduceat(np.einsum("oik,oi->ok", ch.w_e, d_img), starts, axis=0)
         if n_d and ch.w_d is not None:
             d_own = np.append(d_d, 0.0)[columns[problem.image_camera[img]]]   # -1 pads: 0
             wt += np.add.reduceat(np.einsum("okc,oc->ok", ch.w_d, d_own), starts, axis=0)

@@ -14,6 +14,9 @@ the images of a block that use it, provides through :meth:`Sensor.bind` a :class
   camera core parameters and the object point (:meth:`BoundSensor.predict`); the engine whitens
   ``l - (f + Delta)`` by the standard deviation, ``Delta`` being the additional parameters'
   displacement, linear in their coefficients with the columns of :meth:`BoundSensor.ap_columns`;
+* where an image has many parameters of which each observation touches few (a line image's jitter: local
+  functions of time, :mod:`selfcal.sensors.pushbroom.jitter`), the same rows in compact form
+  (:meth:`BoundSensor.working_columns`, :meth:`BoundSensor.predict_working`);
 * the rays of image points (:meth:`BoundSensor.rays`: initial points by intersection), the
   image position of object points (:meth:`BoundSensor.pixels`), and residuals in pixels
   (:meth:`BoundSensor.pixel_residuals`) for the results.
@@ -39,7 +42,7 @@ if TYPE_CHECKING:
     from ..block import Block
     from .rpc import RpcModel
 
-__all__ = ["Parameter", "Sensor", "BoundSensor", "ImageGeometry", "display_unit"]
+__all__ = ["Parameter", "Sensor", "BoundSensor", "ImageGeometry", "WorkingColumns", "display_unit"]
 
 #: code unit -> (unit in files and reports, factor)
 _DISPLAY = {"rad": ("deg", float(np.degrees(1.0))), "rad/s": ("deg/s", float(np.degrees(1.0)))}
@@ -117,6 +120,25 @@ class ImageGeometry:
     rpc: RpcModel | None = None
 
 
+@dataclass(frozen=True)
+class WorkingColumns:
+    """An image's *working columns*: a basis of its Jacobian rows in which each observation's row has few non-zero
+    entries, although its row in the image parameters may have many (a line image's jitter functions, orthogonal to
+    the attitude polynomial, are dense in time; the raw scaling functions and the powers they are made orthogonal
+    to are local or few).
+
+    ``to_parameters`` T (working, width): an observation's row in the image parameters is its working row times T,
+    j_theta = j_w T (held parameters: the engine zeroes their columns of T). ``slots``: how many working columns an
+    observation's row touches at most (:meth:`BoundSensor.predict_working`)."""
+
+    to_parameters: np.ndarray
+    slots: int
+
+    @property
+    def width(self) -> int:
+        return int(self.to_parameters.shape[0])
+
+
 class BoundSensor(ABC):
     """A sensor model bound to the images of one problem that use it.
 
@@ -145,6 +167,18 @@ class BoundSensor(ABC):
         """f (m, 2) of observations ``o``; with ``jacobians`` also (f, j_image (m, 2, width), j_point (m, 2, 3),
         j_core (m, 2, n_core)): derivatives with respect to the image's parameters, the object point and
         the camera's core parameters."""
+
+    def working_columns(self) -> WorkingColumns | None:
+        """The images' :class:`WorkingColumns` (the same for every image it binds), or None: :meth:`predict`'s rows
+        in the image parameters are compact enough (the default)."""
+        return None
+
+    def predict_working(self, context: Any, o: np.ndarray, img: np.ndarray, cam: np.ndarray,
+                        points: np.ndarray) -> tuple:
+        """:meth:`predict` with Jacobians, the image rows in :meth:`working_columns`' compact form: (f, j_w (m, 2,
+        slots), columns (m, slots) int64, j_point, j_core), j_w[o, :, s] the derivative with respect to working
+        column ``columns[o, s]`` (a slot an observation does not need holds 0.0 and any valid column)."""
+        raise NotImplementedError(f"{type(self).__name__} has no working columns")
 
     def ap_columns(self, camera: int, o: np.ndarray, ap: Any, out: np.ndarray | None = None) -> np.ndarray:
         """Delta per unit coefficient (n, 2, n_ap) of ``ap`` (the camera's additional parameters) at

@@ -148,14 +148,15 @@ def _ap_terms(problem: Problem, state: State, o: np.ndarray, j_d: np.ndarray | N
 
 
 def whiten(problem: Problem, o, img: np.ndarray, f: np.ndarray, delta: np.ndarray, j_e: np.ndarray,
-            j_p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            j_p: np.ndarray, hold: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """Whitened residuals l - f - delta of observations ``o`` (a slice or indices) and their weights 1/sigma; the
-    image and point rows are whitened in place (held image parameters zeroed)."""
+    image and point rows are whitened in place (held image parameters zeroed, unless ``hold`` is False: rows in
+    working columns, whose map to the image parameters holds them, :mod:`selfcal.adjust.working`)."""
     w = 1.0 / problem.obs_sigma[o]
     r = (problem.obs_value[o] - f - delta) * w
     j_e *= w[:, :, None]
     j_p *= w[:, :, None]
-    if not problem.all_images_free:
+    if hold and not problem.all_images_free:
         j_e *= problem.image_free[img][:, None, :]
     return r, w
 
@@ -179,33 +180,43 @@ def image_residuals(problem: Problem, state: State, o0: int = 0, o1: int | None 
     return problem.obs_value[o0:o1] - (f + delta)
 
 
-def chunk_rows(problem: Problem, state: State, cs, context=None, compact: bool = False):
+def chunk_rows(problem: Problem, state: State, cs, context=None, compact: bool = False, working: bool = False):
     """Whitened residuals and Jacobian rows of the image observations of one chunk.
 
     Returns
     -------
     r : (m, 2) whitened residuals l - f
-    j_e : (m, 2, width) derivatives with respect to the observation's image parameters (zero where held)
+    j_e : (m, 2, width) derivatives with respect to the observation's image parameters (zero where held);
+        with ``working`` (a problem with :func:`selfcal.adjust.working.working_columns`), (m, 2, slots): with respect
+        to the working columns ``columns`` names, held parameters not zeroed
     j_p : (m, 2, 3) derivatives with respect to its point
     j_d : (m, 2, n_d) derivatives with respect to the free camera parameters (theta order); for a
         single camera a view of a kept array, valid until the next call: read it, do not keep or change it.
         With ``compact``, (m, 2, width): the derivatives with respect to the free parameters of the
         observation's own camera, in the order of :meth:`Problem.camera_columns`
+    slot_columns : (m, slots) int64, j_e's working columns; None without ``working``
     """
     n_e, n_d = problem.n_e, problem.n_d
     context = contexts(problem, state) if context is None else context
     o0, o1, img = cs.o0, cs.o1, cs.img
     m = o1 - o0
-    f, j_e, j_p, j_i = predict(problem, context, o0, o1, state.points[problem.obs_point[o0:o1]], jacobians=True)
+    points = state.points[problem.obs_point[o0:o1]]
+    slot_columns = None
+    if working:
+        cam = problem.image_camera[img]
+        f, j_e, slot_columns, j_p, j_i = problem.sensors[0].bound.predict_working(context[0], np.arange(o0, o1), img,
+                                                                              cam, points)
+    else:
+        f, j_e, j_p, j_i = predict(problem, context, o0, o1, points, jacobians=True)
     delta, cam_cols = camera_terms(problem, state, o0, o1, img)
-    r, w = whiten(problem, slice(o0, o1), img, f, delta, j_e, j_p)
+    r, w = whiten(problem, slice(o0, o1), img, f, delta, j_e, j_p, hold=not working)
     if len(problem.cameras) == 1 and problem.cameras[0].free[:problem.cameras[0].n_core].all():
         # one camera with its core parameters free, the common case: the rows are a view of the
         # kept AP Jacobian with the core derivatives written into its slots (valid until the next call)
         nc = problem.cameras[0].n_core
         j_d = camera_jacobian(problem, 0)[o0:o1]
         np.multiply(j_i[:, :, :nc], w[:, :, None], out=j_d[:, :, :nc])
-        return r, j_e, j_p, j_d
+        return r, j_e, j_p, j_d, slot_columns
     j_d = np.zeros((m, 2, problem.camera_columns().shape[1] if compact else n_d))
     # compact rows of cameras alike (BAL: 49 cameras with f, k1, k2 free): the core slots in one product, not one
     # masked copy per camera (8.7 of a chunk's 10 ms on BAL problem-49)
@@ -216,7 +227,7 @@ def chunk_rows(problem: Problem, state: State, cs, context=None, compact: bool =
         np.multiply(j_i[:, :, :nc], w[:, :, None], out=j_d[:, :, :nc])
     if cam_cols is None:                        # no camera has additional parameters
         if alike:
-            return r, j_e, j_p, j_d
+            return r, j_e, j_p, j_d, slot_columns
         cam_of_obs = problem.image_camera[img]
         cam_cols = [(k, cam_of_obs == k, np.zeros((0, 2, 0))) for k in range(len(problem.cameras))]
     for k, mask, columns in cam_cols:
@@ -228,7 +239,7 @@ def chunk_rows(problem: Problem, state: State, cs, context=None, compact: bool =
             j_d[mask, :, start:start + n_core] = j_i[mask][:, :, :cam.n_core][:, :, core_free] * w[mask][:, :, None]
         if columns.shape[2]:
             j_d[mask, :, start + n_core:start + n_core + columns.shape[2]] = columns
-    return r, j_e, j_p, j_d
+    return r, j_e, j_p, j_d, slot_columns
 
 
 

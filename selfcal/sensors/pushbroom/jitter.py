@@ -106,19 +106,76 @@ class TimeWaveletBasis:
     def names(self) -> list[str]:
         return [f"L{self.level}k{self.translations[i]:+d}" for i in self.keep]
 
+    @property
+    def n_powers(self) -> int:
+        """The powers of s the functions are made orthogonal to (the sensor's polynomial: degree + 1)."""
+        return self.degree + 1
+
+    @functools.cached_property
+    def reach(self) -> int:
+        """How many raw functions may be non-zero at one tau: the length of the scaling function's table (beyond
+        its effective support, which chose the translations, it has small tails), and one for its ends."""
+        x = get_wavelet(self.wavelet).x
+        return int(np.ceil(x[-1] - x[0])) + 1
+
+    @functools.cached_property
+    def kept_projection(self) -> np.ndarray:
+        """(n_powers, size): the polynomial taken off each kept function."""
+        return np.ascontiguousarray(self.projection[:, self.keep])
+
     def _raw(self, tau: np.ndarray) -> np.ndarray:
         w = get_wavelet(self.wavelet)
         x = tau * self.cells
         return np.stack([w.phi(x + k) for k in self.translations], -1)
 
-    def _powers(self, tau: np.ndarray) -> np.ndarray:
-        s = 2.0 * tau - 1.0
+    def powers(self, tau) -> np.ndarray:
+        """(n, n_powers): the powers of s = 2 tau - 1 the functions are orthogonal to."""
+        s = 2.0 * np.atleast_1d(np.asarray(tau, float)) - 1.0
         return s[:, None] ** np.arange(self.degree + 1)[None, :]
 
     def __call__(self, tau) -> np.ndarray:
         """B (n, size) at tau = row / rows (dimensionless)."""
         tau = np.atleast_1d(np.asarray(tau, float))
-        return (self._raw(tau) - self._powers(tau) @ self.projection)[:, self.keep]
+        return (self._raw(tau) - self.powers(tau) @ self.projection)[:, self.keep]
+
+    def local(self, tau) -> tuple[np.ndarray, np.ndarray]:
+        """The raw functions that may be non-zero at each tau, :attr:`reach` of them: (index (n, reach) among the
+        kept functions, -1 for none or one left out; their values (n, reach), 0.0 where the index is -1).
+        B = sum of these values at their indices - :meth:`powers` @ :attr:`kept_projection`: a few functions per
+        tau instead of all (what makes the jitter's Jacobian rows compact: :class:`WorkingColumns`)."""
+        tau = np.atleast_1d(np.asarray(tau, float))
+        w = get_wavelet(self.wavelet)
+        x = tau * self.cells
+        k = np.floor(w.x[0] - x).astype(np.int64)[:, None] + np.arange(self.reach)[None, :]
+        raw = k - self.translations[0]
+        position = np.full(len(self.translations), -1, np.int64)
+        position[self.keep] = np.arange(self.size)
+        index = np.where((raw >= 0) & (raw < len(self.translations)),
+                         position[np.clip(raw, 0, len(self.translations) - 1)], -1)
+        values = np.where(index >= 0, w.phi(x[:, None] + k), 0.0)
+        return index, values
+
+    def combine(self, tau, coefficients) -> np.ndarray:
+        """B(tau) @ coefficients.T, (n, k) for ``coefficients`` (k, size), from :meth:`local`."""
+        c = np.atleast_2d(np.asarray(coefficients, float))
+        index, values = self.local(tau)
+        padded = np.concatenate([c, np.zeros((len(c), 1))], axis=1)         # index -1: the zero column
+        raw = np.einsum("nl,knl->nk", values, padded[:, index])
+        return raw - self.powers(tau) @ (self.kept_projection @ c.T)
+
+    def working_map(self, offset: int, width: int) -> np.ndarray:
+        """T (offset + 3 (n_powers + size), width) of an image block whose columns from ``offset`` on are the
+        coefficients of three axes (``width`` = offset + 3 size): the working columns are the block's first
+        ``offset`` columns, then per axis the powers, then per axis the kept raw functions, and a row of the image
+        parameters is the working row times T (B_j = raw_j - sum_k s^k projection_kj)."""
+        m, p = self.size, self.n_powers
+        T = np.zeros((offset + 3 * (p + m), width))
+        T[:offset, :offset] = np.eye(offset)
+        for a in range(3):
+            columns = offset + a * m + np.arange(m)
+            T[offset + a * p:offset + (a + 1) * p, columns] = -self.kept_projection
+            T[offset + 3 * p + a * m + np.arange(m), columns] = 1.0
+        return T
 
 
 @functools.lru_cache(maxsize=64)
@@ -132,7 +189,7 @@ def time_basis(wavelet: str, level: int, degree: int) -> TimeWaveletBasis:
                              np.zeros((degree + 1, len(translations))))
     n = SAMPLES_PER_CELL * max(cells, 8)
     tau = (np.arange(n) + 0.5) / n
-    keep, projection = orthogonal_beyond(draft._raw(tau), draft._powers(tau), REPRODUCTION_TOLERANCE)
+    keep, projection = orthogonal_beyond(draft._raw(tau), draft.powers(tau), REPRODUCTION_TOLERANCE)
     if not keep.size:
         raise UsageError(f"--jitter wavelet1d:{wavelet}:{level}: no function of that level is left beyond the "
                          f"sensor's polynomial of degree {degree}; choose a higher level")

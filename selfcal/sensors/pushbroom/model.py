@@ -288,8 +288,8 @@ class LineImage:
     #: higher-order attitude corrections (3, m): roll, pitch, yaw coefficients (rad) of s^2 .. s^(m+1) with
     #: s = (t - t_ref) / half_duration_s, beyond Eq. 6's constant and linear terms (ISIS jigsaw's CKDEGREE 3)
     attitude_terms: np.ndarray | None = None
-    #: attitude jitter (:mod:`.jitter`): a basis of tau = row / rows (callable, (n,) -> (n, m)) and the roll, pitch,
-    #: yaw coefficients (3, m) in rad
+    #: attitude jitter (:mod:`.jitter`): a basis of tau = row / rows with ``basis.combine(tau, coefficients)`` -> (n, 3)
+    #: (a :class:`~.jitter.TimeWaveletBasis`) and the roll, pitch, yaw coefficients (3, m) in rad
     jitter: tuple | None = None
 
     @classmethod
@@ -326,7 +326,7 @@ class LineImage:
             out = out + powers @ np.asarray(self.attitude_terms, float).T
         if self.jitter is not None:
             basis, coefficients = self.jitter
-            out = out + basis(self.row_of_time(tau + self.t_ref) / self.rows) @ np.asarray(coefficients, float).T
+            out = out + basis.combine(self.row_of_time(tau + self.t_ref) / self.rows, coefficients)
         return out
 
     def time_of_row(self, row: ArrayLike) -> np.ndarray:

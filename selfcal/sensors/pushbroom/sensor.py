@@ -24,7 +24,7 @@ import numpy as np
 
 from ...block import PushbroomCamera
 from ...errors import BlockError, UsageError
-from ..base import BoundSensor, ImageGeometry, Parameter, Sensor
+from ..base import BoundSensor, ImageGeometry, Parameter, Sensor, WorkingColumns
 from .jitter import JitterSpec, TimeWaveletBasis, parse_jitter, time_basis
 from .model import (PARAMETER_NAMES, LineCamera, LineImage, fit_trajectory, ground_to_image, image_scales,
                     image_to_ground, line_of_sight, photo_coordinates, track)
@@ -173,19 +173,46 @@ class PushbroomBound(BoundSensor):
             self._track_row[o] = np.arange(len(o))
         self.jitter: TimeWaveletBasis | None = None
         self.jitter_offset = 0
+        self._working: WorkingColumns | None = None
 
     def attach_jitter(self, basis: TimeWaveletBasis | None, offset: int) -> None:
         """Give the images the attitude jitter ``basis`` (:mod:`.jitter`), its coefficients in the image block from
         column ``offset`` on: the functions of every axis of :attr:`attitude_axes` in turn."""
         self.jitter, self.jitter_offset = basis, int(offset)
+        self._working = None
         if basis is None:
             return
         tau = np.zeros(self.problem.n_image_observations)
         for i, o in self._by_image.items():
             tau[o] = self.row[o] / self.images[i].rows
-        self._jitter_row = np.full(self.problem.n_image_observations, -1, np.int64)
-        self._jitter_row[self.o] = np.arange(len(self.o))
-        self._jitter_B = basis(tau[self.o])                           # (len(o), m): constant over the adjustment
+        self._jitter_tau = tau
+        # the raw functions at each observation's line, constant over the adjustment: a few per observation
+        self._jitter_index = np.full((self.problem.n_image_observations, basis.reach), -1, np.int64)
+        self._jitter_value = np.zeros((self.problem.n_image_observations, basis.reach))
+        self._jitter_index[self.o], self._jitter_value[self.o] = basis.local(tau[self.o])
+
+    def working_columns(self) -> WorkingColumns | None:
+        """With jitter of many functions: the image's own parameters, the powers of time the jitter's functions are
+        orthogonal to, and the raw scaling functions (:meth:`.jitter.TimeWaveletBasis.working_map`); an observation
+        touches the first two and :attr:`~.jitter.TimeWaveletBasis.reach` raw functions per axis. None where that
+        is not under half the image's width (a few functions, or long ones: Meyer's)."""
+        basis, offset, width = self.jitter, self.jitter_offset, self.problem.image_width
+        if basis is None or width != offset + 3 * basis.size:
+            return None
+        slots = offset + 3 * (basis.n_powers + basis.reach)
+        if 2 * slots >= width:
+            return None
+        if self._working is None or self._working.to_parameters.shape[1] != width:
+            self._working = WorkingColumns(basis.working_map(offset, width), slots)
+        return self._working
+
+    def _jitter_functions(self, o: np.ndarray) -> np.ndarray:
+        """B (n, m): the jitter's functions at the lines of observations ``o``."""
+        assert self.jitter is not None
+        index, value = self._jitter_index[o], self._jitter_value[o]
+        raw = np.zeros((len(o), self.jitter.size + 1))                    # index -1: the last, dropped column
+        np.add.at(raw, (np.arange(len(o))[:, None], index), value)
+        return raw[:, :-1] - self.jitter.powers(self._jitter_tau[o]) @ self.jitter.kept_projection
 
     def undetermined_image_parameters(self, images):
         """The jitter functions of an image with fewer than :data:`JITTER_MIN_OBSERVATIONS` observations where they
@@ -193,12 +220,11 @@ class PushbroomBound(BoundSensor):
         if self.jitter is None:
             return None
         out = np.zeros((len(images), self.problem.image_width), bool)
-        B = np.abs(self._jitter_B)
         peak = np.max(np.abs(self.jitter(np.linspace(0.0, 1.0, 64 * self.jitter.cells + 1))), axis=0)
-        m = B.shape[1]
+        m = self.jitter.size
         for row, i in enumerate(images):
-            mine = self._jitter_row[self._by_image.get(int(i), np.zeros(0, np.int64))]
-            count = np.sum(B[mine] >= 0.1 * peak, axis=0)
+            mine = self._by_image.get(int(i), np.zeros(0, np.int64))
+            count = np.sum(np.abs(self._jitter_functions(mine)) >= 0.1 * peak, axis=0)
             weak = np.tile(count < JITTER_MIN_OBSERVATIONS, 3)
             out[row, self.jitter_offset:self.jitter_offset + 3 * m] = weak
         return out
@@ -255,19 +281,48 @@ class PushbroomBound(BoundSensor):
         out = self._predict(context, o, img, cam, points, jacobians)
         if not jacobians or self.jitter is None:
             return out
-        f, j_e, j_p, j_c = out
-        B = self._jitter_B[self._jitter_row[o]]                                         # (n, m)
-        j_axes = j_e[:, :, list(self.attitude_constant_columns)]                       # (n, 2, 3)
+        f, j_own, j_p, j_c = out
+        B = self._jitter_functions(o)                                                    # (n, m)
+        j_axes = j_own[:, :, list(self.attitude_constant_columns)]                      # (n, 2, 3)
         m = B.shape[1]
+        j_e = np.zeros((len(o), 2, self.problem.image_width))
+        j_e[:, :, :self.jitter_offset] = j_own
         j_e[:, :, self.jitter_offset:self.jitter_offset + 3 * m] = \
             np.einsum("nra,nk->nrak", j_axes, B).reshape(len(o), 2, 3 * m)
         return f, j_e, j_p, j_c
+
+    def predict_working(self, context, o, img, cam, points):
+        """:meth:`predict`'s rows in the :meth:`working_columns`: the image's own columns, d f / d(constant increment
+        of axis a) times each power of s and times the raw functions at the observation's line."""
+        working = self.working_columns()
+        assert working is not None and self.jitter is not None
+        f, j_own, j_p, j_c = self._predict(context, o, img, cam, points, True)
+        basis, offset, n = self.jitter, self.jitter_offset, len(o)
+        p, reach, m = basis.n_powers, basis.reach, basis.size
+        j_axes = j_own[:, :, list(self.attitude_constant_columns)]                      # (n, 2, 3)
+        j_w = np.empty((n, 2, working.slots))
+        columns = np.empty((n, working.slots), np.int64)
+        j_w[:, :, :offset] = j_own
+        columns[:, :offset] = np.arange(offset)
+        j_w[:, :, offset:offset + 3 * p] = np.einsum("nra,nk->nrak", j_axes, basis.powers(self._jitter_tau[o])) \
+            .reshape(n, 2, 3 * p)
+        columns[:, offset:offset + 3 * p] = offset + np.arange(3 * p)
+        raw = offset + 3 * p
+        j_w[:, :, raw:] = np.einsum("nra,nl->nral", j_axes, self._jitter_value[o]).reshape(n, 2, 3 * reach)
+        index = np.maximum(self._jitter_index[o], 0)                                    # -1: a zero value
+        columns[:, raw:] = (raw + m * np.arange(3)[None, :, None] + index[:, None, :]).reshape(n, 3 * reach)
+        return f, j_w, columns, j_p, j_c
+
+    @property
+    def own_width(self) -> int:
+        """The image columns of :meth:`_predict`: the sensor's own (the jitter's come after them)."""
+        return self.jitter_offset if self.jitter is not None else self.problem.image_width
 
     def _predict(self, context, o, img, cam, points, jacobians):
         m = len(img)
         f = np.zeros((m, 2))
         if jacobians:
-            j_e, j_p, j_c = np.zeros((m, 2, self.problem.image_width)), np.zeros((m, 2, 3)), np.zeros((m, 2, 4))
+            j_e, j_p, j_c = np.zeros((m, 2, self.own_width)), np.zeros((m, 2, 3)), np.zeros((m, 2, 4))
         for i in np.unique(img):
             sel = np.flatnonzero(img == i)
             telemetry = self._track[int(i)].take(self._track_row[o[sel]])
