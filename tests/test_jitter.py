@@ -75,8 +75,7 @@ def test_jitter_columns_match_finite_differences():
 
 @pytest.mark.parametrize("name, level, degree", [("db4", 7, 1), ("db4", 3, 3), ("sym6", 5, 1), ("bl3", 4, 1)])
 def test_the_local_form_is_the_basis(name, level, degree):
-    """The few raw functions at each tau (what the working columns are made of) give B to rounding, and the working
-    map T takes [powers, raw functions] to B: the rows in working columns times T are the rows in the coefficients."""
+    """The few raw functions at each tau (what the working columns are made of) give B to rounding."""
     basis = time_basis(name, level, degree)
     tau = np.random.default_rng(0).random(3000)
     tau[:3] = [0.0, 1.0, 0.5]
@@ -86,13 +85,28 @@ def test_the_local_form_is_the_basis(name, level, degree):
     index, value = basis.local(tau)
     raw = np.zeros((len(tau), basis.size + 1))
     np.add.at(raw, (np.arange(len(tau))[:, None], index), value)
-    working = np.concatenate([np.ones((len(tau), 2)), basis.powers(tau), raw[:, :-1]], axis=1)   # one axis, offset 2
-    T = basis.working_map(2, 2 + 3 * basis.size)
-    p, m = basis.n_powers, basis.size
-    rows = np.concatenate([working[:, :2 + p], np.zeros((len(tau), 2 * p)), working[:, 2 + p:],
-                           np.zeros((len(tau), 2 * m))], axis=1) @ T
-    assert np.allclose(rows[:, 2:2 + m], dense, atol=1e-13)
-    assert np.all(rows[:, 2 + m:] == 0.0)
+    assert np.allclose(raw[:, :-1] - basis.powers(tau) @ basis.kept_projection, dense, rtol=0, atol=1e-13)
+
+
+def test_rows_in_working_columns_times_the_map_are_the_rows():
+    """A pushbroom image's rows in working columns (own columns, raw functions) times its map T are its rows in the
+    image parameters (the polynomial's columns carry the powers the functions are orthogonal to)."""
+    _, block = _triplet(True, n_points=300)
+    options = AdjustOptions(sensor=SensorOptions(model="M5", jitter="wavelet1d:db4:6", jitter_sigma_rad=1e-5))
+    problem = build_problem(block, options)
+    state, _ = initial_state(problem, block)
+    state.image[:, 6:] = np.random.default_rng(0).normal(0, 3e-6, state.image[:, 6:].shape)
+    bound = problem.sensors[0].bound
+    working = bound.working_columns()
+    assert working is not None and working.slots == 6 + 3 * 7 < problem.image_width // 2
+    o = problem.sensors[0].observations
+    img = problem.obs_image[o]
+    context = bound.context(state)
+    points = state.points[problem.obs_point[o]]
+    _, j_e, _, _ = bound.predict(context, o, img, problem.image_camera[img], points, True)
+    _, j_w, columns, _, _ = bound.predict_working(context, o, img, problem.image_camera[img], points)
+    rows = np.einsum("nks,nsw->nkw", j_w, working.to_parameters[img[:, None], columns])
+    assert np.max(np.abs(rows - j_e)) < 1e-9 * np.max(np.abs(j_e))
 
 
 @pytest.mark.parametrize("model", ["M1", "M6"])

@@ -33,7 +33,8 @@ def accumulate_observations(j_e, j_p, r, img, ptl, U_ee, g_e, n_pc, cols):
     V[p] += j_p^T j_p, g_p[p] += j_p^T r over observations of point p;
     w_e[o] = j_e[o]^T j_p[o] (the 6x3 coupling of the observation's image and point).
     ``cols`` (m, slots): the image column of each of j_e's slots (working columns, :mod:`.working`); an empty
-    (0, 0) array: j_e's columns are the image's.
+    (0, 0) array: j_e's columns are the image's. With slots, U_ee gets the products of slot pairs a <= b only (both
+    rows at once, zero slots skipped): the caller symmetrises the sum (:func:`selfcal.adjust.working.symmetrised`).
     Returns V, g_p, w_e.
     """
     m, _, ne = j_e.shape
@@ -44,20 +45,29 @@ def accumulate_observations(j_e, j_p, r, img, ptl, U_ee, g_e, n_pc, cols):
     for o in range(m):
         i = img[o]
         p = ptl[o]
+        if slotted:
+            row = cols[o]
+            for a in range(ne):
+                x0 = j_e[o, 0, a]
+                x1 = j_e[o, 1, a]
+                if x0 == 0.0 and x1 == 0.0:
+                    continue
+                g_e[i, row[a]] += x0 * r[o, 0] + x1 * r[o, 1]
+                for b in range(3):
+                    w_e[o, a, b] = x0 * j_p[o, 0, b] + x1 * j_p[o, 1, b]
+                U_a = U_ee[i, row[a]]
+                for b in range(a, ne):
+                    U_a[row[b]] += x0 * j_e[o, 0, b] + x1 * j_e[o, 1, b]
         for k in range(2):
             rk = r[o, k]
-            for a in range(ne):
-                ea = j_e[o, k, a]
-                ca = cols[o, a] if slotted else a
-                g_e[i, ca] += ea * rk
-                if slotted:
-                    for b in range(ne):
-                        U_ee[i, ca, cols[o, b]] += ea * j_e[o, k, b]
-                else:
+            if not slotted:
+                for a in range(ne):
+                    ea = j_e[o, k, a]
+                    g_e[i, a] += ea * rk
                     for b in range(ne):
                         U_ee[i, a, b] += ea * j_e[o, k, b]
-                for b in range(3):
-                    w_e[o, a, b] += ea * j_p[o, k, b]
+                    for b in range(3):
+                        w_e[o, a, b] += ea * j_p[o, k, b]
             for a in range(3):
                 pa = j_p[o, k, a]
                 g_p[p, a] += pa * rk
@@ -74,7 +84,8 @@ def schur_image_blocks(V_inv, ptl, w_t, img, pair_a, pair_b, pair_key, diag, off
     run along it, 35 % faster than along the coupling's 3 columns on BAL problem-49).
     Y_t[o] = V_inv[ptl[o]] w_t[o]; diag[img[o]] -= Y_t[o]^T w_t[o] for every observation;
     off[pair_key[q]] -= Y_t[a]^T w_t[b] for every pair q = (a, b), a < b, of observations of the same point.
-    ``cols``: as in :func:`accumulate_observations` (the blocks in working columns).
+    ``cols``: as in :func:`accumulate_observations` (the blocks in working columns; ``diag`` then gets the slot
+    pairs a <= b only, for the caller to symmetrise; ``off`` every pair).
     """
     m, _, ne = w_t.shape
     slotted = cols.shape[0] > 0
@@ -93,9 +104,11 @@ def schur_image_blocks(V_inv, ptl, w_t, img, pair_a, pair_b, pair_key, diag, off
             y1 = Y_t[o, 1, a]
             y2 = Y_t[o, 2, a]
             if slotted:
-                ca = cols[o, a]
-                for b in range(ne):
-                    diag[i, ca, cols[o, b]] -= y0 * w_t[o, 0, b] + y1 * w_t[o, 1, b] + y2 * w_t[o, 2, b]
+                if y0 == 0.0 and y1 == 0.0 and y2 == 0.0:
+                    continue
+                D_a = diag[i, cols[o, a]]
+                for b in range(a, ne):
+                    D_a[cols[o, b]] -= y0 * w_t[o, 0, b] + y1 * w_t[o, 1, b] + y2 * w_t[o, 2, b]
             else:
                 for b in range(ne):
                     diag[i, a, b] -= y0 * w_t[o, 0, b] + y1 * w_t[o, 1, b] + y2 * w_t[o, 2, b]
@@ -108,9 +121,11 @@ def schur_image_blocks(V_inv, ptl, w_t, img, pair_a, pair_b, pair_key, diag, off
             y1 = Y_t[oa, 1, a]
             y2 = Y_t[oa, 2, a]
             if slotted:
-                ca = cols[oa, a]
+                if y0 == 0.0 and y1 == 0.0 and y2 == 0.0:
+                    continue
+                O_a = off[key, cols[oa, a]]
                 for b in range(ne):
-                    off[key, ca, cols[ob, b]] -= y0 * w_t[ob, 0, b] + y1 * w_t[ob, 1, b] + y2 * w_t[ob, 2, b]
+                    O_a[cols[ob, b]] -= y0 * w_t[ob, 0, b] + y1 * w_t[ob, 1, b] + y2 * w_t[ob, 2, b]
             else:
                 for b in range(ne):
                     off[key, a, b] -= y0 * w_t[ob, 0, b] + y1 * w_t[ob, 1, b] + y2 * w_t[ob, 2, b]

@@ -358,7 +358,8 @@ def build_problem(block: Block, options: AdjustOptions = AdjustOptions(), ap_mod
     ap_models : dict camera_id -> APModel, optional
         Prebuilt AP models (instead of building them from ``options.ap``).
     point_key : ndarray, optional
-        Orders the points (``Problem.point_order``; :func:`inherited_point_key`); by default their first images.
+        Orders the points (``Problem.point_order``; :func:`inherited_point_key`); by default their first images, and
+        in them their rows (:func:`selfcal.adjust.ordering.point_order`).
     chunk_observations : int
         About how many image observations a chunk of points holds (the unit of the passes over the points).
     """
@@ -370,7 +371,8 @@ def build_problem(block: Block, options: AdjustOptions = AdjustOptions(), ap_mod
     camera_ids = [c for c in block.cameras if c in used]         # a camera without images has no unknowns
     lookup = {c: k for k, c in enumerate(camera_ids)}
     image_camera = np.array([lookup[c] for c in block.images.camera_id], dtype=np.int64)
-    point_order = ordering.point_order(obs.image_index, obs.point_index, len(block.points), point_key)
+    point_order = ordering.point_order(obs.image_index, obs.point_index, len(block.points), point_key,
+                                       row_px=obs.pixel[:, 1])
     position = np.empty_like(point_order)
     position[point_order] = np.arange(len(point_order))             # (Problem.point_positions)
     order = np.lexsort((obs.image_index, position[obs.point_index]))

@@ -35,7 +35,7 @@ from .parallel import over_chunks
 from .problem import Problem, State
 from .residuals import parameter_observations
 from .residuals.image import chunk_rows, contexts, image_residuals
-from .working import (blocks_to_parameters, image_maps, pairs_to_parameters, rows_to_parameters,
+from .working import (blocks_to_parameters, image_maps, pairs_to_parameters, rows_to_parameters, symmetrised,
                       vectors_to_parameters, vectors_to_working, working_columns)
 
 __all__ = ["ChunkLinearisation", "Linearisation", "linearise", "reduce", "back_substitute", "evaluate_cost",
@@ -189,7 +189,7 @@ def linearise(problem: Problem, state: State) -> Linearisation:
     cost = float(cost[0])
     if working is not None:
         maps = image_maps(problem, working)
-        U_ee, g_e, U_ed = (blocks_to_parameters(maps, U_ee), vectors_to_parameters(maps, g_e),
+        U_ee, g_e, U_ed = (blocks_to_parameters(maps, symmetrised(U_ee)), vectors_to_parameters(maps, g_e),
                            rows_to_parameters(maps, U_ed))
     if build_gram:
         gram = sum(part["gram"] for part in parts)
@@ -342,7 +342,7 @@ def reduce(problem: Problem, lin: Linearisation, lam: float = 0.0, dense: bool =
     ia, ib = structure.image_pair_a, structure.image_pair_b
     if working is not None:
         maps = image_maps(problem, working)
-        diag_blocks += blocks_to_parameters(maps, sum(part["diag"] for part in parts))
+        diag_blocks += blocks_to_parameters(maps, symmetrised(sum(part["diag"] for part in parts)))
         off_blocks += pairs_to_parameters(maps, sum(part["off"] for part in parts), ia, ib)
         g[:n_e] += vectors_to_parameters(maps, sum(part["g_w"] for part in parts).reshape(n_img, -1)).ravel()
         S_ed += rows_to_parameters(maps, sum(part["S_ed"] for part in parts))

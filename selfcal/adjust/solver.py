@@ -196,6 +196,21 @@ def solve(problem: Problem, state: State, names: list[str], options: SolverOptio
         # in units of its sigma; blind to the datum directions, along which N is null
         moved = 2.0 * predicted - 2.0 * lam * (d_theta @ (lin.diag_theta * d_theta) + np.sum(diag_p * d_p * d_p))
         full_gauss_newton = lam == 0.0
+        if full_gauss_newton and not damped_free and np.isfinite(new_cost) and not new_cost < lin.cost:
+            sigma0_now = float(np.sqrt(2.0 * lin.cost / redundancy))
+            moved_now = float(np.sqrt(max(2.0 * predicted, 0.0))) / sigma0_now
+            if moved_now < options.function_tolerance:
+                # a Gauss-Newton step that moves no estimate by the tolerance of its sigma, and a cost that does not
+                # fall: what the step would gain is below the rounding of the cost's sum (a line search and damped
+                # steps would chase that rounding for many iterations). The estimate stays where it is.
+                step_sigma = max(float(np.max(np.abs(d_theta) * np.sqrt(lin.diag_theta), initial=0.0)),
+                                 float(np.max(np.abs(d_p) * np.sqrt(diag_p), initial=0.0)))
+                record = IterationRecord(iteration, lin.cost, lam, step_sigma, True, sigma0_now, moved_now)
+                history.append(record)
+                if progress is not None:
+                    progress(record)
+                return SolverOutcome(state, lin, True, f"no estimate moves by {options.function_tolerance:g} of its "
+                                     f"sigma", iteration, history, lin.cost, (S, factor, v_inv), datum_null=null)
         if (full_gauss_newton and options.line_search and not damped_free and not new_cost < lin.cost
                 and abs(new_cost - lin.cost) > 1e-12 * lin.cost):
             d_theta, d_p, candidate, new_cost, predicted = _shortened(problem, state, lin.cost, d_theta, d_p,

@@ -19,7 +19,7 @@ import numpy as np
 if TYPE_CHECKING:
     from .problem import Problem
 
-__all__ = ["working_columns", "image_maps", "blocks_to_parameters", "pairs_to_parameters", "vectors_to_parameters",
+__all__ = ["working_columns", "image_maps", "symmetrised", "blocks_to_parameters", "pairs_to_parameters", "vectors_to_parameters",
            "rows_to_parameters", "vectors_to_working", "blocks_to_working", "pairs_to_working", "dense_rows"]
 
 
@@ -34,7 +34,18 @@ def working_columns(problem: Problem):
 
 def image_maps(problem: Problem, working) -> np.ndarray:
     """(n_images, working width, image width): each image's T, the columns of its held parameters zeroed."""
-    return working.to_parameters[None, :, :] * problem.image_free[:, None, :]
+    T = working.to_parameters
+    return (T if T.ndim == 3 else T[None, :, :]) * problem.image_free[:, None, :]
+
+
+def symmetrised(blocks: np.ndarray) -> np.ndarray:
+    """Per-image blocks (n, w, w) summed over slot pairs a <= b only (:func:`~.kernels.accumulate_observations`):
+    the whole symmetric sums, S + S^T - diag(S) (two slots of one column are a value and a zero, whose product is 0,
+    so the diagonal holds each slot's own products once)."""
+    out = blocks + blocks.transpose(0, 2, 1)
+    diagonal = np.einsum("nii->ni", out)
+    diagonal *= 0.5
+    return out
 
 
 def blocks_to_parameters(maps: np.ndarray, blocks: np.ndarray) -> np.ndarray:

@@ -127,16 +127,17 @@ class WorkingColumns:
     the attitude polynomial, are dense in time; the raw scaling functions and the powers they are made orthogonal
     to are local or few).
 
-    ``to_parameters`` T (working, width): an observation's row in the image parameters is its working row times T,
-    j_theta = j_w T (held parameters: the engine zeroes their columns of T). ``slots``: how many working columns an
-    observation's row touches at most (:meth:`BoundSensor.predict_working`)."""
+    ``to_parameters`` T (working, width), or one per image of the problem (n_images, working, width): an observation's
+    row in the image parameters is its working row times its image's T, j_theta = j_w T (held parameters: the engine
+    zeroes their columns of T). ``slots``: how many working columns an observation's row touches at most
+    (:meth:`BoundSensor.predict_working`)."""
 
     to_parameters: np.ndarray
     slots: int
 
     @property
     def width(self) -> int:
-        return int(self.to_parameters.shape[0])
+        return int(self.to_parameters.shape[-2])
 
 
 class BoundSensor(ABC):

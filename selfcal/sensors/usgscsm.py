@@ -408,6 +408,14 @@ class UsgscsmLineBound(PushbroomBound):
         return image.with_parameters(np.concatenate([standard, state.cameras[k][:4]]), c[:, 2:],
                                      jitter=self._with_jitter(state, i))
 
+    def power_columns(self, i: int) -> tuple[np.ndarray, np.ndarray]:
+        """The own columns of the attitude polynomial (per axis the powers of s = (t - t_ref) / half_duration, which
+        is the jitter's s times the sign of the line period)."""
+        n = self.jitter.n_powers if self.jitter is not None else ATTITUDE_DEGREE_MAX + 1
+        sign = float(np.sign(self.images[i].camera.line_period_s))
+        columns = np.array([[a * (ATTITUDE_DEGREE_MAX + 1) + k for k in range(n)] for a in range(3)])
+        return columns, sign ** np.arange(n)
+
     def _predict(self, context, o, img, cam, points, jacobians):
         out = super()._predict(context, o, img, cam, points - self._shift(context, img), jacobians)
         if not jacobians:

@@ -22,6 +22,7 @@ Names: ``wavelet1d:NAME`` (level chosen by the data: :mod:`selfcal.workflows.jit
 from __future__ import annotations
 
 import functools
+import threading
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -39,6 +40,9 @@ JITTER_LEVELS = range(0, 11)
 DEFAULT_WAVELET = "db4"
 #: the lines are sampled this densely (per cell) for the orthogonalisation
 SAMPLES_PER_CELL = 32
+#: :meth:`TimeWaveletBasis.local` keeps its results for this many arrays of tau
+LOCAL_CACHE_SIZE = 16
+_LOCAL_LOCK = threading.Lock()
 #: a power of s that the raw functions reproduce to this relative RMS costs one function
 REPRODUCTION_TOLERANCE = 0.01
 
@@ -114,9 +118,16 @@ class TimeWaveletBasis:
     @functools.cached_property
     def reach(self) -> int:
         """How many raw functions may be non-zero at one tau: the length of the scaling function's table (beyond
-        its effective support, which chose the translations, it has small tails), and one for its ends."""
-        x = get_wavelet(self.wavelet).x
-        return int(np.ceil(x[-1] - x[0])) + 1
+        its effective support, which chose the translations, it has small tails; Daubechies' phi on [0, 2N - 1]
+        is zero at both ends, so an open interval of that length holds them all), and one where its ends are not
+        zero (Meyer's and Battle-Lemarie's tables cut their tails)."""
+        w = get_wavelet(self.wavelet)
+        return int(np.ceil(w.x[-1] - w.x[0])) + (0 if self._open_ends else 1)
+
+    @functools.cached_property
+    def _open_ends(self) -> bool:
+        w = get_wavelet(self.wavelet)
+        return bool(w.phi_table[0] == 0.0 and w.phi_table[-1] == 0.0)
 
     @functools.cached_property
     def kept_projection(self) -> np.ndarray:
@@ -131,7 +142,11 @@ class TimeWaveletBasis:
     def powers(self, tau) -> np.ndarray:
         """(n, n_powers): the powers of s = 2 tau - 1 the functions are orthogonal to."""
         s = 2.0 * np.atleast_1d(np.asarray(tau, float)) - 1.0
-        return s[:, None] ** np.arange(self.degree + 1)[None, :]
+        out = np.empty((len(s), self.degree + 1))
+        out[:, 0] = 1.0
+        for k in range(1, self.degree + 1):
+            np.multiply(out[:, k - 1], s, out=out[:, k])
+        return out
 
     def __call__(self, tau) -> np.ndarray:
         """B (n, size) at tau = row / rows (dimensionless)."""
@@ -144,16 +159,31 @@ class TimeWaveletBasis:
         B = sum of these values at their indices - :meth:`powers` @ :attr:`kept_projection`: a few functions per
         tau instead of all (what makes the jitter's Jacobian rows compact: :class:`WorkingColumns`)."""
         tau = np.atleast_1d(np.asarray(tau, float))
+        key = (tau.size, hash(tau.tobytes()))
+        with _LOCAL_LOCK:
+            hit = self._local_cache.get(key)
+        if hit is not None:
+            return hit
         w = get_wavelet(self.wavelet)
         x = tau * self.cells
-        k = np.floor(w.x[0] - x).astype(np.int64)[:, None] + np.arange(self.reach)[None, :]
+        first = np.floor(w.x[0] - x).astype(np.int64) + (1 if self._open_ends else 0)    # x + k > x0 (or >=)
+        k = first[:, None] + np.arange(self.reach)[None, :]
         raw = k - self.translations[0]
         position = np.full(len(self.translations), -1, np.int64)
         position[self.keep] = np.arange(self.size)
         index = np.where((raw >= 0) & (raw < len(self.translations)),
                          position[np.clip(raw, 0, len(self.translations) - 1)], -1)
         values = np.where(index >= 0, w.phi(x[:, None] + k), 0.0)
+        with _LOCAL_LOCK:                   # (the threads of a pass evaluate images side by side)
+            if len(self._local_cache) >= LOCAL_CACHE_SIZE:
+                self._local_cache.pop(next(iter(self._local_cache)))
+            self._local_cache[key] = (index, values)
         return index, values
+
+    @functools.cached_property
+    def _local_cache(self) -> dict:
+        """:meth:`local` of the last few tau (an image's lines are the same in every evaluation of an adjustment)."""
+        return {}
 
     def combine(self, tau, coefficients) -> np.ndarray:
         """B(tau) @ coefficients.T, (n, k) for ``coefficients`` (k, size), from :meth:`local`."""
@@ -163,18 +193,22 @@ class TimeWaveletBasis:
         raw = np.einsum("nl,knl->nk", values, padded[:, index])
         return raw - self.powers(tau) @ (self.kept_projection @ c.T)
 
-    def working_map(self, offset: int, width: int) -> np.ndarray:
-        """T (offset + 3 (n_powers + size), width) of an image block whose columns from ``offset`` on are the
-        coefficients of three axes (``width`` = offset + 3 size): the working columns are the block's first
-        ``offset`` columns, then per axis the powers, then per axis the kept raw functions, and a row of the image
-        parameters is the working row times T (B_j = raw_j - sum_k s^k projection_kj)."""
-        m, p = self.size, self.n_powers
-        T = np.zeros((offset + 3 * (p + m), width))
+    def working_map(self, offset: int, power_columns: np.ndarray, power_scale: np.ndarray) -> np.ndarray:
+        """T (width, width), width = offset + 3 size, of an image block whose first ``offset`` columns are the sensor's
+        own and the coefficients of three axes follow: the working columns are the own columns, then per axis the
+        kept raw functions, and a row of the image parameters is the working row times T. The powers taken off each
+        function are the own columns ``power_columns`` (3, n_powers) times ``power_scale`` (n_powers,): d f /
+        d(constant increment of axis a) s^k = power_scale[k] * (own column power_columns[a, k]), so that
+        B_j = raw_j - sum_k s^k projection_kj costs an observation no column of its own."""
+        m = self.size
+        width = offset + 3 * m
+        T = np.zeros((width, width))
         T[:offset, :offset] = np.eye(offset)
         for a in range(3):
             columns = offset + a * m + np.arange(m)
-            T[offset + a * p:offset + (a + 1) * p, columns] = -self.kept_projection
-            T[offset + 3 * p + a * m + np.arange(m), columns] = 1.0
+            T[columns, columns] = 1.0
+            for k in range(self.n_powers):
+                T[power_columns[a, k], columns] -= power_scale[k] * self.kept_projection[k]
         return T
 
 

@@ -324,7 +324,7 @@ class LineImage:
             s = tau / self.half_duration_s
             powers = s[:, None] ** (2 + np.arange(self.attitude_terms.shape[1]))[None, :]
             out = out + powers @ np.asarray(self.attitude_terms, float).T
-        if self.jitter is not None:
+        if self.jitter is not None and np.any(self.jitter[1]):          # (all zero at the start values)
             basis, coefficients = self.jitter
             out = out + basis.combine(self.row_of_time(tau + self.t_ref) / self.rows, coefficients)
         return out

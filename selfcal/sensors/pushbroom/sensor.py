@@ -25,6 +25,7 @@ import numpy as np
 from ...block import PushbroomCamera
 from ...errors import BlockError, UsageError
 from ..base import BoundSensor, ImageGeometry, Parameter, Sensor, WorkingColumns
+from ...wavelets import get_wavelet
 from .jitter import JitterSpec, TimeWaveletBasis, parse_jitter, time_basis
 from .model import (PARAMETER_NAMES, LineCamera, LineImage, fit_trajectory, ground_to_image, image_scales,
                     image_to_ground, line_of_sight, photo_coordinates, track)
@@ -192,39 +193,54 @@ class PushbroomBound(BoundSensor):
         self._jitter_index[self.o], self._jitter_value[self.o] = basis.local(tau[self.o])
 
     def working_columns(self) -> WorkingColumns | None:
-        """With jitter of many functions: the image's own parameters, the powers of time the jitter's functions are
-        orthogonal to, and the raw scaling functions (:meth:`.jitter.TimeWaveletBasis.working_map`); an observation
-        touches the first two and :attr:`~.jitter.TimeWaveletBasis.reach` raw functions per axis. None where that
-        is not under half the image's width (a few functions, or long ones: Meyer's)."""
+        """With jitter of many functions: the image's own parameters and the raw scaling functions
+        (:meth:`.jitter.TimeWaveletBasis.working_map`; the powers of time the functions are made orthogonal to are
+        the own polynomial's columns, :meth:`power_columns`): an observation touches its own columns and
+        :attr:`~.jitter.TimeWaveletBasis.reach` raw functions per axis. None where that is not under half the
+        image's width (a few functions, or long ones: Meyer's)."""
         basis, offset, width = self.jitter, self.jitter_offset, self.problem.image_width
         if basis is None or width != offset + 3 * basis.size:
             return None
-        slots = offset + 3 * (basis.n_powers + basis.reach)
+        slots = offset + 3 * basis.reach
         if 2 * slots >= width:
             return None
-        if self._working is None or self._working.to_parameters.shape[1] != width:
-            self._working = WorkingColumns(basis.working_map(offset, width), slots)
+        if self._working is None or self._working.to_parameters.shape[-1] != width:
+            maps = np.zeros((self.problem.n_images, width, width))
+            for i in self.images:
+                maps[i] = basis.working_map(offset, *self.power_columns(i))
+            self._working = WorkingColumns(maps, slots)
         return self._working
+
+    def power_columns(self, i: int) -> tuple[np.ndarray, np.ndarray]:
+        """The own columns (3, n_powers) that are d f / d(constant increment of each attitude axis) times the powers
+        of the jitter's s = 2 row / rows - 1 in image ``i``, and their scale (n_powers,): D_a s^k = scale[k] * own
+        column [a, k]. Seed 001's d_0 + d_1 (t - t_ref): s = (t - t_ref) / (rows line_period / 2)."""
+        image = self.images[i]
+        return np.array([[0, 1], [2, 3], [4, 5]]), np.array([1.0, 2.0 / (image.rows * image.camera.line_period_s)])
 
     def _jitter_functions(self, o: np.ndarray) -> np.ndarray:
         """B (n, m): the jitter's functions at the lines of observations ``o``."""
         assert self.jitter is not None
         index, value = self._jitter_index[o], self._jitter_value[o]
         raw = np.zeros((len(o), self.jitter.size + 1))                    # index -1: the last, dropped column
-        np.add.at(raw, (np.arange(len(o))[:, None], index), value)
+        raw[np.arange(len(o))[:, None], index] = value                    # (a row's valid indices are distinct)
         return raw[:, :-1] - self.jitter.powers(self._jitter_tau[o]) @ self.jitter.kept_projection
 
     def undetermined_image_parameters(self, images):
-        """The jitter functions of an image with fewer than :data:`JITTER_MIN_OBSERVATIONS` observations where they
-        reach a tenth of their largest value (the functions at the ends of the lines, or over a gap of tie points)."""
+        """The jitter functions of an image with fewer than :data:`JITTER_MIN_OBSERVATIONS` observations where their
+        raw scaling function (before the polynomial is taken off) reaches a tenth of its peak: their support (the
+        functions at the ends of the lines, or over a gap of tie points). Counted from the few raw functions at each
+        observation's line (:meth:`~.jitter.TimeWaveletBasis.local`)."""
         if self.jitter is None:
             return None
         out = np.zeros((len(images), self.problem.image_width), bool)
-        peak = np.max(np.abs(self.jitter(np.linspace(0.0, 1.0, 64 * self.jitter.cells + 1))), axis=0)
         m = self.jitter.size
+        peak = np.max(np.abs(get_wavelet(self.jitter.wavelet).phi_table))
         for row, i in enumerate(images):
             mine = self._by_image.get(int(i), np.zeros(0, np.int64))
-            count = np.sum(np.abs(self._jitter_functions(mine)) >= 0.1 * peak, axis=0)
+            index, value = self._jitter_index[mine], self._jitter_value[mine]
+            inside = (np.abs(value) >= 0.1 * peak) & (index >= 0)
+            count = np.bincount(index[inside], minlength=m)
             weak = np.tile(count < JITTER_MIN_OBSERVATIONS, 3)
             out[row, self.jitter_offset:self.jitter_offset + 3 * m] = weak
         return out
@@ -292,25 +308,22 @@ class PushbroomBound(BoundSensor):
         return f, j_e, j_p, j_c
 
     def predict_working(self, context, o, img, cam, points):
-        """:meth:`predict`'s rows in the :meth:`working_columns`: the image's own columns, d f / d(constant increment
-        of axis a) times each power of s and times the raw functions at the observation's line."""
+        """:meth:`predict`'s rows in the :meth:`working_columns`: the image's own columns and d f / d(constant
+        increment of axis a) times the raw functions at the observation's line."""
         working = self.working_columns()
         assert working is not None and self.jitter is not None
         f, j_own, j_p, j_c = self._predict(context, o, img, cam, points, True)
         basis, offset, n = self.jitter, self.jitter_offset, len(o)
-        p, reach, m = basis.n_powers, basis.reach, basis.size
+        reach, m = basis.reach, basis.size
         j_axes = j_own[:, :, list(self.attitude_constant_columns)]                      # (n, 2, 3)
         j_w = np.empty((n, 2, working.slots))
         columns = np.empty((n, working.slots), np.int64)
         j_w[:, :, :offset] = j_own
         columns[:, :offset] = np.arange(offset)
-        j_w[:, :, offset:offset + 3 * p] = np.einsum("nra,nk->nrak", j_axes, basis.powers(self._jitter_tau[o])) \
-            .reshape(n, 2, 3 * p)
-        columns[:, offset:offset + 3 * p] = offset + np.arange(3 * p)
-        raw = offset + 3 * p
-        j_w[:, :, raw:] = np.einsum("nra,nl->nral", j_axes, self._jitter_value[o]).reshape(n, 2, 3 * reach)
+        np.multiply(j_axes[:, :, :, None], self._jitter_value[o][:, None, None, :],
+                    out=j_w[:, :, offset:].reshape(n, 2, 3, reach))
         index = np.maximum(self._jitter_index[o], 0)                                    # -1: a zero value
-        columns[:, raw:] = (raw + m * np.arange(3)[None, :, None] + index[:, None, :]).reshape(n, 3 * reach)
+        columns[:, offset:] = (offset + m * np.arange(3)[None, :, None] + index[:, None, :]).reshape(n, 3 * reach)
         return f, j_w, columns, j_p, j_c
 
     @property
@@ -598,7 +611,8 @@ ATTITUDE_SAMPLES = 41
 #: two-sided, of power 80 %)
 MDB_SIGMA = 4.13
 _CONFIGURED: dict = {}
-#: a jitter function is held in an image with fewer observations than this where it reaches a tenth of its peak
+#: a jitter function is held in an image with fewer observations than this where its raw scaling function reaches a
+#: tenth of its peak (:meth:`PushbroomBound.undetermined_image_parameters`)
 JITTER_MIN_OBSERVATIONS = 4
 
 
