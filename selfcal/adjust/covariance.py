@@ -24,7 +24,7 @@ from .parallel import over_chunks
 from .schur import Linearisation
 from .problem import Problem
 from .kernels import NO_SLOTS, add_point_image_products, point_blocks_times, point_cofactor_pairs
-from .working import blocks_to_working, image_maps, pairs_to_working, working_columns
+from .working import image_maps, working_columns
 
 __all__ = ["point_cofactors", "some_point_cofactors", "PointCofactors", "PointTerms", "image_blocks", "observation_columns", "lower_cholesky",
            "times_lower", "block_grams"]
@@ -88,15 +88,16 @@ class PointCofactors:
         if self.working is not None:
             maps = image_maps(problem, self.working)
             structure = problem.structure()
-            self.Q_diag = blocks_to_working(maps, self.Q_diag)
-            self.Q_pair = pairs_to_working(maps, self.Q_pair, structure.image_pair_a, structure.image_pair_b)
+            self.Q_diag = maps.blocks_to_working(self.Q_diag)
+            self.Q_pair = maps.pairs_to_working(self.Q_pair, structure.image_pair_a, structure.image_pair_b)
         self.rows_width = problem.image_width if self.working is None else self.working.width
         self.Q_dd = self.Q_ed = self.L_dd = None
         if n_d and not self.compact:
             self.Q_dd = Q[n_e:n_e + n_d, n_e:n_e + n_d]
             self.Q_ed = np.ascontiguousarray(Q[:n_e, n_e:n_e + n_d])          # (n_e, n_d)
             if maps is not None:                                               # (n_images * working, n_d)
-                self.Q_ed = (maps @ self.Q_ed.reshape(problem.n_images, problem.image_width, n_d)).reshape(-1, n_d)
+                self.Q_ed = maps.rows_to_working(self.Q_ed.reshape(problem.n_images, problem.image_width, n_d)) \
+                    .reshape(-1, n_d)
             # Q_dd = L L^T: the products with Q_dd are triangular ones, unless the caller needs A + Z Q_dd itself
             self.L_dd = None if full_product else lower_cholesky(self.Q_dd)
 

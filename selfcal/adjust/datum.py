@@ -195,7 +195,7 @@ def similarity_directions(problem, state, lin) -> np.ndarray | None:
         else:                                                                   # slots in working columns
             np.subtract.at(rhs, (cs.img[:, None], ch.columns), shifted)
     if working is not None:
-        rhs = image_maps(problem, working).transpose(0, 2, 1) @ rhs
+        rhs = image_maps(problem, working).rows_to_parameters(rhs.reshape(-1, 7)).reshape(problem.n_images, -1, 7)
     try:
         fitted = np.linalg.solve(lin.U_ee, rhs)
     except np.linalg.LinAlgError:                         # an image that its observations do not determine

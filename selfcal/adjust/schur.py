@@ -35,8 +35,7 @@ from .parallel import over_chunks
 from .problem import Problem, State
 from .residuals import parameter_observations
 from .residuals.image import chunk_rows, contexts, image_residuals
-from .working import (blocks_to_parameters, image_maps, pairs_to_parameters, rows_to_parameters, symmetrised,
-                      vectors_to_parameters, vectors_to_working, working_columns)
+from .working import image_maps, symmetrised, working_columns
 
 __all__ = ["ChunkLinearisation", "Linearisation", "linearise", "reduce", "back_substitute", "evaluate_cost",
            "cost_and_residuals",
@@ -189,8 +188,8 @@ def linearise(problem: Problem, state: State) -> Linearisation:
     cost = float(cost[0])
     if working is not None:
         maps = image_maps(problem, working)
-        U_ee, g_e, U_ed = (blocks_to_parameters(maps, symmetrised(U_ee)), vectors_to_parameters(maps, g_e),
-                           rows_to_parameters(maps, U_ed))
+        U_ee, g_e, U_ed = (maps.blocks_to_parameters(symmetrised(U_ee)), maps.vectors_to_parameters(g_e),
+                           maps.rows_to_parameters(U_ed))
     if build_gram:
         gram = sum(part["gram"] for part in parts)
         if sparse is not None:
@@ -342,10 +341,10 @@ def reduce(problem: Problem, lin: Linearisation, lam: float = 0.0, dense: bool =
     ia, ib = structure.image_pair_a, structure.image_pair_b
     if working is not None:
         maps = image_maps(problem, working)
-        diag_blocks += blocks_to_parameters(maps, symmetrised(sum(part["diag"] for part in parts)))
-        off_blocks += pairs_to_parameters(maps, sum(part["off"] for part in parts), ia, ib)
-        g[:n_e] += vectors_to_parameters(maps, sum(part["g_w"] for part in parts).reshape(n_img, -1)).ravel()
-        S_ed += rows_to_parameters(maps, sum(part["S_ed"] for part in parts))
+        diag_blocks += maps.blocks_to_parameters(symmetrised(sum(part["diag"] for part in parts)))
+        off_blocks += maps.pairs_to_parameters(sum(part["off"] for part in parts), ia, ib)
+        g[:n_e] += maps.vectors_to_parameters(sum(part["g_w"] for part in parts).reshape(n_img, -1)).ravel()
+        S_ed += maps.rows_to_parameters(sum(part["S_ed"] for part in parts))
     for part in parts:
         g += part["g"]
         S_dd += part["S_dd"]
@@ -425,7 +424,7 @@ def back_substitute(problem: Problem, lin: Linearisation, v_inv: list, d_theta: 
     d_e = d_theta[:n_e].reshape(-1, problem.image_width)
     working = working_columns(problem)
     if working is not None:                      # the corrections in the working columns of w_e (:mod:`.working`)
-        d_e = vectors_to_working(image_maps(problem, working), d_e)
+        d_e = image_maps(problem, working).vectors_to_working(d_e)
     d_d = d_theta[n_e:n_e + n_d]
     d_p = np.zeros((problem.n_points, 3))
     columns = problem.camera_columns()             # (n_cameras, 0) without camera parameters (n_d 0)

@@ -33,7 +33,7 @@ import numpy as np
 
 from .linalg import SingularSystem, factorise, pseudo_factorise
 from .covariance import observation_columns
-from .working import dense_rows, image_maps, working_columns
+from .working import image_maps, working_columns
 from .residuals.image import ap_displacement, observation_rows, point_rows
 from .schur import SingularPoints, back_substitute, evaluate_cost
 from .ordering import row_positions
@@ -166,8 +166,8 @@ def _point_columns(old: Problem, lin, obs: np.ndarray, block_of: np.ndarray, L: 
     if working is not None and lin.chunks and lin.chunks[0].columns is not None:
         # slots in working columns (:mod:`.working`): the couplings in the image parameters, T^T w
         slots = _at(lin, [ch.columns for ch in lin.chunks], "o0", obs).astype(np.int64)
-        coupling = dense_rows(image_maps(old, working), old.obs_image[obs], coupling.transpose(0, 2, 1),
-                              slots).transpose(0, 2, 1)
+        coupling = image_maps(old, working).dense_rows(old.obs_image[obs], coupling.transpose(0, 2, 1),
+                                                       slots).transpose(0, 2, 1)
     rows = (old.image_theta() if coupling.shape[1] == old.image_width else observation_columns(old))[old.obs_image[obs]]
     part = coupling @ L[block_of]
     cols = np.broadcast_to((3 * block_of[:, None] + np.arange(3)[None, :])[:, None, :], part.shape)

@@ -175,12 +175,14 @@ class PushbroomBound(BoundSensor):
         self.jitter: TimeWaveletBasis | None = None
         self.jitter_offset = 0
         self._working: WorkingColumns | None = None
+        self._slot_columns: np.ndarray | None = None
 
     def attach_jitter(self, basis: TimeWaveletBasis | None, offset: int) -> None:
         """Give the images the attitude jitter ``basis`` (:mod:`.jitter`), its coefficients in the image block from
         column ``offset`` on: the functions of every axis of :attr:`attitude_axes` in turn."""
         self.jitter, self.jitter_offset = basis, int(offset)
         self._working = None
+        self._slot_columns = None
         if basis is None:
             return
         tau = np.zeros(self.problem.n_image_observations)
@@ -317,14 +319,15 @@ class PushbroomBound(BoundSensor):
         reach, m = basis.reach, basis.size
         j_axes = j_own[:, :, list(self.attitude_constant_columns)]                      # (n, 2, 3)
         j_w = np.empty((n, 2, working.slots))
-        columns = np.empty((n, working.slots), np.int64)
         j_w[:, :, :offset] = j_own
-        columns[:, :offset] = np.arange(offset)
         np.multiply(j_axes[:, :, :, None], self._jitter_value[o][:, None, None, :],
                     out=j_w[:, :, offset:].reshape(n, 2, 3, reach))
-        index = np.maximum(self._jitter_index[o], 0)                                    # -1: a zero value
-        columns[:, offset:] = (offset + m * np.arange(3)[None, :, None] + index[:, None, :]).reshape(n, 3 * reach)
-        return f, j_w, columns, j_p, j_c
+        if self._slot_columns is None:                 # constant over the adjustment: the lines do not move
+            index = np.maximum(self._jitter_index, 0)                                   # -1: a zero value
+            self._slot_columns = np.concatenate(
+                [np.broadcast_to(np.arange(offset), (len(index), offset)),
+                 (offset + m * np.arange(3)[None, :, None] + index[:, None, :]).reshape(len(index), 3 * reach)], 1)
+        return f, j_w, self._slot_columns[o], j_p, j_c
 
     @property
     def own_width(self) -> int:
