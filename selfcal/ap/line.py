@@ -123,7 +123,10 @@ def orthogonal_beyond(raw: np.ndarray, fields: np.ndarray, tolerance: float) -> 
     orthogonalisation (:func:`selfcal.ap.base.independent_functions`)."""
     projection = np.linalg.lstsq(fields, raw, rcond=None)[0]
     orthogonal = raw - fields @ projection
-    fit = np.linalg.lstsq(raw, fields, rcond=None)[0]
+    # the fields' part outside the raw span, from the normal equations of the raw functions (translates of a
+    # scaling function: a well-conditioned Gram matrix), not lstsq's SVD of the samples (1.6 s at 8,192 samples of
+    # 262 functions, for each of a jitter choice's levels)
+    fit = np.linalg.lstsq(raw.T @ raw, raw.T @ fields, rcond=None)[0]
     misfit = np.linalg.norm(fields - raw @ fit, axis=0) / np.linalg.norm(fields, axis=0)
     n_dependent = int(np.sum(misfit < tolerance))
     return np.flatnonzero(independent_functions(orthogonal.T @ orthogonal, n_dependent)), projection
