@@ -9,7 +9,8 @@ The triplet of :func:`selfcal.simulate.prism.simulate_prism` (three views at +23
 pitch (3 urad at 1.3 / 2.2 Hz and 2 urad at 4.1 / 3.7 Hz, about 1.4 px), the focal lengths given (their step is seed
 001's, not this study's). Seed 001's M5 (bias and drift of roll, pitch, yaw), snooping as ``selfcal adjust`` runs it.
 
-Per row: sigma0 (px), the share of image observations rejected, check-point RMSE across / along / up (m), the time
+Per row: sigma0 (px), the share of image observations rejected, check-point RMSE across / along / up (m) and the RMS
+of the sigma the adjustment states for them (the precision these observations give: an error at it is the floor), the time
 of the jitter's choice and of one adjustment at the chosen level against one without jitter (the cost), and the
 error of the estimated jitter against the truth beyond each image's linear part (urad RMS, roll and pitch): in all,
 and in what the tie points can see (roll beyond the part common to the three images; pitch along fore - 2 nadir +
@@ -63,6 +64,17 @@ def case(block, gcps, options):
     return c, r, rejected
 
 
+def check_sigma_m(c) -> np.ndarray:
+    """RMS over the check points of their a-posteriori sigma across / along / up (m): the precision the adjustment
+    states for them (the reference's own sigma not in it); NaN where the case failed."""
+    if c.failure or c.checks is None or not len(c.checks):
+        return np.full(3, np.nan)
+    row = {pid: k for k, pid in enumerate(c.result.block.points.point_id)}
+    covariance = c.result.point_covariance()[[row[pid] for pid in c.checks.point_id]]
+    sigma = np.sqrt(np.einsum("ij,njk,ik->ni", c.track_axes, covariance, c.track_axes))
+    return np.sqrt(np.mean(sigma ** 2, axis=0))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--seeds", default="1,2,3")
@@ -73,7 +85,8 @@ def main() -> None:
     args = parser.parse_args()
     spec = "auto" if args.levels == "auto" else f"wavelet1d:db4:{int(args.levels)}"
     print(f"{'seed':>4} {'case':<32} {'sigma0':>6} {'rej %':>6} {'across':>7} {'along':>7} {'up':>7}  "
-          f"{'jitter err roll/pitch':>22} {'seen roll/pitch':>16} {'sigma roll/pitch':>14}  time")
+          f"{'jitter err roll/pitch':>22} {'seen roll/pitch':>16} {'sigma roll/pitch':>14}  "
+          f"{'check sigma across/along/up':>27}  time")
     for seed in (int(s) for s in args.seeds.split(",")):
         for jitter in (False, True):
             sim = simulate_prism(seed=seed, n_points=args.points, jitter=JITTER if jitter else None)
@@ -98,6 +111,7 @@ def main() -> None:
             for name, block, options, chosen_s in rows:
                 c, r, rejected = case(block, gcps, options)
                 rmse = c.rmse_m if c.rmse_m is not None else np.full(3, np.nan)
+                stated = check_sigma_m(c)
                 error = sim.truth.jitter_error_urad(r) if (r is not None and jitter) else (np.full(2, np.nan),) * 2
                 floor = sim.truth.jitter_sigma_urad(r) if r is not None else np.full(2, np.nan)
                 sub = seed001.case_block(replace(block, terrain_observations=None), (0, 1, 2), gcps)
@@ -108,7 +122,7 @@ def main() -> None:
                 print(f"{seed:>4} {('jitter ' if jitter else 'no jitter ') + name:<32} {c.sigma0 * 0.3:6.3f} "
                       f"{100 * rejected:6.2f} {rmse[0]:7.2f} {rmse[1]:7.2f} {rmse[2]:7.2f}  "
                       f"{error[0][0]:10.2f} {error[0][1]:10.2f}  {error[1][0]:7.2f} {error[1][1]:7.2f}  "
-                      f"{floor[0]:6.2f} {floor[1]:6.2f}  "
+                      f"{floor[0]:6.2f} {floor[1]:6.2f}  {stated[0]:6.2f} {stated[1]:6.2f} {stated[2]:6.2f}  "
                       f"choice {chosen_s:.1f} s, one adjustment {one_s:.2f} s{status}", flush=True)
 
 

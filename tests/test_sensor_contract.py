@@ -187,6 +187,19 @@ def _central(f, x, h):
     return (f(x + h) - f(x - h)) / (2 * h)
 
 
+def _assert_derivative(analytic, f, h, scale, message):
+    """``analytic`` against central differences of ``f`` at 0 with step h and 10 h, each element within 1e-5 relative
+    (1e-9 of ``scale`` absolute) of either: the smaller step's rounding (a prediction with an iterative solution
+    inside, usgscsm's line time, is reproducible to ~1e-13 of its value, which a step of 1e-6 turns into 1e-7 of a
+    derivative) and the larger step's truncation do not both err where the analytic column is right."""
+    small, large = _central(f, 0.0, h), _central(f, 0.0, 10.0 * h)
+    ok = (np.abs(analytic - small) <= 1e-9 * scale + 1e-5 * np.abs(small)) | \
+        (np.abs(analytic - large) <= 1e-9 * scale + 1e-5 * np.abs(large))
+    bad = np.flatnonzero(~ok.ravel())
+    assert not bad.size, (f"{message}: {bad.size} of {ok.size} elements, e.g. analytic {analytic.ravel()[bad[0]]!r}, "
+                          f"steps h, 10 h: {small.ravel()[bad[0]]!r}, {large.ravel()[bad[0]]!r}")
+
+
 def test_jacobians_match_central_differences(bound):
     """Every column of the image, core and point Jacobians within 1e-5 relative of central differences."""
     name, problem, state = bound
@@ -210,9 +223,7 @@ def test_jacobians_match_central_differences(bound):
             s = state.copy()
             s.image[:, k] += d
             return evaluate(s)
-        numeric = _central(moved, 0.0, step)
-        np.testing.assert_allclose(j_e[:, :, k], numeric, rtol=1e-5, atol=1e-9 * scale,
-                                   err_msg=f"{name}: image parameter {k}")
+        _assert_derivative(j_e[:, :, k], moved, step, scale, f"{name}: image parameter {k}")
     n_core = problem.cameras[0].n_core
     for k in range(n_core):
         step = 1e-6 * max(1.0, float(np.max(np.abs([c[k] for c in state.cameras]))))
@@ -222,9 +233,7 @@ def test_jacobians_match_central_differences(bound):
             for values in s.cameras:
                 values[k] += d
             return evaluate(s)
-        numeric = _central(moved_core, 0.0, step)
-        np.testing.assert_allclose(j_c[:, :, k], numeric, rtol=1e-5, atol=1e-9 * scale,
-                                   err_msg=f"{name}: core parameter {k}")
+        _assert_derivative(j_c[:, :, k], moved_core, step, scale, f"{name}: core parameter {k}")
     # 1 mm, less for a close-range block (a chessboard 1 m away: 1 um)
     point_step = min(1e-3, 1e-6 * max(1.0, float(np.ptp(points, axis=0).max())))
     for a in range(3):
