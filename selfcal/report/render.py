@@ -67,12 +67,40 @@ _SUMMARY_ROWS = [
 ]
 
 
+def _fix_layout(fig) -> None:
+    """Solve the figure's constrained layout once, at the PNG's dpi, and leave the figure without a layout engine.
+
+    With a layout engine (even the placeholder that ``set_layout_engine("none")`` leaves) ``savefig`` draws the
+    whole figure once without output, to solve the layout, before it draws the file: a figure saved as PNG and SVG
+    was drawn four times (PNG 2, SVG 2). Solved here as that extra draw solved it (same dpi, an Agg renderer), each
+    file is drawn once with the layout of before: the same PNG bytes, the same SVG but for its random ids. The
+    figure keeps the Agg canvas: the PNG is drawn with the renderer that measured the texts (their sizes cached)."""
+    engine = fig.get_layout_engine()
+    if engine is None:
+        return
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    FigureCanvasAgg(fig)                          # becomes fig.canvas
+    if fig.axes:
+        dpi = fig.dpi
+        fig.dpi = FIGURE_DPI
+        try:
+            engine.execute(fig)
+        except ValueError:                        # as Figure.draw: an unsolvable layout leaves the axes in place
+            pass
+        finally:
+            fig.dpi = dpi
+    import matplotlib                             # loaded with the figure
+    if matplotlib.rcParams["figure.autolayout"] or matplotlib.rcParams["figure.constrained_layout.use"]:
+        fig.set_layout_engine("none")             # None would be the rcParams' layout: keep the one solved
+    else:
+        fig.set_layout_engine(None)
+
+
 def _figure_files(fig, stem: str) -> tuple[dict, bytes]:
     png, svg = io.BytesIO(), io.BytesIO()
+    # the layout solved once and kept for both copies; each copy drawn once (see _fix_layout)
+    _fix_layout(fig)
     fig.savefig(png, format="png", dpi=FIGURE_DPI)
-    # the layout the PNG was drawn with, kept for the SVG: the constrained layout solved once, not twice (it is
-    # half the time of a figure's two copies)
-    fig.set_layout_engine("none")
     fig.savefig(svg, format="svg", metadata={"Date": None})
     return {f"figures/{stem}.png": png.getvalue(), f"figures/{stem}.svg": svg.getvalue()}, png.getvalue()
 
