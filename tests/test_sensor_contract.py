@@ -264,3 +264,32 @@ def test_rays_and_pixels_round_trip(bound):
         d = points - origin
         miss = np.linalg.norm(d - np.einsum("ni,ni->n", d, direction)[:, None] * direction, axis=1)
         assert np.max(miss) < 1e-3, (name, np.max(miss))
+
+
+@pytest.mark.parametrize("name", ["pushbroom", "usgscsm-line", "dimap", "dg"])
+def test_working_rows_times_their_maps_are_the_rows(name):
+    """Every line sensor with jitter (issue 42): its rows in working columns (its own columns and the raw scaling
+    functions at each observation's line) times its image's map T are its rows in the image parameters, the powers
+    the jitter's functions are orthogonal to carried by the sensor's polynomial columns (seed 001's d_1 (t - t_ref);
+    usgscsm's s^k, the sign of the line period)."""
+    from dataclasses import replace as _replace
+    block, options = EXAMPLES[name]()
+    options = _replace(options, sensor=_replace(options.sensor, jitter="wavelet1d:db4:5", jitter_sigma_rad=1e-5))
+    problem = build_problem(block, options)
+    state, _ = initial_state(problem, block)
+    bound = problem.sensors[0].bound
+    offset = bound.jitter_offset
+    rng = np.random.default_rng(3)
+    state.image[:, offset:] = rng.normal(0, 3e-6, state.image[:, offset:].shape)
+    working = bound.working_columns()
+    assert working is not None and working.slots < problem.image_width // 2
+    o = problem.sensors[0].observations
+    img = problem.obs_image[o]
+    context = bound.context(state)
+    points = state.points[problem.obs_point[o]]
+    _, j_e, _, _ = bound.predict(context, o, img, problem.image_camera[img], points, True)
+    _, j_w, columns, _, _ = bound.predict_working(context, o, img, problem.image_camera[img], points)
+    rows = np.einsum("nks,nsw->nkw", j_w, working.to_parameters[img[:, None], columns])
+    assert np.max(np.abs(rows - j_e)) < 1e-9 * np.max(np.abs(j_e))
+    # and the jitter's columns themselves are not zero (the test sees them)
+    assert np.max(np.abs(j_e[:, :, offset:])) > 1e-3 * np.max(np.abs(j_e[:, :, :offset]))
