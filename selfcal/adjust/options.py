@@ -111,7 +111,7 @@ class SensorOptions:
     jitter : str
         Line images: the attitude jitter (``none``; ``wavelet1d:NAME:LEVEL``, 1-D wavelet scaling functions in
         time, :mod:`selfcal.sensors.pushbroom.jitter`; ``auto`` or ``wavelet1d:NAME`` for the tested workflow, which
-        chooses the level).
+        chooses the level; any of them with ``+details``: the scaling functions and wavelets of the level below).
     jitter_sigma_rad : float or (float, float, float), optional
         A-priori sigma of every jitter coefficient (rad), one for all axes or one per axis; default free (the tested
         workflow estimates it: :mod:`selfcal.workflows.jitter`).

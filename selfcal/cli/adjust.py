@@ -75,7 +75,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="line images (pushbroom, usgscsm-line, dimap, dg): attitude jitter as 1-D wavelet scaling "
                              "functions in time: auto (db4, the level and the power per axis chosen by the data), "
                              "wavelet1d:NAME (level chosen), wavelet1d:NAME:LEVEL (2^LEVEL cells per image), or none "
-                             "(default)")
+                             "(default); +details after any but none: the same space as the scaling functions and "
+                             "wavelets of LEVEL - 1, its terms by scale")
     parser.add_argument("--jitter-sigma-urad", type=number(0.0, low_open=True), metavar="S",
                         help="a-priori sigma of every jitter coefficient (urad); default: estimated (variance "
                              "components)")

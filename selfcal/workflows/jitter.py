@@ -161,7 +161,7 @@ def _width(block, options) -> int:
     return widths.pop() if len(widths) == 1 else -1
 
 
-def _levels_carried(wavelet: str, fewest: int):
+def _levels_carried(wavelet: str, fewest: int, details: bool = False):
     """The levels from :data:`FIRST_LEVEL` up whose functions an image of ``fewest`` observations carries
     (:data:`OBSERVATIONS_PER_TERM` each), built as they are tried: a basis has more functions at every level up, so
     the first one too many ends them (building all eleven took 63 of the 71 s of a triplet's choice: level 10 has
@@ -169,7 +169,7 @@ def _levels_carried(wavelet: str, fewest: int):
     for level in JITTER_LEVELS:
         if level < FIRST_LEVEL:
             continue
-        if time_basis(wavelet, level, 3).size * OBSERVATIONS_PER_TERM > fewest:
+        if time_basis(wavelet, level, 3, details).size * OBSERVATIONS_PER_TERM > fewest:
             return
         yield level
 
@@ -185,7 +185,7 @@ def choose_jitter(block, options: AdjustOptions, progress: Callable | None = Non
     block = name_terrain_points(block, replace(options, sensor=replace(options.sensor, jitter="none")))
     n_obs = np.bincount(block.observations.image_index, minlength=len(block.images))
     fewest = int(n_obs[n_obs > 0].min()) if np.any(n_obs > 0) else 0
-    levels = [spec.level] if spec.level is not None else _levels_carried(spec.wavelet, fewest)
+    levels = [spec.level] if spec.level is not None else _levels_carried(spec.wavelet, fewest, spec.details)
     tried: list[tuple[int, float]] = []
     best = None
     for level in levels:

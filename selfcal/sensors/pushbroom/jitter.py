@@ -16,14 +16,20 @@ the sensor's degree, and the functions that become dependent are left out (as th
 :mod:`selfcal.ap.line` do: :func:`selfcal.ap.base.independent_functions`). The polynomial keeps the slow part;
 the coefficients c (rad, the functions being of order 1) are the jitter.
 
+With ``+details`` the same space is spanned as V_(L-1) + W_(L-1): the scaling functions of level L - 1 and the
+wavelets psi of level L - 1 (the details between the two resolutions, seed 000's split of scales), so that each
+coefficient says at which scale the jitter is: the fit is the same (an orthogonal family's V_L), the terms and
+their tests are by scale (``jitter_terms.csv``: ``L6k+3`` a scaling function, ``D6k+3`` a detail).
+
 Names: ``wavelet1d:NAME`` (level chosen by the data: :mod:`selfcal.workflows.jitter`) or
-``wavelet1d:NAME:LEVEL``; ``auto`` is ``wavelet1d:db4`` with the level chosen.
+``wavelet1d:NAME:LEVEL``, either with ``+details``; ``auto`` is ``wavelet1d:db4`` with the level chosen
+(``auto+details`` the same with details).
 """
 from __future__ import annotations
 
 import functools
 import threading
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -34,6 +40,8 @@ from ...wavelets import check_wavelet_name, get_wavelet
 __all__ = ["JitterSpec", "TimeWaveletBasis", "parse_jitter", "time_basis", "JITTER_LEVELS", "DEFAULT_WAVELET",
            "SAMPLES_PER_CELL"]
 
+#: the suffix of a jitter basis split by scale (V_L as V_(L-1) + W_(L-1))
+DETAILS = "+details"
 #: the levels a jitter basis may have: 2^L cells over the image's lines
 JITTER_LEVELS = range(0, 11)
 #: the family of ``--jitter auto``
@@ -57,26 +65,37 @@ class JitterSpec:
     axes: tuple[str, ...] | None = None
     sigma_rad: float | tuple[float, ...] | None = None
 
+    details: bool = False
+
     @property
     def text(self) -> str:
-        return f"wavelet1d:{self.wavelet}" + ("" if self.level is None else f":{self.level}")
+        return f"wavelet1d:{self.wavelet}" + ("" if self.level is None else f":{self.level}") + \
+            (DETAILS if self.details else "")
 
     def at_level(self, level: int) -> "JitterSpec":
-        return JitterSpec(self.wavelet, int(level), self.axes, self.sigma_rad)
+        return JitterSpec(self.wavelet, int(level), self.axes, self.sigma_rad, self.details)
 
 
 def parse_jitter(text: str | None) -> JitterSpec | None:
-    """``none`` (None), ``auto`` or ``wavelet1d:NAME[:LEVEL]``; UsageError for anything else."""
+    """``none`` (None), ``auto`` or ``wavelet1d:NAME[:LEVEL]``, the last two with ``+details``; UsageError for
+    anything else."""
     if text is None or text.strip().lower() in ("", "none"):
         return None
     text = text.strip()
+    if text.lower().endswith(DETAILS):
+        spec = parse_jitter(text[:-len(DETAILS)])
+        if spec is None or spec.level == 0:
+            raise UsageError(f"--jitter {text}: +details follows auto or wavelet1d:NAME[:LEVEL] of level 1 or more "
+                             f"(the details of level L - 1 with its scaling functions span level L)")
+        return replace(spec, details=True)
     if text.lower() == "auto":
         return JitterSpec()
     family, _, rest = text.partition(":")
     name, _, level = rest.partition(":")
     if family != "wavelet1d" or not name:
-        raise UsageError(f"--jitter {text}: none, auto or wavelet1d:NAME[:LEVEL] (NAME = dbN, symN, meyer, blN; "
-                         f"LEVEL {JITTER_LEVELS.start}-{JITTER_LEVELS.stop - 1}: 2^LEVEL cells over an image's lines)")
+        raise UsageError(f"--jitter {text}: none, auto or wavelet1d:NAME[:LEVEL], with +details or without (NAME = "
+                         f"dbN, symN, meyer, blN; LEVEL {JITTER_LEVELS.start}-{JITTER_LEVELS.stop - 1}: 2^LEVEL "
+                         f"cells over an image's lines)")
     try:
         name = check_wavelet_name(name)
     except ValueError as exc:
@@ -89,18 +108,36 @@ def parse_jitter(text: str | None) -> JitterSpec | None:
 
 @dataclass(frozen=True)
 class TimeWaveletBasis:
-    """The kept, orthogonalised scaling functions of one level over tau = row / rows in [0, 1]."""
+    """The kept, orthogonalised scaling functions of one level over tau = row / rows in [0, 1] (with ``details``:
+    the scaling functions and the wavelets of the level below, the same space)."""
 
     wavelet: str
     level: int
     degree: int                                     # the sensor's polynomial it is orthogonal to
-    translations: tuple[int, ...]                   # k of every raw function
+    translations: tuple[int, ...]                   # k of every raw function (of each kind, with details)
     keep: np.ndarray = field(repr=False)            # indices of the raw functions kept
     projection: np.ndarray = field(repr=False)      # (degree + 1, n_raw): the polynomial taken off each
+    details: bool = False                           # phi and psi of level - 1 instead of phi of level
 
     @property
     def cells(self) -> int:
         return 2 ** self.level
+
+    @property
+    def _scale(self) -> int:
+        """2^l of the raw functions' level l (level, or level - 1 with details)."""
+        return 2 ** (self.level - 1) if self.details else 2 ** self.level
+
+    @property
+    def _kinds(self) -> int:
+        return 2 if self.details else 1
+
+    @property
+    def _amplitude(self) -> float:
+        """The raw functions' factor: 1, and 2^-1/2 with details, whose functions cover twice the lines; the scaling
+        functions and wavelets of an orthogonal family then have the L2 norm of level L's, so the same a-priori sigma
+        of every coefficient is the same prior on the correction (and the fit the same as level L's)."""
+        return float(np.sqrt(0.5)) if self.details else 1.0
 
     @property
     def size(self) -> int:
@@ -108,7 +145,8 @@ class TimeWaveletBasis:
 
     @property
     def names(self) -> list[str]:
-        return [f"L{self.level}k{self.translations[i]:+d}" for i in self.keep]
+        n, level = len(self.translations), self.level - (1 if self.details else 0)
+        return [f"{'L' if i < n else 'D'}{level}k{self.translations[i % n]:+d}" for i in self.keep]
 
     @property
     def n_powers(self) -> int:
@@ -122,12 +160,22 @@ class TimeWaveletBasis:
         is zero at both ends, so an open interval of that length holds them all), and one where its ends are not
         zero (Meyer's and Battle-Lemarie's tables cut their tails)."""
         w = get_wavelet(self.wavelet)
-        return int(np.ceil(w.x[-1] - w.x[0])) + (0 if self._open_ends else 1)
+        return self._kinds * (int(np.ceil(w.x[-1] - w.x[0])) + (0 if self._open_ends else 1))
 
     @functools.cached_property
     def _open_ends(self) -> bool:
         w = get_wavelet(self.wavelet)
-        return bool(w.phi_table[0] == 0.0 and w.phi_table[-1] == 0.0)
+        return bool(w.phi_table[0] == 0.0 and w.phi_table[-1] == 0.0 and
+                    (not self.details or (w.psi_table[0] == 0.0 and w.psi_table[-1] == 0.0)))
+
+    @functools.cached_property
+    def slot_peaks(self) -> np.ndarray:
+        """(reach,): the largest |value| of the raw function kind of each of :meth:`local`'s slots (phi's, then psi's
+        with details)."""
+        w = get_wavelet(self.wavelet)
+        per = self.reach // self._kinds
+        peaks = [np.max(np.abs(w.phi_table))] + ([np.max(np.abs(w.psi_table))] if self.details else [])
+        return self._amplitude * np.repeat(peaks, per)
 
     @functools.cached_property
     def kept_projection(self) -> np.ndarray:
@@ -136,8 +184,9 @@ class TimeWaveletBasis:
 
     def _raw(self, tau: np.ndarray) -> np.ndarray:
         w = get_wavelet(self.wavelet)
-        x = tau * self.cells
-        return np.stack([w.phi(x + k) for k in self.translations], -1)
+        x = tau * self._scale
+        functions = (w.phi, w.psi) if self.details else (w.phi,)
+        return self._amplitude * np.stack([f(x + k) for f in functions for k in self.translations], -1)
 
     def powers(self, tau) -> np.ndarray:
         """(n, n_powers): the powers of s = 2 tau - 1 the functions are orthogonal to."""
@@ -165,15 +214,22 @@ class TimeWaveletBasis:
         if hit is not None:
             return hit
         w = get_wavelet(self.wavelet)
-        x = tau * self.cells
+        x = tau * self._scale
+        per, n = self.reach // self._kinds, len(self.translations)
         first = np.floor(w.x[0] - x).astype(np.int64) + (1 if self._open_ends else 0)    # x + k > x0 (or >=)
-        k = first[:, None] + np.arange(self.reach)[None, :]
+        k = first[:, None] + np.arange(per)[None, :]
         raw = k - self.translations[0]
-        position = np.full(len(self.translations), -1, np.int64)
+        position = np.full(self._kinds * n, -1, np.int64)
         position[self.keep] = np.arange(self.size)
-        index = np.where((raw >= 0) & (raw < len(self.translations)),
-                         position[np.clip(raw, 0, len(self.translations) - 1)], -1)
+        inside = (raw >= 0) & (raw < n)
+        raw = np.clip(raw, 0, n - 1)
+        index = np.where(inside, position[raw], -1)
         values = np.where(index >= 0, w.phi(x[:, None] + k), 0.0)
+        if self.details:                    # the wavelets of the same translations, after the scaling functions
+            detail = np.where(inside, position[n + raw], -1)
+            index = np.concatenate([index, detail], axis=1)
+            values = self._amplitude * np.concatenate([values, np.where(detail >= 0, w.psi(x[:, None] + k), 0.0)],
+                                                      axis=1)
         with _LOCAL_LOCK:                   # (the threads of a pass evaluate images side by side)
             if len(self._local_cache) >= LOCAL_CACHE_SIZE:
                 self._local_cache.pop(next(iter(self._local_cache)))
@@ -213,18 +269,24 @@ class TimeWaveletBasis:
 
 
 @functools.lru_cache(maxsize=64)
-def time_basis(wavelet: str, level: int, degree: int) -> TimeWaveletBasis:
-    """The jitter basis of ``wavelet`` at ``level``, orthogonal to the powers of s up to ``degree``."""
+def time_basis(wavelet: str, level: int, degree: int, details: bool = False) -> TimeWaveletBasis:
+    """The jitter basis of ``wavelet`` at ``level``, orthogonal to the powers of s up to ``degree`` (with
+    ``details``: the scaling functions and wavelets of ``level`` - 1)."""
     w = get_wavelet(wavelet)
-    cells = 2 ** int(level)
+    details = bool(details) and int(level) > 0
+    cells = 2 ** (int(level) - (1 if details else 0))
     lo, hi = w.support
+    if details:                         # the translations whose phi or psi meets the lines (psi's effective support
+        big = np.flatnonzero(np.abs(w.psi_table) >= w.threshold * np.abs(w.psi_table).max())      # as phi's)
+        lo, hi = min(lo, float(w.x[big[0]])), max(hi, float(w.x[big[-1]]))
     translations = tuple(range(int(np.floor(lo - cells)) + 1, int(np.ceil(hi))))
-    draft = TimeWaveletBasis(wavelet, int(level), int(degree), translations, np.arange(len(translations)),
-                             np.zeros((degree + 1, len(translations))))
+    n_raw = (2 if details else 1) * len(translations)
+    draft = TimeWaveletBasis(wavelet, int(level), int(degree), translations, np.arange(n_raw),
+                             np.zeros((degree + 1, n_raw)), details)
     n = SAMPLES_PER_CELL * max(cells, 8)
     tau = (np.arange(n) + 0.5) / n
     keep, projection = orthogonal_beyond(draft._raw(tau), draft.powers(tau), REPRODUCTION_TOLERANCE)
     if not keep.size:
         raise UsageError(f"--jitter wavelet1d:{wavelet}:{level}: no function of that level is left beyond the "
                          f"sensor's polynomial of degree {degree}; choose a higher level")
-    return TimeWaveletBasis(wavelet, int(level), int(degree), translations, keep, projection)
+    return TimeWaveletBasis(wavelet, int(level), int(degree), translations, keep, projection, details)

@@ -25,7 +25,6 @@ import numpy as np
 from ...block import PushbroomCamera
 from ...errors import BlockError, UsageError
 from ..base import BoundSensor, ImageGeometry, Parameter, Sensor, WorkingColumns
-from ...wavelets import get_wavelet
 from .jitter import JitterSpec, TimeWaveletBasis, parse_jitter, time_basis
 from .model import (PARAMETER_NAMES, LineCamera, LineImage, fit_trajectory, ground_to_image, image_scales,
                     image_to_ground, line_of_sight, photo_coordinates, track)
@@ -237,11 +236,11 @@ class PushbroomBound(BoundSensor):
             return None
         out = np.zeros((len(images), self.problem.image_width), bool)
         m = self.jitter.size
-        peak = np.max(np.abs(get_wavelet(self.jitter.wavelet).phi_table))
+        peak = self.jitter.slot_peaks                  # phi's (and psi's, with details) largest value
         for row, i in enumerate(images):
             mine = self._by_image.get(int(i), np.zeros(0, np.int64))
             index, value = self._jitter_index[mine], self._jitter_value[mine]
-            inside = (np.abs(value) >= 0.1 * peak) & (index >= 0)
+            inside = (np.abs(value) >= 0.1 * peak[None, :]) & (index >= 0)
             count = np.bincount(index[inside], minlength=m)
             weak = np.tile(count < JITTER_MIN_OBSERVATIONS, 3)
             out[row, self.jitter_offset:self.jitter_offset + 3 * m] = weak
@@ -494,7 +493,7 @@ class PushbroomSensor(Sensor):
         key = (id(self), spec)
         hit = _CONFIGURED.get(key)
         if hit is None or hit[0] is not self:
-            basis = time_basis(spec.wavelet, spec.level, self.attitude_degree)
+            basis = time_basis(spec.wavelet, spec.level, self.attitude_degree, spec.details)
             sensor = copy.copy(self)
             sensor.jitter = basis
             sensor.jitter_spec = spec
