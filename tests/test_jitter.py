@@ -88,27 +88,6 @@ def test_the_local_form_is_the_basis(name, level, degree):
     assert np.allclose(raw[:, :-1] - basis.powers(tau) @ basis.kept_projection, dense, rtol=0, atol=1e-13)
 
 
-def test_rows_in_working_columns_times_the_map_are_the_rows():
-    """A pushbroom image's rows in working columns (own columns, raw functions) times its map T are its rows in the
-    image parameters (the polynomial's columns carry the powers the functions are orthogonal to)."""
-    _, block = _triplet(True, n_points=300)
-    options = AdjustOptions(sensor=SensorOptions(model="M5", jitter="wavelet1d:db4:6", jitter_sigma_rad=1e-5))
-    problem = build_problem(block, options)
-    state, _ = initial_state(problem, block)
-    state.image[:, 6:] = np.random.default_rng(0).normal(0, 3e-6, state.image[:, 6:].shape)
-    bound = problem.sensors[0].bound
-    working = bound.working_columns()
-    assert working is not None and working.slots == 6 + 3 * 7 < problem.image_width // 2
-    o = problem.sensors[0].observations
-    img = problem.obs_image[o]
-    context = bound.context(state)
-    points = state.points[problem.obs_point[o]]
-    _, j_e, _, _ = bound.predict(context, o, img, problem.image_camera[img], points, True)
-    _, j_w, columns, _, _ = bound.predict_working(context, o, img, problem.image_camera[img], points)
-    rows = np.einsum("nks,nsw->nkw", j_w, working.to_parameters[img[:, None], columns])
-    assert np.max(np.abs(rows - j_e)) < 1e-9 * np.max(np.abs(j_e))
-
-
 @pytest.mark.parametrize("model", ["M1", "M6"])
 def test_working_columns_change_nothing_but_the_time(model, monkeypatch):
     """The engine assembles a jitter problem in the working columns (few per observation) and maps the blocks to the
