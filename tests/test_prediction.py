@@ -240,3 +240,12 @@ def test_screening_leaves_the_interior_orientation_where_it_was():
     assert moved_c("unguarded") > 0.3 and z("unguarded") > 1.2 * z("unscreened"), (moved_c("unguarded"), z("unguarded"))
     assert moved_c("guarded") < 0.15 and z("guarded") < 1.02 * z("unscreened"), (moved_c("guarded"), z("guarded"))
     assert runs["guarded"].n_ap_significant < 254      # it still screens
+    # the coefficients the guard keeps are named (screening.json kept_by_interior_guard, a note): AP coefficients of the
+    # camera that one more unguarded round would drop, none of them dropped, none without the guard
+    kept = runs["guarded"].guard_kept
+    free = runs["guarded"].ap_free["ilce7m3"]
+    names = runs["guarded"].result.problem.cameras[0].ap.parameter_names
+    assert kept and all("ilce7m3" in d.camera_id and free[names.index(d.name)] for d in kept), kept[:3]
+    assert any("kept because dropping them would move the interior orientation" in n
+               for n in runs["guarded"].result.notes)
+    assert not runs["unguarded"].guard_kept and not runs["unscreened"].guard_kept

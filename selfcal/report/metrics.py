@@ -630,6 +630,9 @@ def screening_json(tested, options=None) -> dict:
                                         for g in j.groups]} if j.groups else {})}
                         for k, j in tested.screening_rounds],
         "prediction": tested.screening_prediction,
+        # the coefficients the interior orientation's guard keeps: one more round without the guard would drop them
+        "kept_by_interior_guard": [{"camera_id": d.camera_id, "name": d.name, "t": d.t, "reason_unguarded": d.reason}
+                                   for d in tested.guard_kept],
     }
 
 

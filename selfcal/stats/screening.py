@@ -65,7 +65,7 @@ public; the defaults above are ours and can be set on the command line.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from .distributions import f_ppf
@@ -88,7 +88,8 @@ MIN_SUPPORT = MIN_OBSERVATIONS
 #: move of 0.1 sigma adds at most 1 % to its mean square error where all of it is bias
 IOP_MOVE_SIGMA = 0.1
 
-__all__ = ["ScreeningOptions", "ScreeningDecision", "ScreeningRound", "screen_once", "screening_masks",
+__all__ = ["ScreeningOptions", "ScreeningDecision", "ScreeningRound", "screen_once", "kept_by_interior_guard",
+           "screening_masks",
            "PredictionGuard", "MIN_SUPPORT", "GUARD_LIMIT", "IOP_MOVE_SIGMA"]
 
 
@@ -440,6 +441,18 @@ def screen_once(result, options: ScreeningOptions, before: ScreeningRound | None
                            effect_moved_px=(before.effect_moved_px if before else 0.0)
                            + (effects.largest_px(moved[0]) if effects is not None and moved[0] is not None else 0.0))
     return free, decisions, joint
+
+
+def kept_by_interior_guard(result, options: ScreeningOptions, before: ScreeningRound | None) -> list[ScreeningDecision]:
+    """The AP coefficients a screened adjustment keeps only because of the interior orientation's guard
+    (``max_iop_move_sigma``): those one more round of screening from ``result`` would drop without the guard and does
+    not drop with it, each with the unguarded round's reason (a dry run: nothing is held). Empty without the guard."""
+    if options.max_iop_move_sigma <= 0:
+        return []
+    _, guarded, _ = screen_once(result, options, before)
+    _, unguarded, _ = screen_once(result, replace(options, max_iop_move_sigma=0.0), before)
+    dropped = {(d.camera_id, d.name) for d in guarded}
+    return [d for d in unguarded if (d.camera_id, d.name) not in dropped]
 
 
 class _InteriorGuard:

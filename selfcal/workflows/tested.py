@@ -30,8 +30,8 @@ from ..block import Block, prune
 from ..errors import AdjustmentError
 from ..stats.cleaning import Cleaning, clean, readmissible
 from ..stats.reliability import ObservationTests, observation_tests
-from ..stats.screening import (PredictionGuard, ScreeningDecision, ScreeningOptions, ScreeningRound, screen_once,
-                               screening_masks)
+from ..stats.screening import (PredictionGuard, ScreeningDecision, ScreeningOptions, ScreeningRound,
+                               kept_by_interior_guard, screen_once, screening_masks)
 from ..stats.loo import LeaveOneOut
 from ..stats.snooping import (SnoopingOptions, SnoopingRound, image_w, left_without_rays, reject_candidates, terrain_w,
                               with_terrain)
@@ -99,6 +99,9 @@ class TestedAdjustment:
     trajectory_weights: list[VarianceComponent] | None = None
     #: (point id, |w|) of each tie point's terrain height that data snooping rejected (issue 42), in order
     terrain_rejected: list[tuple[str, float]] = field(default_factory=list)
+    #: the AP coefficients kept only because of the interior orientation's guard (the unguarded screening would
+    #: drop them from the final adjustment: :func:`selfcal.stats.screening.kept_by_interior_guard`), with the reason
+    guard_kept: list[ScreeningDecision] = field(default_factory=list)
 
     @property
     def robust_rows(self) -> np.ndarray:
@@ -388,11 +391,19 @@ def adjust_with_tests(block: Block, options: AdjustOptions = AdjustOptions(),
     prediction = guard.summary() if guard is not None else {"note": guard_note} if guard_note else None
     if guard is not None and guard.stopped:
         result.notes.append(guard.stopped)
+    guard_kept: list[ScreeningDecision] = []
+    if screening is not None and screenable and not failure:
+        guard_kept = kept_by_interior_guard(result, screening, joint_tests[-1][1] if joint_tests else None)
+        if guard_kept:
+            result.notes.append(
+                f"{len(guard_kept)} AP coefficient(s) kept because dropping them would move the interior orientation "
+                f"(c, x0, y0) by more than {screening.max_iop_move_sigma:g} of its sigma since the unscreened "
+                f"adjustment (--max-iop-move; screening.json kept_by_interior_guard)")
     order = np.argsort(rejected)
     return TestedAdjustment(result, tests, rejected[order], rejected_w[order], rejected_mdb[order], free, n_ap_initial,
                             rounds, log, joint_tests, components, converged, failure, cleaning, control_demoted,
                             screening_prediction=prediction, trajectory_weights=weights,
-                            terrain_rejected=terrain_rejected)
+                            terrain_rejected=terrain_rejected, guard_kept=guard_kept)
 
 
 #: the control group is tested only while at least this many control points remain (a datum and redundancy)
