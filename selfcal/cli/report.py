@@ -15,10 +15,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     progress(f"reading {args.results} ...")     # at once: the report's import takes a second of its own
-    from ..io.atomic import atomic_update
-    from ..io.output import update_folder
-    from ..io.results import read_results, write_files
-    from ..report import render_report
+    from .. import interrupts
+    with interrupts.deferred():                  # imported whole: a signal waits for it (report.render.load_matplotlib)
+        from ..io.atomic import atomic_update
+        from ..io.output import update_folder
+        from ..io.results import read_results, write_files
+        from ..report import render_report
     t0 = time.perf_counter()
     results = read_results(update_folder(args.results))
     progress(f"read {args.results} in {time.perf_counter() - t0:.1f} s")

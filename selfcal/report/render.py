@@ -922,10 +922,24 @@ def _join(values) -> str:
     return fmt(values, ".4g")
 
 
+def load_matplotlib() -> None:
+    """Import what the figures are drawn with (matplotlib, its Figure, the Agg and SVG backends) whole: a signal
+    that comes meanwhile waits for the import to finish (:func:`selfcal.interrupts.deferred`). Cut short inside a
+    compiled module's import, it left a half-built extension that aborted the process at exit (``Fatal Python error:
+    PyThreadState_Get``, once in 200 signals) or printed a traceback of the signal handler alone."""
+    from .. import interrupts
+    with interrupts.deferred():
+        import matplotlib.backends.backend_agg  # noqa: F401
+        import matplotlib.backends.backend_svg  # noqa: F401
+        import matplotlib.colors  # noqa: F401
+        import matplotlib.figure  # noqa: F401
+
+
 def render_report(results: ResultsFolder, title: str | None = None,
                   say: Callable[[str], None] | None = None) -> dict:
     """The report of one adjustment: ``report.html`` and its figures, as data; ``say`` (if given) is called with
     each section's title as its rendering begins (the command line's progress: the figures take seconds)."""
+    load_matplotlib()
     s = results.summary
     title = title or f"selfcal adjustment report: {s.get('block', '')}, {s.get('ap_model', '')}"
     page = Page(title)
@@ -1006,6 +1020,7 @@ def render_comparison_report(rows: list[dict], table_markdown: str, links: dict[
 
     ``links`` maps (scenario, model) to the relative path of a rendered cell report.
     """
+    load_matplotlib()
     page = Page(title)
     files: dict = {}
     page.heading(title, 1)
