@@ -12,7 +12,10 @@ side: predicted and measured peak MB and median seconds per iteration, with thei
 ``--lattice STRIPS PER_STRIP ALONG ACROSS`` measures instead the image graph of a lattice strip block as the plan
 measures a block's (pairs, band, CHOLMOD's factor): the paper estimate of DESIGN-NOTES (issue 43 item 4).
 
-Run: ``python benchmarks/bench_plan.py [--largest 2000] [--blocks 4x7,14x36@1.0]``.
+``--workflow`` measures instead ``selfcal adjust BLOCK`` with its default options (the tested workflow and the report)
+against the plan's ``workflow_peak_mb``.
+
+Run: ``python benchmarks/bench_plan.py [--largest 2000] [--blocks 4x7,14x36@1.0] [--workflow]``.
 """
 from __future__ import annotations
 
@@ -79,6 +82,25 @@ def _adjust_child(folder: str) -> dict:
             "machine_speed": speed, "peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0}
 
 
+def _workflow_child(folder: str) -> dict:
+    """``selfcal adjust FOLDER`` with its default options (the tested workflow and the report), in this process:
+    its peak resident memory (/proc's VmHWM, the peak since the exec) against the plan's ``workflow_peak_mb``."""
+    from selfcal.cli.main import main as selfcal_main
+    from selfcal.io import read_block
+    from selfcal.workflows.plan import plan_block
+
+    block = read_block(folder)
+    planned = plan_block(block, probe=False).workflow_peak_mb
+    out = tempfile.mkdtemp(prefix="bench-plan-results-")
+    t = time.perf_counter()
+    code = selfcal_main(["adjust", folder, "--out", os.path.join(out, "results"), "--quiet"])
+    seconds = time.perf_counter() - t
+    shutil.rmtree(out)
+    peak = next(int(line.split()[1]) for line in open("/proc/self/status") if line.startswith("VmHWM")) / 1024.0
+    return {"images": len(block.images), "observations": len(block.observations), "exit": code,
+            "workflow_peak_mb": peak, "planned_workflow_peak_mb": planned, "seconds": seconds}
+
+
 def _plan_child(folder: str) -> dict:
     from selfcal.io import read_block
     from selfcal.workflows.plan import plan_block
@@ -128,6 +150,9 @@ def main() -> None:
                         help="measure the image graph of a lattice strip block instead (the paper estimate's fill)")
     parser.add_argument("--adjust-child")
     parser.add_argument("--plan-child")
+    parser.add_argument("--workflow-child")
+    parser.add_argument("--workflow", action="store_true",
+                        help="measure `selfcal adjust BLOCK` with its default options instead (the plan's workflow peak)")
     parser.add_argument("--largest", type=int, default=2000, help="largest block in images (default 2000)")
     parser.add_argument("--blocks", help="strips x images per strip [@ points per mm^2], e.g. 4x7,14x36@1.0 (default: "
                                          "bench_scaling's at 0.5, then OTHER_BLOCKS)")
@@ -145,6 +170,9 @@ def main() -> None:
     if args.plan_child:
         print(json.dumps(_plan_child(args.plan_child)))
         return
+    if args.workflow_child:
+        print(json.dumps(_workflow_child(args.workflow_child)))
+        return
     if args.blocks:
         blocks = []
         for text in args.blocks.split(","):
@@ -155,9 +183,20 @@ def main() -> None:
         blocks = [(s, p, 0.5) for s, p in BLOCKS if s * p <= args.largest]
         blocks += [b for b in OTHER_BLOCKS if b[0] * b[1] <= args.largest]
     print(f"load average at the start: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
+    work = tempfile.mkdtemp(prefix="bench-plan-")
+    if args.workflow:
+        print(f"{'images':>7}{'pts/mm2':>8}{'obs.':>9}{'workflow peak MB pred.':>23}{'meas.':>8}{'ratio':>7}{'s':>8}")
+        for strips, per_strip, density in blocks:
+            folder = os.path.join(work, f"block-{strips}x{per_strip}@{density}")
+            _run(["--write-child", str(strips), str(per_strip), str(density), folder])
+            m = _run(["--workflow-child", folder])
+            shutil.rmtree(folder)
+            print(f"{m['images']:>7}{density:>8.2f}{m['observations']:>9}{m['planned_workflow_peak_mb']:>23.0f}"
+                  f"{m['workflow_peak_mb']:>8.0f}{m['planned_workflow_peak_mb'] / m['workflow_peak_mb']:>7.2f}"
+                  f"{m['seconds']:>8.1f}" + ("" if m["exit"] == 0 else f"  (exit {m['exit']})"), flush=True)
+        return
     print(f"{'images':>7}{'pts/mm2':>8}{'obs.':>9}{'path':>26}{'peak MB pred.':>14}{'meas.':>8}{'ratio':>7}"
           f"{'s/iter. pred.':>14}{'meas.':>8}{'ratio':>7}")
-    work = tempfile.mkdtemp(prefix="bench-plan-")
     for strips, per_strip, density in blocks:
         folder = os.path.join(work, f"block-{strips}x{per_strip}@{density}")
         _run(["--write-child", str(strips), str(per_strip), str(density), folder])

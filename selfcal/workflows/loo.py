@@ -79,23 +79,7 @@ def control_loo(tested: TestedAdjustment, options: AdjustOptions,
         roles.append("gcp")
         if not whole[k]:
             continue                        # (controlled on fewer than three axes: no 3-D test; left undetermined)
-        role = np.asarray(block.points.role).copy()
-        role[p] = "chk"
-        without = replace(block, points=replace(block.points, role=role))
-        try:
-            other = adjust(without, options, start=result, free=tested.ap_free, ap_models=models)
-        except AdjustmentError:
-            continue                        # (the others do not fix the datum: not determined)
-        where = np.flatnonzero(other.block.points.point_id == name)
-        if not where.size or not other.converged:
-            continue                        # (too few rays of its own: not determined without its coordinates)
-        j = int(where[0])
-        d[k] = other.state.points[j] - block.points.xyz_m[p]
-        # the re-adjustment's own cofactor (the downdate's differs by the re-linearisation: 6e-4 of it at an edge)
-        cov[k] = some_point_cofactors(other.problem, other.linearisation, other.v_inv, other.Q_theta, np.array([j]))[0] + \
-            np.linalg.inv(control.W[k].T @ control.W[k])
-        if np.linalg.eigvalsh(0.5 * (cov[k] + cov[k].T)).min() <= 0:
-            d[k], cov[k] = np.nan, np.nan   # (a cofactor that is not positive: not determined)
+        d[k], cov[k] = _left_out(tested, options, models, p, name, np.linalg.inv(control.W[k].T @ control.W[k]))
     gap = np.abs(linear - d[:len(control.index)])
     linear_gap = float(np.nanmax(gap)) if np.isfinite(gap).any() else None
     if demoted_index:
@@ -112,6 +96,32 @@ def control_loo(tested: TestedAdjustment, options: AdjustOptions,
     cov = np.einsum("ij,njk,lk->nil", axes, cov, axes)
     return LeaveOneOut(np.array(names, object), np.array(roles, object), d, cov, tested.tests.critical,
                        seconds=time.perf_counter() - t0, linear_gap_m=linear_gap)
+
+
+def _left_out(tested: TestedAdjustment, options: AdjustOptions, models: dict, p: int, name: str,
+              survey: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Control point ``p`` (``name``) left out: its error against its surveyed coordinates and the error's cofactor
+    (the re-adjustment's point block plus ``survey``'s); NaN where it is not determined without its coordinates.
+    The re-adjustment lives in this call only: one at a time, however many control points there are."""
+    result = tested.result
+    block = result.block
+    role = np.asarray(block.points.role).copy()
+    role[p] = "chk"
+    without = replace(block, points=replace(block.points, role=role))
+    undetermined = np.full(3, np.nan), np.full((3, 3), np.nan)
+    try:
+        other = adjust(without, options, start=result, free=tested.ap_free, ap_models=models)
+    except AdjustmentError:
+        return undetermined                 # (the others do not fix the datum)
+    where = np.flatnonzero(other.block.points.point_id == name)
+    if not where.size or not other.converged:
+        return undetermined                 # (too few rays of its own)
+    j = int(where[0])
+    # the re-adjustment's own cofactor (the downdate's differs by the re-linearisation: 6e-4 of it at an edge)
+    cov = some_point_cofactors(other.problem, other.linearisation, other.v_inv, other.Q_theta, np.array([j]))[0] + survey
+    if np.linalg.eigvalsh(0.5 * (cov + cov.T)).min() <= 0:
+        return undetermined                 # (a cofactor that is not positive)
+    return other.state.points[j] - block.points.xyz_m[p], cov
 
 
 def loo_summary(loo: LeaveOneOut) -> dict:
