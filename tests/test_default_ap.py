@@ -63,3 +63,30 @@ def test_the_default_never_costs_accuracy(tmp_path, distortion, outliers, chosen
     assert runs["default"]["rmsd_chk_z_m"] <= 1.02 * best, runs
     assert runs["default"]["rmsd_chk_z_m"] == pytest.approx(runs[chosen]["rmsd_chk_z_m"], rel=0.02)
     assert runs["default"]["rmsd_chk_xy_m"] == pytest.approx(runs[chosen]["rmsd_chk_xy_m"], rel=0.02)
+
+
+def test_a_chosen_reference_is_adjusted_once():
+    """Where the model choice's reference (its richest candidate, adjusted with the run's tests to find the blunders
+    for every candidate) is the chosen model, its tested adjustment is the run's: the estimate, the rejections and
+    the sigmas of the chosen model's tested adjustment run again, one tested adjustment fewer (the default run of the
+    quick start's Type 3 block: 46 -> 35 s)."""
+    import numpy as np
+    from selfcal.adjust import AdjustOptions, APOptions
+    from selfcal.stats import ScreeningOptions
+    from selfcal.workflows.adjust import AdjustRequest, adjust_block, ap_candidates
+    from selfcal.workflows.tested import adjust_with_tests
+    request = AdjustRequest(candidates=ap_candidates("auto:none,brown", (9, 6)), control_loo=False, half_block=False)
+    adjusted = adjust_block(_block("brown", outliers=0.02), request)
+    assert adjusted.choice.model == "brown" and adjusted.tested is adjusted.choice.tested
+    again = adjust_with_tests(adjusted.block, AdjustOptions(ap=APOptions("brown")), request.snooping,
+                              robust=request.robust)
+    one, other = adjusted.tested.result, again.result
+    assert len(adjusted.tested.rejected_rows) > 0
+    assert np.array_equal(np.sort(adjusted.tested.rejected_rows), np.sort(again.rejected_rows))
+    np.testing.assert_allclose(one.problem.pack(one.state), other.problem.pack(other.state), rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(one.state.points, other.state.points, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(np.diag(one.Q_theta), np.diag(other.Q_theta), rtol=1e-10)
+    assert one.sigma0_px == other.sigma0_px
+    # a request the reference did not run (screening) is adjusted again
+    screened = adjust_block(_block("brown", outliers=0.02), replace(request, screening=ScreeningOptions()))
+    assert screened.tested is not screened.choice.tested

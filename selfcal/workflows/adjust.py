@@ -207,9 +207,17 @@ def _adjust_block(block: Block, request: AdjustRequest, progress: Callable | Non
         say(f"chosen AP model: {choice.model}" + (f"@{choice.grid[0]}x{choice.grid[1]}" if
                                                   takes_grid(choice.model) else "") + _choice_reason(choice))
     jitter: dict = {}
+    chosen = options
     options = _resolve_jitter(block, options, say, jitter)
-    tested = adjust_with_tests(block, options, request.snooping, request.screening, progress=progress,
-                               report=report, variance=request.variance, robust=request.robust)
+    if choice is not None and choice.tested is not None and options is chosen and request.screening is None and \
+            request.variance is None:
+        # the reference of the model choice is the chosen model, adjusted with the same tests
+        tested = choice.tested
+        say(f"the chosen model is the model choice's reference: its tested adjustment is the result "
+            f"({len(tested.rejected_rows)} observations rejected)")
+    else:
+        tested = adjust_with_tests(block, options, request.snooping, request.screening, progress=progress,
+                                   report=report, variance=request.variance, robust=request.robust)
     _check_collapse(tested)
     extra = _check_points_determined(block, tested) | jitter
     if request.control_loo and tested.result.converged and not tested.failure:

@@ -25,9 +25,9 @@ and never used to choose (check points stay independent, and are never held out)
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from types import SimpleNamespace
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 
@@ -92,6 +92,9 @@ class ModelChoice:
     #: how it was chosen: "prediction", "bic" (a block too large for the fold systems) or "" (the first or the
     #: reference, nothing could be scored)
     rule: str = "prediction"
+    #: the reference's tested adjustment (step 1) where the chosen model is the reference's: the tested adjustment of
+    #: the chosen model with the same tests, which the caller need not run again (None otherwise)
+    tested: Any = field(default=None, repr=False, compare=False)
 
 
 def parse_candidate(text: str, grid: tuple[int, int]) -> tuple[str, tuple[int, int]]:
@@ -176,7 +179,7 @@ def choose_ap_model(block: Block, candidates: list[tuple[str, tuple[int, int]]],
             return ModelChoice(candidates[first][0], candidates[first][1], failed, 0, by_prediction=False, rule="")
         raise AdjustmentError("no candidate AP model could be adjusted:\n  "
                               + "\n  ".join(f"{s.label}: {s.error}" for s in failed))
-    index, result = reference
+    index, result, reference_tested = reference
     data = result.block
     folds = point_folds(data.points.point_id, data.points.role, n_folds)
     free_network = data.datum == "free" or options.solver.free_network
@@ -229,12 +232,13 @@ def choose_ap_model(block: Block, candidates: list[tuple[str, tuple[int, int]]],
                                _label(*candidates[index]), rule="bic")
         return ModelChoice(candidates[index][0], candidates[index][1], scores, n_blunders, False,
                            _label(*candidates[index]), rule="")
-    return ModelChoice(scores[pick].model, scores[pick].grid, scores, n_blunders, True, _label(*candidates[index]))
+    return ModelChoice(scores[pick].model, scores[pick].grid, scores, n_blunders, True, _label(*candidates[index]),
+                       tested=reference_tested if pick == index else None)
 
 
 def _reference(block: Block, candidates, built, sizes, options, snooping, robust):
-    """((index, the adjustment) of the reference, observations it rejected, {index: why a candidate failed}, the
-    candidates adjusted without converging): the richest candidate of at most REFERENCE_LIMIT coefficients (else
+    """((index, the adjustment, its tested adjustment or None) of the reference, observations it rejected, {index:
+    why a candidate failed}, the candidates adjusted without converging): the richest candidate of at most REFERENCE_LIMIT coefficients (else
     the poorest) adjusted with the tests (its result's block is the block without what they rejected), or the next
     if it fails; (None, 0, failures, ran) when none converges."""
     order = sorted((i for i in range(len(candidates)) if sizes[i] >= 0),
@@ -245,6 +249,7 @@ def _reference(block: Block, candidates, built, sizes, options, snooping, robust
     for i in order:
         model, grid = candidates[i]
         models = built[i] if isinstance(built[i], dict) else None
+        tested = None
         try:
             if test:
                 tested = adjust_with_tests(block, _with(options, model, grid), snooping, ap_models=models,
@@ -261,7 +266,7 @@ def _reference(block: Block, candidates, built, sizes, options, snooping, robust
             failures[i] = result.reason
             ran.append(i)
             continue
-        return (i, result), n_blunders, failures, ran
+        return (i, result, tested), n_blunders, failures, ran
     return None, 0, failures, ran
 
 
