@@ -152,7 +152,9 @@ def fold_systems(problem: Problem, state: State, folds: np.ndarray, n_folds: int
                 gram = (sparse.to_params.T @ sparse_gram(sparse, 0, 0, rows=cs.o0 + o) @ sparse.to_params, n_core)
             parts[f].add(r[o], j_e[o], np.ascontiguousarray(j_p[o]), np.ascontiguousarray(j_d[o]), cs.img[o],
                          cs.ptl[o], local[cs.pair_a[pairs]], local[cs.pair_b[pairs]], cs.pair_key[pairs], gram)
-    C = np.stack([part.matrix() for part in parts])
+    C = np.empty((n_folds, n, n))           # (each fold's matrix written in place: the folds' n_θ² numbers once)
+    for f, part in enumerate(parts):
+        part.matrix(out=C[f])
     b = np.stack([part.g for part in parts])
     c = np.array([part.cost for part in parts])
     at_fold = [np.flatnonzero(fold_at == f) for f in range(n_folds)]
@@ -211,10 +213,12 @@ class _FoldPart:
         self.S_dd -= W_pd.T @ point_blocks_times(Vi, W_pd, False)
         self.g_d -= W_pd.T @ np.einsum("pij,pj->pi", Vi, g_p).ravel()
 
-    def matrix(self) -> np.ndarray:
+    def matrix(self, out: np.ndarray | None = None) -> np.ndarray:
+        """The fold's part of the reduced matrix, dense (n_θ x n_θ), written into ``out`` where given."""
         n_img, w = self.diag.shape[:2]
         n_e, n_d = self.n_e, self.n_d
-        C = np.zeros((self.n, self.n))
+        C = np.zeros((self.n, self.n)) if out is None else out
+        C[...] = 0.0
         blocks = np.zeros((n_img, n_img, w, w))
         blocks[np.arange(n_img), np.arange(n_img)] = self.diag
         blocks[self.pair_a, self.pair_b] = self.off
@@ -223,7 +227,9 @@ class _FoldPart:
         C[:n_e, n_e:n_e + n_d] = self.S_ed
         C[n_e:n_e + n_d, :n_e] = self.S_ed.T
         C[n_e:n_e + n_d, n_e:n_e + n_d] = self.S_dd
-        return 0.5 * (C + C.T)
+        C += C.T
+        C *= 0.5
+        return C
 
     @property
     def g(self) -> np.ndarray:

@@ -34,9 +34,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from ..adjust.folds import FOLD_LIMIT
 from ..adjust.linalg import BAND_FLOPS, BAND_SHARE, CHOLMOD_AVAILABLE, DENSE_ASSEMBLY_LIMIT, DENSE_LIMIT
-from .prediction import FOLDS
 
 __all__ = ["BlockSizes", "Plan", "plan_adjustment", "machine_speed", "MB"]
 
@@ -63,14 +61,12 @@ BYTES_PER_COVARIANCE_NUMBER = 12.3
 
 #: ``selfcal adjust BLOCK`` with its default options (the tested workflow: robust start, snooping rounds, the model
 #: choice, leave-one-out control, the half-block check, the report) holds more than one adjustment: its peak over
-#: the one adjustment's, MB at no observation, bytes per image observation, and bytes per number of the model
-#: choice's fold systems (FOLDS dense n_theta^2 matrices, built where n_theta <= FOLD_LIMIT: the cross-validation),
-#: fitted to the command's measured peaks (``benchmarks/bench_plan.py --workflow``: /proc's VmHWM) on the strip blocks
-#: of 28, 102, 200 and 504 images (305, 447, 778, 1094 MB; the fit within 2.3 % of each; 504 images at 1.0 tie points
-#: per mm^2, not fitted: 1721 MB predicted, 1794 MB measured; docs/DESIGN-NOTES.md)
-WORKFLOW_BASE_MB = 69.9
-WORKFLOW_BYTES_PER_OBSERVATION = 2383.0
-WORKFLOW_BYTES_PER_FOLD_NUMBER = 12.9
+#: the one adjustment's, MB at no observation and bytes per image observation, fitted to the command's measured peaks
+#: (``benchmarks/bench_plan.py --workflow``: /proc's VmHWM) on the strip blocks of 28, 102, 200 and 504 images (305,
+#: 417, 594, 1092 MB; the fit within 0.3 % of each; 504 images at 1.0 tie points per mm^2, not fitted: 1714 MB
+#: predicted, 1785 MB measured; docs/DESIGN-NOTES.md)
+WORKFLOW_BASE_MB = 77.4
+WORKFLOW_BYTES_PER_OBSERVATION = 2348.0
 
 #: seconds per image observation and iteration (linearisation, reduction, back-substitution, the cost at the step:
 #: passes over the points on two threads) at probe speed 1 (fitted)
@@ -127,8 +123,6 @@ class Plan:
     ap_model: str = ""
     #: the counts the constants multiply (observations, numbers of the system and of Q_theta, flops): for the fit
     numbers: dict = field(default_factory=dict)
-    #: the workflow chooses the AP model by cross-validation (``auto...``, the default for frame cameras)
-    cross_validated: bool = False
 
     @property
     def peak_mb(self) -> float:
@@ -137,12 +131,8 @@ class Plan:
     @property
     def workflow_peak_mb(self) -> float:
         """The peak of ``selfcal adjust BLOCK`` with its default options (the tested workflow), which holds more
-        than the one adjustment of :attr:`peak_mb`; with the model choice's fold systems where it cross-validates
-        (:attr:`cross_validated`)."""
-        n = self.sizes.n_theta
-        folds = FOLDS * n * n if self.cross_validated and n <= FOLD_LIMIT else 0
-        return self.peak_mb + WORKFLOW_BASE_MB + (WORKFLOW_BYTES_PER_OBSERVATION * self.sizes.n_observations
-                                                  + WORKFLOW_BYTES_PER_FOLD_NUMBER * folds) / MB
+        than the one adjustment of :attr:`peak_mb`."""
+        return self.peak_mb + WORKFLOW_BASE_MB + WORKFLOW_BYTES_PER_OBSERVATION * self.sizes.n_observations / MB
 
     @property
     def seconds_per_iteration(self) -> float:

@@ -92,7 +92,6 @@ def plan_block(block: Block, ap: str | None = None, grid: tuple[int, int] = (9, 
                        n_camera_parameters=n_d, n_ap=n_ap, n_extra=n_extra, **graph)
     plan = plan_adjustment(block_sizes, machine_speed() if probe else 1.0)
     plan.ap_model = planned if planned == spec else f"{planned} (the widest of {spec})"
-    plan.cross_validated = is_auto(spec)
     return plan
 
 
