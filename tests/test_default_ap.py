@@ -76,8 +76,11 @@ def test_a_chosen_reference_is_adjusted_once():
     from selfcal.workflows.adjust import AdjustRequest, adjust_block, ap_candidates
     from selfcal.workflows.tested import adjust_with_tests
     request = AdjustRequest(candidates=ap_candidates("auto:none,brown", (9, 6)), control_loo=False, half_block=False)
-    adjusted = adjust_block(_block("brown", outliers=0.02), request)
-    assert adjusted.choice.model == "brown" and adjusted.tested is adjusted.choice.tested
+    said: list[str] = []
+    adjusted = adjust_block(_block("brown", outliers=0.02), request, say=said.append)
+    reused = "the chosen model is the model choice's reference: its tested adjustment is the result"
+    assert adjusted.choice.model == "brown" and any(line.startswith(reused) for line in said), said
+    assert adjusted.choice.tested is None                   # (the reference is not kept beside the run's result)
     again = adjust_with_tests(adjusted.block, AdjustOptions(ap=APOptions("brown")), request.snooping,
                               robust=request.robust)
     one, other = adjusted.tested.result, again.result
@@ -88,5 +91,7 @@ def test_a_chosen_reference_is_adjusted_once():
     np.testing.assert_allclose(np.diag(one.Q_theta), np.diag(other.Q_theta), rtol=1e-10)
     assert one.sigma0_px == other.sigma0_px
     # a request the reference did not run (screening) is adjusted again
-    screened = adjust_block(_block("brown", outliers=0.02), replace(request, screening=ScreeningOptions()))
-    assert screened.tested is not screened.choice.tested
+    said.clear()
+    screened = adjust_block(_block("brown", outliers=0.02), replace(request, screening=ScreeningOptions()),
+                            say=said.append)
+    assert screened.choice.model == "brown" and not any(line.startswith(reused) for line in said), said

@@ -198,24 +198,25 @@ def _adjust_block(block: Block, request: AdjustRequest, progress: Callable | Non
     if offers_sensor_models(block):
         return _seed001(block, request, progress, report, say, scores)
     block, plane = tangent_plane_block(block)
-    options, choice = request.options, None
+    options, choice, reference = request.options, None, None
     _check_control(block)                   # before any work: the model choice adjusts too
     if request.candidates:
         choice = choose_ap_model(block, request.candidates, options, request.snooping, progress=scores,
                                  robust=request.robust, min_effect_px=request.min_effect_px)
+        reference, choice = choice.tested, replace(choice, tested=None)     # (not kept beyond this run's start)
         options = replace(options, ap=replace(options.ap, model=choice.model, grid=choice.grid))
         say(f"chosen AP model: {choice.model}" + (f"@{choice.grid[0]}x{choice.grid[1]}" if
                                                   takes_grid(choice.model) else "") + _choice_reason(choice))
     jitter: dict = {}
     chosen = options
     options = _resolve_jitter(block, options, say, jitter)
-    if choice is not None and choice.tested is not None and options is chosen and request.screening is None and \
-            request.variance is None:
+    if reference is not None and options is chosen and request.screening is None and request.variance is None:
         # the reference of the model choice is the chosen model, adjusted with the same tests
-        tested = choice.tested
+        tested = reference
         say(f"the chosen model is the model choice's reference: its tested adjustment is the result "
             f"({len(tested.rejected_rows)} observations rejected)")
     else:
+        reference = None                    # (its memory free before the tested adjustment runs)
         tested = adjust_with_tests(block, options, request.snooping, request.screening, progress=progress,
                                    report=report, variance=request.variance, robust=request.robust)
     _check_collapse(tested)

@@ -238,9 +238,9 @@ def choose_ap_model(block: Block, candidates: list[tuple[str, tuple[int, int]]],
 
 def _reference(block: Block, candidates, built, sizes, options, snooping, robust):
     """((index, the adjustment, its tested adjustment or None) of the reference, observations it rejected, {index:
-    why a candidate failed}, the candidates adjusted without converging): the richest candidate of at most REFERENCE_LIMIT coefficients (else
-    the poorest) adjusted with the tests (its result's block is the block without what they rejected), or the next
-    if it fails; (None, 0, failures, ran) when none converges."""
+    why a candidate failed}, the candidates adjusted without converging): the richest candidate of at most
+    REFERENCE_LIMIT coefficients (else the poorest) adjusted with the tests (its result's block is the block without
+    what they rejected), or the next if it fails; (None, 0, failures, ran) when none converges."""
     order = sorted((i for i in range(len(candidates)) if sizes[i] >= 0),
                    key=lambda i: (sizes[i] > REFERENCE_LIMIT, -sizes[i] if sizes[i] <= REFERENCE_LIMIT else sizes[i]))
     failures = {i: str(built[i]) for i in range(len(candidates)) if isinstance(built[i], Exception)}
