@@ -36,7 +36,7 @@ def _rmsd(tested) -> tuple[float, float]:
     return found.rmsd_xy_m(), found.rmsd_z_m()
 
 
-def run(field: str, seed: int, ap: str, density: float) -> list[dict]:
+def run(field: str, seed: int, ap: str, density: float, variants: tuple = VARIANTS) -> list[dict]:
     from selfcal.adjust import AdjustOptions, APOptions
     from selfcal.block import prune
     from selfcal.simulate import simulate_uav
@@ -55,29 +55,28 @@ def run(field: str, seed: int, ap: str, density: float) -> list[dict]:
     for scenario in ("type1", "type2", "type3", "type4"):
         block = prune(sim.blocks[scenario])
         row: dict = {"field": field, "seed": seed, "type": scenario}
-        for name, screening in screenings.items():
+        for name in variants:
+            screening = screenings[name]
             t0 = time.perf_counter()
             tested = adjust_with_tests(block, AdjustOptions(ap=APOptions(ap)), screening=screening)
             row[name] = (*_rmsd(tested), tested.n_ap_significant, time.perf_counter() - t0)
         rows.append(row)
-        u, b, g, n = row["unscreened"], row["before"], row["unguarded"], row["now"]
-        print(f"{field:11s} seed {seed:3d} {scenario}: XY {u[0]:.4f} / {b[0]:.4f} / {g[0]:.4f} / {n[0]:.4f} m, Z "
-              f"{u[1]:.4f} / {b[1]:.4f} / {g[1]:.4f} / {n[1]:.4f} m (unscreened / before / unguarded / now), APs "
-              f"{u[2]} / {b[2]} / {g[2]} / {n[2]}, {u[3]:.0f} / {b[3]:.0f} / {g[3]:.0f} / {n[3]:.0f} s", flush=True)
+        runs = [row[v] for v in variants]
+        print(f"{field:11s} seed {seed:3d} {scenario}: XY {' / '.join(f'{r[0]:.4f}' for r in runs)} m, Z "
+              f"{' / '.join(f'{r[1]:.4f}' for r in runs)} m ({' / '.join(variants)}), APs "
+              f"{' / '.join(str(r[2]) for r in runs)}, {' / '.join(f'{r[3]:.0f}' for r in runs)} s", flush=True)
     return rows
 
 
-def summary(rows: list[dict]) -> None:
+def summary(rows: list[dict], variants: tuple = VARIANTS) -> None:
     print("\nmean over seeds of the check-point RMSD against the unscreened one (ratio of the means)")
     for field in dict.fromkeys(r["field"] for r in rows):
         for scenario in ("type1", "type2", "type3", "type4"):
             sel = [r for r in rows if r["field"] == field and r["type"] == scenario]
-            mean = {v: np.mean([r[v][:2] for r in sel], axis=0) for v in VARIANTS}
-            print(f"  {field:11s} {scenario}: before XY {mean['before'][0] / mean['unscreened'][0]:.3f} Z "
-                  f"{mean['before'][1] / mean['unscreened'][1]:.3f}; unguarded XY "
-                  f"{mean['unguarded'][0] / mean['unscreened'][0]:.3f} Z "
-                  f"{mean['unguarded'][1] / mean['unscreened'][1]:.3f}; now XY "
-                  f"{mean['now'][0] / mean['unscreened'][0]:.3f} Z {mean['now'][1] / mean['unscreened'][1]:.3f} "
+            mean = {v: np.mean([r[v][:2] for r in sel], axis=0) for v in variants}
+            ratios = "; ".join(f"{v} XY {mean[v][0] / mean['unscreened'][0]:.3f} Z {mean[v][1] / mean['unscreened'][1]:.3f}"
+                               for v in variants if v != "unscreened")
+            print(f"  {field:11s} {scenario}: {ratios} "
                   f"({len(sel)} seeds; unscreened XY {mean['unscreened'][0]:.4f} Z {mean['unscreened'][1]:.4f} m)")
 
 
@@ -88,12 +87,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--fields", default="local+brown,ripple")
     parser.add_argument("--ap", default="wavelet:db4")
     parser.add_argument("--density", type=float, default=1.0, help="image points per mm^2 (seed 000: 3.5)")
+    parser.add_argument("--variants", default=",".join(VARIANTS),
+                        help=f"which of {', '.join(VARIANTS)} to run (unscreened always)")
     args = parser.parse_args(argv)
+    variants = tuple(v for v in VARIANTS if v == "unscreened" or v in args.variants.split(","))
     rows = []
     for field in args.fields.split(","):
         for seed in range(args.first_seed, args.first_seed + args.seeds):
-            rows += run(field, seed, args.ap, args.density)
-    summary(rows)
+            rows += run(field, seed, args.ap, args.density, variants)
+    summary(rows, variants)
     return 0
 
 

@@ -208,3 +208,29 @@ def test_no_control_loo_leaves_the_check_out(block, tmp_path):
                    "--quiet") == 0
     assert (tmp_path / "on" / "control_loo.csv").exists()
     assert "control_loo.csv" not in bundle_adjust(block, "none", control_loo=False).files
+
+
+def test_a_wavelet_block_evaluates_its_basis_once_for_every_control_point(monkeypatch):
+    """The re-adjustments of the leave-one-out keep every observation of the tested adjustment: each takes the AP
+    columns over and gives them back (``AdjustmentResult.take_back_ap_columns``), so that the 27 control points of a
+    WAP block (db4 on 6x4) evaluate the basis no more, where each re-adjustment after the first used to evaluate it
+    afresh; the errors are the same as with every basis evaluated afresh (to 1e-12 m). (On the quick start's db4 9x6
+    block, 80,634 observations: the leave-one-out took 26 s instead of 41, the errors the same to the bit.)"""
+    import selfcal.adjust.ap_columns as ap_columns
+    from selfcal.adjust.result import AdjustmentResult
+    from selfcal.workflows.loo import control_loo
+
+    block = prune_for(simulate_uav(seed=3, points_per_mm2=0.2, distortion="local+brown").blocks["type3"])
+    options = AdjustOptions(ap=APOptions("wavelet:db4", grid=(6, 4)))
+    tested = adjust_with_tests(block, options, SnoopingOptions(3.0))
+    evaluations = []
+    bound_of = ap_columns.bound_of
+    monkeypatch.setattr(ap_columns, "bound_of", lambda problem, o: evaluations.append(o.size) or bound_of(problem, o))
+    kept = control_loo(tested, options)
+    assert len(kept) == 27 and np.isfinite(kept.d_m).all()
+    assert evaluations == []
+    monkeypatch.setattr(AdjustmentResult, "take_back_ap_columns", lambda self, readjusted: None)
+    afresh = control_loo(tested, options)
+    assert len(evaluations) >= 26                  # (every re-adjustment after the first, the way it was)
+    np.testing.assert_allclose(kept.d_m, afresh.d_m, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(kept.cov_m2, afresh.cov_m2, rtol=1e-12, atol=0)

@@ -273,7 +273,12 @@ def carry_ap_columns(problem: Problem, rows: np.ndarray, previous: Problem, prev
         ratio = previous.obs_sigma[source[mine]] / problem.obs_sigma[mine]
         if len(problem.cameras) == 1 and len(previous.cameras) == 1 and np.all(ratio == 1.0):
             problem.ap_cache.gram = _carried_gram(previous, old_columns, source, free[old_free])
-        if consume and old_columns.flags.c_contiguous and np.all(np.diff(take) > 0):
+        # every previous observation, in its order (a control point left out, a parameter held): the array as it is
+        whole = take.size == old_columns.shape[0] and bool(np.all(take == np.arange(take.size)))
+        if consume and whole and keep.all():
+            del previous.ap_cache.columns[(old_k, old_free.tobytes())]
+            columns = old_columns
+        elif consume and old_columns.flags.c_contiguous and np.all(np.diff(take) > 0):
             # the previous problem's array, compacted where it lies (no second copy of hundreds of MB);
             # the previous problem forgets it and would evaluate its columns afresh if used again
             del previous.ap_cache.columns[(old_k, old_free.tobytes())]
@@ -288,7 +293,9 @@ def carry_ap_columns(problem: Problem, rows: np.ndarray, previous: Problem, prev
             columns *= ratio[:, :, None]
         problem.ap_cache.columns[(k, free.tobytes())] = columns
         sparse = (previous.ap_cache.columns.pop if consume else previous.ap_cache.columns.get)(("sparse", old_k), None)
-        if sparse is not None and len(problem.cameras) == 1:
+        if sparse is not None and len(problem.cameras) == 1 and consume and whole and np.all(ratio == 1.0):
+            problem.ap_cache.columns[("sparse", 0)] = sparse
+        elif sparse is not None and len(problem.cameras) == 1:
             values = sparse.values[take]
             if np.any(ratio != 1.0):
                 values *= ratio[:, :, None]

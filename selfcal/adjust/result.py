@@ -208,6 +208,17 @@ class AdjustmentResult:
             return Termination.DIVERGED
         return Termination.ITERATION_LIMIT
 
+    def take_back_ap_columns(self, readjusted: "AdjustmentResult") -> None:
+        """Take back the kept AP columns (:mod:`.ap_columns`) that ``readjusted``, an adjustment started from this
+        one (``adjust(..., start=self)``), carried away, where it kept every observation of this one (a control
+        point left out of the control, a parameter held): the next re-adjustment from this one carries them again
+        instead of evaluating the basis afresh (a WAP basis: 0.4 s and 221 MiB on the paper's block, each time).
+        ``readjusted`` evaluates its columns afresh if it is linearised again. Where it kept fewer observations,
+        nothing is taken."""
+        from .ap_columns import carry_ap_columns
+        carry_ap_columns(self.problem, self.block.observations.row[self.problem.obs_order], readjusted.problem,
+                         readjusted.block.observations.row[readjusted.problem.obs_order], consume=True)
+
     def readjust(self, options, without_rows=(), hold=(), progress=None) -> "AdjustmentResult":
         """This adjustment again, from its estimate, without the observations ``without_rows`` (their
         ``Observations.row``) and with the parameters ``hold`` ("owner: name" labels of :meth:`parameters`) held at

@@ -113,6 +113,14 @@ def _left_out(tested: TestedAdjustment, options: AdjustOptions, models: dict, p:
         other = adjust(without, options, start=result, free=tested.ap_free, ap_models=models)
     except AdjustmentError:
         return undetermined                 # (the others do not fix the datum)
+    try:
+        return _error_of(other, name, block.points.xyz_m[p], survey, undetermined)
+    finally:
+        result.take_back_ap_columns(other)  # (the same observations: the next control point's start carries them)
+
+
+def _error_of(other, name: str, surveyed_m: np.ndarray, survey: np.ndarray, undetermined: tuple):
+    """The left-out control point's error in the re-adjustment ``other`` and its cofactor (see :func:`_left_out`)."""
     where = np.flatnonzero(other.block.points.point_id == name)
     if not where.size or not other.converged:
         return undetermined                 # (too few rays of its own)
@@ -121,7 +129,7 @@ def _left_out(tested: TestedAdjustment, options: AdjustOptions, models: dict, p:
     cov = some_point_cofactors(other.problem, other.linearisation, other.v_inv, other.Q_theta, np.array([j]))[0] + survey
     if np.linalg.eigvalsh(0.5 * (cov + cov.T)).min() <= 0:
         return undetermined                 # (a cofactor that is not positive)
-    return other.state.points[j] - block.points.xyz_m[p], cov
+    return other.state.points[j] - surveyed_m, cov
 
 
 def loo_summary(loo: LeaveOneOut) -> dict:
