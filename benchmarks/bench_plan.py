@@ -15,7 +15,10 @@ measures a block's (pairs, band, CHOLMOD's factor): the paper estimate of DESIGN
 ``--workflow`` measures instead ``selfcal adjust BLOCK`` with its default options (the tested workflow and the report)
 against the plan's ``workflow_peak_mb``.
 
-Run: ``python benchmarks/bench_plan.py [--largest 2000] [--blocks 4x7,14x36@1.0] [--workflow]``.
+``--ap MODEL`` plans and adjusts that AP model (a wavelet on 9x6) instead of none (with ``--workflow``: instead of
+``selfcal adjust``'s default).
+
+Run: ``python benchmarks/bench_plan.py [--largest 2000] [--blocks 4x7,14x36@1.0] [--workflow] [--ap MODEL]``.
 """
 from __future__ import annotations
 
@@ -59,9 +62,10 @@ def _write_child(n_strips: int, per_strip: int, points_per_mm2: float, folder: s
     return {"folder": folder}
 
 
-def _adjust_child(folder: str) -> dict:
-    """Adjust one block folder with the sigma of every unknown; its peak RSS and seconds per iteration."""
-    from selfcal.adjust import AdjustOptions, adjust
+def _adjust_child(folder: str, ap: str | None = None) -> dict:
+    """Adjust one block folder with the sigma of every unknown (AP model ``ap``: none by default, a wavelet on 9x6);
+    its peak RSS and seconds per iteration."""
+    from selfcal.adjust import AdjustOptions, APOptions, adjust
     from selfcal.allocator import keep_freed_memory
     from selfcal.io import read_block
 
@@ -71,7 +75,8 @@ def _adjust_child(folder: str) -> dict:
     block = read_block(folder)
     speed = machine_speed()             # the probe, as the plan takes it
     stamps: list[float] = []
-    result = adjust(block, AdjustOptions(), progress=lambda record: stamps.append(time.perf_counter()))
+    options = AdjustOptions() if ap is None else AdjustOptions(ap=APOptions(ap))
+    result = adjust(block, options, progress=lambda record: stamps.append(time.perf_counter()))
     result.Q_points                     # the points' cofactors, made on first use
     sigma_ok = bool(np.all(np.isfinite(result.image_sigma())) and np.all(np.isfinite(result.point_covariance())))
     per_iteration = float(np.median(np.diff(stamps))) if len(stamps) > 1 else float("nan")
@@ -82,18 +87,20 @@ def _adjust_child(folder: str) -> dict:
             "machine_speed": speed, "peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0}
 
 
-def _workflow_child(folder: str) -> dict:
-    """``selfcal adjust FOLDER`` with its default options (the tested workflow and the report), in this process:
-    its peak resident memory (/proc's VmHWM, the peak since the exec) against the plan's ``workflow_peak_mb``."""
+def _workflow_child(folder: str, ap: str | None = None) -> dict:
+    """``selfcal adjust FOLDER`` with its default options (the tested workflow and the report; ``--ap ap`` where
+    given), in this process: its peak resident memory (/proc's VmHWM, the peak since the exec) against the plan's
+    ``workflow_peak_mb``."""
     from selfcal.cli.main import main as selfcal_main
     from selfcal.io import read_block
     from selfcal.workflows.plan import plan_block
 
     block = read_block(folder)
-    planned = plan_block(block, probe=False).workflow_peak_mb
+    planned = plan_block(block, ap=ap, probe=False).workflow_peak_mb
     out = tempfile.mkdtemp(prefix="bench-plan-results-")
     t = time.perf_counter()
-    code = selfcal_main(["adjust", folder, "--out", os.path.join(out, "results"), "--quiet"])
+    code = selfcal_main(["adjust", folder, "--out", os.path.join(out, "results"), "--quiet"]
+                        + ([] if ap is None else ["--ap", ap]))
     seconds = time.perf_counter() - t
     shutil.rmtree(out)
     peak = next(int(line.split()[1]) for line in open("/proc/self/status") if line.startswith("VmHWM")) / 1024.0
@@ -101,12 +108,12 @@ def _workflow_child(folder: str) -> dict:
             "workflow_peak_mb": peak, "planned_workflow_peak_mb": planned, "seconds": seconds}
 
 
-def _plan_child(folder: str) -> dict:
+def _plan_child(folder: str, ap: str | None = None) -> dict:
     from selfcal.io import read_block
     from selfcal.workflows.plan import plan_block
 
     t = time.perf_counter()
-    plan = plan_block(read_block(folder), ap="none")
+    plan = plan_block(read_block(folder), ap=ap or "none")
     return {**plan.as_dict(), "plan_seconds": time.perf_counter() - t}
 
 
@@ -154,6 +161,8 @@ def main() -> None:
     parser.add_argument("--workflow", action="store_true",
                         help="measure `selfcal adjust BLOCK` with its default options instead (the plan's workflow peak)")
     parser.add_argument("--largest", type=int, default=2000, help="largest block in images (default 2000)")
+    parser.add_argument("--ap", help="the AP model planned and adjusted (default: none; with --workflow, selfcal "
+                                     "adjust's default), e.g. wavelet:db4 (on 9x6)")
     parser.add_argument("--blocks", help="strips x images per strip [@ points per mm^2], e.g. 4x7,14x36@1.0 (default: "
                                          "bench_scaling's at 0.5, then OTHER_BLOCKS)")
     args = parser.parse_args()
@@ -165,14 +174,15 @@ def main() -> None:
         print(json.dumps(_lattice_child(*args.lattice)))
         return
     if args.adjust_child:
-        print(json.dumps(_adjust_child(args.adjust_child)))
+        print(json.dumps(_adjust_child(args.adjust_child, args.ap)))
         return
     if args.plan_child:
-        print(json.dumps(_plan_child(args.plan_child)))
+        print(json.dumps(_plan_child(args.plan_child, args.ap)))
         return
     if args.workflow_child:
-        print(json.dumps(_workflow_child(args.workflow_child)))
+        print(json.dumps(_workflow_child(args.workflow_child, args.ap)))
         return
+    model = [] if args.ap is None else ["--ap", args.ap]
     if args.blocks:
         blocks = []
         for text in args.blocks.split(","):
@@ -189,7 +199,7 @@ def main() -> None:
         for strips, per_strip, density in blocks:
             folder = os.path.join(work, f"block-{strips}x{per_strip}@{density}")
             _run(["--write-child", str(strips), str(per_strip), str(density), folder])
-            m = _run(["--workflow-child", folder])
+            m = _run(["--workflow-child", folder, *model])
             shutil.rmtree(folder)
             print(f"{m['images']:>7}{density:>8.2f}{m['observations']:>9}{m['planned_workflow_peak_mb']:>23.0f}"
                   f"{m['workflow_peak_mb']:>8.0f}{m['planned_workflow_peak_mb'] / m['workflow_peak_mb']:>7.2f}"
@@ -200,8 +210,8 @@ def main() -> None:
     for strips, per_strip, density in blocks:
         folder = os.path.join(work, f"block-{strips}x{per_strip}@{density}")
         _run(["--write-child", str(strips), str(per_strip), str(density), folder])
-        p = _run(["--plan-child", folder])
-        m = _run(["--adjust-child", folder])
+        p = _run(["--plan-child", folder, *model])
+        m = _run(["--adjust-child", folder, *model])
         shutil.rmtree(folder)
         path = f"{p['factorisation']} {p['covariance']}"
         print(f"{m['images']:>7}{density:>8.2f}{m['observations']:>9}{path:>26}{p['peak_mb']:>14.0f}{m['peak_mb']:>8.0f}"
