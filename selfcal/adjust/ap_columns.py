@@ -249,14 +249,16 @@ def carry_ap_columns(problem: Problem, rows: np.ndarray, previous: Problem, prev
     previous ones (rescaled where an observation's sigma changed, as in a
     variance-component iteration). ``rows`` and ``previous_rows`` are the block
     row numbers of each problem's observations in problem order. With ``consume`` the previous
-    problem's arrays are taken over and compacted in place (it is not used again, or evaluates its
-    columns afresh if it is).
+    problem's arrays are taken over and compacted in place, or dropped where they cannot be carried
+    (it is not used again, or evaluates its columns afresh if it is).
     """
     source = row_positions(previous_rows, rows)                 # previous observation of each observation
-    if source is None:
-        return                                                  # not a subset of the previous observations
-    if not _same_positions(previous.obs_ap_at, problem.obs_ap_at, source):
-        return                                                  # the AP basis is evaluated elsewhere now
+    if source is None or not _same_positions(previous.obs_ap_at, problem.obs_ap_at, source):
+        # not a subset of the previous observations (observations taken back), or the AP basis evaluated elsewhere
+        # now: nothing to carry; consumed, the previous arrays are dropped rather than held beside the new ones
+        if consume:
+            previous.ap_cache.forget()
+        return
     for k, cam in enumerate(problem.cameras):
         old_k = next((j for j, c in enumerate(previous.cameras) if c.camera_id == cam.camera_id), None)
         if old_k is None or previous.cameras[old_k].ap is not cam.ap or not cam.ap.n_params:
