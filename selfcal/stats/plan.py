@@ -58,6 +58,16 @@ BYTES_PER_OBSERVATION = 641.0
 BYTES_PER_SYSTEM_NUMBER = 45.3
 #: bytes per number of Q_theta: the dense inverse's n^2, or the selected inverse's n (w + 1 + border) (fitted)
 BYTES_PER_COVARIANCE_NUMBER = 12.3
+#: bytes per number of the points' couplings with the AP coefficients, 3 n_points n_ap (each point's block of W with
+#: the AP columns, kept per chunk, and its products in the reduction and the points' cofactors): fitted on the wavelet
+#: blocks of ``bench_plan.py --ap wavelet:db4`` (254 coefficients on 9x6; 28-504 images, 11,507-210,390
+#: observations), where the constants above, fitted without APs, left 0.61-0.74 of the measured peaks; every block
+#: within 0.87-1.05 with it. The AP columns themselves are counted at 8 bytes per number (``ap_columns``).
+BYTES_PER_AP_COUPLING = 35.3
+#: flops per second of the points' products with the AP columns (6 n_points n_d^2 per iteration, n_d the camera
+#: parameters: each point's 3 x n_d couplings times themselves), at probe speed 1: fitted on the same wavelet blocks
+#: (their seconds per iteration within 0.44-1.20, the smallest block's fixed costs left out)
+AP_COUPLING_FLOPS_PER_SECOND = 2.89e10
 
 #: ``selfcal adjust BLOCK`` with its default options (the tested workflow: robust start, snooping rounds, the model
 #: choice, leave-one-out control, the half-block check, the report) holds more than one adjustment: its peak over
@@ -67,6 +77,11 @@ BYTES_PER_COVARIANCE_NUMBER = 12.3
 #: predicted, 1785 MB measured; docs/DESIGN-NOTES.md)
 WORKFLOW_BASE_MB = 77.4
 WORKFLOW_BYTES_PER_OBSERVATION = 2348.0
+#: the tested workflow of a block with APs holds about one more array of the AP columns beside one adjustment's (a
+#: re-adjustment's own beside the one it started from): fitted in units of that array on the wavelet blocks of
+#: ``bench_plan.py --workflow --ap wavelet:db4`` (28-504 images; 0.75-0.86 of the measured peaks without the term,
+#: 0.96-1.04 with it)
+WORKFLOW_AP_COLUMN_ARRAYS = 1.05
 
 #: seconds per image observation and iteration (linearisation, reduction, back-substitution, the cost at the step:
 #: passes over the points on two threads) at probe speed 1 (fitted)
@@ -132,7 +147,8 @@ class Plan:
     def workflow_peak_mb(self) -> float:
         """The peak of ``selfcal adjust BLOCK`` with its default options (the tested workflow), which holds more
         than the one adjustment of :attr:`peak_mb`."""
-        return self.peak_mb + WORKFLOW_BASE_MB + WORKFLOW_BYTES_PER_OBSERVATION * self.sizes.n_observations / MB
+        return (self.peak_mb + WORKFLOW_BASE_MB + WORKFLOW_BYTES_PER_OBSERVATION * self.sizes.n_observations / MB
+                + WORKFLOW_AP_COLUMN_ARRAYS * self.memory_mb.get("ap_columns", 0.0))
 
     @property
     def seconds_per_iteration(self) -> float:
@@ -184,15 +200,20 @@ def plan_adjustment(sizes: BlockSizes, speed: float = 1.0, cholmod: bool = CHOLM
         system = 1.5 * pattern + sizes.factor_blocks * p * p + n * border
         flops = sizes.factor_block_flops * p ** 3 + n * border ** 2
     cofactor = float(n) * n if covariance == "dense-inverse" else n * (width + 1.0 + border)
+    ap_flops = 6.0 * sizes.n_points * sizes.n_camera_parameters ** 2 if sizes.n_ap else 0.0
     numbers = {"observations": float(sizes.n_observations), "ap_columns": 2.0 * sizes.n_observations * sizes.n_ap,
-               "reduced_system": system, "covariance": cofactor, "factorisation_flops": flops}
+               "ap_couplings": 3.0 * sizes.n_points * sizes.n_ap,
+               "reduced_system": system, "covariance": cofactor, "factorisation_flops": flops,
+               "ap_coupling_flops": ap_flops}
     memory = {"base": BASE_MB,
               "observations": numbers["observations"] * BYTES_PER_OBSERVATION / MB,
               # the AP columns' array itself (observations x 2 x coefficients doubles; not fitted: the blocks had none)
               "ap_columns": numbers["ap_columns"] * 8.0 / MB,
+              "ap_couplings": numbers["ap_couplings"] * BYTES_PER_AP_COUPLING / MB,
               "reduced_system": system * BYTES_PER_SYSTEM_NUMBER / MB,
               "covariance": cofactor * BYTES_PER_COVARIANCE_NUMBER / MB}
     seconds = {"observations": speed * SECONDS_PER_OBSERVATION * sizes.n_observations,
+               "ap_couplings": speed * ap_flops / AP_COUPLING_FLOPS_PER_SECOND,
                "factorisation": speed * flops / FLOPS_PER_SECOND}
     plan = Plan(sizes, path, covariance, width, memory, seconds, speed)
     plan.numbers = numbers
