@@ -18,30 +18,28 @@ SIZE_KEYS = {"n_images", "n_cameras", "n_points", "n_observations", "image_width
              "n_extra", "image_pairs", "band_images", "factor_blocks", "factor_block_flops", "n_theta"}
 
 
-@pytest.fixture(scope="module")
-def block_folder(tmp_path_factory):
-    """The 28-image strip block of benchmarks/bench_plan.py (0.5 tie points per mm^2, Type 3 control)."""
+def _strip_block(tmp_path_factory, points_per_mm2: float):
+    """The 28-image strip block of benchmarks/bench_plan.py (Type 3 control) written as a block folder."""
     from selfcal.block import prune
     from selfcal.io import write_block
     from selfcal.simulate import simulate_uav
 
-    sim = simulate_uav(seed=1, distortion="none", points_per_mm2=0.5, n_strips=4, images_per_strip=7)
+    sim = simulate_uav(seed=1, distortion="none", points_per_mm2=points_per_mm2, n_strips=4, images_per_strip=7)
     folder = tmp_path_factory.mktemp("plan") / "block"
     write_block(prune(sim.blocks["type3"]), folder)
     return folder
 
 
 @pytest.fixture(scope="module")
+def block_folder(tmp_path_factory):
+    """The 28-image strip block at 0.5 tie points per mm^2."""
+    return _strip_block(tmp_path_factory, 0.5)
+
+
+@pytest.fixture(scope="module")
 def dense_block_folder(tmp_path_factory):
     """The same block at 1.75 tie points per mm^2 (39,982 observations): a block whose peak is mostly the WAPs'."""
-    from selfcal.block import prune
-    from selfcal.io import write_block
-    from selfcal.simulate import simulate_uav
-
-    sim = simulate_uav(seed=1, distortion="none", points_per_mm2=1.75, n_strips=4, images_per_strip=7)
-    folder = tmp_path_factory.mktemp("plan") / "dense"
-    write_block(prune(sim.blocks["type3"]), folder)
-    return folder
+    return _strip_block(tmp_path_factory, 1.75)
 
 
 MEASURE = textwrap.dedent("""
