@@ -276,3 +276,109 @@ def test_table_columns_at_once_equal_value_by_value(tmp_path):
         with pytest.raises(BlockError) as error:
             read_table(path, columns)
         assert f"line {line}" in str(error.value) and column in str(error.value) and words in str(error.value)
+
+
+TRICKY_TABLE = ('\ufeffid,x,s\r\n'
+                'a,1.5,2\r\n'
+                '# a comment\r\n'
+                '\r\n'
+                '"b, with\r\na line break",-3e2,\r\n'
+                ' , ,\r\n'
+                'c,+4,0.25\r\n'
+                '  # an indented comment\r\n'
+                '"#d",5,1\r\n'                  # a comment too: its first field starts with #
+                'e,6,\r\n')
+TRICKY_IDS = ["a", "b, with\r\na line break", "c", "e"]
+TRICKY_LINES = [2, 6, 8, 11]
+
+
+@pytest.mark.parametrize("rows_per_chunk", [1, 2, 3, 1000])
+@pytest.mark.parametrize("bytes_per_block", [1, 7, 1 << 23])
+def test_a_table_read_in_chunks_is_the_table_read_at_once(tmp_path, monkeypatch, rows_per_chunk, bytes_per_block):
+    """read_table_chunks gives the rows of every chunk with their file lines (the last line of a row that a quoted line
+    break spans), over comments, blank rows, a byte-order mark and CRLF endings, whatever the chunk and decoded block
+    sizes; read_table is their concatenation."""
+    from selfcal.io import table as table_module
+    from selfcal.io.table import NUM, OPT_NUM, STR, Column, read_table, read_table_chunks
+
+    monkeypatch.setattr(table_module, "BYTES_PER_BLOCK", bytes_per_block)
+    columns = [Column("id", STR, True), Column("x", NUM, True), Column("s", OPT_NUM, False)]
+    path = tmp_path / "t.csv"
+    path.write_bytes(TRICKY_TABLE.encode("utf-8"))
+    chunks = list(read_table_chunks(path, columns, rows_per_chunk))
+    assert all(0 < len(chunk) <= rows_per_chunk for chunk in chunks)
+    assert [i for chunk in chunks for i in chunk["id"].tolist()] == TRICKY_IDS
+    assert [n for chunk in chunks for n in chunk.line.tolist()] == TRICKY_LINES
+    whole = read_table(path, columns)
+    assert whole["id"].tolist() == TRICKY_IDS and whole.line.tolist() == TRICKY_LINES
+    np.testing.assert_array_equal(whole["x"], [1.5, -300.0, 4.0, 6.0])
+    np.testing.assert_array_equal(whole["s"], [2.0, np.nan, 0.25, np.nan])
+    path.write_text("id,x,s\n")                                    # a header alone: one empty chunk
+    (empty,) = read_table_chunks(path, columns, rows_per_chunk)
+    assert len(empty) == 0 and empty["x"].dtype == float
+
+
+@pytest.mark.parametrize("rows_per_chunk", [1, 4, 1000])
+def test_a_defect_in_a_later_chunk_names_its_line(tmp_path, monkeypatch, rows_per_chunk):
+    """Read a chunk at a time and a block of bytes at a time, a defect far into the file still names its line (and
+    the first defect in line order is the one named)."""
+    from selfcal.io import table as table_module
+    from selfcal.io.table import NUM, STR, Column, read_table
+
+    monkeypatch.setattr(table_module, "BYTES_PER_BLOCK", 16)
+    columns = [Column("id", STR, True), Column("x", NUM, True)]
+    good = "".join(f"p{i},{i}.5\n" for i in range(30))                # lines 2-31
+    path = tmp_path / "t.csv"
+    for tail, line, words in (("q,x\nr,1,2\n", 32, "'x' is not a number"),
+                              ("q,1,2\nr,x\n", 32, "expected 2 fields, found 3"),
+                              ("q,1\nr,\n", 33, "empty value where a number is required"),
+                              ("q,1\nr,nan\n", 33, "not a finite number")):
+        path.write_text("id,x\n" + good + tail)
+        with pytest.raises(BlockError) as error:
+            read_table(path, columns)
+        assert error.value.line == line and words in error.value.reason, (tail, error.value)
+    path.write_bytes(("id,x\n" + good).encode() + b"q\xe9,1\n")           # Latin-1, not UTF-8
+    with pytest.raises(BlockError) as error:
+        read_table(path, columns)
+    assert error.value.line == 32 and "byte 0xe9 at character 2" in error.value.reason
+
+
+def test_observations_are_read_a_chunk_at_a_time(template, tmp_path, monkeypatch):
+    """observations.csv read in chunks of 2048 rows (and 64 kB of text) holds one chunk's texts at a time: the block is
+    the same as read in one chunk, and the memory the reading holds at its peak (traced) is less than half of it read in
+    one; an unknown id in a later chunk names its line, the first in line order whether image or point."""
+    import tracemalloc
+
+    from selfcal.io import table as table_module
+
+    folder = tmp_path / "block"
+    write_block(simulation(seed=2, distortion="none", points_per_mm2=1.0).blocks["type3"], folder)
+    peaks, blocks = {}, {}
+    for rows in (2048, 1 << 30):
+        monkeypatch.setattr(table_module, "ROWS_PER_CHUNK", rows)
+        monkeypatch.setattr(table_module, "BYTES_PER_BLOCK", 1 << 16 if rows == 2048 else 1 << 30)
+        tracemalloc.start()
+        blocks[rows] = read_block(folder)
+        peaks[rows] = tracemalloc.get_traced_memory()[1]
+        tracemalloc.stop()
+    small, whole = blocks[2048].observations, blocks[1 << 30].observations
+    assert len(small) > 20_000
+    for name in ("image_index", "point_index", "pixel", "sigma_px", "line"):
+        np.testing.assert_array_equal(getattr(small, name), getattr(whole, name))
+    assert peaks[2048] < 0.5 * peaks[1 << 30], peaks
+    monkeypatch.setattr(table_module, "ROWS_PER_CHUNK", 2048)
+    path = folder / "observations.csv"
+    lines = _read(path).split("\n")
+    image, point = lines[9000].split(",")[:2]
+    lines[9000] = lines[9000].replace(point, "nowhere", 1)
+    lines[12000] = lines[12000].replace(lines[12000].split(",")[0], "no-image", 1)
+    _write(path, "\n".join(lines))
+    with pytest.raises(BlockError) as error:
+        read_block(folder)
+    assert error.value.line == 9001 and error.value.column == "point_id" and "'nowhere'" in error.value.reason
+    lines[9000] = f"{image},{point}," + ",".join(lines[9000].split(",")[2:])
+    lines[9000] = lines[9000].replace(image, "no-image", 1)
+    _write(path, "\n".join(lines))
+    with pytest.raises(BlockError) as error:
+        read_block(folder)
+    assert error.value.line == 9001 and error.value.column == "image_id"

@@ -7,6 +7,7 @@ errors: :func:`selfcal.block.prune` removes them and records them.
 """
 from __future__ import annotations
 
+import itertools
 import math
 import os
 import re
@@ -22,7 +23,7 @@ from .atomic import atomic_folder, atomic_write
 from ..sensors import SENSORS, sensor_of
 from .sensor_files import SENSOR_FILE_READERS
 from .text import read_text
-from .table import NUM, OPT_NUM, STR, Column, read_table, write_table
+from .table import NUM, OPT_NUM, STR, Column, read_table, read_table_chunks, write_table
 
 __all__ = ["read_block", "write_block", "IMAGE_COLUMNS", "GNSS_SIGMA_COLUMNS", "IMU_SIGMA_COLUMNS", "POINT_COLUMNS", "OBSERVATION_COLUMNS", "EPHEMERIS_COLUMNS",
            "ATTITUDE_COLUMNS"]
@@ -330,8 +331,17 @@ def _read_points(folder: str) -> tuple[Points, dict[str, int]]:
     index = _unique_ids(table, "point_id")
     xyz = np.column_stack([table["X"], table["Y"], table["Z"]])
     sxy, sz = table["sigma_xy_m"], table["sigma_z_m"]
-    for i, (role, line) in enumerate(zip(table["role"], table.line)):
-        line = int(line)
+    # the rows checked one by one from the first that any check could refuse (the same first defect, in line order)
+    role_of = table["role"]
+    missing = np.isnan(xyz)
+    controlled = np.isin(role_of, ("gcp", "chk"))
+    suspect = (~np.isin(role_of, list(ROLES)) | (controlled & missing.any(axis=1))
+               | (missing.any(axis=1) & ~missing.all(axis=1))
+               | ((role_of == "gcp") & (np.isnan(sxy) | np.isnan(sz)))
+               | ~(np.isnan(sxy) | (sxy > 0)) | ~(np.isnan(sz) | (sz > 0)))
+    first = int(np.argmax(suspect)) if suspect.any() else len(role_of)
+    for i in range(first, len(role_of)):
+        role, line = role_of[i], int(table.line[i])
         if role not in ROLES:
             raise BlockError(table.path, f"role must be one of {', '.join(ROLES)}, found '{role}'", line, "role")
         if role in ("gcp", "chk"):
@@ -357,32 +367,52 @@ def _read_points(folder: str) -> tuple[Points, dict[str, int]]:
     return points, index
 
 
+def _indices(chunk, image_index: dict, point_index: dict) -> tuple[np.ndarray, np.ndarray]:
+    """The image and point index of every observation of a chunk of observations.csv; an id that images.csv or
+    points.csv does not hold is a BlockError on the first row that has one."""
+    n = len(chunk)
+    img = np.fromiter(map(image_index.get, chunk["image_id"], itertools.repeat(-1, n)), np.int64, n)
+    pt = np.fromiter(map(point_index.get, chunk["point_id"], itertools.repeat(-1, n)), np.int64, n)
+    unknown = np.flatnonzero((img < 0) | (pt < 0))
+    if unknown.size:
+        k = unknown[0]
+        name, what, where = ("image_id", "image", "images.csv") if img[k] < 0 else ("point_id", "point", "points.csv")
+        raise BlockError(chunk.path, f"unknown {what} '{chunk[name][k]}' (not in {where})", int(chunk.line[k]), name)
+    return img, pt
+
+
 def _read_observations(folder, images, image_index, point_index, cameras, default_sigma):
-    table = read_table(os.path.join(folder, "observations.csv"), OBSERVATION_COLUMNS)
-    n = len(table)
-    img = np.empty(n, np.int64)
-    pt = np.empty(n, np.int64)
-    for i, (image_id, point_id, line) in enumerate(zip(table["image_id"], table["point_id"], table.line)):
-        try:
-            img[i] = image_index[image_id]
-        except KeyError:
-            raise BlockError(table.path, f"unknown image '{image_id}' (not in images.csv)", int(line),
-                             "image_id") from None
-        try:
-            pt[i] = point_index[point_id]
-        except KeyError:
-            raise BlockError(table.path, f"unknown point '{point_id}' (not in points.csv)", int(line),
-                             "point_id") from None
+    """observations.csv read a chunk at a time (:func:`~selfcal.io.table.read_table_chunks`): its ids become
+    indices as each chunk comes, so that the file's texts are never all held."""
+    path = os.path.join(folder, "observations.csv")
+    parts: dict[str, list] = {"img": [], "pt": [], "col": [], "row": [], "sigma": [], "line": []}
+    has_sigma = False
+    for chunk in read_table_chunks(path, OBSERVATION_COLUMNS):
+        img, pt = _indices(chunk, image_index, point_index)
+        has_sigma = "sigma_px" in chunk
+        for name, values in (("img", img), ("pt", pt), ("col", chunk["col_px"]), ("row", chunk["row_px"]),
+                             ("sigma", chunk["sigma_px"] if has_sigma else np.zeros(0)), ("line", chunk.line)):
+            parts[name].append(values)
+    img, pt, col, row, given, line = (np.concatenate(parts[name]) for name in ("img", "pt", "col", "row", "sigma", "line"))
+    n = len(line)
+    point_ids: list | None = None
+
+    def point_id(k: int) -> str:
+        nonlocal point_ids
+        if point_ids is None:
+            point_ids = list(point_index)
+        return point_ids[pt[k]]
+
+    image_ids = images.image_id
     pair = img * (len(point_index) + 1) + pt
     order = np.argsort(pair, kind="stable")
     dup = np.flatnonzero(pair[order][1:] == pair[order][:-1])
     if dup.size:
         first, second = order[dup[0]], order[dup[0] + 1]
-        raise BlockError(table.path,
-                         f"duplicated observation of point '{table['point_id'][second]}' in image "
-                         f"'{table['image_id'][second]}' (first on line {table.line[first]})",
-                         int(table.line[second]), "point_id")
-    col, row = table["col_px"], table["row_px"]
+        raise BlockError(path,
+                         f"duplicated observation of point '{point_id(second)}' in image "
+                         f"'{image_ids[img[second]]}' (first on line {line[first]})",
+                         int(line[second]), "point_id")
     width = np.array([cameras[c].width_px for c in images.camera_id], float)[img]
     height = np.array([cameras[c].height_px for c in images.camera_id], float)[img]
     outside_col = (col < -0.5) | (col > width + 0.5)
@@ -395,26 +425,24 @@ def _read_observations(folder, images, image_index, point_index, cameras, defaul
         # most of an image's observations outside its frame: a unit mistake (mm, normalised), not blunders
         first_out = int(np.flatnonzero(outside & (img == unit_mistake[0]))[0])
         name, values, limit = ("col_px", col, width) if outside_col[first_out] else ("row_px", row, height)
-        raise BlockError(table.path,
+        raise BlockError(path,
                          f"{values[first_out]:g} px is outside the image (0 .. {limit[first_out]:g} px), and so are "
                          f"{int(outside_per_image[unit_mistake[0]])} of the {per_image[unit_mistake[0]]} observations "
                          f"of image '{images.image_id[unit_mistake[0]]}': are the units pixels?",
-                         int(table.line[first_out]), name)
+                         int(line[first_out]), name)
     for k in np.flatnonzero(outside):
-        messages.append(f"dropped observation of point '{table['point_id'][k]}' in image '{table['image_id'][k]}' "
-                        f"(observations.csv line {table.line[k]}): ({col[k]:g}, {row[k]:g}) px is outside the "
+        messages.append(f"dropped observation of point '{point_id(k)}' in image '{image_ids[img[k]]}' "
+                        f"(observations.csv line {line[k]}): ({col[k]:g}, {row[k]:g}) px is outside the "
                         f"{width[k]:g} x {height[k]:g} px frame")
     sigma = np.full(n, default_sigma)
-    if "sigma_px" in table:
-        given = table["sigma_px"]
+    if has_sigma:
         bad = np.flatnonzero(~np.isnan(given) & (given <= 0))
         if bad.size:
-            raise BlockError(table.path, f"sigma must be positive, found {given[bad[0]]}",
-                             int(table.line[bad[0]]), "sigma_px")
+            raise BlockError(path, f"sigma must be positive, found {given[bad[0]]}", int(line[bad[0]]), "sigma_px")
         sigma = np.where(np.isnan(given), default_sigma, given)
     keep = ~outside
     observations = Observations(image_index=img[keep], point_index=pt[keep], pixel=np.column_stack([col, row])[keep],
-                                sigma_px=sigma[keep], line=table.line[keep])
+                                sigma_px=sigma[keep], line=line[keep])
     return observations, Dropped(observations_outside_frame=len(messages), messages=tuple(messages))
 
 

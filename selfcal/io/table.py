@@ -12,17 +12,20 @@ import contextlib
 import csv
 import gc
 import io
+import itertools
 import math
+import operator
 import os
+import re
 from dataclasses import dataclass
-from typing import TextIO
+from typing import Iterator, TextIO
 
 import numpy as np
 
 from ..errors import BlockError
-from .text import read_text
+from .text import UTF8_BOM, decode_utf8
 
-__all__ = ["Column", "Table", "read_table", "write_table"]
+__all__ = ["Column", "Table", "read_table", "read_table_chunks", "write_table"]
 
 STR, NUM, OPT_NUM = "str", "num", "opt_num"
 
@@ -71,16 +74,167 @@ def _parse_number(text: str, path: str, line: int, column: str, allow_empty: boo
     return value
 
 
+#: rows a chunk of a table holds at most while it is read (:func:`read_table_chunks`): its text fields are Python
+#: objects, about 350 bytes a row of observations.csv, so a chunk holds some 90 MB of them whatever the file's size
+ROWS_PER_CHUNK = 1 << 18
+
+#: bytes of the file decoded at a time (held as text twice: the decoded block and the StringIO that the reader reads,
+#: which keeps four bytes a character)
+BYTES_PER_BLOCK = 1 << 20
+
+
 def read_table(path: str | os.PathLike, columns: list[Column]) -> Table:
     """Read a comma-separated table with a header line.
 
     Blank lines and lines starting with ``#`` are skipped.
     """
+    chunks = list(read_table_chunks(path, columns))
+    first = chunks[0]
+    if len(chunks) == 1:
+        return first
+    return Table(first.path, {name: np.concatenate([chunk.columns[name] for chunk in chunks]) for name in first.columns},
+                 np.concatenate([chunk.line for chunk in chunks]))
+
+
+def read_table_chunks(path: str | os.PathLike, columns: list[Column],
+                      rows_per_chunk: int | None = None) -> Iterator[Table]:
+    """The table of :func:`read_table` in consecutive chunks of at most ``rows_per_chunk`` rows (ROWS_PER_CHUNK by
+    default; at least one chunk,
+    empty for a table of a header alone), read and checked as they come: the text of one chunk at a time is held,
+    not the file's. A defect is the BlockError of :func:`read_table`, raised with the chunk that holds it."""
     path = str(path)
     if not os.path.isfile(path):
         raise BlockError(path, "file not found")
-    with _collector_paused():
-        return _read_table(path, {c.name: c for c in columns}, columns)
+    spec = {c.name: c for c in columns}
+    rows_per_chunk = rows_per_chunk or ROWS_PER_CHUNK
+    reader = csv.reader(itertools.chain.from_iterable(_text_blocks(path)))      # a line at a time, in C
+    header: list[str] | None = None
+    done = 0                                   # lines the reader has consumed before this chunk
+    yielded = False
+    while True:
+        with _collector_paused():
+            try:
+                rows = list(itertools.islice(reader, rows_per_chunk))
+            except csv.Error as exc:
+                raise BlockError(path, f"not a CSV line: {exc}", reader.line_num + 1) from None
+            last = len(rows) < rows_per_chunk                   # the reader has given every row
+            lines = _row_lines(rows, done, reader.line_num)
+            done = reader.line_num
+            lengths = np.fromiter(map(len, rows), np.int64, len(rows))
+            if (lengths == 0).any() or _SUSPECT_START.search("\n".join(map(operator.itemgetter(0), rows))):
+                kept = [i for i, fields in enumerate(rows) if not _blank_or_comment(fields)]
+                rows, lines, lengths = [rows[i] for i in kept], lines[kept], lengths[kept]
+            if header is None and rows:
+                header = [h.strip() for h in rows[0]]
+                _check_header(path, header, int(lines[0]), spec, columns)
+                rows, lines, lengths = rows[1:], lines[1:], lengths[1:]
+            if header is None:
+                if last:
+                    raise BlockError(path, "empty file: a header line is required", 1)
+                continue
+            table = _chunk_table(path, header, spec, rows, lines, lengths) if rows or (last and not yielded) else None
+        if table is not None:
+            yield table
+            yielded = True
+        if last:
+            return
+
+
+def _text_blocks(path: str) -> Iterator[io.StringIO]:
+    """The text of the file in blocks of whole lines (UTF-8, a leading byte-order mark dropped; line endings kept, split as
+    ``io.StringIO(text, newline="")`` splits them), decoded a block at a time; bytes that are not UTF-8 text or a NUL
+    are the BlockError of :func:`~selfcal.io.text.decode_text`, on their line."""
+    try:
+        handle = open(path, "rb")
+    except OSError as exc:
+        raise BlockError(path, f"cannot read the file: {exc.strerror}") from None
+    with handle:
+        carry = b""
+        lines_before = 0
+        first = True
+        while True:
+            try:
+                data = handle.read(BYTES_PER_BLOCK)
+            except OSError as exc:
+                raise BlockError(path, f"cannot read the file: {exc.strerror}") from None
+            end = not data
+            if first:
+                while 0 < len(data) < len(UTF8_BOM):        # enough bytes to see a byte-order mark
+                    more = handle.read(BYTES_PER_BLOCK)
+                    if not more:
+                        break
+                    data += more
+                if data.startswith((b"\xff\xfe", b"\xfe\xff")):
+                    raise BlockError(path, "UTF-16 text: save the file as UTF-8", 1)
+                data = data.removeprefix(UTF8_BOM)
+                first = False
+            if not end:
+                block = carry + data
+                cut = block.rfind(b"\n") + 1
+                if cut == 0:                    # no line end yet: the next read continues the line
+                    carry = block
+                    continue
+                block, carry = block[:cut], block[cut:]
+            else:
+                block, carry = carry, b""
+                if not block:
+                    return
+            text = decode_utf8(block, path, lines_before)
+            lines_before += block.count(b"\n")
+            yield io.StringIO(text, newline="")
+
+
+def _row_lines(rows: list, before: int, after: int) -> np.ndarray:
+    """The file line of each row that the reader gave (its last line, as ``csv.reader.line_num`` counts them),
+    ``before`` and ``after`` the reader's count of lines before and after the rows: consecutive unless a quoted
+    field holds a line break."""
+    if after - before == len(rows):
+        return np.arange(before + 1, after + 1, dtype=np.int64)
+    spans = [1 + sum(f.count("\n") + f.count("\r") - f.count("\r\n") for f in fields) for fields in rows]
+    return before + np.cumsum(np.array(spans, dtype=np.int64))
+
+
+#: a first field that may make its row blank or a comment (empty, or starting with a blank or ``#``); rows whose
+#: first fields all start otherwise are kept without a look at each
+_SUSPECT_START = re.compile(r"^(?:[\s#]|$)", re.MULTILINE)
+
+
+def _blank_or_comment(fields: list[str]) -> bool:
+    """A row without a value, or whose first field starts with ``#`` (after blanks)."""
+    if not fields:
+        return True
+    first = fields[0][:1]
+    if first and first != "#" and not first.isspace():
+        return False
+    return not "".join(fields).strip() or fields[0].lstrip().startswith("#")
+
+
+def _check_header(path: str, header: list[str], header_line: int, spec: dict, columns: list[Column]) -> None:
+    seen: set[str] = set()
+    for name in header:
+        if name in seen:
+            raise BlockError(path, "duplicated column", header_line, name)
+        seen.add(name)
+        if name not in spec:
+            known = ", ".join(spec)
+            raise BlockError(path, f"unknown column (known: {known})", header_line, name)
+    for column in columns:
+        if column.required and column.name not in seen:
+            raise BlockError(path, "missing column", header_line, column.name)
+
+
+def _chunk_table(path: str, header: list[str], spec: dict, rows: list, lines: np.ndarray,
+                 lengths: np.ndarray) -> Table:
+    if (lengths != len(header)).any():
+        bad = int(np.argmax(lengths != len(header)))
+        # a value that the rows before it cannot hold is the first defect in line order, whatever the chunks
+        _columns_value_by_value(path, header, list(zip(lines[:bad].tolist(), rows[:bad])), spec)
+        raise BlockError(path, f"expected {len(header)} fields, found {lengths[bad]}", int(lines[bad]))
+    texts = list(zip(*rows)) or [()] * len(header)
+    out = _columns_at_once(header, texts, spec)
+    if out is None:                     # a value to refuse or an empty optional one: value by value, in line order
+        out = _columns_value_by_value(path, header, list(zip(lines.tolist(), rows)), spec)
+    return Table(path, out, lines)
 
 
 @contextlib.contextmanager
@@ -97,55 +251,20 @@ def _collector_paused():
             gc.enable()
 
 
-def _read_table(path: str, spec: dict, columns: list[Column]) -> Table:
-    reader = csv.reader(io.StringIO(read_text(path), newline=""))
-    rows = []
-    try:
-        for fields in reader:
-            rows.append((reader.line_num, fields))
-    except csv.Error as exc:
-        raise BlockError(path, f"not a CSV line: {exc}", reader.line_num + 1) from None
-    rows = [(n, r) for n, r in rows if r and "".join(r).strip() and not r[0].lstrip().startswith("#")]
-    if not rows:
-        raise BlockError(path, "empty file: a header line is required", 1)
-    header_line, header = rows[0]
-    header = [h.strip() for h in header]
-    seen: set[str] = set()
-    for name in header:
-        if name in seen:
-            raise BlockError(path, "duplicated column", header_line, name)
-        seen.add(name)
-        if name not in spec:
-            known = ", ".join(spec)
-            raise BlockError(path, f"unknown column (known: {known})", header_line, name)
-    for column in columns:
-        if column.required and column.name not in seen:
-            raise BlockError(path, "missing column", header_line, column.name)
-    for line, fields in rows[1:]:
-        if len(fields) != len(header):
-            raise BlockError(path, f"expected {len(header)} fields, found {len(fields)}", line)
-    lines = np.array([line for line, _ in rows[1:]], dtype=np.int64)
-    texts = list(zip(*(fields for _, fields in rows[1:]))) or [()] * len(header)
-    out = _columns_at_once(header, texts, spec)
-    if out is None:                     # a value to refuse or an empty optional one: value by value, in line order
-        out = _columns_value_by_value(path, header, rows[1:], spec)
-    return Table(path, out, lines)
-
-
 def _columns_at_once(header: list[str], texts: list[tuple], spec: dict) -> dict[str, np.ndarray] | None:
     """Each column converted in one pass (``float`` of every text, as :func:`_parse_number` does); None when a
     number column holds anything else than finite numbers, for the value-by-value reading to say where."""
     out: dict[str, np.ndarray] = {}
     for name, column in zip(header, texts):
         if spec[name].kind == STR:
-            out[name] = np.array([text.strip() for text in column], dtype=object)
+            out[name] = np.array(list(map(str.strip, column)), dtype=object)
             continue
-        cells = np.array(column, dtype=object)
         if spec[name].kind == OPT_NUM:
             empty = np.array([text.strip() == "" for text in column], dtype=bool)
-            cells[empty] = "nan"
+            if empty.any():
+                column = ["nan" if blank else text for text, blank in zip(column, empty.tolist())]
         try:
-            values = cells.astype(float)
+            values = np.fromiter(map(float, column), np.float64, len(column))
         except (ValueError, TypeError):
             return None
         if spec[name].kind == OPT_NUM:
@@ -173,28 +292,51 @@ def _columns_value_by_value(path: str, header: list[str], rows: list, spec: dict
 
 def _quoted(text: str) -> str:
     """A CSV field as RFC 4180 writes it: quoted when it holds a comma, a quote or a line break."""
-    if any(c in text for c in ',"\n\r'):
+    if "," in text or '"' in text or "\n" in text or "\r" in text:
         return '"' + text.replace('"', '""') + '"'
     return text
 
 
-def _column_text(column, fmt: str) -> list[str]:
-    values = np.asarray(column).tolist()
+#: rows of a table formatted at a time when it is written: their texts are Python objects (about 70 bytes a value)
+ROWS_PER_WRITE = 1 << 16
+
+
+def _column_text(column, fmt: str, quoted: dict | None = None) -> list[str]:
+    """The CSV fields of a column (a slice of one): ``format(value, fmt)``, NaN and infinite numbers empty; ``fmt``
+    ``""`` writes text, quoted where it needs it (``quoted``: the fields of the texts met so far, kept over the
+    slices of a column)."""
+    array = np.asarray(column)
+    values = array.tolist()                     # Python numbers: format() as the specification says
     if fmt == "":
         # each distinct text quoted once (an observation table repeats its few thousand ids 300,000 times)
-        quoted = {v: _quoted(str(v)) for v in set(values)}
-        return [quoted[v] for v in values]
-    return ["" if isinstance(v, float) and not math.isfinite(v) else format(v, fmt) for v in values]
+        quoted = {} if quoted is None else quoted
+        for v in set(values).difference(quoted):
+            quoted[v] = _quoted(str(v))
+        return list(map(quoted.__getitem__, values))
+    texts = list(map(format, values, itertools.repeat(fmt, len(values))))
+    if array.dtype.kind == "f":
+        for k in np.flatnonzero(~np.isfinite(array)).tolist():
+            texts[k] = ""
+    elif array.dtype.kind not in "iub":
+        for k, v in enumerate(values):
+            if isinstance(v, float) and not math.isfinite(v):
+                texts[k] = ""
+    return texts
 
 
 def write_table(handle: TextIO, header: list[str], columns: list, formats: list[str]) -> None:
-    """Write columns (equal-length sequences) as CSV to an open text handle.
+    """Write columns (equal-length sequences) as CSV to an open text handle, ROWS_PER_WRITE rows at a time (the
+    texts of those rows are held, not the table's).
 
     ``formats`` are ``format()`` specifications per column (``""`` for
     strings); NaN numbers are written as empty fields.
     """
     handle.write(",".join(_quoted(h) for h in header) + "\n")
-    texts = [_column_text(c, f) for c, f in zip(columns, formats)]
-    if texts and texts[0]:
-        handle.write("\n".join(",".join(row) for row in zip(*texts)))
+    arrays = [np.asarray(c) for c in columns]
+    quoted: list[dict] = [{} for _ in columns]
+    n = min((len(a) for a in arrays), default=0)
+    for start in range(0, n, ROWS_PER_WRITE):
+        part = slice(start, min(n, start + ROWS_PER_WRITE))
+        texts = [_column_text(a[part], f, q) for a, f, q in zip(arrays, formats, quoted)]
+        handle.write("\n".join(map(",".join, zip(*texts))))
         handle.write("\n")

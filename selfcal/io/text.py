@@ -10,7 +10,7 @@ import os
 
 from ..errors import BlockError
 
-__all__ = ["read_text", "read_json", "decode_text", "is_number", "yaml_error", "UTF8_BOM"]
+__all__ = ["read_text", "read_json", "decode_text", "decode_utf8", "is_number", "yaml_error", "UTF8_BOM"]
 
 UTF8_BOM = b"\xef\xbb\xbf"
 
@@ -19,16 +19,21 @@ def decode_text(data: bytes, path: str) -> str:
     """``data`` as text (UTF-8, a leading byte-order mark dropped); anything else is a BlockError."""
     if data.startswith((b"\xff\xfe", b"\xfe\xff")):
         raise BlockError(path, "UTF-16 text: save the file as UTF-8", 1)
-    data = data.removeprefix(UTF8_BOM)
+    return decode_utf8(data.removeprefix(UTF8_BOM), path)
+
+
+def decode_utf8(data: bytes, path: str, lines_before: int = 0) -> str:
+    """``data`` as UTF-8 text without a NUL; anything else is a BlockError on its line, counted after
+    ``lines_before`` (``data`` a block of a file that starts a line)."""
     try:
         text = data.decode("utf-8")
     except UnicodeDecodeError as exc:
-        line = data.count(b"\n", 0, exc.start) + 1
+        line = lines_before + data.count(b"\n", 0, exc.start) + 1
         column = exc.start - (data.rfind(b"\n", 0, exc.start) + 1) + 1
         raise BlockError(path, f"byte 0x{data[exc.start]:02x} at character {column} is not UTF-8 text (save the file "
                                f"as UTF-8)", line) from None
     if "\0" in text:
-        line = text.count("\n", 0, text.index("\0")) + 1
+        line = lines_before + text.count("\n", 0, text.index("\0")) + 1
         raise BlockError(path, "a NUL byte: binary data, not a text file", line)
     return text
 
