@@ -440,7 +440,7 @@ def _read_observations(folder, images, image_index, point_index, cameras, defaul
         if bad.size:
             raise BlockError(path, f"sigma must be positive, found {given[bad[0]]}", int(line[bad[0]]), "sigma_px")
         sigma = np.where(np.isnan(given), default_sigma, given)
-    keep = ~outside
+    keep = slice(None) if not outside.any() else ~outside          # no copies of every array for nothing
     observations = Observations(image_index=img[keep], point_index=pt[keep], pixel=np.column_stack([col, row])[keep],
                                 sigma_px=sigma[keep], line=line[keep])
     return observations, Dropped(observations_outside_frame=len(messages), messages=tuple(messages))

@@ -75,8 +75,8 @@ def _parse_number(text: str, path: str, line: int, column: str, allow_empty: boo
 
 
 #: rows a chunk of a table holds at most while it is read (:func:`read_table_chunks`): its text fields are Python
-#: objects, about 350 bytes a row of observations.csv, so a chunk holds some 90 MB of them whatever the file's size
-ROWS_PER_CHUNK = 1 << 18
+#: objects, about 350 bytes a row of observations.csv, so a chunk holds some 23 MB of them whatever the file's size
+ROWS_PER_CHUNK = 1 << 16
 
 #: bytes of the file decoded at a time (held as text twice: the decoded block and the StringIO that the reader reads,
 #: which keeps four bytes a character)
