@@ -393,7 +393,8 @@ def _read_observations(folder, images, image_index, point_index, cameras, defaul
         for name, values in (("img", img), ("pt", pt), ("col", chunk["col_px"]), ("row", chunk["row_px"]),
                              ("sigma", chunk["sigma_px"] if has_sigma else np.zeros(0)), ("line", chunk.line)):
             parts[name].append(values)
-    img, pt, col, row, given, line = (np.concatenate(parts[name]) for name in ("img", "pt", "col", "row", "sigma", "line"))
+    img, pt, col, row, given, line = (np.concatenate(parts.pop(name)) for name in ("img", "pt", "col", "row", "sigma",
+                                                                                     "line"))
     n = len(line)
     point_ids: list | None = None
 
@@ -405,14 +406,17 @@ def _read_observations(folder, images, image_index, point_index, cameras, defaul
 
     image_ids = images.image_id
     pair = img * (len(point_index) + 1) + pt
-    order = np.argsort(pair, kind="stable")
-    dup = np.flatnonzero(pair[order][1:] == pair[order][:-1])
-    if dup.size:
+    ordered = np.sort(pair)
+    if (ordered[1:] == ordered[:-1]).any():
+        del ordered
+        order = np.argsort(pair, kind="stable")
+        dup = np.flatnonzero(pair[order][1:] == pair[order][:-1])
         first, second = order[dup[0]], order[dup[0] + 1]
         raise BlockError(path,
                          f"duplicated observation of point '{point_id(second)}' in image "
                          f"'{image_ids[img[second]]}' (first on line {line[first]})",
                          int(line[second]), "point_id")
+    del pair, ordered
     width = np.array([cameras[c].width_px for c in images.camera_id], float)[img]
     height = np.array([cameras[c].height_px for c in images.camera_id], float)[img]
     outside_col = (col < -0.5) | (col > width + 0.5)
