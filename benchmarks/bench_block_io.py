@@ -6,7 +6,8 @@ each written once (one process) as a block folder and as a COLMAP sparse model o
 observations (binary, by selfcal's writer, and text, by pycolmap's). Each reading runs in a process of its own,
 which measures its seconds and its peak resident memory above the interpreter with its modules loaded (so that the
 import of NumPy or pycolmap is not counted): `selfcal.io.read_block` (observations.csv read a chunk of 2^16 rows at
-a time), selfcal's COLMAP reader (`selfcal.io.colmap.read_colmap`, the whole file at once), and
+a time), selfcal's COLMAP reader (`selfcal.io.colmap.read_colmap`, the whole file at once) on the binary and the
+text model, and
 `pycolmap.Reconstruction` (C++) on the binary and the text model. Printed: seconds and MB per million
 observations, and selfcal's block folder against pycolmap's text and binary reading (ratios).
 
@@ -81,9 +82,9 @@ def _read(how: str, folder: str) -> dict:
     if how == "selfcal":
         from selfcal.io import read_block as reader
         path = os.path.join(folder, "block")
-    elif how == "selfcal-colmap":
+    elif how.startswith("selfcal-colmap"):
         from selfcal.io.colmap import read_colmap as reader
-        path = os.path.join(folder, "bin")
+        path = os.path.join(folder, how.split("-")[2])
     else:
         import pycolmap
         reader = pycolmap.Reconstruction
@@ -99,7 +100,7 @@ def _child(*args: str) -> dict:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
-READERS = ("selfcal", "selfcal-colmap", "pycolmap-bin", "pycolmap-txt")
+READERS = ("selfcal", "selfcal-colmap-bin", "selfcal-colmap-txt", "pycolmap-bin", "pycolmap-txt")
 
 
 def main() -> None:
@@ -111,7 +112,7 @@ def main() -> None:
         kind, *rest = args.child
         print(json.dumps(_write(int(rest[0]), int(rest[1]), rest[2]) if kind == "write" else _read(kind, rest[0])))
         return
-    print(f"{'images':>7} {'observations':>12} | " + " | ".join(f"{r:>15} s  MB" for r in READERS)
+    print(f"{'images':>7} {'observations':>12} | " + " | ".join(f"{r:>18} s  MB" for r in READERS)
           + " | block folder / pycolmap txt, bin: s, MB")
     for text in args.blocks.split(","):
         strips, per_strip = (int(v) for v in text.split("x"))
@@ -123,7 +124,7 @@ def main() -> None:
             shutil.rmtree(folder, ignore_errors=True)
         own, txt, binary = runs["selfcal"], runs["pycolmap-txt"], runs["pycolmap-bin"]
         print(f"{sizes['images']:>7} {sizes['observations']:>12} | "
-              + " | ".join(f"{runs[r]['seconds']:>17.2f} {runs[r]['peak_mb']:>5.0f}" for r in READERS)
+              + " | ".join(f"{runs[r]['seconds']:>20.2f} {runs[r]['peak_mb']:>5.0f}" for r in READERS)
               + f" | {own['seconds'] / txt['seconds']:.2f} {own['peak_mb'] / txt['peak_mb']:.2f}, "
                 f"{own['seconds'] / binary['seconds']:.2f} {own['peak_mb'] / binary['peak_mb']:.2f}")
         print(json.dumps({"sizes": sizes, "runs": runs}), file=sys.stderr)

@@ -462,8 +462,11 @@ class Block:
         return np.array([lookup[c] for c in self.images.camera_id], dtype=np.int64)
 
 
-def prune(block: Block, min_points_per_image: int = MIN_POINTS_PER_IMAGE) -> Block:
+def prune(block: Block, min_points_per_image: int = MIN_POINTS_PER_IMAGE, copy: bool = True) -> Block:
     """Remove what cannot take part in the adjustment, and say what went.
+
+    The returned block's arrays are its own, unless ``copy`` is false and nothing went: then they are ``block``'s
+    (a reader's block, which nothing else holds).
 
     Repeats until stable, because dropping an image can leave tie points with a
     single ray, and dropping those can leave an image with too few points:
@@ -509,14 +512,6 @@ def prune(block: Block, min_points_per_image: int = MIN_POINTS_PER_IMAGE) -> Blo
         if not changed:
             break
 
-    img_new = np.cumsum(keep_img) - 1
-    pt_new = np.cumsum(keep_pt) - 1
-    kept_obs = obs.take(np.flatnonzero(keep_obs))
-    kept_obs = replace(
-        kept_obs,
-        image_index=img_new[kept_obs.image_index],
-        point_index=pt_new[kept_obs.point_index],
-    )
     dropped = Dropped(
         tie_points_one_image=block.dropped.tie_points_one_image + counts["tie"],
         control_points_unobserved=block.dropped.control_points_unobserved + counts["gcp"],
@@ -526,6 +521,16 @@ def prune(block: Block, min_points_per_image: int = MIN_POINTS_PER_IMAGE) -> Blo
         observations_behind_camera=block.dropped.observations_behind_camera,
         points_undetermined=block.dropped.points_undetermined,
         messages=tuple(messages),
+    )
+    if not copy and keep_obs.all() and keep_pt.all() and keep_img.all():
+        return replace(block, dropped=dropped)
+    img_new = np.cumsum(keep_img) - 1
+    pt_new = np.cumsum(keep_pt) - 1
+    kept_obs = obs.take(np.flatnonzero(keep_obs))
+    kept_obs = replace(
+        kept_obs,
+        image_index=img_new[kept_obs.image_index],
+        point_index=pt_new[kept_obs.point_index],
     )
     return replace(
         block,

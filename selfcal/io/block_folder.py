@@ -531,7 +531,7 @@ def read_block(folder: str | os.PathLike, min_gcp: int = 3) -> Block:
     )
     # blocks of seed 001's sensors are used as read: mono restitution needs check points seen in one image
     if not any(s.sensor_models for s in sensors.values()):
-        block = prune(block, min_points_per_image=min(s.min_points_per_image for s in sensors.values()))
+        block = prune(block, min_points_per_image=min(s.min_points_per_image for s in sensors.values()), copy=False)
     n_gcp = int(np.sum(block.points.role == "gcp"))
     absolute = all(s.object_frame == "ECEF" for s in sensors.values())     # the images carry the datum
     if block.datum == "control" and not block.has_trajectory and not absolute and n_gcp < min_gcp:
