@@ -413,7 +413,7 @@ def _read_observations(folder, images, image_index, point_index, cameras, defaul
         dup = np.flatnonzero(pair[order][1:] == pair[order][:-1])
         first, second = order[dup[0]], order[dup[0] + 1]
         raise BlockError(path,
-                         f"duplicated observation of point '{point_id(second)}' in image "
+                         f"duplicated observation of point '{point_id(int(second))}' in image "
                          f"'{image_ids[img[second]]}' (first on line {line[first]})",
                          int(line[second]), "point_id")
     del pair, ordered
@@ -434,7 +434,7 @@ def _read_observations(folder, images, image_index, point_index, cameras, defaul
                          f"{int(outside_per_image[unit_mistake[0]])} of the {per_image[unit_mistake[0]]} observations "
                          f"of image '{images.image_id[unit_mistake[0]]}': are the units pixels?",
                          int(line[first_out]), name)
-    for k in np.flatnonzero(outside):
+    for k in np.flatnonzero(outside).tolist():
         messages.append(f"dropped observation of point '{point_id(k)}' in image '{image_ids[img[k]]}' "
                         f"(observations.csv line {line[k]}): ({col[k]:g}, {row[k]:g}) px is outside the "
                         f"{width[k]:g} x {height[k]:g} px frame")

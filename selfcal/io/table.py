@@ -18,7 +18,7 @@ import operator
 import os
 import re
 from dataclasses import dataclass
-from typing import Iterator, TextIO
+from typing import Iterator, Sequence, TextIO
 
 import numpy as np
 
@@ -259,12 +259,13 @@ def _columns_at_once(header: list[str], texts: list[tuple], spec: dict) -> dict[
         if spec[name].kind == STR:
             out[name] = np.array(list(map(str.strip, column)), dtype=object)
             continue
+        cells: Sequence[str] = column
         if spec[name].kind == OPT_NUM:
             empty = np.array([text.strip() == "" for text in column], dtype=bool)
             if empty.any():
-                column = ["nan" if blank else text for text, blank in zip(column, empty.tolist())]
+                cells = ["nan" if blank else text for text, blank in zip(column, empty.tolist())]
         try:
-            values = np.fromiter(map(float, column), np.float64, len(column))
+            values = np.fromiter(map(float, cells), np.float64, len(cells))
         except (ValueError, TypeError):
             return None
         if spec[name].kind == OPT_NUM:
