@@ -18,6 +18,9 @@ against the plan's ``workflow_peak_mb``.
 ``--ap MODEL`` plans and adjusts that AP model (a wavelet on 9x6) instead of none (with ``--workflow``: instead of
 ``selfcal adjust``'s default).
 
+The adjustment's resident memory is also sampled every 20 ms: its peak during the iterations and during the
+covariance after them (Q_theta, the points' cofactors) are printed beside the peak.
+
 Run: ``python benchmarks/bench_plan.py [--largest 2000] [--blocks 4x7,14x36@1.0] [--workflow] [--ap MODEL]``.
 """
 from __future__ import annotations
@@ -62,6 +65,34 @@ def _write_child(n_strips: int, per_strip: int, points_per_mm2: float, folder: s
     return {"folder": folder}
 
 
+class _RSSSampler:
+    """The resident memory of this process sampled every 20 ms on a thread of its own, to tell the peak of the
+    iterations from that of the covariance after them (issue 43: which parts of the plan are alive together)."""
+
+    def __init__(self):
+        import threading
+
+        self.samples: list[tuple[float, float]] = []
+        self.running = True
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _run(self) -> None:
+        page_mb = os.sysconf("SC_PAGE_SIZE") / 2.0 ** 20
+        while self.running:
+            with open("/proc/self/statm") as handle:
+                self.samples.append((time.perf_counter(), int(handle.read().split()[1]) * page_mb))
+            time.sleep(0.02)
+
+    def stop(self, split: float) -> dict:
+        """The peak RSS (MB) sampled up to ``split`` (the last iteration's end) and after it."""
+        self.running = False
+        self.thread.join()
+        before = [r for t, r in self.samples if t <= split]
+        after = [r for t, r in self.samples if t > split]
+        return {"iterations": max(before, default=float("nan")), "covariance": max(after, default=float("nan"))}
+
+
 def _adjust_child(folder: str, ap: str | None = None) -> dict:
     """Adjust one block folder with the sigma of every unknown (AP model ``ap``: none by default, a wavelet on 9x6);
     its peak RSS and seconds per iteration."""
@@ -76,14 +107,17 @@ def _adjust_child(folder: str, ap: str | None = None) -> dict:
     speed = machine_speed()             # the probe, as the plan takes it
     stamps: list[float] = []
     options = AdjustOptions() if ap is None else AdjustOptions(ap=APOptions(ap))
+    samples = _RSSSampler()
     result = adjust(block, options, progress=lambda record: stamps.append(time.perf_counter()))
+    iterated = stamps[-1] if stamps else time.perf_counter()
     result.Q_points                     # the points' cofactors, made on first use
     sigma_ok = bool(np.all(np.isfinite(result.image_sigma())) and np.all(np.isfinite(result.point_covariance())))
+    phases = samples.stop(iterated)
     per_iteration = float(np.median(np.diff(stamps))) if len(stamps) > 1 else float("nan")
     # ru_maxrss also holds the peak of the process this one was forked from (Linux keeps it over the exec): the bench's
     # parent, about 100 MB, below every block's peak; tests/test_plan.py, run inside pytest, reads /proc's VmHWM
     return {"images": len(block.images), "observations": len(block.observations), "iterations": result.iterations,
-            "seconds_per_iteration": per_iteration, "sigma_ok": sigma_ok,
+            "seconds_per_iteration": per_iteration, "sigma_ok": sigma_ok, "phase_peaks_mb": phases,
             "machine_speed": speed, "peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0}
 
 
@@ -206,7 +240,7 @@ def main() -> None:
                   f"{m['seconds']:>8.1f}" + ("" if m["exit"] == 0 else f"  (exit {m['exit']})"), flush=True)
         return
     print(f"{'images':>7}{'pts/mm2':>8}{'obs.':>9}{'path':>26}{'peak MB pred.':>14}{'meas.':>8}{'ratio':>7}"
-          f"{'s/iter. pred.':>14}{'meas.':>8}{'ratio':>7}")
+          f"{'s/iter. pred.':>14}{'meas.':>8}{'ratio':>7}{'MB iterations / covariance':>28}")
     for strips, per_strip, density in blocks:
         folder = os.path.join(work, f"block-{strips}x{per_strip}@{density}")
         _run(["--write-child", str(strips), str(per_strip), str(density), folder])
@@ -217,6 +251,7 @@ def main() -> None:
         print(f"{m['images']:>7}{density:>8.2f}{m['observations']:>9}{path:>26}{p['peak_mb']:>14.0f}{m['peak_mb']:>8.0f}"
               f"{p['peak_mb'] / m['peak_mb']:>7.2f}{p['seconds_per_iteration']:>14.3f}"
               f"{m['seconds_per_iteration']:>8.3f}{p['seconds_per_iteration'] / m['seconds_per_iteration']:>7.2f}"
+              f"{m['phase_peaks_mb']['iterations']:>17.0f} / {m['phase_peaks_mb']['covariance']:<8.0f}"
               + ("" if m["sigma_ok"] else "  (sigma not finite)"), flush=True)
         print("  " + json.dumps({"measured": m, "planned": p}), file=sys.stderr, flush=True)
 
