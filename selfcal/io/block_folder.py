@@ -393,8 +393,8 @@ def _read_observations(folder, images, image_index, point_index, cameras, defaul
         for name, values in (("img", img), ("pt", pt), ("col", chunk["col_px"]), ("row", chunk["row_px"]),
                              ("sigma", chunk["sigma_px"] if has_sigma else np.zeros(0)), ("line", chunk.line)):
             parts[name].append(values)
-    img, pt, col, row, given, line = (np.concatenate(parts.pop(name)) for name in ("img", "pt", "col", "row", "sigma",
-                                                                                     "line"))
+    img, pt, col, row, given, line = (np.concatenate(parts.pop(name))
+                                      for name in ("img", "pt", "col", "row", "sigma", "line"))
     n = len(line)
     point_ids: list | None = None
 

@@ -92,16 +92,16 @@ def read_table(path: str | os.PathLike, columns: list[Column]) -> Table:
     first = chunks[0]
     if len(chunks) == 1:
         return first
-    return Table(first.path, {name: np.concatenate([chunk.columns[name] for chunk in chunks]) for name in first.columns},
-                 np.concatenate([chunk.line for chunk in chunks]))
+    columns_read = {name: np.concatenate([chunk.columns[name] for chunk in chunks]) for name in first.columns}
+    return Table(first.path, columns_read, np.concatenate([chunk.line for chunk in chunks]))
 
 
 def read_table_chunks(path: str | os.PathLike, columns: list[Column],
                       rows_per_chunk: int | None = None) -> Iterator[Table]:
     """The table of :func:`read_table` in consecutive chunks of at most ``rows_per_chunk`` rows (ROWS_PER_CHUNK by
-    default; at least one chunk,
-    empty for a table of a header alone), read and checked as they come: the text of one chunk at a time is held,
-    not the file's. A defect is the BlockError of :func:`read_table`, raised with the chunk that holds it."""
+    default; at least one chunk, empty for a table of a header alone), read and checked as they come: the text of one
+    chunk at a time is held, not the file's. A defect is the BlockError of :func:`read_table`, raised with the chunk
+    that holds it: the first in line order."""
     path = str(path)
     if not os.path.isfile(path):
         raise BlockError(path, "file not found")
@@ -141,9 +141,9 @@ def read_table_chunks(path: str | os.PathLike, columns: list[Column],
 
 
 def _text_blocks(path: str) -> Iterator[io.StringIO]:
-    """The text of the file in blocks of whole lines (UTF-8, a leading byte-order mark dropped; line endings kept, split as
-    ``io.StringIO(text, newline="")`` splits them), decoded a block at a time; bytes that are not UTF-8 text or a NUL
-    are the BlockError of :func:`~selfcal.io.text.decode_text`, on their line."""
+    """The text of the file in blocks of whole lines, each a ``StringIO(text, newline="")`` (UTF-8, a leading
+    byte-order mark dropped, line endings kept), decoded BYTES_PER_BLOCK at a time; bytes that are not UTF-8 text or a
+    NUL are the BlockError of :func:`~selfcal.io.text.decode_text`, on their line."""
     try:
         handle = open(path, "rb")
     except OSError as exc:
