@@ -135,11 +135,17 @@ def test_too_large_block_exits_2_before_any_work(block_folder, capsys, monkeypat
     assert run_cli("plan", str(block_folder), "--ap", "none", "--json") == 2
     captured = capsys.readouterr()
     assert "the machine has 0.0 GB available" in captured.err and "the block needs about 0." in captured.err
-    assert json.loads(captured.out)["exit_code"] == 2
+    document = json.loads(captured.out)
+    assert document["exit_code"] == 2 and document["outcome"] is None and "the block needs about" in document["error"]
+    # the plan it refused, part by part
+    figures = document["figures"]
+    assert figures["available_mb"] == 50.0 and figures["workflow_peak_mb"] > figures["peak_mb"] > 50.0
+    assert abs(sum(figures["memory_mb"].values()) - figures["peak_mb"]) < 1e-6 * figures["peak_mb"]
     # room for one adjustment (about 200 MB) but not for selfcal adjust's default tests (about 340 MB)
     monkeypatch.setattr(plan_module, "available_mb", lambda: 280.0)
     assert run_cli("plan", str(block_folder), "--ap", "none") == 2
-    assert "(selfcal adjust with its default tests)" in capsys.readouterr().err
+    captured = capsys.readouterr()
+    assert "(selfcal adjust with its default tests)" in captured.err and captured.out == ""
 
 
 def test_missing_block_folder_exits_2_naming_it(tmp_path, capsys):

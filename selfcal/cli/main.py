@@ -156,7 +156,7 @@ def _run(argv: list[str], command: bool) -> int:
         return code
     except SelfcalError as exc:
         print(f"selfcal {args.command}: error: {exc}", file=sys.stderr)
-        outcome.failed(args, name, exc.exit_code, str(exc))
+        outcome.failed(args, name, exc.exit_code, str(exc), getattr(exc, "figures", None))
         return exc.exit_code
     except OSError as exc:             # a folder removed under the run, a device error: no traceback
         if _signal_of(exc) is not None:

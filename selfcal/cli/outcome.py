@@ -140,7 +140,9 @@ def finish(args: argparse.Namespace, line: str, figures: Mapping | None = None, 
     return exit_code
 
 
-def failed(args: argparse.Namespace | None, command: str, exit_code: int, error: str) -> None:
-    """With --json, the document of a verb ended by an error (bad input, a failed write) before its outcome."""
+def failed(args: argparse.Namespace | None, command: str, exit_code: int, error: str,
+           figures: Mapping | None = None) -> None:
+    """With --json, the document of a verb ended by an error (bad input, a failed write) before its outcome, with
+    the ``figures`` the error was found with, if any (`selfcal plan`'s refusal: the plan it refused)."""
     if args is not None and getattr(args, "json", False):
-        print(_document(command_of(args) or command, exit_code, None, None, (), error), flush=True)
+        print(_document(command_of(args) or command, exit_code, None, figures, (), error), flush=True)

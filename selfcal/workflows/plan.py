@@ -24,7 +24,12 @@ __all__ = ["plan_block", "image_graph_sizes", "available_mb", "check_fits", "Too
 
 
 class TooLarge(UsageError):
-    """The block needs more memory than the machine has available (exit 2, before any work)."""
+    """The block needs more memory than the machine has available (exit 2, before any work); ``figures``: the plan
+    it refused, part by part (the figures of the verb's --json document)."""
+
+    def __init__(self, message: str, figures: dict | None = None):
+        super().__init__(message)
+        self.figures = figures
 
 
 def image_graph_sizes(obs_image: np.ndarray, obs_point: np.ndarray, n_images: int, n_points: int) -> dict:
@@ -124,4 +129,5 @@ def check_fits(plan: Plan, available: float, workflow: bool = True) -> None:
         raise TooLarge(f"the block needs about {need / 1024:.1f} GB ({what}), the machine has {available / 1024:.1f} "
                        f"GB available; the largest part of one adjustment is the {largest.replace('_', ' ')} "
                        f"({plan.memory_mb[largest] / 1024:.1f} GB, {plan.factorisation} factorisation, "
-                       f"{plan.covariance}): free memory, use a larger machine, or split the block")
+                       f"{plan.covariance}): free memory, use a larger machine, or split the block",
+                       {**plan.as_dict(), "available_mb": available})
