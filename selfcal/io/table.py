@@ -23,7 +23,7 @@ from typing import Iterator, Sequence, TextIO
 import numpy as np
 
 from ..errors import BlockError
-from .text import UTF8_BOM, decode_utf8
+from .text import UTF8_BOM, decode_utf8, without_bom
 
 __all__ = ["Column", "Table", "read_table", "read_table_chunks", "write_table"]
 
@@ -164,9 +164,7 @@ def _text_blocks(path: str) -> Iterator[io.StringIO]:
                     if not more:
                         break
                     data += more
-                if data.startswith((b"\xff\xfe", b"\xfe\xff")):
-                    raise BlockError(path, "UTF-16 text: save the file as UTF-8", 1)
-                data = data.removeprefix(UTF8_BOM)
+                data = without_bom(data, path)
                 first = False
             if not end:
                 block = carry + data

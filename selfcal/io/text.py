@@ -10,16 +10,21 @@ import os
 
 from ..errors import BlockError
 
-__all__ = ["read_text", "read_json", "decode_text", "decode_utf8", "is_number", "yaml_error", "UTF8_BOM"]
+__all__ = ["read_text", "read_json", "decode_text", "decode_utf8", "without_bom", "is_number", "yaml_error", "UTF8_BOM"]
 
 UTF8_BOM = b"\xef\xbb\xbf"
 
 
 def decode_text(data: bytes, path: str) -> str:
     """``data`` as text (UTF-8, a leading byte-order mark dropped); anything else is a BlockError."""
+    return decode_utf8(without_bom(data, path), path)
+
+
+def without_bom(data: bytes, path: str) -> bytes:
+    """The first bytes of a file without UTF-8's byte-order mark; UTF-16's is a BlockError."""
     if data.startswith((b"\xff\xfe", b"\xfe\xff")):
         raise BlockError(path, "UTF-16 text: save the file as UTF-8", 1)
-    return decode_utf8(data.removeprefix(UTF8_BOM), path)
+    return data.removeprefix(UTF8_BOM)
 
 
 def decode_utf8(data: bytes, path: str, lines_before: int = 0) -> str:
