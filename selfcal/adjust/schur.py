@@ -37,8 +37,9 @@ from .residuals import parameter_observations
 from .residuals.image import chunk_rows, contexts, image_residuals
 from .working import image_maps, symmetrised, working_columns
 
-__all__ = ["ChunkLinearisation", "Linearisation", "linearise", "reduce", "back_substitute", "evaluate_cost",
-           "cost_and_residuals",
+__all__ = ["ChunkLinearisation", "Linearisation", "linearise", "linearise_points", "with_parameter_observations",
+           "reduce", "back_substitute", "evaluate_cost",
+           "cost_and_residuals", "points_cost_and_residuals", "parameter_cost",
            "SingularPoints", "damped_inverse"]
 
 
@@ -109,7 +110,17 @@ def _self_product(Z: np.ndarray) -> np.ndarray:
 
 
 def linearise(problem: Problem, state: State) -> Linearisation:
-    """Jacobians and normal-equation blocks at ``state``."""
+    """Jacobians and normal-equation blocks at ``state``: the observations of points
+    (:func:`linearise_points`) and then, once, those of theta alone (:func:`with_parameter_observations`)."""
+    return with_parameter_observations(problem, state, linearise_points(problem, state))
+
+
+def linearise_points(problem: Problem, state: State) -> Linearisation:
+    """The part of the normal equations that the image observations and the observations of points give: a sum
+    over the points, so over any partition of them (a share of the points on a worker of a distributed
+    adjustment gives its part, and the parts add). Without the observations of theta alone and without the held
+    image parameters' unit diagonal, which belong to the whole problem once: ``J_x`` is empty and ``g_theta``,
+    ``diag_theta`` and ``cost`` are the points' part."""
     n_img, n_e, n_d, width = problem.n_images, problem.n_e, problem.n_d, problem.image_width
     structure = problem.structure()
     context = contexts(problem, state)
@@ -199,20 +210,29 @@ def linearise(problem: Problem, state: State) -> Linearisation:
         if build_gram:
             problem.ap_cache.gram = gram
         U_dd[np.ix_(constant, constant)] += gram
-    if not problem.all_images_free:
-        # held image parameters: a unit diagonal and no coupling, so that their correction is zero
-        held_image, held_entry = np.nonzero(~problem.image_free)
-        U_ee[held_image, held_entry, held_entry] = 1.0
-    J_x, r_x = parameter_observations(problem, state)
-    cost += 0.5 * float(np.sum(r_x * r_x))
     g_theta = np.concatenate([g_e.ravel(), g_d, np.zeros(problem.n_extra)])
+    return Linearisation(cost, U_ee, U_ed, U_dd, g_theta, sp.csr_matrix((0, problem.n_theta)), np.zeros(0), chunks,
+                         np.zeros(0))
+
+
+def with_parameter_observations(problem: Problem, state: State, lin: Linearisation) -> Linearisation:
+    """``lin`` (the points' part, :func:`linearise_points`, of the whole problem or summed over shares of its
+    points) completed, in place, with what the whole problem has once: the held image parameters' unit diagonal
+    (their correction is zero), the observations of theta alone (priors, GNSS, IMU, the trajectory terms), and
+    theta's diagonal."""
+    if not problem.all_images_free:
+        held_image, held_entry = np.nonzero(~problem.image_free)
+        lin.U_ee[held_image, held_entry, held_entry] = 1.0
+    J_x, r_x = parameter_observations(problem, state)
+    lin.cost += 0.5 * float(np.sum(r_x * r_x))
     if J_x.shape[0]:
-        g_theta += J_x.T @ r_x
-    diag_theta = np.concatenate([np.einsum("nii->ni", U_ee).ravel(), np.diag(U_dd).copy(),
+        lin.g_theta += J_x.T @ r_x
+    diag_theta = np.concatenate([np.einsum("nii->ni", lin.U_ee).ravel(), np.diag(lin.U_dd).copy(),
                                  np.zeros(problem.n_extra)])
     if J_x.shape[0]:
         diag_theta += np.asarray(J_x.multiply(J_x).sum(axis=0)).ravel()
-    return Linearisation(cost, U_ee, U_ed, U_dd, g_theta, J_x, r_x, chunks, diag_theta)
+    lin.J_x, lin.r_x, lin.diag_theta = J_x, r_x, diag_theta
+    return lin
 
 
 class SingularPoints(AdjustmentError):
@@ -453,10 +473,21 @@ def evaluate_cost(problem: Problem, state: State) -> float:
 def cost_and_residuals(problem: Problem, state: State) -> tuple[float, np.ndarray]:
     """:func:`evaluate_cost` and the image residuals l - f it sums (observation units, sorted order, (n, 2)): a
     robust reweighting at an accepted step reads them instead of evaluating them again."""
+    cost, residuals = points_cost_and_residuals(problem, state)
+    return cost + parameter_cost(problem, state), residuals
+
+
+def points_cost_and_residuals(problem: Problem, state: State) -> tuple[float, np.ndarray]:
+    """The cost's part of the image observations and the observations of points (a sum over the points, as in
+    :func:`linearise_points`), and the image residuals."""
     residuals = image_residuals(problem, state)
     v = residuals / problem.obs_sigma
     cost = 0.5 * float(np.sum(v * v))
-    cost += sum(block.cost(state.points) for block in problem.point_residuals)
+    return cost + sum(block.cost(state.points) for block in problem.point_residuals), residuals
+
+
+def parameter_cost(problem: Problem, state: State) -> float:
+    """The cost's part of the observations of theta alone."""
     _, r_x = parameter_observations(problem, state)
-    return cost + 0.5 * float(np.sum(r_x * r_x)), residuals
+    return 0.5 * float(np.sum(r_x * r_x))
 
