@@ -285,6 +285,44 @@ def _point_schur(Vi: np.ndarray, W_pd: np.ndarray) -> np.ndarray:
     return _self_product(point_blocks_times(L, W_pd, True))
 
 
+@dataclass
+class ReducedSums:
+    """The reduced normal equations as sums over the points, before their assembly into one matrix: the image
+    blocks (one per image, one per pair of images that share a point, ``pair_keys`` ia * n_images + ib with
+    ia < ib), the image-camera and camera-camera parts, and the right-hand side. :meth:`start` holds the
+    linearisation's U and g, to which :func:`add_point_schur` adds the points' - W V^-1 W^T and - W V^-1 g_p;
+    :meth:`zeros` holds nothing, for the part of a share of the points (a worker's)."""
+
+    diag: np.ndarray        # (n_images, w, w)
+    off: np.ndarray         # (n_pairs, w, w)
+    pair_keys: np.ndarray   # (n_pairs,)
+    S_ed: np.ndarray        # (n_e, n_d)
+    S_dd: np.ndarray        # (n_d, n_d)
+    g: np.ndarray           # (n_theta,)
+
+    @classmethod
+    def start(cls, problem: Problem, lin: Linearisation) -> "ReducedSums":
+        keys = problem.structure().pair_keys
+        return cls(lin.U_ee.copy(), np.zeros((len(keys), problem.image_width, problem.image_width)), keys,
+                   lin.U_ed.copy(), lin.U_dd.copy(), lin.g_theta.copy())
+
+    @classmethod
+    def zeros(cls, problem: Problem) -> "ReducedSums":
+        keys = problem.structure().pair_keys
+        w, n_d = problem.image_width, problem.n_d
+        return cls(np.zeros((problem.n_images, w, w)), np.zeros((len(keys), w, w)), keys, np.zeros((problem.n_e, n_d)),
+                   np.zeros((n_d, n_d)), np.zeros(problem.n_theta))
+
+    def add(self, part: "ReducedSums") -> None:
+        """Add another share's part (its pairs among these)."""
+        self.diag += part.diag
+        if len(part.pair_keys):
+            self.off[np.searchsorted(self.pair_keys, part.pair_keys)] += part.off
+        self.S_ed += part.S_ed
+        self.S_dd += part.S_dd
+        self.g += part.g
+
+
 def reduce(problem: Problem, lin: Linearisation, lam: float = 0.0, dense: bool = True):
     """Reduced normal matrix S and right-hand side g of theta, with damping ``lam``.
 
@@ -301,18 +339,22 @@ def reduce(problem: Problem, lin: Linearisation, lam: float = 0.0, dense: bool =
     g : ndarray (n_theta,)
     v_inv : list of (n_pc, 3, 3) damped inverse point blocks per chunk
     """
+    sums = ReducedSums.start(problem, lin)
+    v_inv = add_point_schur(problem, lin.chunks, lam, sums)
+    return assemble(problem, lin, sums, lam, dense), sums.g, v_inv
+
+
+def add_point_schur(problem: Problem, chunks: list[ChunkLinearisation], lam: float, sums: ReducedSums) -> list:
+    """Add the points' part of the reduced system, - W V^-1 W^T and - W V^-1 g_p with the damped point blocks, to
+    ``sums`` (over the problem's pairs of images); returns the damped inverse point blocks of each chunk."""
     n_img, n_e, n_d, n_t = problem.n_images, problem.n_e, problem.n_d, problem.n_theta
     w = problem.image_width
     structure = problem.structure()
-    S_ed = lin.U_ed.copy()
-    S_dd = lin.U_dd.copy()
-    g = lin.g_theta.copy()
-    diag_blocks = lin.U_ee.copy()
-    off_blocks = np.zeros((len(structure.pair_keys), w, w))
+    S_ed, S_dd, g, diag_blocks, off_blocks = sums.S_ed, sums.S_dd, sums.g, sums.diag, sums.off
     # compact cameras: an observation's block is its image's columns and its camera's (one camera per
     # image in BAL); the Schur terms of both are summed over the pairs of each point's observations at once
     # and spread over S_ee, S_ed and S_dd afterwards
-    compact = bool(n_d) and bool(lin.chunks) and lin.chunks[0].w_d is not None
+    compact = bool(n_d) and bool(chunks) and chunks[0].w_d is not None
     if compact:
         own = problem.camera_columns()[problem.image_camera]               # (n_images, camera width), -1 pads
         wide = w + own.shape[1]
@@ -357,7 +399,7 @@ def reduce(problem: Problem, lin: Linearisation, lam: float = 0.0, dense: bool =
             g[n_e:n_e + n_d] -= ch.W_pd.T @ np.einsum("pij,pj->pi", Vi, ch.g_p).ravel()
         return Vi
 
-    v_inv, parts = over_chunks(list(zip(lin.chunks, structure.chunks)), work, new_sums)
+    v_inv, parts = over_chunks(list(zip(chunks, structure.chunks)), work, new_sums)
     ia, ib = structure.image_pair_a, structure.image_pair_b
     if working is not None:
         maps = image_maps(problem, working)
@@ -382,6 +424,16 @@ def reduce(problem: Problem, lin: Linearisation, lam: float = 0.0, dense: bool =
         off_blocks += wide_off[:, :w, :w]
         _spread_camera_blocks(wide_diag, wide_off, own, ia, ib, w, S_ed, S_dd)
 
+    return v_inv
+
+
+def assemble(problem: Problem, lin: Linearisation, sums: ReducedSums, lam: float, dense: bool):
+    """The reduced normal matrix from its sums over the points (``sums``, the linearisation's U included), with
+    the observations of theta alone and the damping ``lam``; dense or sparse (csc)."""
+    n_img, n_e, n_d, n_t = problem.n_images, problem.n_e, problem.n_d, problem.n_theta
+    w = problem.image_width
+    S_ed, S_dd, diag_blocks, off_blocks = sums.S_ed, sums.S_dd, sums.diag, sums.off
+    ia, ib = (sums.pair_keys // n_img, sums.pair_keys % n_img) if n_img else (sums.pair_keys, sums.pair_keys)
     damp = lam * lin.diag_theta
     S: np.ndarray | sp.csc_matrix
     if dense:
@@ -413,7 +465,7 @@ def reduce(problem: Problem, lin: Linearisation, lam: float = 0.0, dense: bool =
             S = S + (lin.J_x.T @ lin.J_x).tocsc()
         S = S + sp.diags(damp)
         S = (0.5 * (S + S.T)).tocsc()
-    return S, g, v_inv
+    return S
 
 
 def _spread_camera_blocks(wide_diag, wide_off, own, ia, ib, w, S_ed, S_dd) -> None:
