@@ -23,7 +23,8 @@ import numpy as np
 from .working import image_maps, working_columns
 
 __all__ = ["control_on_a_line", "control_far_away", "undetermined_points", "behind_camera",
-           "points_not_determined_by_rays", "LINE_FRACTION", "POINT_SIGMA_RATIO", "FAR_FACTOR", "POINT_BLOCK_RCOND",
+           "points_not_determined_by_rays", "conditional_point_sigma", "undetermined_by_sigma",
+           "LINE_FRACTION", "POINT_SIGMA_RATIO", "FAR_FACTOR", "POINT_BLOCK_RCOND",
            "FREE_POINT_SIGMA_RATIO", "similarity_directions"]
 
 #: control whose RMS distance from its best-fitting line is below this share of the block's extent is on a line
@@ -143,6 +144,13 @@ def points_not_determined_by_rays(V: np.ndarray, ratio: float = POINT_SIGMA_RATI
     of the normal equations (unit weight): the smallest eigenvalue below ``rcond`` times the largest, or the
     conditional sigma sqrt(trace V^-1) (the point's sigma with the orientations held) above ``ratio`` times
     the median. ``sigma`` is that conditional sigma (inf where singular)."""
+    sigma = conditional_point_sigma(V, rcond)
+    return undetermined_by_sigma(sigma, ratio), sigma
+
+
+def conditional_point_sigma(V: np.ndarray, rcond: float = POINT_BLOCK_RCOND) -> np.ndarray:
+    """sqrt(trace V^-1) of each point's 3 x 3 block ``V`` (n, 3, 3) of the normal equations: its sigma with the
+    orientations held (unit weight); inf where the smallest eigenvalue is below ``rcond`` times the largest."""
     V = np.asarray(V, float)
     # closed forms for the symmetric 3 x 3 blocks: the principal 2 x 2 minors and the determinant. The
     # eigenvalues are needed only where 4 det / trace^2, a lower bound of the smallest eigenvalue (the other
@@ -161,8 +169,15 @@ def points_not_determined_by_rays(V: np.ndarray, ratio: float = POINT_SIGMA_RATI
     ok = ~singular
     if ok.any():
         sigma[ok] = np.sqrt(minors[ok] / det[ok])                  # trace(V^-1) = sum of the minors / det
-    median = float(np.median(sigma[ok])) if ok.any() else np.inf
-    return np.flatnonzero(singular | (sigma > ratio * median)), sigma
+    return sigma
+
+
+def undetermined_by_sigma(sigma: np.ndarray, ratio: float = POINT_SIGMA_RATIO) -> np.ndarray:
+    """The points whose conditional sigma (:func:`conditional_point_sigma`, of every point of the block) is infinite
+    (a singular block) or above ``ratio`` times the median of the finite ones."""
+    finite = np.isfinite(sigma)
+    median = float(np.median(sigma[finite])) if finite.any() else np.inf
+    return np.flatnonzero(~finite | (sigma > ratio * median))
 
 
 def similarity_directions(problem, state, lin) -> np.ndarray | None:

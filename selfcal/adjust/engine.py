@@ -27,6 +27,7 @@ import numpy as np
 
 from ..block import Block, leave_out, prune
 from ..errors import AdjustmentError
+from . import distributed
 from .ap_columns import carry_ap_columns
 from .datum import FREE_POINT_SIGMA_RATIO, behind_camera, points_not_determined_by_rays
 from .initial import PointsNotIntersected, initial_state
@@ -294,9 +295,11 @@ def _adjust(block: Block, options: AdjustOptions, progress, start, free, ap_mode
             if progress is not None:
                 progress(replace(record, iteration=record.iteration + done))
         weighting = RobustWeighting(robust) if robust is not None else None
+        # the points on a Dask cluster's workers, where the adjustment runs inside distributed.on_cluster
+        side = distributed.point_side(problem, block, options, robust is not None, free_network)
         try:
             outcome = solve(problem, state, names, budget, numbered, datum_null,
-                            None if weighting is None else weighting.update)
+                            None if weighting is None else weighting.update, side)
         except SingularPoints as exc:
             ids = ", ".join(f"'{block.points.point_id[i]}'" for i in exc.indices[:5])
             if robust is None:
@@ -310,6 +313,9 @@ def _adjust(block: Block, options: AdjustOptions, progress, start, free, ap_mode
             block = _leave_out(block, None, flagged, text, undetermined=int(flagged.sum()))
             problem, state, notes = setup(block, previous, {cam.camera_id: cam.ap for cam in problem.cameras})
             continue
+        finally:
+            if side is not None:
+                side.close()
         history += [replace(record, iteration=record.iteration + done) for record in outcome.history]
         datum_null = outcome.datum_null
         if outcome.undetermined is None or len(history) >= options.solver.max_iterations:

@@ -11,16 +11,17 @@ Only when no shortened step helps is damping switched on.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable
 
 import numpy as np
 
 from ..errors import AdjustmentError
-from .datum import points_not_determined_by_rays, similarity_directions
+from .datum import similarity_directions
 from .linalg import PSEUDO_INVERSE_LIMIT, dense_assembly, SingularSystem, factorise, null_directions, pseudo_factorise
 from .options import SolverOptions
-from .schur import Linearisation, back_substitute, cost_and_residuals, evaluate_cost, linearise, reduce
+from .point_side import LocalPoints, PointSide
+from .schur import Linearisation, parameter_cost, with_parameter_observations
 from .problem import Problem, State
 
 __all__ = ["IterationRecord", "SolverOutcome", "solve"]
@@ -75,34 +76,30 @@ def _singular_message(problem: Problem, S, names: list[str], detail: str) -> str
     return text
 
 
-def _shortened(problem: Problem, state: State, cost: float, d_theta: np.ndarray, d_p: np.ndarray,
-               predicted: float, halvings: int):
+def _cost(problem: Problem, points: PointSide, state: State) -> tuple[float, np.ndarray | None]:
+    """0.5 v^T P v of all observation groups at ``state`` (the points' part from their side), and the image
+    residuals where the side has them."""
+    cost, residuals = points.cost(state)
+    return cost + parameter_cost(problem, state), residuals
+
+
+def _shortened(problem: Problem, points: PointSide, state: State, cost: float, d_theta: np.ndarray,
+               d_p: np.ndarray, predicted: float, halvings: int):
     """The Gauss-Newton step halved until it lowers the cost (at most ``halvings`` >= 1 times).
 
     For the undamped step the model predicts a decrease (a - a^2/2) d^T g for
     the share a of the step; the full step's prediction is d^T g / 2.
-    Returns the last step tried, its state, cost and predicted decrease.
+    Returns the last step tried, its share of the full step, its state, cost and predicted decrease.
     """
     share = 1.0
     for _ in range(halvings):
         share *= 0.5
         candidate = problem.apply(state, share * d_theta, share * d_p)
-        new_cost = evaluate_cost(problem, candidate)
+        new_cost = _cost(problem, points, candidate)[0]
         if new_cost < cost:
             break
-    return share * d_theta, share * d_p, candidate, new_cost, 2.0 * predicted * (share - 0.5 * share * share)
-
-
-def _geometric_blocks(problem: Problem, lin: Linearisation) -> np.ndarray:
-    """The points' normal blocks as their rays' geometry makes them: each divided by its strongest ray's weight
-    factor (a robust weighting takes weight from a point's rays, not geometry from the point: a point whose rays
-    all weigh little is not undetermined but doubtful, and the cleaning decides about it)."""
-    V = lin.of_points("V")
-    if problem.obs_weight is None or np.all(problem.obs_weight == 1.0):
-        return V
-    strongest = np.zeros(problem.n_points)
-    np.maximum.at(strongest, problem.obs_point, problem.obs_weight)
-    return V / np.maximum(strongest, 1e-300)[:, None, None]
+    return (share * d_theta, share * d_p, share, candidate, new_cost,
+            2.0 * predicted * (share - 0.5 * share * share))
 
 
 def _converged(options: SolverOptions, step_sigma: float, moved_sigma: float, cost: float, new_cost: float) -> str | None:
@@ -121,7 +118,7 @@ def _converged(options: SolverOptions, step_sigma: float, moved_sigma: float, co
 def solve(problem: Problem, state: State, names: list[str], options: SolverOptions = SolverOptions(),
           progress: Callable[[IterationRecord], None] | None = None,
           datum_null: np.ndarray | None = None,
-          reweight: Callable[..., bool] | None = None) -> SolverOutcome:
+          reweight: Callable[..., bool] | None = None, points: PointSide | None = None) -> SolverOutcome:
     """Iterate to the least-squares estimate.
 
     ``datum_null``: a free network's datum directions from an earlier solve of the same unknowns
@@ -130,6 +127,7 @@ def solve(problem: Problem, state: State, names: list[str], options: SolverOptio
     the step's image residuals too, as the cost evaluated them), it may
     change the observations' weight factors (a robust loss: :mod:`selfcal.adjust.robust`) and says whether it
     did; the estimate has converged only once a step passes the tests and no weight moved.
+    ``points``: the points' side (:mod:`.point_side`); by default every point in this process.
 
     Raises
     ------
@@ -139,9 +137,10 @@ def solve(problem: Problem, state: State, names: list[str], options: SolverOptio
     """
     pseudo = options.free_network and problem.n_theta <= PSEUDO_INVERSE_LIMIT
     dense = dense_assembly(problem.n_theta, pseudo)
+    side: PointSide = LocalPoints(problem) if points is None else points
     if reweight is not None:
         reweight(problem, state)
-    lin = linearise(problem, state)
+    lin = with_parameter_observations(problem, state, side.linearise(state))
     if not np.isfinite(lin.cost):
         raise AdjustmentError("the initial residuals are not finite (points behind a camera?)")
     redundancy = max(problem.n_observations() - problem.n_unknowns(), 1)
@@ -160,15 +159,22 @@ def solve(problem: Problem, state: State, names: list[str], options: SolverOptio
         # the similarity's directions, checked by the factorisation (an eigendecomposition where they are not the
         # null space): 0.17 s of a 200-image block's first iteration
         null = similarity_directions(problem, state, lin)
+    def outcome(state: State, lin: Linearisation, converged: bool, reason: str, iterations: int, cost: float,
+                reduction: tuple | None = None, undetermined: np.ndarray | None = None) -> SolverOutcome:
+        lin, v_inv = side.gathered(lin)
+        if reduction is not None:
+            reduction = reduction[:2] + (v_inv,)
+        return SolverOutcome(state, lin, converged, reason, iterations, history, cost, reduction, undetermined, null)
+
     for iteration in range(1, options.max_iterations + 1):
         if options.point_sigma_ratio and checked is not lin:
             checked = lin
-            bad = points_not_determined_by_rays(_geometric_blocks(problem, lin), options.point_sigma_ratio)[0]
+            bad = side.undetermined(options.point_sigma_ratio)
             if bad.size:
-                return SolverOutcome(state, lin, False, f"{bad.size} points not determined by their rays",
-                                     iteration - 1, history, lin.cost, undetermined=bad, datum_null=null)
+                return outcome(state, lin, False, f"{bad.size} points not determined by their rays", iteration - 1,
+                               lin.cost, undetermined=bad)
         while True:
-            S, g, v_inv = reduce(problem, lin, lam, dense)
+            S, g = side.reduce(lin, lam, dense)
             try:
                 if pseudo and lam == 0.0:
                     factor = pseudo_factorise(S, null)
@@ -184,17 +190,15 @@ def solve(problem: Problem, state: State, names: list[str], options: SolverOptio
                 if lam > 1e12:
                     raise AdjustmentError("the damped normal equations cannot be factorised") from None
         d_theta = factor.solve(g)
-        d_p = back_substitute(problem, lin, v_inv, d_theta)
+        d_p, step = side.back_substitute(d_theta)
         candidate = problem.apply(state, d_theta, d_p)
         residuals: np.ndarray | None
-        new_cost, residuals = cost_and_residuals(problem, candidate)
-        diag_p = np.einsum("nii->ni", lin.of_points("V"))
-        g_p = lin.of_points("g_p")
-        predicted = 0.5 * (d_theta @ lin.g_theta + np.sum(d_p * g_p)
-                           + lam * (d_theta @ (lin.diag_theta * d_theta) + np.sum(diag_p * d_p * d_p)))
+        new_cost, residuals = _cost(problem, side, candidate)
+        predicted = 0.5 * (d_theta @ lin.g_theta + step.g_dot
+                           + lam * (d_theta @ (lin.diag_theta * d_theta) + step.diag_dot))
         # d^T N d of the undamped N ((N + lam D) d = g): how far the step moves any function of the unknowns
         # in units of its sigma; blind to the datum directions, along which N is null
-        moved = 2.0 * predicted - 2.0 * lam * (d_theta @ (lin.diag_theta * d_theta) + np.sum(diag_p * d_p * d_p))
+        moved = 2.0 * predicted - 2.0 * lam * (d_theta @ (lin.diag_theta * d_theta) + step.diag_dot)
         full_gauss_newton = lam == 0.0
         if full_gauss_newton and not damped_free and np.isfinite(new_cost) and not new_cost < lin.cost:
             sigma0_now = float(np.sqrt(2.0 * lin.cost / redundancy))
@@ -204,21 +208,22 @@ def solve(problem: Problem, state: State, names: list[str], options: SolverOptio
                 # fall: what the step would gain is below the rounding of the cost's sum (a line search and damped
                 # steps would chase that rounding for many iterations). The estimate stays where it is.
                 step_sigma = max(float(np.max(np.abs(d_theta) * np.sqrt(lin.diag_theta), initial=0.0)),
-                                 float(np.max(np.abs(d_p) * np.sqrt(diag_p), initial=0.0)))
+                                 step.max_sigma)
                 record = IterationRecord(iteration, lin.cost, lam, step_sigma, True, sigma0_now, moved_now)
                 history.append(record)
                 if progress is not None:
                     progress(record)
-                return SolverOutcome(state, lin, True, f"no estimate moves by {options.function_tolerance:g} of its "
-                                     f"sigma", iteration, history, lin.cost, (S, factor, v_inv), datum_null=null)
+                return outcome(state, lin, True, f"no estimate moves by {options.function_tolerance:g} of its sigma",
+                               iteration, lin.cost, (S, factor, None))
         if (full_gauss_newton and options.line_search and not damped_free and not new_cost < lin.cost
                 and abs(new_cost - lin.cost) > 1e-12 * lin.cost):
-            d_theta, d_p, candidate, new_cost, predicted = _shortened(problem, state, lin.cost, d_theta, d_p,
-                                                                      predicted, options.line_search)
+            d_theta, d_p, share, candidate, new_cost, predicted = _shortened(
+                problem, side, state, lin.cost, d_theta, d_p, predicted, options.line_search)
+            # (the share is a power of two: the points' largest scaled entry is the full step's times it, exactly)
+            step = replace(step, max_sigma=share * step.max_sigma)
             full_gauss_newton = False
             residuals = None
-        step_sigma = max(float(np.max(np.abs(d_theta) * np.sqrt(lin.diag_theta), initial=0.0)),
-                         float(np.max(np.abs(d_p) * np.sqrt(diag_p), initial=0.0)))
+        step_sigma = max(float(np.max(np.abs(d_theta) * np.sqrt(lin.diag_theta), initial=0.0)), step.max_sigma)
         rho = (lin.cost - new_cost) / predicted if predicted > 0 else -1.0
         # a step that changes the cost by no more than rounding is as good as accepted
         negligible = abs(new_cost - lin.cost) <= 1e-12 * lin.cost
@@ -244,10 +249,9 @@ def solve(problem: Problem, state: State, names: list[str], options: SolverOptio
             if done is not None:
                 converged, reason = True, done
                 if lam == 0.0:
-                    reduction = (S, factor, v_inv)
-                return SolverOutcome(state, lin, converged, reason, iteration, history, new_cost, reduction,
-                                     datum_null=null)
-            lin = linearise(problem, state)
+                    reduction = (S, factor, None)
+                return outcome(state, lin, converged, reason, iteration, new_cost, reduction)
+            lin = with_parameter_observations(problem, state, side.linearise(state))
             lam *= max(1.0 / 3.0, 1.0 - (2.0 * min(max(rho, 0.0), 1.0) - 1.0) ** 3)
             lam = min_damping if lam < 1e-9 else lam
             nu = 2.0
@@ -257,4 +261,4 @@ def solve(problem: Problem, state: State, names: list[str], options: SolverOptio
             if lam > 1e12:
                 reason = "diverged: no step lowers the cost"
                 break
-    return SolverOutcome(state, lin, converged, reason, iteration, history, lin.cost, datum_null=null)
+    return outcome(state, lin, converged, reason, iteration, lin.cost)

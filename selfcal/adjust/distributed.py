@@ -1,0 +1,287 @@
+"""One adjustment's points on a Dask cluster (issue 43 item 1; DESIGN-NOTES "The distributed adjustment").
+
+The points of a problem are cut, in the problem's order, into one share per worker, each a run of whole assembly
+chunks holding about the same number of image observations. Each share goes to its worker once, as the block of
+its points and their observations; the worker arranges it as a problem of its own (:class:`PointShare`, a Dask
+actor: it stays where it was made) with the client's AP models, its chunks and its weights, and keeps everything
+that is per point: its AP columns, its linearisation, its damped point blocks. In an iteration the client sends the
+image, camera and trajectory unknowns with each share's points, and the shares return their part of the normal
+equations (:func:`~selfcal.adjust.schur.linearise_points`) and of the reduced system
+(:func:`~selfcal.adjust.schur.add_point_schur`), which the client adds and completes once
+(:func:`~selfcal.adjust.schur.with_parameter_observations`, :func:`~selfcal.adjust.schur.assemble`), factorises
+and solves; the shares back-substitute their points and evaluate the cost of trial states. The solver is the one of
+every adjustment (:func:`selfcal.adjust.solver.solve`, through :class:`ClusterPoints`, a
+:class:`~selfcal.adjust.point_side.PointSide`).
+
+After the solve the shares' chunks come back to the client (:meth:`ClusterPoints.gathered`), and the results (the
+cofactors, residuals, leverages, tests) are computed there as in one process: every chunk is the one the client
+would have computed, so the results equal the single process's to the rounding of the sums' order.
+
+Not on the cluster (they run in the client, as without it): robust weighting (the weights follow every accepted
+step's residuals, of every observation), free networks (their datum directions are found from every point), and
+sensors other than frame cameras (their shares are not checked yet). :func:`point_side` says which.
+"""
+from __future__ import annotations
+
+import contextlib
+import contextvars
+from dataclasses import dataclass, replace
+from typing import Any, Iterator
+
+import numpy as np
+
+from ..errors import AdjustmentError, UsageError
+from .datum import conditional_point_sigma, undetermined_by_sigma
+from .point_side import PointStep, geometric_blocks, point_step
+from .problem import Problem, State, build_problem
+from .schur import (ChunkLinearisation, Linearisation, ReducedSums, SingularPoints, add_point_schur, assemble,
+                    back_substitute, linearise_points, points_cost_and_residuals)
+
+__all__ = ["on_cluster", "point_side", "ClusterPoints", "PointShare", "share_bounds", "SENSORS"]
+
+#: the sensors whose problems a share has been checked against (tests/test_distributed.py)
+SENSORS = ("frame",)
+
+
+@dataclass(frozen=True)
+class _Cluster:
+    client: Any                     # dask.distributed.Client
+    workers: tuple[str, ...]        # the worker addresses, one share each
+
+
+_current: contextvars.ContextVar[_Cluster | None] = contextvars.ContextVar("selfcal_cluster", default=None)
+
+
+@contextlib.contextmanager
+def on_cluster(client: Any) -> Iterator[None]:
+    """Every adjustment started inside (in this thread) puts its points on the workers of ``client`` (a
+    :class:`dask.distributed.Client`), one share per worker, where :func:`point_side` allows it."""
+    workers = tuple(sorted(client.scheduler_info()["workers"]))
+    if not workers:
+        raise UsageError("the Dask cluster has no workers")
+    token = _current.set(_Cluster(client, workers))
+    try:
+        yield
+    finally:
+        _current.reset(token)
+
+
+def point_side(problem: Problem, block, options, robust: bool, free_network: bool) -> "ClusterPoints | None":
+    """The cluster's point side for this problem, or None where it runs in this process: outside
+    :func:`on_cluster`, one worker's cluster, robust weighting, a free network, or a sensor not in
+    :data:`SENSORS`."""
+    cluster = _current.get()
+    if cluster is None or robust or free_network or len(cluster.workers) < 2:
+        return None
+    if any(slot.sensor.name not in SENSORS for slot in problem.sensors):
+        return None
+    return ClusterPoints(cluster.client, cluster.workers, problem, block, options)
+
+
+def share_bounds(problem: Problem, n_shares: int) -> list[tuple[int, int]]:
+    """``n_shares`` (at most one per chunk) runs of the problem's chunks, [c0, c1), with about the same number of
+    image observations each."""
+    n_chunks = len(problem.chunks)
+    n = max(1, min(n_shares, n_chunks))
+    ends = np.array([problem.point_start[p1] for _, p1 in problem.chunks], float)
+    total = ends[-1] if n_chunks else 0.0
+    cuts = [int(np.searchsorted(ends, total * k / n, side="left")) + 1 for k in range(1, n)]
+    bounds: list[tuple[int, int]] = []
+    start = 0
+    for cut in cuts:
+        cut = min(max(cut, start + 1), n_chunks - (n - len(bounds) - 1))
+        bounds.append((start, cut))
+        start = cut
+    bounds.append((start, n_chunks))
+    return bounds
+
+
+def _sub_block(problem: Problem, block, p0: int, p1: int):
+    """The block of the points at positions [p0, p1) of the problem's order and their observations, both in the
+    problem's order (so that the share arranges them as the problem does)."""
+    points = problem.point_order[p0:p1]
+    o0, o1 = int(problem.point_start[p0]), int(problem.point_start[p1])
+    local = np.full(len(block.points), -1, np.int64)
+    local[points] = np.arange(len(points))
+    observations = block.observations.take(problem.obs_order[o0:o1])
+    observations = replace(observations, point_index=local[observations.point_index])
+    return replace(block, points=block.points.take(points), observations=observations, folder=None)
+
+
+class PointShare:
+    """A share of a problem's points on a worker (a Dask actor): the problem of its points and their observations,
+    arranged as the client's problem arranges them (its chunks, its weights, its camera and image parameters held
+    or free), and the last linearisation and reduction of its points."""
+
+    def __init__(self, block, options, ap_models: dict, chunks: list[tuple[int, int]], settings: dict):
+        problem = build_problem(block, options, ap_models=ap_models, point_key=np.arange(len(block.points)))
+        if not np.array_equal(problem.obs_order, np.arange(len(block.observations))):
+            raise AdjustmentError("a share of the points did not keep its observations' order (an image that "
+                                  "observes a point twice?)")
+        problem.chunks = chunks
+        problem._structure = None
+        problem.obs_sigma = settings["obs_sigma"]
+        problem.obs_sigma_apriori = settings["obs_sigma_apriori"]
+        problem.obs_weight = settings["obs_weight"]
+        problem.image_free = settings["image_free"]
+        for camera, free in zip(problem.cameras, settings["camera_free"]):
+            camera.free[:] = free
+        for block_of_share, free in zip(problem.trajectory, settings["trajectory_free"]):
+            block_of_share.free[:] = free
+        for residuals, weight in zip(problem.point_residuals, settings["point_weights"]):
+            residuals.weight = weight[residuals.index]
+        problem.d_offset = list(settings["d_offset"])
+        if problem.n_theta != settings["n_theta"]:
+            raise AdjustmentError(f"a share of the points has {problem.n_theta} image and camera unknowns, the "
+                                  f"client {settings['n_theta']}")
+        self.problem = problem
+        self.lin: Linearisation | None = None
+        self.v_inv: list | None = None
+
+    def pair_keys(self) -> np.ndarray:
+        """The pairs of images its points join (ia * n_images + ib, ia < ib)."""
+        return self.problem.structure().pair_keys
+
+    def _state(self, theta: tuple, points: np.ndarray) -> State:
+        image, cameras, extra = theta
+        return State(image, cameras, points, extra)
+
+    def linearise(self, theta: tuple, points: np.ndarray) -> Linearisation:
+        self.lin = linearise_points(self.problem, self._state(theta, points))
+        self.v_inv = None
+        return replace(self.lin, chunks=[])
+
+    def point_sigma(self) -> np.ndarray:
+        assert self.lin is not None
+        return conditional_point_sigma(geometric_blocks(self.problem, self.lin))
+
+    def reduce(self, lam: float) -> ReducedSums:
+        assert self.lin is not None
+        sums = ReducedSums.zeros(self.problem)
+        self.v_inv = add_point_schur(self.problem, self.lin.chunks, lam, sums)
+        return sums
+
+    def back_substitute(self, d_theta: np.ndarray) -> tuple[np.ndarray, PointStep]:
+        assert self.lin is not None and self.v_inv is not None
+        d_p = back_substitute(self.problem, self.lin, self.v_inv, d_theta)
+        return d_p, point_step(d_p, self.lin.of_points("V"), self.lin.of_points("g_p"))
+
+    def cost(self, theta: tuple, points: np.ndarray) -> float:
+        return points_cost_and_residuals(self.problem, self._state(theta, points))[0]
+
+    def chunks(self) -> tuple[list[ChunkLinearisation], list | None]:
+        assert self.lin is not None
+        return self.lin.chunks, self.v_inv
+
+
+class ClusterPoints:
+    """The point side (:class:`~selfcal.adjust.point_side.PointSide`) of a problem whose points are in shares on
+    the workers of a Dask cluster (module docstring)."""
+
+    def __init__(self, client: Any, workers: tuple[str, ...], problem: Problem, block, options):
+        self.problem = problem
+        bounds = share_bounds(problem, len(workers))
+        ap_models = {cam.camera_id: cam.ap for cam in problem.cameras}
+        weights = [b.weight for b in problem.point_residuals]
+        self.points: list[np.ndarray] = []           # the block's points of each share, in its order
+        self.offsets: list[tuple[int, int]] = []     # each share's first position and first observation
+        futures = []
+        for (c0, c1), worker in zip(bounds, workers):
+            p0, p1 = problem.chunks[c0][0], problem.chunks[c1 - 1][1]
+            o0, o1 = int(problem.point_start[p0]), int(problem.point_start[p1])
+            points = problem.point_order[p0:p1]
+            local = np.full(problem.n_points, -1, np.int64)
+            local[points] = np.arange(len(points))
+            point_weights = []
+            for residuals, weight in zip(problem.point_residuals, weights):
+                full = np.ones(len(points))
+                mine = local[residuals.index] >= 0
+                full[local[residuals.index[mine]]] = weight[mine]
+                point_weights.append(full)
+            settings = {"obs_sigma": problem.obs_sigma[o0:o1], "obs_sigma_apriori": problem.obs_sigma_apriori[o0:o1],
+                        "obs_weight": problem.obs_weight[o0:o1], "image_free": problem.image_free,
+                        "camera_free": [cam.free for cam in problem.cameras],
+                        "trajectory_free": [t.free for t in problem.trajectory], "point_weights": point_weights,
+                        "d_offset": problem.d_offset, "n_theta": problem.n_theta}
+            chunks = [(a - p0, b - p0) for a, b in problem.chunks[c0:c1]]
+            futures.append(client.submit(PointShare, _sub_block(problem, block, p0, p1), options, ap_models, chunks,
+                                         settings, actor=True, workers=[worker], allow_other_workers=False,
+                                         pure=False))
+            self.points.append(points)
+            self.offsets.append((p0, o0))
+        self.shares = client.gather(futures)
+        keys = [share.pair_keys() for share in self.shares]
+        self.pair_keys = np.unique(np.concatenate([k.result() for k in keys]))
+
+    def _theta(self, state: State) -> tuple:
+        return state.image, state.cameras, state.extra
+
+    def _results(self, calls: list) -> list:
+        """Each share's answer; a share's singular points named by the block's numbering."""
+        answers = []
+        for points, call in zip(self.points, calls):
+            try:
+                answers.append(call.result())
+            except SingularPoints as exc:
+                raise SingularPoints(points[exc.indices]) from None
+        return answers
+
+    def linearise(self, state: State) -> Linearisation:
+        theta = self._theta(state)
+        parts = self._results([share.linearise(theta, state.points[points])
+                               for share, points in zip(self.shares, self.points)])
+        lin = parts[0]
+        for part in parts[1:]:
+            lin.cost += part.cost
+            lin.U_ee += part.U_ee
+            lin.U_ed += part.U_ed
+            lin.U_dd += part.U_dd
+            lin.g_theta += part.g_theta
+        return lin
+
+    def undetermined(self, ratio: float) -> np.ndarray:
+        sigma = np.full(self.problem.n_points, np.inf)
+        for points, part in zip(self.points, self._results([share.point_sigma() for share in self.shares])):
+            sigma[points] = part
+        return undetermined_by_sigma(sigma, ratio)
+
+    def reduce(self, lin: Linearisation, lam: float, dense: bool) -> tuple:
+        sums = ReducedSums(lin.U_ee.copy(), np.zeros((len(self.pair_keys),) + lin.U_ee.shape[1:]), self.pair_keys,
+                           lin.U_ed.copy(), lin.U_dd.copy(), lin.g_theta.copy())
+        for part in self._results([share.reduce(lam) for share in self.shares]):
+            sums.add(part)
+        return assemble(self.problem, lin, sums, lam, dense), sums.g
+
+    def back_substitute(self, d_theta: np.ndarray) -> tuple[np.ndarray, PointStep]:
+        d_p = np.zeros((self.problem.n_points, 3))
+        g_dot = diag_dot = max_sigma = 0.0
+        for points, (part, step) in zip(self.points, self._results([share.back_substitute(d_theta)
+                                                                     for share in self.shares])):
+            d_p[points] = part
+            g_dot += step.g_dot
+            diag_dot += step.diag_dot
+            max_sigma = max(max_sigma, step.max_sigma)
+        return d_p, PointStep(g_dot, diag_dot, max_sigma)
+
+    def cost(self, state: State) -> tuple[float, np.ndarray | None]:
+        theta = self._theta(state)
+        return float(sum(self._results([share.cost(theta, state.points[points])
+                                        for share, points in zip(self.shares, self.points)]))), None
+
+    def gathered(self, lin: Linearisation) -> tuple[Linearisation, list | None]:
+        chunks: list[ChunkLinearisation] = []
+        v_inv: list | None = []
+        for points, (p0, o0), (parts, inverses) in zip(self.points, self.offsets,
+                                                        self._results([share.chunks() for share in self.shares])):
+            for ch in parts:
+                chunks.append(replace(ch, p0=ch.p0 + p0, p1=ch.p1 + p0, o0=ch.o0 + o0, o1=ch.o1 + o0,
+                                      points=points[ch.points]))
+            if inverses is None or v_inv is None:
+                v_inv = None
+            else:
+                v_inv += inverses
+        return replace(lin, chunks=chunks), v_inv
+
+    def close(self) -> None:
+        """Let the workers drop their shares."""
+        self.shares = []

@@ -1,0 +1,137 @@
+"""One adjustment with its points on a Dask cluster (issue 43 item 1, `selfcal.adjust.distributed`): the same
+estimates, sigmas, residuals and tests as in one process, the shares' parts adding up to the whole problem's."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from conftest import pruned, simulation
+from selfcal.adjust import AdjustOptions, APOptions, adjust, distributed
+from selfcal.adjust.engine import problem_at
+from selfcal.adjust.schur import ReducedSums, add_point_schur, linearise_points
+from selfcal.stats import SnoopingOptions
+from selfcal.stats.snooping import image_w
+from selfcal.workflows.tested import adjust_with_tests
+
+
+@pytest.fixture(scope="module")
+def client():
+    from dask.distributed import Client, LocalCluster
+    cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0",
+                           env={"SELFCAL_THREADS": "1", "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"})
+    client = Client(cluster)
+    yield client
+    client.close()
+    cluster.close()
+
+
+def _block():
+    """Seed 000's Type 2 block (GNSS/IMU with strip shift and drift) at 2 points per mm² (46,000 rays: four
+    assembly chunks, so that the two shares, chunks 0-1 and 2-3, add in another order than the single process's
+    two threads, chunks 0 and 2 and chunks 1 and 3) with 0.3 % blunders and a Brown lens."""
+    return pruned(simulation(seed=7, distortion="brown", points_per_mm2=2.0, blunder_rate=0.003), "type2")
+
+
+def _relative(a, b) -> float:
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    return float(np.max(np.abs(a - b)) / np.max(np.abs(a)))
+
+
+def test_share_bounds_cut_the_chunks_into_even_runs():
+    problem, _ = problem_at(_block(), AdjustOptions(ap=APOptions("brown")))
+    assert len(problem.chunks) == 4
+    bounds = distributed.share_bounds(problem, 2)
+    assert bounds == [(0, 2), (2, 4)]
+    assert distributed.share_bounds(problem, 9) == [(k, k + 1) for k in range(4)]      # at most one per chunk
+    assert distributed.share_bounds(problem, 1) == [(0, 4)]
+    ends = [int(problem.point_start[problem.chunks[c1 - 1][1]]) for _, c1 in bounds]
+    assert ends[-1] == problem.n_image_observations and 0.4 < ends[0] / ends[-1] < 0.6
+
+
+def test_the_shares_parts_add_up_to_the_whole_problems(client):
+    """Each share, arranged on its worker from its points' block, gives its part of the normal equations and of
+    the reduced system; their sums equal the whole problem's (to the rounding of the order of the sums)."""
+    block = _block()
+    options = AdjustOptions(ap=APOptions("brown"))
+    problem, state = problem_at(block, options)
+    side = distributed.ClusterPoints(client, tuple(sorted(client.scheduler_info()["workers"])), problem, block,
+                                     options)
+    whole = linearise_points(problem, state)
+    summed = side.linearise(state)
+    for name in ("U_ee", "U_ed", "U_dd", "g_theta"):
+        assert _relative(getattr(whole, name), getattr(summed, name)) < 1e-12, name
+    assert summed.cost == pytest.approx(whole.cost, rel=1e-13)
+    # the reduced system's sums over the image pairs
+    reference = ReducedSums.zeros(problem)
+    add_point_schur(problem, whole.chunks, 0.0, reference)
+    parts = ReducedSums(np.zeros_like(reference.diag), np.zeros_like(reference.off), side.pair_keys,
+                        np.zeros_like(reference.S_ed), np.zeros_like(reference.S_dd), np.zeros_like(reference.g))
+    for part in side._results([share.reduce(0.0) for share in side.shares]):
+        parts.add(part)
+    assert np.array_equal(parts.pair_keys, reference.pair_keys)
+    for name in ("diag", "off", "S_ed", "S_dd", "g"):
+        assert _relative(getattr(reference, name), getattr(parts, name)) < 1e-12, name
+    # the gathered chunks are the whole problem's, point for point
+    gathered, v_inv = side.gathered(whole)
+    assert len(gathered.chunks) == len(whole.chunks) and v_inv is not None and len(v_inv) == len(whole.chunks)
+    for mine, theirs in zip(whole.chunks, gathered.chunks):
+        assert (mine.p0, mine.p1, mine.o0, mine.o1) == (theirs.p0, theirs.p1, theirs.o0, theirs.o1)
+        assert np.array_equal(mine.points, theirs.points)
+        np.testing.assert_allclose(theirs.V, mine.V, rtol=1e-13, atol=0)
+        np.testing.assert_allclose(theirs.w_e, mine.w_e, rtol=1e-13, atol=0)
+    side.close()
+
+
+def test_a_tested_adjustment_on_the_cluster_equals_the_single_process(client):
+    """Data snooping on top, with a Brown lens and GNSS/IMU: every parameter, its sigma, every residual and w-test
+    and the rejected observations equal the single process's to 1e-9 relative."""
+    block = _block()
+    options = AdjustOptions(ap=APOptions("brown"))
+    one = adjust_with_tests(block, options, SnoopingOptions())
+    made = []
+    original = distributed.ClusterPoints.__init__
+
+    def counted(self, *args, **kwargs):
+        original(self, *args, **kwargs)
+        made.append(len(self.shares))
+    distributed.ClusterPoints.__init__ = counted
+    try:
+        with distributed.on_cluster(client):
+            two = adjust_with_tests(block, options, SnoopingOptions())
+    finally:
+        distributed.ClusterPoints.__init__ = original
+    assert made and set(made) == {2}                 # every solve ran on two shares
+    assert len(one.rejected_rows) > 20
+    np.testing.assert_array_equal(np.sort(one.rejected_rows), np.sort(two.rejected_rows))
+    r1, r2 = one.result, two.result
+    assert r1.iterations == r2.iterations
+    assert _relative(r1.state.points, r2.state.points) < 1e-9
+    theta1, theta2 = r1.problem.pack(r1.state), r2.problem.pack(r2.state)
+    assert np.max(np.abs(theta1 - theta2) / np.maximum(np.abs(theta1), 1e-3)) < 1e-9
+    sigma1, sigma2 = r1.parameters().sigma, r2.parameters().sigma
+    free = np.isfinite(sigma1) & (sigma1 > 0)
+    assert np.max(np.abs(sigma1[free] / sigma2[free] - 1.0)) < 1e-9
+    assert _relative(r1.residuals, r2.residuals) < 1e-9
+    # the w-tests that snooping reads (an observation without redundancy, r clamped at 1e-12, has a w of rounding
+    # noise times 1e6 in either run: not controlled, snooping sets it to 0)
+    controlled = SnoopingOptions().min_redundancy
+    a, b = image_w(one.tests, controlled), image_w(two.tests, controlled)
+    assert (a > 0).sum() > 0.9 * len(a) and np.max(np.abs(a - b)) < 1e-9 * np.max(a)
+    for name in ("image_redundancy", "control_w", "parameter_w"):
+        a, b = getattr(one.tests, name), getattr(two.tests, name)
+        assert np.max(np.abs(a - b), initial=0.0) < 1e-9 * np.max(np.abs(a), initial=1.0), name
+    assert r1.sigma0_px == pytest.approx(r2.sigma0_px, rel=1e-12)
+
+
+def test_what_stays_in_the_client(client):
+    """A robust adjustment (its weights follow every step's residuals), a free network, a sensor whose shares are
+    not checked, a one-worker cluster and no cluster at all keep their points in this process."""
+    block = _block()
+    problem, _ = problem_at(block, AdjustOptions())
+    assert distributed.point_side(problem, block, AdjustOptions(), False, False) is None       # outside on_cluster
+    with distributed.on_cluster(client):
+        assert distributed.point_side(problem, block, AdjustOptions(), True, False) is None
+        assert distributed.point_side(problem, block, AdjustOptions(), False, True) is None
+        side = distributed.point_side(problem, block, AdjustOptions(), False, False)
+        assert isinstance(side, distributed.ClusterPoints)
+        side.close()
