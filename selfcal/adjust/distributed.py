@@ -17,9 +17,11 @@ After the solve the shares' chunks come back to the client (:meth:`ClusterPoints
 cofactors, residuals, leverages, tests) are computed there as in one process: every chunk is the one the client
 would have computed, so the results equal the single process's to the rounding of the sums' order.
 
-Not on the cluster (they run in the client, as without it): robust weighting (the weights follow every accepted
-step's residuals, of every observation), free networks (their datum directions are found from every point), and
-sensors other than frame cameras (their shares are not checked yet). :func:`point_side` says which.
+A robust weighting is the client's (the weights follow every accepted step's residuals, of every observation, and
+their scale is one for the block): the shares take the new weight factors from it (:meth:`ClusterPoints.reweighted`).
+Not on the cluster (they run in the client, as without it): free networks (their datum directions are found from
+every point) and sensors other than frame cameras (their shares are not checked yet). :func:`point_side` says
+which.
 """
 from __future__ import annotations
 
@@ -34,6 +36,7 @@ from ..errors import AdjustmentError, UsageError
 from .datum import conditional_point_sigma, undetermined_by_sigma
 from .point_side import PointStep, geometric_blocks, point_step
 from .problem import Problem, State, build_problem
+from .residuals.image import reweight_observations
 from .schur import (ChunkLinearisation, Linearisation, ReducedSums, SingularPoints, add_point_schur, assemble,
                     back_substitute, linearise_points, points_cost_and_residuals)
 
@@ -66,12 +69,11 @@ def on_cluster(client: Any) -> Iterator[None]:
         _current.reset(token)
 
 
-def point_side(problem: Problem, block, options, robust: bool, free_network: bool) -> "ClusterPoints | None":
+def point_side(problem: Problem, block, options, free_network: bool) -> "ClusterPoints | None":
     """The cluster's point side for this problem, or None where it runs in this process: outside
-    :func:`on_cluster`, one worker's cluster, robust weighting, a free network, or a sensor not in
-    :data:`SENSORS`."""
+    :func:`on_cluster`, one worker's cluster, a free network, or a sensor not in :data:`SENSORS`."""
     cluster = _current.get()
-    if cluster is None or robust or free_network or len(cluster.workers) < 2:
+    if cluster is None or free_network or len(cluster.workers) < 2:
         return None
     if any(slot.sensor.name not in SENSORS for slot in problem.sensors):
         return None
@@ -138,6 +140,13 @@ class PointShare:
         self.lin: Linearisation | None = None
         self.v_inv: list | None = None
 
+    def reweight(self, obs_weight: np.ndarray, point_weights: list[np.ndarray]) -> None:
+        """Take the client's weight factors of its observations (a robust weighting's: their whitened rows and kept
+        AP columns rescaled as the client's were) and of its observations of points."""
+        reweight_observations(self.problem, obs_weight)
+        for residuals, weight in zip(self.problem.point_residuals, point_weights):
+            residuals.weight = weight[residuals.index]
+
     def pair_keys(self) -> np.ndarray:
         """The pairs of images its points join (ia * n_images + ib, ia < ib)."""
         return self.problem.structure().pair_keys
@@ -182,7 +191,6 @@ class ClusterPoints:
         self.problem = problem
         bounds = share_bounds(problem, len(workers))
         ap_models = {cam.camera_id: cam.ap for cam in problem.cameras}
-        weights = [b.weight for b in problem.point_residuals]
         self.points: list[np.ndarray] = []           # the block's points of each share, in its order
         self.offsets: list[tuple[int, int]] = []     # each share's first position and first observation
         futures = []
@@ -192,16 +200,11 @@ class ClusterPoints:
             points = problem.point_order[p0:p1]
             local = np.full(problem.n_points, -1, np.int64)
             local[points] = np.arange(len(points))
-            point_weights = []
-            for residuals, weight in zip(problem.point_residuals, weights):
-                full = np.ones(len(points))
-                mine = local[residuals.index] >= 0
-                full[local[residuals.index[mine]]] = weight[mine]
-                point_weights.append(full)
             settings = {"obs_sigma": problem.obs_sigma[o0:o1], "obs_sigma_apriori": problem.obs_sigma_apriori[o0:o1],
                         "obs_weight": problem.obs_weight[o0:o1], "image_free": problem.image_free,
                         "camera_free": [cam.free for cam in problem.cameras],
-                        "trajectory_free": [t.free for t in problem.trajectory], "point_weights": point_weights,
+                        "trajectory_free": [t.free for t in problem.trajectory],
+                        "point_weights": self._point_weights(problem, local, len(points)),
                         "d_offset": problem.d_offset, "n_theta": problem.n_theta}
             chunks = [(a - p0, b - p0) for a, b in problem.chunks[c0:c1]]
             futures.append(client.submit(PointShare, _sub_block(problem, block, p0, p1), options, ap_models, chunks,
@@ -212,6 +215,30 @@ class ClusterPoints:
         self.shares = client.gather(futures)
         keys = [share.pair_keys() for share in self.shares]
         self.pair_keys = np.unique(np.concatenate([k.result() for k in keys]))
+
+    @staticmethod
+    def _point_weights(problem: Problem, local: np.ndarray, n_points: int) -> list[np.ndarray]:
+        """The weight factors of the observations of points (control coordinates, ...), per block, of every point
+        of a share (``local``: each of the block's points' index in the share, -1 elsewhere); 1 where a point has
+        no such observation."""
+        weights = []
+        for residuals in problem.point_residuals:
+            full = np.ones(n_points)
+            mine = local[residuals.index] >= 0
+            full[local[residuals.index[mine]]] = residuals.weight[mine]
+            weights.append(full)
+        return weights
+
+    def reweighted(self) -> None:
+        """The shares take the client problem's weight factors (a robust weighting moved them)."""
+        problem = self.problem
+        calls = []
+        for share, points, (p0, o0) in zip(self.shares, self.points, self.offsets):
+            local = np.full(problem.n_points, -1, np.int64)
+            local[points] = np.arange(len(points))
+            o1 = o0 + int(problem.point_start[p0 + len(points)] - problem.point_start[p0])
+            calls.append(share.reweight(problem.obs_weight[o0:o1], self._point_weights(problem, local, len(points))))
+        self._results(calls)
 
     def _theta(self, state: State) -> tuple:
         return state.image, state.cameras, state.extra

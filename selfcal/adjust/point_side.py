@@ -54,6 +54,9 @@ class PointSide(Protocol):
         """The cost's part of the image observations and the observations of points at ``state``, with the image
         residuals where this side has them (None where they stay with the points)."""
 
+    def reweighted(self) -> None:
+        """The problem's weight factors moved (a robust weighting's): the side's copies follow."""
+
     def gathered(self, lin: Linearisation) -> tuple[Linearisation, list | None]:
         """``lin`` with the points' part of the last linearisation (its chunks) and the last reduction's damped
         point inverses, as the results after the solve read them."""
@@ -88,6 +91,9 @@ class LocalPoints:
 
     def cost(self, state: State) -> tuple[float, np.ndarray | None]:
         return points_cost_and_residuals(self.problem, state)
+
+    def reweighted(self) -> None:
+        """Nothing: the side works on the problem itself."""
 
     def gathered(self, lin: Linearisation) -> tuple[Linearisation, list | None]:
         return lin, self.v_inv

@@ -140,6 +140,7 @@ def solve(problem: Problem, state: State, names: list[str], options: SolverOptio
     side: PointSide = LocalPoints(problem) if points is None else points
     if reweight is not None:
         reweight(problem, state)
+        side.reweighted()
     lin = with_parameter_observations(problem, state, side.linearise(state))
     if not np.isfinite(lin.cost):
         raise AdjustmentError("the initial residuals are not finite (points behind a camera?)")
@@ -245,6 +246,8 @@ def solve(problem: Problem, state: State, names: list[str], options: SolverOptio
             state = candidate
             # the weights follow the estimate; while they move, the objective does, and nothing has converged
             moved_weights = reweight is not None and reweight(problem, state, residuals)
+            if moved_weights:
+                side.reweighted()
             done = None if moved_weights else _converged(options, step_sigma, moved_sigma, lin.cost, new_cost)
             if done is not None:
                 converged, reason = True, done
