@@ -2,8 +2,8 @@
 
 The points of a problem are cut, in the problem's order, into one share per worker, each a run of whole assembly
 chunks holding about the same number of image observations. Each share goes to its worker once, as the block of
-its points and their observations; the worker arranges it as a problem of its own (:class:`PointShare`, a Dask
-actor: it stays where it was made) with the client's AP models, its chunks and its weights, and keeps everything
+its points and their observations; the worker arranges it as a problem of its own (:class:`PointShare`, kept in
+the worker's process under a key: every later task on that worker finds it) with the client's AP models, its chunks and its weights, and keeps everything
 that is per point: its AP columns, its linearisation, its damped point blocks. In an iteration the client sends the
 image, camera and trajectory unknowns with each share's points, and the shares return their part of the normal
 equations (:func:`~selfcal.adjust.schur.linearise_points`) and of the reduced system
@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import contextlib
 import contextvars
+import uuid
 from dataclasses import dataclass, replace
 from typing import Any, Iterator
 
@@ -44,6 +45,9 @@ __all__ = ["on_cluster", "point_side", "ClusterPoints", "PointShare", "share_bou
 
 #: the sensors whose problems a share has been checked against (tests/test_distributed.py)
 SENSORS = ("frame",)
+
+#: how often (seconds) a wait for the shares' answers checks that their workers are still there
+POLL_S = 2.0
 
 
 @dataclass(frozen=True)
@@ -110,8 +114,32 @@ def _sub_block(problem: Problem, block, p0: int, p1: int):
     return replace(block, points=block.points.take(points), observations=observations, folder=None)
 
 
+#: the shares a worker process holds, by their key (:func:`_keep`, :func:`_call`, :func:`_drop`)
+_SHARES: dict[str, "PointShare"] = {}
+
+
+def _keep(key: str, *args) -> str:
+    """(On a worker) build a share and keep it under ``key``."""
+    _SHARES[key] = PointShare(*args)
+    return key
+
+
+def _call(key: str, method: str, *args):
+    """(On a worker) a kept share's method."""
+    share = _SHARES.get(key)
+    if share is None:
+        raise AdjustmentError(f"the worker no longer holds its share of the points ({key}): was it restarted?")
+    return getattr(share, method)(*args)
+
+
+def _drop(keys: list[str]) -> None:
+    """(On a worker) forget the shares ``keys``."""
+    for key in keys:
+        _SHARES.pop(key, None)
+
+
 class PointShare:
-    """A share of a problem's points on a worker (a Dask actor): the problem of its points and their observations,
+    """A share of a problem's points on a worker (kept there by :func:`_keep`): the problem of its points and their observations,
     arranged as the client's problem arranges them (its chunks, its weights, its camera and image parameters held
     or free), and the last linearisation and reduction of its points."""
 
@@ -207,14 +235,14 @@ class ClusterPoints:
                         "point_weights": self._point_weights(problem, local, len(points)),
                         "d_offset": problem.d_offset, "n_theta": problem.n_theta}
             chunks = [(a - p0, b - p0) for a, b in problem.chunks[c0:c1]]
-            futures.append(client.submit(PointShare, _sub_block(problem, block, p0, p1), options, ap_models, chunks,
-                                         settings, actor=True, workers=[worker], allow_other_workers=False,
-                                         pure=False))
+            key = f"selfcal-share-{uuid.uuid4().hex}"
+            futures.append(client.submit(_keep, key, _sub_block(problem, block, p0, p1), options, ap_models, chunks,
+                                         settings, key=key, workers=[worker], allow_other_workers=False, pure=False))
             self.points.append(points)
             self.offsets.append((p0, o0))
-        self.shares = client.gather(futures)
-        keys = [share.pair_keys() for share in self.shares]
-        self.pair_keys = np.unique(np.concatenate([k.result() for k in keys]))
+        self.client, self.workers = client, list(workers[:len(futures)])
+        self.shares = self._results(futures)
+        self.pair_keys = np.unique(np.concatenate(self._each("pair_keys")))
 
     @staticmethod
     def _point_weights(problem: Problem, local: np.ndarray, n_points: int) -> list[np.ndarray]:
@@ -232,31 +260,51 @@ class ClusterPoints:
     def reweighted(self) -> None:
         """The shares take the client problem's weight factors (a robust weighting moved them)."""
         problem = self.problem
-        calls = []
-        for share, points, (p0, o0) in zip(self.shares, self.points, self.offsets):
+        arguments = []
+        for points, (p0, o0) in zip(self.points, self.offsets):
             local = np.full(problem.n_points, -1, np.int64)
             local[points] = np.arange(len(points))
             o1 = o0 + int(problem.point_start[p0 + len(points)] - problem.point_start[p0])
-            calls.append(share.reweight(problem.obs_weight[o0:o1], self._point_weights(problem, local, len(points))))
-        self._results(calls)
+            arguments.append((problem.obs_weight[o0:o1], self._point_weights(problem, local, len(points))))
+        self._each("reweight", arguments)
 
     def _theta(self, state: State) -> tuple:
         return state.image, state.cameras, state.extra
 
+    def _each(self, method: str, arguments: list[tuple] | None = None) -> list:
+        """Every share's ``method`` on its worker, with its arguments (``arguments[i]`` for share i; None: none)."""
+        calls = [self.client.submit(_call, key, method, *(arguments[i] if arguments else ()), workers=[worker],
+                                    allow_other_workers=False, pure=False)
+                 for i, (key, worker) in enumerate(zip(self.shares, self.workers))]
+        return self._results(calls)
+
     def _results(self, calls: list) -> list:
-        """Each share's answer; a share's singular points named by the block's numbering."""
+        """Each share's answer; a share's singular points named by the block's numbering. A share whose worker
+        is lost (its process killed, its machine gone) stops the adjustment with an AdjustmentError: its points are
+        nowhere else."""
         answers = []
-        for points, call in zip(self.points, calls):
-            try:
-                answers.append(call.result())
-            except SingularPoints as exc:
-                raise SingularPoints(points[exc.indices]) from None
+        for points, worker, call in zip(self.points, self.workers, calls):
+            while True:
+                try:
+                    answers.append(call.result(timeout=POLL_S))
+                    break
+                except SingularPoints as exc:
+                    raise SingularPoints(points[exc.indices]) from None
+                except TimeoutError:
+                    if worker not in self.client.scheduler_info()["workers"]:
+                        raise AdjustmentError(f"the Dask worker {worker} holding a share of the points "
+                                              f"({len(points)} points) was lost during the adjustment: it "
+                                              f"stops here") from None
+                except (AdjustmentError, UsageError, MemoryError):
+                    raise
+                except Exception as exc:            # a worker's connection closed, ...
+                    raise AdjustmentError(f"the Dask worker {worker} holding a share of the points failed: "
+                                          f"{type(exc).__name__}: {exc}") from exc
         return answers
 
     def linearise(self, state: State) -> Linearisation:
         theta = self._theta(state)
-        parts = self._results([share.linearise(theta, state.points[points])
-                               for share, points in zip(self.shares, self.points)])
+        parts = self._each("linearise", [(theta, state.points[points]) for points in self.points])
         lin = parts[0]
         for part in parts[1:]:
             lin.cost += part.cost
@@ -268,22 +316,22 @@ class ClusterPoints:
 
     def undetermined(self, ratio: float) -> np.ndarray:
         sigma = np.full(self.problem.n_points, np.inf)
-        for points, part in zip(self.points, self._results([share.point_sigma() for share in self.shares])):
+        for points, part in zip(self.points, self._each("point_sigma")):
             sigma[points] = part
         return undetermined_by_sigma(sigma, ratio)
 
     def reduce(self, lin: Linearisation, lam: float, dense: bool) -> tuple:
         sums = ReducedSums(lin.U_ee.copy(), np.zeros((len(self.pair_keys),) + lin.U_ee.shape[1:]), self.pair_keys,
                            lin.U_ed.copy(), lin.U_dd.copy(), lin.g_theta.copy())
-        for part in self._results([share.reduce(lam) for share in self.shares]):
+        for part in self._each("reduce", [(lam,)] * len(self.shares)):
             sums.add(part)
         return assemble(self.problem, lin, sums, lam, dense), sums.g
 
     def back_substitute(self, d_theta: np.ndarray) -> tuple[np.ndarray, PointStep]:
         d_p = np.zeros((self.problem.n_points, 3))
         g_dot = diag_dot = max_sigma = 0.0
-        for points, (part, step) in zip(self.points, self._results([share.back_substitute(d_theta)
-                                                                     for share in self.shares])):
+        for points, (part, step) in zip(self.points, self._each("back_substitute",
+                                                                             [(d_theta,)] * len(self.shares))):
             d_p[points] = part
             g_dot += step.g_dot
             diag_dot += step.diag_dot
@@ -292,14 +340,13 @@ class ClusterPoints:
 
     def cost(self, state: State) -> tuple[float, np.ndarray | None]:
         theta = self._theta(state)
-        return float(sum(self._results([share.cost(theta, state.points[points])
-                                        for share, points in zip(self.shares, self.points)]))), None
+        return float(sum(self._each("cost", [(theta, state.points[points]) for points in self.points]))), None
 
     def gathered(self, lin: Linearisation) -> tuple[Linearisation, list | None]:
         chunks: list[ChunkLinearisation] = []
         v_inv: list | None = []
         for points, (p0, o0), (parts, inverses) in zip(self.points, self.offsets,
-                                                        self._results([share.chunks() for share in self.shares])):
+                                                        self._each("chunks")):
             for ch in parts:
                 chunks.append(replace(ch, p0=ch.p0 + p0, p1=ch.p1 + p0, o0=ch.o0 + o0, o1=ch.o1 + o0,
                                       points=points[ch.points]))
@@ -310,5 +357,9 @@ class ClusterPoints:
         return replace(lin, chunks=chunks), v_inv
 
     def close(self) -> None:
-        """Let the workers drop their shares."""
-        self.shares = []
+        """Let the workers drop their shares (a worker already gone has nothing to drop)."""
+        keys, self.shares = self.shares, []
+        try:
+            self.client.run(_drop, keys, workers=self.workers)
+        except Exception:              # noqa: BLE001 - a lost worker's shares went with it
+            pass

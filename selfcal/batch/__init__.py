@@ -24,6 +24,7 @@ from ..errors import AdjustmentError
 from ..report import result_files
 from ..stats import ScreeningOptions, SnoopingOptions, VarianceOptions
 from ..workflows.adjust import AdjustRequest, adjust_block
+from ..workflows.cluster import SINGLE_THREAD, close_quietly
 from ..allocator import keep_freed_memory
 
 __all__ = ["Cell", "CellSettings", "run_cell", "run_matrix", "available_models", "PAPER_MODELS", "ALL_MODELS"]
@@ -127,13 +128,11 @@ def run_matrix(blocks: dict, models: list[str], settings: CellSettings = CellSet
     with _Ticker(say if say is not None else (lambda text: None), every_s) as ticker:
         cluster = None
         if scheduler == "local":
-            single_thread = {k: "1" for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",
-                                              "SELFCAL_THREADS")}
             workers = n_workers or os.cpu_count() or 1
             ticker.say(f"starting a local Dask cluster of {workers} worker process{'es' if workers > 1 else ''} ...")
             ticker.status = lambda t: f"starting the Dask cluster ({t:.0f} s) ..."
             cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                   dashboard_address=":0", env=single_thread)   # ":0": a free port (two runs raced)
+                                   dashboard_address=":0", env=SINGLE_THREAD)   # ":0": a free port (two runs raced)
         else:
             ticker.say(f"connecting to the Dask scheduler at {scheduler} ...")
             ticker.status = lambda t: f"connecting to the Dask scheduler ({t:.0f} s) ..."
@@ -165,7 +164,7 @@ def run_matrix(blocks: dict, models: list[str], settings: CellSettings = CellSet
             return client.gather(futures)
         finally:
             ticker.status = None
-            _close(client, cluster)
+            close_quietly(client, cluster)
 
 
 class _Ticker:
@@ -216,38 +215,3 @@ class _Ticker:
     def __exit__(self, *exc) -> None:
         self._stop.set()
         self._thread.join()
-
-
-def _quiet_dask() -> None:
-    """Dask's loggers to CRITICAL in this process (a worker's, run there by :func:`_close`)."""
-    import logging
-    for name in _DASK_LOGGERS:
-        logging.getLogger(name).setLevel(logging.CRITICAL)
-
-
-_DASK_LOGGERS = ("distributed", "tornado", "asyncio")
-
-
-def _close(client, cluster) -> None:
-    """Close the client, then the local cluster, with Dask's loggers silenced in the workers and here. The cells
-    are done (their errors came back with their futures): what a worker, its nanny or the scheduler logs while
-    they stop (a heartbeat that found the scheduler gone, a connection closed under a pending read) is a traceback
-    about the shutdown alone, and it ended a successful demo (issue 45). A scheduler given by its address is
-    left as it was: its workers are someone else's."""
-    import logging
-    if cluster is not None:
-        try:
-            client.run(_quiet_dask)
-        except Exception:              # noqa: BLE001 - a worker already gone has nothing to say
-            pass
-    loggers = [logging.getLogger(name) for name in _DASK_LOGGERS]
-    levels = [logger.level for logger in loggers]
-    for logger in loggers:
-        logger.setLevel(logging.CRITICAL)
-    try:
-        client.close()
-        if cluster is not None:
-            cluster.close()
-    finally:
-        for logger, level in zip(loggers, levels):
-            logger.setLevel(level)

@@ -54,6 +54,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-half-block", action="store_true",
                         help="leave out the half-block check of the calibration (each half of the block, by strips, "
                              "adjusted on its own and the two APs compared: two more adjustments)")
+    parser.add_argument("--scheduler", metavar="SPEC",
+                        help="put each adjustment's object points and their observations on a Dask cluster, one "
+                             "share per worker: 'local' (a worker process per core), 'local:N', or a running "
+                             "scheduler's address (tcp://host:8786); the results equal one process's (free "
+                             "networks and sensors other than frame cameras stay in this process). Default: one "
+                             "process")
     parser.add_argument("--max-iterations", type=count(1), default=SolverOptions.max_iterations, metavar="N",
                         help=f"Gauss-Newton / Levenberg-Marquardt iterations at most (default "
                              f"{SolverOptions.max_iterations}); a weakly determined block may need more")
@@ -254,6 +260,17 @@ def _terrain_cloud(block, args):
 
 
 def run(args: argparse.Namespace) -> int:
+    if not args.scheduler:
+        return _run(args)
+    # the cluster first: a scheduler that cannot be reached is an error before any work
+    from ..adjust.distributed import on_cluster
+    from ..workflows.cluster import dask_client, parse_scheduler
+    parse_scheduler(args.scheduler)
+    with dask_client(args.scheduler, say=progress) as client, on_cluster(client):
+        return _run(args)
+
+
+def _run(args: argparse.Namespace) -> int:
     progress(f"reading {args.block} ...")       # at once: the engine's import takes a second of its own
     # the engine, the readers and the report load here, not for --help (issue 45: help answers at once)
     from ..adjust import AdjustOptions, APOptions, SensorOptions, TrajectoryOptions
