@@ -151,3 +151,50 @@ def test_a_robust_adjustment_on_the_cluster_equals_the_single_process(client):
     assert _relative(one.state.points, two.state.points) < 1e-8
     assert _relative(one.residuals, two.residuals) < 1e-8
     assert one.sigma0_px == pytest.approx(two.sigma0_px, rel=1e-8)
+
+
+def _table(path) -> tuple[np.ndarray, np.ndarray]:
+    """The numeric columns of a results CSV, and the unit of each value's last printed digit."""
+    import csv
+    with open(path, newline="") as handle:
+        rows = [row for row in csv.reader(handle) if row and not row[0].startswith("#")]
+    header, body = rows[0], rows[1:]
+    values, units = [], []
+    for j in range(len(header)):
+        try:
+            values.append([float(row[j]) if row[j] != "" else np.nan for row in body])
+        except ValueError:
+            continue
+        units.append([10.0 ** -len(row[j].partition(".")[2]) if "e" not in row[j].lower() else 0.0 for row in body])
+    return np.array(values, float), np.array(units, float)
+
+
+def test_selfcal_adjust_on_a_local_cluster_writes_the_single_process_results(tmp_path, monkeypatch):
+    """``selfcal adjust --scheduler local:2``: the same results folder, to the printed digits; a scheduler that
+    cannot be reached, or a malformed one, is exit 2 before any work, and no results folder."""
+    from front_door import run_main
+    from selfcal.io import write_block
+    from selfcal.workflows import cluster
+    folder = tmp_path / "block"
+    write_block(pruned(simulation(seed=9, distortion="brown", points_per_mm2=0.5, blunder_rate=0.002), "type3"),
+                str(folder))
+    quick = ["--no-report", "--no-control-loo", "--no-half-block", "--ap", "brown"]
+    code, err = run_main(["adjust", folder, "--out", tmp_path / "one", *quick])
+    assert code == 0, err
+    code, err = run_main(["adjust", folder, "--out", tmp_path / "two", *quick, "--scheduler", "local:2"])
+    assert code == 0, err
+    assert "starting a local Dask cluster of 2 worker processes" in err
+    # every number as printed, or one unit of its last digit off (a rounding that the sums' order flipped: a w-test's
+    # MDB of 4876.474 px against 4876.475 px, of an observation without redundancy)
+    for name in ("points.csv", "residuals.csv", "parameters.csv", "images.csv"):
+        (a, unit), (b, _) = _table(tmp_path / "one" / name), _table(tmp_path / "two" / name)
+        assert a.shape == b.shape and a.size
+        same = (np.abs(a - b) <= 1e-9 * np.abs(a) + 1.01 * unit) | (np.isnan(a) & np.isnan(b))
+        assert same.all(), name
+    monkeypatch.setattr(cluster, "CONNECT_TIMEOUT_S", 1.0)
+    code, err = run_main(["adjust", folder, "--out", tmp_path / "three", "--scheduler", "tcp://127.0.0.1:9"])
+    assert code == 2 and "cannot reach the Dask scheduler at tcp://127.0.0.1:9" in err
+    assert not (tmp_path / "three").exists()
+    code, err = run_main(["adjust", folder, "--out", tmp_path / "four", "--scheduler", "local:0"])
+    assert code == 2 and "--scheduler local:N needs a whole number of workers" in err
+    assert not (tmp_path / "four").exists()
