@@ -198,3 +198,35 @@ def test_selfcal_adjust_on_a_local_cluster_writes_the_single_process_results(tmp
     code, err = run_main(["adjust", folder, "--out", tmp_path / "four", "--scheduler", "local:0"])
     assert code == 2 and "--scheduler local:N needs a whole number of workers" in err
     assert not (tmp_path / "four").exists()
+
+
+def test_a_worker_lost_mid_iteration_stops_the_adjustment_with_its_name():
+    """A worker killed after the first iteration: the adjustment stops with an AdjustmentError naming it (its share's
+    points are nowhere else), within seconds of the scheduler noticing, not a hang."""
+    import os
+    import signal
+    import time
+
+    import dask
+    from dask.distributed import Client, LocalCluster
+    from selfcal.errors import AdjustmentError
+    block = _block()
+    with dask.config.set({"distributed.comm.timeouts.connect": "3s"}):
+        cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0",
+                               env={"SELFCAL_THREADS": "1"})
+        client = Client(cluster)
+        try:
+            pids = client.run(os.getpid)
+            victim = sorted(pids)[1]
+
+            def kill_after_the_first_iteration(record) -> None:
+                if record.iteration == 1:
+                    os.kill(pids[victim], signal.SIGKILL)
+            t0 = time.perf_counter()
+            with distributed.on_cluster(client), pytest.raises(AdjustmentError) as raised:
+                adjust(block, AdjustOptions(ap=APOptions("brown")), progress=kill_after_the_first_iteration)
+            assert f"the Dask worker {victim} holding a share of the points" in str(raised.value)
+            assert time.perf_counter() - t0 < 60
+        finally:
+            client.close()
+            cluster.close()

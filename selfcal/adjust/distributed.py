@@ -132,6 +132,11 @@ def _call(key: str, method: str, *args):
     return getattr(share, method)(*args)
 
 
+def _worker_addresses(dask_scheduler=None) -> list[str]:
+    """(On the scheduler) the workers it knows now (the client's copy of the list is refreshed only now and then)."""
+    return list(dask_scheduler.workers)
+
+
 def _drop(keys: list[str]) -> None:
     """(On a worker) forget the shares ``keys``."""
     for key in keys:
@@ -291,7 +296,7 @@ class ClusterPoints:
                 except SingularPoints as exc:
                     raise SingularPoints(points[exc.indices]) from None
                 except TimeoutError:
-                    if worker not in self.client.scheduler_info()["workers"]:
+                    if worker not in self.client.run_on_scheduler(_worker_addresses):
                         raise AdjustmentError(f"the Dask worker {worker} holding a share of the points "
                                               f"({len(points)} points) was lost during the adjustment: it "
                                               f"stops here") from None
