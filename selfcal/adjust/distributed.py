@@ -49,6 +49,9 @@ SENSORS = ("frame",)
 #: how often (seconds) a wait for the shares' answers checks that their workers are still there
 POLL_S = 2.0
 
+#: an array argument of a share's task larger than this (bytes) is sent straight to its worker, not in the task
+DIRECT_BYTES = 1 << 20
+
 
 @dataclass(frozen=True)
 class _Cluster:
@@ -241,8 +244,10 @@ class ClusterPoints:
                         "d_offset": problem.d_offset, "n_theta": problem.n_theta}
             chunks = [(a - p0, b - p0) for a, b in problem.chunks[c0:c1]]
             key = f"selfcal-share-{uuid.uuid4().hex}"
-            futures.append(client.submit(_keep, key, _sub_block(problem, block, p0, p1), options, ap_models, chunks,
-                                         settings, key=key, workers=[worker], allow_other_workers=False, pure=False))
+            # (the block straight to its worker: in the task it would go through the scheduler)
+            sub_block = client.scatter(_sub_block(problem, block, p0, p1), workers=[worker], direct=True, hash=False)
+            futures.append(client.submit(_keep, key, sub_block, options, ap_models, chunks, settings, key=key,
+                                         workers=[worker], allow_other_workers=False, pure=False))
             self.points.append(points)
             self.offsets.append((p0, o0))
         self.client, self.workers = client, list(workers[:len(futures)])
@@ -277,10 +282,15 @@ class ClusterPoints:
         return state.image, state.cameras, state.extra
 
     def _each(self, method: str, arguments: list[tuple] | None = None) -> list:
-        """Every share's ``method`` on its worker, with its arguments (``arguments[i]`` for share i; None: none)."""
-        calls = [self.client.submit(_call, key, method, *(arguments[i] if arguments else ()), workers=[worker],
-                                    allow_other_workers=False, pure=False)
-                 for i, (key, worker) in enumerate(zip(self.shares, self.workers))]
+        """Every share's ``method`` on its worker, with its arguments (``arguments[i]`` for share i; None: none).
+        An array argument of more than :data:`DIRECT_BYTES` (a share's points) goes straight to the worker."""
+        calls = []
+        for i, (key, worker) in enumerate(zip(self.shares, self.workers)):
+            given = arguments[i] if arguments else ()
+            sent = [self.client.scatter(a, workers=[worker], direct=True, hash=False)
+                    if isinstance(a, np.ndarray) and a.nbytes > DIRECT_BYTES else a for a in given]
+            calls.append(self.client.submit(_call, key, method, *sent, workers=[worker], allow_other_workers=False,
+                                            pure=False))
         return self._results(calls)
 
     def _results(self, calls: list) -> list:
