@@ -123,8 +123,9 @@ def test_a_tested_adjustment_on_the_cluster_equals_the_single_process(client):
     assert r1.sigma0_px == pytest.approx(r2.sigma0_px, rel=1e-12)
 
 
-def test_what_stays_in_the_client(client):
-    """A free network and no cluster at all keep their points in this process."""
+def test_what_stays_in_the_client(client, monkeypatch):
+    """A free network, a sensor whose shares are not checked (distributed.SENSORS) and no cluster at all keep their
+    points in this process."""
     block = _block()
     problem, _ = problem_at(block, AdjustOptions())
     assert distributed.point_side(problem, block, AdjustOptions(), False) is None       # outside on_cluster
@@ -133,6 +134,9 @@ def test_what_stays_in_the_client(client):
         side = distributed.point_side(problem, block, AdjustOptions(), False)
         assert isinstance(side, distributed.ClusterPoints)
         side.close()
+        unchecked = problem.sensors[0].sensor
+        monkeypatch.setattr(type(unchecked), "name", "not-checked")
+        assert distributed.point_side(problem, block, AdjustOptions(), False) is None
 
 
 def test_a_robust_adjustment_on_the_cluster_equals_the_single_process(client):
@@ -230,3 +234,24 @@ def test_a_worker_lost_mid_iteration_stops_the_adjustment_with_its_name():
         finally:
             client.close()
             cluster.close()
+
+
+def test_a_rolling_shutter_block_on_the_cluster_equals_the_single_process(client):
+    """The rolling shutter's sensor (its readout estimated with the Brown lens): the same estimates and residuals."""
+    from selfcal.block import prune
+    from selfcal.simulate import simulate_uav
+    block = prune(simulate_uav(seed=2, distortion="brown", points_per_mm2=2.0, rolling_shutter_ms=30.0,
+                               flight="serpentine").blocks["type2"])
+    assert {camera.sensor for camera in block.cameras.values()} == {"frame-rolling"}
+    options = AdjustOptions(ap=APOptions("brown"))
+    one = adjust(block, options)
+    problem, _ = problem_at(block, options)
+    with distributed.on_cluster(client):
+        side = distributed.point_side(problem, block, options, False)
+        assert isinstance(side, distributed.ClusterPoints) and len(side.shares) == 2
+        side.close()
+        two = adjust(block, options)
+    assert "readout" in one.problem.cameras[0].names
+    assert _relative(np.concatenate(one.state.cameras), np.concatenate(two.state.cameras)) < 1e-9
+    assert _relative(one.state.points, two.state.points) < 1e-9
+    assert _relative(one.residuals, two.residuals) < 1e-9

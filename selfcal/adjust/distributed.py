@@ -44,7 +44,7 @@ from .schur import (ChunkLinearisation, Linearisation, ReducedSums, SingularPoin
 __all__ = ["on_cluster", "point_side", "ClusterPoints", "PointShare", "share_bounds", "SENSORS"]
 
 #: the sensors whose problems a share has been checked against (tests/test_distributed.py)
-SENSORS = ("frame",)
+SENSORS = ("frame", "frame-rolling")
 
 #: how often (seconds) a wait for the shares' answers checks that their workers are still there
 POLL_S = 2.0
