@@ -35,17 +35,23 @@ def run(args: argparse.Namespace) -> int:
     names = [os.path.basename(p) for p in args.images]
     if len(set(names)) < len(names):
         raise BlockError(args.images[0], "two images have the same file name; they would overwrite each other")
-    map_x, map_y, camera_matrix = maps_of(cal)
-    ideal = OpenCVCamera("none", camera_matrix, np.zeros(4), 0.0, 0.0, cal.width_px, cal.height_px)
-    # one image in memory at a time; a bad one anywhere leaves no output folder (atomic)
+    maps = None
+    # one image in memory at a time; a bad one anywhere leaves no output folder (atomic). The maps are made once
+    # the first image is read and of the camera's size: a file that is not an image, or an image of another
+    # camera, is refused at once, not after the maps' work (seconds to minutes for a WAP model)
     with atomic_folder(args.out) as tmp:
         for k, (path, name) in enumerate(zip(args.images, names), start=1):
             image = read_image(path)
             if image.shape[:2] != (cal.height_px, cal.width_px):
                 raise BlockError(path, f"is {image.shape[1]} x {image.shape[0]} px, camera {cal.camera_id} is "
                                        f"{cal.width_px} x {cal.height_px} px")
+            if maps is None:
+                maps = maps_of(cal)
+            map_x, map_y, camera_matrix = maps
             write_image(os.path.join(tmp, name), undistort_image(image, map_x, map_y))
             progress(f"[{k}/{len(names)}] {name}")
+        assert maps is not None                 # (argparse: one image at least)
+        ideal = OpenCVCamera("none", maps[2], np.zeros(4), 0.0, 0.0, cal.width_px, cal.height_px)
         write_opencv_file(ideal, os.path.join(tmp, "ideal_camera.yaml"),
                           source=f"ideal camera of the undistorted images of camera {cal.camera_id}")
     return finish(args, f"{len(names)} images undistorted into {args.out} (camera {cal.camera_id}, {cal.ap.spec})",
