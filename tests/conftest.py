@@ -81,7 +81,7 @@ def selfcal_exe():
 #: A name is the test's name (with its id where the parametrisations differ much), matched as a prefix.
 LONG_TESTS = {
     "test_snooping_with_waps_finds_the_blunders": 272,
-    "test_readme_block_runs_as_written[README.md:46]": 233,
+    "test_readme_block_runs_as_written[README.md:65]": 233,   # the quick start (its line in README.md)
     "test_two_hundred_signals_leave_nothing_half_written": 199,
     "test_trajectory_data_improve_the_check_points": 81,
     "test_readme_block_runs_as_written": 58,                  # README.md's other blocks
