@@ -79,9 +79,18 @@ def selfcal_exe():
 #: left in place for that (they ran on one worker), and test_outcome's and test_import's tests (fixtures of 4 s)
 #: too; test_cli's simulated block takes 2 s against its three listed tests' 107 s.
 #: A name is the test's name (with its id where the parametrisations differ much), matched as a prefix.
+def _quick_start_line() -> int:
+    """The line of the README's quick start block (its opening fence), which its test's id names: listed by a fixed
+    number, the entry matched no test once the README grew above it, and the quick start started late."""
+    with open(os.path.join(os.path.dirname(__file__), "..", "README.md"), encoding="utf-8") as handle:
+        lines = handle.read().splitlines()
+    start = lines.index("## Quick start")
+    return next(i + 1 for i in range(start, len(lines)) if lines[i].startswith("```sh"))
+
+
 LONG_TESTS = {
     "test_snooping_with_waps_finds_the_blunders": 272,
-    "test_readme_block_runs_as_written[README.md:65]": 233,   # the quick start (its line in README.md)
+    f"test_readme_block_runs_as_written[README.md:{_quick_start_line()}]": 233,      # the quick start
     "test_two_hundred_signals_leave_nothing_half_written": 199,
     "test_trajectory_data_improve_the_check_points": 81,
     "test_readme_block_runs_as_written": 58,                  # README.md's other blocks
