@@ -5,8 +5,9 @@ none unless ``--ap``), each written once as a block folder. One child process ad
 LocalCluster of ``--workers`` worker processes (one thread each) and adjusts it inside
 :func:`selfcal.adjust.distributed.on_cluster`. Both compute the sigma of every unknown (Q_theta, every point's
 covariance). Printed side by side: seconds per iteration, the whole adjustment's seconds, the peak resident memory of
-the single process, of the client and of each worker (/proc's VmHWM, the peak since the exec), and the largest
-relative difference of the estimates (points, image and camera parameters) and of their sigmas.
+the single process, of the client and of each worker (/proc's VmHWM, the peak since the exec), the largest
+relative difference of the estimates (points, image and camera parameters) and of their sigmas, and what
+``selfcal plan --scheduler local:WORKERS`` planned for the client and each worker.
 
 Run: ``python benchmarks/bench_distributed.py [--blocks 20x50,50x100] [--workers 2] [--ap MODEL]``.
 """
@@ -75,6 +76,15 @@ def _adjust_child(folder: str, workers: int, ap: str | None, out: str) -> dict:
             "peak_mb": _peak_mb(), "worker_peaks_mb": worker_peaks}
 
 
+def _plan_child(folder: str, workers: int, ap: str | None) -> dict:
+    """``selfcal plan --scheduler local:WORKERS`` of the block folder: the client's and each worker's planned peak."""
+    from selfcal.io import read_block
+    from selfcal.workflows.plan import plan_block
+
+    plan = plan_block(read_block(folder), ap or "none", probe=False)
+    return {"client_mb": plan.peak_mb, "worker_mb": plan.worker_peak_mb(workers)}
+
+
 def _relative(a: np.ndarray, b: np.ndarray) -> float:
     ok = np.isfinite(a) & np.isfinite(b)
     return float(np.max(np.abs(a[ok] - b[ok])) / np.max(np.abs(a[ok])))
@@ -89,6 +99,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--adjust-child", nargs=3, metavar=("FOLDER", "WORKERS", "OUT"))
     parser.add_argument("--write-child", nargs=4)
+    parser.add_argument("--plan-child", nargs=2, metavar=("FOLDER", "WORKERS"))
     parser.add_argument("--blocks", default="20x50,50x100",
                         help="strips x images per strip [@ points per mm^2] (default 20x50,50x100: 1000 and 5000 "
                              "images)")
@@ -100,13 +111,17 @@ def main() -> None:
         strips, per_strip, density, folder = args.write_child
         print(json.dumps(_write_child(int(strips), int(per_strip), float(density), folder)))
         return
+    if args.plan_child:
+        print(json.dumps(_plan_child(args.plan_child[0], int(args.plan_child[1]), args.ap)))
+        return
     if args.adjust_child:
         folder, workers, out = args.adjust_child
         print(json.dumps(_adjust_child(folder, int(workers), args.ap, out)))
         return
     print(f"load average at the start: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
     print(f"{'images':>7}{'obs.':>10}{'it.':>4}{'s/iter. 1 / cluster':>21}{'s 1 / cluster':>17}"
-          f"{'peak MB 1':>11}{'client':>8}{'workers':>14}{'max rel. diff estimates / sigma':>33}")
+          f"{'peak MB 1':>11}{'client':>8}{'workers':>14}{'max rel. diff estimates / sigma':>33}"
+          f"{'planned client / worker MB':>28}")
     work = tempfile.mkdtemp(prefix="bench-distributed-")
     for text in args.blocks.split(","):
         size, _, density = text.partition("@")
@@ -116,6 +131,7 @@ def main() -> None:
         one_out, two_out = os.path.join(work, "one.npz"), os.path.join(work, "two.npz")
         one = _run(["--adjust-child", folder, "0", one_out, *model])
         two = _run(["--adjust-child", folder, str(args.workers), two_out, *model])
+        planned = _run(["--plan-child", folder, str(args.workers), *model])
         a, b = np.load(one_out), np.load(two_out)
         estimates = max(_relative(a["points"], b["points"]), _relative(a["theta"], b["theta"]))
         sigmas = max(_relative(a["sigma_theta"], b["sigma_theta"]), _relative(a["sigma_points"], b["sigma_points"]))
@@ -124,8 +140,9 @@ def main() -> None:
         print(f"{one['images']:>7}{one['observations']:>10}{one['iterations']:>4}"
               f"{one['seconds_per_iteration']:>11.2f} / {two['seconds_per_iteration']:<7.2f}"
               f"{one['seconds']:>8.1f} / {two['seconds']:<6.1f}{one['peak_mb']:>11.0f}{two['peak_mb']:>8.0f}"
-              f"{workers:>14}{estimates:>19.1e} / {sigmas:<8.1e}", flush=True)
-        print("  " + json.dumps({"single": one, "cluster": two}), file=sys.stderr, flush=True)
+              f"{workers:>14}{estimates:>19.1e} / {sigmas:<8.1e}"
+              f"{planned['client_mb']:>12.0f} / {planned['worker_mb']:<6.0f}", flush=True)
+        print("  " + json.dumps({"single": one, "cluster": two, "planned": planned}), file=sys.stderr, flush=True)
     shutil.rmtree(work, ignore_errors=True)
 
 

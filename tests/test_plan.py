@@ -148,6 +148,30 @@ def test_too_large_block_exits_2_before_any_work(block_folder, capsys, monkeypat
     assert "(selfcal adjust with its default tests)" in captured.err and captured.out == ""
 
 
+def test_a_cluster_plan_gives_each_workers_peak_and_checks_the_local_ones(block_folder, capsys, monkeypatch):
+    """``selfcal plan --scheduler local:2``: each worker's peak (its base and its share of the observations, fitted on
+    benchmarks/bench_distributed.py's workers) beside the client's, which is one process's; a local cluster's workers
+    count against this machine's memory, a scheduler's elsewhere do not."""
+    import selfcal.workflows.plan as plan_module
+
+    assert run_cli("plan", str(block_folder), "--ap", "none", "--scheduler", "local:2", "--json") == 0
+    figures = json.loads(capsys.readouterr().out)["figures"]
+    share = figures["sizes"]["n_observations"] / 2
+    assert figures["workers"] == 2 and figures["scheduler"] == "local:2"
+    assert figures["worker_peak_mb"] == pytest.approx(207.0 + 890.0 * share / 2 ** 20, rel=1e-9)
+    assert run_cli("plan", str(block_folder), "--ap", "none", "--scheduler", "local:2") == 0
+    assert "each worker" in capsys.readouterr().out
+    # room for the client's tested workflow, not for it and two local workers beside it
+    room = figures["workflow_peak_mb"] + figures["worker_peak_mb"]
+    monkeypatch.setattr(plan_module, "available_mb", lambda: room)
+    assert run_cli("plan", str(block_folder), "--ap", "none", "--scheduler", "local:2") == 2
+    assert "and 2 local workers of" in capsys.readouterr().err
+    assert run_cli("plan", str(block_folder), "--ap", "none") == 0
+    capsys.readouterr()
+    assert run_cli("plan", str(block_folder), "--scheduler", "local:x") == 2
+    assert "--scheduler local:N needs a whole number of workers" in capsys.readouterr().err
+
+
 def test_missing_block_folder_exits_2_naming_it(tmp_path, capsys):
     missing = tmp_path / "no-such-block"
     assert run_cli("plan", str(missing)) == 2

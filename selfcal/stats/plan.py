@@ -83,6 +83,16 @@ WORKFLOW_BYTES_PER_OBSERVATION = 2348.0
 #: 0.96-1.04 with it)
 WORKFLOW_AP_COLUMN_ARRAYS = 1.05
 
+#: a worker of a cluster that holds a share of the points (``selfcal adjust --scheduler``,
+#: :mod:`selfcal.adjust.distributed`): MB at no observation and bytes per image observation of its share (its share's
+#: problem and linearisation, its reduced sums, the arrays in flight), a least-squares fit of the relative errors to
+#: the workers' peaks of ``benchmarks/bench_distributed.py`` (two workers; the strip blocks of 200, 1000, 2000 and
+#: 5000 images, AP model none; each within 0.3 %). The client holds what one process holds (0.88-0.91 of it
+#: measured): it builds the whole problem and gathers the shares' linearisation after the solve. A share's AP columns
+#: and couplings are counted as one process's, split by the shares (not measured on a cluster)
+WORKER_BASE_MB = 207.0
+WORKER_BYTES_PER_OBSERVATION = 890.0
+
 #: seconds per image observation and iteration (linearisation, reduction, back-substitution, the cost at the step:
 #: passes over the points on two threads) at probe speed 1 (fitted)
 SECONDS_PER_OBSERVATION = 1.73e-6
@@ -153,6 +163,13 @@ class Plan:
     @property
     def seconds_per_iteration(self) -> float:
         return float(sum(self.seconds.values()))
+
+    def worker_peak_mb(self, workers: int) -> float:
+        """The peak of each of ``workers`` workers that hold a share of the points (about the same observations each;
+        the client's is :attr:`peak_mb`)."""
+        share = self.sizes.n_observations / max(workers, 1)
+        return (WORKER_BASE_MB + WORKER_BYTES_PER_OBSERVATION * share / MB
+                + (self.memory_mb.get("ap_columns", 0.0) + self.memory_mb.get("ap_couplings", 0.0)) / max(workers, 1))
 
     def as_dict(self) -> dict:
         return {"sizes": {**asdict(self.sizes), "n_theta": self.sizes.n_theta},

@@ -15,7 +15,7 @@ from typing import Any, Callable, Iterator
 
 from ..errors import UsageError
 
-__all__ = ["parse_scheduler", "dask_client", "close_quietly", "CONNECT_TIMEOUT_S", "SINGLE_THREAD"]
+__all__ = ["parse_scheduler", "scheduler_workers", "dask_client", "close_quietly", "CONNECT_TIMEOUT_S", "SINGLE_THREAD"]
 
 #: how long reaching a scheduler at an address may take before it is an error
 CONNECT_TIMEOUT_S = 10.0
@@ -41,6 +41,16 @@ def parse_scheduler(text: str) -> tuple[str, int | None]:
         return "address", None
     raise UsageError(f"--scheduler must be 'local', 'local:N' or a scheduler's address (tcp://host:8786), "
                      f"found '{text}'")
+
+
+def scheduler_workers(spec: str) -> tuple[int, bool]:
+    """(workers, local) of the cluster ``spec`` names: a local cluster's count (the cores for 'local'), or the
+    workers a scheduler at an address has now (reached, then left as it was)."""
+    kind, workers = parse_scheduler(spec)
+    if kind == "local":
+        return workers or os.cpu_count() or 1, True
+    with dask_client(spec) as client:
+        return len(client.scheduler_info()["workers"]), False
 
 
 @contextlib.contextmanager
