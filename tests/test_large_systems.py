@@ -118,17 +118,18 @@ def test_mid_size_blocks_are_reduced_sparse_to_the_dense_path_s_result(monkeypat
     block of 264 images (1587 unknowns) adjusts to the dense path's cost within 1e-10 relative, its sigmas
     within 1e-9, and its reduced matrix is kept (dense) for the downdated start of a re-adjustment."""
     import selfcal.adjust.linalg as linalg_module
-    import selfcal.adjust.solver as solver_module
+    import selfcal.adjust.point_side as point_side_module
     from selfcal.adjust import adjust
     from selfcal.adjust.linalg import DENSE_ASSEMBLY_LIMIT, DENSE_LIMIT
+    from selfcal.adjust.schur import assemble
 
     paths = []
 
-    def reduce_spy(problem, lin, lam=0.0, dense=True):
+    def assemble_spy(problem, lin, sums, lam, dense):         # the solver's reduced matrix, through its point side
         paths.append(dense)
-        return reduce(problem, lin, lam, dense)
+        return assemble(problem, lin, sums, lam, dense)
 
-    monkeypatch.setattr(solver_module, "reduce", reduce_spy)
+    monkeypatch.setattr(point_side_module, "assemble", assemble_spy)
     sim = simulate_uav(seed=1, distortion="none", points_per_mm2=0.2, n_strips=2, images_per_strip=132)
     block = prune(sim.blocks["type3"])
     sparse = adjust(block, AdjustOptions())
