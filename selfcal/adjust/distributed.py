@@ -2,9 +2,10 @@
 
 The points of a problem are cut, in the problem's order, into one share per worker, each a run of whole assembly
 chunks holding about the same number of image observations. Each share goes to its worker once, as the block of
-its points and their observations; the worker arranges it as a problem of its own (:class:`PointShare`, kept in
-the worker's process under a key: every later task on that worker finds it) with the client's AP models, its chunks and its weights, and keeps everything
-that is per point: its AP columns, its linearisation, its damped point blocks. In an iteration the client sends the
+its points and their observations; the worker arranges it as a problem of its own (:class:`PointShare`, kept in the
+worker's process under a key: every later task on that worker finds it) with the client's AP models, its chunks
+and its weights, and keeps everything that is per point: its AP columns, its linearisation, its damped point
+blocks. In an iteration the client sends the
 image, camera and trajectory unknowns with each share's points, and the shares return their part of the normal
 equations (:func:`~selfcal.adjust.schur.linearise_points`) and of the reduced system
 (:func:`~selfcal.adjust.schur.add_point_schur`), which the client adds and completes once
@@ -41,7 +42,7 @@ from .residuals.image import reweight_observations
 from .schur import (ChunkLinearisation, Linearisation, ReducedSums, SingularPoints, add_point_schur, assemble,
                     back_substitute, linearise_points, points_cost_and_residuals)
 
-__all__ = ["on_cluster", "point_side", "ClusterPoints", "PointShare", "share_bounds", "SENSORS"]
+__all__ = ["on_cluster", "point_side", "ClusterPoints", "PointShare", "ShareSettings", "share_bounds", "SENSORS"]
 
 #: the sensors whose problems a share has been checked against (tests/test_distributed.py)
 SENSORS = ("frame", "frame-rolling")
@@ -146,32 +147,49 @@ def _drop(keys: list[str]) -> None:
         _SHARES.pop(key, None)
 
 
-class PointShare:
-    """A share of a problem's points on a worker (kept there by :func:`_keep`): the problem of its points and their observations,
-    arranged as the client's problem arranges them (its chunks, its weights, its camera and image parameters held
-    or free), and the last linearisation and reduction of its points."""
+@dataclass(frozen=True)
+class ShareSettings:
+    """What a share takes from the client's problem beyond its block: what the adjustment so far changed there (the
+    weights of its observations, the parameters held) and the layout of theta it must reproduce."""
 
-    def __init__(self, block, options, ap_models: dict, chunks: list[tuple[int, int]], settings: dict):
+    chunks: list[tuple[int, int]]           # the client's chunks of the share's points, from its first position
+    obs_sigma: np.ndarray                   # (m, 2) of its observations, the client's order
+    obs_sigma_apriori: np.ndarray
+    obs_weight: np.ndarray                  # (m,)
+    image_free: np.ndarray                  # (n_images, width)
+    camera_free: list[np.ndarray]           # per camera
+    trajectory_free: list[np.ndarray]       # per trajectory block
+    point_weights: list[np.ndarray]         # per block of observations of points: the weight of each share point
+    d_offset: list[int]
+    n_theta: int
+
+
+class PointShare:
+    """A share of a problem's points on a worker (kept there by :func:`_keep`): the problem of its points and their
+    observations, arranged as the client's problem arranges them (its chunks, its weights, its camera and image
+    parameters held or free), and the last linearisation and reduction of its points."""
+
+    def __init__(self, block, options, ap_models: dict, settings: ShareSettings):
         problem = build_problem(block, options, ap_models=ap_models, point_key=np.arange(len(block.points)))
         if not np.array_equal(problem.obs_order, np.arange(len(block.observations))):
             raise AdjustmentError("a share of the points did not keep its observations' order (an image that "
                                   "observes a point twice?)")
-        problem.chunks = chunks
-        problem._structure = None
-        problem.obs_sigma = settings["obs_sigma"]
-        problem.obs_sigma_apriori = settings["obs_sigma_apriori"]
-        problem.obs_weight = settings["obs_weight"]
-        problem.image_free = settings["image_free"]
-        for camera, free in zip(problem.cameras, settings["camera_free"]):
+        problem.chunks = settings.chunks
+        problem._structure = None                   # (the structure follows the chunks: built on first use)
+        problem.obs_sigma = settings.obs_sigma
+        problem.obs_sigma_apriori = settings.obs_sigma_apriori
+        problem.obs_weight = settings.obs_weight
+        problem.image_free = settings.image_free
+        for camera, free in zip(problem.cameras, settings.camera_free):
             camera.free[:] = free
-        for block_of_share, free in zip(problem.trajectory, settings["trajectory_free"]):
+        for block_of_share, free in zip(problem.trajectory, settings.trajectory_free):
             block_of_share.free[:] = free
-        for residuals, weight in zip(problem.point_residuals, settings["point_weights"]):
+        for residuals, weight in zip(problem.point_residuals, settings.point_weights):
             residuals.weight = weight[residuals.index]
-        problem.d_offset = list(settings["d_offset"])
-        if problem.n_theta != settings["n_theta"]:
+        problem.d_offset = list(settings.d_offset)
+        if problem.n_theta != settings.n_theta:
             raise AdjustmentError(f"a share of the points has {problem.n_theta} image and camera unknowns, the "
-                                  f"client {settings['n_theta']}")
+                                  f"client {settings.n_theta}")
         self.problem = problem
         self.lin: Linearisation | None = None
         self.v_inv: list | None = None
@@ -236,17 +254,17 @@ class ClusterPoints:
             points = problem.point_order[p0:p1]
             local = np.full(problem.n_points, -1, np.int64)
             local[points] = np.arange(len(points))
-            settings = {"obs_sigma": problem.obs_sigma[o0:o1], "obs_sigma_apriori": problem.obs_sigma_apriori[o0:o1],
-                        "obs_weight": problem.obs_weight[o0:o1], "image_free": problem.image_free,
-                        "camera_free": [cam.free for cam in problem.cameras],
-                        "trajectory_free": [t.free for t in problem.trajectory],
-                        "point_weights": self._point_weights(problem, local, len(points)),
-                        "d_offset": problem.d_offset, "n_theta": problem.n_theta}
-            chunks = [(a - p0, b - p0) for a, b in problem.chunks[c0:c1]]
+            settings = ShareSettings(
+                chunks=[(a - p0, b - p0) for a, b in problem.chunks[c0:c1]], obs_sigma=problem.obs_sigma[o0:o1],
+                obs_sigma_apriori=problem.obs_sigma_apriori[o0:o1], obs_weight=problem.obs_weight[o0:o1],
+                image_free=problem.image_free, camera_free=[cam.free for cam in problem.cameras],
+                trajectory_free=[t.free for t in problem.trajectory],
+                point_weights=self._point_weights(problem, local, len(points)), d_offset=list(problem.d_offset),
+                n_theta=problem.n_theta)
             key = f"selfcal-share-{uuid.uuid4().hex}"
             # (the block straight to its worker: in the task it would go through the scheduler)
             sub_block = client.scatter(_sub_block(problem, block, p0, p1), workers=[worker], direct=True, hash=False)
-            futures.append(client.submit(_keep, key, sub_block, options, ap_models, chunks, settings, key=key,
+            futures.append(client.submit(_keep, key, sub_block, options, ap_models, settings, key=key,
                                          workers=[worker], allow_other_workers=False, pure=False))
             self.points.append(points)
             self.offsets.append((p0, o0))
