@@ -124,19 +124,18 @@ def test_a_tested_adjustment_on_the_cluster_equals_the_single_process(client):
 
 
 def test_what_stays_in_the_client(client, monkeypatch):
-    """A free network, a sensor whose shares are not checked (distributed.SENSORS) and no cluster at all keep their
-    points in this process."""
+    """A sensor whose shares are not checked (distributed.SENSORS) and no cluster at all keep their points in this
+    process."""
     block = _block()
     problem, _ = problem_at(block, AdjustOptions())
-    assert distributed.point_side(problem, block, AdjustOptions(), False) is None       # outside on_cluster
+    assert distributed.point_side(problem, block, AdjustOptions()) is None       # outside on_cluster
     with distributed.on_cluster(client):
-        assert distributed.point_side(problem, block, AdjustOptions(), True) is None
-        side = distributed.point_side(problem, block, AdjustOptions(), False)
+        side = distributed.point_side(problem, block, AdjustOptions())
         assert isinstance(side, distributed.ClusterPoints)
         side.close()
         unchecked = problem.sensors[0].sensor
         monkeypatch.setattr(type(unchecked), "name", "not-checked")
-        assert distributed.point_side(problem, block, AdjustOptions(), False) is None
+        assert distributed.point_side(problem, block, AdjustOptions()) is None
 
 
 def test_a_robust_adjustment_on_the_cluster_equals_the_single_process(client):
@@ -247,7 +246,7 @@ def test_a_rolling_shutter_block_on_the_cluster_equals_the_single_process(client
     one = adjust(block, options)
     problem, _ = problem_at(block, options)
     with distributed.on_cluster(client):
-        side = distributed.point_side(problem, block, options, False)
+        side = distributed.point_side(problem, block, options)
         assert isinstance(side, distributed.ClusterPoints) and len(side.shares) == 2
         side.close()
         two = adjust(block, options)
@@ -255,3 +254,35 @@ def test_a_rolling_shutter_block_on_the_cluster_equals_the_single_process(client
     assert _relative(np.concatenate(one.state.cameras), np.concatenate(two.state.cameras)) < 1e-9
     assert _relative(one.state.points, two.state.points) < 1e-9
     assert _relative(one.residuals, two.residuals) < 1e-9
+
+
+def test_a_free_network_on_the_cluster_equals_the_single_process(client):
+    """A tie-point network without control (datum free: the minimum-norm solution, its seven datum directions
+    fitted from the shares' sums about the centroid of every point): the same estimates, residuals and sigmas."""
+    from dataclasses import replace
+
+    from selfcal.block import leave_out, prune
+    block = simulation(seed=7, distortion="brown", points_per_mm2=2.0).blocks["type1"]
+    block = prune(replace(leave_out(block, points=block.points.role != "tie"), datum="free"))
+    options = AdjustOptions(ap=APOptions("brown"))
+    one = adjust(block, options)
+    made = []
+    original = distributed.ClusterPoints.__init__
+
+    def counted(self, *args, **kwargs):
+        original(self, *args, **kwargs)
+        made.append(len(self.shares))
+    distributed.ClusterPoints.__init__ = counted
+    try:
+        with distributed.on_cluster(client):
+            two = adjust(block, options)
+    finally:
+        distributed.ClusterPoints.__init__ = original
+    assert made and set(made) == {2} and one.converged and two.converged
+    assert one.iterations == two.iterations
+    assert _relative(one.state.points, two.state.points) < 1e-9
+    assert _relative(one.state.image, two.state.image) < 1e-9
+    assert _relative(one.residuals, two.residuals) < 1e-9
+    sigma1, sigma2 = one.parameters().sigma, two.parameters().sigma
+    free = np.isfinite(sigma1) & (sigma1 > 0)
+    assert np.max(np.abs(sigma1[free] / sigma2[free] - 1.0)) < 1e-9

@@ -180,7 +180,7 @@ def undetermined_by_sigma(sigma: np.ndarray, ratio: float = POINT_SIGMA_RATIO) -
     return np.flatnonzero(~finite | (sigma > ratio * median))
 
 
-def similarity_directions(problem, state, lin) -> np.ndarray | None:
+def similarity_directions(problem, state, lin, rhs: np.ndarray | None = None) -> np.ndarray | None:
     """(n_theta, 7): the directions of theta along which a free network's reduced normal equations are singular,
     as a shift, a rotation and a change of scale of the object frame move them; None where an image's block is
     singular.
@@ -190,8 +190,34 @@ def similarity_directions(problem, state, lin) -> np.ndarray | None:
     U_ee^-1 sum_o w_e[o] dX (exact wherever the sensor's image parameters absorb a similarity, as a frame
     camera's position and attitude do). The camera parameters do not move. A guess for
     :func:`selfcal.adjust.linalg.pseudo_factorise`, which checks it and finds the directions by an
-    eigendecomposition where the guess is not a null space (another sensor, another defect)."""
-    d = state.points - state.points[np.isfinite(state.points).all(axis=1)].mean(axis=0)
+    eigendecomposition where the guess is not a null space (another sensor, another defect).
+
+    ``rhs``: the sum over the points (:func:`similarity_sums` of every point, or of shares of them added), computed
+    here from ``lin``'s chunks when not given."""
+    if rhs is None:
+        rhs = similarity_sums(problem, lin, state.points, points_centroid(state.points))
+    working = working_columns(problem)
+    if working is not None:
+        rhs = image_maps(problem, working).rows_to_parameters(rhs.reshape(-1, 7)).reshape(problem.n_images, -1, 7)
+    try:
+        fitted = np.linalg.solve(lin.U_ee, rhs)
+    except np.linalg.LinAlgError:                         # an image that its observations do not determine
+        return None
+    out = np.zeros((problem.n_theta, 7))
+    out[problem.image_theta().ravel()] = fitted.reshape(-1, 7)
+    return out
+
+
+def points_centroid(points: np.ndarray) -> np.ndarray:
+    """The centroid of the points with finite coordinates (the rotation's and scale's centre)."""
+    return points[np.isfinite(points).all(axis=1)].mean(axis=0)
+
+
+def similarity_sums(problem, lin, points: np.ndarray, centroid: np.ndarray) -> np.ndarray:
+    """- sum_o w_e[o] dX of :func:`similarity_directions` over the chunks of ``lin`` (the points ``points``, the
+    problem's numbering), per image in its rows' columns (working columns where the sensor has them): a sum over the
+    points, so over shares of them."""
+    d = points - centroid
     moves = np.zeros((len(d), 3, 7))                      # per point: dX of each direction
     moves[:, [0, 1, 2], [0, 1, 2]] = 1.0
     for j in range(3):
@@ -209,13 +235,4 @@ def similarity_directions(problem, state, lin) -> np.ndarray | None:
             rhs -= (cs.sum_by_image @ shifted.reshape(len(shifted), -1)).reshape(rhs.shape)
         else:                                                                   # slots in working columns
             np.subtract.at(rhs, (cs.img[:, None], ch.columns), shifted)
-    if working is not None:
-        rhs = image_maps(problem, working).rows_to_parameters(rhs.reshape(-1, 7)).reshape(problem.n_images, -1, 7)
-    try:
-        fitted = np.linalg.solve(lin.U_ee, rhs)
-    except np.linalg.LinAlgError:                         # an image that its observations do not determine
-        return None
-    out = np.zeros((problem.n_theta, 7))
-    out[problem.image_theta().ravel()] = fitted.reshape(-1, 7)
-    return out
-
+    return rhs

@@ -20,9 +20,9 @@ would have computed, so the results equal the single process's to the rounding o
 
 A robust weighting is the client's (the weights follow every accepted step's residuals, of every observation, and
 their scale is one for the block): the shares take the new weight factors from it (:meth:`ClusterPoints.reweighted`).
-Not on the cluster (they run in the client, as without it): free networks (their datum directions are found from
-every point) and sensors other than frame cameras (their shares are not checked yet). :func:`point_side` says
-which.
+A free network's datum directions are fitted by the client from the shares' sums about the centroid of every point
+(:meth:`ClusterPoints.similarity_sums`). Not on the cluster (they run in the client, as without it): sensors whose
+shares are not checked yet (:data:`SENSORS`). :func:`point_side` says which.
 """
 from __future__ import annotations
 
@@ -35,7 +35,7 @@ from typing import Any, Iterator
 import numpy as np
 
 from ..errors import AdjustmentError, UsageError
-from .datum import conditional_point_sigma, undetermined_by_sigma
+from .datum import conditional_point_sigma, points_centroid, similarity_sums, undetermined_by_sigma
 from .point_side import PointStep, geometric_blocks, point_step
 from .problem import Problem, State, build_problem
 from .residuals.image import reweight_observations
@@ -77,11 +77,11 @@ def on_cluster(client: Any) -> Iterator[None]:
         _current.reset(token)
 
 
-def point_side(problem: Problem, block, options, free_network: bool) -> "ClusterPoints | None":
+def point_side(problem: Problem, block, options) -> "ClusterPoints | None":
     """The cluster's point side for this problem, or None where it runs in this process: outside
-    :func:`on_cluster`, one worker's cluster, a free network, or a sensor not in :data:`SENSORS`."""
+    :func:`on_cluster`, one worker's cluster, or a sensor not in :data:`SENSORS`."""
     cluster = _current.get()
-    if cluster is None or free_network or len(cluster.workers) < 2:
+    if cluster is None or len(cluster.workers) < 2:
         return None
     if any(slot.sensor.name not in SENSORS for slot in problem.sensors):
         return None
@@ -213,6 +213,10 @@ class PointShare:
         self.lin = linearise_points(self.problem, self._state(theta, points))
         self.v_inv = None
         return replace(self.lin, chunks=[])
+
+    def similarity_sums(self, points: np.ndarray, centroid: np.ndarray) -> np.ndarray:
+        assert self.lin is not None
+        return similarity_sums(self.problem, self.lin, points, centroid)
 
     def point_sigma(self) -> np.ndarray:
         assert self.lin is not None
@@ -352,6 +356,11 @@ class ClusterPoints:
         for points, part in zip(self.points, self._each("point_sigma")):
             sigma[points] = part
         return undetermined_by_sigma(sigma, ratio)
+
+    def similarity_sums(self, state: State) -> np.ndarray:
+        centroid = points_centroid(state.points)
+        parts = self._each("similarity_sums", [(state.points[points], centroid) for points in self.points])
+        return np.sum(parts, axis=0)
 
     def reduce(self, lin: Linearisation, lam: float, dense: bool) -> tuple:
         sums = ReducedSums(lin.U_ee.copy(), np.zeros((len(self.pair_keys),) + lin.U_ee.shape[1:]), self.pair_keys,

@@ -296,7 +296,7 @@ def _adjust(block: Block, options: AdjustOptions, progress, start, free, ap_mode
                 progress(replace(record, iteration=record.iteration + done))
         weighting = RobustWeighting(robust) if robust is not None else None
         # the points on a Dask cluster's workers, where the adjustment runs inside distributed.on_cluster
-        side = distributed.point_side(problem, block, options, free_network)
+        side = distributed.point_side(problem, block, options)
         try:
             outcome = solve(problem, state, names, budget, numbered, datum_null,
                             None if weighting is None else weighting.update, side)

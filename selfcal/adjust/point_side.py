@@ -14,7 +14,7 @@ from typing import Protocol
 
 import numpy as np
 
-from .datum import points_not_determined_by_rays
+from .datum import points_centroid, points_not_determined_by_rays, similarity_sums
 from .problem import Problem, State
 from .schur import (Linearisation, ReducedSums, add_point_schur, assemble, back_substitute, linearise_points,
                     points_cost_and_residuals)
@@ -57,6 +57,10 @@ class PointSide(Protocol):
     def reweighted(self) -> None:
         """The problem's weight factors moved (a robust weighting's): the side's copies follow."""
 
+    def similarity_sums(self, state: State) -> np.ndarray:
+        """A free network's sum over the points of :func:`~selfcal.adjust.datum.similarity_directions` at the last
+        linearisation, about the centroid of ``state``'s points."""
+
     def gathered(self, lin: Linearisation) -> tuple[Linearisation, list | None]:
         """``lin`` with the points' part of the last linearisation (its chunks) and the last reduction's damped
         point inverses, as the results after the solve read them."""
@@ -94,6 +98,10 @@ class LocalPoints:
 
     def reweighted(self) -> None:
         """Nothing: the side works on the problem itself."""
+
+    def similarity_sums(self, state: State) -> np.ndarray:
+        assert self.lin is not None
+        return similarity_sums(self.problem, self.lin, state.points, points_centroid(state.points))
 
     def gathered(self, lin: Linearisation) -> tuple[Linearisation, list | None]:
         return lin, self.v_inv

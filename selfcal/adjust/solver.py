@@ -159,7 +159,7 @@ def solve(problem: Problem, state: State, names: list[str], options: SolverOptio
     if pseudo and null is None:
         # the similarity's directions, checked by the factorisation (an eigendecomposition where they are not the
         # null space): 0.17 s of a 200-image block's first iteration
-        null = similarity_directions(problem, state, lin)
+        null = similarity_directions(problem, state, lin, side.similarity_sums(state))
     def outcome(state: State, lin: Linearisation, converged: bool, reason: str, iterations: int, cost: float,
                 reduction: tuple | None = None, undetermined: np.ndarray | None = None) -> SolverOutcome:
         lin, v_inv = side.gathered(lin)

@@ -57,9 +57,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--scheduler", metavar="SPEC",
                         help="put each adjustment's object points and their observations on a Dask cluster, one "
                              "share per worker: 'local' (a worker process per core), 'local:N', or a running "
-                             "scheduler's address (tcp://host:8786); the results equal one process's (free "
-                             "networks and sensors other than frame cameras stay in this process). Default: one "
-                             "process")
+                             "scheduler's address (tcp://host:8786); the results equal one process's (sensors "
+                             "other than frame cameras stay in this process). Default: one process")
     parser.add_argument("--max-iterations", type=count(1), default=SolverOptions.max_iterations, metavar="N",
                         help=f"Gauss-Newton / Levenberg-Marquardt iterations at most (default "
                              f"{SolverOptions.max_iterations}); a weakly determined block may need more")
