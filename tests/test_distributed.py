@@ -2,6 +2,8 @@
 estimates, sigmas, residuals and tests as in one process, the shares' parts adding up to the whole problem's."""
 from __future__ import annotations
 
+import contextlib
+
 import numpy as np
 import pytest
 
@@ -30,6 +32,23 @@ def _block():
     assembly chunks, so that the two shares, chunks 0-1 and 2-3, add in another order than the single process's
     two threads, chunks 0 and 2 and chunks 1 and 3) with 0.3 % blunders and a Brown lens."""
     return pruned(simulation(seed=7, distortion="brown", points_per_mm2=2.0, blunder_rate=0.003), "type2")
+
+
+@contextlib.contextmanager
+def on_the_cluster(client):
+    """:func:`distributed.on_cluster`, yielding the number of shares of every cluster point side made inside."""
+    made: list[int] = []
+    original = distributed.ClusterPoints.__init__
+
+    def counted(self, *args, **kwargs):
+        original(self, *args, **kwargs)
+        made.append(len(self.shares))
+    distributed.ClusterPoints.__init__ = counted
+    try:
+        with distributed.on_cluster(client):
+            yield made
+    finally:
+        distributed.ClusterPoints.__init__ = original
 
 
 def _relative(a, b) -> float:
@@ -88,18 +107,8 @@ def test_a_tested_adjustment_on_the_cluster_equals_the_single_process(client):
     block = _block()
     options = AdjustOptions(ap=APOptions("brown"))
     one = adjust_with_tests(block, options, SnoopingOptions())
-    made = []
-    original = distributed.ClusterPoints.__init__
-
-    def counted(self, *args, **kwargs):
-        original(self, *args, **kwargs)
-        made.append(len(self.shares))
-    distributed.ClusterPoints.__init__ = counted
-    try:
-        with distributed.on_cluster(client):
-            two = adjust_with_tests(block, options, SnoopingOptions())
-    finally:
-        distributed.ClusterPoints.__init__ = original
+    with on_the_cluster(client) as made:
+        two = adjust_with_tests(block, options, SnoopingOptions())
     assert made and set(made) == {2}                 # every solve ran on two shares
     assert len(one.rejected_rows) > 20
     np.testing.assert_array_equal(np.sort(one.rejected_rows), np.sort(two.rejected_rows))
@@ -266,18 +275,8 @@ def test_a_free_network_on_the_cluster_equals_the_single_process(client):
     block = prune(replace(leave_out(block, points=block.points.role != "tie"), datum="free"))
     options = AdjustOptions(ap=APOptions("brown"))
     one = adjust(block, options)
-    made = []
-    original = distributed.ClusterPoints.__init__
-
-    def counted(self, *args, **kwargs):
-        original(self, *args, **kwargs)
-        made.append(len(self.shares))
-    distributed.ClusterPoints.__init__ = counted
-    try:
-        with distributed.on_cluster(client):
-            two = adjust(block, options)
-    finally:
-        distributed.ClusterPoints.__init__ = original
+    with on_the_cluster(client) as made:
+        two = adjust(block, options)
     assert made and set(made) == {2} and one.converged and two.converged
     assert one.iterations == two.iterations
     assert _relative(one.state.points, two.state.points) < 1e-9
