@@ -273,8 +273,13 @@ class ClusterPoints:
             self.points.append(points)
             self.offsets.append((p0, o0))
         self.client, self.workers = client, list(workers[:len(futures)])
-        self.shares = self._results(futures)
-        self.pair_keys = np.unique(np.concatenate(self._each("pair_keys")))
+        self.shares = [future.key for future in futures]
+        try:
+            self._results(futures)
+            self.pair_keys = np.unique(np.concatenate(self._each("pair_keys")))
+        except BaseException:
+            self.close()                # the shares already made go too
+            raise
 
     @staticmethod
     def _point_weights(problem: Problem, local: np.ndarray, n_points: int) -> list[np.ndarray]:
