@@ -170,6 +170,9 @@ def test_a_cluster_plan_gives_each_workers_peak_and_checks_the_local_ones(block_
     capsys.readouterr()
     assert run_cli("plan", str(block_folder), "--scheduler", "local:x") == 2
     assert "--scheduler local:N needs a whole number of workers" in capsys.readouterr().err
+    for address in ("tcp://", "tcp://host", "localhost:99999", "xyz"):      # refused as written, before any connection
+        assert run_cli("plan", str(block_folder), "--scheduler", address) == 2
+        assert f"a scheduler's address with its port (tcp://host:8786), found '{address}'" in capsys.readouterr().err
 
 
 def test_missing_block_folder_exits_2_naming_it(tmp_path, capsys):

@@ -37,10 +37,11 @@ def parse_scheduler(text: str) -> tuple[str, int | None]:
         if not count.isdigit() or int(count) < 1:
             raise UsageError(f"--scheduler local:N needs a whole number of workers N >= 1, found '{text}'")
         return "local", int(count)
-    if "://" in text or (":" in text and text.rsplit(":", 1)[1].isdigit()):
+    host, _, port = text.partition("://")[2].rpartition(":") if "://" in text else text.rpartition(":")
+    if host and port.isdigit() and 0 < int(port) < 65536:
         return "address", None
-    raise UsageError(f"--scheduler must be 'local', 'local:N' or a scheduler's address (tcp://host:8786), "
-                     f"found '{text}'")
+    raise UsageError(f"--scheduler must be 'local', 'local:N' or a scheduler's address with its port "
+                     f"(tcp://host:8786), found '{text}'")
 
 
 def scheduler_workers(spec: str) -> tuple[int, bool]:
@@ -71,7 +72,7 @@ def dask_client(spec: str, say: Callable[[str], None] | None = None) -> Iterator
         tell(f"connecting to the Dask scheduler at {spec} ...")
         try:
             client = Client(spec, timeout=CONNECT_TIMEOUT_S)
-        except (OSError, TimeoutError) as exc:
+        except (OSError, TimeoutError, ValueError) as exc:       # (ValueError: an address Dask cannot parse)
             raise UsageError(f"cannot reach the Dask scheduler at {spec} within {CONNECT_TIMEOUT_S:g} s "
                              f"({type(exc).__name__}: {exc})") from None
     try:
