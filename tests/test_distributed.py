@@ -132,6 +132,36 @@ def test_a_tested_adjustment_on_the_cluster_equals_the_single_process(client):
     assert r1.sigma0_px == pytest.approx(r2.sigma0_px, rel=1e-12)
 
 
+def test_the_points_results_are_computed_on_the_workers_and_dropped_with_the_cluster(client, monkeypatch):
+    """The points' cofactors, the image leverages and one point's cofactor come from the shares, without their
+    linearisation brought to the client, and equal one process's to 1e-9; the shares stay on the workers while the
+    result asks for them and go with the cluster's context, after which the result says so."""
+    from selfcal.errors import AdjustmentError
+    block = _block()
+    options = AdjustOptions(ap=APOptions("brown"))
+    one = adjust(block, options)
+    brought = []
+    monkeypatch.setattr(distributed.ClusterPoints, "gathered", lambda self, lin: brought.append(lin))
+    with on_the_cluster(client) as made:
+        two = adjust(block, options)
+        assert set(made) == {2} and isinstance(two.points, distributed.ClusterPoints)
+        h2, v2 = two.image_leverages()              # (the points' cofactors come out of the same pass)
+        some = two.some_point_cofactors(np.array([5, 0, len(block.points) - 1]))
+        assert sum(client.run(lambda: len(distributed._SHARES)).values()) == 2
+    assert not brought
+    h1, v1 = one.image_leverages()
+    assert np.max(np.abs(h1 - h2)) < 1e-9 and _relative(v1, v2) < 1e-9
+    Q1, Q2 = one.Q_points, two.Q_points
+    scale = np.sqrt(np.einsum("pii->pi", Q1))
+    assert np.max(np.abs(Q1 - Q2) / (scale[:, :, None] * scale[:, None, :])) < 1e-9
+    np.testing.assert_array_equal(some, Q2[[5, 0, len(block.points) - 1]])
+    # the context closed: the workers hold no share, and a question the shares must answer is refused
+    assert sum(client.run(lambda: len(distributed._SHARES)).values()) == 0
+    two.point_cofactor_blocks = None
+    with pytest.raises(AdjustmentError, match="shares of the points are dropped"):
+        two.Q_points
+
+
 def test_what_stays_in_the_client(client, monkeypatch):
     """A sensor whose shares are not checked (distributed.SENSORS) and no cluster at all keep their points in this
     process."""

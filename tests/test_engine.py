@@ -265,9 +265,9 @@ def test_small_blocks_adjust_on_one_blas_thread(monkeypatch):
         result = adjust(block, AdjustOptions(ap=APOptions("brown")), progress=lambda record: seen.append(blas_threads()))
         assert seen and all(threads == {1} for threads in seen)
         assert blas_threads() == {2}
-        import selfcal.adjust.leverage as leverage
-        original, inside = leverage.image_leverages, []
-        monkeypatch.setattr(leverage, "image_leverages", lambda *args: inside.append(blas_threads())
+        import selfcal.adjust.point_side as point_side
+        original, inside = point_side.image_leverages, []
+        monkeypatch.setattr(point_side, "image_leverages", lambda *args: inside.append(blas_threads())
                             or original(*args))
         observation_tests(result)
         assert inside == [{1}] and blas_threads() == {2}
@@ -303,13 +303,13 @@ def test_point_cofactors_from_the_tests_pass_equal_their_own():
     tests = observation_tests(result)
     fused = result.point_cofactor_blocks
     assert fused is not None and result.Q_points is fused
-    own = point_cofactors(result.problem, result.linearisation, result.v_inv, result.Q_theta)
+    lin, v_inv = result.point_linearisation()
+    own = point_cofactors(result.problem, lin, v_inv, result.Q_theta)
     scale = np.sqrt(np.einsum("pii->pi", own))
     # the two passes sum the same terms in another order: rounding, amplified by the WAPs' conditioning (1.5e-12
     # measured after the reduction's loops were reordered, below 1e-12 before)
     assert np.max(np.abs(fused - own) / (scale[:, :, None] * scale[:, None, :])) < 1e-11
-    h_given = image_leverages(result.problem, result.state, result.linearisation, result.v_inv, result.Q_theta,
-                              own)[0]
+    h_given = image_leverages(result.problem, result.state, lin, v_inv, result.Q_theta, own)[0]
     h_sorted = 1.0 - tests.image_redundancy[result.problem.obs_order]
     np.testing.assert_allclose(h_given, h_sorted, rtol=0, atol=1e-10)      # rounding: h sums terms larger than 1
     lazy = adjust(block, AdjustOptions(ap=APOptions("wavelet:db4")))
@@ -344,7 +344,7 @@ def test_leverages_through_the_sparse_wavelet_rows_equal_the_dense_ones(monkeypa
     dense = camera_jacobian(problem, 0)[:, :, cam.n_core:]
     scale = np.abs(dense).max()
     np.testing.assert_allclose(np.stack([bx, by], axis=1), dense, rtol=0, atol=1e-13 * scale)
-    args = (problem, result.state, result.linearisation, result.v_inv, result.Q_theta)
+    args = (problem, result.state, *result.point_linearisation(), result.Q_theta)
     h_sparse, _, points_sparse = leverage.image_leverages(*args)
     monkeypatch.setattr(leverage, "sparse_ap_rows", lambda problem: None)
     h_dense, _, points_dense = leverage.image_leverages(*args)

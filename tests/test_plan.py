@@ -150,19 +150,23 @@ def test_too_large_block_exits_2_before_any_work(block_folder, capsys, monkeypat
 
 def test_a_cluster_plan_gives_each_workers_peak_and_checks_the_local_ones(block_folder, capsys, monkeypatch):
     """``selfcal plan --scheduler local:2``: each worker's peak (its base and its share of the observations, fitted on
-    benchmarks/bench_distributed.py's workers) beside the client's, which is one process's; a local cluster's workers
-    count against this machine's memory, a scheduler's elsewhere do not."""
+    benchmarks/bench_distributed.py's workers) beside the client's, one process's less what the shares hold for it;
+    a local cluster's workers count against this machine's memory, a scheduler's elsewhere do not."""
     import selfcal.workflows.plan as plan_module
 
     assert run_cli("plan", str(block_folder), "--ap", "none", "--scheduler", "local:2", "--json") == 0
     figures = json.loads(capsys.readouterr().out)["figures"]
     share = figures["sizes"]["n_observations"] / 2
     assert figures["workers"] == 2 and figures["scheduler"] == "local:2"
-    assert figures["worker_peak_mb"] == pytest.approx(207.0 + 890.0 * share / 2 ** 20, rel=1e-9)
+    assert figures["worker_peak_mb"] == pytest.approx(203.4 + 705.0 * share / 2 ** 20, rel=1e-9)
+    shed = 39.4 + 442.0 * 2 * share / 2 ** 20
+    assert figures["client_peak_mb"] == pytest.approx(figures["peak_mb"] - shed, rel=1e-9)
+    assert figures["client_workflow_peak_mb"] == pytest.approx(figures["workflow_peak_mb"] - shed, rel=1e-9)
     assert run_cli("plan", str(block_folder), "--ap", "none", "--scheduler", "local:2") == 0
-    assert "each worker" in capsys.readouterr().out
+    table = capsys.readouterr().out
+    assert "each worker" in table and "client" in table
     # room for the client's tested workflow, not for it and two local workers beside it
-    room = figures["workflow_peak_mb"] + figures["worker_peak_mb"]
+    room = figures["client_workflow_peak_mb"] + figures["worker_peak_mb"]
     monkeypatch.setattr(plan_module, "available_mb", lambda: room)
     assert run_cli("plan", str(block_folder), "--ap", "none", "--scheduler", "local:2") == 2
     assert "and 2 local workers of" in capsys.readouterr().err

@@ -26,19 +26,24 @@ from .problem import Problem
 from .kernels import NO_SLOTS, add_point_image_products, point_blocks_times, point_cofactor_pairs
 from .working import image_maps, working_columns
 
-__all__ = ["point_cofactors", "some_point_cofactors", "PointCofactors", "PointTerms", "image_blocks", "observation_columns", "lower_cholesky",
+__all__ = ["point_cofactors", "some_point_cofactors", "PointCofactors", "PointTerms", "ThetaBlocks", "theta_blocks",
+           "image_blocks", "observation_columns", "lower_cholesky",
            "times_lower", "block_grams"]
 
 
-def image_blocks(Q, problem: Problem, columns: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+def image_blocks(Q, problem: Problem, columns: np.ndarray | None = None,
+                 pair_keys: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Q_theta's image blocks: (n_images, w, w) of each image, and (n_pairs, w, w) of each pair of
-    images that share a point (``problem.structure().pair_keys``: Q(image_pair_a, image_pair_b)).
-    ``columns`` (n_images, w): each image's columns of theta (-1: none, its rows and columns of the
+    images that share a point (``problem.structure().pair_keys``, or ``pair_keys`` (ia * n_images + ib):
+    Q(ia, ib)). ``columns`` (n_images, w): each image's columns of theta (-1: none, its rows and columns of the
     blocks are zero); by default its own image parameters. ``Q`` is a dense ndarray or a
     BandedCofactor: both take NumPy's fancy indexing."""
     if columns is None:
         columns = problem.image_theta()
-    structure = problem.structure()
+    if pair_keys is None:
+        pair_keys = problem.structure().pair_keys
+    n_img = problem.n_images
+    pair_a, pair_b = pair_keys // max(n_img, 1), pair_keys % max(n_img, 1)
     valid = columns >= 0
     safe = np.where(valid, columns, 0)
 
@@ -47,7 +52,7 @@ def image_blocks(Q, problem: Problem, columns: np.ndarray | None = None) -> tupl
         return np.ascontiguousarray(out * (valid[a][:, :, None] & valid[b][:, None, :]))
     Q_diag = blocks(np.arange(problem.n_images), np.arange(problem.n_images))
     w = columns.shape[1]
-    Q_pair = blocks(structure.image_pair_a, structure.image_pair_b) if len(structure.pair_keys) else np.zeros((0, w, w))
+    Q_pair = blocks(pair_a, pair_b) if len(pair_keys) else np.zeros((0, w, w))
     return Q_diag, Q_pair
 
 
@@ -56,6 +61,33 @@ def observation_columns(problem: Problem) -> np.ndarray:
     parameters, then its camera's (-1 pads a narrower camera), (n_images, width + camera width)."""
     cameras = problem.camera_columns()[problem.image_camera]
     return np.concatenate([problem.image_theta(), np.where(cameras >= 0, problem.n_e + cameras, -1)], axis=1)
+
+
+@dataclass
+class ThetaBlocks:
+    """What the object points' passes read of Q_theta (module docstring): the image blocks (:func:`image_blocks`,
+    of the pairs of images that a set of points joins) and, with camera parameters that are not compact, the
+    camera parameters' block and their columns in the image rows. A share of the points on a Dask cluster gets
+    these instead of Q_theta (:mod:`selfcal.adjust.distributed`)."""
+
+    compact: bool                # compact cameras: the image blocks hold each image's camera columns too
+    Q_diag: np.ndarray           # (n_images, w, w)
+    Q_pair: np.ndarray           # (n_pairs, w, w), in the order of the pair keys asked for
+    Q_dd: np.ndarray | None      # (n_d, n_d)
+    Q_ed: np.ndarray | None      # (n_e, n_d)
+
+
+def theta_blocks(Q, problem: Problem, pair_keys: np.ndarray | None = None) -> ThetaBlocks:
+    """The :class:`ThetaBlocks` of Q_theta (a dense ndarray or a BandedCofactor) for the pairs of images
+    ``pair_keys`` (ia * n_images + ib; by default the problem's own)."""
+    n_e, n_d = problem.n_e, problem.n_d
+    compact = bool(n_d) and problem.compact_cameras
+    Q_diag, Q_pair = image_blocks(Q, problem, observation_columns(problem) if compact else None, pair_keys)
+    Q_dd = Q_ed = None
+    if n_d and not compact:
+        Q_dd = np.asarray(Q[n_e:n_e + n_d, n_e:n_e + n_d])
+        Q_ed = np.ascontiguousarray(Q[:n_e, n_e:n_e + n_d])
+    return ThetaBlocks(compact, Q_diag, Q_pair, Q_dd, Q_ed)
 
 
 @dataclass
@@ -75,13 +107,16 @@ class PointCofactors:
     points their cofactor blocks with the products they are made of (:class:`PointTerms`)."""
 
     def __init__(self, problem: Problem, Q, full_product: bool = False):
-        n_e, n_d = problem.n_e, problem.n_d
+        """``Q``: Q_theta (a dense ndarray or a BandedCofactor), or its :class:`ThetaBlocks` for the problem's
+        pairs of images."""
+        n_d = problem.n_d
         self.problem = problem
         # compact cameras (BAL: one camera of 3 parameters per image): an observation touches its image's and its
         # camera's columns only, so both are one block per image, summed over the pairs of each point's
         # observations like the image parameters alone (no dense point x camera coupling, no Q_dd products)
-        self.compact = bool(n_d) and problem.compact_cameras
-        self.Q_diag, self.Q_pair = image_blocks(Q, problem, observation_columns(problem) if self.compact else None)
+        parts = Q if isinstance(Q, ThetaBlocks) else theta_blocks(Q, problem)
+        self.compact = parts.compact
+        self.Q_diag, self.Q_pair = parts.Q_diag, parts.Q_pair
         # image rows in working columns (:mod:`.working`): the image blocks of Q_theta as T Q T^T
         self.working = working_columns(problem)
         maps = None
@@ -93,13 +128,13 @@ class PointCofactors:
         self.rows_width = problem.image_width if self.working is None else self.working.width
         self.Q_dd = self.Q_ed = self.L_dd = None
         if n_d and not self.compact:
-            self.Q_dd = Q[n_e:n_e + n_d, n_e:n_e + n_d]
-            self.Q_ed = np.ascontiguousarray(Q[:n_e, n_e:n_e + n_d])          # (n_e, n_d)
+            Q_dd, Q_ed = parts.Q_dd, parts.Q_ed                               # (n_d, n_d), (n_e, n_d)
+            assert Q_dd is not None and Q_ed is not None                      # (theta_blocks keeps them here)
             if maps is not None:                                               # (n_images * working, n_d)
-                self.Q_ed = maps.rows_to_working(self.Q_ed.reshape(problem.n_images, problem.image_width, n_d)) \
-                    .reshape(-1, n_d)
+                Q_ed = maps.rows_to_working(Q_ed.reshape(problem.n_images, problem.image_width, n_d)).reshape(-1, n_d)
+            self.Q_dd, self.Q_ed = Q_dd, Q_ed
             # Q_dd = L L^T: the products with Q_dd are triangular ones, unless the caller needs A + Z Q_dd itself
-            self.L_dd = None if full_product else lower_cholesky(self.Q_dd)
+            self.L_dd = None if full_product else lower_cholesky(Q_dd)
 
     def chunk(self, ch, cs, Vi: np.ndarray) -> PointTerms:
         n_d = self.problem.n_d

@@ -14,9 +14,17 @@ and solves; the shares back-substitute their points and evaluate the cost of tri
 every adjustment (:func:`selfcal.adjust.solver.solve`, through :class:`ClusterPoints`, a
 :class:`~selfcal.adjust.point_side.PointSide`).
 
-After the solve the shares' chunks come back to the client (:meth:`ClusterPoints.gathered`), and the results (the
-cofactors, residuals, leverages, tests) are computed there as in one process: every chunk is the one the client
-would have computed, so the results equal the single process's to the rounding of the sums' order.
+After the solve the shares stay on their workers with their last linearisation and the point inverses of the
+undamped reduced system, for as long as the result (:class:`~selfcal.adjust.result.AdjustmentResult`, whose
+``points`` is this side) or the cluster's context lasts. The results of the points are computed there: the client
+sends each share the blocks of Q_theta its points read (:func:`~selfcal.adjust.covariance.theta_blocks`: every
+image's, those of the pairs of images its points join, the camera parameters'), and the share returns its points'
+cofactor blocks and its observations' leverages and whitened residuals (:meth:`ClusterPoints.point_cofactors`,
+:meth:`ClusterPoints.image_leverages`, :meth:`ClusterPoints.some_point_cofactors`). Each share's chunk computes
+what the client's would have, so the results equal the single process's to the rounding of Q_theta's reading.
+Only the downdated start of a re-adjustment (reduced systems of up to
+:data:`~selfcal.adjust.update.UPDATE_LIMIT` unknowns) brings the chunks to the client
+(:meth:`ClusterPoints.gathered`).
 
 A robust weighting is the client's (the weights follow every accepted step's residuals, of every observation, and
 their scale is one for the block): the shares take the new weight factors from it (:meth:`ClusterPoints.reweighted`).
@@ -29,13 +37,16 @@ from __future__ import annotations
 import contextlib
 import contextvars
 import uuid
-from dataclasses import dataclass, replace
+import weakref
+from dataclasses import dataclass, field, replace
 from typing import Any, Iterator
 
 import numpy as np
 
 from ..errors import AdjustmentError, UsageError
+from .covariance import ThetaBlocks, point_cofactors, some_point_cofactors, theta_blocks
 from .datum import conditional_point_sigma, points_centroid, similarity_sums, undetermined_by_sigma
+from .leverage import image_leverages
 from .point_side import PointStep, geometric_blocks, point_step
 from .problem import Problem, State, build_problem
 from .residuals.image import reweight_observations
@@ -58,6 +69,7 @@ DIRECT_BYTES = 1 << 20
 class _Cluster:
     client: Any                     # dask.distributed.Client
     workers: tuple[str, ...]        # the worker addresses, one share each
+    sides: weakref.WeakSet = field(default_factory=weakref.WeakSet)     # the point sides still open
 
 
 _current: contextvars.ContextVar[_Cluster | None] = contextvars.ContextVar("selfcal_cluster", default=None)
@@ -70,11 +82,14 @@ def on_cluster(client: Any) -> Iterator[None]:
     workers = tuple(sorted(client.scheduler_info()["workers"]))
     if not workers:
         raise UsageError("the Dask cluster has no workers")
-    token = _current.set(_Cluster(client, workers))
+    cluster = _Cluster(client, workers)
+    token = _current.set(cluster)
     try:
         yield
     finally:
         _current.reset(token)
+        for side in list(cluster.sides):        # the shares of the results still held: dropped with the cluster
+            side.close()
 
 
 def point_side(problem: Problem, block, options) -> "ClusterPoints | None":
@@ -85,7 +100,9 @@ def point_side(problem: Problem, block, options) -> "ClusterPoints | None":
         return None
     if any(slot.sensor.name not in SENSORS for slot in problem.sensors):
         return None
-    return ClusterPoints(cluster.client, cluster.workers, problem, block, options)
+    side = ClusterPoints(cluster.client, cluster.workers, problem, block, options)
+    cluster.sides.add(side)
+    return side
 
 
 def share_bounds(problem: Problem, n_shares: int) -> list[tuple[int, int]]:
@@ -240,6 +257,20 @@ class PointShare:
         assert self.lin is not None
         return self.lin.chunks, self.v_inv
 
+    # -- the results, from the last linearisation and (undamped) reduction, with the client's Q_theta's blocks --
+    def point_cofactors(self, *blocks) -> np.ndarray:
+        assert self.lin is not None and self.v_inv is not None
+        return point_cofactors(self.problem, self.lin, self.v_inv, ThetaBlocks(*blocks))
+
+    def some_point_cofactors(self, points: np.ndarray, *blocks) -> np.ndarray:
+        assert self.lin is not None and self.v_inv is not None
+        return some_point_cofactors(self.problem, self.lin, self.v_inv, ThetaBlocks(*blocks), points)
+
+    def image_leverages(self, theta: tuple, points: np.ndarray, Q_points: np.ndarray | None, *blocks) -> tuple:
+        assert self.lin is not None and self.v_inv is not None
+        return image_leverages(self.problem, self._state(theta, points), self.lin, self.v_inv, ThetaBlocks(*blocks),
+                               Q_points)
+
 
 class ClusterPoints:
     """The point side (:class:`~selfcal.adjust.point_side.PointSide`) of a problem whose points are in shares on
@@ -268,6 +299,8 @@ class ClusterPoints:
             key = f"selfcal-share-{uuid.uuid4().hex}"
             # (the block straight to its worker: in the task it would go through the scheduler)
             sub_block = client.scatter(_sub_block(problem, block, p0, p1), workers=[worker], direct=True, hash=False)
+            # (its settings too: the weights and sigmas of its observations, 40 MB for a million)
+            settings = client.scatter(settings, workers=[worker], direct=True, hash=False)
             futures.append(client.submit(_keep, key, sub_block, options, ap_models, settings, key=key,
                                          workers=[worker], allow_other_workers=False, pure=False))
             self.points.append(points)
@@ -276,7 +309,8 @@ class ClusterPoints:
         self.shares = [future.key for future in futures]
         try:
             self._results(futures)
-            self.pair_keys = np.unique(np.concatenate(self._each("pair_keys")))
+            self.share_pairs: list[np.ndarray] = self._each("pair_keys")     # each share's pairs of images
+            self.pair_keys = np.unique(np.concatenate(self.share_pairs))
         except BaseException:
             self.close()                # the shares already made go too
             raise
@@ -311,21 +345,34 @@ class ClusterPoints:
     def _each(self, method: str, arguments: list[tuple] | None = None) -> list:
         """Every share's ``method`` on its worker, with its arguments (``arguments[i]`` for share i; None: none).
         An array argument of more than :data:`DIRECT_BYTES` (a share's points) goes straight to the worker."""
-        calls = []
-        for i, (key, worker) in enumerate(zip(self.shares, self.workers)):
-            given = arguments[i] if arguments else ()
-            sent = [self.client.scatter(a, workers=[worker], direct=True, hash=False)
-                    if isinstance(a, np.ndarray) and a.nbytes > DIRECT_BYTES else a for a in given]
-            calls.append(self.client.submit(_call, key, method, *sent, workers=[worker], allow_other_workers=False,
-                                            pure=False))
-        return self._results(calls)
+        self._open()
+        return self._results([self._submit(i, method, arguments[i] if arguments else ())
+                              for i in range(len(self.shares))], range(len(self.shares)))
 
-    def _results(self, calls: list) -> list:
-        """Each share's answer; a share's singular points named by the block's numbering. A share whose worker
-        is lost (its process killed, its machine gone) stops the adjustment with an AdjustmentError: its points are
-        nowhere else."""
+    def _one(self, i: int, method: str, arguments: tuple):
+        """Share i's ``method`` alone (as :meth:`_each`)."""
+        return self._results([self._submit(i, method, arguments)], [i])[0]
+
+    def _open(self) -> None:
+        if not self.shares:
+            raise AdjustmentError("the shares of the points are dropped: their adjustment's cluster (on_cluster) "
+                                  "is closed; ask for its points' results inside it")
+
+    def _submit(self, i: int, method: str, given: tuple):
+        self._open()
+        key, worker = self.shares[i], self.workers[i]
+        sent = [self.client.scatter(a, workers=[worker], direct=True, hash=False)
+                if isinstance(a, np.ndarray) and a.nbytes > DIRECT_BYTES else a for a in given]
+        return self.client.submit(_call, key, method, *sent, workers=[worker], allow_other_workers=False, pure=False)
+
+    def _results(self, calls: list, shares=None) -> list:
+        """The answers of ``calls`` to ``shares`` (default: one to each share, in order); a share's singular points
+        named by the block's numbering. A share whose worker is lost (its process killed, its machine gone) stops
+        the adjustment with an AdjustmentError: its points are nowhere else."""
         answers = []
-        for points, worker, call in zip(self.points, self.workers, calls):
+        shares = range(len(calls)) if shares is None else shares
+        for call, i in zip(calls, shares):
+            points, worker = self.points[i], self.workers[i]
             while True:
                 try:
                     answers.append(call.result(timeout=POLL_S))
@@ -402,6 +449,46 @@ class ClusterPoints:
             else:
                 v_inv += inverses
         return replace(lin, chunks=chunks), v_inv
+
+    def _blocks(self, Q) -> list[tuple]:
+        """Each share's :class:`~selfcal.adjust.covariance.ThetaBlocks` of ``Q`` (Q_theta), as its task's
+        arguments: the image blocks of its own pairs of images."""
+        out = []
+        for pairs in self.share_pairs:
+            blocks = theta_blocks(Q, self.problem, pairs)
+            out.append((blocks.compact, blocks.Q_diag, blocks.Q_pair, blocks.Q_dd, blocks.Q_ed))
+        return out
+
+    def point_cofactors(self, Q) -> np.ndarray:
+        out = np.zeros((self.problem.n_points, 3, 3))
+        for points, part in zip(self.points, self._each("point_cofactors", self._blocks(Q))):
+            out[points] = part
+        return out
+
+    def some_point_cofactors(self, Q, points: np.ndarray) -> np.ndarray:
+        out = np.full((len(points), 3, 3), np.nan)
+        position = np.full(self.problem.n_points, -1, np.int64)
+        share = np.full(self.problem.n_points, -1, np.int64)
+        for i, mine in enumerate(self.points):
+            position[mine], share[mine] = np.arange(len(mine)), i
+        for i, blocks in enumerate(self._blocks(Q)):
+            asked = np.flatnonzero(share[points] == i)
+            if asked.size:
+                out[asked] = self._one(i, "some_point_cofactors", (position[points[asked]],) + blocks)
+        return out
+
+    def image_leverages(self, state: State, Q, Q_points: np.ndarray | None) -> tuple:
+        m = self.problem.n_image_observations
+        h, r = np.zeros((m, 2)), np.zeros((m, 2))
+        points_out = np.zeros((self.problem.n_points, 3, 3)) if Q_points is None else Q_points
+        theta = self._theta(state)
+        arguments = [(theta, state.points[points], None if Q_points is None else Q_points[points]) + blocks
+                     for points, blocks in zip(self.points, self._blocks(Q))]
+        for points, (_, o0), (h_share, r_share, Qp) in zip(self.points, self.offsets,
+                                                           self._each("image_leverages", arguments)):
+            h[o0:o0 + len(h_share)], r[o0:o0 + len(r_share)] = h_share, r_share
+            points_out[points] = Qp
+        return h, r, points_out
 
     def close(self) -> None:
         """Let the workers drop their shares (a worker already gone has nothing to drop)."""

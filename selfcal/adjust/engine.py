@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import contextlib
 import time
+import weakref
 from dataclasses import replace
 from types import SimpleNamespace
 from typing import Callable
@@ -40,7 +41,8 @@ from .problem import Problem, build_problem
 from .residuals.image import image_residuals
 from .result import AdjustmentResult
 from .robust import RobustOptions, RobustWeighting
-from .schur import SingularPoints, reduce
+from .point_side import LocalPoints, PointSide
+from .schur import SingularPoints
 from .solver import IterationRecord, solve
 from .update import UPDATE_LIMIT, downdated_start
 
@@ -296,11 +298,12 @@ def _adjust(block: Block, options: AdjustOptions, progress, start, free, ap_mode
                 progress(replace(record, iteration=record.iteration + done))
         weighting = RobustWeighting(robust) if robust is not None else None
         # the points on a Dask cluster's workers, where the adjustment runs inside distributed.on_cluster
-        side = distributed.point_side(problem, block, options)
+        side: PointSide = distributed.point_side(problem, block, options) or LocalPoints(problem)
         try:
             outcome = solve(problem, state, names, budget, numbered, datum_null,
                             None if weighting is None else weighting.update, side)
         except SingularPoints as exc:
+            side.close()
             ids = ", ".join(f"'{block.points.point_id[i]}'" for i in exc.indices[:5])
             if robust is None:
                 raise AdjustmentError(f"{exc} (e.g. {ids}): remove them or check their observations") from None
@@ -313,9 +316,9 @@ def _adjust(block: Block, options: AdjustOptions, progress, start, free, ap_mode
             block = _leave_out(block, None, flagged, text, undetermined=int(flagged.sum()))
             problem, state, notes = setup(block, previous, {cam.camera_id: cam.ap for cam in problem.cameras})
             continue
-        finally:
-            if side is not None:
-                side.close()
+        except BaseException:
+            side.close()
+            raise
         history += [replace(record, iteration=record.iteration + done) for record in outcome.history]
         datum_null = outcome.datum_null
         if outcome.undetermined is None or len(history) >= options.solver.max_iterations:
@@ -324,6 +327,7 @@ def _adjust(block: Block, options: AdjustOptions, progress, start, free, ap_mode
             # the AP basis moves to the adjusted image coordinates, and the estimate converges again from where it
             # is (module docstring)
             moves -= 1
+            side.close()
             previous = SimpleNamespace(block=block, state=outcome.state, problem=problem)
             block = at_adjusted_coordinates(problem, block, outcome.state)
             # the columns at the old positions serve no more (nothing carries them to the new ones), nor does the
@@ -337,8 +341,11 @@ def _adjust(block: Block, options: AdjustOptions, progress, start, free, ap_mode
         flagged = np.zeros(len(block.points), bool)
         flagged[outcome.undetermined] = True
         assert solver_options.point_sigma_ratio is not None         # (the solver finds such points by it)
-        sigma = points_not_determined_by_rays(outcome.linearisation.of_points("V"),
-                                              solver_options.point_sigma_ratio)[1]
+        try:
+            sigma = points_not_determined_by_rays(side.gathered(outcome.linearisation)[0].of_points("V"),
+                                                  solver_options.point_sigma_ratio)[1]
+        finally:
+            side.close()
         worst = outcome.undetermined[np.argsort(-sigma[outcome.undetermined])][:5]
         listed = ", ".join(f"'{block.points.point_id[k]}' ({sigma[k]:.3g} m)" for k in worst)
         text = (f"left out {int(flagged.sum())} points that their rays do not determine after {outcome.iterations} "
@@ -353,13 +360,24 @@ def _adjust(block: Block, options: AdjustOptions, progress, start, free, ap_mode
     outcome.history = history
     outcome.iterations = len(history)
     try:
+        return _result(problem, block, outcome, side, names, notes, solver_options, n_obs, n_unk, weighting, t0)
+    except BaseException:
+        side.close()
+        raise
+
+
+def _result(problem: Problem, block: Block, outcome, side: PointSide, names: list[str], notes: list[str],
+            solver_options, n_obs: int, n_unk: int, weighting, t0: float) -> AdjustmentResult:
+    """The result of the converged (or stopped) ``outcome``: Q_theta from the undamped reduced system at its
+    linearisation; the point side keeps that system's point inverses for the results of the points."""
+    try:
         lin = outcome.linearisation
         dense = dense_assembly(problem.n_theta,
                                solver_options.free_network and problem.n_theta <= PSEUDO_INVERSE_LIMIT)
         if outcome.reduction is not None:
-            S, factor, v_inv = outcome.reduction
+            S, factor = outcome.reduction
         else:
-            S, _, v_inv = reduce(problem, lin, 0.0, dense)
+            S, _ = side.reduce(lin, 0.0, dense)
             factor = None
     except SingularPoints as exc:
         ids = ", ".join(f"'{block.points.point_id[i]}'" for i in exc.indices[:5])
@@ -385,7 +403,7 @@ def _adjust(block: Block, options: AdjustOptions, progress, start, free, ap_mode
     v_sorted = -image_residuals(problem, outcome.state)
     residuals = np.empty_like(v_sorted)
     residuals[problem.obs_order] = v_sorted
-    return AdjustmentResult(
+    result = AdjustmentResult(
         problem=problem,
         state=outcome.state,
         block=block,
@@ -404,9 +422,12 @@ def _adjust(block: Block, options: AdjustOptions, progress, start, free, ap_mode
         notes=notes,
         seconds=time.perf_counter() - t0,
         linearisation=lin,
-        v_inv=v_inv,
+        points=side,
         reduced_matrix=(S if isinstance(S, np.ndarray) else S.toarray()) if S.shape[0] <= UPDATE_LIMIT else None,
         datum_null=outcome.datum_null,
         robust=weighting,
     )
+    # the side's shares on a cluster's workers stay while the result does (or its cluster: distributed.on_cluster)
+    weakref.finalize(result, side.close)
+    return result
 

@@ -14,7 +14,9 @@ from typing import Protocol
 
 import numpy as np
 
+from .covariance import point_cofactors, some_point_cofactors
 from .datum import points_centroid, points_not_determined_by_rays, similarity_sums
+from .leverage import image_leverages
 from .problem import Problem, State
 from .schur import (Linearisation, ReducedSums, add_point_schur, assemble, back_substitute, linearise_points,
                     points_cost_and_residuals)
@@ -62,12 +64,29 @@ class PointSide(Protocol):
         linearisation, about the centroid of ``state``'s points."""
 
     def gathered(self, lin: Linearisation) -> tuple[Linearisation, list | None]:
-        """``lin`` with the points' part of the last linearisation (its chunks) and the last reduction's damped
-        point inverses, as the results after the solve read them."""
+        """``lin`` with the points' part of the last linearisation (its chunks) and the last reduction's
+        point inverses in this process (a re-adjustment's downdated start reads them)."""
+
+    # -- the results after the solve, from the last linearisation and reduction (undamped) ------------------
+    def point_cofactors(self, Q) -> np.ndarray:
+        """The points' cofactor blocks (n_points, 3, 3) (:func:`~selfcal.adjust.covariance.point_cofactors`) for
+        ``Q`` = Q_theta."""
+
+    def some_point_cofactors(self, Q, points: np.ndarray) -> np.ndarray:
+        """The cofactor blocks (len(points), 3, 3) of the points ``points`` (block numbering) alone."""
+
+    def image_leverages(self, state: State, Q, Q_points: np.ndarray | None) -> tuple:
+        """(h, r, Q_points) of :func:`~selfcal.adjust.leverage.image_leverages`: every image coordinate's
+        leverage and whitened residual (the problem's sorted order) and the points' cofactor blocks (``Q_points``
+        where given)."""
+
+    def close(self) -> None:
+        """Nothing more will be asked: what the side holds elsewhere goes."""
 
 
 class LocalPoints:
-    """Every point in this process: the engine's passes over the chunks (:mod:`.parallel`)."""
+    """Every point in this process: the engine's passes over the chunks (:mod:`.parallel`). The last
+    linearisation's chunks and the last reduction's point inverses stay for the results."""
 
     def __init__(self, problem: Problem):
         self.problem = problem
@@ -105,6 +124,23 @@ class LocalPoints:
 
     def gathered(self, lin: Linearisation) -> tuple[Linearisation, list | None]:
         return lin, self.v_inv
+
+    def point_cofactors(self, Q) -> np.ndarray:
+        assert self.lin is not None and self.v_inv is not None
+        return point_cofactors(self.problem, self.lin, self.v_inv, Q)
+
+    def some_point_cofactors(self, Q, points: np.ndarray) -> np.ndarray:
+        assert self.lin is not None and self.v_inv is not None
+        return some_point_cofactors(self.problem, self.lin, self.v_inv, Q, points)
+
+    def image_leverages(self, state: State, Q, Q_points: np.ndarray | None) -> tuple:
+        assert self.lin is not None and self.v_inv is not None
+        return image_leverages(self.problem, state, self.lin, self.v_inv, Q, Q_points)
+
+    def close(self) -> None:
+        """Let go of the linearisation and the inverses (an adjustment that starts again from here builds its own
+        while this side's would still be held)."""
+        self.lin = self.v_inv = None
 
 
 def point_step(d_p: np.ndarray, V: np.ndarray, g_p: np.ndarray) -> PointStep:

@@ -8,8 +8,8 @@ from enum import Enum
 import numpy as np
 
 from ..block import Block
-from .covariance import point_cofactors
 from .linalg import blas_threads
+from .point_side import PointSide
 from .problem import Problem, State
 from .robust import RobustWeighting
 from .schur import Linearisation
@@ -53,8 +53,8 @@ class AdjustmentResult:
     residuals: np.ndarray          # (m, 2) image residuals in ``block``'s observation order, observation units
     notes: list[str]
     seconds: float
-    linearisation: Linearisation = field(repr=False)
-    v_inv: list = field(repr=False)
+    linearisation: Linearisation = field(repr=False)   # the last (its points' part: ``points.gathered``)
+    points: PointSide = field(repr=False)              # the points' side, with the last reduction's inverses
     point_cofactor_blocks: np.ndarray | None = field(repr=False, default=None)   # Q_points once computed
     reduced_matrix: np.ndarray | None = field(repr=False, default=None)   # S of the last linearisation (dense, small)
     datum_null: np.ndarray | None = field(repr=False, default=None)       # a free network's datum directions
@@ -66,9 +66,21 @@ class AdjustmentResult:
         workflow get them from the observation tests, whose pass over the points shares their products."""
         if self.point_cofactor_blocks is None:
             with blas_threads(self.problem.n_images):
-                self.point_cofactor_blocks = point_cofactors(self.problem, self.linearisation, self.v_inv,
-                                                             self.Q_theta)
+                self.point_cofactor_blocks = self.points.point_cofactors(self.Q_theta)
         return self.point_cofactor_blocks
+
+    def some_point_cofactors(self, points: np.ndarray) -> np.ndarray:
+        """The cofactor blocks (len(points), 3, 3) of the points ``points`` (indices among ``block``'s) alone."""
+        if self.point_cofactor_blocks is not None:
+            return self.point_cofactor_blocks[np.asarray(points, np.int64)]
+        return self.points.some_point_cofactors(self.Q_theta, np.asarray(points, np.int64))
+
+    def point_linearisation(self) -> tuple[Linearisation, list]:
+        """The last linearisation with its points' part (its chunks) and the point inverses of its undamped reduced
+        system, in this process: where the points are on a Dask cluster's workers, brought here."""
+        lin, v_inv = self.points.gathered(self.linearisation)
+        assert v_inv is not None                # (the result's reduction is undamped and kept by its side)
+        return lin, v_inv
 
     @property
     def redundancy(self) -> int:
@@ -135,11 +147,9 @@ class AdjustmentResult:
         """The leverage h = j Q jᵀ (m, 2) and the whitened residual v = f - l (m, 2) of every image coordinate, in
         ``block``'s observation order (the redundancy number is 1 - h; :mod:`.leverage`). The points' cofactor
         blocks come out of the same pass and are kept (:attr:`Q_points`)."""
-        from .leverage import image_leverages
         problem = self.problem
         with blas_threads(problem.n_images):
-            h, r, Qp = image_leverages(problem, self.state, self.linearisation, self.v_inv, self.Q_theta,
-                                       self.point_cofactor_blocks)
+            h, r, Qp = self.points.image_leverages(self.state, self.Q_theta, self.point_cofactor_blocks)
         self.point_cofactor_blocks = Qp
         h_block, v_block = np.empty_like(h), np.empty_like(r)
         h_block[problem.obs_order] = h

@@ -53,7 +53,8 @@ class SolverOutcome:
     classic adjustment (the cofactors of the last normal equations): linearising
     again at a point that moved by less than 1e-3 sigma changes no reported digit and
     costs a full assembly. ``reduction`` is then that system's undamped
-    (S, factor, point inverses), or None when the last step was damped.
+    (S, factor), or None when the last step was damped; the point side (``points``)
+    keeps that system's point inverses.
     """
 
     state: State
@@ -162,9 +163,6 @@ def solve(problem: Problem, state: State, names: list[str], options: SolverOptio
         null = similarity_directions(problem, state, lin, side.similarity_sums(state))
     def outcome(state: State, lin: Linearisation, converged: bool, reason: str, iterations: int, cost: float,
                 reduction: tuple | None = None, undetermined: np.ndarray | None = None) -> SolverOutcome:
-        lin, v_inv = side.gathered(lin)
-        if reduction is not None:
-            reduction = reduction[:2] + (v_inv,)
         return SolverOutcome(state, lin, converged, reason, iterations, history, cost, reduction, undetermined, null)
 
     for iteration in range(1, options.max_iterations + 1):
@@ -215,7 +213,7 @@ def solve(problem: Problem, state: State, names: list[str], options: SolverOptio
                 if progress is not None:
                     progress(record)
                 return outcome(state, lin, True, f"no estimate moves by {options.function_tolerance:g} of its sigma",
-                               iteration, lin.cost, (S, factor, None))
+                               iteration, lin.cost, (S, factor))
         if (full_gauss_newton and options.line_search and not damped_free and not new_cost < lin.cost
                 and abs(new_cost - lin.cost) > 1e-12 * lin.cost):
             d_theta, d_p, share, candidate, new_cost, predicted = _shortened(
@@ -252,7 +250,7 @@ def solve(problem: Problem, state: State, names: list[str], options: SolverOptio
             if done is not None:
                 converged, reason = True, done
                 if lam == 0.0:
-                    reduction = (S, factor, None)
+                    reduction = (S, factor)
                 return outcome(state, lin, converged, reason, iteration, new_cost, reduction)
             lin = with_parameter_observations(problem, state, side.linearise(state))
             lam *= max(1.0 / 3.0, 1.0 - (2.0 * min(max(rho, 0.0), 1.0) - 1.0) ** 3)

@@ -90,7 +90,7 @@ def downdated_start(previous, problem: Problem, block, free_network: bool = Fals
     another weight, an image left out, a parameter freed, a point block that the leaving out makes singular).
     Call it before the previous problem's AP columns are carried over."""
     S = getattr(previous, "reduced_matrix", None)
-    if S is None or previous.v_inv is None or not previous.converged:
+    if S is None or not previous.converged:
         return None
     old, old_block = previous.problem, previous.block
     if not np.array_equal(np.asarray(block.images.image_id), np.asarray(old_block.images.image_id)):
@@ -237,7 +237,8 @@ def _left_out_rows(problem: Problem, state, removed: np.ndarray):
 
 def _step(previous, S_old: np.ndarray, removed: np.ndarray, held, free_network: bool,
           dropped: np.ndarray = np.zeros(0, np.int64)):
-    old, state, lin = previous.problem, previous.state, previous.linearisation
+    old, state = previous.problem, previous.state
+    lin, v_inv = previous.point_linearisation()
     n_e, n_d, width = old.n_e, old.n_d, old.image_width
     # points that keep fewer than two rays leave the problem: all their observations go
     rays = np.bincount(old.obs_point, minlength=old.n_points) - np.bincount(old.obs_point[removed],
@@ -268,7 +269,7 @@ def _step(previous, S_old: np.ndarray, removed: np.ndarray, held, free_network: 
                                                                                       counts)
     block_of = np.repeat(np.arange(n_t), counts)
     V_old = _at(lin, [ch.V for ch in lin.chunks], "p0", at)
-    Vi_old = _at(lin, previous.v_inv, "p0", at)                        # undamped: the last reduction's
+    Vi_old = _at(lin, v_inv, "p0", at)                        # undamped: the last reduction's
     position = np.searchsorted(touched, point)
     V_new = V_old.copy()
     np.subtract.at(V_new, position, np.einsum("oki,okj->oij", j_p, j_p))
@@ -308,7 +309,7 @@ def _step(previous, S_old: np.ndarray, removed: np.ndarray, held, free_network: 
         d_theta[index] = move
     # every point follows the orientations; the touched ones by their new blocks and gradients
     quiet = replace(lin, chunks=[replace(ch, g_p=np.zeros_like(ch.g_p)) for ch in lin.chunks])
-    d_p = back_substitute(old, quiet, previous.v_inv, d_theta)
+    d_p = back_substitute(old, quiet, v_inv, d_theta)
     d_p[touched] = np.einsum("jik,jk->ji", L_new, Lg - (X_new.T @ d_theta).reshape(n_t, 3))
     predicted = old.apply(state, d_theta, d_p)
     # the touched points are intersected again from the rays they keep, the orientations held at the step's: a

@@ -85,13 +85,17 @@ WORKFLOW_AP_COLUMN_ARRAYS = 1.05
 
 #: a worker of a cluster that holds a share of the points (``selfcal adjust --scheduler``,
 #: :mod:`selfcal.adjust.distributed`): MB at no observation and bytes per image observation of its share (its share's
-#: problem and linearisation, its reduced sums, the arrays in flight), a least-squares fit of the relative errors to
-#: the workers' peaks of ``benchmarks/bench_distributed.py`` (two workers; the strip blocks of 200, 1000, 2000 and
-#: 5000 images, AP model none; each within 0.3 %). The client holds what one process holds (0.88-0.91 of it
-#: measured): it builds the whole problem and gathers the shares' linearisation after the solve. A share's AP columns
-#: and couplings are counted as one process's, split by the shares (not measured on a cluster)
-WORKER_BASE_MB = 207.0
-WORKER_BYTES_PER_OBSERVATION = 890.0
+#: problem and linearisation, its reduced sums, its points' results, the arrays in flight), a least-squares fit of the
+#: relative errors to the workers' peaks of ``benchmarks/bench_distributed.py`` (two workers; the strip blocks of
+#: 200, 1000, 2000 and 5000 images, AP model none, the points' cofactors computed on the workers; each within 0.3 %).
+#: A share's AP columns and couplings are counted as one process's, split by the shares
+WORKER_BASE_MB = 203.4
+WORKER_BYTES_PER_OBSERVATION = 705.0
+#: the client of such a cluster holds one process's plan less what the shares hold for it (the points' linearisation
+#: and inverses, the products of their cofactors and leverages): MB and bytes per image observation, a
+#: least-squares fit of the relative errors of the client's peaks on the same runs (each within 4.2 %)
+CLIENT_SHED_MB = 39.4
+CLIENT_SHED_BYTES_PER_OBSERVATION = 442.0
 
 #: seconds per image observation and iteration (linearisation, reduction, back-substitution, the cost at the step:
 #: passes over the points on two threads) at probe speed 1 (fitted)
@@ -164,9 +168,16 @@ class Plan:
     def seconds_per_iteration(self) -> float:
         return float(sum(self.seconds.values()))
 
+    def client_shed_mb(self, workers: int) -> float:
+        """What the client of ``workers`` workers does not hold of one process's peak (0 for fewer than two
+        workers: the adjustment then runs in the client)."""
+        if workers < 2:
+            return 0.0
+        return CLIENT_SHED_MB + CLIENT_SHED_BYTES_PER_OBSERVATION * self.sizes.n_observations / MB
+
     def worker_peak_mb(self, workers: int) -> float:
         """The peak of each of ``workers`` workers that hold a share of the points (about the same observations each;
-        the client's is :attr:`peak_mb`)."""
+        the client's is :attr:`peak_mb` less :meth:`client_shed_mb`)."""
         share = self.sizes.n_observations / max(workers, 1)
         return (WORKER_BASE_MB + WORKER_BYTES_PER_OBSERVATION * share / MB
                 + (self.memory_mb.get("ap_columns", 0.0) + self.memory_mb.get("ap_couplings", 0.0)) / max(workers, 1))

@@ -23,7 +23,6 @@ from typing import Callable
 import numpy as np
 
 from ..adjust import AdjustOptions, adjust
-from ..adjust.covariance import some_point_cofactors
 from ..adjust.residuals.control import control_weights
 from ..errors import AdjustmentError
 from ..stats.checks import local_axes
@@ -126,7 +125,7 @@ def _error_of(other, name: str, surveyed_m: np.ndarray, survey: np.ndarray, unde
         return undetermined                 # (too few rays of its own)
     j = int(where[0])
     # the re-adjustment's own cofactor (the downdate's differs by the re-linearisation: 6e-4 of it at an edge)
-    cov = some_point_cofactors(other.problem, other.linearisation, other.v_inv, other.Q_theta, np.array([j]))[0] + survey
+    cov = other.some_point_cofactors(np.array([j]))[0] + survey
     if np.linalg.eigvalsh(0.5 * (cov + cov.T)).min() <= 0:
         return undetermined                 # (a cofactor that is not positive)
     return other.state.points[j] - surveyed_m, cov

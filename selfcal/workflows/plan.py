@@ -125,7 +125,7 @@ def check_fits(plan: Plan, available: float, workflow: bool = True, workers: int
     (a local cluster's), their peaks beside it."""
     need = plan.workflow_peak_mb if workflow else plan.peak_mb
     if workers:
-        need += workers * plan.worker_peak_mb(workers)
+        need += workers * plan.worker_peak_mb(workers) - plan.client_shed_mb(workers)
     if np.isfinite(available) and need > available:
         largest = max(plan.memory_mb, key=lambda k: plan.memory_mb[k])
         what = "selfcal adjust with its default tests" if workflow else "one adjustment"
