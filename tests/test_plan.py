@@ -159,14 +159,15 @@ def test_a_cluster_plan_gives_each_workers_peak_and_checks_the_local_ones(block_
     share = figures["sizes"]["n_observations"] / 2
     assert figures["workers"] == 2 and figures["scheduler"] == "local:2"
     assert figures["worker_peak_mb"] == pytest.approx(203.4 + 705.0 * share / 2 ** 20, rel=1e-9)
+    assert figures["worker_workflow_peak_mb"] == pytest.approx(203.4 + 2 * 705.0 * share / 2 ** 20, rel=1e-9)
     shed = 39.4 + 442.0 * 2 * share / 2 ** 20
     assert figures["client_peak_mb"] == pytest.approx(figures["peak_mb"] - shed, rel=1e-9)
-    assert figures["client_workflow_peak_mb"] == pytest.approx(figures["workflow_peak_mb"] - shed, rel=1e-9)
+    assert figures["client_workflow_peak_mb"] == figures["workflow_peak_mb"]
     assert run_cli("plan", str(block_folder), "--ap", "none", "--scheduler", "local:2") == 0
     table = capsys.readouterr().out
     assert "each worker" in table and "client" in table
     # room for the client's tested workflow, not for it and two local workers beside it
-    room = figures["client_workflow_peak_mb"] + figures["worker_peak_mb"]
+    room = figures["client_workflow_peak_mb"] + figures["worker_workflow_peak_mb"]
     monkeypatch.setattr(plan_module, "available_mb", lambda: room)
     assert run_cli("plan", str(block_folder), "--ap", "none", "--scheduler", "local:2") == 2
     assert "and 2 local workers of" in capsys.readouterr().err

@@ -96,6 +96,12 @@ WORKER_BYTES_PER_OBSERVATION = 705.0
 #: least-squares fit of the relative errors of the client's peaks on the same runs (each within 4.2 %)
 CLIENT_SHED_MB = 39.4
 CLIENT_SHED_BYTES_PER_OBSERVATION = 442.0
+#: the tested workflow on such a cluster: each worker holds the shares of this many adjustments at once (the one a
+#: re-adjustment starts from, which the workflow still holds, and its own): counted on the strip blocks of 200 and
+#: 504 images (1.0 points per mm^2), whose workers then peaked at 257 and 463 MB (planned 259 and 487). The client's
+#: workflow holds what one process's does (measured 1.11 and 0.97 of it: the shares' part of one adjustment is small
+#: beside the workflow's own arrays, and a local cluster's scheduler runs in the client)
+WORKFLOW_SHARES = 2
 
 #: seconds per image observation and iteration (linearisation, reduction, back-substitution, the cost at the step:
 #: passes over the points on two threads) at probe speed 1 (fitted)
@@ -175,12 +181,15 @@ class Plan:
             return 0.0
         return CLIENT_SHED_MB + CLIENT_SHED_BYTES_PER_OBSERVATION * self.sizes.n_observations / MB
 
-    def worker_peak_mb(self, workers: int) -> float:
+    def worker_peak_mb(self, workers: int, workflow: bool = False) -> float:
         """The peak of each of ``workers`` workers that hold a share of the points (about the same observations each;
-        the client's is :attr:`peak_mb` less :meth:`client_shed_mb`)."""
+        the client's is :attr:`peak_mb` less :meth:`client_shed_mb`), in one adjustment or with ``workflow`` in the
+        default tested workflow (:data:`WORKFLOW_SHARES` adjustments' shares at once; the client's is then
+        :attr:`workflow_peak_mb`)."""
         share = self.sizes.n_observations / max(workers, 1)
-        return (WORKER_BASE_MB + WORKER_BYTES_PER_OBSERVATION * share / MB
-                + (self.memory_mb.get("ap_columns", 0.0) + self.memory_mb.get("ap_couplings", 0.0)) / max(workers, 1))
+        held = WORKFLOW_SHARES if workflow else 1
+        return (WORKER_BASE_MB + held * (WORKER_BYTES_PER_OBSERVATION * share / MB
+                + (self.memory_mb.get("ap_columns", 0.0) + self.memory_mb.get("ap_couplings", 0.0)) / max(workers, 1)))
 
     def as_dict(self) -> dict:
         return {"sizes": {**asdict(self.sizes), "n_theta": self.sizes.n_theta},

@@ -122,15 +122,16 @@ def available_mb() -> float:
 def check_fits(plan: Plan, available: float, workflow: bool = True, workers: int | None = None) -> None:
     """Raise :class:`TooLarge` when the plan's peak exceeds ``available`` MB (no check when it is unknown): the one
     adjustment's peak, or with ``workflow`` that of ``selfcal adjust``'s default tested workflow; with ``workers``
-    (a local cluster's), their peaks beside it."""
+    (a local cluster's), their peaks beside the client's (:meth:`~selfcal.stats.plan.Plan.worker_peak_mb`)."""
     need = plan.workflow_peak_mb if workflow else plan.peak_mb
     if workers:
-        need += workers * plan.worker_peak_mb(workers) - plan.client_shed_mb(workers)
+        need += workers * plan.worker_peak_mb(workers, workflow) - (0.0 if workflow else plan.client_shed_mb(workers))
     if np.isfinite(available) and need > available:
         largest = max(plan.memory_mb, key=lambda k: plan.memory_mb[k])
         what = "selfcal adjust with its default tests" if workflow else "one adjustment"
         if workers:
-            what += f", and {workers} local workers of {plan.worker_peak_mb(workers) / 1024:.1f} GB each beside it"
+            what += (f", and {workers} local workers of {plan.worker_peak_mb(workers, workflow) / 1024:.1f} GB each "
+                     f"beside it")
         raise TooLarge(f"the block needs about {need / 1024:.1f} GB ({what}), the machine has {available / 1024:.1f} "
                        f"GB available; the largest part of one adjustment is the {largest.replace('_', ' ')} "
                        f"({plan.memory_mb[largest] / 1024:.1f} GB, {plan.factorisation} factorisation, "
