@@ -71,12 +71,12 @@ AP_COUPLING_FLOPS_PER_SECOND = 2.89e10
 
 #: ``selfcal adjust BLOCK`` with its default options (the tested workflow: robust start, snooping rounds, the model
 #: choice, leave-one-out control, the half-block check, the report) holds more than one adjustment: its peak over
-#: the one adjustment's, MB at no observation and bytes per image observation, fitted to the command's measured peaks
-#: (``benchmarks/bench_plan.py --workflow``: /proc's VmHWM) on the strip blocks of 28, 102, 200 and 504 images (305,
-#: 417, 594, 1092 MB; the fit within 0.3 % of each; 504 images at 1.0 tie points per mm^2, not fitted: 1714 MB
-#: predicted, 1785 MB measured; docs/DESIGN-NOTES.md)
-WORKFLOW_BASE_MB = 77.4
-WORKFLOW_BYTES_PER_OBSERVATION = 2348.0
+#: the one adjustment's, MB at no observation and bytes per image observation, a non-negative fit of the relative
+#: errors to the command's measured peaks (``benchmarks/bench_plan.py --workflow``: /proc's VmHWM, 2026-12-08) on the
+#: strip blocks of 28, 102, 200, 504 and 1000 images (309, 415, 577, 981, 1522 MB; the fit within 2.3 % of each; 504
+#: images at 1.0 tie points per mm^2, not fitted: 1478 MB predicted, 1342 MB measured; docs/DESIGN-NOTES.md)
+WORKFLOW_BASE_MB = 94.2
+WORKFLOW_BYTES_PER_OBSERVATION = 1514.0
 #: the tested workflow of a block with APs holds about one more array of the AP columns beside one adjustment's (a
 #: re-adjustment's own beside the one it started from): fitted in units of that array on the wavelet blocks of
 #: ``bench_plan.py --workflow --ap wavelet:db4`` (28-504 images; 0.75-0.86 of the measured peaks without the term,
