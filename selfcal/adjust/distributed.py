@@ -450,18 +450,16 @@ class ClusterPoints:
                 v_inv += inverses
         return replace(lin, chunks=chunks), v_inv
 
-    def _blocks(self, Q) -> list[tuple]:
-        """Each share's :class:`~selfcal.adjust.covariance.ThetaBlocks` of ``Q`` (Q_theta), as its task's
-        arguments: the image blocks of its own pairs of images."""
-        out = []
-        for pairs in self.share_pairs:
-            blocks = theta_blocks(Q, self.problem, pairs)
-            out.append((blocks.compact, blocks.Q_diag, blocks.Q_pair, blocks.Q_dd, blocks.Q_ed))
-        return out
+    def _blocks(self, Q, i: int) -> tuple:
+        """Share i's :class:`~selfcal.adjust.covariance.ThetaBlocks` of ``Q`` (Q_theta), as its task's arguments:
+        the image blocks of its own pairs of images."""
+        blocks = theta_blocks(Q, self.problem, self.share_pairs[i])
+        return blocks.compact, blocks.Q_diag, blocks.Q_pair, blocks.Q_dd, blocks.Q_ed
 
     def point_cofactors(self, Q) -> np.ndarray:
         out = np.zeros((self.problem.n_points, 3, 3))
-        for points, part in zip(self.points, self._each("point_cofactors", self._blocks(Q))):
+        arguments = [self._blocks(Q, i) for i in range(len(self.shares))]
+        for points, part in zip(self.points, self._each("point_cofactors", arguments)):
             out[points] = part
         return out
 
@@ -471,10 +469,9 @@ class ClusterPoints:
         share = np.full(self.problem.n_points, -1, np.int64)
         for i, mine in enumerate(self.points):
             position[mine], share[mine] = np.arange(len(mine)), i
-        for i, blocks in enumerate(self._blocks(Q)):
+        for i in np.unique(share[points]):                  # only the shares that hold the points asked for
             asked = np.flatnonzero(share[points] == i)
-            if asked.size:
-                out[asked] = self._one(i, "some_point_cofactors", (position[points[asked]],) + blocks)
+            out[asked] = self._one(int(i), "some_point_cofactors", (position[points[asked]],) + self._blocks(Q, i))
         return out
 
     def image_leverages(self, state: State, Q, Q_points: np.ndarray | None) -> tuple:
@@ -482,8 +479,8 @@ class ClusterPoints:
         h, r = np.zeros((m, 2)), np.zeros((m, 2))
         points_out = np.zeros((self.problem.n_points, 3, 3)) if Q_points is None else Q_points
         theta = self._theta(state)
-        arguments = [(theta, state.points[points], None if Q_points is None else Q_points[points]) + blocks
-                     for points, blocks in zip(self.points, self._blocks(Q))]
+        arguments = [(theta, state.points[points], None if Q_points is None else Q_points[points]) + self._blocks(Q, i)
+                     for i, points in enumerate(self.points)]
         for points, (_, o0), (h_share, r_share, Qp) in zip(self.points, self.offsets,
                                                            self._each("image_leverages", arguments)):
             h[o0:o0 + len(h_share)], r[o0:o0 + len(r_share)] = h_share, r_share
