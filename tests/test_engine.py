@@ -109,6 +109,27 @@ def test_sparse_and_dense_reductions_agree(small):
     np.testing.assert_allclose(x1, x2, rtol=1e-8, atol=1e-10 * np.abs(x1).max())
 
 
+def test_the_sparse_reduced_matrix_is_the_dense_one_bit_for_bit():
+    """The sparse assembly (its pattern worked out once per problem, then only filled) gives every entry of the
+    dense assembly exactly, on a block with GNSS/IMU (observations of theta alone: their J_x^T J_x) and with
+    damping; its pattern is the dense matrix's non-zeros, each column's rows sorted, kept for the next iteration."""
+    from selfcal.adjust import AdjustOptions
+    from selfcal.adjust.engine import problem_at
+    block = pruned(simulation(seed=7, distortion="brown", points_per_mm2=0.3), "type2")
+    problem, state = problem_at(block, AdjustOptions(ap=APOptions("brown")))
+    lin = linearise(problem, state)
+    assert lin.J_x.shape[0] and problem.n_extra
+    kept = None
+    for lam in (0.0, 1e-3):
+        S_dense, _, _ = reduce(problem, lin, lam, dense=True)
+        S_sparse, _, _ = reduce(problem, lin, lam, dense=False)
+        assert np.array_equal(S_sparse.toarray(), S_dense)
+        assert S_sparse.nnz == np.count_nonzero(S_dense)
+        assert all(np.all(np.diff(S_sparse.indices[a:b]) > 0) for a, b in zip(S_sparse.indptr[:-1], S_sparse.indptr[1:]))
+        assert kept is None or problem._sparse_pattern is kept        # the pattern of the first call, filled again
+        kept = problem._sparse_pattern
+
+
 @pytest.mark.parametrize("ap", ["none", "brown"])
 def test_compact_camera_rows_equal_dense(ap, monkeypatch):
     """One camera per strip: the compact camera part (pair sums per camera) gives the same

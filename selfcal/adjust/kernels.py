@@ -21,7 +21,8 @@ NO_SLOTS = np.zeros((0, 0), np.int64)
 
 __all__ = ["NO_SLOTS", "accumulate_observations", "schur_image_blocks", "point_cofactor_pairs", "leverage_pairs", "camera_couplings", "point_blocks_times", "subtract_image_couplings", "rows_dot_blocks",
            "camera_couplings_compact", "leverage_camera_cross", "compact_rows",
-           "add_point_image_products", "spd_inverse_3x3", "best_ray_pairs", "image_quadratic"]
+           "add_point_image_products", "spd_inverse_3x3", "best_ray_pairs", "image_quadratic", "compressed_columns",
+           "transposed_positions"]
 
 
 @njit(cache=True, nogil=True)
@@ -526,3 +527,58 @@ def best_ray_pairs(start, origin, direction, threshold, pair_rays):
                     best[p] = score
                     candidate[p] = x
     return candidate, best
+
+
+@njit(cache=True, nogil=True)
+def compressed_columns(rows, cols, n):
+    """The compressed-column pattern of the entries (rows[k], cols[k]) of an n x n matrix, duplicates once:
+    (indptr, indices, position), ``position[k]`` the place of entry k among ``indices`` (a duplicate's the same).
+    A counting sort by column and a sort of each column's rows: what ``np.unique`` of the keys col * n + row gives,
+    without sorting all of them together (5 s for the 2000-image block's reduced matrix, 3.5 million keys)."""
+    m = rows.size
+    count = np.zeros(n + 1, np.int64)
+    for k in range(m):
+        count[cols[k] + 1] += 1
+    start = np.cumsum(count)
+    slot = start[:-1].copy()
+    bucket = np.empty(m, np.int64)                  # entry ids, column by column
+    for k in range(m):
+        bucket[slot[cols[k]]] = k
+        slot[cols[k]] += 1
+    indptr = np.zeros(n + 1, np.int64)
+    indices = np.empty(m, np.int64)
+    position = np.empty(m, np.int64)
+    kept = 0
+    for c in range(n):
+        ids = bucket[start[c]:start[c + 1]]
+        order = np.argsort(rows[ids], kind="mergesort")
+        previous = -1
+        for k in ids[order]:
+            if rows[k] != previous:
+                indices[kept] = rows[k]
+                kept += 1
+                previous = rows[k]
+            position[k] = kept - 1
+        indptr[c + 1] = kept
+    return indptr, indices[:kept].copy(), position
+
+
+@njit(cache=True, nogil=True)
+def transposed_positions(indptr, indices):
+    """For each entry of a compressed-column pattern that is symmetric (rows sorted in each column), the position
+    of its transpose (the entry at its column's row, its row's column); -1 where the pattern has none."""
+    n = indptr.size - 1
+    out = np.full(indices.size, -1, np.int64)
+    for c in range(n):
+        for k in range(indptr[c], indptr[c + 1]):
+            r = indices[k]
+            lo, hi = indptr[r], indptr[r + 1]
+            while lo < hi:                          # the first row >= c in column r
+                mid = (lo + hi) // 2
+                if indices[mid] < c:
+                    lo = mid + 1
+                else:
+                    hi = mid
+            if lo < indptr[r + 1] and indices[lo] == c:
+                out[k] = lo
+    return out

@@ -29,8 +29,9 @@ import scipy.sparse as sp
 
 from ..errors import AdjustmentError
 from .ap_columns import evaluate_ap_columns, sparse_ap_rows, sparse_gram
-from .kernels import (NO_SLOTS, accumulate_observations, camera_couplings, camera_couplings_compact,
-                      point_blocks_times, schur_image_blocks, spd_inverse_3x3, subtract_image_couplings)
+from .kernels import (NO_SLOTS, accumulate_observations, camera_couplings, camera_couplings_compact, compressed_columns,
+                      point_blocks_times, schur_image_blocks, spd_inverse_3x3, subtract_image_couplings,
+                      transposed_positions)
 from .parallel import over_chunks
 from .problem import Problem, State
 from .residuals import parameter_observations
@@ -451,21 +452,100 @@ def assemble(problem: Problem, lin: Linearisation, sums: ReducedSums, lam: float
         S[np.diag_indices(n_t)] += damp
         S = 0.5 * (S + S.T)
     else:
-        bi = np.concatenate([np.arange(n_img), ia, ib])
-        bj = np.concatenate([np.arange(n_img), ib, ia])
-        blocks = np.concatenate([diag_blocks, off_blocks, off_blocks.transpose(0, 2, 1)])
-        rows = np.broadcast_to(w * bi[:, None, None] + np.arange(w)[None, :, None], blocks.shape)
-        cols = np.broadcast_to(w * bj[:, None, None] + np.arange(w)[None, None, :], blocks.shape)
-        S_ee_csr = sp.csr_matrix((blocks.ravel(), (rows.ravel(), cols.ravel())), shape=(n_e, n_e))
-        top = sp.hstack([S_ee_csr, sp.csr_matrix(S_ed), sp.csr_matrix((n_e, problem.n_extra))])
-        mid = sp.hstack([sp.csr_matrix(S_ed.T), sp.csr_matrix(S_dd), sp.csr_matrix((n_d, problem.n_extra))])
-        bot = sp.csr_matrix((problem.n_extra, n_t))
-        S = sp.vstack([top, mid, bot]).tocsc()
-        if lin.J_x.shape[0]:
-            S = S + (lin.J_x.T @ lin.J_x).tocsc()
-        S = S + sp.diags(damp)
-        S = (0.5 * (S + S.T)).tocsc()
+        J_x = (lin.J_x.T @ lin.J_x).tocoo() if lin.J_x.shape[0] else None
+        if J_x is not None:
+            J_x.sum_duplicates()                    # (each entry once, in a fixed order: the pattern is kept)
+        pattern = _SparsePattern.of(problem, sums.pair_keys, J_x)
+        # every entry as the sum of sparse matrices computes it: (blocks + J_x^T J_x) + damping, then made symmetric
+        # as (S + S^T) / 2 with the sums that come out exactly zero left out
+        a = np.zeros(len(pattern.indices))
+        a[pattern.at_blocks] = diag_blocks.ravel()
+        a[pattern.at_pairs] = off_blocks.ravel()
+        a[pattern.at_pairs_transposed] = off_blocks.ravel()
+        a[pattern.at_S_ed] = S_ed.ravel()
+        a[pattern.at_S_ed_transposed] = S_ed.ravel()
+        a[pattern.at_S_dd] = S_dd.ravel()
+        if J_x is not None:
+            a[pattern.at_J_x] += J_x.data
+        a[pattern.at_diagonal] += damp
+        data = 0.5 * (a + a[pattern.transposed])
+        kept = data != 0.0
+        if kept.all():
+            S = sp.csc_matrix((data, pattern.indices, pattern.indptr), shape=(n_t, n_t))
+        else:                                       # (every column holds its diagonal entry: none is empty)
+            counts = np.add.reduceat(kept.astype(np.int64), pattern.indptr[:-1])
+            indptr = np.concatenate([[0], np.cumsum(counts)]).astype(pattern.indptr.dtype)
+            S = sp.csc_matrix((data[kept], pattern.indices[kept], indptr), shape=(n_t, n_t))
+        S.has_sorted_indices = True
     return S
+
+
+@dataclass
+class _SparsePattern:
+    """Where the parts of the reduced matrix go in its compressed columns (the union of the image blocks' pattern,
+    the camera parameters' rows and columns, the observations of theta alone and the diagonal), worked out once for
+    a problem's pairs of images and kept on the problem (:func:`assemble`: each iteration only fills the values).
+    The values are those the sum of sparse matrices gave: the same pattern, the same roundings."""
+
+    pair_keys: np.ndarray
+    J_x_keys: np.ndarray | None
+    indptr: np.ndarray
+    indices: np.ndarray
+    transposed: np.ndarray              # each entry's position of its transpose
+    at_blocks: np.ndarray               # positions of the image blocks' entries, (n_images, w, w) raveled
+    at_pairs: np.ndarray                # of the pairs' blocks (ia rows, ib columns)
+    at_pairs_transposed: np.ndarray     # of their transposes (ib rows, ia columns), in the pairs' raveled order
+    at_S_ed: np.ndarray
+    at_S_ed_transposed: np.ndarray
+    at_S_dd: np.ndarray
+    at_J_x: np.ndarray
+    at_diagonal: np.ndarray
+
+    @classmethod
+    def of(cls, problem: Problem, pair_keys: np.ndarray, J_x) -> "_SparsePattern":
+        J_x_keys = None if J_x is None else J_x.col.astype(np.int64) * problem.n_theta + J_x.row
+        kept = problem._sparse_pattern
+        if (kept is not None and np.array_equal(kept.pair_keys, pair_keys)
+                and (J_x_keys is None) == (kept.J_x_keys is None)
+                and (J_x_keys is None or np.array_equal(kept.J_x_keys, J_x_keys))):
+            return kept
+        problem._sparse_pattern = pattern = cls._build(problem, pair_keys, J_x_keys)
+        return pattern
+
+    @classmethod
+    def _build(cls, problem: Problem, pair_keys: np.ndarray, J_x_keys: np.ndarray | None) -> "_SparsePattern":
+        n_img, n_e, n_d, n_t, w = problem.n_images, problem.n_e, problem.n_d, problem.n_theta, problem.image_width
+        ia, ib = (pair_keys // n_img, pair_keys % n_img) if n_img else (pair_keys, pair_keys)
+        inner = np.arange(w)
+
+        def block_entries(a, b):                    # (rows, columns) of blocks (a rows, b columns), raveled
+            rows = w * a[:, None, None] + inner[None, :, None]
+            cols = w * b[:, None, None] + inner[None, None, :]
+            return np.broadcast_to(rows, (len(a), w, w)).ravel(), np.broadcast_to(cols, (len(a), w, w)).ravel()
+        e, d = np.arange(n_e), n_e + np.arange(n_d)
+        images = np.arange(n_img)
+        pair_rows, pair_cols = block_entries(ia, ib)
+        # the parts in the order of __init__'s positions; the pairs' transposes in the pairs' raveled order (entry
+        # (i, j) of pair p at row w ib + j, column w ia + i); S_ed and its transpose in S_ed's raveled order
+        parts = [block_entries(images, images), (pair_rows, pair_cols), (pair_cols, pair_rows),
+                 (np.repeat(e, n_d), np.tile(d, n_e)), (np.tile(d, n_e), np.repeat(e, n_d)),
+                 (np.repeat(d, n_d), np.tile(d, n_d))]
+        diagonal = np.arange(n_t, dtype=np.int64)
+        parts.append((diagonal, diagonal))
+        if J_x_keys is not None:
+            parts.append((J_x_keys % n_t, J_x_keys // n_t))
+        rows = np.concatenate([r for r, _ in parts]).astype(np.int64)
+        cols = np.concatenate([c for _, c in parts]).astype(np.int64)
+        indptr, indices, position = compressed_columns(rows, cols, n_t)
+        bounds = np.cumsum([0] + [len(r) for r, _ in parts])
+        where = [position[bounds[k]:bounds[k + 1]] for k in range(len(parts))]
+        index = np.int32 if max(len(indices), n_t) < 2 ** 31 - 1 else np.int64
+        transposed = transposed_positions(indptr, indices)
+        assert np.all(transposed >= 0)              # (every part's pattern is symmetric)
+        return cls(pair_keys, J_x_keys, indptr.astype(index), indices.astype(index), transposed,
+                   at_blocks=where[0], at_pairs=where[1], at_pairs_transposed=where[2], at_S_ed=where[3],
+                   at_S_ed_transposed=where[4], at_S_dd=where[5], at_diagonal=where[6],
+                   at_J_x=where[7] if J_x_keys is not None else np.zeros(0, np.int64))
 
 
 def _spread_camera_blocks(wide_diag, wide_off, own, ia, ib, w, S_ed, S_dd) -> None:
