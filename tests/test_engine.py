@@ -126,8 +126,8 @@ def test_the_sparse_reduced_matrix_is_the_dense_one_bit_for_bit():
         assert np.array_equal(S_sparse.toarray(), S_dense)
         assert S_sparse.nnz == np.count_nonzero(S_dense)
         assert all(np.all(np.diff(S_sparse.indices[a:b]) > 0) for a, b in zip(S_sparse.indptr[:-1], S_sparse.indptr[1:]))
-        assert kept is None or problem._sparse_pattern is kept        # the pattern of the first call, filled again
-        kept = problem._sparse_pattern
+        assert kept is None or problem.sparse_pattern is kept        # the pattern of the first call, filled again
+        kept = problem.sparse_pattern
 
 
 @pytest.mark.parametrize("ap", ["none", "brown"])

@@ -379,6 +379,7 @@ def _result(problem: Problem, block: Block, outcome, side: PointSide, names: lis
         else:
             S, _ = side.reduce(lin, 0.0, dense)
             factor = None
+        problem.sparse_pattern = None               # (no more assemblies: its memory goes before Q_theta's comes)
     except SingularPoints as exc:
         ids = ", ".join(f"'{block.points.point_id[i]}'" for i in exc.indices[:5])
         raise AdjustmentError(f"{exc} (e.g. {ids}): remove them or check their observations") from None

@@ -140,7 +140,8 @@ class Problem:
     # the AP columns kept for the problem (:mod:`selfcal.adjust.ap_columns`)
     ap_cache: APColumnCache = field(default_factory=_ap_column_cache, repr=False)
     _structure: BlockStructure | None = field(default=None, repr=False)
-    _sparse_pattern: Any = field(default=None, repr=False)      # the reduced matrix's (schur._SparsePattern)
+    #: the sparse reduced matrix's pattern between iterations (schur.assemble); let go once the result's is made
+    sparse_pattern: Any = field(default=None, repr=False)
     _layout: tuple | None = field(default=None, repr=False)
 
     def settle_sigma(self) -> None:

@@ -468,7 +468,10 @@ def assemble(problem: Problem, lin: Linearisation, sums: ReducedSums, lam: float
         if J_x is not None:
             a[pattern.at_J_x] += J_x.data
         a[pattern.at_diagonal] += damp
-        data = 0.5 * (a + a[pattern.transposed])
+        data = a[pattern.transposed]
+        data += a
+        data *= 0.5
+        del a
         kept = data != 0.0
         if kept.all():
             S = sp.csc_matrix((data, pattern.indices, pattern.indptr), shape=(n_t, n_t))
@@ -504,12 +507,12 @@ class _SparsePattern:
     @classmethod
     def of(cls, problem: Problem, pair_keys: np.ndarray, J_x) -> "_SparsePattern":
         J_x_keys = None if J_x is None else J_x.col.astype(np.int64) * problem.n_theta + J_x.row
-        kept = problem._sparse_pattern
+        kept = problem.sparse_pattern
         if (kept is not None and np.array_equal(kept.pair_keys, pair_keys)
                 and (J_x_keys is None) == (kept.J_x_keys is None)
                 and (J_x_keys is None or np.array_equal(kept.J_x_keys, J_x_keys))):
             return kept
-        problem._sparse_pattern = pattern = cls._build(problem, pair_keys, J_x_keys)
+        problem.sparse_pattern = pattern = cls._build(problem, pair_keys, J_x_keys)
         return pattern
 
     @classmethod
@@ -539,13 +542,14 @@ class _SparsePattern:
         indptr, indices, position = compressed_columns(rows, cols, n_t)
         bounds = np.cumsum([0] + [len(r) for r, _ in parts])
         where = [position[bounds[k]:bounds[k + 1]] for k in range(len(parts))]
-        index = np.int32 if max(len(indices), n_t) < 2 ** 31 - 1 else np.int64
+        index = np.int32 if max(len(indices), n_t) < 2 ** 31 - 1 else np.int64    # (4 bytes an entry where they do)
         transposed = transposed_positions(indptr, indices)
         assert np.all(transposed >= 0)              # (every part's pattern is symmetric)
-        return cls(pair_keys, J_x_keys, indptr.astype(index), indices.astype(index), transposed,
+        where = [w_.astype(index) for w_ in where]
+        return cls(pair_keys, J_x_keys, indptr.astype(index), indices.astype(index), transposed.astype(index),
                    at_blocks=where[0], at_pairs=where[1], at_pairs_transposed=where[2], at_S_ed=where[3],
                    at_S_ed_transposed=where[4], at_S_dd=where[5], at_diagonal=where[6],
-                   at_J_x=where[7] if J_x_keys is not None else np.zeros(0, np.int64))
+                   at_J_x=where[7] if J_x_keys is not None else np.zeros(0, index))
 
 
 def _spread_camera_blocks(wide_diag, wide_off, own, ia, ib, w, S_ed, S_dd) -> None:
