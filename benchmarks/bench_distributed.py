@@ -82,7 +82,7 @@ def _plan_child(folder: str, workers: int, ap: str | None) -> dict:
     from selfcal.workflows.plan import plan_block
 
     plan = plan_block(read_block(folder), ap or "none", probe=False)
-    return {"client_mb": plan.peak_mb - plan.client_shed_mb(workers), "worker_mb": plan.worker_peak_mb(workers)}
+    return {"client_mb": plan.client_peak_mb(workers), "worker_mb": plan.worker_peak_mb(workers)}
 
 
 def _relative(a: np.ndarray, b: np.ndarray) -> float:

@@ -28,7 +28,7 @@ def _table(plan, available_mb: float, workers: int | None = None) -> str:
     rows.append(f"{'peak / total':<16}{plan.peak_mb:>9.0f}{plan.seconds_per_iteration:>9.3f}   (one adjustment)")
     rows.append(f"{'selfcal adjust':<16}{plan.workflow_peak_mb:>9.0f}{'':>9}   (its default tested workflow)")
     if workers:
-        rows.append(f"{'client':<16}{plan.peak_mb - plan.client_shed_mb(workers):>9.0f}{'':>9}   (one adjustment "
+        rows.append(f"{'client':<16}{plan.client_peak_mb(workers):>9.0f}{'':>9}   (one adjustment "
                     f"with --scheduler; its tested workflow as selfcal adjust's above)")
         rows.append(f"{'each worker':<16}{plan.worker_peak_mb(workers):>9.0f}{'':>9}   (of {workers}; "
                     f"{plan.worker_peak_mb(workers, workflow=True):.0f} MB in the tested workflow)")
@@ -56,8 +56,8 @@ def run(args: argparse.Namespace) -> int:
     if workers:
         figures |= {"scheduler": args.scheduler, "workers": workers, "worker_peak_mb": plan.worker_peak_mb(workers),
                     "worker_workflow_peak_mb": plan.worker_peak_mb(workers, workflow=True),
-                    "client_peak_mb": plan.peak_mb - plan.client_shed_mb(workers),
-                    "client_workflow_peak_mb": plan.workflow_peak_mb}
+                    "client_peak_mb": plan.client_peak_mb(workers),
+                    "client_workflow_peak_mb": plan.client_peak_mb(workers, workflow=True)}
     # a local cluster's workers share this machine with the client; a scheduler's are elsewhere
     check_fits(plan, available, workers=workers if local else None)
     return finish(args, _table(plan, available, workers), figures)

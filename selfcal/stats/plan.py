@@ -174,16 +174,19 @@ class Plan:
     def seconds_per_iteration(self) -> float:
         return float(sum(self.seconds.values()))
 
-    def client_shed_mb(self, workers: int) -> float:
-        """What the client of ``workers`` workers does not hold of one process's peak (0 for fewer than two
-        workers: the adjustment then runs in the client)."""
+    def client_peak_mb(self, workers: int, workflow: bool = False) -> float:
+        """The peak of the client of ``workers`` workers: one adjustment's (:attr:`peak_mb` less what the shares
+        hold for it; all of it for fewer than two workers, where the adjustment runs in the client) or with
+        ``workflow`` the default tested workflow's (:attr:`workflow_peak_mb`, :data:`WORKFLOW_SHARES`)."""
+        if workflow:
+            return self.workflow_peak_mb
         if workers < 2:
-            return 0.0
-        return CLIENT_SHED_MB + CLIENT_SHED_BYTES_PER_OBSERVATION * self.sizes.n_observations / MB
+            return self.peak_mb
+        return self.peak_mb - CLIENT_SHED_MB - CLIENT_SHED_BYTES_PER_OBSERVATION * self.sizes.n_observations / MB
 
     def worker_peak_mb(self, workers: int, workflow: bool = False) -> float:
         """The peak of each of ``workers`` workers that hold a share of the points (about the same observations each;
-        the client's is :attr:`peak_mb` less :meth:`client_shed_mb`), in one adjustment or with ``workflow`` in the
+        the client's is :meth:`client_peak_mb`), in one adjustment or with ``workflow`` in the
         default tested workflow (:data:`WORKFLOW_SHARES` adjustments' shares at once; the client's is then
         :attr:`workflow_peak_mb`)."""
         share = self.sizes.n_observations / max(workers, 1)

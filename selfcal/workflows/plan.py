@@ -125,7 +125,7 @@ def check_fits(plan: Plan, available: float, workflow: bool = True, workers: int
     (a local cluster's), their peaks beside the client's (:meth:`~selfcal.stats.plan.Plan.worker_peak_mb`)."""
     need = plan.workflow_peak_mb if workflow else plan.peak_mb
     if workers:
-        need += workers * plan.worker_peak_mb(workers, workflow) - (0.0 if workflow else plan.client_shed_mb(workers))
+        need = plan.client_peak_mb(workers, workflow) + workers * plan.worker_peak_mb(workers, workflow)
     if np.isfinite(available) and need > available:
         largest = max(plan.memory_mb, key=lambda k: plan.memory_mb[k])
         what = "selfcal adjust with its default tests" if workflow else "one adjustment"
